@@ -1,0 +1,2 @@
+//! The fabrication stage: height map -> phase wrapping -> quantization -> grayscale
+//! lithography masks, multi-level binary GDSII mask set, STL.

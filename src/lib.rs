@@ -1,0 +1,25 @@
+//! doefab carries a learned diffractive optical element (DOE) from its optimized height map
+//! to a fabricated part (Metzler et al., "Deep Optics for Single-shot High-dynamic-range
+//! Imaging", CVPR 2020).
+//!
+//! Module map, in the order data flows:
+//!
+//! * [`grid`]: the shared physical data model, a sampled grid with pitch, origin, unit and
+//!   validity mask; resampling, crop, pad, mirror, rotate.
+//! * [`units`]: "550nm", "4.29 um" <-> metres at the edges.
+//! * [`material`]: refractive index n(lambda) of the DOE materials.
+//! * [`design`]: the built-in example designs (grating-like DOE, Fresnel lens).
+//! * [`io`]: file formats and atomic writing.
+//! * [`fabrication`]: wrap -> quantize -> grayscale masks, multi-level GDSII mask set, STL.
+//! * [`error`]: the library's error type.
+
+pub mod design;
+pub mod error;
+pub mod fabrication;
+pub mod grid;
+pub mod io;
+pub mod material;
+pub mod units;
+
+pub use error::{Error, Result};
+pub use grid::{Grid, Interpolation, Unit};
