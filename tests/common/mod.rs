@@ -1,0 +1,34 @@
+//! Shared helpers for the integration tests.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+use std::process::Command;
+
+/// The Python interpreter that holds the independent checkers (KLayout's `klayout`, `trimesh`,
+/// `numpy`): `$DOEFAB_PYTHON`, else `.venv/bin/python` made by `tests/setup-python.sh`.
+pub fn python() -> PathBuf {
+    if let Ok(p) = std::env::var("DOEFAB_PYTHON") {
+        return PathBuf::from(p);
+    }
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python");
+    assert!(p.exists(), "{} is missing: run tests/setup-python.sh first (see README)", p.display());
+    p
+}
+
+/// Runs a Python script with arguments; returns its standard output, panicking with its
+/// standard error if it fails.
+pub fn run_python(script: &str, args: &[&str]) -> String {
+    let out = Command::new(python()).arg("-c").arg(script).args(args).output().expect("python runs");
+    assert!(
+        out.status.success(),
+        "python failed:\n{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// A fresh temporary directory for one test.
+pub fn tempdir() -> tempfile::TempDir {
+    tempfile::tempdir().expect("temp dir")
+}

@@ -1,0 +1,11 @@
+#!/usr/bin/env bash
+# Creates .venv with the independent checkers the integration tests call (KLayout's Python
+# module reads our GDSII back, trimesh checks our STL). Idempotent.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if [ ! -x .venv/bin/python ]; then
+  python3 -m venv .venv
+fi
+if ! .venv/bin/python -c "import klayout.db, trimesh, numpy" 2>/dev/null; then
+  .venv/bin/pip install --quiet --disable-pip-version-check -r tests/requirements.txt
+fi
