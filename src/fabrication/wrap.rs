@@ -1,0 +1,268 @@
+//! Phase wrapping and replica inversion.
+//!
+//! A height `h` of material with index `n0` at the design wavelength `lambda0` delays the
+//! phase by `phi = 2 pi / lambda0 * (n0 - 1) * h`. Wrapping `phi` modulo `p * 2 pi` (p = 1 for
+//! an ordinary DOE, p > 1 for a multi-order DOE, Sweeney & Sommargren 1995) leaves the design
+//! wavelength's field unchanged and gives heights in `[0, p * h_2pi)`, `h_2pi = lambda0 / (n0 - 1)`.
+//!
+//! The paper's DOE is a PDMS cast of a lithographic master, so the cast is the height
+//! complement of the master, mirrored. [`to_master`] produces the master whose cast equals the
+//! design: `master(x, y) = (P - design(-x, y)) mod P`, with `P = p * h_2pi`.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::grid::{Grid, Unit};
+use crate::material::Material;
+
+/// Design wavelength, material and multi-order factor of the wrap.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct WrapSpec {
+    /// Design wavelength, metres.
+    pub wavelength: f64,
+    /// Material of the part (its index sets `h_2pi`).
+    pub material: Material,
+    /// Multi-order factor p >= 1: wrap modulo p * 2 pi.
+    pub order: u32,
+}
+
+impl Default for WrapSpec {
+    /// The paper's green channel in PDMS, single order.
+    fn default() -> Self {
+        WrapSpec { wavelength: 530e-9, material: Material::pdms(), order: 1 }
+    }
+}
+
+impl WrapSpec {
+    /// Refractive index at the design wavelength.
+    pub fn index(&self) -> Result<f64> {
+        self.material.index(self.wavelength)
+    }
+    /// The wrap period `P = p * lambda0 / (n0 - 1)`, metres.
+    pub fn period(&self) -> Result<f64> {
+        if self.order == 0 {
+            return Err(Error::param("order", "the multi-order factor p must be at least 1"));
+        }
+        Ok(self.order as f64 * self.material.height_2pi(self.wavelength)?)
+    }
+}
+
+/// What wrapping did.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct WrapReport {
+    /// Wrap period `p * h_2pi`, metres.
+    pub period: f64,
+    /// Index at the design wavelength.
+    pub index: f64,
+    /// Samples whose height changed (moved down by one or more periods, or up from below 0).
+    pub wrapped_samples: usize,
+    /// The largest number of periods removed from any sample.
+    pub max_wraps: i64,
+    /// Largest input height, metres.
+    pub input_max_height: f64,
+    /// Largest output height, metres (< period).
+    pub max_height: f64,
+}
+
+/// Wraps heights modulo the period of `spec`. The input must hold heights in metres with no
+/// non-finite valid samples. Invalid samples stay invalid.
+pub fn wrap(heights: &Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
+    if heights.unit() != Unit::Metre {
+        return Err(Error::param(
+            "heights",
+            format!("expected heights in m, got {}", heights.unit().symbol()),
+        ));
+    }
+    check_finite(heights)?;
+    let period = spec.period()?;
+    let mut wrapped_samples = 0;
+    let mut max_wraps = 0i64;
+    let mut max_height = 0.0f64;
+    let mut out = heights.values().clone();
+    for ((i, j), v) in out.indexed_iter_mut() {
+        if !heights.is_valid(i, j) {
+            continue;
+        }
+        let k = (*v / period).floor();
+        let mut w = *v - k * period;
+        // Rounding can put w at exactly `period`; that is phase-equivalent to 0.
+        if w >= period {
+            w -= period;
+        }
+        if w < 0.0 {
+            w = 0.0;
+        }
+        if k != 0.0 {
+            wrapped_samples += 1;
+            max_wraps = max_wraps.max(k.abs() as i64);
+        }
+        max_height = max_height.max(w);
+        *v = w;
+    }
+    let input_max_height = heights.min_max().map_or(0.0, |(_, hi)| hi);
+    let report =
+        WrapReport { period, index: spec.index()?, wrapped_samples, max_wraps, input_max_height, max_height };
+    Ok((heights.map_values(out, Unit::Metre)?, report))
+}
+
+/// The master whose PDMS cast equals `design`: complement modulo `period` and mirror in x.
+/// `design` must already be wrapped into `[0, period)`.
+pub fn to_master(design: &Grid, period: f64) -> Result<Grid> {
+    if let Some((lo, hi)) = design.min_max() {
+        if lo < 0.0 || hi >= period * (1.0 + 1e-12) {
+            return Err(Error::Data(format!(
+                "replica inversion needs wrapped heights in [0, {:.4} um), got {:.4}..{:.4} um",
+                period * 1e6,
+                lo * 1e6,
+                hi * 1e6
+            )));
+        }
+    }
+    let comp = design.values().mapv(|h| {
+        let c = period - h;
+        if c >= period {
+            c - period
+        } else {
+            c
+        }
+    });
+    Ok(design.map_values(comp, design.unit())?.mirror(true, false))
+}
+
+/// Refuses non-finite valid samples with their count and first location.
+pub fn check_finite(g: &Grid) -> Result<()> {
+    match g.non_finite() {
+        None => Ok(()),
+        Some((count, (i, j))) => Err(Error::Data(format!(
+            "{count} height values are NaN or infinite (first at row {i}, column {j}); \
+             pass --fill to fill them from their neighbours"
+        ))),
+    }
+}
+
+/// Replaces non-finite and invalid samples by the solution of Laplace's equation with the
+/// valid samples as boundary values (a smooth membrane fill), by Gauss-Seidel relaxation
+/// with successive over-relaxation. Returns the number of samples filled.
+pub fn fill_missing(g: &Grid) -> Result<(Grid, usize)> {
+    let (nr, nc) = g.dim();
+    let mut v = g.values().clone();
+    let mut holes = Vec::new();
+    for ((i, j), x) in v.indexed_iter_mut() {
+        if !x.is_finite() || !g.is_valid(i, j) {
+            holes.push((i, j));
+            *x = f64::NAN;
+        }
+    }
+    if holes.len() == v.len() {
+        return Err(Error::Data("nothing to fill from: no sample is finite".into()));
+    }
+    // Start from the mean of the valid samples.
+    let (sum, cnt) = v.iter().filter(|x| x.is_finite()).fold((0.0, 0usize), |(s, c), x| (s + x, c + 1));
+    let mean = sum / cnt as f64;
+    for &(i, j) in &holes {
+        v[[i, j]] = mean;
+    }
+    let omega = 1.9;
+    for _ in 0..2000 {
+        let mut change = 0.0f64;
+        for &(i, j) in &holes {
+            let mut acc = 0.0;
+            let mut n = 0.0;
+            if i > 0 {
+                acc += v[[i - 1, j]];
+                n += 1.0;
+            }
+            if i + 1 < nr {
+                acc += v[[i + 1, j]];
+                n += 1.0;
+            }
+            if j > 0 {
+                acc += v[[i, j - 1]];
+                n += 1.0;
+            }
+            if j + 1 < nc {
+                acc += v[[i, j + 1]];
+                n += 1.0;
+            }
+            let new = v[[i, j]] + omega * (acc / n - v[[i, j]]);
+            change = change.max((new - v[[i, j]]).abs());
+            v[[i, j]] = new;
+        }
+        if change < 1e-15 {
+            break;
+        }
+    }
+    let filled = Grid::new(v, g.pitch(), g.unit())?.with_origin(g.origin());
+    Ok((filled, holes.len()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::Array2;
+
+    fn grid(v: Array2<f64>) -> Grid {
+        Grid::new(v, [1e-6, 1e-6], Unit::Metre).unwrap()
+    }
+
+    #[test]
+    fn wrap_preserves_phase_and_counts_wraps() {
+        let spec = WrapSpec::default();
+        let p = spec.period().unwrap();
+        // h_2pi = 530 nm / 0.4349.
+        assert!((p - 530e-9 / 0.4349).abs() < 1e-15);
+        let v = Array2::from_shape_fn((1, 50), |(_, j)| j as f64 * 0.1 * p - 0.3 * p);
+        let (w, r) = wrap(&grid(v.clone()), &spec).unwrap();
+        for (a, b) in v.iter().zip(w.values()) {
+            assert!(*b >= 0.0 && *b < p);
+            let k = (a - b) / p;
+            assert!((k - k.round()).abs() < 1e-9, "wrap changed the phase");
+        }
+        assert_eq!(r.max_wraps, 4);
+        // Samples below 0 (j = 0..3) and at or above one period (j = 13..50; j = 13 sits on the edge).
+        assert!((39..=40).contains(&r.wrapped_samples), "{}", r.wrapped_samples);
+        assert!(r.max_height < p);
+    }
+
+    #[test]
+    fn multi_order_wrap_uses_p_periods() {
+        let spec = WrapSpec { order: 3, ..Default::default() };
+        let h2pi = WrapSpec::default().period().unwrap();
+        let v = Array2::from_elem((2, 2), 2.5 * h2pi);
+        let (w, r) = wrap(&grid(v), &spec).unwrap();
+        assert_eq!(r.wrapped_samples, 0);
+        assert!((w.values()[[0, 0]] - 2.5 * h2pi).abs() < 1e-18);
+        assert!(wrap(&grid(Array2::zeros((1, 1))), &WrapSpec { order: 0, ..Default::default() }).is_err());
+    }
+
+    #[test]
+    fn master_cast_gives_back_the_design() {
+        let p = 1.2e-6;
+        let v = Array2::from_shape_fn((3, 4), |(i, j)| ((i * 4 + j) as f64 * 0.09e-6) % p);
+        let d = grid(v);
+        let m = to_master(&d, p).unwrap();
+        // Casting: complement and mirror again.
+        let cast = to_master(&m, p).unwrap();
+        for (a, b) in cast.values().iter().zip(d.values()) {
+            assert!((a - b).abs() < 1e-15 || (a - b).abs() > p * 0.999, "{a} {b}");
+        }
+        assert_eq!(m.values()[[0, 2]], p - d.values()[[0, 1]]);
+        assert_eq!(m.values()[[0, 3]], 0.0, "a zero height complements to a full period, i.e. 0");
+        assert!(to_master(&grid(Array2::from_elem((1, 1), 2.0 * p)), p).is_err());
+    }
+
+    #[test]
+    fn non_finite_heights_are_refused_with_location_or_filled() {
+        let mut v = Array2::from_shape_fn((5, 5), |(i, j)| (i + j) as f64 * 1e-8);
+        v[[2, 3]] = f64::NAN;
+        v[[4, 1]] = f64::INFINITY;
+        let g = grid(v);
+        let e = wrap(&g, &WrapSpec::default()).unwrap_err().to_string();
+        assert!(e.contains("2 height values") && e.contains("row 2, column 3"), "{e}");
+        let (f, n) = fill_missing(&g).unwrap();
+        assert_eq!(n, 2);
+        // A linear field is harmonic: the Laplace fill restores it.
+        assert!((f.values()[[2, 3]] - 5e-8).abs() < 1e-12);
+        assert!(wrap(&f, &WrapSpec::default()).is_ok());
+    }
+}
