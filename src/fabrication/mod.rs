@@ -1,5 +1,46 @@
 //! The fabrication stage: height map -> phase wrapping -> quantization -> grayscale
 //! lithography masks, multi-level binary GDSII mask set, STL.
+//!
+//! * [`wrap`]: phase wrapping modulo p 2 pi and the replica (master) inversion;
+//! * [`quantize`]: N-level quantization, predicted efficiencies, zone-period check;
+//! * [`contrast`]: resist contrast curves, monotone and invertible;
+//! * [`mask`]: grayscale lithography masks with frame, crosses and label ([`marks`]);
 
+pub mod contrast;
+pub mod marks;
+pub mod mask;
 pub mod quantize;
 pub mod wrap;
+
+use serde::{Deserialize, Serialize};
+
+/// Whether outputs describe the design itself or the master whose PDMS cast is the design.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum ReplicaMode {
+    /// Outputs are the design surface as given.
+    #[default]
+    Design,
+    /// Outputs are the master: complemented and mirrored, so that its cast equals the design.
+    Master,
+}
+
+/// Where an output came from; written into every output's metadata.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
+pub struct Provenance {
+    /// The design file, or `built-in:<name>`.
+    pub design: String,
+    /// SHA-256 of the design file's bytes (or of the built-in design's parameters).
+    pub design_sha256: String,
+    pub replica_mode: ReplicaMode,
+    /// Design wavelength, metres.
+    pub wavelength_m: f64,
+    pub material: String,
+    /// Multi-order factor p.
+    pub order: u32,
+    /// Wrap period p * h_2pi, metres.
+    pub period_m: f64,
+    pub level_count: usize,
+    pub quantization: String,
+    pub doefab_version: String,
+}

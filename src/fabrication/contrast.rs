@@ -1,0 +1,273 @@
+//! Resist contrast curves: developed depth as a function of exposure dose, read from a CSV,
+//! interpolated monotonically and inverted (depth -> dose) for grayscale lithography.
+//!
+//! The CSV has a header `dose,<depth column>` where the depth column is `depth_nm`,
+//! `depth_um` or `depth_m` (the unit is part of the name, so a file cannot be misread), and one
+//! row per calibration point. Dose is relative to the writer's full scale, in [0, 1]. For a
+//! positive resist "depth" is the developed (removed) depth; for a negative resist it is the
+//! remaining thickness. Either way depth must rise strictly with dose.
+//!
+//! Interpolation is the monotone piecewise-cubic Hermite scheme of Fritsch & Carlson (SIAM J.
+//! Numer. Anal. 17(2), 238-246, 1980), slopes by the harmonic mean of Fritsch & Butland (1984),
+//! as in `scipy.interpolate.PchipInterpolator`: it never overshoots the data, so its inverse
+//! exists and is unique. The inverse is found by bisection on the forward curve, so forward
+//! and inverse agree to round-off.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+
+/// A monotone contrast curve. Invariants: at least 2 points, doses strictly increasing in
+/// [0, 1], depths strictly increasing.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct ContrastCurve {
+    /// Relative dose, 0..=1.
+    pub dose: Vec<f64>,
+    /// Depth (or remaining thickness) at each dose, metres.
+    pub depth: Vec<f64>,
+    /// Hermite slopes d(depth)/d(dose) at the points.
+    slopes: Vec<f64>,
+    /// Where the curve came from.
+    pub source: PathBuf,
+}
+
+impl ContrastCurve {
+    /// Builds a curve from points; `source` names them in error messages.
+    pub fn new(dose: Vec<f64>, depth: Vec<f64>, source: &Path) -> Result<Self> {
+        let bad = |what: String| Error::format(source, what);
+        if dose.len() != depth.len() || dose.len() < 2 {
+            return Err(bad(format!(
+                "a contrast curve needs at least 2 (dose, depth) rows, got {}",
+                dose.len()
+            )));
+        }
+        for (k, (&d, &z)) in dose.iter().zip(&depth).enumerate() {
+            if !(0.0..=1.0).contains(&d) {
+                return Err(bad(format!("row {}: dose {d} is outside the relative range 0..=1", k + 1)));
+            }
+            if !z.is_finite() {
+                return Err(bad(format!("row {}: depth is not finite", k + 1)));
+            }
+            if k > 0 {
+                if d <= dose[k - 1] {
+                    return Err(bad(format!(
+                        "row {}: doses must increase strictly (dose {d} after {})",
+                        k + 1,
+                        dose[k - 1]
+                    )));
+                }
+                if z <= depth[k - 1] {
+                    return Err(bad(format!(
+                        "row {}: the curve is not monotone: depth {:.1} nm at dose {d} does not exceed {:.1} nm at dose {}",
+                        k + 1,
+                        z * 1e9,
+                        depth[k - 1] * 1e9,
+                        dose[k - 1]
+                    )));
+                }
+            }
+        }
+        let slopes = pchip_slopes(&dose, &depth);
+        Ok(ContrastCurve { dose, depth, slopes, source: source.to_path_buf() })
+    }
+
+    /// Reads the CSV described in the module docs.
+    pub fn read_csv(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let mut lines = text
+            .lines()
+            .enumerate()
+            .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
+        let Some((_, header)) = lines.next() else {
+            return Err(Error::format(path, "empty contrast curve"));
+        };
+        let cols: Vec<String> = header.split(',').map(|c| c.trim().to_ascii_lowercase()).collect();
+        if cols.len() != 2 || cols[0] != "dose" {
+            return Err(Error::format(
+                path,
+                format!("header must be 'dose,depth_nm' (or depth_um, depth_m), got '{header}'"),
+            ));
+        }
+        let scale = match cols[1].as_str() {
+            "depth_nm" => 1e-9,
+            "depth_um" => 1e-6,
+            "depth_m" => 1.0,
+            other => {
+                return Err(Error::format(
+                    path,
+                    format!("depth column '{other}' names no unit: expected depth_nm, depth_um or depth_m"),
+                ))
+            }
+        };
+        let mut dose = Vec::new();
+        let mut depth = Vec::new();
+        for (ln, line) in lines {
+            let f: Vec<&str> = line.split(',').map(str::trim).collect();
+            if f.len() != 2 {
+                return Err(Error::format(
+                    path,
+                    format!("line {}: expected 2 fields, got {}", ln + 1, f.len()),
+                ));
+            }
+            let num = |s: &str, what: &str| {
+                s.parse::<f64>().map_err(|_| {
+                    Error::format(path, format!("line {}: {what} '{s}' is not a number", ln + 1))
+                })
+            };
+            dose.push(num(f[0], "dose")?);
+            depth.push(num(f[1], "depth")? * scale);
+        }
+        ContrastCurve::new(dose, depth, path)
+    }
+
+    /// Depth range `[min, max]` the curve covers, metres.
+    pub fn depth_range(&self) -> [f64; 2] {
+        [self.depth[0], self.depth[self.depth.len() - 1]]
+    }
+
+    /// Developed depth at relative `dose` (clamped to the curve's dose range).
+    pub fn depth_at(&self, dose: f64) -> f64 {
+        let x = &self.dose;
+        let d = dose.clamp(x[0], x[x.len() - 1]);
+        let k = match x.partition_point(|&v| v <= d) {
+            0 => 0,
+            p => (p - 1).min(x.len() - 2),
+        };
+        let h = x[k + 1] - x[k];
+        let t = (d - x[k]) / h;
+        let (t2, t3) = (t * t, t * t * t);
+        let h00 = 2.0 * t3 - 3.0 * t2 + 1.0;
+        let h10 = t3 - 2.0 * t2 + t;
+        let h01 = -2.0 * t3 + 3.0 * t2;
+        let h11 = t3 - t2;
+        h00 * self.depth[k]
+            + h10 * h * self.slopes[k]
+            + h01 * self.depth[k + 1]
+            + h11 * h * self.slopes[k + 1]
+    }
+
+    /// The dose that develops `depth`; an error if the curve does not reach it.
+    pub fn dose_for(&self, depth: f64) -> Result<f64> {
+        let [lo, hi] = self.depth_range();
+        let tol = 1e-12 * (hi - lo);
+        if depth < lo - tol || depth > hi + tol {
+            return Err(Error::Data(format!(
+                "{}: the contrast curve covers {:.1}..{:.1} nm but {:.1} nm is needed",
+                self.source.display(),
+                lo * 1e9,
+                hi * 1e9,
+                depth * 1e9
+            )));
+        }
+        let (mut a, mut b) = (self.dose[0], self.dose[self.dose.len() - 1]);
+        for _ in 0..80 {
+            let m = 0.5 * (a + b);
+            if self.depth_at(m) < depth {
+                a = m;
+            } else {
+                b = m;
+            }
+        }
+        Ok(0.5 * (a + b))
+    }
+}
+
+/// Fritsch-Butland harmonic-mean slopes with one-sided three-point end slopes (as SciPy's
+/// `PchipInterpolator`); for strictly increasing data every slope is positive.
+fn pchip_slopes(x: &[f64], y: &[f64]) -> Vec<f64> {
+    let n = x.len();
+    let h: Vec<f64> = x.windows(2).map(|w| w[1] - w[0]).collect();
+    let delta: Vec<f64> = (0..n - 1).map(|k| (y[k + 1] - y[k]) / h[k]).collect();
+    if n == 2 {
+        return vec![delta[0], delta[0]];
+    }
+    let mut m = vec![0.0; n];
+    for k in 1..n - 1 {
+        let (w1, w2) = (2.0 * h[k] + h[k - 1], h[k] + 2.0 * h[k - 1]);
+        m[k] = (w1 + w2) / (w1 / delta[k - 1] + w2 / delta[k]);
+    }
+    let end = |h0: f64, h1: f64, d0: f64, d1: f64| {
+        let s = ((2.0 * h0 + h1) * d0 - h0 * d1) / (h0 + h1);
+        if s.signum() != d0.signum() {
+            0.0
+        } else if d0.signum() != d1.signum() && s.abs() > 3.0 * d0.abs() {
+            3.0 * d0
+        } else {
+            s
+        }
+    };
+    m[0] = end(h[0], h[1], delta[0], delta[1]);
+    m[n - 1] = end(h[n - 2], h[n - 3], delta[n - 2], delta[n - 3]);
+    m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn curve(dose: &[f64], depth_nm: &[f64]) -> Result<ContrastCurve> {
+        ContrastCurve::new(dose.to_vec(), depth_nm.iter().map(|d| d * 1e-9).collect(), Path::new("test.csv"))
+    }
+
+    #[test]
+    fn pchip_is_exact_on_a_line_and_inverse_matches_forward() {
+        let c = curve(&[0.0, 0.25, 0.5, 1.0], &[0.0, 250.0, 500.0, 1000.0]).unwrap();
+        for k in 0..=100 {
+            let d = k as f64 / 100.0;
+            assert!((c.depth_at(d) - d * 1e-6).abs() < 1e-18);
+        }
+        let c = curve(&[0.0, 0.1, 0.3, 0.6, 1.0], &[0.0, 20.0, 300.0, 1100.0, 1500.0]).unwrap();
+        let mut prev = -1.0;
+        for k in 0..=1000 {
+            let z = c.depth_at(k as f64 / 1000.0);
+            assert!(z > prev, "monotone");
+            prev = z;
+        }
+        for z in [0.0, 1e-9, 123e-9, 1.1e-6, 1.5e-6] {
+            let d = c.dose_for(z).unwrap();
+            assert!((c.depth_at(d) - z).abs() < 1e-15, "{z}");
+        }
+        // Never overshoots between data points.
+        for k in 0..1000 {
+            let z = c.depth_at(0.3 + 0.3 * k as f64 / 1000.0);
+            assert!((300e-9..=1100e-9).contains(&z));
+        }
+    }
+
+    #[test]
+    fn interior_slopes_are_the_weighted_harmonic_mean() {
+        let c = curve(&[0.0, 0.1, 0.3, 0.6, 1.0], &[0.0, 20.0, 300.0, 1100.0, 1500.0]).unwrap();
+        let slopes: Vec<f64> = c.slopes.iter().map(|s| s * 1e9).collect();
+        // Interior slopes by the weighted harmonic mean, checked by hand:
+        // k=1: h0=.1,h1=.2, d0=200, d1=1400, w1=.5, w2=.4 -> .9/(.5/200+.4/1400) = 322.58...
+        assert!((slopes[1] - 0.9 / (0.5 / 200.0 + 0.4 / 1400.0)).abs() < 1e-6);
+        assert!(slopes.iter().all(|&s| s >= 0.0));
+    }
+
+    #[test]
+    fn refuses_non_monotone_and_out_of_range() {
+        let e = curve(&[0.0, 0.5, 1.0], &[0.0, 600.0, 550.0]).unwrap_err().to_string();
+        assert!(e.contains("test.csv") && e.contains("not monotone") && e.contains("row 3"), "{e}");
+        assert!(curve(&[0.0, 0.5, 0.5], &[0.0, 1.0, 2.0]).is_err());
+        assert!(curve(&[0.0, 1.5], &[0.0, 1.0]).is_err());
+        assert!(curve(&[0.0], &[0.0]).is_err());
+        let c = curve(&[0.0, 1.0], &[0.0, 800.0]).unwrap();
+        let e = c.dose_for(1.2e-6).unwrap_err().to_string();
+        assert!(e.contains("covers 0.0..800.0 nm") && e.contains("1200.0 nm"), "{e}");
+    }
+
+    #[test]
+    fn reads_csv_with_units_in_the_header() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("c.csv");
+        std::fs::write(&p, "# calibration\ndose,depth_um\n0,0\n0.5,0.7\n1,1.6\n").unwrap();
+        let c = ContrastCurve::read_csv(&p).unwrap();
+        assert_eq!(c.depth_range(), [0.0, 1.6e-6]);
+        std::fs::write(&p, "dose,depth\n0,0\n1,1\n").unwrap();
+        assert!(ContrastCurve::read_csv(&p).unwrap_err().to_string().contains("names no unit"));
+        std::fs::write(&p, "dose,depth_nm\n0,0\n1,x\n").unwrap();
+        assert!(ContrastCurve::read_csv(&p).unwrap_err().to_string().contains("line 3"));
+    }
+}

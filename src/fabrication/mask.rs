@@ -1,0 +1,361 @@
+//! Grayscale lithography masks: the quantized map on the writer's address grid, mapped from
+//! target depth to gray level through the resist contrast curve, with a frame, alignment
+//! crosses and a label outside the optical aperture.
+//!
+//! Mapping (per level `l` of `N`, step `s = P / N`):
+//! * positive resist: developed depth `d = (N - 1 - l) s` (the top level is not exposed);
+//! * negative resist: remaining thickness `t = l s`.
+//!
+//! The dose for that depth comes from the inverted contrast curve, and
+//! `gray = round(dose * full_scale)` with `full_scale = 2^bits - 1`: gray 0 is no exposure,
+//! full scale is the writer's full dose. The frame is gray 0 and crosses and label are full
+//! scale. Each design sample is a flat cell, so resampling to the writer grid takes the
+//! nearest sample (no interpolation across phase wraps).
+
+use ndarray::Array2;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::fabrication::contrast::ContrastCurve;
+use crate::fabrication::marks::{label_cells, Canvas};
+use crate::fabrication::Provenance;
+use crate::grid::{Grid, Interpolation, Unit};
+
+/// Resist polarity.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Polarity {
+    /// Exposed resist dissolves: depth grows with dose.
+    #[default]
+    Positive,
+    /// Exposed resist stays: remaining thickness grows with dose.
+    Negative,
+}
+
+/// Options of the grayscale mask.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MaskOptions {
+    /// Writer address grid, metres.
+    pub writer_pitch: f64,
+    /// 8 or 16.
+    pub bits: u8,
+    pub polarity: Polarity,
+    /// Mirror the pattern left-right on the mask (for writing through the substrate).
+    pub mirror: bool,
+    /// Width of the frame around the pattern, metres.
+    pub border: f64,
+    /// Draw alignment crosses in the frame's corners.
+    pub marks: bool,
+    /// Text drawn in the frame below the pattern (empty for none).
+    pub label: String,
+    /// Refuse outputs above this many pixels unless `force`.
+    pub max_pixels: usize,
+    pub force: bool,
+}
+
+impl Default for MaskOptions {
+    fn default() -> Self {
+        MaskOptions {
+            writer_pitch: 1e-6,
+            bits: 16,
+            polarity: Polarity::Positive,
+            mirror: false,
+            border: 500e-6,
+            marks: true,
+            label: String::new(),
+            max_pixels: 200_000_000,
+            force: false,
+        }
+    }
+}
+
+/// One level's row of the mapping table.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct LevelDose {
+    pub level: usize,
+    /// Target surface height of the level, metres.
+    pub height_m: f64,
+    /// What the contrast curve must deliver: developed depth (positive) or remaining
+    /// thickness (negative), metres.
+    pub curve_depth_m: f64,
+    /// Relative dose, 0..=1.
+    pub dose: f64,
+    pub gray: u32,
+}
+
+/// The sidecar metadata of a grayscale mask (written as JSON next to the image).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MaskMeta {
+    pub kind: String,
+    pub units: std::collections::BTreeMap<String, String>,
+    /// `[x, y]` writer pitch, metres.
+    pub pitch_m: [f64; 2],
+    /// `[width, height]` of the image, pixels.
+    pub size_px: [usize; 2],
+    /// Top-left pixel of the pattern inside the frame, `[x, y]`.
+    pub pattern_offset_px: [usize; 2],
+    /// `[width, height]` of the pattern, pixels.
+    pub pattern_size_px: [usize; 2],
+    pub bits: u8,
+    pub full_scale: u32,
+    pub gray_0: String,
+    pub gray_full_scale: String,
+    pub polarity: Polarity,
+    pub curve_meaning: String,
+    pub mirrored: bool,
+    pub level_count: usize,
+    /// Depth of one full period (p * h_2pi), metres.
+    pub period_m: f64,
+    pub levels: Vec<LevelDose>,
+    pub contrast_curve: String,
+    /// Cross centres, pixels `[x, y]`.
+    pub marks_px: Vec<[f64; 2]>,
+    pub label: String,
+    pub provenance: Provenance,
+}
+
+/// A rendered grayscale mask.
+#[derive(Debug, Clone)]
+pub struct GrayscaleMask {
+    /// Gray levels, row 0 at the top.
+    pub gray: Array2<u16>,
+    pub meta: MaskMeta,
+}
+
+/// Renders the mask of a level map (`Unit::Level`, values `0..level_count`).
+pub fn render(
+    levels: &Grid,
+    level_count: usize,
+    period: f64,
+    curve: &ContrastCurve,
+    opts: &MaskOptions,
+    provenance: &Provenance,
+) -> Result<GrayscaleMask> {
+    if levels.unit() != Unit::Level {
+        return Err(Error::param("levels", "expected a quantized level map"));
+    }
+    if opts.bits != 8 && opts.bits != 16 {
+        return Err(Error::param("bits", format!("must be 8 or 16, got {}", opts.bits)));
+    }
+    let full_scale: u32 = (1u32 << opts.bits) - 1;
+    if level_count > full_scale as usize + 1 {
+        return Err(Error::param(
+            "level_count",
+            format!("{level_count} levels do not fit an {}-bit mask", opts.bits),
+        ));
+    }
+    if levels.mask().is_some() {
+        return Err(Error::Data(
+            "the level map has non-measured samples: fill them before writing a mask".into(),
+        ));
+    }
+    // Size check before any large allocation.
+    let ext = levels.extent();
+    let pw = (ext[0] / opts.writer_pitch).round() as usize;
+    let ph = (ext[1] / opts.writer_pitch).round() as usize;
+    let b = (opts.border / opts.writer_pitch).round() as usize;
+    let (w, h) = (pw + 2 * b, ph + 2 * b);
+    if w.saturating_mul(h) > opts.max_pixels && !opts.force {
+        return Err(Error::Limit(format!(
+            "the mask would be {w} x {h} = {:.0} Mpx at a {:.3} um writer grid, above the limit of {:.0} Mpx; \
+             pass --force to write it anyway",
+            (w * h) as f64 / 1e6,
+            opts.writer_pitch * 1e6,
+            opts.max_pixels as f64 / 1e6
+        )));
+    }
+    // Level -> gray table through the inverted contrast curve.
+    let step = period / level_count as f64;
+    let table: Vec<LevelDose> = (0..level_count)
+        .map(|l| {
+            let target = match opts.polarity {
+                Polarity::Positive => (level_count - 1 - l) as f64 * step,
+                Polarity::Negative => l as f64 * step,
+            };
+            let dose = curve.dose_for(target)?;
+            Ok(LevelDose {
+                level: l,
+                height_m: l as f64 * step,
+                curve_depth_m: target,
+                dose,
+                gray: (dose * full_scale as f64).round() as u32,
+            })
+        })
+        .collect::<Result<_>>()?;
+
+    let on_writer = levels.resample_to(ph, pw, [opts.writer_pitch; 2], Interpolation::Nearest)?;
+    let on_writer = if opts.mirror { on_writer.mirror(true, false) } else { on_writer };
+    let mut gray = Array2::<u16>::zeros((h, w));
+    for ((i, j), &l) in on_writer.values().indexed_iter() {
+        let l = l as usize;
+        if l >= level_count {
+            return Err(Error::Data(format!("level {l} at row {i}, column {j} is outside 0..{level_count}")));
+        }
+        gray[[i + b, j + b]] = table[l].gray as u16;
+    }
+    let mut marks_px = Vec::new();
+    if b > 0 && (opts.marks || !opts.label.is_empty()) {
+        let mut canvas = Canvas::new(w, h)?;
+        let bf = b as f32;
+        if opts.marks {
+            let arm = (0.8 * bf).min((200e-6 / opts.writer_pitch) as f32).max(3.0);
+            let width = (arm / 10.0).max(1.0);
+            let (wf, hf) = (w as f32, h as f32);
+            for (cx, cy) in [
+                (0.5 * bf, 0.5 * bf),
+                (wf - 0.5 * bf, 0.5 * bf),
+                (0.5 * bf, hf - 0.5 * bf),
+                (wf - 0.5 * bf, hf - 0.5 * bf),
+            ] {
+                canvas.cross(cx, cy, arm, width);
+                marks_px.push([cx as f64, cy as f64]);
+            }
+        }
+        if !opts.label.is_empty() {
+            // Between the lower crosses, vertically centred in the bottom frame.
+            let cells = label_cells(&opts.label) as f32;
+            let cell = (0.4 * bf / 7.0)
+                .min((w as f32 - 2.0 * bf) / cells.max(1.0))
+                .min((100e-6 / opts.writer_pitch) as f32 / 7.0);
+            if cell >= 1.0 {
+                canvas.text(bf, h as f32 - 0.5 * bf - 3.5 * cell, cell.floor(), &opts.label)?;
+            } else {
+                return Err(Error::param("label", "the frame is too narrow for the label: widen --border"));
+            }
+        }
+        for i in 0..h {
+            for j in 0..w {
+                let in_pattern = i >= b && i < b + ph && j >= b && j < b + pw;
+                if !in_pattern && canvas.covered(j, i) {
+                    gray[[i, j]] = full_scale as u16;
+                }
+            }
+        }
+    }
+    let units = [
+        ("length", "m"),
+        ("pitch", "m"),
+        ("height", "m"),
+        ("dose", "relative to the writer's full-scale dose"),
+        ("gray", "counts"),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v.to_string()))
+    .collect();
+    let meta = MaskMeta {
+        kind: "grayscale_lithography_mask".into(),
+        units,
+        pitch_m: [opts.writer_pitch; 2],
+        size_px: [w, h],
+        pattern_offset_px: [b, b],
+        pattern_size_px: [pw, ph],
+        bits: opts.bits,
+        full_scale,
+        gray_0: "no exposure (relative dose 0)".into(),
+        gray_full_scale: "full writer dose (relative dose 1)".into(),
+        polarity: opts.polarity,
+        curve_meaning: match opts.polarity {
+            Polarity::Positive => "developed depth below the resist top".into(),
+            Polarity::Negative => "remaining resist thickness".into(),
+        },
+        mirrored: opts.mirror,
+        level_count,
+        period_m: period,
+        levels: table,
+        contrast_curve: curve.source.display().to_string(),
+        marks_px,
+        label: opts.label.clone(),
+        provenance: provenance.clone(),
+    };
+    Ok(GrayscaleMask { gray, meta })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn linear_curve(max_depth: f64) -> ContrastCurve {
+        ContrastCurve::new(vec![0.0, 1.0], vec![0.0, max_depth], Path::new("linear.csv")).unwrap()
+    }
+
+    fn levels(n: usize) -> Grid {
+        let v = Array2::from_shape_fn((10, 12), |(i, j)| ((i + j) % n) as f64);
+        Grid::new(v, [4e-6, 4e-6], Unit::Level).unwrap()
+    }
+
+    #[test]
+    fn linear_curve_maps_levels_to_proportional_gray() {
+        let period = 1.2e-6;
+        let n = 4;
+        let opts = MaskOptions { writer_pitch: 2e-6, border: 0.0, marks: false, ..Default::default() };
+        let m = render(&levels(n), n, period, &linear_curve(period), &opts, &Provenance::default()).unwrap();
+        assert_eq!(m.gray.dim(), (20, 24));
+        // Positive resist: level l -> depth (N-1-l) s -> dose (N-1-l)/N.
+        for l in 0..n {
+            let expect = ((n - 1 - l) as f64 / n as f64 * 65535.0).round() as u16;
+            assert_eq!(m.meta.levels[l].gray as u16, expect);
+        }
+        // Pixel (0,0) is level 0 on a 2x finer grid: rows 0-1, cols 0-1.
+        assert_eq!(m.gray[[1, 1]], m.meta.levels[0].gray as u16);
+        assert_eq!(m.gray[[0, 2]], m.meta.levels[1].gray as u16);
+        let neg = MaskOptions { polarity: Polarity::Negative, ..opts };
+        let m = render(&levels(n), n, period, &linear_curve(period), &neg, &Provenance::default()).unwrap();
+        assert_eq!(m.meta.levels[3].gray, (0.75f64 * 65535.0).round() as u32);
+        assert_eq!(m.meta.levels[0].gray, 0);
+    }
+
+    #[test]
+    fn marks_and_label_stay_outside_the_pattern() {
+        let period = 1.2e-6;
+        let base = MaskOptions { writer_pitch: 1e-6, border: 30e-6, marks: false, ..Default::default() };
+        let plain =
+            render(&levels(4), 4, period, &linear_curve(period), &base, &Provenance::default()).unwrap();
+        let deco = MaskOptions { marks: true, label: "DOE 1".into(), ..base };
+        let m = render(&levels(4), 4, period, &linear_curve(period), &deco, &Provenance::default()).unwrap();
+        let [bx, by] = m.meta.pattern_offset_px;
+        let [pw, ph] = m.meta.pattern_size_px;
+        for i in 0..m.gray.dim().0 {
+            for j in 0..m.gray.dim().1 {
+                let inside = i >= by && i < by + ph && j >= bx && j < bx + pw;
+                if inside {
+                    assert_eq!(m.gray[[i, j]], plain.gray[[i, j]]);
+                }
+            }
+        }
+        assert_eq!(m.meta.marks_px.len(), 4);
+        let [cx, cy] = m.meta.marks_px[0];
+        assert_eq!(m.gray[[cy as usize, cx as usize]], 65535);
+        let marked = m.gray.iter().filter(|&&g| g == 65535).count();
+        let plain_marked = plain.gray.iter().filter(|&&g| g == 65535).count();
+        assert!(marked > plain_marked + 4 * 20);
+    }
+
+    #[test]
+    fn refuses_what_it_cannot_write() {
+        let period = 1.2e-6;
+        // The curve does not reach the deepest level.
+        let e = render(
+            &levels(4),
+            4,
+            period,
+            &linear_curve(0.5e-6),
+            &MaskOptions::default(),
+            &Provenance::default(),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("contrast curve covers"), "{e}");
+        // Size limit, then force.
+        let big = MaskOptions { writer_pitch: 0.01e-6, max_pixels: 1_000_000, ..Default::default() };
+        let e =
+            render(&levels(4), 4, period, &linear_curve(period), &big, &Provenance::default()).unwrap_err();
+        assert!(e.to_string().contains("--force"), "{e}");
+        let bad = MaskOptions { bits: 12, ..Default::default() };
+        assert!(render(&levels(4), 4, period, &linear_curve(period), &bad, &Provenance::default()).is_err());
+        let narrow = MaskOptions { border: 2e-6, label: "TOO LONG A LABEL".into(), ..Default::default() };
+        assert!(
+            render(&levels(4), 4, period, &linear_curve(period), &narrow, &Provenance::default()).is_err()
+        );
+    }
+}
