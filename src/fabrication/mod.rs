@@ -10,6 +10,7 @@ pub mod contrast;
 pub mod marks;
 pub mod mask;
 pub mod quantize;
+pub mod recipe;
 pub mod wrap;
 
 use serde::{Deserialize, Serialize};

@@ -1,0 +1,265 @@
+//! Process recipes: TOML files in `masks/` that fix the writer, the level count, the resist
+//! and which artifacts to produce. Lengths are strings with units ("1 um", "500 nm"), parsed
+//! here; paths (the contrast curve) are relative to the recipe file.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::fabrication::mask::Polarity;
+use crate::fabrication::quantize::{check_level_count, QuantizeMethod};
+use crate::fabrication::ReplicaMode;
+use crate::units::parse_length;
+
+/// Artifacts a recipe can ask for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Output {
+    /// Grayscale mask as PNG (with a JSON sidecar).
+    GrayscalePng,
+    /// Grayscale mask as TIFF (with a JSON sidecar).
+    GrayscaleTiff,
+    /// Multi-level binary mask set as one GDSII file, with a PNG preview per layer.
+    Gds,
+    /// Binary STL of the surface.
+    Stl,
+}
+
+/// The TOML form, lengths still as text.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RecipeFile {
+    name: String,
+    #[serde(default)]
+    description: String,
+    writer: WriterFile,
+    process: ProcessFile,
+    #[serde(default)]
+    design: DesignFile,
+    #[serde(default)]
+    mask: MaskFile,
+    #[serde(default)]
+    stl: StlFile,
+    outputs: Vec<Output>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WriterFile {
+    address_grid: String,
+    min_feature: String,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ProcessFile {
+    level_count: usize,
+    #[serde(default)]
+    quantization: QuantizeMethod,
+    #[serde(default)]
+    replica_mode: ReplicaMode,
+    #[serde(default)]
+    polarity: Polarity,
+    contrast_curve: Option<String>,
+}
+
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct DesignFile {
+    wavelength: Option<String>,
+    material: Option<String>,
+    order: Option<u32>,
+}
+
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct MaskFile {
+    bits: Option<u8>,
+    mirror: Option<bool>,
+    border: Option<String>,
+    label: Option<String>,
+}
+
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct StlFile {
+    unit: Option<String>,
+    base_thickness: Option<String>,
+    max_error: Option<String>,
+}
+
+/// A parsed, validated recipe (SI units).
+#[derive(Debug, Clone, Serialize)]
+pub struct Recipe {
+    pub name: String,
+    pub description: String,
+    pub path: PathBuf,
+    /// Writer address grid, metres.
+    pub address_grid: f64,
+    /// Smallest feature the writer resolves, metres.
+    pub min_feature: f64,
+    pub level_count: usize,
+    pub quantization: QuantizeMethod,
+    pub replica_mode: ReplicaMode,
+    pub polarity: Polarity,
+    pub contrast_curve: Option<PathBuf>,
+    /// Design wavelength, metres (default 530 nm).
+    pub wavelength: f64,
+    pub material: String,
+    pub order: u32,
+    pub mask_bits: u8,
+    pub mask_mirror: bool,
+    /// Frame width around the mask pattern, metres.
+    pub mask_border: f64,
+    pub mask_label: String,
+    /// "mm" or "um".
+    pub stl_unit: String,
+    pub stl_base_thickness: f64,
+    pub stl_max_error: f64,
+    pub outputs: Vec<Output>,
+}
+
+impl Recipe {
+    /// Reads and validates a recipe; errors name the file and the field.
+    pub fn read(path: &Path) -> Result<Recipe> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let f: RecipeFile = toml::from_str(&text).map_err(|e| Error::format(path, e.to_string()))?;
+        let len = |field: &str, v: &str| {
+            parse_length(v).map_err(|e| Error::format(path, format!("field '{field}': {e}")))
+        };
+        let positive = |field: &str, v: f64| {
+            if v > 0.0 {
+                Ok(v)
+            } else {
+                Err(Error::format(path, format!("field '{field}' must be positive")))
+            }
+        };
+        check_level_count(f.process.level_count)
+            .map_err(|e| Error::format(path, format!("field 'process.level_count': {e}")))?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let contrast_curve = f.process.contrast_curve.map(|c| dir.join(c));
+        let needs_curve = f.outputs.iter().any(|o| matches!(o, Output::GrayscalePng | Output::GrayscaleTiff));
+        if needs_curve && contrast_curve.is_none() {
+            return Err(Error::format(path, "grayscale outputs need 'process.contrast_curve'"));
+        }
+        if f.outputs.contains(&Output::Gds) && !f.process.level_count.is_power_of_two() {
+            return Err(Error::format(
+                path,
+                format!("a binary mask set needs a power-of-two level_count, got {}", f.process.level_count),
+            ));
+        }
+        let stl_unit = f.stl.unit.unwrap_or_else(|| "mm".into());
+        if stl_unit != "mm" && stl_unit != "um" {
+            return Err(Error::format(
+                path,
+                format!("field 'stl.unit': expected \"mm\" or \"um\", got \"{stl_unit}\""),
+            ));
+        }
+        Ok(Recipe {
+            name: f.name,
+            description: f.description,
+            path: path.to_path_buf(),
+            address_grid: positive(
+                "writer.address_grid",
+                len("writer.address_grid", &f.writer.address_grid)?,
+            )?,
+            min_feature: positive("writer.min_feature", len("writer.min_feature", &f.writer.min_feature)?)?,
+            level_count: f.process.level_count,
+            quantization: f.process.quantization,
+            replica_mode: f.process.replica_mode,
+            polarity: f.process.polarity,
+            contrast_curve,
+            wavelength: match &f.design.wavelength {
+                Some(w) => positive("design.wavelength", len("design.wavelength", w)?)?,
+                None => 530e-9,
+            },
+            material: f.design.material.unwrap_or_else(|| "pdms".into()),
+            order: f.design.order.unwrap_or(1),
+            mask_bits: f.mask.bits.unwrap_or(16),
+            mask_mirror: f.mask.mirror.unwrap_or(false),
+            mask_border: match &f.mask.border {
+                Some(b) => len("mask.border", b)?,
+                None => 500e-6,
+            },
+            mask_label: f.mask.label.unwrap_or_default(),
+            stl_unit,
+            stl_base_thickness: match &f.stl.base_thickness {
+                Some(b) => positive("stl.base_thickness", len("stl.base_thickness", b)?)?,
+                None => 1e-3,
+            },
+            stl_max_error: match &f.stl.max_error {
+                Some(b) => positive("stl.max_error", len("stl.max_error", b)?)?,
+                None => 5e-9,
+            },
+            outputs: f.outputs,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &Path, text: &str) -> PathBuf {
+        let p = dir.join("r.toml");
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    const GOOD: &str = r#"
+name = "t"
+outputs = ["gds"]
+[writer]
+address_grid = "1 um"
+min_feature = "2um"
+[process]
+level_count = 8
+"#;
+
+    #[test]
+    fn parses_lengths_and_defaults() {
+        let d = tempfile::tempdir().unwrap();
+        let r = Recipe::read(&write(d.path(), GOOD)).unwrap();
+        assert_eq!(r.address_grid, 1e-6);
+        assert_eq!(r.min_feature, 2e-6);
+        assert_eq!(r.wavelength, 530e-9);
+        assert_eq!(r.replica_mode, ReplicaMode::Design);
+    }
+
+    #[test]
+    fn errors_name_the_field() {
+        let d = tempfile::tempdir().unwrap();
+        let e = Recipe::read(&write(d.path(), &GOOD.replace("\"1 um\"", "\"1\""))).unwrap_err().to_string();
+        assert!(e.contains("writer.address_grid") && e.contains("no unit"), "{e}");
+        let e =
+            Recipe::read(&write(d.path(), &GOOD.replace("level_count = 8", "level_count = 6"))).unwrap_err();
+        assert!(e.to_string().contains("power-of-two"), "{e}");
+        let e = Recipe::read(&write(d.path(), &GOOD.replace("level_count = 8", "level_count = 300")))
+            .unwrap_err();
+        assert!(e.to_string().contains("process.level_count"), "{e}");
+        let e =
+            Recipe::read(&write(d.path(), &GOOD.replace("[process]", "[process]\nlevels = 3"))).unwrap_err();
+        assert!(e.to_string().contains("unknown field"), "{e}");
+        let e =
+            Recipe::read(&write(d.path(), &GOOD.replace("[\"gds\"]", "[\"grayscale_png\"]"))).unwrap_err();
+        assert!(e.to_string().contains("contrast_curve"), "{e}");
+    }
+
+    #[test]
+    fn bundled_recipes_parse() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("masks");
+        let mut n = 0;
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.extension().is_some_and(|x| x == "toml") {
+                let r = Recipe::read(&p).unwrap_or_else(|e| panic!("{e}"));
+                if let Some(c) = &r.contrast_curve {
+                    crate::fabrication::contrast::ContrastCurve::read_csv(c).unwrap();
+                }
+                n += 1;
+            }
+        }
+        assert!(n >= 3, "expected at least three bundled recipes, found {n}");
+    }
+}
