@@ -2,6 +2,12 @@
 //! its pitch and unit resolved, each writer going through [`atomic::write_atomic`].
 
 pub mod atomic;
+pub mod csv;
+pub mod exr;
+pub mod heightmap;
+pub mod npy;
+pub mod png;
+pub mod tiff;
 
 use std::path::Path;
 

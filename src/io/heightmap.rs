@@ -1,0 +1,544 @@
+//! One entry point for design height maps, whatever the file format: [`read_heightmap`].
+//!
+//! The format is chosen by extension: `.npy` ([`super::npy`]), `.exr` ([`super::exr`]),
+//! `.tif`/`.tiff` ([`super::tiff`]), `.png` ([`super::png`]), `.csv`/`.txt`/`.asc`/`.dat`
+//! ([`super::csv`]). Each format reader returns a [`RawMap`]: the stored numbers plus what the
+//! file itself states about pitch and value unit. This module then resolves them:
+//!
+//! * **pitch**: from the file, or from [`ReadOptions::pitch`]. When both are present and
+//!   differ (relative difference above 1e-6, f32 attributes hold ~7 digits), the read is
+//!   refused with both values; when neither is, it is refused with a request for `--pitch`.
+//!   Nothing is guessed.
+//! * **height scale** `k` (metres per stored value): floating-point data takes the value unit
+//!   from the file or [`ReadOptions::unit`] (same rules as the pitch); integer counts images
+//!   (PNG, 8/16-bit TIFF) take it from [`ReadOptions::z_scale`] only (metres per count),
+//!   because such files carry no trustworthy scale (Gwyddion's `pCAL` chunk, for one, does
+//!   not follow the PNG specification's linear form).
+//! * heights `h = k v + z_offset` (metres).
+//! * **plausibility**: a design's peak-to-valley height lies between 1e-11 m and 1e-3 m
+//!   (one picometre-scale step to a millimetre of relief). Outside that range the stated unit
+//!   is almost surely wrong; the read is refused and the unit that would make the map plausible
+//!   is suggested (e.g. values ~1e-6 stated in "um" look like metres already).
+//! * NaN and infinite values become invalid samples in the grid's mask (never dropped, never
+//!   filled here).
+
+use std::path::Path;
+
+use ndarray::Array2;
+
+use crate::error::{Error, Result};
+use crate::grid::{Grid, Unit};
+use crate::units::{format_length, length_unit, parse_length};
+
+/// Smallest plausible peak-to-valley height of a design map, metres.
+pub const MIN_PLAUSIBLE_PV: f64 = 1e-11;
+/// Largest plausible peak-to-valley height of a design map, metres.
+pub const MAX_PLAUSIBLE_PV: f64 = 1e-3;
+
+/// The height-map formats [`read_heightmap`] understands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Format {
+    Npy,
+    Exr,
+    Tiff,
+    Png,
+    Csv,
+}
+
+impl Format {
+    /// The format named by a path's extension (case-insensitive).
+    pub fn from_path(path: &Path) -> Result<Format> {
+        let ext =
+            path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).unwrap_or_default();
+        Ok(match ext.as_str() {
+            "npy" => Format::Npy,
+            "exr" => Format::Exr,
+            "tif" | "tiff" => Format::Tiff,
+            "png" => Format::Png,
+            "csv" | "txt" | "asc" | "dat" => Format::Csv,
+            _ => {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "unknown height-map format '.{ext}' (expected .npy, .exr, .tif/.tiff, .png, \
+                         .csv/.txt/.asc/.dat)"
+                    ),
+                ))
+            }
+        })
+    }
+}
+
+/// Whether the stored numbers are values in some length unit or integer counts of an image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SampleKind {
+    /// Floating-point (or plain numeric) values in a length unit: scaled by the unit.
+    Float,
+    /// Unsigned or signed integer counts of an image format with `bits` per sample:
+    /// scaled by an explicit metres-per-count factor.
+    Counts { bits: u8 },
+}
+
+/// What a format reader found: the stored numbers and what the file states about them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RawMap {
+    /// The stored numbers, row 0 = first row of the file (top of an image).
+    pub values: Array2<f64>,
+    pub kind: SampleKind,
+    /// `[x, y]` pitch in metres, when the file states it.
+    pub pitch: Option<[f64; 2]>,
+    /// Metres per stored value, when the file states a value unit.
+    pub unit: Option<f64>,
+    /// Every text key/value the file carries (attributes, text chunks, comment headers),
+    /// in file order.
+    pub metadata: Vec<(String, String)>,
+    /// For counts images: a sentence on the scale the file's own metadata suggests (shown in
+    /// the error that asks for an explicit scale; never applied).
+    pub scale_hint: Option<String>,
+}
+
+/// What the caller states about a height map (from the command line).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ReadOptions {
+    /// `[x, y]` sample pitch in metres (`--pitch`).
+    pub pitch: Option<[f64; 2]>,
+    /// Metres per stored value for floating-point data (`--unit`, e.g. 1e-6 for "um").
+    pub unit: Option<f64>,
+    /// Metres per count for integer images (`--z-scale`), required for PNG and 8/16-bit TIFF.
+    pub z_scale: Option<f64>,
+    /// Metres added after scaling (`--z-offset`); 0 when `None`.
+    pub z_offset: Option<f64>,
+    /// The channel to read from a multi-channel OpenEXR file (`--channel`).
+    pub channel: Option<String>,
+    /// Skips the plausibility check on the peak-to-valley height (for unusual parts).
+    pub allow_implausible: bool,
+}
+
+/// Metadata a writer stores with a map: pitch, value unit and free text, written in this order
+/// (`pitch_x`, `pitch_y`, `unit`, then `text` as given) so output is deterministic.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Metadata {
+    /// `[x, y]` pitch in metres, stored as `pitch_x`, `pitch_y`.
+    pub pitch: Option<[f64; 2]>,
+    /// Value unit symbol (a length unit such as "m", "um", "nm"), stored as `unit`.
+    pub unit: Option<String>,
+    /// Further keys and values.
+    pub text: Vec<(String, String)>,
+}
+
+/// Keys with a meaning to the readers; free text may not use them.
+pub const RESERVED_KEYS: &[&str] = &["pitch", "pitch_x", "pitch_y", "unit"];
+
+impl Metadata {
+    /// Metadata of a height map in metres at `pitch`.
+    pub fn heights(pitch: [f64; 2]) -> Self {
+        Metadata { pitch: Some(pitch), unit: Some("m".into()), text: Vec::new() }
+    }
+
+    /// Adds a free-text key/value.
+    pub fn with(mut self, key: impl Into<String>, value: impl Into<String>) -> Self {
+        self.text.push((key.into(), value.into()));
+        self
+    }
+
+    /// All key/values in write order; numbers in the shortest form that reads back exactly.
+    /// `path` names the output in errors (reserved or repeated keys, bad pitch or unit).
+    pub fn key_values(&self, path: &Path) -> Result<Vec<(String, String)>> {
+        let mut out = Vec::new();
+        if let Some([px, py]) = self.pitch {
+            if !(px.is_finite() && px > 0.0 && py.is_finite() && py > 0.0) {
+                return Err(Error::param(
+                    "pitch",
+                    format!("must be finite and positive, got [{px}, {py}] m"),
+                ));
+            }
+            out.push(("pitch_x".to_string(), format!("{px:e}")));
+            out.push(("pitch_y".to_string(), format!("{py:e}")));
+        }
+        if let Some(u) = &self.unit {
+            length_unit(u)?;
+            out.push(("unit".to_string(), u.clone()));
+        }
+        for (k, v) in &self.text {
+            if RESERVED_KEYS.contains(&k.as_str()) {
+                return Err(Error::param(
+                    "metadata",
+                    format!("{}: key '{k}' is reserved (set it through pitch/unit)", path.display()),
+                ));
+            }
+            if out.iter().any(|(o, _)| o == k) {
+                return Err(Error::param("metadata", format!("{}: key '{k}' is repeated", path.display())));
+            }
+            out.push((k.clone(), v.clone()));
+        }
+        Ok(out)
+    }
+}
+
+/// Reads pitch (`pitch_x` + `pitch_y`, or `pitch`) and value unit (`unit`) from text key/values,
+/// as the PNG, TIFF and CSV writers store them. A pitch is a number in metres or a length with a
+/// unit ("4.29 um").
+pub(crate) fn pitch_unit_from_text(
+    path: &Path,
+    kv: &[(String, String)],
+) -> Result<(Option<[f64; 2]>, Option<f64>)> {
+    let get = |key: &str| kv.iter().find(|(k, _)| k == key).map(|(_, v)| v.trim());
+    let length = |key: &str, text: &str| -> Result<f64> {
+        let v = match text.parse::<f64>() {
+            Ok(v) => v,
+            Err(_) => parse_length(text)
+                .map_err(|_| Error::format(path, format!("metadata '{key}' = '{text}' is not a length")))?,
+        };
+        if v.is_finite() && v > 0.0 {
+            Ok(v)
+        } else {
+            Err(Error::format(path, format!("metadata '{key}' = '{text}' is not a positive length")))
+        }
+    };
+    let pitch = match (get("pitch_x"), get("pitch_y"), get("pitch")) {
+        (Some(x), Some(y), _) => Some([length("pitch_x", x)?, length("pitch_y", y)?]),
+        (Some(_), None, _) | (None, Some(_), _) => {
+            return Err(Error::format(path, "metadata has only one of 'pitch_x' and 'pitch_y'"))
+        }
+        (None, None, Some(p)) => {
+            let p = length("pitch", p)?;
+            Some([p, p])
+        }
+        (None, None, None) => None,
+    };
+    let unit = match get("unit") {
+        Some(u) => Some(unit_from_text(path, "unit", u)?),
+        None => None,
+    };
+    Ok((pitch, unit))
+}
+
+/// The size in metres of a value-unit text ("m", "um", "1e-9 m").
+pub(crate) fn unit_from_text(path: &Path, key: &str, text: &str) -> Result<f64> {
+    length_unit(text)
+        .or_else(|_| parse_length(text))
+        .ok()
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .ok_or_else(|| Error::format(path, format!("metadata '{key}' = '{text}' is not a length unit")))
+}
+
+/// Reads the stored numbers and metadata of a height map, dispatching on the extension.
+/// `channel` selects a channel of a multi-channel OpenEXR file.
+pub fn read_raw(path: &Path, channel: Option<&str>) -> Result<RawMap> {
+    match Format::from_path(path)? {
+        Format::Npy => super::npy::read_npy(path),
+        Format::Exr => super::exr::read_exr(path, channel),
+        Format::Tiff => super::tiff::read_tiff(path),
+        Format::Png => super::png::read_png(path),
+        Format::Csv => super::csv::read_csv(path),
+    }
+}
+
+/// Reads a design height map into a grid of heights in metres (see the module docs for how
+/// pitch, unit, scale and plausibility are resolved). Non-finite values are invalid samples.
+pub fn read_heightmap(path: &Path, opts: &ReadOptions) -> Result<Grid> {
+    let raw = read_raw(path, opts.channel.as_deref())?;
+    heightmap_from_raw(path, raw, opts)
+}
+
+/// Resolves a [`RawMap`] read from `path` into a height grid (the second half of
+/// [`read_heightmap`]).
+pub fn heightmap_from_raw(path: &Path, raw: RawMap, opts: &ReadOptions) -> Result<Grid> {
+    let file = path.display().to_string();
+    let pitch = resolve_pitch(&file, raw.pitch, opts.pitch)?;
+    let k = resolve_scale(&file, &raw, opts)?;
+    let offset = opts.z_offset.unwrap_or(0.0);
+    if !offset.is_finite() {
+        return Err(Error::param("z-offset", format!("must be finite, got {offset}")));
+    }
+    if !opts.allow_implausible {
+        check_plausible(&file, &raw, k)?;
+    }
+    let values = raw.values.mapv(|v| v * k + offset);
+    Grid::from_values_nan_invalid(values, pitch, Unit::Metre)
+}
+
+fn same(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-6 * a.abs().max(b.abs())
+}
+
+fn fmt_pitch(p: [f64; 2]) -> String {
+    format!("{} x {}", format_length(p[0]), format_length(p[1]))
+}
+
+fn resolve_pitch(file: &str, from_file: Option<[f64; 2]>, given: Option<[f64; 2]>) -> Result<[f64; 2]> {
+    if let Some(g) = given {
+        if !g.iter().all(|p| p.is_finite() && *p > 0.0) {
+            return Err(Error::param("pitch", format!("must be finite and positive, got {g:?} m")));
+        }
+    }
+    match (from_file, given) {
+        (Some(f), Some(g)) if !(same(f[0], g[0]) && same(f[1], g[1])) => Err(Error::param(
+            "pitch",
+            format!(
+                "{file} states a pitch of {} (x by y) but --pitch gives {}; drop --pitch to use \
+                 the file's, or correct the file",
+                fmt_pitch(f),
+                fmt_pitch(g)
+            ),
+        )),
+        (_, Some(g)) => Ok(g),
+        (Some(f), None) => Ok(f),
+        (None, None) => {
+            Err(Error::param("pitch", format!("{file} carries no pitch: pass --pitch (e.g. --pitch 4.29um)")))
+        }
+    }
+}
+
+fn resolve_scale(file: &str, raw: &RawMap, opts: &ReadOptions) -> Result<f64> {
+    match raw.kind {
+        SampleKind::Float => {
+            if opts.z_scale.is_some() {
+                return Err(Error::param(
+                    "z-scale",
+                    format!(
+                        "{file} holds numeric values, not integer image counts; --z-scale applies to \
+                         PNG and 8/16-bit TIFF counts only: give the values' unit with --unit"
+                    ),
+                ));
+            }
+            if let Some(u) = opts.unit {
+                if !(u.is_finite() && u > 0.0) {
+                    return Err(Error::param("unit", format!("must be a positive length, got {u} m")));
+                }
+            }
+            match (raw.unit, opts.unit) {
+                (Some(f), Some(g)) if !same(f, g) => Err(Error::param(
+                    "unit",
+                    format!(
+                        "{file} states its values are in units of {} but --unit gives {}; drop --unit \
+                         to use the file's, or correct the file",
+                        format_length(f),
+                        format_length(g)
+                    ),
+                )),
+                (_, Some(g)) => Ok(g),
+                (Some(f), None) => Ok(f),
+                (None, None) => Err(Error::param(
+                    "unit",
+                    format!(
+                        "{file} carries no height unit: pass --unit (e.g. --unit um, --unit nm or --unit m)"
+                    ),
+                )),
+            }
+        }
+        SampleKind::Counts { bits } => {
+            if opts.unit.is_some() {
+                return Err(Error::param(
+                    "unit",
+                    format!(
+                        "{file} holds {bits}-bit integer counts: their scale is --z-scale (metres per \
+                         count), --unit does not apply"
+                    ),
+                ));
+            }
+            match opts.z_scale {
+                Some(s) if s.is_finite() && s != 0.0 => Ok(s),
+                Some(s) => Err(Error::param("z-scale", format!("must be finite and non-zero, got {s}"))),
+                None => {
+                    let hint = raw.scale_hint.as_deref().map(|h| format!(" ({h})")).unwrap_or_default();
+                    Err(Error::param(
+                        "z-scale",
+                        format!(
+                            "{file} holds {bits}-bit counts and states no usable height scale: pass \
+                             --z-scale (metres per count, e.g. --z-scale 0.1nm) and optionally \
+                             --z-offset{hint}"
+                        ),
+                    ))
+                }
+            }
+        }
+    }
+}
+
+/// Refuses maps whose peak-to-valley height, scaled by `k` metres per stored value, lies outside
+/// [`MIN_PLAUSIBLE_PV`, `MAX_PLAUSIBLE_PV`], suggesting the length unit that would fit (the one
+/// putting the height closest to 1 um, the order of a visible-light DOE's relief).
+fn check_plausible(file: &str, raw: &RawMap, k: f64) -> Result<()> {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for &v in raw.values.iter().filter(|v| v.is_finite()) {
+        lo = lo.min(v);
+        hi = hi.max(v);
+    }
+    if lo > hi {
+        return Err(Error::Data(format!("{file}: no finite height value in the map")));
+    }
+    let pv_raw = hi - lo;
+    let pv = pv_raw * k.abs();
+    // A flat map (every value equal) is a statement, not a scale error.
+    if pv_raw == 0.0 || (MIN_PLAUSIBLE_PV..=MAX_PLAUSIBLE_PV).contains(&pv) {
+        return Ok(());
+    }
+    let units = [("pm", 1e-12), ("nm", 1e-9), ("um", 1e-6), ("mm", 1e-3), ("m", 1.0)];
+    let best = |scale: f64| {
+        units
+            .iter()
+            .filter(|(_, s)| (MIN_PLAUSIBLE_PV..=MAX_PLAUSIBLE_PV).contains(&(pv_raw * scale * s)))
+            .min_by(|a, b| {
+                let d = |s: f64| (pv_raw * scale * s / 1e-6).log10().abs();
+                d(a.1).total_cmp(&d(b.1))
+            })
+            .copied()
+    };
+    let range = format!("a design's relief lies within {MIN_PLAUSIBLE_PV:e}..{MAX_PLAUSIBLE_PV:e} m");
+    match raw.kind {
+        SampleKind::Float => {
+            let head = format!(
+                "{file}: with values in units of {} the heights span {} peak-to-valley, implausible \
+                 ({range})",
+                format_length(k),
+                format_length(pv)
+            );
+            let tail = match best(1.0) {
+                Some(("m", _)) => " The values look like metres already; did you mean --unit m?".to_string(),
+                Some((name, s)) => format!(
+                    " In {name} they would span {}: did you mean --unit {name}?",
+                    format_length(pv_raw * s)
+                ),
+                None => " No length unit makes them plausible: check the file.".to_string(),
+            };
+            Err(Error::param("unit", head + &tail))
+        }
+        SampleKind::Counts { .. } => {
+            let head = format!(
+                "{file}: with --z-scale {k:e} m per count the heights span {} peak-to-valley, \
+                 implausible ({range})",
+                format_length(pv)
+            );
+            let tail = match best(k.abs()) {
+                Some(("m", _)) | None => " Check the scale: it is metres per count.".to_string(),
+                Some((name, s)) => format!(
+                    " If the scale was meant in {name} per count, pass --z-scale {:e} (heights would \
+                     span {}).",
+                    k * s,
+                    format_length(pv * s)
+                ),
+            };
+            Err(Error::param("z-scale", head + &tail))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn raw(values: Array2<f64>, kind: SampleKind) -> RawMap {
+        RawMap { values, kind, pitch: None, unit: None, metadata: vec![], scale_hint: None }
+    }
+
+    #[test]
+    fn demands_pitch_and_unit_and_refuses_conflicts() {
+        let p = Path::new("map.npy");
+        let r = raw(Array2::from_shape_fn((2, 2), |(i, j)| (i + j) as f64), SampleKind::Float);
+        let e = heightmap_from_raw(p, r.clone(), &ReadOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("map.npy carries no pitch: pass --pitch"), "{e}");
+        let o = ReadOptions { pitch: Some([1e-6, 1e-6]), ..Default::default() };
+        let e = heightmap_from_raw(p, r.clone(), &o).unwrap_err().to_string();
+        assert!(e.contains("no height unit: pass --unit"), "{e}");
+        let o = ReadOptions { pitch: Some([1e-6, 2e-6]), unit: Some(1e-6), ..Default::default() };
+        let g = heightmap_from_raw(p, r.clone(), &o).unwrap();
+        assert_eq!(g.pitch(), [1e-6, 2e-6]);
+        assert_eq!(g.values()[[1, 1]], 2e-6);
+        let mut r2 = r.clone();
+        r2.pitch = Some([1e-6, 1e-6]);
+        r2.unit = Some(1e-9);
+        let e = heightmap_from_raw(p, r2.clone(), &o).unwrap_err().to_string();
+        assert!(e.contains("1 um x 1 um") && e.contains("1 um x 2 um"), "{e}");
+        let o = ReadOptions { unit: Some(1e-6), ..Default::default() };
+        let e = heightmap_from_raw(p, r2.clone(), &o).unwrap_err().to_string();
+        assert!(e.contains("1 nm") && e.contains("1 um") && e.contains("--unit"), "{e}");
+        // Agreeing options are fine.
+        let o = ReadOptions { unit: Some(1e-9), pitch: Some([1e-6, 1e-6]), ..Default::default() };
+        assert!(heightmap_from_raw(p, r2, &o).is_ok());
+    }
+
+    #[test]
+    fn counts_need_an_explicit_scale() {
+        let p = Path::new("m.png");
+        let mut r =
+            raw(Array2::from_shape_fn((2, 2), |(i, j)| (i * 2 + j) as f64), SampleKind::Counts { bits: 16 });
+        r.pitch = Some([1e-6; 2]);
+        r.scale_hint = Some("hint here".into());
+        let e = heightmap_from_raw(p, r.clone(), &ReadOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("--z-scale") && e.contains("hint here"), "{e}");
+        let o = ReadOptions { unit: Some(1e-9), ..Default::default() };
+        assert!(heightmap_from_raw(p, r.clone(), &o)
+            .unwrap_err()
+            .to_string()
+            .contains("--unit does not apply"));
+        let o = ReadOptions { z_scale: Some(1e-9), z_offset: Some(5e-9), ..Default::default() };
+        let g = heightmap_from_raw(p, r.clone(), &o).unwrap();
+        assert!((g.values()[[1, 1]] - 8e-9).abs() < 1e-20);
+        let o = ReadOptions { z_scale: Some(0.5), ..Default::default() };
+        let e = heightmap_from_raw(p, r, &o).unwrap_err().to_string();
+        assert!(e.contains("implausible") && e.contains("--z-scale 5e-7"), "{e}");
+    }
+
+    #[test]
+    fn implausible_units_get_a_suggestion() {
+        let p = Path::new("d.exr");
+        let v = Array2::from_shape_fn((3, 3), |(i, j)| (i * 3 + j) as f64 * 2e-7);
+        let mut r = raw(v, SampleKind::Float);
+        r.pitch = Some([1e-6; 2]);
+        r.unit = Some(1e-6);
+        let e = heightmap_from_raw(p, r.clone(), &ReadOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("look like metres already; did you mean --unit m?"), "{e}");
+        let g =
+            heightmap_from_raw(p, r.clone(), &ReadOptions { allow_implausible: true, ..Default::default() });
+        assert!(g.is_ok());
+        r.values.mapv_inplace(|v| v * 1e9); // 0..1600 "um" = 1.6 mm: nm intended
+        let e = heightmap_from_raw(p, r.clone(), &ReadOptions::default()).unwrap_err().to_string();
+        assert!(e.contains("did you mean --unit nm?"), "{e}");
+        r.values.fill(3.0);
+        assert!(heightmap_from_raw(p, r.clone(), &ReadOptions::default()).is_ok());
+        r.values.fill(f64::NAN);
+        assert!(heightmap_from_raw(p, r, &ReadOptions::default())
+            .unwrap_err()
+            .to_string()
+            .contains("no finite"));
+    }
+
+    #[test]
+    fn non_finite_values_become_invalid_samples() {
+        let mut v = Array2::from_shape_fn((3, 3), |(i, j)| (i + j) as f64);
+        v[[1, 1]] = f64::NAN;
+        v[[0, 2]] = f64::INFINITY;
+        let mut r = raw(v, SampleKind::Float);
+        r.pitch = Some([1e-6; 2]);
+        r.unit = Some(1e-9);
+        let g = heightmap_from_raw(Path::new("x.npy"), r, &ReadOptions::default()).unwrap();
+        assert_eq!(g.valid_count(), 7);
+        assert!(!g.is_valid(1, 1) && !g.is_valid(0, 2));
+    }
+
+    #[test]
+    fn metadata_key_values_in_order_and_exact() {
+        let m = Metadata::heights([4.29e-6, 1.0 / 3.0 * 1e-5]).with("source", "x");
+        let kv = m.key_values(Path::new("o")).unwrap();
+        assert_eq!(kv[0].0, "pitch_x");
+        assert_eq!(kv[0].1.parse::<f64>().unwrap(), 4.29e-6);
+        assert_eq!(kv[1].1.parse::<f64>().unwrap(), 1.0 / 3.0 * 1e-5);
+        assert_eq!(kv[2], ("unit".into(), "m".into()));
+        assert_eq!(kv[3], ("source".into(), "x".into()));
+        assert!(Metadata::default().with("unit", "m").key_values(Path::new("o")).is_err());
+        let (p, u) = pitch_unit_from_text(Path::new("o"), &kv).unwrap();
+        assert_eq!(p, Some([4.29e-6, 1.0 / 3.0 * 1e-5]));
+        assert_eq!(u, Some(1.0));
+        let kv = vec![("pitch".to_string(), "2 um".to_string()), ("unit".to_string(), "nm".to_string())];
+        assert_eq!(pitch_unit_from_text(Path::new("o"), &kv).unwrap(), (Some([2e-6, 2e-6]), Some(1e-9)));
+    }
+
+    #[test]
+    fn format_by_extension() {
+        assert_eq!(Format::from_path(Path::new("a/B.TIF")).unwrap(), Format::Tiff);
+        assert_eq!(Format::from_path(Path::new("x.asc")).unwrap(), Format::Csv);
+        assert!(Format::from_path(Path::new("x.bmp")).unwrap_err().to_string().contains("x.bmp"));
+        assert!(Format::from_path(Path::new("noext")).is_err());
+    }
+}
