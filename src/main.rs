@@ -1,1 +1,345 @@
-fn main() {}
+//! The `doefab` command line: parses arguments, calls the library, prints. Nothing else.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use doefab::fabrication::chain::{self, ChainParams, DesignSource, FabOptions};
+use doefab::fabrication::mask::Polarity;
+use doefab::fabrication::quantize::QuantizeMethod;
+use doefab::fabrication::recipe::Recipe;
+use doefab::fabrication::ReplicaMode;
+use doefab::io::heightmap::ReadOptions;
+use doefab::units::{clap_length, length_unit};
+
+#[derive(Parser)]
+#[command(name = "doefab", version, about = "From a learned DOE design to a fabricated part", long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+    /// No progress bars and no summaries; errors and warnings still go to stderr.
+    #[arg(long, short, global = true)]
+    quiet: bool,
+    /// Print the result as JSON on stdout.
+    #[arg(long, global = true)]
+    json: bool,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run every stage on the built-in example design (no input needed).
+    Demo {
+        /// Output folder.
+        #[arg(short, long, default_value = "out")]
+        output: PathBuf,
+    },
+    /// The whole fabrication chain for a recipe: wrap, quantize, masks, GDSII, STL, report.
+    Fab {
+        /// Height map file, or built-in:paper / built-in:fresnel (default built-in:paper).
+        design: Option<String>,
+        /// Process recipe (TOML), e.g. masks/laser-writer-grayscale.toml.
+        #[arg(long, short)]
+        recipe: PathBuf,
+        /// Output folder.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Override the recipe's level count.
+        #[arg(long)]
+        levels: Option<usize>,
+        #[command(flatten)]
+        read: ReadArgs,
+        /// Fill NaN and non-measured heights from their neighbours instead of refusing them.
+        #[arg(long)]
+        fill: bool,
+        /// Write outputs above the size limit.
+        #[arg(long)]
+        force: bool,
+    },
+    /// Wrap heights modulo p * 2 pi at the design wavelength (optionally as the replica master).
+    Wrap {
+        design: String,
+        /// Output height map (.exr, with pitch and units in its header).
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        read: ReadArgs,
+        #[command(flatten)]
+        optics: OpticsArgs,
+        /// Write the master whose cast equals the design (complemented and mirrored).
+        #[arg(long, value_enum, default_value_t = ReplicaMode::Design)]
+        replica: ReplicaMode,
+        #[arg(long)]
+        fill: bool,
+    },
+    /// Quantize wrapped heights to N levels and predict the diffraction efficiency.
+    Quantize {
+        /// Wrapped height map (.exr from `doefab wrap`).
+        heights: PathBuf,
+        /// Output level map (.exr).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Number of levels (2..=256, or 65536 for 16-bit writers).
+        #[arg(long, short = 'n')]
+        levels: usize,
+        #[arg(long, value_enum, default_value_t = QuantizeMethod::Round)]
+        method: QuantizeMethod,
+        #[command(flatten)]
+        optics: OpticsArgs,
+        /// Writer's minimum feature, for the terrace-width warning.
+        #[arg(long, value_parser = clap_length, default_value = "1 um")]
+        min_feature: f64,
+    },
+    /// Grayscale lithography mask (PNG or TIFF by extension) with a JSON sidecar.
+    Mask {
+        /// Level map (.exr from `doefab quantize`).
+        levels: PathBuf,
+        /// Resist contrast curve (CSV: dose,depth_nm).
+        #[arg(long)]
+        curve: PathBuf,
+        /// Output image (.png, .tif or .tiff).
+        #[arg(short, long)]
+        output: PathBuf,
+        #[arg(long, value_parser = clap_length, default_value = "1 um")]
+        writer_pitch: f64,
+        #[arg(long, default_value_t = 16)]
+        bits: u8,
+        #[arg(long, value_enum, default_value_t = Polarity::Positive)]
+        polarity: Polarity,
+        #[arg(long)]
+        mirror: bool,
+        #[arg(long, value_parser = clap_length, default_value = "500 um")]
+        border: f64,
+        #[arg(long, default_value = "")]
+        label: String,
+        #[arg(long)]
+        no_marks: bool,
+        #[arg(long)]
+        force: bool,
+    },
+}
+
+/// How to read a height map that does not say everything about itself.
+#[derive(Args, Clone, Default)]
+struct ReadArgs {
+    /// Sample pitch, e.g. "4.29um" (required when the file carries none).
+    #[arg(long, value_parser = clap_length)]
+    pitch: Option<f64>,
+    /// Unit of the stored heights, e.g. "um" or "nm" (required when the file carries none).
+    #[arg(long)]
+    unit: Option<String>,
+    /// Height per count for integer images (16-bit PNG/TIFF), e.g. "0.1nm".
+    #[arg(long, value_parser = clap_length)]
+    z_scale: Option<f64>,
+}
+
+impl ReadArgs {
+    fn options(&self) -> Result<ReadOptions> {
+        Ok(ReadOptions {
+            pitch: self.pitch.map(|p| [p, p]),
+            unit: self.unit.as_deref().map(length_unit).transpose()?,
+            z_scale: self.z_scale,
+            ..Default::default()
+        })
+    }
+}
+
+/// Design wavelength, material, multi-order factor.
+#[derive(Args, Clone)]
+struct OpticsArgs {
+    /// Design wavelength.
+    #[arg(long, value_parser = clap_length, default_value = "530nm")]
+    wavelength: f64,
+    /// Material of the part (pdms, fused_silica).
+    #[arg(long, default_value = "pdms")]
+    material: String,
+    /// Multi-order factor p (wrap modulo p * 2 pi).
+    #[arg(long, default_value_t = 1)]
+    order: u32,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(&cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            for cause in e.chain().skip(1) {
+                eprintln!("  caused by: {cause}");
+            }
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// A progress bar over `steps` named steps (hidden with --quiet or --json).
+fn progress(cli: &Cli, steps: u64) -> ProgressBar {
+    if cli.quiet || cli.json {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::new(steps);
+    if let Ok(style) = ProgressStyle::with_template("{bar:30} {pos}/{len} {elapsed_precise} {msg}") {
+        pb.set_style(style);
+    }
+    pb
+}
+
+fn print_result<T: serde::Serialize>(cli: &Cli, value: &T, human: impl FnOnce()) -> Result<()> {
+    if cli.json {
+        println!("{}", serde_json::to_string_pretty(value)?);
+    } else if !cli.quiet {
+        human();
+    }
+    Ok(())
+}
+
+fn warn(warnings: &[String]) {
+    for w in warnings {
+        eprintln!("warning: {w}");
+    }
+}
+
+fn run(cli: &Cli) -> Result<()> {
+    match &cli.command {
+        Command::Demo { output } => demo(cli, output),
+        Command::Fab { design, recipe, output, levels, read, fill, force } => {
+            let mut recipe = Recipe::read(recipe)?;
+            if let Some(n) = levels {
+                recipe.level_count = *n;
+            }
+            let source = DesignSource::parse(design.as_deref(), read.options()?);
+            fab(cli, &source, &recipe, output, *fill, *force)
+        }
+        Command::Wrap { design, output, read, optics, replica, fill } => {
+            let source = DesignSource::parse(Some(design), read.options()?);
+            let loaded = chain::load_design(&source)?;
+            let params = chain_params(optics, 65536, QuantizeMethod::Round, *replica, 1e-6, *fill);
+            let report = chain::write_wrapped(&loaded, &params, output)?;
+            warn(&report.warnings);
+            print_result(cli, &report, || {
+                println!(
+                    "wrapped {} samples (at most {} periods of {:.4} um); max height {:.4} um -> {}",
+                    report.wrap.wrapped_samples,
+                    report.wrap.max_wraps,
+                    report.wrap.period * 1e6,
+                    report.wrap.max_height * 1e6,
+                    output.display()
+                )
+            })
+        }
+        Command::Quantize { heights, output, levels, method, optics, min_feature } => {
+            let params = chain_params(optics, *levels, *method, ReplicaMode::Design, *min_feature, false);
+            let report = chain::quantize_file(heights, &params, output)?;
+            warn(&report.warnings);
+            print_result(cli, &report, || {
+                println!("{} levels ({:?}), rms error {:.2} nm -> {}", levels, method, report.rms_error * 1e9, output.display());
+                print_efficiency(&report.efficiency);
+            })
+        }
+        Command::Mask { levels, curve, output, writer_pitch, bits, polarity, mirror, border, label, no_marks, force } => {
+            let opts = doefab::fabrication::mask::MaskOptions {
+                writer_pitch: *writer_pitch,
+                bits: *bits,
+                polarity: *polarity,
+                mirror: *mirror,
+                border: *border,
+                marks: !no_marks,
+                label: label.clone(),
+                force: *force,
+                ..Default::default()
+            };
+            let meta = chain::mask_file(levels, curve, &opts, output)?;
+            print_result(cli, &meta, || {
+                println!("{} x {} px, {}-bit -> {}", meta.size_px[0], meta.size_px[1], meta.bits, output.display())
+            })
+        }
+    }
+}
+
+fn chain_params(
+    optics: &OpticsArgs,
+    level_count: usize,
+    quantization: QuantizeMethod,
+    replica_mode: ReplicaMode,
+    min_feature: f64,
+    fill: bool,
+) -> ChainParams {
+    ChainParams {
+        wavelength: optics.wavelength,
+        material: optics.material.clone(),
+        order: optics.order,
+        level_count,
+        quantization,
+        replica_mode,
+        min_feature,
+        fill,
+    }
+}
+
+fn print_efficiency(rows: &[doefab::fabrication::quantize::EfficiencyRow]) {
+    println!("  wavelength  n        detuning  eta(order)  eta(continuous)");
+    for r in rows {
+        println!(
+            "  {:6.1} nm  {:.5}  {:.4}    {:.4}      {:.4}",
+            r.wavelength * 1e9,
+            r.index,
+            r.detuning,
+            r.efficiency,
+            r.continuous_efficiency
+        );
+    }
+}
+
+fn fab(cli: &Cli, source: &DesignSource, recipe: &Recipe, output: &Path, fill: bool, force: bool) -> Result<()> {
+    let pb = progress(cli, chain::step_count(recipe) as u64);
+    let opts = FabOptions { fill, force };
+    let report = chain::run_recipe(source, recipe, output, &opts, &mut |step: &str| {
+        pb.set_message(step.to_string());
+        pb.inc(1);
+    })
+    .with_context(|| format!("recipe {}", recipe.path.display()))?;
+    pb.finish_and_clear();
+    warn(&report.warnings);
+    print_result(cli, &report, || {
+        println!("{} on {}: {}", recipe.name, report.provenance.design, output.display());
+        print_efficiency(&report.efficiency);
+        for a in &report.artifacts {
+            println!("  {:<16} {}", a.kind, a.path.display());
+        }
+    })
+}
+
+fn demo(cli: &Cli, output: &Path) -> Result<()> {
+    let masks = Path::new(env!("CARGO_MANIFEST_DIR")).join("masks");
+    let names = ["laser-writer-grayscale", "binary-3mask-8level", "two-photon-stl"];
+    let source = DesignSource::BuiltIn("paper".into());
+    let mut reports = Vec::new();
+    for name in names {
+        let path = masks.join(format!("{name}.toml"));
+        if !path.exists() {
+            bail!("the bundled recipe {} is missing", path.display());
+        }
+        let recipe = Recipe::read(&path)?;
+        let out = output.join(name);
+        let pb = progress(cli, chain::step_count(&recipe) as u64);
+        let report = chain::run_recipe(&source, &recipe, &out, &FabOptions::default(), &mut |step: &str| {
+            pb.set_message(format!("{name}: {step}"));
+            pb.inc(1);
+        })?;
+        pb.finish_and_clear();
+        warn(&report.warnings);
+        if !cli.quiet && !cli.json {
+            println!("{name}: {}", out.join("report.md").display());
+            for a in &report.artifacts {
+                println!("  {:<16} {}", a.kind, a.path.display());
+            }
+        }
+        reports.push(report);
+    }
+    if cli.json {
+        println!("{}", serde_json::to_string_pretty(&reports)?);
+    }
+    Ok(())
+}

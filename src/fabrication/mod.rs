@@ -6,6 +6,7 @@
 //! * [`contrast`]: resist contrast curves, monotone and invertible;
 //! * [`mask`]: grayscale lithography masks with frame, crosses and label ([`marks`]);
 
+pub mod chain;
 pub mod contrast;
 pub mod marks;
 pub mod mask;

@@ -1,0 +1,566 @@
+//! The whole fabrication chain behind `doefab fab`: load -> (fill) -> wrap -> (master) ->
+//! quantize -> efficiency and feature checks -> the artifacts a recipe asks for -> report.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::design::{ExampleParams, FresnelParams};
+use crate::error::{Error, Result};
+use crate::fabrication::quantize::{
+    efficiency_table, feature_check, quantize, EfficiencyRow, FeatureReport, QuantizeMethod, Quantized,
+};
+use crate::fabrication::wrap::{check_finite, fill_missing, to_master, wrap, WrapReport, WrapSpec};
+use crate::fabrication::{Provenance, ReplicaMode};
+use crate::fabrication::contrast::ContrastCurve;
+use crate::fabrication::mask::{GrayscaleMask, MaskMeta, MaskOptions};
+use crate::fabrication::recipe::{Output, Recipe};
+use crate::grid::{Grid, Unit};
+use crate::io::atomic::write_json;
+use crate::io::exr::write_exr;
+use crate::io::heightmap::{read_heightmap, read_raw, Metadata, ReadOptions};
+use crate::io::png::{write_png_u16, write_png_u8};
+use crate::io::tiff::{write_tiff_u16, write_tiff_u8};
+use crate::material::{Material, PAPER_WAVELENGTHS};
+
+/// Where a design comes from.
+#[derive(Debug, Clone)]
+pub enum DesignSource {
+    /// `built-in:paper` (the grating-like example) or `built-in:fresnel`.
+    BuiltIn(String),
+    /// A height-map file and how to read it.
+    File(PathBuf, ReadOptions),
+}
+
+impl DesignSource {
+    /// Parses a command-line design argument: `built-in:NAME` or a path.
+    pub fn parse(arg: Option<&str>, read: ReadOptions) -> DesignSource {
+        match arg {
+            None => DesignSource::BuiltIn("paper".into()),
+            Some(a) => match a.strip_prefix("built-in:") {
+                Some(name) => DesignSource::BuiltIn(name.into()),
+                None => DesignSource::File(PathBuf::from(a), read),
+            },
+        }
+    }
+}
+
+/// A design height map with its name and content hash.
+#[derive(Debug, Clone)]
+pub struct LoadedDesign {
+    pub heights: Grid,
+    pub name: String,
+    pub sha256: String,
+}
+
+/// Loads a design. Built-in designs are hashed by their parameters.
+pub fn load_design(source: &DesignSource) -> Result<LoadedDesign> {
+    match source {
+        DesignSource::BuiltIn(name) => {
+            let (heights, params) = match name.as_str() {
+                "paper" => {
+                    let p = ExampleParams::default();
+                    (crate::design::paper_example(&p)?, serde_json::to_vec(&p))
+                }
+                "fresnel" => {
+                    let p = FresnelParams::default();
+                    (crate::design::fresnel_lens(&p)?, serde_json::to_vec(&p))
+                }
+                other => {
+                    return Err(Error::param(
+                        "design",
+                        format!("unknown built-in design '{other}' (known: built-in:paper, built-in:fresnel)"),
+                    ))
+                }
+            };
+            let bytes = params.map_err(|e| Error::Data(e.to_string()))?;
+            Ok(LoadedDesign { heights, name: format!("built-in:{name}"), sha256: crate::io::hex_sha256(&bytes) })
+        }
+        DesignSource::File(path, read) => Ok(LoadedDesign {
+            heights: read_heightmap(path, read)?,
+            name: path.display().to_string(),
+            sha256: crate::io::file_sha256(path)?,
+        }),
+    }
+}
+
+/// The physical parameters of the chain (a recipe supplies them, or the command line).
+#[derive(Debug, Clone, Serialize)]
+pub struct ChainParams {
+    pub wavelength: f64,
+    pub material: String,
+    pub order: u32,
+    pub level_count: usize,
+    pub quantization: QuantizeMethod,
+    pub replica_mode: ReplicaMode,
+    /// Writer's smallest feature, metres.
+    pub min_feature: f64,
+    /// Fill NaN and non-measured samples (Laplace) instead of refusing them.
+    pub fill: bool,
+}
+
+impl ChainParams {
+    pub fn wrap_spec(&self) -> Result<WrapSpec> {
+        Ok(WrapSpec { wavelength: self.wavelength, material: Material::by_name(&self.material)?, order: self.order })
+    }
+}
+
+/// Everything the chain computes before writing artifacts.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    /// Wrapped heights of the surface to make (the master in master mode), metres.
+    pub surface: Grid,
+    pub wrap: WrapReport,
+    pub quantized: Quantized,
+    pub efficiency: Vec<EfficiencyRow>,
+    pub features: FeatureReport,
+    pub filled_samples: usize,
+    pub warnings: Vec<String>,
+    pub provenance: Provenance,
+}
+
+/// Runs load-independent steps: fill, wrap, master inversion, quantization and checks.
+pub fn prepare(design: &LoadedDesign, p: &ChainParams) -> Result<Prepared> {
+    let spec = p.wrap_spec()?;
+    let (heights, filled_samples) = if p.fill {
+        let (g, n) = fill_missing(&design.heights)?;
+        (g, n)
+    } else {
+        if design.heights.mask().is_some() {
+            return Err(Error::Data(format!(
+                "{}: {} samples are not measured; pass --fill to fill them from their neighbours",
+                design.name,
+                design.heights.dim().0 * design.heights.dim().1 - design.heights.valid_count()
+            )));
+        }
+        check_finite(&design.heights)?;
+        (design.heights.clone(), 0)
+    };
+    let (wrapped, wrap_report) = wrap(&heights, &spec)?;
+    let period = wrap_report.period;
+    // The zone period is a property of the design, checked before any inversion.
+    let features = feature_check(&wrapped, period, p.level_count, p.min_feature);
+    let surface = match p.replica_mode {
+        ReplicaMode::Design => wrapped,
+        ReplicaMode::Master => to_master(&wrapped, period)?,
+    };
+    let quantized = quantize(&surface, period, p.level_count, p.quantization)?;
+    let efficiency = efficiency_table(&spec, p.level_count, &PAPER_WAVELENGTHS)?;
+    let mut warnings = Vec::new();
+    if features.fraction_below > 0.0 {
+        warnings.push(format!(
+            "{:.2}% of the samples have terraces (zone period / N) narrower than the writer's minimum feature \
+             of {:.2} um; the narrowest is {:.2} um (zone period {:.2} um / {} levels)",
+            features.fraction_below * 100.0,
+            p.min_feature * 1e6,
+            features.min_terrace_width * 1e6,
+            features.min_zone_period * 1e6,
+            p.level_count
+        ));
+    }
+    if features.undersampled_samples > 0 {
+        warnings.push(format!(
+            "{} samples step by more than {:.0}% of a period to a neighbour: the design is at or beyond its \
+             sampling limit there",
+            features.undersampled_samples,
+            crate::fabrication::quantize::UNDERSAMPLED_STEP * 100.0
+        ));
+    }
+    if filled_samples > 0 {
+        warnings.push(format!("{filled_samples} non-finite or non-measured samples were filled (Laplace)"));
+    }
+    let provenance = Provenance {
+        design: design.name.clone(),
+        design_sha256: design.sha256.clone(),
+        replica_mode: p.replica_mode,
+        wavelength_m: p.wavelength,
+        material: spec.material.name.clone(),
+        order: p.order,
+        period_m: period,
+        level_count: p.level_count,
+        quantization: format!("{:?}", p.quantization),
+        doefab_version: env!("CARGO_PKG_VERSION").into(),
+    };
+    Ok(Prepared {
+        surface,
+        wrap: wrap_report,
+        quantized,
+        efficiency,
+        features,
+        filled_samples,
+        warnings,
+        provenance,
+    })
+}
+
+/// One file the chain wrote.
+#[derive(Debug, Clone, Serialize)]
+pub struct Artifact {
+    pub path: PathBuf,
+    pub kind: String,
+}
+
+/// Lists `path` as an artifact of `kind`.
+pub fn artifact(path: &Path, kind: &str) -> Artifact {
+    Artifact { path: path.to_path_buf(), kind: kind.into() }
+}
+
+/// Metadata keys of doefab's intermediate maps (besides pitch and unit).
+const KEY_QUANTITY: &str = "quantity";
+const KEY_LEVEL_COUNT: &str = "level_count";
+const KEY_PERIOD: &str = "period_m";
+const KEY_PROVENANCE: &str = "provenance";
+
+fn provenance_json(p: &Provenance) -> Result<String> {
+    serde_json::to_string(p).map_err(|e| Error::Data(e.to_string()))
+}
+
+/// Writes wrapped heights (metres) as a float EXR with pitch, unit and provenance.
+pub fn write_height_map(path: &Path, heights: &Grid, provenance: &Provenance) -> Result<()> {
+    let meta = Metadata::heights(heights.pitch())
+        .with(KEY_QUANTITY, "height")
+        .with(KEY_PERIOD, format!("{:e}", provenance.period_m))
+        .with(KEY_PROVENANCE, provenance_json(provenance)?);
+    write_exr(path, &[("height", &heights.values().mapv(|v| v as f32))], &meta)
+}
+
+/// Writes a level map as a float EXR (levels are small integers, exact in f32) with its level
+/// count, period and provenance.
+pub fn write_level_map(path: &Path, q: &Quantized, provenance: &Provenance) -> Result<()> {
+    let meta = Metadata { pitch: Some(q.levels.pitch()), unit: None, text: Vec::new() }
+        .with(KEY_QUANTITY, "level")
+        .with(KEY_LEVEL_COUNT, q.level_count.to_string())
+        .with(KEY_PERIOD, format!("{:e}", q.period))
+        .with(KEY_PROVENANCE, provenance_json(provenance)?);
+    write_exr(path, &[("level", &q.levels.values().mapv(|v| v as f32))], &meta)
+}
+
+/// A level map read back: levels, level count, period and provenance.
+pub struct LevelMap {
+    pub levels: Grid,
+    pub level_count: usize,
+    pub period: f64,
+    pub provenance: Provenance,
+}
+
+fn meta_get<'a>(path: &Path, meta: &'a [(String, String)], key: &str) -> Result<&'a str> {
+    meta.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str()).ok_or_else(|| {
+        Error::format(path, format!("metadata '{key}' is missing: expected a level map written by `doefab quantize`"))
+    })
+}
+
+/// Reads a level map written by [`write_level_map`].
+pub fn read_level_map(path: &Path) -> Result<LevelMap> {
+    let raw = read_raw(path, None)?;
+    if meta_get(path, &raw.metadata, KEY_QUANTITY)? != "level" {
+        return Err(Error::format(path, "metadata 'quantity' is not 'level': expected a level map"));
+    }
+    let level_count: usize = meta_get(path, &raw.metadata, KEY_LEVEL_COUNT)?
+        .parse()
+        .map_err(|_| Error::format(path, "metadata 'level_count' is not an integer"))?;
+    crate::fabrication::quantize::check_level_count(level_count)
+        .map_err(|e| Error::format(path, format!("metadata 'level_count': {e}")))?;
+    let period: f64 = meta_get(path, &raw.metadata, KEY_PERIOD)?
+        .parse()
+        .map_err(|_| Error::format(path, "metadata 'period_m' is not a number"))?;
+    let provenance: Provenance = serde_json::from_str(meta_get(path, &raw.metadata, KEY_PROVENANCE)?)
+        .map_err(|e| Error::format(path, format!("metadata 'provenance': {e}")))?;
+    let pitch = raw.pitch.ok_or_else(|| Error::format(path, "metadata 'pitch_x'/'pitch_y' is missing"))?;
+    if let Some(((i, j), v)) = raw.values.indexed_iter().find(|(_, v)| v.fract() != 0.0 || **v < 0.0 || **v >= level_count as f64) {
+        return Err(Error::format(path, format!("sample at row {i}, column {j} is {v}, not a level in 0..{level_count}")));
+    }
+    Ok(LevelMap { levels: Grid::new(raw.values, pitch, Unit::Level)?, level_count, period, provenance })
+}
+
+/// Result of `doefab wrap`.
+#[derive(Debug, Clone, Serialize)]
+pub struct WrapFileReport {
+    pub wrap: WrapReport,
+    pub replica_mode: ReplicaMode,
+    pub output: PathBuf,
+    pub warnings: Vec<String>,
+}
+
+/// `doefab wrap`: wraps (and optionally inverts) a design and writes the heights.
+pub fn write_wrapped(design: &LoadedDesign, p: &ChainParams, output: &Path) -> Result<WrapFileReport> {
+    let prepared = prepare(design, p)?;
+    write_height_map(output, &prepared.surface, &prepared.provenance)?;
+    Ok(WrapFileReport {
+        wrap: prepared.wrap,
+        replica_mode: p.replica_mode,
+        output: output.to_path_buf(),
+        warnings: prepared.warnings,
+    })
+}
+
+/// Result of `doefab quantize`.
+#[derive(Debug, Clone, Serialize)]
+pub struct QuantizeFileReport {
+    pub level_count: usize,
+    pub method: QuantizeMethod,
+    /// RMS height error of the quantized map, metres.
+    pub rms_error: f64,
+    pub efficiency: Vec<EfficiencyRow>,
+    pub features: FeatureReport,
+    pub output: PathBuf,
+    pub warnings: Vec<String>,
+}
+
+/// `doefab quantize`: reads wrapped heights written by `doefab wrap` and writes a level map.
+pub fn quantize_file(heights: &Path, p: &ChainParams, output: &Path) -> Result<QuantizeFileReport> {
+    let raw = read_raw(heights, None)?;
+    let mut provenance: Provenance = match raw.metadata.iter().find(|(k, _)| k == KEY_PROVENANCE) {
+        Some((_, v)) => serde_json::from_str(v).map_err(|e| Error::format(heights, format!("metadata 'provenance': {e}")))?,
+        None => Provenance { design: heights.display().to_string(), design_sha256: crate::io::file_sha256(heights)?, ..Default::default() },
+    };
+    let grid = crate::io::heightmap::heightmap_from_raw(heights, raw, &ReadOptions::default())?;
+    let spec = p.wrap_spec()?;
+    let period = spec.period()?;
+    let q = quantize(&grid, period, p.level_count, p.quantization)?;
+    let features = feature_check(&grid, period, p.level_count, p.min_feature);
+    provenance.level_count = p.level_count;
+    provenance.quantization = format!("{:?}", p.quantization);
+    provenance.period_m = period;
+    write_level_map(output, &q, &provenance)?;
+    let mut warnings = Vec::new();
+    if features.fraction_below > 0.0 {
+        warnings.push(format!(
+            "{:.2}% of the samples have terraces narrower than {:.2} um (narrowest {:.2} um)",
+            features.fraction_below * 100.0,
+            p.min_feature * 1e6,
+            features.min_terrace_width * 1e6
+        ));
+    }
+    Ok(QuantizeFileReport {
+        level_count: p.level_count,
+        method: p.quantization,
+        rms_error: q.rms_error,
+        efficiency: efficiency_table(&spec, p.level_count, &PAPER_WAVELENGTHS)?,
+        features,
+        output: output.to_path_buf(),
+        warnings,
+    })
+}
+
+/// Writes a rendered mask as PNG or TIFF (by extension) plus the JSON sidecar beside it.
+pub fn write_mask(mask: &GrayscaleMask, output: &Path) -> Result<Vec<Artifact>> {
+    let ext = output.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
+    let meta = Metadata { pitch: Some(mask.meta.pitch_m), unit: None, text: Vec::new() }
+        .with("content", "grayscale lithography mask: gray = round(relative dose * full scale)")
+        .with("sidecar", "see the .json file of the same name for levels, doses and provenance");
+    let as_u8 = || mask.gray.mapv(|g| g as u8);
+    match (ext.as_str(), mask.meta.bits) {
+        ("png", 16) => write_png_u16(output, &mask.gray, &meta)?,
+        ("png", _) => write_png_u8(output, &as_u8(), &meta)?,
+        ("tif" | "tiff", 16) => write_tiff_u16(output, &mask.gray, &meta)?,
+        ("tif" | "tiff", _) => write_tiff_u8(output, &as_u8(), &meta)?,
+        _ => return Err(Error::param("output", format!("{}: a mask is written as .png, .tif or .tiff", output.display()))),
+    }
+    let sidecar = output.with_extension("json");
+    write_json(&sidecar, &mask.meta)?;
+    Ok(vec![artifact(output, "grayscale_mask"), artifact(&sidecar, "mask_sidecar")])
+}
+
+/// `doefab mask`: renders a level map into a grayscale mask.
+pub fn mask_file(levels: &Path, curve: &Path, opts: &MaskOptions, output: &Path) -> Result<MaskMeta> {
+    let lm = read_level_map(levels)?;
+    let curve = ContrastCurve::read_csv(curve)?;
+    let mask = crate::fabrication::mask::render(&lm.levels, lm.level_count, lm.period, &curve, opts, &lm.provenance)?;
+    write_mask(&mask, output)?;
+    Ok(mask.meta)
+}
+
+/// Options of `doefab fab` beyond the recipe.
+#[derive(Debug, Clone, Default)]
+pub struct FabOptions {
+    pub fill: bool,
+    pub force: bool,
+}
+
+/// Everything `doefab fab` did, written as `report.json` (and summarised in `report.md`).
+#[derive(Debug, Clone, Serialize)]
+pub struct FabReport {
+    pub recipe: String,
+    pub recipe_path: PathBuf,
+    pub units: std::collections::BTreeMap<String, String>,
+    pub provenance: Provenance,
+    /// `[width, height]` of the design, samples.
+    pub design_size: [usize; 2],
+    /// `[x, y]` design pitch, metres.
+    pub design_pitch_m: [f64; 2],
+    pub wrap: WrapReport,
+    pub level_count: usize,
+    /// RMS height error of the quantized surface, metres.
+    pub quantization_rms_error_m: f64,
+    pub efficiency: Vec<EfficiencyRow>,
+    pub features: FeatureReport,
+    pub mask: Option<MaskMeta>,
+    pub warnings: Vec<String>,
+    pub artifacts: Vec<Artifact>,
+}
+
+/// Number of progress steps `run_recipe` reports for `recipe`.
+pub fn step_count(recipe: &Recipe) -> usize {
+    let grayscale = recipe.outputs.iter().any(|o| matches!(o, Output::GrayscalePng | Output::GrayscaleTiff));
+    3 + grayscale as usize + recipe.outputs.iter().filter(|o| matches!(o, Output::Gds | Output::Stl)).count()
+}
+
+/// `doefab fab`: the whole chain for a recipe, every artifact into `out_dir`.
+/// `progress` is called once per finished step with the step's name.
+pub fn run_recipe(
+    source: &DesignSource,
+    recipe: &Recipe,
+    out_dir: &Path,
+    opts: &FabOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<FabReport> {
+    let design = load_design(source)?;
+    progress("design loaded");
+    let params = ChainParams {
+        wavelength: recipe.wavelength,
+        material: recipe.material.clone(),
+        order: recipe.order,
+        level_count: recipe.level_count,
+        quantization: recipe.quantization,
+        replica_mode: recipe.replica_mode,
+        min_feature: recipe.min_feature,
+        fill: opts.fill,
+    };
+    let prep = prepare(&design, &params)?;
+    progress("wrapped and quantized");
+    let mut artifacts = Vec::new();
+    let heights_path = out_dir.join("surface.exr");
+    write_height_map(&heights_path, &prep.surface, &prep.provenance)?;
+    artifacts.push(artifact(&heights_path, "wrapped_surface"));
+    let levels_path = out_dir.join("levels.exr");
+    write_level_map(&levels_path, &prep.quantized, &prep.provenance)?;
+    artifacts.push(artifact(&levels_path, "level_map"));
+    let preview_path = out_dir.join("levels_preview.png");
+    write_png_u8(&preview_path, &level_preview(&prep.quantized), &Metadata { pitch: Some(prep.quantized.levels.pitch()), unit: None, text: vec![("content".into(), "level map preview: gray = level * 255 / (N - 1)".into())] })?;
+    artifacts.push(artifact(&preview_path, "level_preview"));
+
+    let mut mask_meta = None;
+    let grayscale: Vec<&str> = recipe
+        .outputs
+        .iter()
+        .filter_map(|o| match o {
+            Output::GrayscalePng => Some("png"),
+            Output::GrayscaleTiff => Some("tif"),
+            _ => None,
+        })
+        .collect();
+    if !grayscale.is_empty() {
+        let curve_path = recipe.contrast_curve.as_ref().ok_or_else(|| Error::format(&recipe.path, "no contrast_curve"))?;
+        let curve = ContrastCurve::read_csv(curve_path)?;
+        let mopts = MaskOptions {
+            writer_pitch: recipe.address_grid,
+            bits: recipe.mask_bits,
+            polarity: recipe.polarity,
+            mirror: recipe.mask_mirror,
+            border: recipe.mask_border,
+            marks: true,
+            label: recipe.mask_label.clone(),
+            force: opts.force,
+            ..Default::default()
+        };
+        let mask = crate::fabrication::mask::render(&prep.quantized.levels, recipe.level_count, prep.wrap.period, &curve, &mopts, &prep.provenance)?;
+        for ext in grayscale {
+            artifacts.extend(write_mask(&mask, &out_dir.join(format!("grayscale_mask.{ext}")))?);
+        }
+        artifacts.dedup_by(|a, b| a.path == b.path);
+        mask_meta = Some(mask.meta);
+        progress("grayscale mask written");
+    }
+
+    let mut units = std::collections::BTreeMap::new();
+    for (k, v) in [("length", "m"), ("height", "m"), ("pitch", "m"), ("wavelength", "m"), ("efficiency", "fraction of incident power")] {
+        units.insert(k.to_string(), v.to_string());
+    }
+    let report = FabReport {
+        recipe: recipe.name.clone(),
+        recipe_path: recipe.path.clone(),
+        units,
+        provenance: prep.provenance.clone(),
+        design_size: [design.heights.dim().1, design.heights.dim().0],
+        design_pitch_m: design.heights.pitch(),
+        wrap: prep.wrap.clone(),
+        level_count: recipe.level_count,
+        quantization_rms_error_m: prep.quantized.rms_error,
+        efficiency: prep.efficiency.clone(),
+        features: prep.features.clone(),
+        mask: mask_meta,
+        warnings: prep.warnings.clone(),
+        artifacts,
+    };
+    let mut report = report;
+    let json_path = out_dir.join("report.json");
+    let md_path = out_dir.join("report.md");
+    report.artifacts.push(artifact(&json_path, "report_json"));
+    report.artifacts.push(artifact(&md_path, "report_markdown"));
+    write_json(&json_path, &report)?;
+    crate::io::atomic::write_bytes(&md_path, report_markdown(&report).as_bytes())?;
+    progress("report written");
+    Ok(report)
+}
+
+/// An 8-bit preview of a level map: gray = level * 255 / (N - 1).
+fn level_preview(q: &Quantized) -> ndarray::Array2<u8> {
+    let scale = 255.0 / (q.level_count - 1).max(1) as f64;
+    q.levels.values().mapv(|l| (l * scale).round() as u8)
+}
+
+/// The human-readable summary of a fabrication run.
+pub fn report_markdown(r: &FabReport) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let _ = writeln!(s, "# Fabrication report: {}\n", r.recipe);
+    let _ = writeln!(s, "- design: `{}` (sha256 `{}`)", r.provenance.design, r.provenance.design_sha256);
+    let _ = writeln!(
+        s,
+        "- {} x {} samples at {:.3} um; design wavelength {:.1} nm in {}, order p = {}",
+        r.design_size[0],
+        r.design_size[1],
+        r.design_pitch_m[0] * 1e6,
+        r.provenance.wavelength_m * 1e9,
+        r.provenance.material,
+        r.provenance.order
+    );
+    let _ = writeln!(s, "- replica mode: {:?} (outputs {} the design)", r.provenance.replica_mode, match r.provenance.replica_mode {
+        ReplicaMode::Design => "are",
+        ReplicaMode::Master => "are the master whose PDMS cast is",
+    });
+    let _ = writeln!(
+        s,
+        "- wrap period {:.4} um; {} samples wrapped (up to {} periods); max height {:.4} um -> {:.4} um",
+        r.wrap.period * 1e6,
+        r.wrap.wrapped_samples,
+        r.wrap.max_wraps,
+        r.wrap.input_max_height * 1e6,
+        r.wrap.max_height * 1e6
+    );
+    let _ = writeln!(s, "- {} levels ({}), rms quantization error {:.2} nm", r.level_count, r.provenance.quantization, r.quantization_rms_error_m * 1e9);
+    let _ = writeln!(s, "- narrowest terrace {:.2} um (zone period {:.2} um); writer minimum feature {:.2} um\n", r.features.min_terrace_width * 1e6, r.features.min_zone_period * 1e6, r.features.min_feature * 1e6);
+    let _ = writeln!(s, "## Predicted diffraction efficiency of the design order (Swanson 1989)\n");
+    let _ = writeln!(s, "| wavelength | n | detuning a | {} levels | continuous |", r.level_count);
+    let _ = writeln!(s, "|---|---|---|---|---|");
+    for e in &r.efficiency {
+        let _ = writeln!(s, "| {:.0} nm | {:.4} | {:.4} | {:.4} | {:.4} |", e.wavelength * 1e9, e.index, e.detuning, e.efficiency, e.continuous_efficiency);
+    }
+    let _ = writeln!(s, "\n## Warnings\n");
+    if r.warnings.is_empty() {
+        let _ = writeln!(s, "none");
+    }
+    for w in &r.warnings {
+        let _ = writeln!(s, "- {w}");
+    }
+    let _ = writeln!(s, "\n## Artifacts\n");
+    for a in &r.artifacts {
+        let name = a.path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        if name.ends_with(".png") {
+            let _ = writeln!(s, "- {}: ![{name}]({name})", a.kind);
+        } else {
+            let _ = writeln!(s, "- {}: `{name}`", a.kind);
+        }
+    }
+    s
+}
