@@ -395,12 +395,12 @@ fn check_plausible(file: &str, raw: &RawMap, k: f64) -> Result<()> {
                 format_length(pv)
             );
             let tail = match best(1.0) {
-                Some(("m", _)) => " The values look like metres already; did you mean --unit m?".to_string(),
+                Some(("m", _)) => "; the values look like metres already: did you mean --unit m?".to_string(),
                 Some((name, s)) => format!(
-                    " In {name} they would span {}: did you mean --unit {name}?",
+                    "; in {name} they would span {}: did you mean --unit {name}?",
                     format_length(pv_raw * s)
                 ),
-                None => " No length unit makes them plausible: check the file.".to_string(),
+                None => "; no length unit makes them plausible: check the file".to_string(),
             };
             Err(Error::param("unit", head + &tail))
         }
@@ -411,10 +411,10 @@ fn check_plausible(file: &str, raw: &RawMap, k: f64) -> Result<()> {
                 format_length(pv)
             );
             let tail = match best(k.abs()) {
-                Some(("m", _)) | None => " Check the scale: it is metres per count.".to_string(),
+                Some(("m", _)) | None => "; check the scale: it is metres per count".to_string(),
                 Some((name, s)) => format!(
-                    " If the scale was meant in {name} per count, pass --z-scale {:e} (heights would \
-                     span {}).",
+                    "; if the scale was meant in {name} per count, pass --z-scale {:e} (heights would \
+                     span {})",
                     k * s,
                     format_length(pv * s)
                 ),
@@ -488,7 +488,7 @@ mod tests {
         r.pitch = Some([1e-6; 2]);
         r.unit = Some(1e-6);
         let e = heightmap_from_raw(p, r.clone(), &ReadOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("look like metres already; did you mean --unit m?"), "{e}");
+        assert!(e.contains("look like metres already: did you mean --unit m?"), "{e}");
         let g =
             heightmap_from_raw(p, r.clone(), &ReadOptions { allow_implausible: true, ..Default::default() });
         assert!(g.is_ok());
