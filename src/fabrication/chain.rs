@@ -16,7 +16,7 @@ use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::mask::{GrayscaleMask, MaskMeta, MaskOptions};
 use crate::fabrication::recipe::{Output, Recipe};
 use crate::grid::{Grid, Unit};
-use crate::io::atomic::write_json;
+use crate::io::atomic::{write_json, StagedDir};
 use crate::io::exr::write_exr;
 use crate::io::heightmap::{read_heightmap, read_raw, Metadata, ReadOptions};
 use crate::io::png::{write_png_u16, write_png_u8};
@@ -158,11 +158,11 @@ pub fn prepare(design: &LoadedDesign, p: &ChainParams) -> Result<Prepared> {
             p.level_count
         ));
     }
-    if features.undersampled_samples > 0 {
+    if features.step_samples > 0 {
         warnings.push(format!(
-            "{} samples step by more than {:.0}% of a period to a neighbour: the design is at or beyond its \
-             sampling limit there",
-            features.undersampled_samples,
+            "{} samples step by more than {:.0}% of a period to a neighbour (the aperture edge, or a design \
+             at or beyond its sampling limit); they are left out of the zone-period check",
+            features.step_samples,
             crate::fabrication::quantize::UNDERSAMPLED_STEP * 100.0
         ));
     }
@@ -343,7 +343,7 @@ pub fn quantize_file(heights: &Path, p: &ChainParams, output: &Path) -> Result<Q
 }
 
 /// Writes a rendered mask as PNG or TIFF (by extension) plus the JSON sidecar beside it.
-pub fn write_mask(mask: &GrayscaleMask, output: &Path) -> Result<Vec<Artifact>> {
+pub fn write_mask(mask: &GrayscaleMask, output: &Path) -> Result<()> {
     let ext = output.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
     let meta = Metadata { pitch: Some(mask.meta.pitch_m), unit: None, text: Vec::new() }
         .with("content", "grayscale lithography mask: gray = round(relative dose * full scale)")
@@ -357,8 +357,8 @@ pub fn write_mask(mask: &GrayscaleMask, output: &Path) -> Result<Vec<Artifact>> 
         _ => return Err(Error::param("output", format!("{}: a mask is written as .png, .tif or .tiff", output.display()))),
     }
     let sidecar = output.with_extension("json");
-    write_json(&sidecar, &mask.meta)?;
-    Ok(vec![artifact(output, "grayscale_mask"), artifact(&sidecar, "mask_sidecar")])
+    write_json(&sidecar, &mask.meta)
+
 }
 
 /// `doefab mask`: renders a level map into a grayscale mask.
@@ -428,16 +428,14 @@ pub fn run_recipe(
     };
     let prep = prepare(&design, &params)?;
     progress("wrapped and quantized");
+    let mut stage = StagedDir::new(out_dir)?;
     let mut artifacts = Vec::new();
-    let heights_path = out_dir.join("surface.exr");
-    write_height_map(&heights_path, &prep.surface, &prep.provenance)?;
-    artifacts.push(artifact(&heights_path, "wrapped_surface"));
-    let levels_path = out_dir.join("levels.exr");
-    write_level_map(&levels_path, &prep.quantized, &prep.provenance)?;
-    artifacts.push(artifact(&levels_path, "level_map"));
-    let preview_path = out_dir.join("levels_preview.png");
-    write_png_u8(&preview_path, &level_preview(&prep.quantized), &Metadata { pitch: Some(prep.quantized.levels.pitch()), unit: None, text: vec![("content".into(), "level map preview: gray = level * 255 / (N - 1)".into())] })?;
-    artifacts.push(artifact(&preview_path, "level_preview"));
+    write_height_map(&stage.stage_path("surface.exr"), &prep.surface, &prep.provenance)?;
+    artifacts.push(artifact(&stage.final_path("surface.exr"), "wrapped_surface"));
+    write_level_map(&stage.stage_path("levels.exr"), &prep.quantized, &prep.provenance)?;
+    artifacts.push(artifact(&stage.final_path("levels.exr"), "level_map"));
+    write_png_u8(&stage.stage_path("levels_preview.png"), &level_preview(&prep.quantized), &Metadata { pitch: Some(prep.quantized.levels.pitch()), unit: None, text: vec![("content".into(), "level map preview: gray = level * 255 / (N - 1)".into())] })?;
+    artifacts.push(artifact(&stage.final_path("levels_preview.png"), "level_preview"));
 
     let mut mask_meta = None;
     let grayscale: Vec<&str> = recipe
@@ -465,9 +463,12 @@ pub fn run_recipe(
         };
         let mask = crate::fabrication::mask::render(&prep.quantized.levels, recipe.level_count, prep.wrap.period, &curve, &mopts, &prep.provenance)?;
         for ext in grayscale {
-            artifacts.extend(write_mask(&mask, &out_dir.join(format!("grayscale_mask.{ext}")))?);
+            let name = format!("grayscale_mask.{ext}");
+            write_mask(&mask, &stage.stage_path(&name))?;
+            stage.stage_path("grayscale_mask.json");
+            artifacts.push(artifact(&stage.final_path(&name), "grayscale_mask"));
         }
-        artifacts.dedup_by(|a, b| a.path == b.path);
+        artifacts.push(artifact(&stage.final_path("grayscale_mask.json"), "mask_sidecar"));
         mask_meta = Some(mask.meta);
         progress("grayscale mask written");
     }
@@ -493,12 +494,11 @@ pub fn run_recipe(
         artifacts,
     };
     let mut report = report;
-    let json_path = out_dir.join("report.json");
-    let md_path = out_dir.join("report.md");
-    report.artifacts.push(artifact(&json_path, "report_json"));
-    report.artifacts.push(artifact(&md_path, "report_markdown"));
-    write_json(&json_path, &report)?;
-    crate::io::atomic::write_bytes(&md_path, report_markdown(&report).as_bytes())?;
+    report.artifacts.push(artifact(&stage.final_path("report.json"), "report_json"));
+    report.artifacts.push(artifact(&stage.final_path("report.md"), "report_markdown"));
+    write_json(&stage.stage_path("report.json"), &report)?;
+    crate::io::atomic::write_bytes(&stage.stage_path("report.md"), report_markdown(&report).as_bytes())?;
+    stage.commit()?;
     progress("report written");
     Ok(report)
 }

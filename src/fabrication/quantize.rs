@@ -225,10 +225,11 @@ pub struct FeatureReport {
     /// Fraction of valid samples whose terrace width (zone period / N) is below `min_feature`.
     pub fraction_below: f64,
     /// Samples where the wrapped height step to a neighbour exceeds 0.4 of a period (phase
-    /// step above 0.8 pi per sample): the design is at or beyond its sampling limit there. A
-    /// step beyond pi aliases into a smaller one and cannot be told apart from the samples,
-    /// so the check flags the approach to the limit.
-    pub undersampled_samples: usize,
+    /// step above 0.8 pi per sample): a real step (the aperture edge) or a design at or beyond
+    /// its sampling limit. A step beyond pi aliases into a smaller one and cannot be told apart
+    /// from the samples, so the check flags the approach to the limit. These samples have no
+    /// meaningful local zone period and are left out of the estimate.
+    pub step_samples: usize,
 }
 
 /// Estimates the local zone period `Lambda = P / |grad h|` from phase-wrapped central
@@ -241,7 +242,7 @@ pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_featur
     let wrapd = |d: f64| d - (d / period).round() * period;
     let mut min_period = f64::INFINITY;
     let mut below = 0usize;
-    let mut undersampled = 0usize;
+    let mut steps = 0usize;
     let mut counted = 0usize;
     for i in 0..nr {
         for j in 0..nc {
@@ -270,8 +271,10 @@ pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_featur
                 .into_iter()
                 .chain(diff(Some((i, j)), down, py))
                 .collect::<Vec<_>>();
+            counted += 1;
             if gx.iter().chain(&gy).any(|(d, _)| d.abs() > UNDERSAMPLED_STEP * period) {
-                undersampled += 1;
+                steps += 1;
+                continue;
             }
             let mean = |g: &[(f64, f64)]| {
                 if g.is_empty() {
@@ -281,7 +284,6 @@ pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_featur
                 }
             };
             let grad = mean(&gx).hypot(mean(&gy));
-            counted += 1;
             if grad > 0.0 {
                 let lam = period / grad;
                 min_period = min_period.min(lam);
@@ -296,7 +298,7 @@ pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_featur
         min_terrace_width: min_period / level_count as f64,
         min_feature,
         fraction_below: below as f64 / counted.max(1) as f64,
-        undersampled_samples: undersampled,
+        step_samples: steps,
     }
 }
 
@@ -406,12 +408,12 @@ mod tests {
         assert_eq!(r.fraction_below, 0.0);
         let r = feature_check(&g, p, 16, 2e-6);
         assert_eq!(r.fraction_below, 1.0);
-        assert_eq!(r.undersampled_samples, 0);
+        assert_eq!(r.step_samples, 0);
         // Steps of 0.45 of a period per sample are flagged, 0.35 are not.
         for (step, flagged) in [(0.45, true), (0.35, false)] {
             let v = Array2::from_shape_fn((4, 50), |(_, j)| (j as f64 * step * p) % p);
             let r = feature_check(&Grid::new(v, [1e-6, 1e-6], Unit::Metre).unwrap(), p, 8, 1e-6);
-            assert_eq!(r.undersampled_samples > 0, flagged, "step {step}");
+            assert_eq!(r.step_samples > 0, flagged, "step {step}");
         }
     }
 }

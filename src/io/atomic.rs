@@ -45,6 +45,55 @@ pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
     write_bytes(path, text.as_bytes())
 }
 
+/// A folder of outputs that appears all at once: files are written into a hidden staging
+/// folder beside the destination and moved in by [`StagedDir::commit`]. Dropping it without
+/// committing (an error half way) deletes the staging folder, so a failed run leaves nothing
+/// in the destination; files from an earlier run there are replaced only on success.
+pub struct StagedDir {
+    stage: tempfile::TempDir,
+    dest: std::path::PathBuf,
+    names: Vec<String>,
+}
+
+impl StagedDir {
+    /// Prepares staging for the destination folder `dest`.
+    pub fn new(dest: &Path) -> Result<StagedDir> {
+        let parent = match dest.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+        let stage = tempfile::Builder::new().prefix(".doefab-stage-").tempdir_in(parent).map_err(|e| Error::io(parent, e))?;
+        Ok(StagedDir { stage, dest: dest.to_path_buf(), names: Vec::new() })
+    }
+
+    /// Where to write the file `name` now (inside the staging folder).
+    pub fn stage_path(&mut self, name: &str) -> std::path::PathBuf {
+        if !self.names.iter().any(|n| n == name) {
+            self.names.push(name.to_string());
+        }
+        self.stage.path().join(name)
+    }
+
+    /// Where the file `name` will be after [`commit`](Self::commit).
+    pub fn final_path(&self, name: &str) -> std::path::PathBuf {
+        self.dest.join(name)
+    }
+
+    /// Moves every staged file into the destination (each move is a rename).
+    pub fn commit(self) -> Result<()> {
+        std::fs::create_dir_all(&self.dest).map_err(|e| Error::io(&self.dest, e))?;
+        for n in &self.names {
+            let from = self.stage.path().join(n);
+            if from.exists() {
+                let to = self.dest.join(n);
+                std::fs::rename(&from, &to).map_err(|e| Error::io(&to, e))?;
+            }
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -64,5 +113,24 @@ mod tests {
         assert_eq!(names.len(), 1, "left behind: {names:?}");
         write_bytes(&p, b"new").unwrap();
         assert_eq!(std::fs::read(&p).unwrap(), b"new");
+    }
+
+    #[test]
+    fn a_staged_folder_appears_only_on_commit() {
+        let dir = tempfile::tempdir().unwrap();
+        let dest = dir.path().join("out");
+        {
+            let mut s = StagedDir::new(&dest).unwrap();
+            write_bytes(&s.stage_path("a.txt"), b"a").unwrap();
+            // Dropped without commit: as if a later step had failed.
+        }
+        assert!(!dest.exists());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "staging folder left behind");
+        let mut s = StagedDir::new(&dest).unwrap();
+        write_bytes(&s.stage_path("a.txt"), b"a").unwrap();
+        assert_eq!(s.final_path("a.txt"), dest.join("a.txt"));
+        s.commit().unwrap();
+        assert_eq!(std::fs::read(dest.join("a.txt")).unwrap(), b"a");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 }
