@@ -5,13 +5,17 @@
 //! * [`quantize`]: N-level quantization, predicted efficiencies, zone-period check;
 //! * [`contrast`]: resist contrast curves, monotone and invertible;
 //! * [`mask`]: grayscale lithography masks with frame, crosses and label ([`marks`]);
+//! * [`gds`]: the multi-level binary mask set as GDSII, polygons from [`trace`];
+//! * [`recipe`]: process recipes; [`chain`]: the whole chain behind `doefab fab`.
 
 pub mod chain;
 pub mod contrast;
+pub mod gds;
 pub mod marks;
 pub mod mask;
 pub mod quantize;
 pub mod recipe;
+pub mod trace;
 pub mod wrap;
 
 use serde::{Deserialize, Serialize};
