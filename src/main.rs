@@ -119,6 +119,19 @@ enum Command {
         #[arg(long)]
         force: bool,
     },
+    /// Multi-level binary mask set (log2 N layers) as one GDSII file, with layer previews.
+    Gds {
+        /// Level map (.exr from `doefab quantize`), N a power of two.
+        levels: PathBuf,
+        /// Output GDSII file.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Mask writer address grid the levels are resampled onto.
+        #[arg(long, value_parser = clap_length, default_value = "1 um")]
+        writer_pitch: f64,
+        #[arg(long)]
+        mirror: bool,
+    },
 }
 
 /// How to read a height map that does not say everything about itself.
@@ -234,11 +247,29 @@ fn run(cli: &Cli) -> Result<()> {
             let report = chain::quantize_file(heights, &params, output)?;
             warn(&report.warnings);
             print_result(cli, &report, || {
-                println!("{} levels ({:?}), rms error {:.2} nm -> {}", levels, method, report.rms_error * 1e9, output.display());
+                println!(
+                    "{} levels ({:?}), rms error {:.2} nm -> {}",
+                    levels,
+                    method,
+                    report.rms_error * 1e9,
+                    output.display()
+                );
                 print_efficiency(&report.efficiency);
             })
         }
-        Command::Mask { levels, curve, output, writer_pitch, bits, polarity, mirror, border, label, no_marks, force } => {
+        Command::Mask {
+            levels,
+            curve,
+            output,
+            writer_pitch,
+            bits,
+            polarity,
+            mirror,
+            border,
+            label,
+            no_marks,
+            force,
+        } => {
             let opts = doefab::fabrication::mask::MaskOptions {
                 writer_pitch: *writer_pitch,
                 bits: *bits,
@@ -252,7 +283,33 @@ fn run(cli: &Cli) -> Result<()> {
             };
             let meta = chain::mask_file(levels, curve, &opts, output)?;
             print_result(cli, &meta, || {
-                println!("{} x {} px, {}-bit -> {}", meta.size_px[0], meta.size_px[1], meta.bits, output.display())
+                println!(
+                    "{} x {} px, {}-bit -> {}",
+                    meta.size_px[0],
+                    meta.size_px[1],
+                    meta.bits,
+                    output.display()
+                )
+            })
+        }
+        Command::Gds { levels, output, writer_pitch, mirror } => {
+            let report = chain::gds_file(levels, *writer_pitch, *mirror, output)?;
+            print_result(cli, &report, || {
+                println!(
+                    "{} masks, {} polygons, {} vertices -> {}",
+                    report.masks.len(),
+                    report.polygons,
+                    report.vertices,
+                    output.display()
+                );
+                for m in &report.masks {
+                    println!(
+                        "  layer {}: etch {:.1} nm, {} polygons",
+                        m.layer,
+                        m.etch_depth * 1e9,
+                        m.polygons
+                    );
+                }
             })
         }
     }
@@ -292,7 +349,14 @@ fn print_efficiency(rows: &[doefab::fabrication::quantize::EfficiencyRow]) {
     }
 }
 
-fn fab(cli: &Cli, source: &DesignSource, recipe: &Recipe, output: &Path, fill: bool, force: bool) -> Result<()> {
+fn fab(
+    cli: &Cli,
+    source: &DesignSource,
+    recipe: &Recipe,
+    output: &Path,
+    fill: bool,
+    force: bool,
+) -> Result<()> {
     let pb = progress(cli, chain::step_count(recipe) as u64);
     let opts = FabOptions { fill, force };
     let report = chain::run_recipe(source, recipe, output, &opts, &mut |step: &str| {

@@ -7,14 +7,15 @@ use serde::Serialize;
 
 use crate::design::{ExampleParams, FresnelParams};
 use crate::error::{Error, Result};
+use crate::fabrication::contrast::ContrastCurve;
+use crate::fabrication::gds::{write_layer_previews, write_mask_set, MaskSetOptions, MaskSetReport};
+use crate::fabrication::mask::{GrayscaleMask, MaskMeta, MaskOptions};
 use crate::fabrication::quantize::{
     efficiency_table, feature_check, quantize, EfficiencyRow, FeatureReport, QuantizeMethod, Quantized,
 };
+use crate::fabrication::recipe::{Output, Recipe};
 use crate::fabrication::wrap::{check_finite, fill_missing, to_master, wrap, WrapReport, WrapSpec};
 use crate::fabrication::{Provenance, ReplicaMode};
-use crate::fabrication::contrast::ContrastCurve;
-use crate::fabrication::mask::{GrayscaleMask, MaskMeta, MaskOptions};
-use crate::fabrication::recipe::{Output, Recipe};
 use crate::grid::{Grid, Unit};
 use crate::io::atomic::{write_json, StagedDir};
 use crate::io::exr::write_exr;
@@ -69,12 +70,18 @@ pub fn load_design(source: &DesignSource) -> Result<LoadedDesign> {
                 other => {
                     return Err(Error::param(
                         "design",
-                        format!("unknown built-in design '{other}' (known: built-in:paper, built-in:fresnel)"),
+                        format!(
+                            "unknown built-in design '{other}' (known: built-in:paper, built-in:fresnel)"
+                        ),
                     ))
                 }
             };
             let bytes = params.map_err(|e| Error::Data(e.to_string()))?;
-            Ok(LoadedDesign { heights, name: format!("built-in:{name}"), sha256: crate::io::hex_sha256(&bytes) })
+            Ok(LoadedDesign {
+                heights,
+                name: format!("built-in:{name}"),
+                sha256: crate::io::hex_sha256(&bytes),
+            })
         }
         DesignSource::File(path, read) => Ok(LoadedDesign {
             heights: read_heightmap(path, read)?,
@@ -101,7 +108,11 @@ pub struct ChainParams {
 
 impl ChainParams {
     pub fn wrap_spec(&self) -> Result<WrapSpec> {
-        Ok(WrapSpec { wavelength: self.wavelength, material: Material::by_name(&self.material)?, order: self.order })
+        Ok(WrapSpec {
+            wavelength: self.wavelength,
+            material: Material::by_name(&self.material)?,
+            order: self.order,
+        })
     }
 }
 
@@ -245,7 +256,10 @@ pub struct LevelMap {
 
 fn meta_get<'a>(path: &Path, meta: &'a [(String, String)], key: &str) -> Result<&'a str> {
     meta.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str()).ok_or_else(|| {
-        Error::format(path, format!("metadata '{key}' is missing: expected a level map written by `doefab quantize`"))
+        Error::format(
+            path,
+            format!("metadata '{key}' is missing: expected a level map written by `doefab quantize`"),
+        )
     })
 }
 
@@ -266,8 +280,13 @@ pub fn read_level_map(path: &Path) -> Result<LevelMap> {
     let provenance: Provenance = serde_json::from_str(meta_get(path, &raw.metadata, KEY_PROVENANCE)?)
         .map_err(|e| Error::format(path, format!("metadata 'provenance': {e}")))?;
     let pitch = raw.pitch.ok_or_else(|| Error::format(path, "metadata 'pitch_x'/'pitch_y' is missing"))?;
-    if let Some(((i, j), v)) = raw.values.indexed_iter().find(|(_, v)| v.fract() != 0.0 || **v < 0.0 || **v >= level_count as f64) {
-        return Err(Error::format(path, format!("sample at row {i}, column {j} is {v}, not a level in 0..{level_count}")));
+    if let Some(((i, j), v)) =
+        raw.values.indexed_iter().find(|(_, v)| v.fract() != 0.0 || **v < 0.0 || **v >= level_count as f64)
+    {
+        return Err(Error::format(
+            path,
+            format!("sample at row {i}, column {j} is {v}, not a level in 0..{level_count}"),
+        ));
     }
     Ok(LevelMap { levels: Grid::new(raw.values, pitch, Unit::Level)?, level_count, period, provenance })
 }
@@ -310,8 +329,13 @@ pub struct QuantizeFileReport {
 pub fn quantize_file(heights: &Path, p: &ChainParams, output: &Path) -> Result<QuantizeFileReport> {
     let raw = read_raw(heights, None)?;
     let mut provenance: Provenance = match raw.metadata.iter().find(|(k, _)| k == KEY_PROVENANCE) {
-        Some((_, v)) => serde_json::from_str(v).map_err(|e| Error::format(heights, format!("metadata 'provenance': {e}")))?,
-        None => Provenance { design: heights.display().to_string(), design_sha256: crate::io::file_sha256(heights)?, ..Default::default() },
+        Some((_, v)) => serde_json::from_str(v)
+            .map_err(|e| Error::format(heights, format!("metadata 'provenance': {e}")))?,
+        None => Provenance {
+            design: heights.display().to_string(),
+            design_sha256: crate::io::file_sha256(heights)?,
+            ..Default::default()
+        },
     };
     let grid = crate::io::heightmap::heightmap_from_raw(heights, raw, &ReadOptions::default())?;
     let spec = p.wrap_spec()?;
@@ -354,20 +378,109 @@ pub fn write_mask(mask: &GrayscaleMask, output: &Path) -> Result<()> {
         ("png", _) => write_png_u8(output, &as_u8(), &meta)?,
         ("tif" | "tiff", 16) => write_tiff_u16(output, &mask.gray, &meta)?,
         ("tif" | "tiff", _) => write_tiff_u8(output, &as_u8(), &meta)?,
-        _ => return Err(Error::param("output", format!("{}: a mask is written as .png, .tif or .tiff", output.display()))),
+        _ => {
+            return Err(Error::param(
+                "output",
+                format!("{}: a mask is written as .png, .tif or .tiff", output.display()),
+            ))
+        }
     }
     let sidecar = output.with_extension("json");
     write_json(&sidecar, &mask.meta)
-
 }
 
 /// `doefab mask`: renders a level map into a grayscale mask.
 pub fn mask_file(levels: &Path, curve: &Path, opts: &MaskOptions, output: &Path) -> Result<MaskMeta> {
     let lm = read_level_map(levels)?;
     let curve = ContrastCurve::read_csv(curve)?;
-    let mask = crate::fabrication::mask::render(&lm.levels, lm.level_count, lm.period, &curve, opts, &lm.provenance)?;
+    let mask = crate::fabrication::mask::render(
+        &lm.levels,
+        lm.level_count,
+        lm.period,
+        &curve,
+        opts,
+        &lm.provenance,
+    )?;
     write_mask(&mask, output)?;
     Ok(mask.meta)
+}
+
+/// What the GDSII mask set is made from.
+pub struct GdsJob<'a> {
+    /// Level map at any pitch.
+    pub levels: &'a Grid,
+    pub level_count: usize,
+    /// Wrap period p * h_2pi, metres.
+    pub period: f64,
+    /// Mask writer address grid, metres.
+    pub address_grid: f64,
+    pub mirror: bool,
+    pub provenance: &'a Provenance,
+}
+
+/// The GDSII mask set and its sidecar, with the level map resampled onto the writer's
+/// address grid (nearest sample: each design sample is a flat cell). Files are created
+/// through `place(name)`, which returns the path to write `name` to; returns the report and
+/// the (name, kind) of every file written.
+pub fn write_gds_set(
+    job: &GdsJob,
+    stem: &str,
+    place: &mut dyn FnMut(&str) -> PathBuf,
+) -> Result<(MaskSetReport, Vec<(String, &'static str)>)> {
+    let GdsJob { levels, level_count, period, address_grid, mirror, provenance } = *job;
+    let ext = levels.extent();
+    let (nc, nr) = ((ext[0] / address_grid).round() as usize, (ext[1] / address_grid).round() as usize);
+    let on_grid = levels.resample_to(nr, nc, [address_grid; 2], crate::grid::Interpolation::Nearest)?;
+    let on_grid = if mirror { on_grid.mirror(true, false) } else { on_grid };
+    let opts = MaskSetOptions::default();
+    let gds_name = format!("{stem}.gds");
+    let gds_path = place(&gds_name);
+    let report = write_mask_set(&on_grid, level_count, period, &opts, &gds_path)?;
+    let mut written = vec![(gds_name, "gds_mask_set")];
+    let dir = gds_path.parent().map(Path::to_path_buf).unwrap_or_default();
+    for p in write_layer_previews(&on_grid, level_count, &opts, &dir, stem)? {
+        let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        place(&name);
+        written.push((name, "gds_layer_preview"));
+    }
+    #[derive(Serialize)]
+    struct Sidecar<'a> {
+        kind: &'static str,
+        units: &'static str,
+        mirrored: bool,
+        mask_set: &'a MaskSetReport,
+        provenance: &'a Provenance,
+    }
+    let sidecar = Sidecar {
+        kind: "multi_level_binary_mask_set",
+        units:
+            "lengths and depths in metres; GDSII user unit 1 um, database unit 1 nm; GDS Y = -row position",
+        mirrored: mirror,
+        mask_set: &report,
+        provenance,
+    };
+    let sidecar_name = format!("{stem}.json");
+    write_json(&place(&sidecar_name), &sidecar)?;
+    written.push((sidecar_name, "gds_sidecar"));
+    Ok((report, written))
+}
+
+/// `doefab gds`: the mask set of a level map written by `doefab quantize`.
+pub fn gds_file(levels: &Path, address_grid: f64, mirror: bool, output: &Path) -> Result<MaskSetReport> {
+    let lm = read_level_map(levels)?;
+    let dir = output.parent().map(Path::to_path_buf).unwrap_or_default();
+    let stem =
+        output.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "mask_set".into());
+    let job = GdsJob {
+        levels: &lm.levels,
+        level_count: lm.level_count,
+        period: lm.period,
+        address_grid,
+        mirror,
+        provenance: &lm.provenance,
+    };
+    let (report, _) = write_gds_set(&job, &stem, &mut |name| dir.join(name))?;
+    Ok(report)
 }
 
 /// Options of `doefab fab` beyond the recipe.
@@ -395,6 +508,7 @@ pub struct FabReport {
     pub efficiency: Vec<EfficiencyRow>,
     pub features: FeatureReport,
     pub mask: Option<MaskMeta>,
+    pub gds: Option<MaskSetReport>,
     pub warnings: Vec<String>,
     pub artifacts: Vec<Artifact>,
 }
@@ -434,7 +548,15 @@ pub fn run_recipe(
     artifacts.push(artifact(&stage.final_path("surface.exr"), "wrapped_surface"));
     write_level_map(&stage.stage_path("levels.exr"), &prep.quantized, &prep.provenance)?;
     artifacts.push(artifact(&stage.final_path("levels.exr"), "level_map"));
-    write_png_u8(&stage.stage_path("levels_preview.png"), &level_preview(&prep.quantized), &Metadata { pitch: Some(prep.quantized.levels.pitch()), unit: None, text: vec![("content".into(), "level map preview: gray = level * 255 / (N - 1)".into())] })?;
+    write_png_u8(
+        &stage.stage_path("levels_preview.png"),
+        &level_preview(&prep.quantized),
+        &Metadata {
+            pitch: Some(prep.quantized.levels.pitch()),
+            unit: None,
+            text: vec![("content".into(), "level map preview: gray = level * 255 / (N - 1)".into())],
+        },
+    )?;
     artifacts.push(artifact(&stage.final_path("levels_preview.png"), "level_preview"));
 
     let mut mask_meta = None;
@@ -448,7 +570,8 @@ pub fn run_recipe(
         })
         .collect();
     if !grayscale.is_empty() {
-        let curve_path = recipe.contrast_curve.as_ref().ok_or_else(|| Error::format(&recipe.path, "no contrast_curve"))?;
+        let curve_path =
+            recipe.contrast_curve.as_ref().ok_or_else(|| Error::format(&recipe.path, "no contrast_curve"))?;
         let curve = ContrastCurve::read_csv(curve_path)?;
         let mopts = MaskOptions {
             writer_pitch: recipe.address_grid,
@@ -461,7 +584,14 @@ pub fn run_recipe(
             force: opts.force,
             ..Default::default()
         };
-        let mask = crate::fabrication::mask::render(&prep.quantized.levels, recipe.level_count, prep.wrap.period, &curve, &mopts, &prep.provenance)?;
+        let mask = crate::fabrication::mask::render(
+            &prep.quantized.levels,
+            recipe.level_count,
+            prep.wrap.period,
+            &curve,
+            &mopts,
+            &prep.provenance,
+        )?;
         for ext in grayscale {
             let name = format!("grayscale_mask.{ext}");
             write_mask(&mask, &stage.stage_path(&name))?;
@@ -473,8 +603,32 @@ pub fn run_recipe(
         progress("grayscale mask written");
     }
 
+    let mut gds = None;
+    if recipe.outputs.contains(&Output::Gds) {
+        let job = GdsJob {
+            levels: &prep.quantized.levels,
+            level_count: recipe.level_count,
+            period: prep.wrap.period,
+            address_grid: recipe.address_grid,
+            mirror: recipe.mask_mirror,
+            provenance: &prep.provenance,
+        };
+        let (report, written) = write_gds_set(&job, "mask_set", &mut |name| stage.stage_path(name))?;
+        for (name, kind) in written {
+            artifacts.push(artifact(&stage.final_path(&name), kind));
+        }
+        gds = Some(report);
+        progress("GDSII mask set written");
+    }
+
     let mut units = std::collections::BTreeMap::new();
-    for (k, v) in [("length", "m"), ("height", "m"), ("pitch", "m"), ("wavelength", "m"), ("efficiency", "fraction of incident power")] {
+    for (k, v) in [
+        ("length", "m"),
+        ("height", "m"),
+        ("pitch", "m"),
+        ("wavelength", "m"),
+        ("efficiency", "fraction of incident power"),
+    ] {
         units.insert(k.to_string(), v.to_string());
     }
     let report = FabReport {
@@ -490,6 +644,7 @@ pub fn run_recipe(
         efficiency: prep.efficiency.clone(),
         features: prep.features.clone(),
         mask: mask_meta,
+        gds,
         warnings: prep.warnings.clone(),
         artifacts,
     };
@@ -525,10 +680,15 @@ pub fn report_markdown(r: &FabReport) -> String {
         r.provenance.material,
         r.provenance.order
     );
-    let _ = writeln!(s, "- replica mode: {:?} (outputs {} the design)", r.provenance.replica_mode, match r.provenance.replica_mode {
-        ReplicaMode::Design => "are",
-        ReplicaMode::Master => "are the master whose PDMS cast is",
-    });
+    let _ = writeln!(
+        s,
+        "- replica mode: {:?} (outputs {} the design)",
+        r.provenance.replica_mode,
+        match r.provenance.replica_mode {
+            ReplicaMode::Design => "are",
+            ReplicaMode::Master => "are the master whose PDMS cast is",
+        }
+    );
     let _ = writeln!(
         s,
         "- wrap period {:.4} um; {} samples wrapped (up to {} periods); max height {:.4} um -> {:.4} um",
@@ -538,13 +698,33 @@ pub fn report_markdown(r: &FabReport) -> String {
         r.wrap.input_max_height * 1e6,
         r.wrap.max_height * 1e6
     );
-    let _ = writeln!(s, "- {} levels ({}), rms quantization error {:.2} nm", r.level_count, r.provenance.quantization, r.quantization_rms_error_m * 1e9);
-    let _ = writeln!(s, "- narrowest terrace {:.2} um (zone period {:.2} um); writer minimum feature {:.2} um\n", r.features.min_terrace_width * 1e6, r.features.min_zone_period * 1e6, r.features.min_feature * 1e6);
+    let _ = writeln!(
+        s,
+        "- {} levels ({}), rms quantization error {:.2} nm",
+        r.level_count,
+        r.provenance.quantization,
+        r.quantization_rms_error_m * 1e9
+    );
+    let _ = writeln!(
+        s,
+        "- narrowest terrace {:.2} um (zone period {:.2} um); writer minimum feature {:.2} um\n",
+        r.features.min_terrace_width * 1e6,
+        r.features.min_zone_period * 1e6,
+        r.features.min_feature * 1e6
+    );
     let _ = writeln!(s, "## Predicted diffraction efficiency of the design order (Swanson 1989)\n");
     let _ = writeln!(s, "| wavelength | n | detuning a | {} levels | continuous |", r.level_count);
     let _ = writeln!(s, "|---|---|---|---|---|");
     for e in &r.efficiency {
-        let _ = writeln!(s, "| {:.0} nm | {:.4} | {:.4} | {:.4} | {:.4} |", e.wavelength * 1e9, e.index, e.detuning, e.efficiency, e.continuous_efficiency);
+        let _ = writeln!(
+            s,
+            "| {:.0} nm | {:.4} | {:.4} | {:.4} | {:.4} |",
+            e.wavelength * 1e9,
+            e.index,
+            e.detuning,
+            e.efficiency,
+            e.continuous_efficiency
+        );
     }
     let _ = writeln!(s, "\n## Warnings\n");
     if r.warnings.is_empty() {

@@ -63,7 +63,10 @@ impl StagedDir {
             _ => Path::new("."),
         };
         std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
-        let stage = tempfile::Builder::new().prefix(".doefab-stage-").tempdir_in(parent).map_err(|e| Error::io(parent, e))?;
+        let stage = tempfile::Builder::new()
+            .prefix(".doefab-stage-")
+            .tempdir_in(parent)
+            .map_err(|e| Error::io(parent, e))?;
         Ok(StagedDir { stage, dest: dest.to_path_buf(), names: Vec::new() })
     }
 
