@@ -7,26 +7,19 @@ use std::time::Instant;
 
 use doefab::design::{paper_example, ExampleParams};
 use doefab::fabrication::gds::{write_layer_previews, write_mask_set, MaskSetOptions};
-use doefab::material::Material;
-use doefab::{Grid, Interpolation, Unit};
+use doefab::fabrication::quantize::{quantize, QuantizeMethod};
+use doefab::fabrication::wrap::{wrap, WrapSpec};
+use doefab::Interpolation;
 
 const LEVELS: usize = 8;
-const WAVELENGTH: f64 = 530e-9;
-
-/// Wraps heights modulo h_2pi and rounds to `LEVELS` levels (level N wraps to 0).
-fn quantize(heights: &Grid, h2pi: f64) -> Grid {
-    let levels = heights.values().mapv(|h| {
-        let l = (h.rem_euclid(h2pi) / h2pi * LEVELS as f64).round() as usize;
-        (l % LEVELS) as f64
-    });
-    heights.map_values(levels, Unit::Level).expect("same shape")
-}
 
 fn main() -> doefab::Result<()> {
-    let n = Material::pdms().index(WAVELENGTH)?;
-    let h2pi = WAVELENGTH / (n - 1.0);
     let heights = paper_example(&ExampleParams::default())?;
-    let levels = quantize(&heights, h2pi).resample([1e-6, 1e-6], Interpolation::Nearest)?;
+    let (wrapped, w) = wrap(&heights, &WrapSpec::default())?;
+    let h2pi = w.period;
+    let levels = quantize(&wrapped, h2pi, LEVELS, QuantizeMethod::Round)?
+        .levels
+        .resample([1e-6, 1e-6], Interpolation::Nearest)?;
     let (r, c) = levels.dim();
     let levels = levels.crop((r - 5600) / 2..(r - 5600) / 2 + 5600, (c - 5600) / 2..(c - 5600) / 2 + 5600)?;
     let dir = tempfile::tempdir().map_err(|e| doefab::Error::io(std::env::temp_dir(), e))?;
