@@ -299,3 +299,31 @@ fn json_output_is_machine_readable() {
     let eta = v["efficiency"][1]["efficiency"].as_f64().unwrap();
     assert!((eta - 0.8106).abs() < 1e-3, "{eta}");
 }
+
+#[test]
+fn a_mask_above_the_size_limit_needs_force() {
+    let d = common::tempdir();
+    let design = small_design(d.path());
+    let p = |n: &str| d.path().join(n).display().to_string();
+    let (wrapped, levels, mask) = (p("w.exr"), p("l.exr"), p("m.png"));
+    ok(&["wrap", design.to_str().unwrap(), "--pitch", "4.29um", "--unit", "m", "-o", &wrapped, "-q"]);
+    ok(&["quantize", &wrapped, "-o", &levels, "-n", "8", "-q"]);
+    let curve = masks("positive-resist-contrast.csv");
+    // 643.5 um of pattern at 30 nm: 21450^2 = 4.6e8 pixels, above the limit of 2e8.
+    let e = fails(&[
+        "mask",
+        &levels,
+        "--curve",
+        &curve,
+        "-o",
+        &mask,
+        "--writer-pitch",
+        "30nm",
+        "--border",
+        "0um",
+    ]);
+    assert!(e.contains("above the limit") && e.contains("--force"), "{e}");
+    assert!(!Path::new(&mask).exists());
+    ok(&["mask", &levels, "--curve", &curve, "-o", &mask, "--writer-pitch", "0.5um", "-q"]);
+    assert!(Path::new(&mask).exists());
+}
