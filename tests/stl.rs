@@ -172,8 +172,6 @@ fn terrace_stls_are_closed_solids_with_the_pixel_volume() {
     cases.push(terrace_case("flat", d, &flat, 0.2e-3, StlUnit::Millimetre));
 
     check(&cases);
-    let random = &cases[1];
-    assert!(random.triangles > 0);
 }
 
 #[test]
