@@ -6,6 +6,7 @@
 //! * [`contrast`]: resist contrast curves, monotone and invertible;
 //! * [`mask`]: grayscale lithography masks with frame, crosses and label ([`marks`]);
 //! * [`gds`]: the multi-level binary mask set as GDSII, polygons from [`trace`];
+//! * [`stl`]: watertight STL of the surface, exact terraces or an error-bounded height field;
 //! * [`recipe`]: process recipes; [`chain`]: the whole chain behind `doefab fab`.
 
 pub mod chain;
@@ -15,6 +16,7 @@ pub mod marks;
 pub mod mask;
 pub mod quantize;
 pub mod recipe;
+pub mod stl;
 pub mod trace;
 pub mod wrap;
 
