@@ -7,19 +7,12 @@
 use std::time::Instant;
 
 use doefab::design::{paper_example, ExampleParams};
+use doefab::fabrication::quantize::{quantize, QuantizeMethod};
 use doefab::fabrication::stl::{heightfield_mesh, terrace_mesh, write_stl, StlUnit};
-use doefab::material::Material;
-use doefab::{Grid, Interpolation, Unit};
+use doefab::fabrication::wrap::{wrap, WrapSpec};
+use doefab::Interpolation;
 
-const LEVELS: f64 = 16.0;
-
-/// Wraps heights modulo `h2pi` and rounds them to `LEVELS` levels of height `h2pi / LEVELS`
-/// (level `LEVELS` folds back to 0).
-fn wrap_quantize(g: &Grid, h2pi: f64) -> Grid {
-    let step = h2pi / LEVELS;
-    let v = g.values().mapv(|h| ((h.rem_euclid(h2pi) / step).round() % LEVELS) * step);
-    g.map_values(v, Unit::Metre).expect("same shape")
-}
+const LEVELS: usize = 16;
 
 /// Peak resident set size of this process, bytes (Linux `VmHWM`).
 fn peak_rss() -> Option<u64> {
@@ -51,13 +44,11 @@ fn main() {
             println!("heightfield closed manifold: {:?}", mesh.check_closed().map(|_| "yes"));
         }
     }
-    let n = Material::pdms().index(530e-9).expect("index");
-    let h2pi = 530e-9 / (n - 1.0);
     let design = paper_example(&ExampleParams::default()).expect("design");
-    let fine = design.resample([pitch_um * 1e-6; 2], Interpolation::Nearest).expect("resample");
-    drop(design);
-    let map = wrap_quantize(&fine, h2pi);
-    drop(fine);
+    let (wrapped, w) = wrap(&design, &WrapSpec::default()).expect("wrap");
+    let q = quantize(&wrapped, w.period, LEVELS, QuantizeMethod::Round).expect("quantize");
+    let map = q.heights.resample([pitch_um * 1e-6; 2], Interpolation::Nearest).expect("resample");
+    drop((design, wrapped, q));
     let (nr, nc) = map.dim();
     let rss_before = peak_rss();
     // Reset the high-water mark (Linux: writing 5 to clear_refs), so that the peak below is the

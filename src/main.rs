@@ -11,6 +11,7 @@ use doefab::fabrication::chain::{self, ChainParams, DesignSource, FabOptions};
 use doefab::fabrication::mask::Polarity;
 use doefab::fabrication::quantize::QuantizeMethod;
 use doefab::fabrication::recipe::Recipe;
+use doefab::fabrication::stl::{StlOptions, StlUnit, SurfaceChoice};
 use doefab::fabrication::ReplicaMode;
 use doefab::io::heightmap::ReadOptions;
 use doefab::units::{clap_length, length_unit};
@@ -132,6 +133,33 @@ enum Command {
         #[arg(long)]
         mirror: bool,
     },
+    /// Watertight binary STL of a level map or of wrapped heights.
+    Stl {
+        /// Level map (.exr from `doefab quantize`) or heights (.exr from `doefab wrap`).
+        input: PathBuf,
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Length unit written into the STL: mm or um.
+        #[arg(long, default_value = "mm")]
+        unit: String,
+        /// Thickness of the flat base below the lowest point.
+        #[arg(long, value_parser = clap_length, default_value = "0.5 mm")]
+        base: f64,
+        /// Largest height error of the simplified mesh of a continuous surface.
+        #[arg(long, value_parser = clap_length, default_value = "2 nm")]
+        max_error: f64,
+        /// Terraces (exact, for quantized maps), heightfield, or auto.
+        #[arg(long, value_enum, default_value_t = SurfaceArg::Auto)]
+        surface: SurfaceArg,
+    },
+}
+
+/// Mesher choice on the command line.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum SurfaceArg {
+    Auto,
+    Terraces,
+    Heightfield,
 }
 
 /// How to read a height map that does not say everything about itself.
@@ -310,6 +338,29 @@ fn run(cli: &Cli) -> Result<()> {
                         m.polygons
                     );
                 }
+            })
+        }
+        Command::Stl { input, output, unit, base, max_error, surface } => {
+            let opts = StlOptions {
+                unit: StlUnit::parse(unit)?,
+                base_thickness: *base,
+                max_error: *max_error,
+                surface: match surface {
+                    SurfaceArg::Auto => SurfaceChoice::Auto,
+                    SurfaceArg::Terraces => SurfaceChoice::Terraces,
+                    SurfaceArg::Heightfield => SurfaceChoice::Heightfield,
+                },
+            };
+            let report = chain::stl_file(input, &opts, output)?;
+            print_result(cli, &report, || {
+                println!(
+                    "{:?}: {} triangles ({:.2}% of naive), max height error {:.2} nm -> {}",
+                    report.surface,
+                    report.triangles,
+                    report.triangle_ratio * 100.0,
+                    report.max_height_error * 1e9,
+                    output.display()
+                )
             })
         }
     }

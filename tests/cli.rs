@@ -327,3 +327,51 @@ fn a_mask_above_the_size_limit_needs_force() {
     ok(&["mask", &levels, "--curve", &curve, "-o", &mask, "--writer-pitch", "0.5um", "-q"]);
     assert!(Path::new(&mask).exists());
 }
+
+#[test]
+fn stl_command_meshes_level_maps_and_heights() {
+    let d = common::tempdir();
+    let design = small_design(d.path());
+    let p = |n: &str| d.path().join(n).display().to_string();
+    let (wrapped, levels) = (p("w.exr"), p("l.exr"));
+    ok(&["wrap", design.to_str().unwrap(), "--pitch", "4.29um", "--unit", "m", "-o", &wrapped, "-q"]);
+    ok(&["quantize", &wrapped, "-o", &levels, "-n", "16", "-q"]);
+    for (input, name, surface) in [(&levels, "t.stl", "Terraces"), (&wrapped, "h.stl", "Heightfield")] {
+        let out = p(name);
+        let s =
+            ok(&["stl", input, "-o", &out, "--unit", "um", "--base", "20um", "--max-error", "5nm", "--json"]);
+        let r: serde_json::Value = serde_json::from_str(&s).unwrap();
+        assert_eq!(r["surface"], surface.to_ascii_lowercase());
+        let triangles = r["triangles"].as_u64().unwrap();
+        let bytes = std::fs::read(&out).unwrap();
+        assert_eq!(bytes.len() as u64, 84 + 50 * triangles);
+        assert!(String::from_utf8_lossy(&bytes[..80]).starts_with("doefab STL units=um"));
+        assert!(r["max_height_error"].as_f64().unwrap() <= 5e-9 * (1.0 + 1e-9));
+    }
+    let e = fails(&["stl", &levels, "-o", &p("x.stl"), "--unit", "inch"]);
+    assert!(e.contains("inch"), "{e}");
+}
+
+#[test]
+fn demo_runs_every_stage_on_the_built_in_design() {
+    let d = common::tempdir();
+    let out = d.path().join("demo");
+    let s = ok(&["demo", "-o", out.to_str().unwrap(), "--json"]);
+    let reports: Vec<serde_json::Value> = serde_json::from_str(&s).unwrap();
+    assert_eq!(reports.len(), 3);
+    let kinds: Vec<&str> = reports
+        .iter()
+        .flat_map(|r| r["artifacts"].as_array().unwrap())
+        .map(|a| a["kind"].as_str().unwrap())
+        .collect();
+    for k in ["grayscale_mask", "gds_mask_set", "stl", "report_markdown"] {
+        assert!(kinds.contains(&k), "the demo wrote no {k}");
+    }
+    for r in &reports {
+        assert_eq!(r["provenance"]["design"], "built-in:paper");
+        for a in r["artifacts"].as_array().unwrap() {
+            let path = PathBuf::from(a["path"].as_str().unwrap());
+            assert!(path.exists(), "{} listed but missing", path.display());
+        }
+    }
+}

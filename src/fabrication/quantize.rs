@@ -218,7 +218,8 @@ pub const UNDERSAMPLED_STEP: f64 = 0.4;
 pub struct FeatureReport {
     /// Smallest local zone period over the valid samples, metres (infinite for a flat map).
     pub min_zone_period: f64,
-    /// Smallest zone period divided by N: the narrowest terrace, metres.
+    /// Smallest zone period divided by N (by 1 for continuous profiles): the narrowest
+    /// feature, metres.
     pub min_terrace_width: f64,
     /// The writer's minimum feature size, metres.
     pub min_feature: f64,
@@ -234,8 +235,11 @@ pub struct FeatureReport {
 
 /// Estimates the local zone period `Lambda = P / |grad h|` from phase-wrapped central
 /// differences (a difference is taken modulo `P` into `[-P/2, P/2)`, so the estimate works on
-/// wrapped and unwrapped maps alike), and compares `Lambda / N` to `min_feature`.
+/// wrapped and unwrapped maps alike), and compares `Lambda / N` to `min_feature`. A 16-bit
+/// (continuous) profile has no terraces: its narrowest feature is a whole zone, so there the
+/// zone period itself is compared.
 pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_feature: f64) -> FeatureReport {
+    let steps_per_zone = if level_count == LEVELS_16BIT { 1 } else { level_count } as f64;
     let (nr, nc) = heights.dim();
     let v = heights.values();
     let [px, py] = heights.pitch();
@@ -287,7 +291,7 @@ pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_featur
             if grad > 0.0 {
                 let lam = period / grad;
                 min_period = min_period.min(lam);
-                if lam / level_count as f64 <= min_feature {
+                if lam / steps_per_zone <= min_feature {
                     below += 1;
                 }
             }
@@ -295,7 +299,7 @@ pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_featur
     }
     FeatureReport {
         min_zone_period: min_period,
-        min_terrace_width: min_period / level_count as f64,
+        min_terrace_width: min_period / steps_per_zone,
         min_feature,
         fraction_below: below as f64 / counted.max(1) as f64,
         step_samples: steps,
@@ -409,6 +413,9 @@ mod tests {
         let r = feature_check(&g, p, 16, 2e-6);
         assert_eq!(r.fraction_below, 1.0);
         assert_eq!(r.step_samples, 0);
+        // A continuous (16-bit) profile's narrowest feature is the whole 20 um zone.
+        let r = feature_check(&g, p, LEVELS_16BIT, 2e-6);
+        assert!((r.min_terrace_width - 20e-6).abs() < 1e-9 && r.fraction_below == 0.0);
         // Steps of 0.45 of a period per sample are flagged, 0.35 are not.
         for (step, flagged) in [(0.45, true), (0.35, false)] {
             let v = Array2::from_shape_fn((4, 50), |(_, j)| (j as f64 * step * p) % p);

@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::fabrication::mask::Polarity;
 use crate::fabrication::quantize::{check_level_count, QuantizeMethod};
+use crate::fabrication::stl::StlUnit;
 use crate::fabrication::ReplicaMode;
 use crate::units::parse_length;
 
@@ -113,8 +114,7 @@ pub struct Recipe {
     /// Frame width around the mask pattern, metres.
     pub mask_border: f64,
     pub mask_label: String,
-    /// "mm" or "um".
-    pub stl_unit: String,
+    pub stl_unit: StlUnit,
     pub stl_base_thickness: f64,
     pub stl_max_error: f64,
     pub outputs: Vec<Output>,
@@ -149,13 +149,12 @@ impl Recipe {
                 format!("a binary mask set needs a power-of-two level_count, got {}", f.process.level_count),
             ));
         }
-        let stl_unit = f.stl.unit.unwrap_or_else(|| "mm".into());
-        if stl_unit != "mm" && stl_unit != "um" {
-            return Err(Error::format(
-                path,
-                format!("field 'stl.unit': expected \"mm\" or \"um\", got \"{stl_unit}\""),
-            ));
-        }
+        let stl_unit = match &f.stl.unit {
+            Some(u) => {
+                StlUnit::parse(u).map_err(|e| Error::format(path, format!("field 'stl.unit': {e}")))?
+            }
+            None => StlUnit::Millimetre,
+        };
         Ok(Recipe {
             name: f.name,
             description: f.description,
