@@ -5,6 +5,7 @@
 
 mod common;
 
+use doefab::rng::Lcg;
 use std::collections::BTreeMap;
 
 use doefab::fabrication::gds::{
@@ -157,15 +158,6 @@ fn klayout_check(
     (layers, warnings)
 }
 
-/// A 64-bit LCG (Knuth's MMIX constants), uniform in [0, 1).
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
 /// Checks every layer of a written mask set against the level map, through KLayout; returns
 /// the reader's warnings.
 fn check_against_klayout(
@@ -211,7 +203,7 @@ fn eight_level_map_decodes_exactly_through_klayout() {
     let values = Array2::from_shape_fn((rows, cols), |(i, j)| {
         let smooth =
             3.5 + 2.4 * (i as f64 / 13.0).sin() + 1.5 * (j as f64 / 17.0 + 0.3 * i as f64 / 29.0).cos();
-        let noise = if g.next() < 0.15 { (g.next() * 5.0).floor() - 2.0 } else { 0.0 };
+        let noise = if g.uniform() < 0.15 { (g.uniform() * 5.0).floor() - 2.0 } else { 0.0 };
         (smooth + noise).round().clamp(0.0, 7.0)
     });
     let levels = Grid::new(values, [1.5e-6, 1.5e-6], Unit::Level).unwrap();

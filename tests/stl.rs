@@ -5,6 +5,7 @@
 
 mod common;
 
+use doefab::rng::Lcg;
 use std::path::{Path, PathBuf};
 
 use doefab::fabrication::stl::{
@@ -35,15 +36,6 @@ for path in sys.argv[1:]:
         'hi': [float(x) for x in hi],
     }))
 "#;
-
-/// Tiny linear congruential generator (Knuth's MMIX constants), uniform in [0, 1).
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
 
 struct Case {
     name: &'static str,
@@ -156,7 +148,7 @@ fn terrace_stls_are_closed_solids_with_the_pixel_volume() {
 
     // Random 16-level map, through the level-map conversion (period 1.2 um).
     let mut rng = Lcg(2024);
-    let lv = Array2::from_shape_fn((40, 36), |_| (rng.next() * 16.0).floor());
+    let lv = Array2::from_shape_fn((40, 36), |_| (rng.uniform() * 16.0).floor());
     let lv = Grid::new(lv, [1e-6, 1e-6], Unit::Level).unwrap();
     let g = level_heights(&lv, 16, 1.2e-6).unwrap();
     cases.push(terrace_case("random16", d, &g, 2e-6, StlUnit::Micrometre));

@@ -558,16 +558,8 @@ impl Frame {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rng::Lcg;
     use ndarray::Array2;
-
-    /// Tiny linear congruential generator (Knuth's MMIX constants), uniform in [0, 1).
-    struct Lcg(u64);
-    impl Lcg {
-        fn next(&mut self) -> f64 {
-            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (self.0 >> 11) as f64 / (1u64 << 53) as f64
-        }
-    }
 
     fn grid(v: Array2<f64>, pitch: [f64; 2]) -> Grid {
         Grid::new(v, pitch, Unit::Metre).unwrap()
@@ -640,7 +632,7 @@ mod tests {
 
     fn levels(n: usize, m: usize, count: u32, seed: u64) -> Array2<f64> {
         let mut r = Lcg(seed);
-        Array2::from_shape_fn((n, m), |_| (r.next() * count as f64).floor() * 0.1e-6)
+        Array2::from_shape_fn((n, m), |_| (r.uniform() * count as f64).floor() * 0.1e-6)
     }
 
     #[test]
@@ -874,7 +866,8 @@ mod tests {
             for n in 2..8 {
                 for m in 2..8 {
                     for _ in 0..40 {
-                        let v = Array2::from_shape_fn((n, m), |_| (rng.next() * count as f64).floor() * 1e-7);
+                        let v =
+                            Array2::from_shape_fn((n, m), |_| (rng.uniform() * count as f64).floor() * 1e-7);
                         let g = grid(v, [1e-6, 1e-6]);
                         let mesh = terrace_mesh(&g, 1e-6).unwrap();
                         if let Err(e) = mesh.check_closed() {

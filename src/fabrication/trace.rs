@@ -432,15 +432,7 @@ impl Tracer {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A small deterministic generator (64-bit LCG, Knuth's MMIX constants).
-    struct Lcg(u64);
-    impl Lcg {
-        fn next(&mut self) -> f64 {
-            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (self.0 >> 11) as f64 / (1u64 << 53) as f64
-        }
-    }
+    use crate::rng::Lcg;
 
     /// Even-odd scanline fill of each polygon, counting how many polygons cover each pixel.
     fn rasterize(polys: &[Polygon], rows: usize, cols: usize) -> Array2<u32> {
@@ -521,10 +513,10 @@ mod tests {
     fn random_masks_trace_back_exactly() {
         for seed in 0..40u64 {
             let mut g = Lcg(seed * 7919 + 1);
-            let rows = 5 + (g.next() * 60.0) as usize;
-            let cols = 5 + (g.next() * 60.0) as usize;
-            let density = 0.2 + 0.6 * g.next();
-            let mask = Array2::from_shape_fn((rows, cols), |_| g.next() < density);
+            let rows = 5 + (g.uniform() * 60.0) as usize;
+            let cols = 5 + (g.uniform() * 60.0) as usize;
+            let density = 0.2 + 0.6 * g.uniform();
+            let mask = Array2::from_shape_fn((rows, cols), |_| g.uniform() < density);
             check(&mask, DEFAULT_MAX_VERTICES);
             // A tight vertex limit forces many cuts on the same shapes.
             check(&mask, 4 + 2 * (seed as usize % 7));
@@ -536,7 +528,7 @@ mod tests {
         // Upsampled random blocks: the staircases and diagonal contacts of a resampled map.
         for seed in 0..10u64 {
             let mut g = Lcg(seed + 100);
-            let coarse = Array2::from_shape_fn((12, 15), |_| g.next() < 0.5);
+            let coarse = Array2::from_shape_fn((12, 15), |_| g.uniform() < 0.5);
             let mask = Array2::from_shape_fn((12 * 4, 15 * 5), |(i, j)| coarse[[i / 4, j / 5]]);
             check(&mask, DEFAULT_MAX_VERTICES);
         }
@@ -621,7 +613,7 @@ mod tests {
     fn non_standard_layout_is_read_correctly() {
         use ndarray::ShapeBuilder;
         let mut g = Lcg(5);
-        let mask = Array2::from_shape_fn((30, 20), |_| g.next() < 0.5);
+        let mask = Array2::from_shape_fn((30, 20), |_| g.uniform() < 0.5);
         // A column-major copy goes through the non-contiguous row path.
         let mut cm = Array2::from_elem((30, 20).f(), false);
         cm.assign(&mask);
