@@ -228,7 +228,7 @@ fn bad_input_gets_a_clear_error_and_leaves_nothing_behind() {
     write_npy_f64(&nan, &v).unwrap();
     let nan_s = nan.display().to_string();
     let e = fails(&["fab", &nan_s, "--pitch", "4.29um", "--unit", "m", "--recipe", &recipe, "-o", &out_s]);
-    assert!(e.contains("2 samples") && e.contains("--fill"), "{e}");
+    assert!(e.contains("2 samples") && e.contains("row 3, column 7") && e.contains("--fill"), "{e}");
     assert!(!out.exists(), "a failed run left {out:?}");
     // A contrast curve too shallow for the design: fails late, after files were staged.
     let shallow = d.path().join("shallow.csv");

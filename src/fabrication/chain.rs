@@ -138,11 +138,13 @@ pub fn prepare(design: &LoadedDesign, p: &ChainParams) -> Result<Prepared> {
         let (g, n) = fill_missing(&design.heights)?;
         (g, n)
     } else {
-        if design.heights.mask().is_some() {
+        if let Some(mask) = design.heights.mask() {
+            let missing = mask.iter().filter(|v| !**v).count();
+            let (i, j) = mask.indexed_iter().find(|(_, v)| !**v).map(|(ix, _)| ix).unwrap_or_default();
             return Err(Error::Data(format!(
-                "{}: {} samples are not measured; pass --fill to fill them from their neighbours",
-                design.name,
-                design.heights.dim().0 * design.heights.dim().1 - design.heights.valid_count()
+                "{}: {missing} samples are NaN, infinite or not measured (first at row {i}, column {j}); \
+                 pass --fill to fill them from their neighbours",
+                design.name
             )));
         }
         check_finite(&design.heights)?;
