@@ -101,6 +101,8 @@ fn fab_writes_every_artifact_and_is_byte_identical_when_repeated() {
     assert_eq!(report["provenance"]["design_sha256"], doefab::io::file_sha256(&design).unwrap());
     assert_eq!(report["provenance"]["replica_mode"], "master");
     assert_eq!(report["units"]["length"], "m");
+    let stl = std::fs::read(o1.join("surface.stl")).unwrap();
+    assert!(String::from_utf8_lossy(&stl[..80]).starts_with("doefab STL units=mm part=master "));
     // The paraboloid reaches 3.0 um in the corners: floor(3.0 / 1.2187) = 2 wraps.
     assert_eq!(report["wrap"]["max_wraps"], 2);
     let eta = report["efficiency"][1]["efficiency"].as_f64().unwrap();

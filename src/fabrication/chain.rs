@@ -14,7 +14,9 @@ use crate::fabrication::quantize::{
     efficiency_table, feature_check, quantize, EfficiencyRow, FeatureReport, QuantizeMethod, Quantized,
 };
 use crate::fabrication::recipe::{Output, Recipe};
-use crate::fabrication::stl::{level_heights, surface_stl, StlOptions, StlReport, SurfaceChoice};
+use crate::fabrication::stl::{
+    level_heights, surface_mesh, surface_stl, write_stl_part, StlOptions, StlReport, SurfaceChoice,
+};
 use crate::fabrication::wrap::{check_finite, fill_missing, to_master, wrap, WrapReport, WrapSpec};
 use crate::fabrication::{Provenance, ReplicaMode};
 use crate::grid::{Grid, Unit};
@@ -572,7 +574,10 @@ pub fn run_recipe(
         &Metadata {
             pitch: Some(prep.quantized.levels.pitch()),
             unit: None,
-            text: vec![("content".into(), "level map preview: gray = level * 255 / (N - 1)".into())],
+            text: vec![
+                ("content".into(), "level map preview: gray = level * 255 / (N - 1)".into()),
+                ("provenance".into(), provenance_json(&prep.provenance)?),
+            ],
         },
     )?;
     artifacts.push(artifact(&stage.final_path("levels_preview.png"), "level_preview"));
@@ -647,7 +652,12 @@ pub fn run_recipe(
             max_error: recipe.stl_max_error,
             surface: SurfaceChoice::Auto,
         };
-        let report = surface_stl(&prep.quantized.heights, &opts, &stage.stage_path("surface.stl"))?;
+        let mesh = surface_mesh(&prep.quantized.heights, &opts)?;
+        let part = match recipe.replica_mode {
+            ReplicaMode::Design => "design",
+            ReplicaMode::Master => "master",
+        };
+        let report = write_stl_part(&mesh, opts.unit, Some(part), &stage.stage_path("surface.stl"))?;
         artifacts.push(artifact(&stage.final_path("surface.stl"), "stl"));
         stl = Some(report);
         progress("STL written");

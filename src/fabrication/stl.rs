@@ -443,19 +443,21 @@ fn header_number(metres: f64, unit: StlUnit) -> String {
     s.to_string()
 }
 
-/// The 80-byte header, padded with spaces: `doefab STL units=<mm|um> base=<t> mesh=<kind>
+/// The 80-byte header, padded with spaces: `doefab STL units=<mm|um> [part=<design|master>]
+/// base=<t> mesh=<kind>
 /// max_err=<e> lat=<d>` (lengths in the file's unit: base thickness, largest height error,
 /// largest lateral deviation of an outline).
-fn header(mesh: &Mesh, unit: StlUnit) -> [u8; 80] {
+fn header(mesh: &Mesh, unit: StlUnit, part: Option<&str>) -> [u8; 80] {
     let mut text = format!("doefab STL units={}", unit.symbol());
     for field in [
+        part.map(|p| format!("part={p}")).unwrap_or_default(),
         format!("base={}", header_number(mesh.base_thickness, unit)),
         format!("mesh={}", mesh.kind.name()),
         format!("max_err={}", header_number(mesh.max_height_error, unit)),
         format!("lat={}", header_number(mesh.max_lateral_deviation, unit)),
     ] {
         // A field that does not fit whole is left out rather than cut.
-        if text.len() + 1 + field.len() <= 80 {
+        if !field.is_empty() && text.len() + 1 + field.len() <= 80 {
             text.push(' ');
             text.push_str(&field);
         }
@@ -470,6 +472,11 @@ fn header(mesh: &Mesh, unit: StlUnit) -> [u8; 80] {
 /// Vertices are rounded to `f32` once, so shared vertices stay bit-identical; normals are
 /// computed from the rounded vertices.
 pub fn write_stl(mesh: &Mesh, unit: StlUnit, path: &Path) -> Result<StlReport> {
+    write_stl_part(mesh, unit, None, path)
+}
+
+/// [`write_stl`] with the part named in the header (`part=master` or `part=design`).
+pub fn write_stl_part(mesh: &Mesh, unit: StlUnit, part: Option<&str>, path: &Path) -> Result<StlReport> {
     let count = u32::try_from(mesh.triangles.len()).map_err(|_| {
         Error::Limit(format!(
             "{} triangles do not fit a binary STL (at most {})",
@@ -483,7 +490,7 @@ pub fn write_stl(mesh: &Mesh, unit: StlUnit, path: &Path) -> Result<StlReport> {
         .iter()
         .map(|v| [(v[0] * scale) as f32, (v[1] * scale) as f32, (v[2] * scale) as f32])
         .collect();
-    let head = header(mesh, unit);
+    let head = header(mesh, unit, part);
     write_atomic(path, |w| {
         let io = |e| Error::io(path, e);
         w.write_all(&head).map_err(io)?;
@@ -913,7 +920,9 @@ mod tests {
         m.kind = SurfaceKind::Heightfield;
         m.max_height_error = 1.234e-9;
         m.max_lateral_deviation = 1.234e-5;
-        let h = String::from_utf8(header(&m, StlUnit::Millimetre).to_vec()).unwrap();
+        let h = String::from_utf8(header(&m, StlUnit::Millimetre, None).to_vec()).unwrap();
         assert!(h.trim_end().ends_with("lat=0.01234"), "{h}");
+        let h = String::from_utf8(header(&m, StlUnit::Millimetre, Some("master")).to_vec()).unwrap();
+        assert!(h.starts_with("doefab STL units=mm part=master base=12.35 mesh=heightfield"), "{h}");
     }
 }
