@@ -377,3 +377,20 @@ fn demo_runs_every_stage_on_the_built_in_design() {
         }
     }
 }
+
+#[test]
+fn a_terrace_mesh_larger_than_a_pixel_mesh_is_reported() {
+    let d = common::tempdir();
+    let mut g = doefab::rng::Lcg(9);
+    let v = Array2::from_shape_fn((60, 60), |_| g.uniform() * 1.2e-6);
+    let noise = d.path().join("noise.npy");
+    write_npy_f64(&noise, &v).unwrap();
+    let out = d.path().join("o");
+    let args = ["fab", noise.to_str().unwrap(), "--pitch", "4.29um", "--unit", "m"];
+    let recipe = masks("binary-3mask-8level.toml");
+    let s = ok(&[&args[..], &["--recipe", &recipe, "-o", out.to_str().unwrap(), "--json"]].concat());
+    let r: serde_json::Value = serde_json::from_str(&s).unwrap();
+    assert!(r["stl"]["triangle_ratio"].as_f64().unwrap() > 1.0);
+    let w: Vec<&str> = r["warnings"].as_array().unwrap().iter().map(|w| w.as_str().unwrap()).collect();
+    assert!(w.iter().any(|w| w.contains("two-per-pixel")), "{w:?}");
+}

@@ -561,6 +561,7 @@ pub fn run_recipe(
         fill: opts.fill,
     };
     let prep = prepare(&design, &params)?;
+    let mut warnings = prep.warnings.clone();
     progress("wrapped and quantized");
     let mut stage = StagedDir::new(out_dir)?;
     let mut artifacts = Vec::new();
@@ -659,6 +660,15 @@ pub fn run_recipe(
         };
         let report = write_stl_part(&mesh, opts.unit, Some(part), &stage.stage_path("surface.stl"))?;
         artifacts.push(artifact(&stage.final_path("surface.stl"), "stl"));
+        if report.triangle_ratio > 1.0 {
+            warnings.push(format!(
+                "the terrace STL has {} triangles, {:.0}% of a plain two-per-pixel mesh: the terraces are \
+                 mostly single pixels at {} levels",
+                report.triangles,
+                report.triangle_ratio * 100.0,
+                recipe.level_count
+            ));
+        }
         stl = Some(report);
         progress("STL written");
     }
@@ -688,7 +698,7 @@ pub fn run_recipe(
         mask: mask_meta,
         gds,
         stl,
-        warnings: prep.warnings.clone(),
+        warnings,
         artifacts,
     };
     let mut report = report;
