@@ -7,6 +7,7 @@ pub mod exr;
 pub mod heightmap;
 pub mod npy;
 pub mod png;
+pub mod scan;
 pub mod tiff;
 
 use std::path::Path;
