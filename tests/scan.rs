@@ -295,3 +295,42 @@ fn shared_reference_files_all_formats() {
         assert_eq!(std::fs::read(local(copy)).unwrap(), std::fs::read(dir.join(orig)).unwrap(), "{copy}");
     }
 }
+
+#[test]
+fn scan_info_command_prints_the_statistics() {
+    let exe = env!("CARGO_BIN_EXE_doefab");
+    let out = std::process::Command::new(exe)
+        .args(["--json", "scan-info"])
+        .arg(local("s3_spikes_missing_nan.x3pio.x3p"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["size"], serde_json::json!([200, 200]));
+    assert_eq!(v["valid"], 39200);
+    assert!((v["valid_fraction"].as_f64().unwrap() - 0.98).abs() < 1e-12);
+    let sa = v["levelled"]["sa"].as_f64().unwrap();
+    assert!((sa * 1e9 - S3_PLANE.v[0]).abs() < 1e-6 * S3_PLANE.v[0], "{sa}");
+    assert!((v["plane"]["a"].as_f64().unwrap() - 328.636652e-9).abs() < 1e-6 * 328.6e-9);
+    // Human output, and a refusal that names the missing option.
+    let out = std::process::Command::new(exe)
+        .arg("scan-info")
+        .arg(local("s1_tilt_pedestal.gwyddion.sur"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && text.contains("Sku") && text.contains("1 um x 1 um"), "{text}");
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("s.npy");
+    doefab::io::npy::write_npy_f64(&p, &Array2::from_elem((3, 3), 1.0)).unwrap();
+    let out = std::process::Command::new(exe).arg("scan-info").arg(&p).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(err.contains("--pitch"), "{err}");
+    let out = std::process::Command::new(exe)
+        .args(["scan-info", "--pitch", "1um", "--z-unit", "nm"])
+        .arg(&p)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}

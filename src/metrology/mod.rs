@@ -6,6 +6,7 @@
 //! statistic. Scans are read by [`crate::io::scan::read_scan`].
 
 pub mod fill;
+pub mod info;
 pub mod level;
 pub mod outliers;
 pub mod stats;

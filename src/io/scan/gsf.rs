@@ -21,7 +21,16 @@ pub const MAGIC: &str = "Gwyddion Simple Field 1.0";
 pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let head = format!("{MAGIC}\n");
     if !bytes.starts_with(head.as_bytes()) {
-        return Err(Error::format(path, format!("not a GSF file: it does not start with '{MAGIC}'")));
+        if head.as_bytes().starts_with(bytes) {
+            return Err(Error::format(
+                path,
+                format!("truncated at byte offset {} inside the '{MAGIC}' line", bytes.len()),
+            ));
+        }
+        return Err(Error::format(
+            path,
+            format!("byte offset 0: not a GSF file: it does not start with '{MAGIC}'"),
+        ));
     }
     let nul = bytes.iter().position(|&b| b == 0).ok_or_else(|| {
         Error::format(

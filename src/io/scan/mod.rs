@@ -177,9 +177,8 @@ pub fn read_scan_raw(path: &Path, opts: &ScanOptions) -> Result<ScanRaw> {
 pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<ScanRaw> {
     let format = detect_format(path, bytes)?;
     let text = || {
-        std::str::from_utf8(bytes).map_err(|e| {
-            Error::format(path, format!("not UTF-8 text (invalid byte at offset {})", e.valid_up_to()))
-        })
+        std::str::from_utf8(bytes)
+            .map_err(|e| Error::format(path, format!("byte offset {}: not UTF-8 text", e.valid_up_to())))
     };
     match format {
         ScanFormat::X3p => x3p::decode(path, bytes),

@@ -37,9 +37,13 @@ const MAGICS: [u32; 3] = [0x881B_036F, 0x881B_0370, 0x881B_0371];
 /// Phase values at or above this mark non-measured pixels.
 pub const INVALID_PHASE: i32 = 2_147_483_640;
 
-/// True when `head` starts with a MetroPro magic number.
+/// True when `head` starts with a MetroPro magic number (or, shorter than one, begins one: a
+/// truncated MetroPro file).
 pub fn has_magic(head: &[u8]) -> bool {
-    head.len() >= 4 && MAGICS.contains(&u32::from_be_bytes([head[0], head[1], head[2], head[3]]))
+    if head.len() < 4 {
+        return !head.is_empty() && MAGICS.iter().any(|m| m.to_be_bytes().starts_with(head));
+    }
+    MAGICS.contains(&u32::from_be_bytes([head[0], head[1], head[2], head[3]]))
 }
 
 /// The phase resolution R for a `phase_res` code.
