@@ -334,3 +334,26 @@ fn scan_info_command_prints_the_statistics() {
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
 }
+
+#[test]
+fn median_outliers_and_laplace_fill_restore_s1_from_s3() {
+    use doefab::metrology::fill::fill_missing;
+    use doefab::metrology::outliers::{median_outliers, without_outliers};
+    let s3 = read(&local("s3_spikes_missing_nan.x3pio.x3p"), &ScanOptions::default()).grid;
+    // 3 x 3 median residuals: 5 um at the spikes, one step height (1 um or 0.5 um) at the
+    // pedestal's corners, 0 on the tilted planes (the median of a plane's 3 x 3 window is its
+    // centre). A floor of 2 um between the two finds exactly the spikes.
+    let m = median_outliers(&s3, 3, 5.0, 2e-6).unwrap();
+    assert_eq!(m.positions, SPIKES.to_vec());
+    let n = nsigma_outliers(&s3, 3.0, 1, 10).unwrap();
+    let clean = without_outliers(&s3, &n).unwrap();
+    assert_eq!(clean.valid_count(), 39195);
+    // S1 is piecewise planar and every hole (the block, each spike) sits inside one plane, where
+    // the discrete Laplace equation holds exactly: the fill gives back S1.
+    let (filled, count) = fill_missing(&clean).unwrap();
+    assert_eq!(count, 805);
+    for ((i, j), v) in filled.values().indexed_iter() {
+        assert!((v - s1(i, j)).abs() < 1e-12, "({i}, {j}): {v} vs {}", s1(i, j));
+    }
+    check("S3 filled", &height_params(&filled).unwrap(), &S1_RAW, Tol::Rel(1e-6));
+}
