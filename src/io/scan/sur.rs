@@ -137,17 +137,28 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     Ok(sr)
 }
 
-/// Encodes a minimal single-surface `.sur` (32-bit data, nanometres, a z offset, non-measured
-/// points as `zmin - 1`) with the unit strings in `unit_bytes` (e.g. Latin-1 `b"\xb5m"`), for
-/// tests. Heights in metres; NaN = non-measured.
+/// Encodes a minimal single-surface `.sur` (32-bit data, a z offset of 100 units, z step 0.5
+/// unit, non-measured points as `zmin - 1`) with the unit strings in `unit_bytes` (e.g. Latin-1
+/// `b"\xb5m"`) meaning `unit` metres, for tests. Heights in metres; NaN = non-measured.
 pub fn encode(values: &ndarray::Array2<f64>, pitch_units: f64, unit_bytes: &[u8], unit: f64) -> Vec<u8> {
+    encode_bits(values, pitch_units, unit_bytes, unit, 32)
+}
+
+/// As [`encode`], with 16- or 32-bit data (`bits`).
+pub fn encode_bits(
+    values: &ndarray::Array2<f64>,
+    pitch_units: f64,
+    unit_bytes: &[u8],
+    unit: f64,
+    bits: u16,
+) -> Vec<u8> {
     let (r, c) = values.dim();
     let mut h = vec![0u8; HEADER];
     h[..12].copy_from_slice(b"DIGITAL SURF");
     h[14..16].copy_from_slice(&1u16.to_le_bytes());
     h[86..88].copy_from_slice(&1u16.to_le_bytes());
-    h[98..100].copy_from_slice(&32u16.to_le_bytes());
-    let (zmin, zmax) = (-1_000_000i32, 1_000_000i32);
+    h[98..100].copy_from_slice(&bits.to_le_bytes());
+    let (zmin, zmax) = if bits == 16 { (-30000i32, 30000i32) } else { (-1_000_000i32, 1_000_000i32) };
     h[100..104].copy_from_slice(&zmin.to_le_bytes());
     h[104..108].copy_from_slice(&zmax.to_le_bytes());
     h[108..112].copy_from_slice(&(c as i32).to_le_bytes());
@@ -162,7 +173,11 @@ pub fn encode(values: &ndarray::Array2<f64>, pitch_units: f64, unit_bytes: &[u8]
     }
     for v in values {
         let raw = if v.is_nan() { zmin - 1 } else { ((v / unit - 100.0) / dz as f64).round() as i32 };
-        h.extend_from_slice(&raw.to_le_bytes());
+        if bits == 16 {
+            h.extend_from_slice(&(raw as i16).to_le_bytes());
+        } else {
+            h.extend_from_slice(&raw.to_le_bytes());
+        }
     }
     h
 }
@@ -183,6 +198,15 @@ mod tests {
                 let y = r.raw.values[[i, j]];
                 assert!(x.is_nan() && y.is_nan() || (x - y).abs() < 1e-15, "{x} {y}");
             }
+        }
+        // 16-bit data in nanometres: heights 0..11 um would overflow; use 0..1.1 um.
+        let small = v.mapv(|x| x * 0.1);
+        let b16 = encode_bits(&small, 2.0, b"nm", 1e-9, 16);
+        assert_eq!(b16.len(), HEADER + 2 * 12);
+        let r = decode(Path::new("t16.sur"), &b16).unwrap();
+        for ((i, j), x) in small.indexed_iter() {
+            let y = r.raw.values[[i, j]];
+            assert!(x.is_nan() && y.is_nan() || (x - y).abs() < 1e-18, "{x} {y}");
         }
         let b = encode(&v, 2.0, b"nm", 1e-9);
         for cut in 0..b.len() {

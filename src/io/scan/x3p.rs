@@ -289,6 +289,65 @@ pub fn encode(values: &ndarray::Array2<f64>, pitch: [f64; 2]) -> Result<Vec<u8>>
 mod tests {
     use super::*;
 
+    /// An archive with integer data (`dt` = "I" or "L"), a z increment and offset, and a
+    /// valid-points bit array.
+    fn integer_x3p(dt: &str, raw: &[i32], nx: usize, ny: usize, valid: &[u8]) -> Vec<u8> {
+        use std::io::Write;
+        let data: Vec<u8> = raw
+            .iter()
+            .flat_map(
+                |&v| if dt == "I" { (v as i16).to_le_bytes().to_vec() } else { v.to_le_bytes().to_vec() },
+            )
+            .collect();
+        let xml = format!(
+            "<?xml version=\"1.0\"?><p:ISO5436_2 xmlns:p=\"http://www.opengps.eu/2008/ISO5436_2\"><Record1>\
+             <Axes><CX><AxisType>I</AxisType><DataType>D</DataType><Increment>2e-6</Increment></CX>\
+             <CY><AxisType>I</AxisType><DataType>D</DataType><Increment>3e-6</Increment><Offset>1e-3</Offset></CY>\
+             <CZ><AxisType>A</AxisType><DataType>{dt}</DataType><Increment>1e-9</Increment><Offset>5e-7</Offset></CZ>\
+             </Axes></Record1><Record3><MatrixDimension><SizeX>{nx}</SizeX><SizeY>{ny}</SizeY><SizeZ>1</SizeZ>\
+             </MatrixDimension><DataLink><PointDataLink>bindata/data.bin</PointDataLink></DataLink>\
+             <ValidPointsLink>bindata/valid.bin</ValidPointsLink></Record3></p:ISO5436_2>"
+        );
+        let mut buf = Cursor::new(Vec::new());
+        let mut z = zip::ZipWriter::new(&mut buf);
+        let opt = zip::write::SimpleFileOptions::default();
+        for (name, bytes) in [
+            ("main.xml", xml.as_bytes().to_vec()),
+            ("bindata/data.bin", data),
+            ("bindata/valid.bin", valid.to_vec()),
+            ("md5checksum.hex", format!("{} *main.xml", hex_md5(xml.as_bytes())).into_bytes()),
+        ] {
+            z.start_file(name, opt).unwrap();
+            z.write_all(&bytes).unwrap();
+        }
+        z.finish().unwrap();
+        buf.into_inner()
+    }
+
+    #[test]
+    fn integer_types_scale_and_valid_points() {
+        // 3 x 4 points; point 5 (row 1, column 1) and point 11 not measured.
+        let raw: Vec<i32> = (0..12).map(|k| k * 100 - 300).collect();
+        let valid = [0b1101_1111u8, 0b0000_0111];
+        for dt in ["I", "L"] {
+            let r = decode(Path::new("i.x3p"), &integer_x3p(dt, &raw, 4, 3, &valid)).unwrap();
+            assert!(r.warnings.is_empty(), "{:?}", r.warnings);
+            assert_eq!(r.raw.pitch, Some([2e-6, 3e-6]));
+            assert_eq!(r.origin, Some([0.0, 1e-3]));
+            for (k, &c) in raw.iter().enumerate() {
+                let v = r.raw.values[[k / 4, k % 4]];
+                if k == 5 || k == 11 {
+                    assert!(v.is_nan(), "{dt} point {k}");
+                } else {
+                    assert!((v - (5e-7 + 1e-9 * c as f64)).abs() < 1e-20, "{dt} point {k}: {v}");
+                }
+            }
+        }
+        let e =
+            decode(Path::new("i.x3p"), &integer_x3p("L", &raw, 4, 3, &valid[..1])).unwrap_err().to_string();
+        assert!(e.contains("valid.bin"), "{e}");
+    }
+
     #[test]
     fn round_trip_and_cuts_never_panic() {
         let mut v = ndarray::Array2::from_shape_fn((4, 6), |(i, j)| (i * 6 + j) as f64 * 1e-8);
