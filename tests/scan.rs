@@ -234,6 +234,7 @@ fn shared_reference_files_all_formats() {
         ("gwyddion/s1_tilt_pedestal.sur", &none),
         ("gwyddion/s1_tilt_pedestal.xyz", &metres),
         ("gwyddion/s1_tilt_pedestal.matrix.txt", &none),
+        ("gwyddion/s1_tilt_pedestal.asc", &none),
         ("gsffile/s1_tilt_pedestal.gsf", &none),
         ("sdfio/s1_tilt_pedestal.ascii.sdf", &none),
         ("sdfio/s1_tilt_pedestal.bin.sdf", &none),
@@ -277,6 +278,7 @@ fn shared_reference_files_all_formats() {
         ("gwyddion/s3_spikes_missing.sur", &none),
         ("gwyddion/s3_spikes_missing.xyz", &metres),
         ("gwyddion/s3_spikes_missing.matrix.txt", &none),
+        ("gwyddion/s3_spikes_missing.asc", &none),
     ];
     for (name, opts) in s3_zero {
         let g = read(&dir.join(name), opts).grid;

@@ -9,7 +9,7 @@
 //! | `.sur` | Digital Surf (MountainsMap) | [`sur`] |
 //! | `.dat` | Zygo MetroPro binary (recognised by its magic number; else a text matrix) | [`zygo`] |
 //! | `.xyz` | three text columns x y z on a regular grid | [`xyz`] |
-//! | `.txt`, `.csv`, `.asc` | text matrix ([`crate::io::csv`]) | |
+//! | `.txt`, `.csv`, `.asc` | text matrix ([`crate::io::csv`]; also the SPIP header of Gwyddion's `.asc`: `x-length`, `y-length` in nm, `Bit2nm`) | |
 //! | `.png` | 16/8-bit grayscale with a `pCAL` height scale ([`crate::io::png`] + [`png_scale`]) | |
 //! | `.tif`, `.tiff` | grayscale TIFF ([`crate::io::tiff`]) | |
 //! | `.npy` | NumPy array ([`crate::io::npy`]) | |
@@ -187,7 +187,11 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
         ScanFormat::Sur => sur::decode(path, bytes),
         ScanFormat::MetroPro => zygo::decode(path, bytes),
         ScanFormat::Xyz => xyz::parse(path, text()?, opts.z_unit),
-        ScanFormat::Matrix => Ok(ScanRaw::new(crate::io::csv::parse_csv(path, text()?)?, format)),
+        ScanFormat::Matrix => {
+            let mut raw = crate::io::csv::parse_csv(path, text()?)?;
+            spip_header(path, &mut raw)?;
+            Ok(ScanRaw::new(raw, format))
+        }
         ScanFormat::Png => png_scale::decode(path, bytes, opts.z_scale.is_some()),
         ScanFormat::Tiff => Ok(ScanRaw::new(crate::io::tiff::decode_tiff(path, bytes)?, format)),
         ScanFormat::Npy => {
@@ -210,6 +214,34 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
             Ok(ScanRaw::new(raw, format))
         }
     }
+}
+
+/// Applies the SPIP ASCII header (Gwyddion's `.asc` export: `# x-length = 200000` field size
+/// in nm, `# Bit2nm = 1.0` nm per value) to a text matrix that states no pitch or unit itself.
+fn spip_header(path: &Path, raw: &mut RawMap) -> Result<()> {
+    let get = |k: &str| raw.metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.trim().to_string());
+    let num = |k: &str| -> Result<Option<f64>> {
+        match get(k) {
+            None => Ok(None),
+            Some(v) => {
+                v.parse::<f64>().ok().filter(|x| x.is_finite() && *x > 0.0).map(Some).ok_or_else(|| {
+                    Error::format(path, format!("header '{k} = {v}' is not a positive number"))
+                })
+            }
+        }
+    };
+    let (rows, cols) = raw.values.dim();
+    if raw.pitch.is_none() {
+        if let (Some(xl), Some(yl)) = (num("x-length")?, num("y-length")?) {
+            raw.pitch = Some([xl * 1e-9 / cols as f64, yl * 1e-9 / rows as f64]);
+        }
+    }
+    if raw.unit.is_none() {
+        if let Some(b) = num("Bit2nm")? {
+            raw.unit = Some(b * 1e-9);
+        }
+    }
+    Ok(())
 }
 
 /// Reads a scan into a height grid (see the module docs for how pitch and units are resolved).
