@@ -88,6 +88,12 @@ fn lstsq(points: &[(usize, usize, f64)], m: usize, basis: impl Fn(f64, f64, &mut
             a[r * m + c] = a[c * m + r];
         }
     }
+    solve(a, b, m)
+}
+
+/// Solves the symmetric `m x m` normal equations `a x = b` (row-major `a`) by Gaussian
+/// elimination with partial pivoting.
+fn solve(mut a: Vec<f64>, mut b: Vec<f64>, m: usize) -> Result<Vec<f64>> {
     let scale = (0..m).map(|k| a[k * m + k]).fold(0.0f64, f64::max);
     // Gaussian elimination with partial pivoting.
     for col in 0..m {
@@ -122,14 +128,42 @@ fn lstsq(points: &[(usize, usize, f64)], m: usize, basis: impl Fn(f64, f64, &mut
 
 /// Fits the least-squares plane to the valid samples (within `region` when given).
 pub fn fit_plane(g: &Grid, region: Option<&Array2<bool>>) -> Result<Plane> {
-    let pts = fit_points(g, region)?;
+    if let Some(r) = region {
+        if r.dim() != g.dim() {
+            return Err(Error::param("region", format!("mask is {:?}, surface is {:?}", r.dim(), g.dim())));
+        }
+    }
     let (nr, nc) = g.dim();
     let (ic, jc) = ((nr as f64 - 1.0) * 0.5, (nc as f64 - 1.0) * 0.5);
-    let c = lstsq(&pts, 3, |i, j, f| {
-        f[0] = 1.0;
-        f[1] = j - jc;
-        f[2] = i - ic;
-    })?;
+    // Moments of the centred coordinates x = j - jc, y = i - ic, accumulated row by row.
+    let (mut n, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let (mut sz, mut sxz, mut syz) = (0.0, 0.0, 0.0);
+    let mask = g.mask();
+    for (i, row) in g.values().outer_iter().enumerate() {
+        let y = i as f64 - ic;
+        for (j, &z) in row.iter().enumerate() {
+            if !(mask.is_none_or(|m| m[[i, j]]) && region.is_none_or(|r| r[[i, j]])) {
+                continue;
+            }
+            if !z.is_finite() {
+                return Err(Error::Data(format!("a valid height is NaN or infinite (row {i}, column {j})")));
+            }
+            let x = j as f64 - jc;
+            n += 1.0;
+            sx += x;
+            sy += y;
+            sxx += x * x;
+            sxy += x * y;
+            syy += y * y;
+            sz += z;
+            sxz += x * z;
+            syz += y * z;
+        }
+    }
+    if n < 3.0 {
+        return Err(Error::Data(format!("{n} points cannot fix 3 fit coefficients")));
+    }
+    let c = solve(vec![n, sx, sy, sx, sxx, sxy, sy, sxy, syy], vec![sz, sxz, syz], 3)?;
     Ok(Plane { a: c[0] - c[1] * jc - c[2] * ic, bx: c[1], by: c[2] })
 }
 

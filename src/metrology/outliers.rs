@@ -18,7 +18,7 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::grid::Grid;
-use crate::metrology::level::level_polynomial;
+use crate::metrology::level::{level_plane, level_polynomial};
 
 /// What an outlier test found.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -52,7 +52,12 @@ pub fn nsigma_outliers(g: &Grid, n: f64, order: usize, max_iterations: usize) ->
         let valid = g.values().indexed_iter().map(|((i, j), _)| g.is_valid(i, j) && !out[[i, j]]);
         let valid =
             Array2::from_shape_vec(g.dim(), valid.collect()).map_err(|e| Error::Data(e.to_string()))?;
-        let (res, _) = level_polynomial(&g.clone().with_mask(valid.clone())?, order, None)?;
+        let masked = g.clone().with_mask(valid.clone())?;
+        let res = if order == 1 {
+            level_plane(&masked, None)?.0
+        } else {
+            level_polynomial(&masked, order, None)?.0
+        };
         let vals: Vec<f64> =
             res.values().indexed_iter().filter(|(p, _)| valid[*p]).map(|(_, &v)| v).collect();
         let sigma = (vals.iter().map(|v| v * v).sum::<f64>() / vals.len() as f64).sqrt();

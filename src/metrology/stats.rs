@@ -21,6 +21,7 @@
 //! Both are exact for a plane: `Sdq = |grad z|`, `Sdr = sqrt(1 + |grad z|^2) - 1`.
 //! Sums are accumulated in `f64`, the moments about the mean in a second pass.
 
+use ndarray::{s, Array2, Zip};
 use serde::Serialize;
 
 use crate::error::{Error, Result};
@@ -53,13 +54,17 @@ pub fn height_params(g: &Grid) -> Result<HeightParams> {
     if g.unit() != Unit::Metre {
         return Err(Error::param("surface", format!("expected heights in m, got {}", g.unit().symbol())));
     }
-    if let Some((count, (i, j))) = g.non_finite() {
-        return Err(Error::Data(format!(
-            "{count} valid heights are NaN or infinite (first at row {i}, column {j})"
-        )));
+    let vals: Vec<f64> = match g.mask() {
+        None => g.values().iter().copied().collect(),
+        Some(m) => g.values().iter().zip(m).filter_map(|(v, ok)| ok.then_some(*v)).collect(),
+    };
+    if vals.iter().any(|v| !v.is_finite()) {
+        if let Some((count, (i, j))) = g.non_finite() {
+            return Err(Error::Data(format!(
+                "{count} valid heights are NaN or infinite (first at row {i}, column {j})"
+            )));
+        }
     }
-    let vals: Vec<f64> =
-        g.values().indexed_iter().filter(|((i, j), _)| g.is_valid(*i, *j)).map(|(_, &v)| v).collect();
     let n = vals.len();
     if n == 0 {
         return Err(Error::Data("no valid sample: the surface parameters are undefined".into()));
@@ -87,24 +92,40 @@ pub fn height_params(g: &Grid) -> Result<HeightParams> {
 /// `(Sdq, Sdr)` by the cell discretisation of the module docs.
 fn gradient_params(g: &Grid) -> (Option<f64>, Option<f64>) {
     let (nr, nc) = g.dim();
+    if nr < 2 || nc < 2 {
+        return (None, None);
+    }
     let [dx, dy] = g.pitch();
     let z = g.values();
-    let (mut sg, mut sa, mut cells) = (0.0, 0.0, 0usize);
-    for i in 0..nr.saturating_sub(1) {
-        for j in 0..nc.saturating_sub(1) {
-            if !(g.is_valid(i, j) && g.is_valid(i, j + 1) && g.is_valid(i + 1, j) && g.is_valid(i + 1, j + 1))
-            {
-                continue;
-            }
-            let gx = ((z[[i, j + 1]] - z[[i, j]]) + (z[[i + 1, j + 1]] - z[[i + 1, j]])) / (2.0 * dx);
-            let gy = ((z[[i + 1, j]] - z[[i, j]]) + (z[[i + 1, j + 1]] - z[[i, j + 1]])) / (2.0 * dy);
-            let g2 = gx * gx + gy * gy;
-            sg += g2;
-            // sqrt(1 + g2) - 1 without cancellation for small slopes.
-            sa += g2 / ((1.0 + g2).sqrt() + 1.0);
-            cells += 1;
+    let (a, b, c, d) = (s![..-1, ..-1], s![..-1, 1..], s![1.., ..-1], s![1.., 1..]);
+    // A cell counts when its four corners are valid.
+    let cell_ok = match g.mask() {
+        None => Array2::from_elem((nr - 1, nc - 1), true),
+        Some(m) => {
+            let mut ok = Array2::from_elem((nr - 1, nc - 1), false);
+            Zip::from(&mut ok)
+                .and(m.slice(a))
+                .and(m.slice(b))
+                .and(m.slice(c))
+                .and(m.slice(d))
+                .for_each(|o, &p, &q, &r, &s| *o = p && q && r && s);
+            ok
         }
-    }
+    };
+    let (mut sg, mut sa, mut cells) = (0.0, 0.0, 0usize);
+    Zip::from(&cell_ok).and(z.slice(a)).and(z.slice(b)).and(z.slice(c)).and(z.slice(d)).for_each(
+        |&ok, &z00, &z01, &z10, &z11| {
+            if ok {
+                let gx = ((z01 - z00) + (z11 - z10)) / (2.0 * dx);
+                let gy = ((z10 - z00) + (z11 - z01)) / (2.0 * dy);
+                let g2 = gx * gx + gy * gy;
+                sg += g2;
+                // sqrt(1 + g2) - 1 without cancellation for small slopes.
+                sa += g2 / ((1.0 + g2).sqrt() + 1.0);
+                cells += 1;
+            }
+        },
+    );
     if cells == 0 {
         return (None, None);
     }
@@ -115,7 +136,6 @@ fn gradient_params(g: &Grid) -> (Option<f64>, Option<f64>) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ndarray::Array2;
 
     #[test]
     fn plane_gradient_parameters_are_exact() {
