@@ -289,15 +289,17 @@ pub fn encode(values: &ndarray::Array2<f64>, pitch: [f64; 2]) -> Result<Vec<u8>>
 mod tests {
     use super::*;
 
-    /// An archive with integer data (`dt` = "I" or "L"), a z increment and offset, and a
+    /// An archive with data of type `dt` ("I", "L" or "F"), a z increment and offset, and a
     /// valid-points bit array.
     fn integer_x3p(dt: &str, raw: &[i32], nx: usize, ny: usize, valid: &[u8]) -> Vec<u8> {
         use std::io::Write;
         let data: Vec<u8> = raw
             .iter()
-            .flat_map(
-                |&v| if dt == "I" { (v as i16).to_le_bytes().to_vec() } else { v.to_le_bytes().to_vec() },
-            )
+            .flat_map(|&v| match dt {
+                "I" => (v as i16).to_le_bytes().to_vec(),
+                "F" => (v as f32).to_le_bytes().to_vec(),
+                _ => v.to_le_bytes().to_vec(),
+            })
             .collect();
         let xml = format!(
             "<?xml version=\"1.0\"?><p:ISO5436_2 xmlns:p=\"http://www.opengps.eu/2008/ISO5436_2\"><Record1>\
@@ -325,11 +327,11 @@ mod tests {
     }
 
     #[test]
-    fn integer_types_scale_and_valid_points() {
+    fn data_types_scale_and_valid_points() {
         // 3 x 4 points; point 5 (row 1, column 1) and point 11 not measured.
         let raw: Vec<i32> = (0..12).map(|k| k * 100 - 300).collect();
         let valid = [0b1101_1111u8, 0b0000_0111];
-        for dt in ["I", "L"] {
+        for dt in ["I", "L", "F"] {
             let r = decode(Path::new("i.x3p"), &integer_x3p(dt, &raw, 4, 3, &valid)).unwrap();
             assert!(r.warnings.is_empty(), "{:?}", r.warnings);
             assert_eq!(r.raw.pitch, Some([2e-6, 3e-6]));
