@@ -11,6 +11,8 @@
 //! * [`design`]: the built-in example designs (grating-like DOE, Fresnel lens).
 //! * [`io`]: file formats and atomic writing.
 //! * [`fabrication`]: wrap -> quantize -> grayscale masks, multi-level GDSII mask set, STL.
+//! * [`metrology`]: profilometer scans (read by [`io::scan`]): levelling, outliers, filling,
+//!   ISO 25178 height parameters.
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`error`]: the library's error type.
 
@@ -20,6 +22,7 @@ pub mod fabrication;
 pub mod grid;
 pub mod io;
 pub mod material;
+pub mod metrology;
 pub mod rng;
 pub mod units;
 

@@ -152,6 +152,21 @@ enum Command {
         #[arg(long, value_enum, default_value_t = SurfaceArg::Auto)]
         surface: SurfaceArg,
     },
+    /// What a profilometer scan holds: size, pitch, units, valid fraction, warnings, ISO 25178
+    /// height parameters (raw and after removing the least-squares plane).
+    ScanInfo {
+        /// Scan file (.x3p, .gsf, .sdf, .sur, .dat, .xyz, .txt/.csv/.asc, .png, .tif, .npy).
+        file: PathBuf,
+        /// Sample pitch, e.g. "1um" (for files that carry none).
+        #[arg(long, value_parser = clap_length)]
+        pitch: Option<f64>,
+        /// Unit of the stored heights, e.g. "nm" (for files that state none).
+        #[arg(long, visible_alias = "unit")]
+        z_unit: Option<String>,
+        /// Height per count for integer images without a scale, e.g. "0.1nm".
+        #[arg(long, value_parser = clap_length)]
+        z_scale: Option<f64>,
+    },
 }
 
 /// Mesher choice on the command line.
@@ -319,6 +334,17 @@ fn run(cli: &Cli) -> Result<()> {
                     output.display()
                 )
             })
+        }
+        Command::ScanInfo { file, pitch, z_unit, z_scale } => {
+            let opts = doefab::io::scan::ScanOptions {
+                pitch: pitch.map(|p| [p, p]),
+                z_unit: z_unit.as_deref().map(length_unit).transpose()?,
+                z_scale: *z_scale,
+                ..Default::default()
+            };
+            let info = doefab::metrology::info::scan_info(file, &opts)?;
+            warn(&info.warnings);
+            print_result(cli, &info, || print!("{}", info.summary()))
         }
         Command::Gds { levels, output, writer_pitch, mirror } => {
             let report = chain::gds_file(levels, *writer_pitch, *mirror, output)?;

@@ -15,6 +15,10 @@ use crate::error::{Error, Result};
 use crate::grid::{Grid, Unit};
 use crate::material::Material;
 
+/// The Laplace fill of non-measured heights lives with the metrology stage; fabrication uses it
+/// through this path.
+pub use crate::metrology::fill::fill_missing;
+
 /// Design wavelength, material and multi-order factor of the wrap.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct WrapSpec {
@@ -138,62 +142,6 @@ pub fn check_finite(g: &Grid) -> Result<()> {
              pass --fill to fill them from their neighbours"
         ))),
     }
-}
-
-/// Replaces non-finite and invalid samples by the solution of Laplace's equation with the
-/// valid samples as boundary values (a smooth membrane fill), by Gauss-Seidel relaxation
-/// with successive over-relaxation. Returns the number of samples filled.
-pub fn fill_missing(g: &Grid) -> Result<(Grid, usize)> {
-    let (nr, nc) = g.dim();
-    let mut v = g.values().clone();
-    let mut holes = Vec::new();
-    for ((i, j), x) in v.indexed_iter_mut() {
-        if !x.is_finite() || !g.is_valid(i, j) {
-            holes.push((i, j));
-            *x = f64::NAN;
-        }
-    }
-    if holes.len() == v.len() {
-        return Err(Error::Data("nothing to fill from: no sample is finite".into()));
-    }
-    // Start from the mean of the valid samples.
-    let (sum, cnt) = v.iter().filter(|x| x.is_finite()).fold((0.0, 0usize), |(s, c), x| (s + x, c + 1));
-    let mean = sum / cnt as f64;
-    for &(i, j) in &holes {
-        v[[i, j]] = mean;
-    }
-    let omega = 1.9;
-    for _ in 0..2000 {
-        let mut change = 0.0f64;
-        for &(i, j) in &holes {
-            let mut acc = 0.0;
-            let mut n = 0.0;
-            if i > 0 {
-                acc += v[[i - 1, j]];
-                n += 1.0;
-            }
-            if i + 1 < nr {
-                acc += v[[i + 1, j]];
-                n += 1.0;
-            }
-            if j > 0 {
-                acc += v[[i, j - 1]];
-                n += 1.0;
-            }
-            if j + 1 < nc {
-                acc += v[[i, j + 1]];
-                n += 1.0;
-            }
-            let new = v[[i, j]] + omega * (acc / n - v[[i, j]]);
-            change = change.max((new - v[[i, j]]).abs());
-            v[[i, j]] = new;
-        }
-        if change < 1e-15 {
-            break;
-        }
-    }
-    let filled = Grid::new(v, g.pitch(), g.unit())?.with_origin(g.origin());
-    Ok((filled, holes.len()))
 }
 
 #[cfg(test)]

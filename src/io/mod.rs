@@ -1,5 +1,7 @@
 //! File formats: one file per format, each reader producing a [`crate::grid::Grid`] with
 //! its pitch and unit resolved, each writer going through [`atomic::write_atomic`].
+//! Design maps enter through [`heightmap::read_heightmap`], profilometer scans through
+//! [`scan::read_scan`].
 
 pub mod atomic;
 pub mod csv;
@@ -7,6 +9,7 @@ pub mod exr;
 pub mod heightmap;
 pub mod npy;
 pub mod png;
+pub mod scan;
 pub mod tiff;
 
 use std::path::Path;

@@ -1,0 +1,418 @@
+//! Profilometer scans: one entry point, [`read_scan`], for every surface format the metrology
+//! stage reads, each producing the shared [`Grid`] of heights in metres.
+//!
+//! | extension | format | module |
+//! |---|---|---|
+//! | `.x3p` | ISO 25178-72 (XML 3D surface profile: zip of `main.xml` + binary data) | [`x3p`] |
+//! | `.gsf` | Gwyddion Simple Field | [`gsf`] |
+//! | `.sdf` | ISO 25178-71 / SDF, ASCII (`aBCR`, `aISO`) or binary (`bBCR`, `bISO`) | [`sdf`] |
+//! | `.sur` | Digital Surf (MountainsMap) | [`sur`] |
+//! | `.dat` | Zygo MetroPro binary (recognised by its magic number; else a text matrix) | [`zygo`] |
+//! | `.xyz` | three text columns x y z on a regular grid | [`xyz`] |
+//! | `.txt`, `.csv`, `.asc` | text matrix ([`crate::io::csv`]; also the SPIP header of Gwyddion's `.asc`: `x-length`, `y-length` in nm, `Bit2nm`) | |
+//! | `.png` | 16/8-bit grayscale with a `pCAL` height scale ([`crate::io::png`] + [`png_scale`]) | |
+//! | `.tif`, `.tiff` | grayscale TIFF ([`crate::io::tiff`]) | |
+//! | `.npy` | NumPy array ([`crate::io::npy`]) | |
+//!
+//! Every format reader returns a [`ScanRaw`]: a [`RawMap`] whose non-measured points are NaN,
+//! plus what the file says about its origin and anything worth a warning. The pitch, height
+//! unit and plausibility are then resolved exactly as for design maps
+//! ([`crate::io::heightmap::heightmap_from_raw`]): the file's statement or the caller's, never a
+//! guess; a conflict between the two is refused; a missing one is refused with the option to
+//! pass; a peak-to-valley height outside 1e-11..1e-3 m is refused with the unit that would fit.
+//! NaN values become invalid samples of the grid's validity mask (set to 0, never data).
+//!
+//! Errors name the file and, for binary formats, the byte offset where the content stopped
+//! making sense (truncation, a bad field).
+
+pub mod gsf;
+pub mod png_scale;
+pub mod sdf;
+pub mod sur;
+pub mod x3p;
+pub mod xyz;
+pub mod zygo;
+
+use std::path::Path;
+
+use serde::Serialize;
+
+use crate::error::{Error, Result};
+use crate::grid::Grid;
+use crate::io::heightmap::{heightmap_from_raw, RawMap, ReadOptions, SampleKind};
+
+/// What the caller states about a scan (from the command line).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ScanOptions {
+    /// `[x, y]` sample pitch in metres (`--pitch`), for files that carry none.
+    pub pitch: Option<[f64; 2]>,
+    /// Metres per stored value for files that state no height unit (`--z-unit`, e.g. 1e-9).
+    pub z_unit: Option<f64>,
+    /// Metres per count for integer images without a usable scale (`--z-scale`).
+    pub z_scale: Option<f64>,
+    /// Metres added to every height after scaling (`--z-offset`).
+    pub z_offset: Option<f64>,
+    /// Skips the plausibility check on the peak-to-valley height.
+    pub allow_implausible: bool,
+}
+
+impl ScanOptions {
+    fn read_options(&self) -> ReadOptions {
+        ReadOptions {
+            pitch: self.pitch,
+            unit: self.z_unit,
+            z_scale: self.z_scale,
+            z_offset: self.z_offset,
+            channel: None,
+            allow_implausible: self.allow_implausible,
+        }
+    }
+}
+
+/// The scan formats [`read_scan`] understands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ScanFormat {
+    X3p,
+    Gsf,
+    SdfAscii,
+    SdfBinary,
+    Sur,
+    MetroPro,
+    Xyz,
+    Matrix,
+    Png,
+    Tiff,
+    Npy,
+}
+
+impl ScanFormat {
+    /// A short human name.
+    pub fn name(self) -> &'static str {
+        match self {
+            ScanFormat::X3p => "ISO 25178-72 X3P",
+            ScanFormat::Gsf => "Gwyddion Simple Field",
+            ScanFormat::SdfAscii => "ISO 25178-71 SDF (ASCII)",
+            ScanFormat::SdfBinary => "ISO 25178-71 SDF (binary)",
+            ScanFormat::Sur => "Digital Surf SUR",
+            ScanFormat::MetroPro => "Zygo MetroPro DAT",
+            ScanFormat::Xyz => "XYZ point list",
+            ScanFormat::Matrix => "text matrix",
+            ScanFormat::Png => "PNG",
+            ScanFormat::Tiff => "TIFF",
+            ScanFormat::Npy => "NumPy NPY",
+        }
+    }
+}
+
+/// What a scan reader found, before pitch and unit are resolved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScanRaw {
+    /// Stored numbers (non-measured points NaN), pitch and unit as the file states them.
+    pub raw: RawMap,
+    pub format: ScanFormat,
+    /// `[x, y]` position of sample (0, 0) in metres, when the file states it.
+    pub origin: Option<[f64; 2]>,
+    /// Things the file got wrong but that did not stop the read (e.g. a checksum mismatch).
+    pub warnings: Vec<String>,
+}
+
+impl ScanRaw {
+    pub(crate) fn new(raw: RawMap, format: ScanFormat) -> Self {
+        ScanRaw { raw, format, origin: None, warnings: Vec::new() }
+    }
+}
+
+/// A scan read into a grid of heights (metres), with the file's metadata and warnings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scan {
+    /// Heights in metres; non-measured points are invalid samples.
+    pub grid: Grid,
+    pub format: ScanFormat,
+    /// Every key/value the file carries (header fields, XML elements), in file order.
+    pub metadata: Vec<(String, String)>,
+    /// Problems that did not stop the read (checksum mismatch, odd header values).
+    pub warnings: Vec<String>,
+}
+
+/// Picks the format from the extension (and, for `.dat` and `.sdf`, the first bytes).
+pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
+    let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).unwrap_or_default();
+    Ok(match ext.as_str() {
+        "x3p" => ScanFormat::X3p,
+        "gsf" => ScanFormat::Gsf,
+        "sdf" => {
+            if head.first() == Some(&b'b') {
+                ScanFormat::SdfBinary
+            } else {
+                ScanFormat::SdfAscii
+            }
+        }
+        "sur" => ScanFormat::Sur,
+        "dat" if zygo::has_magic(head) => ScanFormat::MetroPro,
+        "xyz" => ScanFormat::Xyz,
+        "txt" | "csv" | "asc" | "dat" => ScanFormat::Matrix,
+        "png" => ScanFormat::Png,
+        "tif" | "tiff" => ScanFormat::Tiff,
+        "npy" => ScanFormat::Npy,
+        _ => {
+            return Err(Error::format(
+                path,
+                format!(
+                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .dat, .xyz, \
+                     .txt/.csv/.asc, .png, .tif/.tiff or .npy)"
+                ),
+            ))
+        }
+    })
+}
+
+/// Reads the stored numbers and metadata of a scan file (no unit resolution).
+pub fn read_scan_raw(path: &Path, opts: &ScanOptions) -> Result<ScanRaw> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    decode_scan_raw(path, &bytes, opts)
+}
+
+/// Decodes the bytes of a scan file; `path` names it in errors and gives the extension.
+pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<ScanRaw> {
+    let format = detect_format(path, bytes)?;
+    let text = || {
+        std::str::from_utf8(bytes)
+            .map_err(|e| Error::format(path, format!("byte offset {}: not UTF-8 text", e.valid_up_to())))
+    };
+    match format {
+        ScanFormat::X3p => x3p::decode(path, bytes),
+        ScanFormat::Gsf => gsf::decode(path, bytes),
+        ScanFormat::SdfAscii | ScanFormat::SdfBinary => sdf::decode(path, bytes),
+        ScanFormat::Sur => sur::decode(path, bytes),
+        ScanFormat::MetroPro => zygo::decode(path, bytes),
+        ScanFormat::Xyz => xyz::parse(path, text()?, opts.z_unit),
+        ScanFormat::Matrix => {
+            let mut raw = crate::io::csv::parse_csv(path, text()?)?;
+            spip_header(path, &mut raw)?;
+            Ok(ScanRaw::new(raw, format))
+        }
+        ScanFormat::Png => png_scale::decode(path, bytes, opts.z_scale.is_some()),
+        ScanFormat::Tiff => Ok(ScanRaw::new(crate::io::tiff::decode_tiff(path, bytes)?, format)),
+        ScanFormat::Npy => {
+            let (_, arr) = crate::io::npy::decode_npy(path, bytes)?;
+            let shape = arr.shape().to_vec();
+            let values = match shape.as_slice() {
+                [r, c] | [r, c, 1] if *r > 0 && *c > 0 => arr
+                    .into_shape_with_order((shape[0], shape[1]))
+                    .map_err(|e| Error::format(path, format!("cannot view as a 2-D map: {e}")))?,
+                _ => return Err(Error::format(path, format!("shape {shape:?} is not a 2-D map"))),
+            };
+            let raw = RawMap {
+                values,
+                kind: SampleKind::Float,
+                pitch: None,
+                unit: None,
+                metadata: vec![],
+                scale_hint: None,
+            };
+            Ok(ScanRaw::new(raw, format))
+        }
+    }
+}
+
+/// Applies the SPIP ASCII header (Gwyddion's `.asc` export: `# x-length = 200000` field size
+/// in nm, `# Bit2nm = 1.0` nm per value) to a text matrix that states no pitch or unit itself.
+fn spip_header(path: &Path, raw: &mut RawMap) -> Result<()> {
+    let get = |k: &str| raw.metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.trim().to_string());
+    let num = |k: &str| -> Result<Option<f64>> {
+        match get(k) {
+            None => Ok(None),
+            Some(v) => {
+                v.parse::<f64>().ok().filter(|x| x.is_finite() && *x > 0.0).map(Some).ok_or_else(|| {
+                    Error::format(path, format!("header '{k} = {v}' is not a positive number"))
+                })
+            }
+        }
+    };
+    let (rows, cols) = raw.values.dim();
+    if raw.pitch.is_none() {
+        if let (Some(xl), Some(yl)) = (num("x-length")?, num("y-length")?) {
+            raw.pitch = Some([xl * 1e-9 / cols as f64, yl * 1e-9 / rows as f64]);
+        }
+    }
+    if raw.unit.is_none() {
+        if let Some(b) = num("Bit2nm")? {
+            raw.unit = Some(b * 1e-9);
+        }
+    }
+    Ok(())
+}
+
+/// Reads a scan into a height grid (see the module docs for how pitch and units are resolved).
+pub fn read_scan(path: &Path, opts: &ScanOptions) -> Result<Scan> {
+    let raw = read_scan_raw(path, opts)?;
+    scan_from_raw(path, raw, opts)
+}
+
+/// Resolves a [`ScanRaw`] into a [`Scan`] (the second half of [`read_scan`]).
+pub fn scan_from_raw(path: &Path, sr: ScanRaw, opts: &ScanOptions) -> Result<Scan> {
+    let ScanRaw { raw, format, origin, mut warnings } = sr;
+    if !raw.values.iter().any(|v| v.is_finite()) {
+        return Err(Error::Data(format!(
+            "{}: no measured point in the scan ({} x {} samples, all non-measured)",
+            path.display(),
+            raw.values.nrows(),
+            raw.values.ncols()
+        )));
+    }
+    let metadata = raw.metadata.clone();
+    let mut grid = heightmap_from_raw(path, raw, &opts.read_options())?;
+    if let Some(o) = origin {
+        if o.iter().all(|v| v.is_finite()) {
+            grid = grid.with_origin(o);
+        } else {
+            warnings.push(format!("the file's origin {o:?} is not finite; the grid is centred instead"));
+        }
+    }
+    Ok(Scan { grid, format, metadata, warnings })
+}
+
+/// Bounds-checked little/big-endian field access on a binary file's bytes: every failure names
+/// the file, the field and its byte offset.
+pub(crate) struct Bin<'a> {
+    pub path: &'a Path,
+    pub bytes: &'a [u8],
+}
+
+impl<'a> Bin<'a> {
+    pub fn new(path: &'a Path, bytes: &'a [u8]) -> Self {
+        Bin { path, bytes }
+    }
+    /// `len` bytes at `off`, or a truncation error naming `what`.
+    pub fn take(&self, off: usize, len: usize, what: &str) -> Result<&'a [u8]> {
+        match off.checked_add(len) {
+            Some(end) if end <= self.bytes.len() => Ok(&self.bytes[off..end]),
+            _ => Err(Error::format(
+                self.path,
+                format!(
+                    "truncated at byte offset {}: {what} needs {len} bytes from offset {off}",
+                    self.bytes.len()
+                ),
+            )),
+        }
+    }
+    fn arr<const N: usize>(&self, off: usize, what: &str) -> Result<[u8; N]> {
+        let s = self.take(off, N, what)?;
+        let mut a = [0u8; N];
+        a.copy_from_slice(s);
+        Ok(a)
+    }
+    pub fn u16le(&self, off: usize, what: &str) -> Result<u16> {
+        Ok(u16::from_le_bytes(self.arr(off, what)?))
+    }
+    pub fn u32le(&self, off: usize, what: &str) -> Result<u32> {
+        Ok(u32::from_le_bytes(self.arr(off, what)?))
+    }
+    pub fn i32le(&self, off: usize, what: &str) -> Result<i32> {
+        Ok(i32::from_le_bytes(self.arr(off, what)?))
+    }
+    pub fn f32le(&self, off: usize, what: &str) -> Result<f32> {
+        Ok(f32::from_le_bytes(self.arr(off, what)?))
+    }
+    pub fn f64le(&self, off: usize, what: &str) -> Result<f64> {
+        Ok(f64::from_le_bytes(self.arr(off, what)?))
+    }
+    pub fn u16be(&self, off: usize, what: &str) -> Result<u16> {
+        Ok(u16::from_be_bytes(self.arr(off, what)?))
+    }
+    pub fn i16be(&self, off: usize, what: &str) -> Result<i16> {
+        Ok(i16::from_be_bytes(self.arr(off, what)?))
+    }
+    pub fn i32be(&self, off: usize, what: &str) -> Result<i32> {
+        Ok(i32::from_be_bytes(self.arr(off, what)?))
+    }
+    pub fn f32be(&self, off: usize, what: &str) -> Result<f32> {
+        Ok(f32::from_be_bytes(self.arr(off, what)?))
+    }
+    /// A fixed-size text field: up to the first NUL, trailing spaces removed; UTF-8 when valid,
+    /// else Latin-1 (one byte per character).
+    pub fn text(&self, off: usize, len: usize, what: &str) -> Result<String> {
+        Ok(decode_text(self.take(off, len, what)?))
+    }
+    /// An error about the field at `off`.
+    pub fn bad(&self, off: usize, what: impl std::fmt::Display) -> Error {
+        Error::format(self.path, format!("byte offset {off}: {what}"))
+    }
+}
+
+/// Text of a fixed-size field: up to the first NUL, trimmed; UTF-8 when valid, else Latin-1.
+pub(crate) fn decode_text(b: &[u8]) -> String {
+    let end = b.iter().position(|&c| c == 0).unwrap_or(b.len());
+    let b = &b[..end];
+    let s = match std::str::from_utf8(b) {
+        Ok(s) => s.to_string(),
+        Err(_) => b.iter().map(|&c| c as char).collect(),
+    };
+    s.trim().to_string()
+}
+
+/// The size in metres of a unit text as profilometer files write it: "m", "mm", "um", "µm"
+/// (micro sign or Greek mu), "nm", "pm", "A" (angstrom). `None` for anything else.
+pub(crate) fn scan_length_unit(text: &str) -> Option<f64> {
+    let t = text.trim();
+    match t {
+        "A" | "Å" | "\u{212b}" => Some(1e-10),
+        "" => None,
+        _ => crate::units::length_unit(t).ok(),
+    }
+}
+
+/// A row-major `rows x cols` array from `data`, or an error naming the file.
+pub(crate) fn shape(path: &Path, rows: usize, cols: usize, data: Vec<f64>) -> Result<ndarray::Array2<f64>> {
+    if rows == 0 || cols == 0 {
+        return Err(Error::format(path, format!("the map is empty ({cols} x {rows} points)")));
+    }
+    ndarray::Array2::from_shape_vec((rows, cols), data)
+        .map_err(|e| Error::format(path, format!("cannot form a {rows} x {cols} map: {e}")))
+}
+
+/// The number of bytes of `rows * cols` samples of `size` bytes, refusing overflow and maps
+/// above 2^28 samples (a 16384 x 16384 scan is the largest the instruments write).
+pub(crate) fn data_len(path: &Path, rows: usize, cols: usize, size: usize) -> Result<usize> {
+    let n = rows.checked_mul(cols).filter(|&n| n <= 1 << 28).ok_or_else(|| {
+        Error::format(path, format!("{cols} x {rows} points is beyond any profilometer scan (limit 2^28)"))
+    })?;
+    Ok(n * size)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn formats_by_extension_and_magic() {
+        let p = |s: &str| Path::new(s).to_path_buf();
+        assert_eq!(detect_format(&p("a.X3P"), b"PK").unwrap(), ScanFormat::X3p);
+        assert_eq!(detect_format(&p("a.sdf"), b"bISO").unwrap(), ScanFormat::SdfBinary);
+        assert_eq!(detect_format(&p("a.sdf"), b"aISO").unwrap(), ScanFormat::SdfAscii);
+        assert_eq!(detect_format(&p("a.dat"), b"\x88\x1b\x03\x6f....").unwrap(), ScanFormat::MetroPro);
+        assert_eq!(detect_format(&p("a.dat"), b"1 2 3\n").unwrap(), ScanFormat::Matrix);
+        assert!(detect_format(&p("a.gwy"), b"").unwrap_err().to_string().contains("a.gwy"));
+    }
+
+    #[test]
+    fn bin_errors_name_offset() {
+        let b = Bin::new(Path::new("f.bin"), &[1, 2, 3]);
+        assert_eq!(b.u16le(1, "x").unwrap(), 0x0302);
+        let e = b.u32le(1, "the width").unwrap_err().to_string();
+        assert!(
+            e.contains("f.bin")
+                && e.contains("byte offset 3")
+                && e.contains("from offset 1")
+                && e.contains("the width"),
+            "{e}"
+        );
+        assert!(b.take(usize::MAX, 2, "x").is_err());
+        assert_eq!(decode_text(b"ab \0zz"), "ab");
+        assert_eq!(decode_text(b"\xb5m"), "µm");
+        assert_eq!(decode_text("µm".as_bytes()), "µm");
+        assert_eq!(scan_length_unit("µm"), Some(1e-6));
+        assert_eq!(scan_length_unit("A"), Some(1e-10));
+    }
+}

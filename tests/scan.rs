@@ -1,0 +1,361 @@
+//! Scan readers and surface statistics against files written by third-party programs
+//! (Gwyddion 2.62, gsffile, sdfio, surfalize, x3pio, SurfaceTopography) and the reference
+//! statistics those programs computed (profilometry/README.md). The copies in `profilometry/`
+//! always run; the full shared set (`../shared/data/surfaces/`) runs when present.
+//!
+//! Tolerances: 1e-6 relative everywhere the file holds the heights to that precision. That
+//! includes the `%g` text formats (ASCII SDF, text matrix, XYZ): `%g` keeps six significant
+//! digits (a rounding of at most 5e-7 relative per value), and the reference surfaces' heights
+//! are whole nanometres below 7 um, four to five digits, so `%g` writes them exactly. The
+//! 16-bit PNG quantizes heights to one count (range / 65535 = 28 pm for S1) and each height
+//! reads back within one count of the truth; a difference from the mean or from a fitted plane
+//! (itself within a count) is then within three counts: Sa..Sz are held to 3 counts, Ssk and Sku
+//! to 6 counts / Sq relative.
+
+use std::path::{Path, PathBuf};
+
+use doefab::io::scan::{read_scan, ScanFormat, ScanOptions};
+use doefab::metrology::level::level_plane;
+use doefab::metrology::outliers::nsigma_outliers;
+use doefab::metrology::stats::{height_params, HeightParams};
+use doefab::Grid;
+use ndarray::Array2;
+
+/// Reference statistics in nanometres (Sa, Sq, Sp, Sv, Sz) and dimensionless (Ssk, Sku).
+#[derive(Debug, Clone, Copy)]
+struct Ref {
+    n: usize,
+    v: [f64; 7],
+}
+
+const S1_RAW: Ref =
+    Ref { n: 40000, v: [405.112375, 493.726898, 1288.5, 568.5, 1857.0, 1.08871371, 2.79533961] };
+const S1_PLANE: Ref =
+    Ref { n: 40000, v: [405.000, 476.550102, 1230.0, 270.0, 1500.0, 1.30622884, 3.00879390] };
+const S3_RAW: Ref =
+    Ref { n: 39200, v: [413.742290, 501.996377, 5808.84184, 570.158163, 6379.0, 1.18552830, 4.10879110] };
+const S3_PLANE: Ref =
+    Ref { n: 39200, v: [411.154049, 483.168505, 5728.96664, 302.938345, 6031.90498, 1.39870626, 4.53964131] };
+const NAMES: [&str; 7] = ["Sa", "Sq", "Sp", "Sv", "Sz", "Ssk", "Sku"];
+
+fn local(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("profilometry").join(name)
+}
+
+/// The shared reference folder, when this checkout has it.
+fn shared() -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/surfaces");
+    p.join("README.md").exists().then_some(p)
+}
+
+/// The S1 surface, metres.
+fn s1(i: usize, j: usize) -> f64 {
+    let (fi, fj) = (i as f64, j as f64);
+    let mut z = 50e-9 + 2e-9 * fj - 1e-9 * fi;
+    if (50..150).contains(&i) && (50..150).contains(&j) {
+        z += 1e-6;
+    }
+    if (80..120).contains(&i) && (80..120).contains(&j) {
+        z += 0.5e-6;
+    }
+    z
+}
+
+const SPIKES: [(usize, usize); 5] = [(20, 20), (60, 120), (100, 30), (130, 90), (170, 170)];
+
+fn in_block(i: usize, j: usize) -> bool {
+    (10..30).contains(&i) && (150..190).contains(&j)
+}
+
+fn values(p: &HeightParams) -> [f64; 7] {
+    [p.sa * 1e9, p.sq * 1e9, p.sp * 1e9, p.sv * 1e9, p.sz * 1e9, p.ssk, p.sku]
+}
+
+/// Tolerance per parameter: `Rel(r)` relative, or `Counts(step_nm, sq_nm)` for a quantized file.
+#[derive(Clone, Copy)]
+enum Tol {
+    Rel(f64),
+    Counts(f64),
+}
+
+fn check(label: &str, p: &HeightParams, r: &Ref, tol: Tol) {
+    assert_eq!(p.n, r.n, "{label}: N");
+    let got = values(p);
+    for k in 0..7 {
+        let (g, w) = (got[k], r.v[k]);
+        let ok = match tol {
+            Tol::Rel(rel) => (g - w).abs() <= rel * w.abs(),
+            Tol::Counts(step) => {
+                if k < 5 {
+                    (g - w).abs() <= 3.0 * step
+                } else {
+                    (g - w).abs() <= 6.0 * step / r.v[1] * w.abs()
+                }
+            }
+        };
+        assert!(ok, "{label}: {} = {g} vs reference {w}", NAMES[k]);
+    }
+}
+
+fn read(path: &Path, opts: &ScanOptions) -> doefab::io::scan::Scan {
+    read_scan(path, opts).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// Marks Gwyddion's zero-stored non-measured block invalid.
+fn mask_block(g: &Grid) -> Grid {
+    let valid = Array2::from_shape_fn(g.dim(), |(i, j)| g.is_valid(i, j) && !in_block(i, j));
+    g.clone().with_mask(valid).unwrap()
+}
+
+fn check_s1(label: &str, g: &Grid, tol: Tol) {
+    assert_eq!(g.dim(), (200, 200), "{label}");
+    let [px, py] = g.pitch();
+    assert!((px - 1e-6).abs() < 1e-12 && (py - 1e-6).abs() < 1e-12, "{label}: pitch {px} {py}");
+    check(&format!("{label} raw"), &height_params(g).unwrap(), &S1_RAW, tol);
+    let (lev, plane) = level_plane(g, None).unwrap();
+    check(&format!("{label} plane"), &height_params(&lev).unwrap(), &S1_PLANE, tol);
+    check_plane(label, [plane.a, plane.bx, plane.by], [320e-9, 2e-9, -1e-9], tol);
+}
+
+fn check_s3(label: &str, g: &Grid, tol: Tol) {
+    assert_eq!(g.dim(), (200, 200), "{label}");
+    for i in 0..200 {
+        for j in 0..200 {
+            assert_eq!(g.is_valid(i, j), !in_block(i, j), "{label}: validity of ({i}, {j})");
+        }
+    }
+    check(&format!("{label} raw"), &height_params(g).unwrap(), &S3_RAW, tol);
+    let (lev, plane) = level_plane(g, None).unwrap();
+    check(&format!("{label} plane"), &height_params(&lev).unwrap(), &S3_PLANE, tol);
+    check_plane(label, [plane.a, plane.bx, plane.by], [328.636652e-9, 2.12211906e-9, -1.14303079e-9], tol);
+    let o = nsigma_outliers(g, 3.0, 1, 10).unwrap();
+    assert_eq!(o.positions, SPIKES.to_vec(), "{label}: 3-sigma outliers");
+}
+
+/// Plane coefficients: relative, or for quantized heights within 2 counts for `a` and
+/// 2 counts per 100 pixels for the slopes.
+fn check_plane(label: &str, got: [f64; 3], want: [f64; 3], tol: Tol) {
+    for k in 0..3 {
+        let ok = match tol {
+            Tol::Rel(r) => (got[k] - want[k]).abs() <= r * want[k].abs(),
+            Tol::Counts(step) => {
+                (got[k] - want[k]).abs() <= 2.0 * step * 1e-9 / if k == 0 { 1.0 } else { 100.0 }
+            }
+        };
+        assert!(ok, "{label}: plane {got:?} vs {want:?}");
+    }
+}
+
+const REL: Tol = Tol::Rel(1e-6);
+
+#[test]
+fn x3pio_files_reproduce_the_reference_statistics() {
+    let s = read(&local("s1_tilt_pedestal.x3pio.x3p"), &ScanOptions::default());
+    assert_eq!(s.format, ScanFormat::X3p);
+    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    assert!(s.metadata.iter().any(|(k, v)| k == "Record1/Revision" && v == "ISO25178-72:2017/DAM1"));
+    for ((i, j), v) in s.grid.values().indexed_iter() {
+        assert!((v - s1(i, j)).abs() < 1e-15, "({i}, {j})");
+    }
+    check_s1("x3pio S1", &s.grid, REL);
+    let s = read(&local("s3_spikes_missing_nan.x3pio.x3p"), &ScanOptions::default());
+    check_s3("x3pio S3", &s.grid, REL);
+}
+
+#[test]
+fn gsf_and_sur_copies_reproduce_the_reference_statistics() {
+    let s = read(&local("s3_spikes_missing_nan.gsffile.gsf"), &ScanOptions::default());
+    assert_eq!(s.format, ScanFormat::Gsf);
+    check_s3("gsffile S3", &s.grid, REL);
+    // Gwyddion's .sur: picometres, int32 counts, Z offset -149000 pm.
+    let s = read(&local("s1_tilt_pedestal.gwyddion.sur"), &ScanOptions::default());
+    assert!(s.metadata.iter().any(|(k, v)| k == "z_offset" && v.starts_with("-1.49e5")), "{:?}", s.metadata);
+    for ((i, j), v) in s.grid.values().indexed_iter() {
+        assert!((v - s1(i, j)).abs() < 1e-14, "({i}, {j}): {v} vs {}", s1(i, j));
+    }
+    check_s1("gwyddion S1 sur", &s.grid, REL);
+    // surfalize's .sur: UTF-8 "µm" units, non-measured points as i32::MIN.
+    let s = read(&local("s3_spikes_missing_nan.surfalize.sur"), &ScanOptions::default());
+    check_s3("surfalize S3 sur", &s.grid, REL);
+}
+
+#[test]
+fn png_pcal_scale_is_applied_within_one_count() {
+    let s = read(&local("s1_tilt_pedestal.grey16.png"), &ScanOptions::default());
+    assert_eq!(s.format, ScanFormat::Png);
+    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    let step = 1857e-9 / 65535.0;
+    for ((i, j), v) in s.grid.values().indexed_iter() {
+        // Counts are floor(65536 (z - zmin) / range), read back as zmin + count * range / 65535.
+        let d = s1(i, j) - v;
+        assert!(d.abs() <= step * (1.0 + 1e-6), "({i}, {j}): {d}");
+    }
+    check_s1("gwyddion S1 png", &s.grid, Tol::Counts(step * 1e9));
+    let s = read(&local("s3_spikes_missing.grey16.png"), &ScanOptions::default());
+    let step3 = 6379e-9 / 65535.0;
+    check_s3("gwyddion S3 png", &mask_block(&s.grid), Tol::Counts(step3 * 1e9));
+    // The TIFF export carries no scale: refused, and the option is named.
+    let tiff = local("s1_tilt_pedestal.grey16.tiff");
+    let e = read_scan(&tiff, &ScanOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("carries no pitch: pass --pitch"), "{e}");
+    let e = read_scan(&tiff, &ScanOptions { pitch: Some([1e-6; 2]), ..Default::default() })
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("16-bit counts") && e.contains("--z-scale"), "{e}");
+    let o = ScanOptions {
+        pitch: Some([1e-6; 2]),
+        z_scale: Some(step),
+        z_offset: Some(-149e-9),
+        ..Default::default()
+    };
+    let s = read(&local("s1_tilt_pedestal.grey16.tiff"), &o);
+    check_s1("gwyddion S1 tiff", &s.grid, Tol::Counts(step * 1e9));
+}
+
+#[test]
+fn text_matrix_copy_reproduces_the_reference_statistics() {
+    let s = read(&local("s1_tilt_pedestal.matrix.txt"), &ScanOptions::default());
+    assert_eq!(s.format, ScanFormat::Matrix);
+    check_s1("gwyddion S1 matrix", &s.grid, REL);
+}
+
+/// Every file of the shared set, when present.
+#[test]
+fn shared_reference_files_all_formats() {
+    let Some(dir) = shared() else {
+        eprintln!("../shared/data/surfaces is absent: only the copies in profilometry/ were checked");
+        return;
+    };
+    let none = ScanOptions::default();
+    let metres = ScanOptions { z_unit: Some(1.0), ..Default::default() };
+    let s1_files: &[(&str, &ScanOptions)] = &[
+        ("gwyddion/s1_tilt_pedestal.gsf", &none),
+        ("gwyddion/s1_tilt_pedestal.sdf", &none),
+        ("gwyddion/s1_tilt_pedestal.sur", &none),
+        ("gwyddion/s1_tilt_pedestal.xyz", &metres),
+        ("gwyddion/s1_tilt_pedestal.matrix.txt", &none),
+        ("gwyddion/s1_tilt_pedestal.asc", &none),
+        ("gsffile/s1_tilt_pedestal.gsf", &none),
+        ("sdfio/s1_tilt_pedestal.ascii.sdf", &none),
+        ("sdfio/s1_tilt_pedestal.bin.sdf", &none),
+        ("surfalize/s1_tilt_pedestal.ascii.sdf", &none),
+        ("surfalize/s1_tilt_pedestal.sdf", &none),
+        ("surfalize/s1_tilt_pedestal.sur", &none),
+        ("surfalize/s1_tilt_pedestal.x3p", &none),
+        ("x3pio/s1_tilt_pedestal.x3p", &none),
+        ("surfacetopography/s1_tilt_pedestal.x3p", &none),
+    ];
+    for (name, opts) in s1_files {
+        let s = read(&dir.join(name), opts);
+        check_s1(name, &s.grid, REL);
+        if name.starts_with("surfacetopography") {
+            assert!(
+                s.warnings
+                    .iter()
+                    .any(|w| w.contains("md5checksum.hex") && w.contains("not the MD5 of main.xml")),
+                "{name}: {:?}",
+                s.warnings
+            );
+        }
+    }
+    let s3_nan = [
+        "gsffile/s3_spikes_missing_nan.gsf",
+        "sdfio/s3_spikes_missing_nan.ascii.sdf",
+        "sdfio/s3_spikes_missing_nan.bin.sdf",
+        "surfalize/s3_spikes_missing_nan.ascii.sdf",
+        "surfalize/s3_spikes_missing_nan.sdf",
+        "surfalize/s3_spikes_missing_nan.sur",
+        "surfalize/s3_spikes_missing_nan.x3p",
+        "x3pio/s3_spikes_missing_nan.x3p",
+    ];
+    for name in s3_nan {
+        check_s3(name, &read(&dir.join(name), &none).grid, REL);
+    }
+    // Gwyddion's own exports store the non-measured block as 0.0: mask it, then compare.
+    let s3_zero: &[(&str, &ScanOptions)] = &[
+        ("gwyddion/s3_spikes_missing.gsf", &none),
+        ("gwyddion/s3_spikes_missing.sdf", &none),
+        ("gwyddion/s3_spikes_missing.sur", &none),
+        ("gwyddion/s3_spikes_missing.xyz", &metres),
+        ("gwyddion/s3_spikes_missing.matrix.txt", &none),
+        ("gwyddion/s3_spikes_missing.asc", &none),
+    ];
+    for (name, opts) in s3_zero {
+        let g = read(&dir.join(name), opts).grid;
+        assert_eq!(g.valid_count(), 40000, "{name}");
+        check_s3(name, &mask_block(&g), REL);
+    }
+    // The copies in profilometry/ are the shared files unchanged.
+    for (copy, orig) in [
+        ("s1_tilt_pedestal.x3pio.x3p", "x3pio/s1_tilt_pedestal.x3p"),
+        ("s3_spikes_missing_nan.x3pio.x3p", "x3pio/s3_spikes_missing_nan.x3p"),
+        ("s3_spikes_missing_nan.gsffile.gsf", "gsffile/s3_spikes_missing_nan.gsf"),
+        ("s1_tilt_pedestal.gwyddion.sur", "gwyddion/s1_tilt_pedestal.sur"),
+        ("s3_spikes_missing_nan.surfalize.sur", "surfalize/s3_spikes_missing_nan.sur"),
+        ("s3_spikes_missing.grey16.png", "gwyddion/s3_spikes_missing.grey16.png"),
+    ] {
+        assert_eq!(std::fs::read(local(copy)).unwrap(), std::fs::read(dir.join(orig)).unwrap(), "{copy}");
+    }
+}
+
+#[test]
+fn scan_info_command_prints_the_statistics() {
+    let exe = env!("CARGO_BIN_EXE_doefab");
+    let out = std::process::Command::new(exe)
+        .args(["--json", "scan-info"])
+        .arg(local("s3_spikes_missing_nan.x3pio.x3p"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["size"], serde_json::json!([200, 200]));
+    assert_eq!(v["valid"], 39200);
+    assert!((v["valid_fraction"].as_f64().unwrap() - 0.98).abs() < 1e-12);
+    let sa = v["levelled"]["sa"].as_f64().unwrap();
+    assert!((sa * 1e9 - S3_PLANE.v[0]).abs() < 1e-6 * S3_PLANE.v[0], "{sa}");
+    assert!((v["plane"]["a"].as_f64().unwrap() - 328.636652e-9).abs() < 1e-6 * 328.6e-9);
+    // Human output, and a refusal that names the missing option.
+    let out = std::process::Command::new(exe)
+        .arg("scan-info")
+        .arg(local("s1_tilt_pedestal.gwyddion.sur"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && text.contains("Sku") && text.contains("1 um x 1 um"), "{text}");
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("s.npy");
+    doefab::io::npy::write_npy_f64(&p, &Array2::from_elem((3, 3), 1.0)).unwrap();
+    let out = std::process::Command::new(exe).arg("scan-info").arg(&p).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(err.contains("--pitch"), "{err}");
+    let out = std::process::Command::new(exe)
+        .args(["scan-info", "--pitch", "1um", "--z-unit", "nm"])
+        .arg(&p)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
+
+#[test]
+fn median_outliers_and_laplace_fill_restore_s1_from_s3() {
+    use doefab::metrology::fill::fill_missing;
+    use doefab::metrology::outliers::{median_outliers, without_outliers};
+    let s3 = read(&local("s3_spikes_missing_nan.x3pio.x3p"), &ScanOptions::default()).grid;
+    // 3 x 3 median residuals: 5 um at the spikes, one step height (1 um or 0.5 um) at the
+    // pedestal's corners, 0 on the tilted planes (the median of a plane's 3 x 3 window is its
+    // centre). A floor of 2 um between the two finds exactly the spikes.
+    let m = median_outliers(&s3, 3, 5.0, 2e-6).unwrap();
+    assert_eq!(m.positions, SPIKES.to_vec());
+    let n = nsigma_outliers(&s3, 3.0, 1, 10).unwrap();
+    let clean = without_outliers(&s3, &n).unwrap();
+    assert_eq!(clean.valid_count(), 39195);
+    // S1 is piecewise planar and every hole (the block, each spike) sits inside one plane, where
+    // the discrete Laplace equation holds exactly: the fill gives back S1.
+    let (filled, count) = fill_missing(&clean).unwrap();
+    assert_eq!(count, 805);
+    for ((i, j), v) in filled.values().indexed_iter() {
+        assert!((v - s1(i, j)).abs() < 1e-12, "({i}, {j}): {v} vs {}", s1(i, j));
+    }
+    check("S3 filled", &height_params(&filled).unwrap(), &S1_RAW, Tol::Rel(1e-6));
+}

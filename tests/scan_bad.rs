@@ -1,0 +1,295 @@
+//! Bad input for the scan readers and analytic checks of the surface statistics: truncated and
+//! corrupted files of every binary format (an error naming the file and, for the formats this
+//! crate parses itself, the byte offset; never a panic), all-NaN scans, missing pitch or height
+//! unit, x/y pitch mismatch, implausible heights, a MetroPro file built byte by byte.
+
+use std::path::{Path, PathBuf};
+
+use doefab::io::scan::zygo::{self, MetroProFields, INVALID_PHASE};
+use doefab::io::scan::{decode_scan_raw, read_scan, scan_from_raw, ScanOptions};
+use doefab::metrology::stats::height_params;
+use ndarray::Array2;
+
+fn local(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("profilometry").join(name)
+}
+
+fn decode(name: &str, bytes: &[u8], opts: &ScanOptions) -> doefab::Result<doefab::io::scan::Scan> {
+    let p = Path::new(name);
+    scan_from_raw(p, decode_scan_raw(p, bytes, opts)?, opts)
+}
+
+/// Cuts `bytes` at several offsets (every byte of the first 600, then a spread) and checks the
+/// error names the file and, when `offsets`, a byte offset.
+fn check_cuts(name: &str, bytes: &[u8], offsets: bool) {
+    let n = bytes.len();
+    let mut cuts: Vec<usize> = (0..n.min(600)).collect();
+    cuts.extend((1..40).map(|k| k * n / 40));
+    cuts.extend([n - 1, n - 2, n - 8]);
+    for cut in cuts {
+        let r = std::panic::catch_unwind(|| decode(name, &bytes[..cut], &ScanOptions::default()));
+        let e = match r {
+            Ok(Err(e)) => e.to_string(),
+            Ok(Ok(_)) => panic!("{name} cut at {cut} of {n} bytes was accepted"),
+            Err(_) => panic!("{name} cut at {cut} panicked"),
+        };
+        assert!(e.contains(name), "{name} cut at {cut}: {e}");
+        if offsets && cut > 0 {
+            assert!(e.contains("byte offset"), "{name} cut at {cut}: {e}");
+        }
+    }
+}
+
+/// Flips bytes one at a time at a spread of positions: errors or reads, never panics.
+fn check_corruption(name: &str, bytes: &[u8]) {
+    let n = bytes.len();
+    for k in 0..200 {
+        let pos = (k * 7919) % n;
+        let mut b = bytes.to_vec();
+        b[pos] ^= 0x5a;
+        let r = std::panic::catch_unwind(|| decode(name, &b, &ScanOptions::default()));
+        match r {
+            Err(_) => panic!("{name} corrupted at {pos} panicked"),
+            Ok(Err(e)) => assert!(e.to_string().contains(name), "{name} corrupted at {pos}: {e}"),
+            Ok(Ok(_)) => {}
+        }
+    }
+}
+
+fn mp_fields() -> MetroProFields {
+    MetroProFields {
+        header_format: 1,
+        phase_res: 1,
+        wavelength: 632.8e-9,
+        scale_factor: 0.5,
+        obliquity: 1.0,
+        camera_res: 2.5e-6,
+        inverted: false,
+        buckets: 1,
+    }
+}
+
+#[test]
+fn truncated_and_corrupted_binary_files_are_errors_with_offsets() {
+    for name in [
+        "s1_tilt_pedestal.x3pio.x3p",
+        "s3_spikes_missing_nan.gsffile.gsf",
+        "s1_tilt_pedestal.gwyddion.sur",
+        "s3_spikes_missing_nan.surfalize.sur",
+    ] {
+        let bytes = std::fs::read(local(name)).unwrap();
+        let short = format!("cut-{name}");
+        check_cuts(&short, &bytes, true);
+        check_corruption(&short, &bytes);
+    }
+    let v = Array2::from_shape_fn((20, 30), |(i, j)| (i * 30 + j) as f64 * 1e-9);
+    check_cuts("cut.sdf", &doefab::io::scan::sdf::encode_binary(&v, [1e-6; 2]), true);
+    let phase = Array2::from_shape_fn((12, 16), |(i, j)| (i * 16 + j) as i32 * 100);
+    let mp = zygo::encode(&mp_fields(), &phase);
+    check_cuts("cut.dat", &mp, true);
+    check_corruption("bad.dat", &mp);
+    // PNG goes through the png crate: the file is named, no offset promised.
+    let png = std::fs::read(local("s3_spikes_missing.grey16.png")).unwrap();
+    check_cuts("cut.png", &png, false);
+    check_corruption("bad.png", &png);
+}
+
+#[test]
+fn metropro_file_built_byte_by_byte() {
+    let mut phase = Array2::from_shape_fn((6, 8), |(i, j)| (i as i32 - 2) * 5000 + j as i32 * 300);
+    phase[[1, 2]] = INVALID_PHASE;
+    phase[[4, 7]] = i32::MAX;
+    let f = mp_fields();
+    let bytes = zygo::encode(&f, &phase);
+    // Header format 1: 834-byte header, then 1 bucket of 8 x 6 u16, then the i32 phase map.
+    assert_eq!(bytes.len(), 834 + 2 * 48 + 4 * 48);
+    let s = decode("m.dat", &bytes, &ScanOptions::default()).unwrap();
+    assert_eq!(s.grid.pitch(), [2.5e-6f32 as f64; 2]);
+    assert_eq!(s.grid.valid_count(), 46);
+    assert!(!s.grid.is_valid(1, 2) && !s.grid.is_valid(4, 7));
+    // High phase resolution: R = 32768; heights = phase * S * O * lambda / R.
+    let k = 0.5 * 1.0 * (632.8e-9f32 as f64) / 32768.0;
+    for ((i, j), &p) in phase.indexed_iter() {
+        if s.grid.is_valid(i, j) {
+            let want = p as f64 * k;
+            assert!((s.grid.values()[[i, j]] - want).abs() <= 1e-12 * want.abs().max(1e-9), "({i}, {j})");
+        }
+    }
+    // The same counts at normal resolution (R = 4096) are 8 times higher.
+    let normal = decode(
+        "n.dat",
+        &zygo::encode(&MetroProFields { phase_res: 0, ..f.clone() }, &phase),
+        &ScanOptions::default(),
+    )
+    .unwrap();
+    let (a, b) = (s.grid.values()[[5, 5]], normal.grid.values()[[5, 5]]);
+    assert!((b / a - 8.0).abs() < 1e-12, "{a} {b}");
+    // Format 3 (4096-byte header) with R = 131072 and inverted data.
+    let f3 = MetroProFields { header_format: 3, phase_res: 2, inverted: true, buckets: 0, ..f.clone() };
+    let s3 = decode("f3.dat", &zygo::encode(&f3, &phase), &ScanOptions::default()).unwrap();
+    let want = -(phase[[5, 5]] as f64) * 0.5 * (632.8e-9f32 as f64) / 131072.0;
+    assert!((s3.grid.values()[[5, 5]] - want).abs() < 1e-12 * want.abs());
+    // phase_res 2 outside format 3, and unknown codes, are refused at their offset.
+    let e = decode(
+        "x.dat",
+        &zygo::encode(&MetroProFields { phase_res: 2, ..f.clone() }, &phase),
+        &ScanOptions::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("byte offset 218"), "{e}");
+    // No lateral resolution in the file: --pitch is required.
+    let nores = zygo::encode(&MetroProFields { camera_res: 0.0, ..f }, &phase);
+    let e = decode("p.dat", &nores, &ScanOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("--pitch"), "{e}");
+    let s = decode("p.dat", &nores, &ScanOptions { pitch: Some([1e-6; 2]), ..Default::default() }).unwrap();
+    assert_eq!(s.grid.pitch(), [1e-6; 2]);
+}
+
+#[test]
+fn all_nan_scans_are_refused() {
+    let v = Array2::from_elem((4, 5), f64::NAN);
+    let e = decode("nan.gsf", &doefab::io::scan::gsf::encode(&v, [1e-6; 2]), &ScanOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("nan.gsf") && e.contains("no measured point"), "{e}");
+    let e =
+        decode("nan.x3p", &doefab::io::scan::x3p::encode(&v, [1e-6; 2]).unwrap(), &ScanOptions::default())
+            .unwrap_err()
+            .to_string();
+    assert!(e.contains("no measured point"), "{e}");
+    let t =
+        "aISO-1.0\nNumPoints = 2\nNumProfiles = 1\nXscale = 1e-6\nYscale = 1e-6\nZscale = 1\n*\nBAD BAD\n*\n";
+    assert!(decode("nan.sdf", t.as_bytes(), &ScanOptions::default()).is_err());
+}
+
+#[test]
+fn missing_pitch_or_unit_is_refused_with_the_option_to_pass() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("scan.npy");
+    let v = Array2::from_shape_fn((5, 6), |(i, j)| (i + j) as f64 * 10.0);
+    doefab::io::npy::write_npy_f64(&p, &v).unwrap();
+    let e = read_scan(&p, &ScanOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("carries no pitch: pass --pitch"), "{e}");
+    let o = ScanOptions { pitch: Some([1e-6; 2]), ..Default::default() };
+    let e = read_scan(&p, &o).unwrap_err().to_string();
+    assert!(e.contains("no height unit: pass --unit"), "{e}");
+    let o = ScanOptions { pitch: Some([1e-6; 2]), z_unit: Some(1e-9), ..Default::default() };
+    let s = read_scan(&p, &o).unwrap();
+    assert!((s.grid.values()[[4, 5]] - 90e-9).abs() < 1e-20);
+    // A point list states no unit for its columns.
+    let e =
+        decode("p.xyz", b"0 0 1\n1 0 2\n0 1 3\n1 1 4\n", &ScanOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("--z-unit"), "{e}");
+    // A GSF without units: the field and heights need the caller's pitch and unit.
+    let head = b"Gwyddion Simple Field 1.0\nXRes = 2\nYRes = 1\n";
+    let mut g = head.to_vec();
+    g.extend(std::iter::repeat_n(0u8, 4 - head.len() % 4));
+    g.extend_from_slice(&1.0f32.to_le_bytes());
+    g.extend_from_slice(&2.0f32.to_le_bytes());
+    let e = decode("u.gsf", &g, &ScanOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("--pitch"), "{e}");
+    let o = ScanOptions { pitch: Some([1e-6; 2]), z_unit: Some(1e-9), ..Default::default() };
+    assert!(decode("u.gsf", &g, &o).is_ok());
+}
+
+#[test]
+fn different_x_and_y_pitches_are_supported() {
+    let (gx, gy) = (0.02, 0.01);
+    let (px, py) = (1e-6, 3e-6);
+    let v = Array2::from_shape_fn((12, 9), |(i, j)| gx * j as f64 * px + gy * i as f64 * py);
+    for (name, bytes) in [
+        ("a.gsf", doefab::io::scan::gsf::encode(&v, [px, py])),
+        ("a.x3p", doefab::io::scan::x3p::encode(&v, [px, py]).unwrap()),
+        ("a.sdf", doefab::io::scan::sdf::encode_binary(&v, [px, py])),
+    ] {
+        let s = decode(name, &bytes, &ScanOptions::default()).unwrap();
+        let p = s.grid.pitch();
+        assert!((p[0] - px).abs() < 1e-12 && (p[1] - py).abs() < 1e-12, "{name}: {p:?}");
+        let sdq = height_params(&s.grid).unwrap().sdq.unwrap();
+        let slope = (gx * gx + gy * gy).sqrt();
+        assert!((sdq - slope).abs() < 1e-5 * slope, "{name}: Sdq {sdq} vs {slope}");
+    }
+}
+
+#[test]
+fn implausible_heights_for_the_unit_are_refused() {
+    // Heights written as nanometre numbers into a file whose unit is metres.
+    let v = Array2::from_shape_fn((4, 4), |(i, j)| (i * 4 + j) as f64 * 100.0);
+    let e = decode("nm.x3p", &doefab::io::scan::x3p::encode(&v, [1e-6; 2]).unwrap(), &ScanOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("nm.x3p") && e.contains("implausible") && e.contains("nm"), "{e}");
+    let o = ScanOptions { allow_implausible: true, ..Default::default() };
+    assert!(decode("nm.x3p", &doefab::io::scan::x3p::encode(&v, [1e-6; 2]).unwrap(), &o).is_ok());
+}
+
+#[test]
+fn x3p_checksum_mismatch_is_a_warning() {
+    let v = Array2::from_shape_fn((3, 3), |(i, j)| (i + j) as f64 * 1e-8);
+    let good = doefab::io::scan::x3p::encode(&v, [1e-6; 2]).unwrap();
+    assert!(decode("g.x3p", &good, &ScanOptions::default()).unwrap().warnings.is_empty());
+    // Rebuild the archive with a wrong point-data MD5 in main.xml.
+    let mut zip = zip::ZipArchive::new(std::io::Cursor::new(&good)).unwrap();
+    let mut out = std::io::Cursor::new(Vec::new());
+    {
+        use std::io::{Read, Write};
+        let mut w = zip::ZipWriter::new(&mut out);
+        for k in 0..zip.len() {
+            let mut f = zip.by_index(k).unwrap();
+            let name = f.name().to_string();
+            let mut data = Vec::new();
+            f.read_to_end(&mut data).unwrap();
+            if name == "main.xml" {
+                let t = String::from_utf8(data).unwrap();
+                let a = t.find("<MD5ChecksumPointData>").unwrap() + 22;
+                data = format!("{}{}{}", &t[..a], "0".repeat(32), &t[a + 32..]).into_bytes();
+            }
+            w.start_file(name, zip::write::SimpleFileOptions::default()).unwrap();
+            w.write_all(&data).unwrap();
+        }
+        w.finish().unwrap();
+    }
+    let s = decode("w.x3p", out.get_ref(), &ScanOptions::default()).unwrap();
+    assert!(
+        s.warnings.iter().any(|w| w.contains("differs from main.xml's MD5ChecksumPointData")),
+        "{:?}",
+        s.warnings
+    );
+    assert!(s.warnings.iter().any(|w| w.contains("not the MD5 of main.xml")), "{:?}", s.warnings);
+    assert_eq!(s.grid.values()[[2, 2]], 4e-8);
+}
+
+/// splitmix64 then Box-Muller: a seeded standard normal sequence.
+fn gaussian(seed: u64, n: usize) -> Vec<f64> {
+    let mut s = seed;
+    let mut next = || {
+        s = s.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = s;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    };
+    (0..n)
+        .map(|_| {
+            let (u1, u2) = (next().max(1e-300), next());
+            (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+        })
+        .collect()
+}
+
+#[test]
+fn gaussian_random_surface_has_iso_kurtosis_three() {
+    let n = 256;
+    let sigma = 20e-9;
+    let z: Vec<f64> = gaussian(42, n * n).into_iter().map(|g| g * sigma).collect();
+    let g = doefab::Grid::new(Array2::from_shape_vec((n, n), z).unwrap(), [1e-6; 2], doefab::Unit::Metre)
+        .unwrap();
+    let p = height_params(&g).unwrap();
+    // Standard errors for N = 65536: Sku sqrt(24/N) = 0.019, Ssk sqrt(6/N) = 0.0096.
+    assert!((p.sku - 3.0).abs() < 0.08, "Sku {}", p.sku);
+    assert!(p.ssk.abs() < 0.04, "Ssk {}", p.ssk);
+    assert!((p.sq / sigma - 1.0).abs() < 0.02, "Sq {}", p.sq);
+    // Sa = sigma sqrt(2 / pi) for a Gaussian.
+    assert!((p.sa / (sigma * (2.0 / std::f64::consts::PI).sqrt()) - 1.0).abs() < 0.02, "Sa {}", p.sa);
+}
