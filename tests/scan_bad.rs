@@ -260,29 +260,12 @@ fn x3p_checksum_mismatch_is_a_warning() {
     assert_eq!(s.grid.values()[[2, 2]], 4e-8);
 }
 
-/// splitmix64 then Box-Muller: a seeded standard normal sequence.
-fn gaussian(seed: u64, n: usize) -> Vec<f64> {
-    let mut s = seed;
-    let mut next = || {
-        s = s.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = s;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    };
-    (0..n)
-        .map(|_| {
-            let (u1, u2) = (next().max(1e-300), next());
-            (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-        })
-        .collect()
-}
-
 #[test]
 fn gaussian_random_surface_has_iso_kurtosis_three() {
     let n = 256;
     let sigma = 20e-9;
-    let z: Vec<f64> = gaussian(42, n * n).into_iter().map(|g| g * sigma).collect();
+    let mut rng = doefab::rng::Lcg(42);
+    let z: Vec<f64> = (0..n * n).map(|_| rng.normal() * sigma).collect();
     let g = doefab::Grid::new(Array2::from_shape_vec((n, n), z).unwrap(), [1e-6; 2], doefab::Unit::Metre)
         .unwrap();
     let p = height_params(&g).unwrap();
