@@ -11,6 +11,7 @@
 //! * [`design`]: the built-in example designs (grating-like DOE, Fresnel lens).
 //! * [`io`]: file formats and atomic writing.
 //! * [`fabrication`]: wrap -> quantize -> grayscale masks, multi-level GDSII mask set, STL.
+//! * [`optics`]: the optical system and the DOE's PSF by several propagation methods.
 //! * [`error`]: the library's error type.
 
 pub mod design;
@@ -19,6 +20,7 @@ pub mod fabrication;
 pub mod grid;
 pub mod io;
 pub mod material;
+pub mod optics;
 pub mod units;
 
 pub use error::{Error, Result};

@@ -1,0 +1,145 @@
+//! Optics stage: analytic truths (Airy pattern, grating orders), energy conservation,
+//! agreement between the propagation methods, validity guards, the shared measured PSF.
+
+use doefab::fabrication::quantize::order_efficiency;
+use doefab::grid::{Grid, Unit};
+use doefab::material::Material;
+use doefab::optics::propagate::{field_power, matrix_dft};
+use doefab::optics::system::OpticalSystem;
+use doefab::optics::{simulate, Method, Options, Psf};
+use ndarray::Array2;
+
+const L550: f64 = 550e-9;
+
+/// A small F/7 system at 550 nm: 1 mm aperture, g = d_s = 7 mm, 5 um pupil pitch.
+fn f7(sensor_pitch: f64, crop: usize) -> OpticalSystem {
+    OpticalSystem {
+        aperture: 1e-3,
+        doe_to_lens: 2e-3,
+        focal_length: 7e-3,
+        lens_to_sensor: 7e-3,
+        sensor_pitch,
+        crop,
+        pupil_pitch: 5e-6,
+        pupil_window: 1.02e-3,
+        wavelengths: vec![L550],
+        ..Default::default()
+    }
+}
+
+fn flat(n: usize, pitch: f64) -> Grid {
+    Grid::new(Array2::zeros((n, n)), [pitch; 2], Unit::Metre).unwrap()
+}
+
+/// Heights of a grating along x: `phase(x mod period)` in radians at `wavelength` in PDMS.
+fn grating(n: usize, pitch: f64, wavelength: f64, phase: impl Fn(usize) -> f64) -> Grid {
+    let dn = Material::pdms().index(wavelength).unwrap() - 1.0;
+    let k = 2.0 * std::f64::consts::PI / wavelength;
+    Grid::new(Array2::from_shape_fn((n, n), |(_, j)| phase(j) / (k * dn)), [pitch; 2], Unit::Metre).unwrap()
+}
+
+#[test]
+fn flat_doe_gives_the_airy_pattern() {
+    // 0.25 um pixels, odd crop: the axis sits on a pixel centre.
+    let s = f7(0.25e-6, 81);
+    let doe = flat(204, 5e-6);
+    let psf = simulate(&s, &doe, Method::MatrixDft, &Options::default()).unwrap();
+    let g = &psf.channels[0].grid;
+    let row = g.values().row(40);
+    // First zero of the central row between 4 and 5.5 um, refined by a parabola through
+    // the smallest sample and its neighbours.
+    let (k, _) =
+        (56..62).map(|j| (j, row[j])).fold((0, f64::INFINITY), |b, (j, v)| if v < b.1 { (j, v) } else { b });
+    // The field is real and changes sign at the zero: signed amplitudes, the sign flipping on
+    // the side of the smaller neighbour, and the root of the parabola through them.
+    let (a, b, c) = (row[k - 1].sqrt(), row[k].sqrt(), row[k + 1].sqrt());
+    let (a, b, c) = if a < c { (a, -b, -c) } else { (a, b, -c) };
+    let (qa, qb, qc) = (0.5 * (a + c) - b, 0.5 * (c - a), b);
+    let disc = (qb * qb - 4.0 * qa * qc).sqrt();
+    let roots = [(-qb + disc) / (2.0 * qa), (-qb - disc) / (2.0 * qa)];
+    let t = roots.into_iter().find(|t| t.abs() <= 1.0).expect("a root between the samples");
+    let x0 = g.x(k) + 0.25e-6 * t;
+    let airy = 1.22 * L550 * 7.0;
+    assert!((airy - 4.697e-6).abs() < 2e-9);
+    assert!((x0 - airy).abs() < 0.01e-6, "first zero at {x0} m, Airy {airy} m");
+    // Encircled energy inside the first zero: 0.838 of the power through the aperture.
+    let captured = psf.channels[0].captured.unwrap();
+    let ee = psf.encircled_energy(0, [0.0, 0.0], airy) * captured;
+    assert!((ee - 0.838).abs() < 3e-3, "encircled energy {ee}");
+    // Peak intensity equals the analytic P A / (lambda g)^2 with A the sampled aperture area:
+    // a flat DOE has Strehl 1 against the ideal lens.
+    let (n, dx) = matrix_dft::pupil_grid(&s, &doe);
+    let u = s.pupil_field(&doe, n, dx, L550, true).unwrap();
+    let area = field_power(&u, dx);
+    let peak = psf.peak(0).0 * captured * area / (0.25e-6f64).powi(2);
+    let ideal = area * area / (L550 * 7e-3).powi(2);
+    assert!((peak / ideal - 1.0).abs() < 1e-6, "peak {peak} vs {ideal}");
+    assert_eq!(psf.strehl(&psf).unwrap(), vec![1.0]);
+    assert_eq!(psf.peak(0).2, (40, 40));
+}
+
+/// Energy of each diffraction order in a box half the order spacing wide, relative to the
+/// flat DOE's energy in the same box around the axis.
+fn order_energies(psf: &Psf, flat: &Psf, spacing: f64, orders: &[i64]) -> Vec<(f64, [f64; 2])> {
+    let g = &psf.channels[0].grid;
+    let gf = &flat.channels[0].grid;
+    let (ca, cf) = (psf.channels[0].captured.unwrap(), flat.channels[0].captured.unwrap());
+    let box_sum = |grid: &Grid, xc: f64| {
+        let (mut s, mut sx) = (0.0, 0.0);
+        for ((i, j), &v) in grid.values().indexed_iter() {
+            if (grid.x(j) - xc).abs() < 0.5 * spacing && grid.y(i).abs() < 0.5 * spacing {
+                s += v;
+                sx += v * grid.x(j);
+            }
+        }
+        (s, sx / s)
+    };
+    let reference = box_sum(gf, 0.0).0 * cf;
+    orders
+        .iter()
+        .map(|&m| {
+            let (e, x) = box_sum(g, m as f64 * spacing);
+            (e * ca / reference, [x, 0.0])
+        })
+        .collect()
+}
+
+#[test]
+fn binary_and_blazed_gratings_match_scalar_theory() {
+    // Period 8 samples = 40 um: orders every lambda g / L = 96.25 um.
+    let (pitch, period) = (5e-6, 8usize);
+    // Cells: the DOE is piecewise constant, so a grating of whole cells is the continuous one.
+    let s = OpticalSystem { cells: true, ..f7(1.75e-6, 401) };
+    let spacing = L550 * 7e-3 / (period as f64 * pitch);
+    let flat_psf = simulate(&s, &flat(204, pitch), Method::MatrixDft, &Options::default()).unwrap();
+    let binary =
+        grating(204, pitch, L550, |j| if j % period < period / 2 { 0.0 } else { std::f64::consts::PI });
+    let psf = simulate(&s, &binary, Method::MatrixDft, &Options::default()).unwrap();
+    let orders = [-2i64, -1, 0, 1, 2];
+    let e = order_energies(&psf, &flat_psf, spacing, &orders);
+    for (k, &m) in orders.iter().enumerate() {
+        let want = order_efficiency(2, 1.0, m);
+        assert!((e[k].0 - want).abs() < 2e-3, "binary order {m}: {} vs {want}", e[k].0);
+        if m.abs() == 1 {
+            assert!((want - 0.4053).abs() < 1e-4);
+            // Order m lands at m lambda g / L.
+            assert!((e[k].1[0] - m as f64 * spacing).abs() < 0.05e-6, "order {m} at {:?}", e[k].1);
+        }
+    }
+    // The brightest peaks are the +-1 orders, each 0.405 of the flat DOE's peak; nothing at
+    // the centre.
+    let strehl = psf.strehl(&flat_psf).unwrap()[0];
+    assert!((strehl - 0.4053).abs() < 3e-3, "Strehl {strehl}");
+    assert!(psf.channels[0].grid.values()[[200, 200]] < 1e-3 * psf.peak(0).0);
+
+    // Four-level staircase of a blaze: order +1 carries sinc^2(1/4) = 0.811, order -3 0.090.
+    let blazed = grating(204, pitch, L550, |j| 2.0 * std::f64::consts::PI * ((j % period) / 2) as f64 / 4.0);
+    let psf = simulate(&s, &blazed, Method::MatrixDft, &Options::default()).unwrap();
+    let orders = [-3i64, -1, 0, 1, 2];
+    let e = order_energies(&psf, &flat_psf, spacing, &orders);
+    for (k, &m) in orders.iter().enumerate() {
+        let want = order_efficiency(4, 1.0, m);
+        assert!((e[k].0 - want).abs() < 3e-3, "4-level order {m}: {} vs {want}", e[k].0);
+    }
+    assert!((order_efficiency(4, 1.0, 1) - 0.8106).abs() < 1e-4);
+}
