@@ -4,7 +4,7 @@
 use doefab::fabrication::quantize::order_efficiency;
 use doefab::grid::{Grid, Unit};
 use doefab::material::Material;
-use doefab::optics::propagate::{field_power, matrix_dft};
+use doefab::optics::propagate::{self, field_power, matrix_dft};
 use doefab::optics::system::OpticalSystem;
 use doefab::optics::{simulate, Method, Options, Psf};
 use ndarray::Array2;
@@ -142,4 +142,98 @@ fn binary_and_blazed_gratings_match_scalar_theory() {
         assert!((e[k].0 - want).abs() < 3e-3, "4-level order {m}: {} vs {want}", e[k].0);
     }
     assert!((order_efficiency(4, 1.0, 1) - 0.8106).abs() < 1e-4);
+}
+
+/// A smooth test DOE: three sinusoidal phase gratings of 1 rad with periods of 10+ samples.
+fn smooth_doe(n: usize, pitch: f64, wavelength: f64) -> Grid {
+    let dn = Material::pdms().index(wavelength).unwrap() - 1.0;
+    let k = 2.0 * std::f64::consts::PI / wavelength;
+    let c = (n as f64 - 1.0) * 0.5;
+    Grid::new(
+        Array2::from_shape_fn((n, n), |(i, j)| {
+            let (x, y) = (j as f64 - c, i as f64 - c);
+            let phase = 1.0 + (0.41 * x).sin() + (0.23 * y + 0.3).cos() + 0.8 * (0.17 * (x + y)).sin();
+            phase / (k * dn)
+        }),
+        [pitch; 2],
+        Unit::Metre,
+    )
+    .unwrap()
+}
+
+/// F/100 at 635 and 450 nm: 0.25 mm aperture, 10 um pixels sampled twice per pixel, the pupil at
+/// 5 um in a 2.2 mm window (the transfer-function methods need a window wider than the replica
+/// period lambda g / dx), slow enough that the paraxial and non-paraxial models agree.
+fn f100() -> OpticalSystem {
+    OpticalSystem {
+        aperture: 0.25e-3,
+        doe_to_lens: 1e-3,
+        focal_length: 25e-3,
+        lens_to_sensor: 25e-3,
+        sensor_pitch: 10e-6,
+        crop: 32,
+        subsample: 2,
+        pupil_pitch: 5e-6,
+        pupil_window: 2.2e-3,
+        wavelengths: vec![635e-9, 450e-9],
+        ..Default::default()
+    }
+}
+
+#[test]
+fn methods_agree_on_a_shared_valid_configuration() {
+    let s = f100();
+    let doe = smooth_doe(440, 5e-6, 530e-9);
+    let psfs: Vec<Psf> = [Method::MatrixDft, Method::Fresnel, Method::AngularSpectrum]
+        .into_iter()
+        .map(|m| {
+            assert_eq!(propagate::check(m, &s, &doe).unwrap(), vec![], "{m}");
+            simulate(&s, &doe, m, &Options::default()).unwrap()
+        })
+        .collect();
+    for (a, b) in [(1, 0), (2, 0), (2, 1)] {
+        let e = psfs[a].relative_l2(&psfs[b]).unwrap();
+        // 635 nm within 1e-4; at 450 nm the non-paraxial angular spectrum differs from the
+        // paraxial methods by 1.3e-4 (order NA^2 / 2 = 1.25e-5 per unit of structure).
+        assert!(e[0] < 1e-4, "{} vs {} at 635 nm: {}", psfs[a].method, psfs[b].method, e[0]);
+        assert!(e[1] < 2e-4, "{} vs {} at 450 nm: {}", psfs[a].method, psfs[b].method, e[1]);
+    }
+    // The two paraxial methods agree far closer.
+    let e = psfs[1].relative_l2(&psfs[0]).unwrap();
+    assert!(e[0] < 2e-5 && e[1] < 1.5e-4, "{e:?}");
+    // Every method puts the same share of the DOE's power into the crop.
+    for p in &psfs[1..] {
+        for c in 0..2 {
+            let (a, b) = (p.channels[c].captured.unwrap(), psfs[0].channels[c].captured.unwrap());
+            assert!((a - b).abs() < 2e-4, "{} captured {a} vs {b}", p.method);
+        }
+    }
+}
+
+#[test]
+fn rayleigh_sommerfeld_ground_truth_agrees_on_a_tiny_grid() {
+    // 90 x 90 pupil samples at 5 um, F/50, d_phi = 14 mm: the direct integral's kernel is sampled
+    // (phase steps below pi) and the 0.9 mm lens window holds the light.
+    let s = OpticalSystem {
+        aperture: 0.25e-3,
+        doe_to_lens: 14e-3,
+        focal_length: 12.5e-3,
+        lens_to_sensor: 12.5e-3,
+        sensor_pitch: 5e-6,
+        crop: 16,
+        pupil_pitch: 5e-6,
+        pupil_window: 0.45e-3,
+        wavelengths: vec![635e-9],
+        ..Default::default()
+    };
+    let doe = flat(90, 5e-6);
+    assert_eq!(propagate::check(Method::RayleighSommerfeld, &s, &doe).unwrap(), vec![]);
+    let rs = simulate(&s, &doe, Method::RayleighSommerfeld, &Options::default()).unwrap();
+    let m1 = simulate(&s, &doe, Method::MatrixDft, &Options::default()).unwrap();
+    let e = m1.relative_l2(&rs).unwrap()[0];
+    assert!(e < 2.5e-3, "matrix DFT vs Rayleigh-Sommerfeld: {e}");
+    // Half the distance breaks the kernel sampling and the guard says so.
+    let near = OpticalSystem { doe_to_lens: 7e-3, ..s };
+    let v = propagate::check(Method::RayleighSommerfeld, &near, &doe).unwrap();
+    assert!(v.iter().any(|v| v.condition == "kernel_sampling"), "{v:?}");
 }

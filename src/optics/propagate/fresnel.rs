@@ -10,9 +10,8 @@
 //! With [`OpticalSystem::cells`] the first transfer function carries the cell envelope.
 //!
 //! Validity: the lens phase sampled at `dx <= lambda F#` (the paper's own 4.29 um at F/7
-//! violates it at 530 and 450 nm); the transfer function's chirp sampled over the band the
-//! field carries (`f_max <= W / (2 lambda z)` for window `W`, Voelz and Roggemann 2009, Appl.
-//! Opt. 48, 6132); the output window vs the replica period; the DOE phase gradient; the
+//! violates it at 530 and 450 nm); the transfer function's chirp sampled over the pupil's band
+//! (`lambda z <= W dx` for window `W`, Voelz and Roggemann 2009, Appl. Opt. 48, 6132); the output window vs the replica period; the DOE phase gradient; the
 //! Fresnel approximation out of focus.
 
 use std::f64::consts::PI;
@@ -23,8 +22,7 @@ use rustfft::num_complex::Complex64;
 use rustfft::FftPlanner;
 
 use super::{
-    check_fresnel, check_lens_sampling, check_phase_gradient, check_window, content_bandwidth, field_power,
-    SensorIntensity, Violation,
+    check_fresnel, check_lens_sampling, check_window, field_power, pupil_phase, SensorIntensity, Violation,
 };
 use crate::error::{Error, Result};
 use crate::grid::Grid;
@@ -41,15 +39,16 @@ pub fn grid(system: &OpticalSystem) -> (usize, f64, usize) {
 /// The violated validity conditions at `wavelength` (see the module docs).
 pub fn check(system: &OpticalSystem, doe: &Grid, wavelength: f64) -> Result<Vec<Violation>> {
     let (n, dx, w) = grid(system);
+    let (f_doe, gradient) = pupil_phase(system, doe, n, dx, wavelength)?;
     let mut out = Vec::new();
     out.extend(check_lens_sampling(system, dx, wavelength, false));
-    out.extend(check_bandwidth(system, doe, dx, w, wavelength));
+    out.extend(check_bandwidth(system, dx, w, wavelength));
     out.extend(check_window(system, dx, w as f64 * dx, wavelength));
     if system.samples() > w {
         out.push(crop_too_large(system, w, wavelength));
     }
-    out.extend(check_phase_gradient(system, doe, n, dx, wavelength)?);
-    out.extend(check_fresnel(system, doe, dx, wavelength));
+    out.extend(gradient);
+    out.extend(check_fresnel(system, f_doe, dx, wavelength));
     Ok(out)
 }
 
@@ -64,26 +63,26 @@ pub(crate) fn crop_too_large(system: &OpticalSystem, w: usize, wavelength: f64) 
     )
 }
 
-/// The transfer function's chirp must be sampled over the band the field carries.
-fn check_bandwidth(system: &OpticalSystem, doe: &Grid, dx: f64, w: usize, wavelength: f64) -> Vec<Violation> {
+/// The transfer function's chirp must be sampled over the whole band of the pupil grid,
+/// `1 / (2 dx) <= W / (2 lambda z)`, i.e. `lambda z <= W dx`: a sharp aperture edge fills the
+/// band, so a smaller estimate of the field's bandwidth lets aliased light through.
+fn check_bandwidth(system: &OpticalSystem, dx: f64, w: usize, wavelength: f64) -> Vec<Violation> {
     let win = w as f64 * dx;
     let mut out = Vec::new();
-    for (z, after_lens, what) in
-        [(system.doe_to_lens, false, "DOE -> lens"), (system.lens_to_sensor, true, "lens -> sensor")]
-    {
-        let f = content_bandwidth(system, doe, dx, wavelength, after_lens);
+    for (z, what) in [(system.doe_to_lens, "DOE -> lens"), (system.lens_to_sensor, "lens -> sensor")] {
+        let f = 1.0 / (2.0 * dx);
         let limit = win / (2.0 * wavelength * z);
         if f > limit {
             out.push(Violation::new(
                 "transfer_function_bandwidth",
                 wavelength,
                 format!(
-                    "{what}: the Fresnel transfer function's chirp is sampled only up to {:.1} cycles/mm \
-                     but the field carries {:.1} cycles/mm (window {:.3} mm, z = {:.3} mm)",
+                    "{what}: the Fresnel transfer function's chirp is sampled only up to {:.1} cycles/mm, \
+                     below the pupil's band {:.1} cycles/mm (lambda z = {:.3e} m^2 > window x pitch = {:.3e} m^2)",
                     limit * 1e-3,
                     f * 1e-3,
-                    win * 1e3,
-                    z * 1e3
+                    wavelength * z,
+                    win * dx
                 ),
             ));
         }

@@ -24,7 +24,7 @@ use std::f64::consts::PI;
 use ndarray::Array2;
 use rustfft::num_complex::Complex64;
 
-use super::{check_fresnel, check_phase_gradient, field_power, SensorIntensity, Violation};
+use super::{check_fresnel, field_power, pupil_phase, SensorIntensity, Violation};
 use crate::error::{Error, Result};
 use crate::grid::Grid;
 use crate::optics::system::{sinc, OpticalSystem};
@@ -53,6 +53,7 @@ fn pupil_curvature(system: &OpticalSystem) -> f64 {
 /// The violated validity conditions at `wavelength` (see the module docs).
 pub fn check(system: &OpticalSystem, doe: &Grid, wavelength: f64) -> Result<Vec<Violation>> {
     let (n, dx) = pupil_grid(system, doe);
+    let (f_doe, gradient) = pupil_phase(system, doe, n, dx, wavelength)?;
     let m = system.abcd();
     let mut out = Vec::new();
     if m.b.abs() < 1e-9 * system.focal_length {
@@ -90,8 +91,8 @@ pub fn check(system: &OpticalSystem, doe: &Grid, wavelength: f64) -> Result<Vec<
             ),
         ));
     }
-    out.extend(check_phase_gradient(system, doe, n, dx, wavelength)?);
-    out.extend(check_fresnel(system, doe, dx, wavelength));
+    out.extend(gradient);
+    out.extend(check_fresnel(system, f_doe, dx, wavelength));
     Ok(out)
 }
 

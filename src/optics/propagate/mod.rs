@@ -198,17 +198,19 @@ pub fn field_power(u: &Array2<rustfft::num_complex::Complex64>, dx: f64) -> f64 
     u.iter().map(|v| v.norm_sqr()).sum::<f64>() * dx * dx
 }
 
-/// Phase-gradient check on pupil heights (metres) at `pitch`: the phase step between
-/// neighbouring samples inside the aperture, `k (n - 1) dh`, must stay within pi (Nyquist)
-/// unless it is a wrap step, i.e. at least 3 pi / 2 in size and within pi / 2 of a multiple
-/// of 2 pi (a phase-wrapped DOE's zone edges, harmless in `exp(i phi)`).
-pub(crate) fn check_phase_gradient(
+/// Phase-gradient check on pupil heights (metres) at `pitch`, with the DOE's bandwidth.
+///
+/// The phase step between neighbouring samples inside the aperture, `k (n - 1) dh`, must stay
+/// within pi (Nyquist) unless it is a wrap step, i.e. at least 3 pi / 2 in size and within
+/// pi / 2 of a multiple of 2 pi (a phase-wrapped DOE's zone edges, harmless in `exp(i phi)`).
+/// The bandwidth is the largest local frequency of the phase, `|step mod 2 pi| / (2 pi dx)`.
+pub(crate) fn pupil_phase(
     system: &OpticalSystem,
     doe: &Grid,
     n: usize,
     pitch: f64,
     wavelength: f64,
-) -> Result<Option<Violation>> {
+) -> Result<(f64, Option<Violation>)> {
     let h = system.pupil_heights(doe, n, pitch)?;
     let k = 2.0 * PI / wavelength * (system.material.index(wavelength)? - 1.0);
     let r2 = (system.aperture * 0.5).powi(2);
@@ -219,6 +221,7 @@ pub(crate) fn check_phase_gradient(
     };
     let mut bad = 0usize;
     let mut worst = (0.0f64, 0usize, 0usize);
+    let mut steepest = 0.0f64;
     for i in 0..n {
         for j in 0..n {
             if !inside(i, j) {
@@ -230,6 +233,7 @@ pub(crate) fn check_phase_gradient(
                 }
                 let d = k * (h[[a, b]] - h[[i, j]]);
                 let r = d - 2.0 * PI * (d / (2.0 * PI)).round();
+                steepest = steepest.max(r.abs());
                 // Tolerances keep exact steps (pi, 3 pi / 2 of a staircase) on the valid side.
                 let ok = d.abs() <= PI * (1.0 + 1e-9)
                     || (d.abs() >= 1.5 * PI * (1.0 - 1e-9) && r.abs() <= 0.5 * PI * (1.0 + 1e-9));
@@ -242,7 +246,8 @@ pub(crate) fn check_phase_gradient(
             }
         }
     }
-    Ok((bad > 0).then(|| {
+    let bandwidth = steepest / (2.0 * PI * pitch);
+    let violation = (bad > 0).then(|| {
         Violation::new(
             "phase_gradient",
             wavelength,
@@ -255,7 +260,8 @@ pub(crate) fn check_phase_gradient(
                 worst.2
             ),
         )
-    }))
+    });
+    Ok((bandwidth, violation))
 }
 
 /// Lens-phase sampling: the local frequency of the lens phase at the aperture edge,
@@ -290,23 +296,21 @@ pub(crate) fn check_lens_sampling(
     })
 }
 
-/// The largest spatial frequency the field carries, cycles/m: the DOE's own bandwidth
-/// (its sample pitch's Nyquist frequency, or the pupil's if finer sampled is coarser), plus
-/// the lens's `D / (2 lambda g)` after the lens.
+/// The largest spatial frequency the field carries, cycles/m: the DOE phase's largest local
+/// frequency `f_doe` plus eight diffraction orders of the aperture edge (`8 / D`), plus the
+/// lens's `D / (2 lambda g)` after the lens, at most the pupil's Nyquist frequency `1/(2 dx)`.
 pub(crate) fn content_bandwidth(
     system: &OpticalSystem,
-    doe: &Grid,
+    f_doe: f64,
     dx: f64,
     wavelength: f64,
     after_lens: bool,
 ) -> f64 {
-    let doe_pitch = doe.pitch()[0].min(doe.pitch()[1]);
-    let nyq = 1.0 / (2.0 * dx);
-    let mut f = nyq.min(1.0 / (2.0 * doe_pitch));
+    let mut f = f_doe + 8.0 / system.aperture;
     if after_lens {
         f += system.aperture / (2.0 * wavelength * system.focal_length);
     }
-    f.min(nyq)
+    f.min(1.0 / (2.0 * dx))
 }
 
 /// Fresnel-approximation condition for the DOE -> lens step (Goodman, Introduction to Fourier
@@ -317,7 +321,7 @@ pub(crate) fn content_bandwidth(
 /// whose intensity free-space propagation over d_phi leaves unchanged in any approximation.
 pub(crate) fn check_fresnel(
     system: &OpticalSystem,
-    doe: &Grid,
+    f_doe: f64,
     dx: f64,
     wavelength: f64,
 ) -> Option<Violation> {
@@ -325,7 +329,7 @@ pub(crate) fn check_fresnel(
     if in_focus {
         return None;
     }
-    let theta = wavelength * content_bandwidth(system, doe, dx, wavelength, false);
+    let theta = wavelength * content_bandwidth(system, f_doe, dx, wavelength, false);
     let k = 2.0 * PI / wavelength;
     let err = k * system.doe_to_lens * theta.powi(4) / 8.0;
     (err > 0.5 * PI).then(|| {
@@ -343,24 +347,26 @@ pub(crate) fn check_fresnel(
 }
 
 /// Output window vs replica period for the transfer-function methods, whose pupil sampled at
-/// `dx` makes the focal pattern periodic with period `lambda g / dx` and whose FFT window `w`
-/// wraps light around: light reaches `lambda g / (2 dx)` from the axis and must not wrap onto
-/// the crop (`(lambda g / dx + D) / 2 <= w - crop/2`, light folded by the sampling lands up to
-/// the aperture radius beyond half a period), and the crop must not see a replica
-/// (`crop <= lambda g / dx`).
+/// `dx` makes the focal pattern periodic with period `P = lambda d_s / dx` and whose FFT window
+/// `w` wraps light around. The crop must not see a replica (`crop <= P`), and the light must not
+/// wrap onto the crop: it reaches `lambda d_s f_c + (D/2) |1 - d_s/g|` from the axis (`f_c` the
+/// DOE's bandwidth, the second term the defocused beam's half width), which must stay within
+/// `w - crop/2`.
 pub(crate) fn check_window(system: &OpticalSystem, dx: f64, w: f64, wavelength: f64) -> Option<Violation> {
-    let period = wavelength * system.lens_to_sensor.max(system.focal_length) / dx;
+    let ds = system.lens_to_sensor;
+    let period = wavelength * ds / dx;
     let crop = system.sensor_window();
-    // Light folded by the sampling lands up to half a period plus the aperture radius away.
-    if crop > period || 0.5 * (period + system.aperture) > w - 0.5 * crop {
+    let reach = wavelength * ds / (2.0 * dx) + 0.5 * system.aperture * (1.0 - ds / system.focal_length).abs();
+    if crop > period || reach > w - 0.5 * crop {
         Some(Violation::new(
             "output_window",
             wavelength,
             format!(
-                "the {:.3} mm sensor window does not fit the replica period lambda g / dx = {:.3} mm \
-                 within the {:.3} mm FFT window",
+                "the {:.3} mm sensor window does not fit: replica period lambda d_s / dx = {:.3} mm, light \
+                 reaching {:.3} mm from the axis in a {:.3} mm FFT window",
                 crop * 1e3,
                 period * 1e3,
+                reach * 1e3,
                 w * 1e3
             ),
         ))

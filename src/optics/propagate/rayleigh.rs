@@ -21,9 +21,7 @@ use ndarray::Array2;
 use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 
-use super::{
-    check_lens_sampling, check_phase_gradient, content_bandwidth, field_power, SensorIntensity, Violation,
-};
+use super::{check_lens_sampling, content_bandwidth, field_power, pupil_phase, SensorIntensity, Violation};
 use crate::error::{Error, Result};
 use crate::grid::Grid;
 use crate::optics::system::OpticalSystem;
@@ -49,6 +47,7 @@ fn kernel(rho2: f64, z: f64, k: f64) -> Complex64 {
 /// The violated validity conditions at `wavelength` (see the module docs).
 pub fn check(system: &OpticalSystem, doe: &Grid, wavelength: f64) -> Result<Vec<Violation>> {
     let (n, dx, l) = grid(system);
+    let (f_doe, gradient) = pupil_phase(system, doe, n, dx, wavelength)?;
     let k = 2.0 * PI / wavelength;
     let mut out = Vec::new();
     if system.cells {
@@ -79,7 +78,7 @@ pub fn check(system: &OpticalSystem, doe: &Grid, wavelength: f64) -> Result<Vec<
         }
     }
     let spread = system.aperture * 0.5
-        + system.doe_to_lens * wavelength * content_bandwidth(system, doe, dx, wavelength, false);
+        + system.doe_to_lens * wavelength * content_bandwidth(system, f_doe, dx, wavelength, false);
     if spread > half_lens {
         out.push(Violation::new(
             "output_window",
@@ -91,7 +90,7 @@ pub fn check(system: &OpticalSystem, doe: &Grid, wavelength: f64) -> Result<Vec<
             ),
         ));
     }
-    out.extend(check_phase_gradient(system, doe, n, dx, wavelength)?);
+    out.extend(gradient);
     Ok(out)
 }
 
