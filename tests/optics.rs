@@ -237,3 +237,256 @@ fn rayleigh_sommerfeld_ground_truth_agrees_on_a_tiny_grid() {
     let v = propagate::check(Method::RayleighSommerfeld, &near, &doe).unwrap();
     assert!(v.iter().any(|v| v.condition == "kernel_sampling"), "{v:?}");
 }
+
+#[test]
+fn the_paper_setup_violates_the_lens_sampling_of_method_2_at_530_and_450_nm() {
+    // The paper's own system: 4.29 um pupil sampling at F/7, 635 / 530 / 450 nm.
+    let s = OpticalSystem::default();
+    let doe = flat(1306, 4.29e-6);
+    let v = propagate::check(Method::Fresnel, &s, &doe).unwrap();
+    let got: Vec<(String, u32)> =
+        v.iter().map(|v| (v.condition.clone(), (v.wavelength * 1e9).round() as u32)).collect();
+    assert_eq!(got, vec![("lens_sampling".to_string(), 530), ("lens_sampling".to_string(), 450)]);
+    assert!(v[0].message.contains("4.290 um exceeds lambda F# = 3.710 um"), "{}", v[0].message);
+    // The single transform has no lens to sample: valid at all three.
+    assert_eq!(propagate::check(Method::MatrixDft, &s, &doe).unwrap(), vec![]);
+    // Both sides of the boundary dx = lambda F#: 4.29 um / 7 = 612.86 nm.
+    let edge = OpticalSystem { wavelengths: vec![613e-9, 612.7e-9], ..s };
+    let v = propagate::check(Method::Fresnel, &edge, &doe).unwrap();
+    assert_eq!(v.len(), 1);
+    assert_eq!((v[0].condition.as_str(), v[0].wavelength), ("lens_sampling", 612.7e-9));
+}
+
+#[test]
+fn an_invalid_configuration_is_refused_or_runs_with_a_warning() {
+    // The paper's sampling and F-number on a smaller aperture (same lens-sampling condition).
+    let s = OpticalSystem {
+        aperture: 0.5e-3,
+        focal_length: 3.5e-3,
+        lens_to_sensor: 3.5e-3,
+        doe_to_lens: 1e-3,
+        crop: 64,
+        pupil_window: 0.6e-3,
+        ..Default::default()
+    };
+    let doe = flat(140, 4.29e-6);
+    let e = simulate(&s, &doe, Method::Fresnel, &Options::default()).unwrap_err().to_string();
+    assert!(e.contains("lens_sampling at 530.0 nm") && e.contains("lens_sampling at 450.0 nm"), "{e}");
+    assert!(!e.contains("635.0 nm"), "{e}");
+    let psf = simulate(&s, &doe, Method::Fresnel, &Options { allow_invalid: true }).unwrap();
+    assert_eq!(psf.warnings.len(), 2);
+    assert!(psf.warnings[0].contains("lens_sampling"));
+    let valid = simulate(&s, &doe, Method::MatrixDft, &Options::default()).unwrap();
+    assert!(valid.warnings.is_empty());
+    for c in &psf.channels {
+        assert!((c.grid.values().sum() - 1.0).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn guards_trigger_on_both_sides_of_their_boundaries() {
+    let has = |m: Method, s: &OpticalSystem, doe: &Grid, cond: &str| {
+        propagate::check(m, s, doe).unwrap().iter().any(|v| v.condition == cond)
+    };
+    let doe = flat(204, 5e-6);
+    // Matrix DFT: the sensor window against the replica period lambda g / dx = 770 um.
+    assert!(!has(Method::MatrixDft, &f7(1.75e-6, 439), &doe, "output_window"));
+    assert!(has(Method::MatrixDft, &f7(1.75e-6, 441), &doe, "output_window"));
+
+    // DOE phase gradient: a tilt of 0.98 pi per sample passes, 1.02 pi fails; a wrapped tilt of
+    // 0.5 pi per sample (with its 2 pi drops) passes.
+    let tilt = |per_sample: f64, wrap: bool| {
+        grating(204, 5e-6, L550, move |j| {
+            let p = per_sample * j as f64;
+            if wrap {
+                p.rem_euclid(2.0 * std::f64::consts::PI)
+            } else {
+                p
+            }
+        })
+    };
+    let s = f7(1.75e-6, 101);
+    assert!(!has(Method::MatrixDft, &s, &tilt(0.98 * std::f64::consts::PI, false), "phase_gradient"));
+    assert!(has(Method::MatrixDft, &s, &tilt(1.02 * std::f64::consts::PI, false), "phase_gradient"));
+    assert!(!has(Method::MatrixDft, &s, &tilt(0.5 * std::f64::consts::PI, true), "phase_gradient"));
+
+    // Fresnel transfer function over d_phi: lambda z <= window x pitch.
+    let s = OpticalSystem { wavelengths: vec![635e-9], ..f100() };
+    let doe = smooth_doe(440, 5e-6, 530e-9);
+    let (_, dx, w) = propagate::fresnel::grid(&s);
+    let limit = w as f64 * dx * dx / 635e-9;
+    let at = |z: f64| OpticalSystem { doe_to_lens: z, ..s.clone() };
+    assert!(!has(Method::Fresnel, &at(0.99 * limit), &doe, "transfer_function_bandwidth"));
+    assert!(has(Method::Fresnel, &at(1.01 * limit), &doe, "transfer_function_bandwidth"));
+
+    // Fresnel approximation, out of focus: k d_phi theta^4 / 8 <= pi/2 with theta = lambda / (2 dx)
+    // for a binary grating (which fills the band).
+    let binary = grating(204, 5e-6, L550, |j| if j % 2 == 0 { 0.0 } else { std::f64::consts::PI });
+    let theta: f64 = L550 / (2.0 * 5e-6);
+    let k = 2.0 * std::f64::consts::PI / L550;
+    let dz = 0.5 * std::f64::consts::PI * 8.0 / (k * theta.powi(4));
+    let defocus = |z: f64| OpticalSystem { doe_to_lens: z, lens_to_sensor: 7.07e-3, ..f7(1.75e-6, 101) };
+    assert!(!has(Method::MatrixDft, &defocus(0.98 * dz), &binary, "fresnel_approximation"));
+    assert!(has(Method::MatrixDft, &defocus(1.02 * dz), &binary, "fresnel_approximation"));
+    // In focus the d_phi step cannot change the sensor intensity: no check.
+    let focus = OpticalSystem { lens_to_sensor: 7e-3, ..defocus(2.0 * dz) };
+    assert!(!has(Method::MatrixDft, &focus, &binary, "fresnel_approximation"));
+}
+
+#[test]
+fn in_focus_the_single_transform_does_not_depend_on_d_phi() {
+    let doe = smooth_doe(204, 5e-6, L550);
+    let a = simulate(
+        &OpticalSystem { doe_to_lens: 2e-3, ..f7(1.75e-6, 101) },
+        &doe,
+        Method::MatrixDft,
+        &Options::default(),
+    )
+    .unwrap();
+    let b = simulate(
+        &OpticalSystem { doe_to_lens: 30e-3, ..f7(1.75e-6, 101) },
+        &doe,
+        Method::MatrixDft,
+        &Options::default(),
+    )
+    .unwrap();
+    assert!(a.relative_l2(&b).unwrap()[0] < 1e-12);
+    // Out of focus it does.
+    let c = simulate(
+        &OpticalSystem { doe_to_lens: 30e-3, lens_to_sensor: 7.02e-3, ..f7(1.75e-6, 101) },
+        &doe,
+        Method::MatrixDft,
+        &Options::default(),
+    )
+    .unwrap();
+    let d = simulate(
+        &OpticalSystem { doe_to_lens: 2e-3, lens_to_sensor: 7.02e-3, ..f7(1.75e-6, 101) },
+        &doe,
+        Method::MatrixDft,
+        &Options::default(),
+    )
+    .unwrap();
+    assert!(c.relative_l2(&d).unwrap()[0] > 1e-3);
+}
+
+#[test]
+fn each_propagation_step_conserves_energy() {
+    use doefab::optics::fft::{fft_freq, Plan2d};
+    use rustfft::num_complex::Complex64;
+    // A field with structure at every frequency.
+    let n = 96;
+    let dx = 4e-6;
+    let u = Array2::from_shape_fn((n, n), |(i, j)| {
+        Complex64::from_polar(1.0 + ((i * 7 + j * 3) % 5) as f64, (i * j) as f64 * 0.37)
+    });
+    let e0 = field_power(&u, dx);
+    let mut planner = rustfft::FftPlanner::new();
+    let plan = Plan2d::new(&mut planner, n);
+    // Fresnel transfer function: unit modulus everywhere.
+    let h = Array2::from_shape_fn((n, n), |(p, q)| {
+        let f2 = fft_freq(p, n, dx).powi(2) + fft_freq(q, n, dx).powi(2);
+        Complex64::from_polar(1.0, -std::f64::consts::PI * L550 * 3e-3 * f2)
+    });
+    let mut v = u.clone();
+    plan.convolve(&mut v, &h);
+    assert!((field_power(&v, dx) / e0 - 1.0).abs() < 1e-12);
+    // Band-limited angular spectrum: unit modulus inside the band; a field inside the band
+    // (a smooth Gaussian beam) keeps its energy.
+    let c = (n as f64 - 1.0) * 0.5;
+    let g = Array2::from_shape_fn((n, n), |(i, j)| {
+        let r2 = ((i as f64 - c).powi(2) + (j as f64 - c).powi(2)) * dx * dx;
+        Complex64::new((-r2 / (2.0 * (40e-6f64).powi(2))).exp(), 0.0)
+    });
+    let mut v = g.clone();
+    plan.convolve(&mut v, &propagate::asm::transfer(L550, 2e-3, n, dx, false));
+    assert!((field_power(&v, dx) / field_power(&g, dx) - 1.0).abs() < 1e-10);
+
+    // The thin lens has unit modulus; the two-step Fresnel chain read over its whole window
+    // keeps all the power.
+    let s = OpticalSystem {
+        aperture: 0.2e-3,
+        doe_to_lens: 1e-3,
+        focal_length: 5e-3,
+        lens_to_sensor: 5e-3,
+        sensor_pitch: 4e-6,
+        crop: 90,
+        pupil_pitch: 4e-6,
+        pupil_window: 0.24e-3,
+        wavelengths: vec![L550],
+        ..Default::default()
+    };
+    let (_, _, w) = propagate::fresnel::grid(&s);
+    assert_eq!(w, 90);
+    let doe = smooth_doe(60, 4e-6, L550);
+    let psf = simulate(&s, &doe, Method::Fresnel, &Options { allow_invalid: true }).unwrap();
+    assert!((psf.channels[0].captured.unwrap() - 1.0).abs() < 1e-12);
+
+    // The single transform over one full replica period, sampled at lambda g / (n dx), is a
+    // unitary DFT.
+    let s = f7(1.75e-6, 101);
+    let doe = smooth_doe(204, 5e-6, L550);
+    let (n, dx) = matrix_dft::pupil_grid(&s, &doe);
+    let u1 = s.pupil_field(&doe, n, dx, L550, true).unwrap();
+    let p = L550 * 7e-3 / (n as f64 * dx);
+    let xs: Vec<f64> = (0..n).map(|q| (q as f64 - (n as f64 - 1.0) * 0.5) * p).collect();
+    let i = matrix_dft::transform(&s, &u1, dx, &xs, L550).unwrap();
+    assert!((i.sum() * p * p / field_power(&u1, dx) - 1.0).abs() < 1e-10);
+}
+
+#[test]
+fn the_measured_psf_loads_through_the_same_type() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/deepoptics-hdr/measured_psf.npz");
+    if !path.exists() {
+        eprintln!("notice: {} is not here; skipping the measured-PSF test", path.display());
+        return;
+    }
+    let psf = Psf::read_npz(&path, Some("psf_val"), 4.29e-6, Some(&[635e-9, 530e-9, 450e-9])).unwrap();
+    assert_eq!(psf.dim(), (319, 319));
+    assert_eq!(psf.to_array4().dim(), (319, 319, 1, 3));
+    let names: Vec<&str> = psf.channels.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["R", "G", "B"]);
+    for (c, ch) in psf.channels.iter().enumerate() {
+        assert!((ch.grid.values().sum() - 1.0).abs() < 1e-9);
+        let (_, _, (i, j)) = psf.peak(c);
+        assert!(i.abs_diff(159) <= 1 && j.abs_diff(159) <= 1, "channel {c} peak at {i}, {j}");
+        // Centroid about (+1.8, -1.0) px off centre in (row, column) order: y down, x left.
+        let [x, y] = psf.centroid(c);
+        assert!((y / 4.29e-6 - 1.8).abs() < 1.0 && (x / 4.29e-6 + 1.0).abs() < 1.0, "centroid {x} {y}");
+    }
+    assert_eq!(psf.peak(2).2, (159, 160));
+    // The same measures work across PSFs of one shape: it differs from itself by nothing.
+    assert_eq!(psf.relative_l2(&psf).unwrap(), vec![0.0; 3]);
+    // Errors name the archive and the array.
+    let e = Psf::read_npz(&path, Some("nope"), 4.29e-6, None).unwrap_err().to_string();
+    assert!(e.contains("measured_psf.npz") && e.contains("no array 'nope'"), "{e}");
+}
+
+#[test]
+fn bad_input_is_refused_with_a_clear_error() {
+    let s = f7(1.75e-6, 101);
+    let err = |s: &OpticalSystem, doe: &Grid, m: Method| {
+        simulate(s, doe, m, &Options::default()).unwrap_err().to_string()
+    };
+    // Heights with NaN inside the aperture.
+    let mut v = Array2::zeros((204, 204));
+    v[[100, 90]] = f64::NAN;
+    let nan = Grid::new(v, [5e-6; 2], Unit::Metre).unwrap();
+    assert!(err(&s, &nan, Method::MatrixDft).contains("not finite inside the aperture"));
+    // An aperture larger than the grid.
+    assert!(err(&s, &flat(150, 5e-6), Method::MatrixDft).contains("larger than the DOE grid"));
+    // A wavelength outside the material's range names the range.
+    let ir = OpticalSystem { wavelengths: vec![900e-9], ..s.clone() };
+    assert!(err(&ir, &flat(204, 5e-6), Method::MatrixDft).contains("400-700 nm"));
+    // Zero and negative distances.
+    let zero = OpticalSystem { focal_length: 0.0, ..s.clone() };
+    assert!(err(&zero, &flat(204, 5e-6), Method::MatrixDft).contains("focal_length"));
+    let neg = OpticalSystem { object_distance: Some(-1.0), ..s.clone() };
+    assert!(err(&neg, &flat(204, 5e-6), Method::Fresnel).contains("object_distance"));
+    // A sensor crop larger than the propagation window.
+    let wide = OpticalSystem { sensor_pitch: 5e-6, pupil_pitch: 5e-6, crop: 400, ..s.clone() };
+    assert!(err(&wide, &flat(204, 5e-6), Method::Fresnel).contains("the sensor crop needs 400 samples"));
+    // Heights that are not metres.
+    let levels = Grid::new(Array2::zeros((204, 204)), [5e-6; 2], Unit::Level).unwrap();
+    assert!(err(&s, &levels, Method::MatrixDft).contains("heights in metres"));
+}
