@@ -490,3 +490,40 @@ fn bad_input_is_refused_with_a_clear_error() {
     let levels = Grid::new(Array2::zeros((204, 204)), [5e-6; 2], Unit::Level).unwrap();
     assert!(err(&s, &levels, Method::MatrixDft).contains("heights in metres"));
 }
+
+#[test]
+fn psf_command_writes_exr_npy_png_and_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("psf");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
+        .args(["psf", "built-in:paper", "-o"])
+        .arg(&out)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(report["method"], "matrix_dft");
+    let channels = report["channels"].as_array().unwrap();
+    assert_eq!(channels.len(), 3);
+    for c in channels {
+        // The grating-like design moves light into its copies: Strehl below 1.
+        let strehl = c["strehl"].as_f64().unwrap();
+        assert!(strehl > 0.05 && strehl < 0.95, "{strehl}");
+        assert!(c["captured"].as_f64().unwrap() > 0.5);
+    }
+    for f in ["psf.exr", "psf.npy", "psf_log.png", "psf.json"] {
+        assert!(out.join(f).exists(), "{f}");
+    }
+    let (h, arr) = doefab::io::npy::read_npy_nd(&out.join("psf.npy")).unwrap();
+    assert_eq!(h.shape, vec![320, 320, 1, 3]);
+    assert_eq!(h.descr, "<f4");
+    for c in 0..3 {
+        let s: f64 = arr.index_axis(ndarray::Axis(3), c).sum();
+        assert!((s - 1.0).abs() < 1e-4, "channel {c} sums to {s}");
+    }
+    let exr = doefab::io::exr::read_exr(&out.join("psf.exr"), Some("530nm")).unwrap();
+    assert_eq!(exr.pitch, Some([4.29e-6, 4.29e-6]));
+    assert!(exr.metadata.iter().any(|(k, v)| k == "method" && v == "matrix_dft"));
+    assert!(exr.metadata.iter().any(|(k, v)| k == "wavelengths_m" && v == "6.35e-7,5.3e-7,4.5e-7"));
+}

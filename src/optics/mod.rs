@@ -5,9 +5,11 @@
 //!   and the DOE's transmission on a pupil grid.
 //! * [`psf`]: the PSF type (one grid per channel), its measures, the `.npz` reader.
 //! * [`propagate`]: the propagation methods, one file each, with their validity checks.
+//! * [`output`]: the PSF written as EXR, NPY, log-scale PNG and a JSON summary.
 //! * [`fft`]: planned square 2-D FFTs (rustfft stays inside this stage).
 
 pub mod fft;
+pub mod output;
 pub mod propagate;
 pub mod psf;
 pub mod system;

@@ -29,7 +29,10 @@ pub struct Channel {
     pub wavelength: Option<f64>,
     /// Pixel intensities, normalised to sum 1, with the sensor pitch.
     pub grid: Grid,
-    /// Fraction of the DOE's output power that lands in the window, when known.
+    /// Fraction of the DOE's output power that lands in the window, when known: the sum of the
+    /// sub-sample intensities times their cell area over the power leaving the DOE, a Riemann
+    /// sum that is the integral only where the sub-samples resolve the intensity
+    /// (`pitch <= lambda F# / 2`); undersampled, it can exceed 1.
     pub captured: Option<f64>,
 }
 
@@ -146,6 +149,8 @@ impl Psf {
 
     /// Strehl ratio per channel relative to `flat`, the PSF of a flat DOE in the same system:
     /// the ratio of the peak intensities, each in absolute terms (value times `captured`).
+    /// Both peaks are pixel values: where the PSF is undersampled, the flat DOE's peak must sit
+    /// on a pixel centre (an odd crop puts the axis there) for the ratio to mean Strehl.
     pub fn strehl(&self, flat: &Psf) -> Result<Vec<f64>> {
         self.check_same(flat)?;
         (0..self.channels.len())
