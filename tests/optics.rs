@@ -527,3 +527,34 @@ fn psf_command_writes_exr_npy_png_and_json() {
     assert!(exr.metadata.iter().any(|(k, v)| k == "method" && v == "matrix_dft"));
     assert!(exr.metadata.iter().any(|(k, v)| k == "wavelengths_m" && v == "6.35e-7,5.3e-7,4.5e-7"));
 }
+
+#[test]
+fn a_finite_object_focuses_at_the_thin_lens_image_distance() {
+    // Point source 0.2 m before the DOE, DOE 2 mm before the lens: the image forms at
+    // 1/d_i = 1/g - 1/(z_o + d_phi). The brightest pixel is there, not 3% nearer or farther,
+    // and as bright as an object at infinity in focus scaled by (g / B)^2, B = d_phi + d_i -
+    // d_phi d_i / g the distance that sets the image-side aperture angle.
+    let (z_o, d_phi, g) = (0.2, 2e-3, 7e-3);
+    let d_i = 1.0 / (1.0 / g - 1.0 / (z_o + d_phi));
+    let doe = flat(204, 5e-6);
+    let peak = |ds: f64, m: Method| {
+        let s = OpticalSystem {
+            object_distance: if ds == g { None } else { Some(z_o) },
+            lens_to_sensor: ds,
+            sensor_pitch: 0.5e-6,
+            crop: 41,
+            subsample: 1,
+            ..f7(0.5e-6, 41)
+        };
+        let psf = simulate(&s, &doe, m, &Options::default()).unwrap();
+        psf.peak(0).0 * psf.channels[0].captured.unwrap()
+    };
+    let at = peak(d_i, Method::MatrixDft);
+    assert!(at > 1.5 * peak(d_i * 0.97, Method::MatrixDft));
+    assert!(at > 1.5 * peak(d_i * 1.03, Method::MatrixDft));
+    let infinity = peak(g, Method::MatrixDft);
+    let b = d_phi + d_i - d_phi * d_i / g;
+    assert!((at / infinity / (g / b).powi(2) - 1.0).abs() < 2e-3, "{at} vs {infinity}");
+    assert_eq!(Method::from_name("angular-spectrum").unwrap(), Method::AngularSpectrum);
+    assert!(Method::from_name("fft").unwrap_err().to_string().contains("unknown method 'fft'"));
+}
