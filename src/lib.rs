@@ -13,6 +13,7 @@
 //! * [`fabrication`]: wrap -> quantize -> grayscale masks, multi-level GDSII mask set, STL.
 //! * [`metrology`]: profilometer scans (read by [`io::scan`]): levelling, outliers, filling,
 //!   ISO 25178 height parameters.
+//! * [`optics`]: the optical system and the DOE's PSF by several propagation methods.
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`error`]: the library's error type.
 
@@ -23,6 +24,7 @@ pub mod grid;
 pub mod io;
 pub mod material;
 pub mod metrology;
+pub mod optics;
 pub mod rng;
 pub mod units;
 

@@ -1,0 +1,19 @@
+//! The optics stage: the paper's camera model (Metzler et al. 2020, "Modeling the Optical Point
+//! Spread Function") and the PSF of a DOE in it.
+//!
+//! * [`system`]: the optical system (aperture, distances, lens, sensor, wavelengths, material)
+//!   and the DOE's transmission on a pupil grid.
+//! * [`psf`]: the PSF type (one grid per channel), its measures, the `.npz` reader.
+//! * [`propagate`]: the propagation methods, one file each, with their validity checks.
+//! * [`output`]: the PSF written as EXR, NPY, log-scale PNG and a JSON summary.
+//! * [`fft`]: planned square 2-D FFTs (rustfft stays inside this stage).
+
+pub mod fft;
+pub mod output;
+pub mod propagate;
+pub mod psf;
+pub mod system;
+
+pub use propagate::{simulate, Method, Options, Violation};
+pub use psf::{Channel, Psf};
+pub use system::OpticalSystem;

@@ -1,0 +1,150 @@
+//! Writing a PSF: an OpenEXR file (one float32 channel per wavelength, metadata: pitch,
+//! wavelengths, method, normalisation, warnings), a `.npy` in the paper's layout
+//! `(H, W, 1, C)`, a log-scale PNG (the channels side by side, 5 decades below each channel's
+//! peak) and a JSON summary (centroid, peak, encircled energy inside the Airy radius, captured
+//! power, Strehl relative to a flat DOE). The folder appears all at once
+//! ([`StagedDir`]); the same input writes the same bytes.
+
+use std::path::Path;
+
+use ndarray::Array2;
+use serde::{Deserialize, Serialize};
+
+use super::propagate::{simulate, Method, Options};
+use super::psf::{ChannelSummary, Psf};
+use super::system::{flat_doe, OpticalSystem};
+use crate::error::Result;
+use crate::grid::Grid;
+use crate::io::atomic::{write_json, StagedDir};
+use crate::io::exr::write_exr;
+use crate::io::heightmap::Metadata;
+use crate::io::npy::write_npy_f32_4d;
+use crate::io::png::write_png_u8;
+
+/// Decades shown by the log-scale PNG.
+pub const LOG_DECADES: f64 = 5.0;
+
+/// What `doefab psf` reports and writes as `psf.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PsfReport {
+    pub method: String,
+    pub normalisation: String,
+    pub system: OpticalSystem,
+    pub channels: Vec<ChannelReport>,
+    /// Validity conditions a forced run violated.
+    pub warnings: Vec<String>,
+    /// The files written, relative to the output folder.
+    pub files: Vec<String>,
+}
+
+/// Per-channel numbers of [`PsfReport`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ChannelReport {
+    #[serde(flatten)]
+    pub summary: ChannelSummary,
+    /// Fraction of the channel inside `1.22 lambda F#` of its peak.
+    pub encircled_energy_airy: Option<f64>,
+    /// Whether the sensor sub-samples resolve the intensity (`pitch / subsample <= lambda F# / 2`,
+    /// the intensity's Nyquist pitch). If not, pixel values are point samples rather than pixel
+    /// integrals, and `captured` (a Riemann sum) can exceed 1.
+    pub pixel_integration_resolved: Option<bool>,
+    /// Peak pixel relative to a flat DOE's peak pixel in the same system and method, the flat
+    /// one computed on an odd crop so that its peak pixel is centred on the axis.
+    pub strehl: Option<f64>,
+}
+
+/// The system of the paper with the pupil sampled as the DOE (its pitch and extent).
+pub fn system_for(doe: &Grid) -> OpticalSystem {
+    let p = doe.pitch()[0].min(doe.pitch()[1]);
+    let e = doe.extent();
+    OpticalSystem { pupil_pitch: p, pupil_window: e[0].min(e[1]), ..OpticalSystem::default() }
+}
+
+/// Simulates the PSF of `doe` in `system` by `method`, with the flat-DOE reference for the
+/// Strehl ratio, and writes the outputs into `out` (see the module docs).
+pub fn simulate_and_write(
+    doe: &Grid,
+    system: &OpticalSystem,
+    method: Method,
+    opts: &Options,
+    out: &Path,
+) -> Result<PsfReport> {
+    let psf = simulate(system, doe, method, opts)?;
+    // The flat reference on an odd crop, so that its peak pixel sits on the axis.
+    let odd = OpticalSystem { crop: system.crop | 1, ..system.clone() };
+    let flat = simulate(&odd, &flat_doe(&odd)?, method, &Options { allow_invalid: true })?;
+    let strehl: Vec<f64> = (0..psf.channels.len())
+        .map(|c| {
+            let a = psf.peak(c).0 * psf.channels[c].captured.unwrap_or(f64::NAN);
+            a / (flat.peak(c).0 * flat.channels[c].captured.unwrap_or(f64::NAN))
+        })
+        .collect();
+    let f_number = system.f_number();
+    let channels = psf
+        .summary()
+        .into_iter()
+        .enumerate()
+        .map(|(c, summary)| ChannelReport {
+            encircled_energy_airy: summary
+                .wavelength
+                .map(|l| psf.encircled_energy(c, summary.peak_position, 1.22 * l * f_number)),
+            strehl: Some(strehl[c]),
+            pixel_integration_resolved: summary
+                .wavelength
+                .map(|l| system.sample_pitch() <= 0.5 * l * f_number),
+            summary,
+        })
+        .collect();
+    let mut report = PsfReport {
+        method: method.name().into(),
+        normalisation: "each channel sums to 1 over the crop".into(),
+        system: system.clone(),
+        channels,
+        warnings: psf.warnings.clone(),
+        files: Vec::new(),
+    };
+    write_psf(&psf, &mut report, out)?;
+    Ok(report)
+}
+
+/// Writes `psf.exr`, `psf.npy`, `psf_log.png` and `psf.json` into `out`, atomically as a folder.
+pub fn write_psf(psf: &Psf, report: &mut PsfReport, out: &Path) -> Result<()> {
+    let mut stage = StagedDir::new(out)?;
+    let wavelengths: Vec<String> = psf
+        .channels
+        .iter()
+        .map(|c| c.wavelength.map_or("unknown".to_string(), |l| format!("{l:e}")))
+        .collect();
+    let mut meta = Metadata { pitch: Some(psf.pitch()), unit: None, text: Vec::new() }
+        .with("wavelengths_m", wavelengths.join(","))
+        .with("channel_names", psf.channels.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(","))
+        .with("method", psf.method.clone())
+        .with("normalisation", report.normalisation.clone());
+    if !psf.warnings.is_empty() {
+        meta = meta.with("warnings", psf.warnings.join(" | "));
+    }
+    let data: Vec<Array2<f32>> = psf.channels.iter().map(|c| c.grid.values().mapv(|v| v as f32)).collect();
+    let channels: Vec<(&str, &Array2<f32>)> =
+        psf.channels.iter().zip(&data).map(|(c, d)| (c.name.as_str(), d)).collect();
+    write_exr(&stage.stage_path("psf.exr"), &channels, &meta)?;
+    write_npy_f32_4d(&stage.stage_path("psf.npy"), &psf.to_array4())?;
+    write_png_u8(&stage.stage_path("psf_log.png"), &log_panels(psf), &meta)?;
+    report.files = ["psf.exr", "psf.npy", "psf_log.png", "psf.json"].map(String::from).to_vec();
+    write_json(&stage.stage_path("psf.json"), report)?;
+    stage.commit()
+}
+
+/// The channels side by side, each `255 * (1 + log10(v / peak) / LOG_DECADES)` clamped to 0..255.
+pub fn log_panels(psf: &Psf) -> Array2<u8> {
+    let (h, w) = psf.dim();
+    let n = psf.channels.len();
+    let mut img = Array2::<u8>::zeros((h, w * n));
+    for (c, ch) in psf.channels.iter().enumerate() {
+        let peak = psf.peak(c).0;
+        for ((i, j), &v) in ch.grid.values().indexed_iter() {
+            let t = if v > 0.0 { 1.0 + (v / peak).log10() / LOG_DECADES } else { 0.0 };
+            img[[i, c * w + j]] = (t.clamp(0.0, 1.0) * 255.0).round() as u8;
+        }
+    }
+    img
+}

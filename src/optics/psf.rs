@@ -1,0 +1,294 @@
+//! A point spread function: one [`Grid`] per wavelength or colour channel.
+//!
+//! Each channel's grid holds the intensity per sensor pixel, centred on the optical axis
+//! (sample `(i, j)` at `x = origin_x + j * pitch`, as every grid), normalised to sum 1 over the
+//! window as the paper does. `captured`, when known, is the fraction of the power leaving the
+//! DOE that lands in the window, so absolute energies can be recovered: pixel value times
+//! `captured` is that pixel's share of the transmitted power.
+//!
+//! Measures: [`Psf::centroid`], [`Psf::peak`], [`Psf::encircled_energy`] (pixels whose centre
+//! lies within the radius), [`Psf::strehl`] relative to a flat DOE's PSF, [`Psf::relative_l2`].
+//! [`Psf::read_npz`] loads a PSF saved by NumPy in the paper's layout `(H, W, 1, C)`.
+
+use std::io::Read;
+use std::path::Path;
+
+use ndarray::{Array2, Array4};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::grid::{Grid, Unit};
+use crate::io::npy::decode_npy;
+
+/// One channel of a PSF.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Channel {
+    /// Channel name ("635nm", "R", ...).
+    pub name: String,
+    /// Its wavelength in metres, when it is one.
+    pub wavelength: Option<f64>,
+    /// Pixel intensities, normalised to sum 1, with the sensor pitch.
+    pub grid: Grid,
+    /// Fraction of the DOE's output power that lands in the window, when known: the sum of the
+    /// sub-sample intensities times their cell area over the power leaving the DOE, a Riemann
+    /// sum that is the integral only where the sub-samples resolve the intensity
+    /// (`pitch <= lambda F# / 2`); undersampled, it can exceed 1.
+    pub captured: Option<f64>,
+}
+
+/// A PSF: channels of one shape and pitch, the method that made it and its warnings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Psf {
+    pub channels: Vec<Channel>,
+    /// The method (propagation method name, or "measured"/"file").
+    pub method: String,
+    /// Validity conditions a forced run violated (empty when valid).
+    pub warnings: Vec<String>,
+}
+
+/// Summary numbers of one channel (for reports and JSON).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ChannelSummary {
+    pub name: String,
+    pub wavelength: Option<f64>,
+    /// `[x, y]` centroid, metres from the window centre.
+    pub centroid: [f64; 2],
+    /// Peak value (fraction of the channel's sum) and its `[x, y]` position, metres.
+    pub peak: f64,
+    pub peak_position: [f64; 2],
+    pub captured: Option<f64>,
+}
+
+impl Psf {
+    /// Builds a PSF from channels, checking that they share shape and pitch, and normalises
+    /// each to sum 1.
+    pub fn new(channels: Vec<Channel>, method: &str) -> Result<Psf> {
+        let Some(first) = channels.first() else {
+            return Err(Error::Data("a PSF needs at least one channel".into()));
+        };
+        let (dim, pitch) = (first.grid.dim(), first.grid.pitch());
+        for c in &channels {
+            if c.grid.dim() != dim || c.grid.pitch() != pitch {
+                return Err(Error::Data(format!(
+                    "PSF channel '{}' is {:?} at pitch {:?}, channel '{}' is {:?} at {:?}",
+                    c.name,
+                    c.grid.dim(),
+                    c.grid.pitch(),
+                    first.name,
+                    dim,
+                    pitch
+                )));
+            }
+        }
+        let mut psf = Psf { channels, method: method.into(), warnings: Vec::new() };
+        psf.normalise()?;
+        Ok(psf)
+    }
+
+    /// Scales each channel to sum 1. Refuses negative, non-finite or all-zero channels.
+    pub fn normalise(&mut self) -> Result<()> {
+        for c in &mut self.channels {
+            let v = c.grid.values();
+            if let Some(bad) = v.iter().find(|x| !x.is_finite() || **x < 0.0) {
+                return Err(Error::Data(format!("PSF channel '{}' holds {bad}", c.name)));
+            }
+            let s: f64 = v.sum();
+            if s <= 0.0 {
+                return Err(Error::Data(format!("PSF channel '{}' is all zero", c.name)));
+            }
+            c.grid.values_mut().mapv_inplace(|x| x / s);
+        }
+        Ok(())
+    }
+
+    /// `(rows, cols)` of every channel.
+    pub fn dim(&self) -> (usize, usize) {
+        self.channels[0].grid.dim()
+    }
+
+    /// Pixel pitch `[x, y]`, metres.
+    pub fn pitch(&self) -> [f64; 2] {
+        self.channels[0].grid.pitch()
+    }
+
+    /// Intensity-weighted centroid `[x, y]` of channel `c`, metres from the window centre.
+    pub fn centroid(&self, c: usize) -> [f64; 2] {
+        let g = &self.channels[c].grid;
+        let (mut sx, mut sy, mut s) = (0.0, 0.0, 0.0);
+        for ((i, j), &v) in g.values().indexed_iter() {
+            sx += v * g.x(j);
+            sy += v * g.y(i);
+            s += v;
+        }
+        [sx / s, sy / s]
+    }
+
+    /// Largest value of channel `c` with its `[x, y]` position (metres) and `(row, col)`.
+    pub fn peak(&self, c: usize) -> (f64, [f64; 2], (usize, usize)) {
+        let g = &self.channels[c].grid;
+        let mut best = (f64::NEG_INFINITY, (0, 0));
+        for (idx, &v) in g.values().indexed_iter() {
+            if v > best.0 {
+                best = (v, idx);
+            }
+        }
+        (best.0, [g.x(best.1 .1), g.y(best.1 .0)], best.1)
+    }
+
+    /// Sum of channel `c` over pixels whose centre lies within `radius` of `centre` (metres).
+    pub fn encircled_energy(&self, c: usize, centre: [f64; 2], radius: f64) -> f64 {
+        let g = &self.channels[c].grid;
+        let mut s = 0.0;
+        for ((i, j), &v) in g.values().indexed_iter() {
+            if (g.x(j) - centre[0]).powi(2) + (g.y(i) - centre[1]).powi(2) <= radius * radius {
+                s += v;
+            }
+        }
+        s
+    }
+
+    /// Strehl ratio per channel relative to `flat`, the PSF of a flat DOE in the same system:
+    /// the ratio of the peak intensities, each in absolute terms (value times `captured`).
+    /// Both peaks are pixel values: where the PSF is undersampled, the flat DOE's peak must sit
+    /// on a pixel centre (an odd crop puts the axis there) for the ratio to mean Strehl.
+    pub fn strehl(&self, flat: &Psf) -> Result<Vec<f64>> {
+        self.check_same(flat)?;
+        (0..self.channels.len())
+            .map(|c| {
+                let (a, b) = (self.channels[c].captured, flat.channels[c].captured);
+                let (Some(a), Some(b)) = (a, b) else {
+                    return Err(Error::Data("Strehl ratio needs PSFs with known captured power".into()));
+                };
+                Ok(self.peak(c).0 * a / (flat.peak(c).0 * b))
+            })
+            .collect()
+    }
+
+    /// Relative L2 difference per channel, `||a - b|| / ||b||` with `b = other`.
+    pub fn relative_l2(&self, other: &Psf) -> Result<Vec<f64>> {
+        self.check_same(other)?;
+        Ok(self
+            .channels
+            .iter()
+            .zip(&other.channels)
+            .map(|(a, b)| relative_l2(a.grid.values(), b.grid.values()))
+            .collect())
+    }
+
+    fn check_same(&self, other: &Psf) -> Result<()> {
+        if self.channels.len() != other.channels.len() || self.dim() != other.dim() {
+            return Err(Error::Data(format!(
+                "PSFs differ in shape: {} channels of {:?} vs {} of {:?}",
+                self.channels.len(),
+                self.dim(),
+                other.channels.len(),
+                other.dim()
+            )));
+        }
+        Ok(())
+    }
+
+    /// Summary numbers of every channel.
+    pub fn summary(&self) -> Vec<ChannelSummary> {
+        (0..self.channels.len())
+            .map(|c| {
+                let (peak, pos, _) = self.peak(c);
+                ChannelSummary {
+                    name: self.channels[c].name.clone(),
+                    wavelength: self.channels[c].wavelength,
+                    centroid: self.centroid(c),
+                    peak,
+                    peak_position: pos,
+                    captured: self.channels[c].captured,
+                }
+            })
+            .collect()
+    }
+
+    /// The PSF as a `(H, W, 1, C)` `f32` array, the paper's layout.
+    pub fn to_array4(&self) -> Array4<f32> {
+        let (h, w) = self.dim();
+        Array4::from_shape_fn((h, w, 1, self.channels.len()), |(i, j, _, c)| {
+            self.channels[c].grid.values()[[i, j]] as f32
+        })
+    }
+
+    /// Reads a PSF from a NumPy `.npz` archive: the array `key` (or the archive's only array)
+    /// of shape `(H, W)`, `(H, W, C)` or `(H, W, 1, C)`, at pixel `pitch` (metres). Channels of
+    /// three are named R, G, B; `wavelengths`, if given, must have one entry per channel.
+    /// Each channel is normalised to sum 1.
+    pub fn read_npz(path: &Path, key: Option<&str>, pitch: f64, wavelengths: Option<&[f64]>) -> Result<Psf> {
+        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        let mut zip = zip::ZipArchive::new(file)
+            .map_err(|e| Error::format(path, format!("not a NumPy .npz (zip) archive: {e}")))?;
+        let names: Vec<String> = zip.file_names().filter(|n| n.ends_with(".npy")).map(String::from).collect();
+        let entry = match key {
+            Some(k) => {
+                let want = format!("{k}.npy");
+                names.iter().find(|n| **n == want).cloned().ok_or_else(|| {
+                    Error::format(path, format!("no array '{k}' in the archive (it holds {names:?})"))
+                })?
+            }
+            None if names.len() == 1 => names[0].clone(),
+            None => {
+                return Err(Error::format(
+                    path,
+                    format!("the archive holds {} arrays {names:?}; name the one to read", names.len()),
+                ))
+            }
+        };
+        let mut bytes = Vec::new();
+        zip.by_name(&entry)
+            .map_err(|e| Error::format(path, format!("cannot open '{entry}': {e}")))?
+            .read_to_end(&mut bytes)
+            .map_err(|e| Error::format(path, format!("cannot inflate '{entry}': {e}")))?;
+        let inner = path.join(&entry);
+        let (h, arr) = decode_npy(&inner, &bytes)?;
+        let (rows, cols, nc) = match h.shape.as_slice() {
+            [r, c] => (*r, *c, 1),
+            [r, c, k] | [r, c, 1, k] => (*r, *c, *k),
+            s => {
+                return Err(Error::format(
+                    &inner,
+                    format!("shape {s:?} is not a PSF (expected (H, W), (H, W, C) or (H, W, 1, C))"),
+                ))
+            }
+        };
+        if rows == 0 || cols == 0 || nc == 0 {
+            return Err(Error::format(&inner, format!("empty PSF of shape {:?}", h.shape)));
+        }
+        if let Some(w) = wavelengths {
+            if w.len() != nc {
+                return Err(Error::param(
+                    "wavelengths",
+                    format!("{} given for a PSF of {nc} channels", w.len()),
+                ));
+            }
+        }
+        let flat = arr
+            .into_shape_with_order((rows, cols, nc))
+            .map_err(|e| Error::format(&inner, format!("cannot view as {rows} x {cols} x {nc}: {e}")))?;
+        let mut channels = Vec::new();
+        for c in 0..nc {
+            let values = Array2::from_shape_fn((rows, cols), |(i, j)| flat[[i, j, c]]);
+            let name = if nc == 3 { ["R", "G", "B"][c].to_string() } else { format!("C{c}") };
+            channels.push(Channel {
+                name,
+                wavelength: wavelengths.map(|w| w[c]),
+                grid: Grid::new(values, [pitch, pitch], Unit::Dimensionless)?,
+                captured: None,
+            });
+        }
+        Psf::new(channels, "file").map_err(|e| match e {
+            Error::Data(m) => Error::format(&inner, m),
+            other => other,
+        })
+    }
+}
+
+/// `||a - b|| / ||b||` over all samples.
+pub fn relative_l2(a: &Array2<f64>, b: &Array2<f64>) -> f64 {
+    let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum();
+    let den: f64 = b.iter().map(|y| y * y).sum();
+    (num / den).sqrt()
+}

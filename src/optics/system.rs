@@ -1,0 +1,351 @@
+//! The optical system of the paper's camera (Metzler et al. 2020, "Modeling the Optical Point
+//! Spread Function"): a point source at `object_distance` (infinity by default), the DOE in a
+//! circular aperture of diameter `aperture`, free space `doe_to_lens` (d_phi), a thin lens of
+//! focal length `focal_length` (g), free space `lens_to_sensor` (d_s, `g` when in focus for a
+//! scene at infinity) and a sensor of pixel pitch `sensor_pitch` read out as a `crop x crop`
+//! window centred on the optical axis. All lengths in metres.
+//!
+//! The DOE transmission is `t(u, v) = A(u, v) exp(i k (n(lambda) - 1) h(u, v))` with `A` the
+//! binary circular aperture (the paper's eq. for `t_phi`). The DOE height map is a [`Grid`]
+//! at any pitch; its centre sits on the optical axis, and it is resampled onto each method's
+//! pupil grid ([`OpticalSystem::pupil_field`]).
+//!
+//! Pixel integration: each pixel is sampled at `subsample x subsample` points (the centres of
+//! equal sub-cells) and the intensities are summed (binned), a midpoint rule for the integral
+//! of the intensity over the pixel.
+
+use ndarray::Array2;
+use rustfft::num_complex::Complex64;
+use serde::{Deserialize, Serialize};
+
+use crate::design::{PAPER_APERTURE, PAPER_PITCH};
+use crate::error::{Error, Result};
+use crate::grid::{Grid, Interpolation, Unit};
+use crate::material::{Material, PAPER_WAVELENGTHS};
+
+/// The focal length of the paper's camera lens (Nikon Nikkor 35 mm), metres.
+pub const PAPER_FOCAL_LENGTH: f64 = 35e-3;
+/// The paper's PSF crop, pixels per side.
+pub const PAPER_CROP: usize = 320;
+/// The DOE-to-lens distance used when none is given, metres. The paper mounts the DOE in a
+/// lens tube at "a slight distance" without a value; at `d_s = g` the PSF does not depend on it
+/// (paraxially), so this only matters for defocus.
+pub const DEFAULT_DOE_TO_LENS: f64 = 10e-3;
+
+/// The optical system, SI units. See the module docs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OpticalSystem {
+    /// Clear aperture diameter of the DOE, metres (the paper: 5 mm).
+    pub aperture: f64,
+    /// DOE-to-lens distance d_phi, metres.
+    pub doe_to_lens: f64,
+    /// Thin-lens focal length g, metres (the paper: 35 mm).
+    pub focal_length: f64,
+    /// Lens-to-sensor distance d_s, metres (g for a scene at infinity in focus).
+    pub lens_to_sensor: f64,
+    /// Distance of the point source in front of the DOE, metres; `None` = infinity
+    /// (a plane wave). A finite distance gives a diverging spherical wave at the DOE.
+    pub object_distance: Option<f64>,
+    /// Sensor pixel pitch, metres (the paper: 4.29 um).
+    pub sensor_pitch: f64,
+    /// Sensor window, pixels per side, centred on the optical axis (the paper: 320).
+    pub crop: usize,
+    /// Sub-samples per pixel and axis for pixel integration (1 = point sampling).
+    pub subsample: usize,
+    /// Pupil sample pitch for the single-transform method, metres (the transfer-function
+    /// methods sample the pupil at `sensor_pitch / subsample`, the pitch they keep).
+    pub pupil_pitch: f64,
+    /// Side of the square pupil window, metres (at least the aperture).
+    pub pupil_window: f64,
+    /// Wavelengths, metres, one PSF channel each (the paper: 635 / 530 / 450 nm).
+    pub wavelengths: Vec<f64>,
+    /// The DOE material.
+    pub material: Material,
+    /// How the DOE heights are resampled onto a pupil grid of another pitch.
+    pub interpolation: Interpolation,
+    /// Treat each pupil sample as a square cell of constant height (a piecewise-constant
+    /// surface, as a pixelated mask writes it) rather than a point sample: the field's angular
+    /// spectrum gets the cell's envelope `sinc(fx dx) sinc(fy dx)` (`sinc t = sin(pi t)/(pi t)`).
+    /// `false` (point samples) is what the paper's simulation does.
+    pub cells: bool,
+}
+
+impl Default for OpticalSystem {
+    /// The paper's system: 5 mm aperture, g = d_s = 35 mm, 4.29 um pixels, 320 x 320 crop,
+    /// RGB 635 / 530 / 450 nm, PDMS, the 1306-sample 4.29 um DOE grid as pupil.
+    fn default() -> Self {
+        OpticalSystem {
+            aperture: PAPER_APERTURE,
+            doe_to_lens: DEFAULT_DOE_TO_LENS,
+            focal_length: PAPER_FOCAL_LENGTH,
+            lens_to_sensor: PAPER_FOCAL_LENGTH,
+            object_distance: None,
+            sensor_pitch: PAPER_PITCH,
+            crop: PAPER_CROP,
+            subsample: 1,
+            pupil_pitch: PAPER_PITCH,
+            pupil_window: crate::design::PAPER_SAMPLES as f64 * PAPER_PITCH,
+            wavelengths: PAPER_WAVELENGTHS.to_vec(),
+            material: Material::pdms(),
+            interpolation: Interpolation::Bilinear,
+            cells: false,
+        }
+    }
+}
+
+/// The paraxial ray-transfer (ABCD) matrix of DOE -> d_phi -> lens g -> d_s:
+/// `[[1, d_s], [0, 1]] [[1, 0], [-1/g, 1]] [[1, d_phi], [0, 1]]`, giving
+/// `A = 1 - d_s/g`, `B = d_phi + d_s - d_phi d_s / g`, `C = -1/g`, `D = 1 - d_phi/g`
+/// (Siegman, Lasers, ch. 15; Collins 1970, JOSA 60, 1168).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Abcd {
+    pub a: f64,
+    pub b: f64,
+    pub c: f64,
+    pub d: f64,
+}
+
+impl OpticalSystem {
+    /// Checks every parameter: positive finite distances and pitches, a crop of at least one
+    /// pixel, wavelengths within the material's dispersion range, a pupil window that holds
+    /// the aperture.
+    pub fn validate(&self) -> Result<()> {
+        let positive = |name: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(Error::param(name, format!("must be a positive finite length, got {v} m")))
+            }
+        };
+        positive("aperture", self.aperture)?;
+        positive("doe_to_lens", self.doe_to_lens)?;
+        positive("focal_length", self.focal_length)?;
+        positive("lens_to_sensor", self.lens_to_sensor)?;
+        if let Some(z) = self.object_distance {
+            positive("object_distance", z)?;
+        }
+        positive("sensor_pitch", self.sensor_pitch)?;
+        positive("pupil_pitch", self.pupil_pitch)?;
+        positive("pupil_window", self.pupil_window)?;
+        if self.crop == 0 {
+            return Err(Error::param("crop", "the sensor window needs at least 1 x 1 pixels"));
+        }
+        if self.subsample == 0 {
+            return Err(Error::param("subsample", "needs at least one sample per pixel"));
+        }
+        if self.pupil_window < self.aperture {
+            return Err(Error::param(
+                "pupil_window",
+                format!(
+                    "{:.4} mm is smaller than the {:.4} mm aperture",
+                    self.pupil_window * 1e3,
+                    self.aperture * 1e3
+                ),
+            ));
+        }
+        if self.wavelengths.is_empty() {
+            return Err(Error::param("wavelengths", "needs at least one wavelength"));
+        }
+        for &l in &self.wavelengths {
+            positive("wavelength", l)?;
+            self.material.index(l)?;
+        }
+        Ok(())
+    }
+
+    /// The working f-number `g / D`.
+    pub fn f_number(&self) -> f64 {
+        self.focal_length / self.aperture
+    }
+
+    /// The ABCD matrix of the system (see [`Abcd`]).
+    pub fn abcd(&self) -> Abcd {
+        let (dp, g, ds) = (self.doe_to_lens, self.focal_length, self.lens_to_sensor);
+        Abcd { a: 1.0 - ds / g, b: dp + ds - dp * ds / g, c: -1.0 / g, d: 1.0 - dp / g }
+    }
+
+    /// Sample pitch on the sensor, `sensor_pitch / subsample`, metres.
+    pub fn sample_pitch(&self) -> f64 {
+        self.sensor_pitch / self.subsample as f64
+    }
+
+    /// Sensor sub-samples per side, `crop * subsample`.
+    pub fn samples(&self) -> usize {
+        self.crop * self.subsample
+    }
+
+    /// Coordinates (metres) of the sensor sub-samples along one axis, centred on the axis:
+    /// `x_q = (q - (M - 1)/2) * sensor_pitch / subsample`, `M = crop * subsample`. Binning
+    /// consecutive groups of `subsample` gives pixel centres `(j - (crop - 1)/2) sensor_pitch`.
+    pub fn sensor_coords(&self) -> Vec<f64> {
+        let m = self.samples();
+        let p = self.sample_pitch();
+        (0..m).map(|q| (q as f64 - (m as f64 - 1.0) * 0.5) * p).collect()
+    }
+
+    /// Side of the sensor window, metres.
+    pub fn sensor_window(&self) -> f64 {
+        self.crop as f64 * self.sensor_pitch
+    }
+
+    /// The complex field just after the DOE on an `n x n` grid of pitch `pitch`, centred on
+    /// the axis, at `wavelength`: `A exp(i k (n - 1) h)` times the incident wave (1 for an object
+    /// at infinity; for a finite distance `z_o` the spherical wave `exp(i k (sqrt(r^2 + z_o^2)
+    /// - z_o))`, or its paraxial form `exp(i k r^2 / (2 z_o))` when `paraxial`).
+    ///
+    /// Errors: a DOE grid smaller than the aperture, heights that are not metres, invalid or
+    /// non-finite heights inside the aperture (named by row and column).
+    pub fn pupil_field(
+        &self,
+        doe: &Grid,
+        n: usize,
+        pitch: f64,
+        wavelength: f64,
+        paraxial: bool,
+    ) -> Result<Array2<Complex64>> {
+        let heights = self.pupil_heights(doe, n, pitch)?;
+        let k = 2.0 * std::f64::consts::PI / wavelength;
+        let dn = self.material.index(wavelength)? - 1.0;
+        let r2max = (self.aperture * 0.5).powi(2);
+        let c = (n as f64 - 1.0) * 0.5;
+        let mut field = Array2::<Complex64>::zeros((n, n));
+        for ((i, j), v) in field.indexed_iter_mut() {
+            let (x, y) = ((j as f64 - c) * pitch, (i as f64 - c) * pitch);
+            let r2 = x * x + y * y;
+            if r2 <= r2max {
+                let mut phase = k * dn * heights[[i, j]];
+                if let Some(z) = self.object_distance {
+                    phase += if paraxial { k * r2 / (2.0 * z) } else { k * ((r2 + z * z).sqrt() - z) };
+                }
+                *v = Complex64::from_polar(1.0, phase);
+            }
+        }
+        Ok(field)
+    }
+
+    /// The DOE heights on the `n x n` pupil grid of `pitch` (metres), checked inside the
+    /// aperture. Outside the aperture the value is 0 and never used.
+    pub fn pupil_heights(&self, doe: &Grid, n: usize, pitch: f64) -> Result<Array2<f64>> {
+        if doe.unit() != Unit::Metre {
+            return Err(Error::param(
+                "doe",
+                format!("the DOE must hold heights in metres, not '{}'", doe.unit().symbol()),
+            ));
+        }
+        let ext = doe.extent();
+        if ext[0] < self.aperture * (1.0 - 1e-9) || ext[1] < self.aperture * (1.0 - 1e-9) {
+            return Err(Error::param(
+                "aperture",
+                format!(
+                    "the {:.4} mm aperture is larger than the DOE grid ({:.4} x {:.4} mm)",
+                    self.aperture * 1e3,
+                    ext[0] * 1e3,
+                    ext[1] * 1e3
+                ),
+            ));
+        }
+        let same = doe.dim() == (n, n) && doe.pitch().iter().all(|p| (p / pitch - 1.0).abs() < 1e-12);
+        let g = if same { doe.clone() } else { doe.resample_to(n, n, [pitch, pitch], self.interpolation)? };
+        let r2max = (self.aperture * 0.5).powi(2);
+        let c = (n as f64 - 1.0) * 0.5;
+        let mut out = Array2::<f64>::zeros((n, n));
+        for ((i, j), v) in out.indexed_iter_mut() {
+            let (x, y) = ((j as f64 - c) * pitch, (i as f64 - c) * pitch);
+            if x * x + y * y <= r2max {
+                let h = g.values()[[i, j]];
+                if !g.is_valid(i, j) || !h.is_finite() {
+                    return Err(Error::Data(format!(
+                        "the DOE height is missing or not finite inside the aperture \
+                         (pupil sample row {i}, column {j}, at x = {:.1} um, y = {:.1} um); \
+                         fill the map first",
+                        x * 1e6,
+                        y * 1e6
+                    )));
+                }
+                *v = h;
+            }
+        }
+        Ok(out)
+    }
+
+    /// Number of pupil samples per side at `pitch` covering the pupil window, rounded up to
+    /// the parity `parity` (0 even, 1 odd).
+    pub fn pupil_samples(&self, pitch: f64, parity: usize) -> usize {
+        let mut n = (self.pupil_window / pitch - 1e-9).ceil().max(1.0) as usize;
+        if n % 2 != parity % 2 {
+            n += 1;
+        }
+        n
+    }
+}
+
+/// `sin(pi t) / (pi t)`.
+pub fn sinc(t: f64) -> f64 {
+    if t.abs() < 1e-8 {
+        1.0
+    } else {
+        (std::f64::consts::PI * t).sin() / (std::f64::consts::PI * t)
+    }
+}
+
+/// A flat DOE (all heights 0) covering the system's pupil window at its pupil pitch: the
+/// reference for Strehl ratios.
+pub fn flat_doe(system: &OpticalSystem) -> Result<Grid> {
+    let n = system.pupil_samples(system.pupil_pitch, 0);
+    Grid::new(Array2::zeros((n, n)), [system.pupil_pitch; 2], Unit::Metre)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paper_defaults_and_abcd() {
+        let s = OpticalSystem::default();
+        s.validate().unwrap();
+        assert!((s.f_number() - 7.0).abs() < 1e-12);
+        let m = s.abcd();
+        // In focus: A = 0, B = g whatever d_phi; determinant AD - BC = 1.
+        assert!(m.a.abs() < 1e-15 && (m.b - 35e-3).abs() < 1e-15);
+        assert!((m.a * m.d - m.b * m.c - 1.0).abs() < 1e-12);
+        assert_eq!(s.sensor_coords().len(), 320);
+        assert!((s.sensor_coords()[160] - 0.5 * 4.29e-6).abs() < 1e-18);
+    }
+
+    #[test]
+    fn bad_parameters_are_named() {
+        let bad = |f: &dyn Fn(&mut OpticalSystem), needle: &str| {
+            let mut s = OpticalSystem::default();
+            f(&mut s);
+            let e = s.validate().unwrap_err().to_string();
+            assert!(e.contains(needle), "{e}");
+        };
+        bad(&|s| s.doe_to_lens = 0.0, "doe_to_lens");
+        bad(&|s| s.lens_to_sensor = -1e-3, "lens_to_sensor");
+        bad(&|s| s.object_distance = Some(0.0), "object_distance");
+        bad(&|s| s.crop = 0, "crop");
+        bad(&|s| s.pupil_window = 1e-3, "smaller than");
+        bad(&|s| s.wavelengths = vec![1.5e-6], "outside the dispersion formula's range 400-700 nm");
+    }
+
+    #[test]
+    fn pupil_field_refuses_small_grids_and_nan() {
+        let s =
+            OpticalSystem { aperture: 1e-3, pupil_window: 1.2e-3, pupil_pitch: 10e-6, ..Default::default() };
+        let small = Grid::new(Array2::zeros((50, 50)), [10e-6; 2], Unit::Metre).unwrap();
+        let e = s.pupil_field(&small, 120, 10e-6, 530e-9, true).unwrap_err().to_string();
+        assert!(e.contains("larger than the DOE grid"), "{e}");
+        let mut v = Array2::zeros((120, 120));
+        v[[60, 61]] = f64::NAN;
+        let nan = Grid::new(v, [10e-6; 2], Unit::Metre).unwrap();
+        let e = s.pupil_field(&nan, 120, 10e-6, 530e-9, true).unwrap_err().to_string();
+        assert!(e.contains("row 60, column 61"), "{e}");
+        // Outside the aperture a NaN does no harm.
+        let mut v = Array2::zeros((120, 120));
+        v[[0, 0]] = f64::NAN;
+        let corner = Grid::new(v, [10e-6; 2], Unit::Metre).unwrap();
+        let f = s.pupil_field(&corner, 120, 10e-6, 530e-9, true).unwrap();
+        assert_eq!(f[[0, 0]], Complex64::new(0.0, 0.0));
+        assert_eq!(f[[60, 60]], Complex64::new(1.0, 0.0));
+    }
+}

@@ -1,0 +1,560 @@
+//! Optics stage: analytic truths (Airy pattern, grating orders), energy conservation,
+//! agreement between the propagation methods, validity guards, the shared measured PSF.
+
+use doefab::fabrication::quantize::order_efficiency;
+use doefab::grid::{Grid, Unit};
+use doefab::material::Material;
+use doefab::optics::propagate::{self, field_power, matrix_dft};
+use doefab::optics::system::OpticalSystem;
+use doefab::optics::{simulate, Method, Options, Psf};
+use ndarray::Array2;
+
+const L550: f64 = 550e-9;
+
+/// A small F/7 system at 550 nm: 1 mm aperture, g = d_s = 7 mm, 5 um pupil pitch.
+fn f7(sensor_pitch: f64, crop: usize) -> OpticalSystem {
+    OpticalSystem {
+        aperture: 1e-3,
+        doe_to_lens: 2e-3,
+        focal_length: 7e-3,
+        lens_to_sensor: 7e-3,
+        sensor_pitch,
+        crop,
+        pupil_pitch: 5e-6,
+        pupil_window: 1.02e-3,
+        wavelengths: vec![L550],
+        ..Default::default()
+    }
+}
+
+fn flat(n: usize, pitch: f64) -> Grid {
+    Grid::new(Array2::zeros((n, n)), [pitch; 2], Unit::Metre).unwrap()
+}
+
+/// Heights of a grating along x: `phase(x mod period)` in radians at `wavelength` in PDMS.
+fn grating(n: usize, pitch: f64, wavelength: f64, phase: impl Fn(usize) -> f64) -> Grid {
+    let dn = Material::pdms().index(wavelength).unwrap() - 1.0;
+    let k = 2.0 * std::f64::consts::PI / wavelength;
+    Grid::new(Array2::from_shape_fn((n, n), |(_, j)| phase(j) / (k * dn)), [pitch; 2], Unit::Metre).unwrap()
+}
+
+#[test]
+fn flat_doe_gives_the_airy_pattern() {
+    // 0.25 um pixels, odd crop: the axis sits on a pixel centre.
+    let s = f7(0.25e-6, 81);
+    let doe = flat(204, 5e-6);
+    let psf = simulate(&s, &doe, Method::MatrixDft, &Options::default()).unwrap();
+    let g = &psf.channels[0].grid;
+    let row = g.values().row(40);
+    // First zero of the central row between 4 and 5.5 um, refined by a parabola through
+    // the smallest sample and its neighbours.
+    let (k, _) =
+        (56..62).map(|j| (j, row[j])).fold((0, f64::INFINITY), |b, (j, v)| if v < b.1 { (j, v) } else { b });
+    // The field is real and changes sign at the zero: signed amplitudes, the sign flipping on
+    // the side of the smaller neighbour, and the root of the parabola through them.
+    let (a, b, c) = (row[k - 1].sqrt(), row[k].sqrt(), row[k + 1].sqrt());
+    let (a, b, c) = if a < c { (a, -b, -c) } else { (a, b, -c) };
+    let (qa, qb, qc) = (0.5 * (a + c) - b, 0.5 * (c - a), b);
+    let disc = (qb * qb - 4.0 * qa * qc).sqrt();
+    let roots = [(-qb + disc) / (2.0 * qa), (-qb - disc) / (2.0 * qa)];
+    let t = roots.into_iter().find(|t| t.abs() <= 1.0).expect("a root between the samples");
+    let x0 = g.x(k) + 0.25e-6 * t;
+    let airy = 1.22 * L550 * 7.0;
+    assert!((airy - 4.697e-6).abs() < 2e-9);
+    assert!((x0 - airy).abs() < 0.01e-6, "first zero at {x0} m, Airy {airy} m");
+    // Encircled energy inside the first zero: 0.838 of the power through the aperture.
+    let captured = psf.channels[0].captured.unwrap();
+    let ee = psf.encircled_energy(0, [0.0, 0.0], airy) * captured;
+    assert!((ee - 0.838).abs() < 3e-3, "encircled energy {ee}");
+    // Peak intensity equals the analytic P A / (lambda g)^2 with A the sampled aperture area:
+    // a flat DOE has Strehl 1 against the ideal lens.
+    let (n, dx) = matrix_dft::pupil_grid(&s, &doe);
+    let u = s.pupil_field(&doe, n, dx, L550, true).unwrap();
+    let area = field_power(&u, dx);
+    let peak = psf.peak(0).0 * captured * area / (0.25e-6f64).powi(2);
+    let ideal = area * area / (L550 * 7e-3).powi(2);
+    assert!((peak / ideal - 1.0).abs() < 1e-6, "peak {peak} vs {ideal}");
+    assert_eq!(psf.strehl(&psf).unwrap(), vec![1.0]);
+    assert_eq!(psf.peak(0).2, (40, 40));
+}
+
+/// Energy of each diffraction order in a box half the order spacing wide, relative to the
+/// flat DOE's energy in the same box around the axis.
+fn order_energies(psf: &Psf, flat: &Psf, spacing: f64, orders: &[i64]) -> Vec<(f64, [f64; 2])> {
+    let g = &psf.channels[0].grid;
+    let gf = &flat.channels[0].grid;
+    let (ca, cf) = (psf.channels[0].captured.unwrap(), flat.channels[0].captured.unwrap());
+    let box_sum = |grid: &Grid, xc: f64| {
+        let (mut s, mut sx) = (0.0, 0.0);
+        for ((i, j), &v) in grid.values().indexed_iter() {
+            if (grid.x(j) - xc).abs() < 0.5 * spacing && grid.y(i).abs() < 0.5 * spacing {
+                s += v;
+                sx += v * grid.x(j);
+            }
+        }
+        (s, sx / s)
+    };
+    let reference = box_sum(gf, 0.0).0 * cf;
+    orders
+        .iter()
+        .map(|&m| {
+            let (e, x) = box_sum(g, m as f64 * spacing);
+            (e * ca / reference, [x, 0.0])
+        })
+        .collect()
+}
+
+#[test]
+fn binary_and_blazed_gratings_match_scalar_theory() {
+    // Period 8 samples = 40 um: orders every lambda g / L = 96.25 um.
+    let (pitch, period) = (5e-6, 8usize);
+    // Cells: the DOE is piecewise constant, so a grating of whole cells is the continuous one.
+    let s = OpticalSystem { cells: true, ..f7(1.75e-6, 401) };
+    let spacing = L550 * 7e-3 / (period as f64 * pitch);
+    let flat_psf = simulate(&s, &flat(204, pitch), Method::MatrixDft, &Options::default()).unwrap();
+    let binary =
+        grating(204, pitch, L550, |j| if j % period < period / 2 { 0.0 } else { std::f64::consts::PI });
+    let psf = simulate(&s, &binary, Method::MatrixDft, &Options::default()).unwrap();
+    let orders = [-2i64, -1, 0, 1, 2];
+    let e = order_energies(&psf, &flat_psf, spacing, &orders);
+    for (k, &m) in orders.iter().enumerate() {
+        let want = order_efficiency(2, 1.0, m);
+        assert!((e[k].0 - want).abs() < 2e-3, "binary order {m}: {} vs {want}", e[k].0);
+        if m.abs() == 1 {
+            assert!((want - 0.4053).abs() < 1e-4);
+            // Order m lands at m lambda g / L.
+            assert!((e[k].1[0] - m as f64 * spacing).abs() < 0.05e-6, "order {m} at {:?}", e[k].1);
+        }
+    }
+    // The brightest peaks are the +-1 orders, each 0.405 of the flat DOE's peak; nothing at
+    // the centre.
+    let strehl = psf.strehl(&flat_psf).unwrap()[0];
+    assert!((strehl - 0.4053).abs() < 3e-3, "Strehl {strehl}");
+    assert!(psf.channels[0].grid.values()[[200, 200]] < 1e-3 * psf.peak(0).0);
+
+    // Four-level staircase of a blaze: order +1 carries sinc^2(1/4) = 0.811, order -3 0.090.
+    let blazed = grating(204, pitch, L550, |j| 2.0 * std::f64::consts::PI * ((j % period) / 2) as f64 / 4.0);
+    let psf = simulate(&s, &blazed, Method::MatrixDft, &Options::default()).unwrap();
+    let orders = [-3i64, -1, 0, 1, 2];
+    let e = order_energies(&psf, &flat_psf, spacing, &orders);
+    for (k, &m) in orders.iter().enumerate() {
+        let want = order_efficiency(4, 1.0, m);
+        assert!((e[k].0 - want).abs() < 3e-3, "4-level order {m}: {} vs {want}", e[k].0);
+    }
+    assert!((order_efficiency(4, 1.0, 1) - 0.8106).abs() < 1e-4);
+}
+
+/// A smooth test DOE: three sinusoidal phase gratings of 1 rad with periods of 10+ samples.
+fn smooth_doe(n: usize, pitch: f64, wavelength: f64) -> Grid {
+    let dn = Material::pdms().index(wavelength).unwrap() - 1.0;
+    let k = 2.0 * std::f64::consts::PI / wavelength;
+    let c = (n as f64 - 1.0) * 0.5;
+    Grid::new(
+        Array2::from_shape_fn((n, n), |(i, j)| {
+            let (x, y) = (j as f64 - c, i as f64 - c);
+            let phase = 1.0 + (0.41 * x).sin() + (0.23 * y + 0.3).cos() + 0.8 * (0.17 * (x + y)).sin();
+            phase / (k * dn)
+        }),
+        [pitch; 2],
+        Unit::Metre,
+    )
+    .unwrap()
+}
+
+/// F/100 at 635 and 450 nm: 0.25 mm aperture, 10 um pixels sampled twice per pixel, the pupil at
+/// 5 um in a 2.2 mm window (the transfer-function methods need a window wider than the replica
+/// period lambda g / dx), slow enough that the paraxial and non-paraxial models agree.
+fn f100() -> OpticalSystem {
+    OpticalSystem {
+        aperture: 0.25e-3,
+        doe_to_lens: 1e-3,
+        focal_length: 25e-3,
+        lens_to_sensor: 25e-3,
+        sensor_pitch: 10e-6,
+        crop: 32,
+        subsample: 2,
+        pupil_pitch: 5e-6,
+        pupil_window: 2.2e-3,
+        wavelengths: vec![635e-9, 450e-9],
+        ..Default::default()
+    }
+}
+
+#[test]
+fn methods_agree_on_a_shared_valid_configuration() {
+    let s = f100();
+    let doe = smooth_doe(440, 5e-6, 530e-9);
+    let psfs: Vec<Psf> = [Method::MatrixDft, Method::Fresnel, Method::AngularSpectrum]
+        .into_iter()
+        .map(|m| {
+            assert_eq!(propagate::check(m, &s, &doe).unwrap(), vec![], "{m}");
+            simulate(&s, &doe, m, &Options::default()).unwrap()
+        })
+        .collect();
+    for (a, b) in [(1, 0), (2, 0), (2, 1)] {
+        let e = psfs[a].relative_l2(&psfs[b]).unwrap();
+        // 635 nm within 1e-4; at 450 nm the non-paraxial angular spectrum differs from the
+        // paraxial methods by 1.3e-4 (order NA^2 / 2 = 1.25e-5 per unit of structure).
+        assert!(e[0] < 1e-4, "{} vs {} at 635 nm: {}", psfs[a].method, psfs[b].method, e[0]);
+        assert!(e[1] < 2e-4, "{} vs {} at 450 nm: {}", psfs[a].method, psfs[b].method, e[1]);
+    }
+    // The two paraxial methods agree far closer.
+    let e = psfs[1].relative_l2(&psfs[0]).unwrap();
+    assert!(e[0] < 2e-5 && e[1] < 1.5e-4, "{e:?}");
+    // Every method puts the same share of the DOE's power into the crop.
+    for p in &psfs[1..] {
+        for c in 0..2 {
+            let (a, b) = (p.channels[c].captured.unwrap(), psfs[0].channels[c].captured.unwrap());
+            assert!((a - b).abs() < 2e-4, "{} captured {a} vs {b}", p.method);
+        }
+    }
+}
+
+#[test]
+fn rayleigh_sommerfeld_ground_truth_agrees_on_a_tiny_grid() {
+    // 90 x 90 pupil samples at 5 um, F/50, d_phi = 14 mm: the direct integral's kernel is sampled
+    // (phase steps below pi) and the 0.9 mm lens window holds the light.
+    let s = OpticalSystem {
+        aperture: 0.25e-3,
+        doe_to_lens: 14e-3,
+        focal_length: 12.5e-3,
+        lens_to_sensor: 12.5e-3,
+        sensor_pitch: 5e-6,
+        crop: 16,
+        pupil_pitch: 5e-6,
+        pupil_window: 0.45e-3,
+        wavelengths: vec![635e-9],
+        ..Default::default()
+    };
+    let doe = flat(90, 5e-6);
+    assert_eq!(propagate::check(Method::RayleighSommerfeld, &s, &doe).unwrap(), vec![]);
+    let rs = simulate(&s, &doe, Method::RayleighSommerfeld, &Options::default()).unwrap();
+    let m1 = simulate(&s, &doe, Method::MatrixDft, &Options::default()).unwrap();
+    let e = m1.relative_l2(&rs).unwrap()[0];
+    assert!(e < 2.5e-3, "matrix DFT vs Rayleigh-Sommerfeld: {e}");
+    // Half the distance breaks the kernel sampling and the guard says so.
+    let near = OpticalSystem { doe_to_lens: 7e-3, ..s };
+    let v = propagate::check(Method::RayleighSommerfeld, &near, &doe).unwrap();
+    assert!(v.iter().any(|v| v.condition == "kernel_sampling"), "{v:?}");
+}
+
+#[test]
+fn the_paper_setup_violates_the_lens_sampling_of_method_2_at_530_and_450_nm() {
+    // The paper's own system: 4.29 um pupil sampling at F/7, 635 / 530 / 450 nm.
+    let s = OpticalSystem::default();
+    let doe = flat(1306, 4.29e-6);
+    let v = propagate::check(Method::Fresnel, &s, &doe).unwrap();
+    let got: Vec<(String, u32)> =
+        v.iter().map(|v| (v.condition.clone(), (v.wavelength * 1e9).round() as u32)).collect();
+    assert_eq!(got, vec![("lens_sampling".to_string(), 530), ("lens_sampling".to_string(), 450)]);
+    assert!(v[0].message.contains("4.290 um exceeds lambda F# = 3.710 um"), "{}", v[0].message);
+    // The single transform has no lens to sample: valid at all three.
+    assert_eq!(propagate::check(Method::MatrixDft, &s, &doe).unwrap(), vec![]);
+    // Both sides of the boundary dx = lambda F#: 4.29 um / 7 = 612.86 nm.
+    let edge = OpticalSystem { wavelengths: vec![613e-9, 612.7e-9], ..s };
+    let v = propagate::check(Method::Fresnel, &edge, &doe).unwrap();
+    assert_eq!(v.len(), 1);
+    assert_eq!((v[0].condition.as_str(), v[0].wavelength), ("lens_sampling", 612.7e-9));
+}
+
+#[test]
+fn an_invalid_configuration_is_refused_or_runs_with_a_warning() {
+    // The paper's sampling and F-number on a smaller aperture (same lens-sampling condition).
+    let s = OpticalSystem {
+        aperture: 0.5e-3,
+        focal_length: 3.5e-3,
+        lens_to_sensor: 3.5e-3,
+        doe_to_lens: 1e-3,
+        crop: 64,
+        pupil_window: 0.6e-3,
+        ..Default::default()
+    };
+    let doe = flat(140, 4.29e-6);
+    let e = simulate(&s, &doe, Method::Fresnel, &Options::default()).unwrap_err().to_string();
+    assert!(e.contains("lens_sampling at 530.0 nm") && e.contains("lens_sampling at 450.0 nm"), "{e}");
+    assert!(!e.contains("635.0 nm"), "{e}");
+    let psf = simulate(&s, &doe, Method::Fresnel, &Options { allow_invalid: true }).unwrap();
+    assert_eq!(psf.warnings.len(), 2);
+    assert!(psf.warnings[0].contains("lens_sampling"));
+    let valid = simulate(&s, &doe, Method::MatrixDft, &Options::default()).unwrap();
+    assert!(valid.warnings.is_empty());
+    for c in &psf.channels {
+        assert!((c.grid.values().sum() - 1.0).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn guards_trigger_on_both_sides_of_their_boundaries() {
+    let has = |m: Method, s: &OpticalSystem, doe: &Grid, cond: &str| {
+        propagate::check(m, s, doe).unwrap().iter().any(|v| v.condition == cond)
+    };
+    let doe = flat(204, 5e-6);
+    // Matrix DFT: the sensor window against the replica period lambda g / dx = 770 um.
+    assert!(!has(Method::MatrixDft, &f7(1.75e-6, 439), &doe, "output_window"));
+    assert!(has(Method::MatrixDft, &f7(1.75e-6, 441), &doe, "output_window"));
+
+    // DOE phase gradient: a tilt of 0.98 pi per sample passes, 1.02 pi fails; a wrapped tilt of
+    // 0.5 pi per sample (with its 2 pi drops) passes.
+    let tilt = |per_sample: f64, wrap: bool| {
+        grating(204, 5e-6, L550, move |j| {
+            let p = per_sample * j as f64;
+            if wrap {
+                p.rem_euclid(2.0 * std::f64::consts::PI)
+            } else {
+                p
+            }
+        })
+    };
+    let s = f7(1.75e-6, 101);
+    assert!(!has(Method::MatrixDft, &s, &tilt(0.98 * std::f64::consts::PI, false), "phase_gradient"));
+    assert!(has(Method::MatrixDft, &s, &tilt(1.02 * std::f64::consts::PI, false), "phase_gradient"));
+    assert!(!has(Method::MatrixDft, &s, &tilt(0.5 * std::f64::consts::PI, true), "phase_gradient"));
+
+    // Fresnel transfer function over d_phi: lambda z <= window x pitch.
+    let s = OpticalSystem { wavelengths: vec![635e-9], ..f100() };
+    let doe = smooth_doe(440, 5e-6, 530e-9);
+    let (_, dx, w) = propagate::fresnel::grid(&s);
+    let limit = w as f64 * dx * dx / 635e-9;
+    let at = |z: f64| OpticalSystem { doe_to_lens: z, ..s.clone() };
+    assert!(!has(Method::Fresnel, &at(0.99 * limit), &doe, "transfer_function_bandwidth"));
+    assert!(has(Method::Fresnel, &at(1.01 * limit), &doe, "transfer_function_bandwidth"));
+
+    // Fresnel approximation, out of focus: k d_phi theta^4 / 8 <= pi/2 with theta = lambda / (2 dx)
+    // for a binary grating (which fills the band).
+    let binary = grating(204, 5e-6, L550, |j| if j % 2 == 0 { 0.0 } else { std::f64::consts::PI });
+    let theta: f64 = L550 / (2.0 * 5e-6);
+    let k = 2.0 * std::f64::consts::PI / L550;
+    let dz = 0.5 * std::f64::consts::PI * 8.0 / (k * theta.powi(4));
+    let defocus = |z: f64| OpticalSystem { doe_to_lens: z, lens_to_sensor: 7.07e-3, ..f7(1.75e-6, 101) };
+    assert!(!has(Method::MatrixDft, &defocus(0.98 * dz), &binary, "fresnel_approximation"));
+    assert!(has(Method::MatrixDft, &defocus(1.02 * dz), &binary, "fresnel_approximation"));
+    // In focus the d_phi step cannot change the sensor intensity: no check.
+    let focus = OpticalSystem { lens_to_sensor: 7e-3, ..defocus(2.0 * dz) };
+    assert!(!has(Method::MatrixDft, &focus, &binary, "fresnel_approximation"));
+}
+
+#[test]
+fn in_focus_the_single_transform_does_not_depend_on_d_phi() {
+    let doe = smooth_doe(204, 5e-6, L550);
+    let a = simulate(
+        &OpticalSystem { doe_to_lens: 2e-3, ..f7(1.75e-6, 101) },
+        &doe,
+        Method::MatrixDft,
+        &Options::default(),
+    )
+    .unwrap();
+    let b = simulate(
+        &OpticalSystem { doe_to_lens: 30e-3, ..f7(1.75e-6, 101) },
+        &doe,
+        Method::MatrixDft,
+        &Options::default(),
+    )
+    .unwrap();
+    assert!(a.relative_l2(&b).unwrap()[0] < 1e-12);
+    // Out of focus it does.
+    let c = simulate(
+        &OpticalSystem { doe_to_lens: 30e-3, lens_to_sensor: 7.02e-3, ..f7(1.75e-6, 101) },
+        &doe,
+        Method::MatrixDft,
+        &Options::default(),
+    )
+    .unwrap();
+    let d = simulate(
+        &OpticalSystem { doe_to_lens: 2e-3, lens_to_sensor: 7.02e-3, ..f7(1.75e-6, 101) },
+        &doe,
+        Method::MatrixDft,
+        &Options::default(),
+    )
+    .unwrap();
+    assert!(c.relative_l2(&d).unwrap()[0] > 1e-3);
+}
+
+#[test]
+fn each_propagation_step_conserves_energy() {
+    use doefab::optics::fft::{fft_freq, Plan2d};
+    use rustfft::num_complex::Complex64;
+    // A field with structure at every frequency.
+    let n = 96;
+    let dx = 4e-6;
+    let u = Array2::from_shape_fn((n, n), |(i, j)| {
+        Complex64::from_polar(1.0 + ((i * 7 + j * 3) % 5) as f64, (i * j) as f64 * 0.37)
+    });
+    let e0 = field_power(&u, dx);
+    let mut planner = rustfft::FftPlanner::new();
+    let plan = Plan2d::new(&mut planner, n);
+    // Fresnel transfer function: unit modulus everywhere.
+    let h = Array2::from_shape_fn((n, n), |(p, q)| {
+        let f2 = fft_freq(p, n, dx).powi(2) + fft_freq(q, n, dx).powi(2);
+        Complex64::from_polar(1.0, -std::f64::consts::PI * L550 * 3e-3 * f2)
+    });
+    let mut v = u.clone();
+    plan.convolve(&mut v, &h);
+    assert!((field_power(&v, dx) / e0 - 1.0).abs() < 1e-12);
+    // Band-limited angular spectrum: unit modulus inside the band; a field inside the band
+    // (a smooth Gaussian beam) keeps its energy.
+    let c = (n as f64 - 1.0) * 0.5;
+    let g = Array2::from_shape_fn((n, n), |(i, j)| {
+        let r2 = ((i as f64 - c).powi(2) + (j as f64 - c).powi(2)) * dx * dx;
+        Complex64::new((-r2 / (2.0 * (40e-6f64).powi(2))).exp(), 0.0)
+    });
+    let mut v = g.clone();
+    plan.convolve(&mut v, &propagate::asm::transfer(L550, 2e-3, n, dx, false));
+    assert!((field_power(&v, dx) / field_power(&g, dx) - 1.0).abs() < 1e-10);
+
+    // The thin lens has unit modulus; the two-step Fresnel chain read over its whole window
+    // keeps all the power.
+    let s = OpticalSystem {
+        aperture: 0.2e-3,
+        doe_to_lens: 1e-3,
+        focal_length: 5e-3,
+        lens_to_sensor: 5e-3,
+        sensor_pitch: 4e-6,
+        crop: 90,
+        pupil_pitch: 4e-6,
+        pupil_window: 0.24e-3,
+        wavelengths: vec![L550],
+        ..Default::default()
+    };
+    let (_, _, w) = propagate::fresnel::grid(&s);
+    assert_eq!(w, 90);
+    let doe = smooth_doe(60, 4e-6, L550);
+    let psf = simulate(&s, &doe, Method::Fresnel, &Options { allow_invalid: true }).unwrap();
+    assert!((psf.channels[0].captured.unwrap() - 1.0).abs() < 1e-12);
+
+    // The single transform over one full replica period, sampled at lambda g / (n dx), is a
+    // unitary DFT.
+    let s = f7(1.75e-6, 101);
+    let doe = smooth_doe(204, 5e-6, L550);
+    let (n, dx) = matrix_dft::pupil_grid(&s, &doe);
+    let u1 = s.pupil_field(&doe, n, dx, L550, true).unwrap();
+    let p = L550 * 7e-3 / (n as f64 * dx);
+    let xs: Vec<f64> = (0..n).map(|q| (q as f64 - (n as f64 - 1.0) * 0.5) * p).collect();
+    let i = matrix_dft::transform(&s, &u1, dx, &xs, L550).unwrap();
+    assert!((i.sum() * p * p / field_power(&u1, dx) - 1.0).abs() < 1e-10);
+}
+
+#[test]
+fn the_measured_psf_loads_through_the_same_type() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/deepoptics-hdr/measured_psf.npz");
+    if !path.exists() {
+        eprintln!("notice: {} is not here; skipping the measured-PSF test", path.display());
+        return;
+    }
+    let psf = Psf::read_npz(&path, Some("psf_val"), 4.29e-6, Some(&[635e-9, 530e-9, 450e-9])).unwrap();
+    assert_eq!(psf.dim(), (319, 319));
+    assert_eq!(psf.to_array4().dim(), (319, 319, 1, 3));
+    let names: Vec<&str> = psf.channels.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["R", "G", "B"]);
+    for (c, ch) in psf.channels.iter().enumerate() {
+        assert!((ch.grid.values().sum() - 1.0).abs() < 1e-9);
+        let (_, _, (i, j)) = psf.peak(c);
+        assert!(i.abs_diff(159) <= 1 && j.abs_diff(159) <= 1, "channel {c} peak at {i}, {j}");
+        // Centroid about (+1.8, -1.0) px off centre in (row, column) order: y down, x left.
+        let [x, y] = psf.centroid(c);
+        assert!((y / 4.29e-6 - 1.8).abs() < 1.0 && (x / 4.29e-6 + 1.0).abs() < 1.0, "centroid {x} {y}");
+    }
+    assert_eq!(psf.peak(2).2, (159, 160));
+    // The same measures work across PSFs of one shape: it differs from itself by nothing.
+    assert_eq!(psf.relative_l2(&psf).unwrap(), vec![0.0; 3]);
+    // Errors name the archive and the array.
+    let e = Psf::read_npz(&path, Some("nope"), 4.29e-6, None).unwrap_err().to_string();
+    assert!(e.contains("measured_psf.npz") && e.contains("no array 'nope'"), "{e}");
+}
+
+#[test]
+fn bad_input_is_refused_with_a_clear_error() {
+    let s = f7(1.75e-6, 101);
+    let err = |s: &OpticalSystem, doe: &Grid, m: Method| {
+        simulate(s, doe, m, &Options::default()).unwrap_err().to_string()
+    };
+    // Heights with NaN inside the aperture.
+    let mut v = Array2::zeros((204, 204));
+    v[[100, 90]] = f64::NAN;
+    let nan = Grid::new(v, [5e-6; 2], Unit::Metre).unwrap();
+    assert!(err(&s, &nan, Method::MatrixDft).contains("not finite inside the aperture"));
+    // An aperture larger than the grid.
+    assert!(err(&s, &flat(150, 5e-6), Method::MatrixDft).contains("larger than the DOE grid"));
+    // A wavelength outside the material's range names the range.
+    let ir = OpticalSystem { wavelengths: vec![900e-9], ..s.clone() };
+    assert!(err(&ir, &flat(204, 5e-6), Method::MatrixDft).contains("400-700 nm"));
+    // Zero and negative distances.
+    let zero = OpticalSystem { focal_length: 0.0, ..s.clone() };
+    assert!(err(&zero, &flat(204, 5e-6), Method::MatrixDft).contains("focal_length"));
+    let neg = OpticalSystem { object_distance: Some(-1.0), ..s.clone() };
+    assert!(err(&neg, &flat(204, 5e-6), Method::Fresnel).contains("object_distance"));
+    // A sensor crop larger than the propagation window.
+    let wide = OpticalSystem { sensor_pitch: 5e-6, pupil_pitch: 5e-6, crop: 400, ..s.clone() };
+    assert!(err(&wide, &flat(204, 5e-6), Method::Fresnel).contains("the sensor crop needs 400 samples"));
+    // Heights that are not metres.
+    let levels = Grid::new(Array2::zeros((204, 204)), [5e-6; 2], Unit::Level).unwrap();
+    assert!(err(&s, &levels, Method::MatrixDft).contains("heights in metres"));
+}
+
+#[test]
+fn psf_command_writes_exr_npy_png_and_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("psf");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
+        .args(["psf", "built-in:paper", "-o"])
+        .arg(&out)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(report["method"], "matrix_dft");
+    let channels = report["channels"].as_array().unwrap();
+    assert_eq!(channels.len(), 3);
+    for c in channels {
+        // The grating-like design moves light into its copies: Strehl below 1.
+        let strehl = c["strehl"].as_f64().unwrap();
+        assert!(strehl > 0.05 && strehl < 0.95, "{strehl}");
+        assert!(c["captured"].as_f64().unwrap() > 0.5);
+    }
+    for f in ["psf.exr", "psf.npy", "psf_log.png", "psf.json"] {
+        assert!(out.join(f).exists(), "{f}");
+    }
+    let (h, arr) = doefab::io::npy::read_npy_nd(&out.join("psf.npy")).unwrap();
+    assert_eq!(h.shape, vec![320, 320, 1, 3]);
+    assert_eq!(h.descr, "<f4");
+    for c in 0..3 {
+        let s: f64 = arr.index_axis(ndarray::Axis(3), c).sum();
+        assert!((s - 1.0).abs() < 1e-4, "channel {c} sums to {s}");
+    }
+    let exr = doefab::io::exr::read_exr(&out.join("psf.exr"), Some("530nm")).unwrap();
+    assert_eq!(exr.pitch, Some([4.29e-6, 4.29e-6]));
+    assert!(exr.metadata.iter().any(|(k, v)| k == "method" && v == "matrix_dft"));
+    assert!(exr.metadata.iter().any(|(k, v)| k == "wavelengths_m" && v == "6.35e-7,5.3e-7,4.5e-7"));
+}
+
+#[test]
+fn a_finite_object_focuses_at_the_thin_lens_image_distance() {
+    // Point source 0.2 m before the DOE, DOE 2 mm before the lens: the image forms at
+    // 1/d_i = 1/g - 1/(z_o + d_phi). The brightest pixel is there, not 3% nearer or farther,
+    // and as bright as an object at infinity in focus scaled by (g / B)^2, B = d_phi + d_i -
+    // d_phi d_i / g the distance that sets the image-side aperture angle.
+    let (z_o, d_phi, g) = (0.2, 2e-3, 7e-3);
+    let d_i = 1.0 / (1.0 / g - 1.0 / (z_o + d_phi));
+    let doe = flat(204, 5e-6);
+    let peak = |ds: f64, m: Method| {
+        let s = OpticalSystem {
+            object_distance: if ds == g { None } else { Some(z_o) },
+            lens_to_sensor: ds,
+            sensor_pitch: 0.5e-6,
+            crop: 41,
+            subsample: 1,
+            ..f7(0.5e-6, 41)
+        };
+        let psf = simulate(&s, &doe, m, &Options::default()).unwrap();
+        psf.peak(0).0 * psf.channels[0].captured.unwrap()
+    };
+    let at = peak(d_i, Method::MatrixDft);
+    assert!(at > 1.5 * peak(d_i * 0.97, Method::MatrixDft));
+    assert!(at > 1.5 * peak(d_i * 1.03, Method::MatrixDft));
+    let infinity = peak(g, Method::MatrixDft);
+    let b = d_phi + d_i - d_phi * d_i / g;
+    assert!((at / infinity / (g / b).powi(2) - 1.0).abs() < 2e-3, "{at} vs {infinity}");
+    assert_eq!(Method::from_name("angular-spectrum").unwrap(), Method::AngularSpectrum);
+    assert!(Method::from_name("fft").unwrap_err().to_string().contains("unknown method 'fft'"));
+}
