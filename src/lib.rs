@@ -15,6 +15,7 @@
 //!   ISO 25178 height parameters.
 //! * [`optics`]: the optical system and the DOE's PSF by several propagation methods.
 //! * [`rng`]: the seeded generator behind every stochastic step.
+//! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
 //! * [`error`]: the library's error type.
 
 pub mod design;
@@ -26,6 +27,7 @@ pub mod material;
 pub mod metrology;
 pub mod optics;
 pub mod rng;
+pub mod table;
 pub mod units;
 
 pub use error::{Error, Result};

@@ -22,6 +22,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::table::{column_unit, hermite, pchip_slopes, read_two_columns};
 
 /// A dispersion formula; lengths in the formula are micrometres, as the sources give them.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -185,61 +186,26 @@ impl Material {
     /// then one `wavelength,n` pair per line, wavelengths strictly increasing. Blank lines and
     /// `#` comments are skipped. Errors name the file and the line.
     pub fn read_table_csv(path: &Path) -> Result<Material> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-        let mut lines = text
-            .lines()
-            .enumerate()
-            .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
-        let Some((_, header)) = lines.next() else {
-            return Err(Error::format(path, "empty index table (expected a header 'wavelength_nm,n')"));
-        };
-        let cols: Vec<String> = header.split(',').map(|c| c.trim().to_ascii_lowercase()).collect();
-        if cols.len() != 2 || !cols[0].starts_with("wavelength") || cols[1] != "n" {
-            return Err(Error::format(
-                path,
-                format!("line 1: header must be 'wavelength_nm,n' (or wavelength_um, wavelength_m), got '{header}'"),
-            ));
+        let t = read_two_columns(path, "wavelength_nm,n")?;
+        if t.header[1] != "n" {
+            return Err(Error::format(path, format!("second column must be 'n', got '{}'", t.header[1])));
         }
-        let unit = cols[0]["wavelength".len()..].trim_matches(|c: char| c == '_' || c.is_whitespace());
-        let unit = unit.trim_start_matches(['(', '[']).trim_end_matches([')', ']']).trim();
-        let scale = match unit {
-            "nm" => 1e-9,
-            "um" | "µm" | "μm" | "micron" => 1e-6,
-            "m" => 1.0,
-            other => {
-                return Err(Error::format(
-                    path,
-                    format!("line 1: wavelength column names no unit ('{other}'): write wavelength_nm, wavelength_um or wavelength_m"),
-                ))
-            }
-        };
-        let mut wl = Vec::new();
+        let scale = column_unit(path, &t.header[0], "wavelength")?;
+        let mut wl: Vec<f64> = Vec::new();
         let mut n = Vec::new();
-        for (ln, line) in lines {
-            let f: Vec<&str> = line.split(',').map(str::trim).collect();
-            if f.len() != 2 {
+        for &(line, l, index) in &t.rows {
+            if l <= 0.0 || index <= 0.0 {
+                return Err(Error::format(path, format!("line {line}: wavelength and n must be positive")));
+            }
+            if wl.last().is_some_and(|&prev| l * scale <= prev) {
                 return Err(Error::format(
                     path,
-                    format!("line {}: expected 2 fields, got {}", ln + 1, f.len()),
+                    format!("line {line}: wavelength {l} does not increase on the previous row"),
                 ));
             }
-            let num = |s: &str, what: &str| {
-                s.parse::<f64>().ok().filter(|v| v.is_finite() && *v > 0.0).ok_or_else(|| {
-                    Error::format(path, format!("line {}: {what} '{s}' is not a positive number", ln + 1))
-                })
-            };
-            let l = num(f[0], "wavelength")? * scale;
-            if let Some(&prev) = wl.last() {
-                if l <= prev {
-                    return Err(Error::format(
-                        path,
-                        format!("line {}: wavelength {} does not increase on the previous row", ln + 1, f[0]),
-                    ));
-                }
-            }
-            wl.push(l);
-            n.push(num(f[1], "n")?);
+            wl.push(l * scale);
+            n.push(index);
         }
         if wl.len() < 2 {
             return Err(Error::format(path, format!("needs at least two rows, got {}", wl.len())));
@@ -295,7 +261,7 @@ impl Material {
                 let l2 = l * l;
                 (1.0 + b.iter().zip(c).map(|(b, c)| b * l2 / (l2 - c)).sum::<f64>()).sqrt()
             }
-            Dispersion::Table { wavelength: x, n } => pchip_eval(x, n, wavelength),
+            Dispersion::Table { wavelength: x, n } => hermite(x, n, &pchip_slopes(x, n), wavelength),
         })
     }
 
@@ -313,52 +279,6 @@ fn check_range(name: &str, r: [f64; 2]) -> Result<()> {
         ));
     }
     Ok(())
-}
-
-/// PCHIP evaluation (Fritsch and Carlson 1980): Hermite cubic with slopes that are the
-/// weighted harmonic mean of the neighbouring secants where they agree in sign, else 0, and
-/// one-sided three-point end slopes limited to keep the shape (as SciPy's `PchipInterpolator`).
-/// `t` is clamped to the table's range.
-fn pchip_eval(x: &[f64], y: &[f64], t: f64) -> f64 {
-    let n = x.len();
-    let h: Vec<f64> = x.windows(2).map(|w| w[1] - w[0]).collect();
-    let d: Vec<f64> = (0..n - 1).map(|k| (y[k + 1] - y[k]) / h[k]).collect();
-    let mut m = vec![d[0]; n];
-    if n > 2 {
-        for k in 1..n - 1 {
-            m[k] = if d[k - 1] * d[k] <= 0.0 {
-                0.0
-            } else {
-                let (w1, w2) = (2.0 * h[k] + h[k - 1], h[k] + 2.0 * h[k - 1]);
-                (w1 + w2) / (w1 / d[k - 1] + w2 / d[k])
-            };
-        }
-        let end = |h0: f64, h1: f64, d0: f64, d1: f64| {
-            let s = ((2.0 * h0 + h1) * d0 - h0 * d1) / (h0 + h1);
-            if s * d0 <= 0.0 {
-                0.0
-            } else if d0 * d1 < 0.0 && s.abs() > 3.0 * d0.abs() {
-                3.0 * d0
-            } else {
-                s
-            }
-        };
-        m[0] = end(h[0], h[1], d[0], d[1]);
-        m[n - 1] = end(h[n - 2], h[n - 3], d[n - 2], d[n - 3]);
-    } else {
-        m[1] = d[0];
-    }
-    let t = t.clamp(x[0], x[n - 1]);
-    let k = match x.partition_point(|&v| v <= t) {
-        0 => 0,
-        p => (p - 1).min(n - 2),
-    };
-    let s = (t - x[k]) / h[k];
-    let (s2, s3) = (s * s, s * s * s);
-    (2.0 * s3 - 3.0 * s2 + 1.0) * y[k]
-        + (s3 - 2.0 * s2 + s) * h[k] * m[k]
-        + (-2.0 * s3 + 3.0 * s2) * y[k + 1]
-        + (s3 - s2) * h[k] * m[k + 1]
 }
 
 /// Cauchy coefficients (A, B, C) through three (lambda_um, n) points: a 3 x 3 linear solve in

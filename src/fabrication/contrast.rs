@@ -7,10 +7,8 @@
 //! positive resist "depth" is the developed (removed) depth; for a negative resist it is the
 //! remaining thickness. Either way depth must rise strictly with dose.
 //!
-//! Interpolation is the monotone piecewise-cubic Hermite scheme of Fritsch & Carlson (SIAM J.
-//! Numer. Anal. 17(2), 238-246, 1980), slopes by the harmonic mean of Fritsch & Butland (1984),
-//! as in `scipy.interpolate.PchipInterpolator`: it never overshoots the data, so its inverse
-//! exists and is unique. The inverse is found by bisection on the forward curve, so forward
+//! Interpolation is monotone PCHIP ([`crate::table`]): it never overshoots the data, so its
+//! inverse exists and is unique. The inverse is found by bisection on the forward curve, so forward
 //! and inverse agree to round-off.
 
 use std::path::{Path, PathBuf};
@@ -18,6 +16,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::table::{column_unit, hermite, pchip_slopes, read_two_columns};
 
 /// A monotone contrast curve. Invariants: at least 2 points, doses strictly increasing in
 /// [0, 1], depths strictly increasing.
@@ -75,50 +74,13 @@ impl ContrastCurve {
 
     /// Reads the CSV described in the module docs.
     pub fn read_csv(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let mut lines = text
-            .lines()
-            .enumerate()
-            .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
-        let Some((_, header)) = lines.next() else {
-            return Err(Error::format(path, "empty contrast curve"));
-        };
-        let cols: Vec<String> = header.split(',').map(|c| c.trim().to_ascii_lowercase()).collect();
-        if cols.len() != 2 || cols[0] != "dose" {
-            return Err(Error::format(
-                path,
-                format!("header must be 'dose,depth_nm' (or depth_um, depth_m), got '{header}'"),
-            ));
+        let t = read_two_columns(path, "dose,depth_nm")?;
+        if t.header[0] != "dose" {
+            return Err(Error::format(path, format!("first column must be 'dose', got '{}'", t.header[0])));
         }
-        let scale = match cols[1].as_str() {
-            "depth_nm" => 1e-9,
-            "depth_um" => 1e-6,
-            "depth_m" => 1.0,
-            other => {
-                return Err(Error::format(
-                    path,
-                    format!("depth column '{other}' names no unit: expected depth_nm, depth_um or depth_m"),
-                ))
-            }
-        };
-        let mut dose = Vec::new();
-        let mut depth = Vec::new();
-        for (ln, line) in lines {
-            let f: Vec<&str> = line.split(',').map(str::trim).collect();
-            if f.len() != 2 {
-                return Err(Error::format(
-                    path,
-                    format!("line {}: expected 2 fields, got {}", ln + 1, f.len()),
-                ));
-            }
-            let num = |s: &str, what: &str| {
-                s.parse::<f64>().map_err(|_| {
-                    Error::format(path, format!("line {}: {what} '{s}' is not a number", ln + 1))
-                })
-            };
-            dose.push(num(f[0], "dose")?);
-            depth.push(num(f[1], "depth")? * scale);
-        }
+        let scale = column_unit(path, &t.header[1], "depth")?;
+        let dose = t.rows.iter().map(|r| r.1).collect();
+        let depth = t.rows.iter().map(|r| r.2 * scale).collect();
         ContrastCurve::new(dose, depth, path)
     }
 
@@ -129,23 +91,7 @@ impl ContrastCurve {
 
     /// Developed depth at relative `dose` (clamped to the curve's dose range).
     pub fn depth_at(&self, dose: f64) -> f64 {
-        let x = &self.dose;
-        let d = dose.clamp(x[0], x[x.len() - 1]);
-        let k = match x.partition_point(|&v| v <= d) {
-            0 => 0,
-            p => (p - 1).min(x.len() - 2),
-        };
-        let h = x[k + 1] - x[k];
-        let t = (d - x[k]) / h;
-        let (t2, t3) = (t * t, t * t * t);
-        let h00 = 2.0 * t3 - 3.0 * t2 + 1.0;
-        let h10 = t3 - 2.0 * t2 + t;
-        let h01 = -2.0 * t3 + 3.0 * t2;
-        let h11 = t3 - t2;
-        h00 * self.depth[k]
-            + h10 * h * self.slopes[k]
-            + h01 * self.depth[k + 1]
-            + h11 * h * self.slopes[k + 1]
+        hermite(&self.dose, &self.depth, &self.slopes, dose)
     }
 
     /// The dose that develops `depth`; an error if the curve does not reach it.
@@ -172,35 +118,6 @@ impl ContrastCurve {
         }
         Ok(0.5 * (a + b))
     }
-}
-
-/// Fritsch-Butland harmonic-mean slopes with one-sided three-point end slopes (as SciPy's
-/// `PchipInterpolator`); for strictly increasing data every slope is positive.
-fn pchip_slopes(x: &[f64], y: &[f64]) -> Vec<f64> {
-    let n = x.len();
-    let h: Vec<f64> = x.windows(2).map(|w| w[1] - w[0]).collect();
-    let delta: Vec<f64> = (0..n - 1).map(|k| (y[k + 1] - y[k]) / h[k]).collect();
-    if n == 2 {
-        return vec![delta[0], delta[0]];
-    }
-    let mut m = vec![0.0; n];
-    for k in 1..n - 1 {
-        let (w1, w2) = (2.0 * h[k] + h[k - 1], h[k] + 2.0 * h[k - 1]);
-        m[k] = (w1 + w2) / (w1 / delta[k - 1] + w2 / delta[k]);
-    }
-    let end = |h0: f64, h1: f64, d0: f64, d1: f64| {
-        let s = ((2.0 * h0 + h1) * d0 - h0 * d1) / (h0 + h1);
-        if s.signum() != d0.signum() {
-            0.0
-        } else if d0.signum() != d1.signum() && s.abs() > 3.0 * d0.abs() {
-            3.0 * d0
-        } else {
-            s
-        }
-    };
-    m[0] = end(h[0], h[1], delta[0], delta[1]);
-    m[n - 1] = end(h[n - 2], h[n - 3], delta[n - 2], delta[n - 3]);
-    m
 }
 
 #[cfg(test)]
