@@ -532,8 +532,30 @@ fn demo(cli: &Cli, output: &Path) -> Result<()> {
         }
         reports.push(report);
     }
+    // The optics stage: the built-in design's RGB PSF by the single-transform method.
+    use doefab::optics::{output as psf_out, Method, Options};
+    let loaded = chain::load_design(&source)?;
+    let system = psf_out::system_for(&loaded.heights);
+    let psf_dir = output.join("psf");
+    let pb = progress(cli, 1);
+    pb.set_message("PSF of the built-in design");
+    let psf = psf_out::simulate_and_write(
+        &loaded.heights,
+        &system,
+        Method::MatrixDft,
+        &Options::default(),
+        &psf_dir,
+    )?;
+    pb.finish_and_clear();
+    warn(&psf.warnings);
     if cli.json {
-        println!("{}", serde_json::to_string_pretty(&reports)?);
+        let all = serde_json::json!({ "fabrication": reports, "psf": psf });
+        println!("{}", serde_json::to_string_pretty(&all)?);
+    } else if !cli.quiet {
+        println!("psf: {}", psf_dir.display());
+        for f in &psf.files {
+            println!("  {}", psf_dir.join(f).display());
+        }
     }
     Ok(())
 }

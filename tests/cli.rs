@@ -359,8 +359,14 @@ fn demo_runs_every_stage_on_the_built_in_design() {
     let d = common::tempdir();
     let out = d.path().join("demo");
     let s = ok(&["demo", "-o", out.to_str().unwrap(), "--json"]);
-    let reports: Vec<serde_json::Value> = serde_json::from_str(&s).unwrap();
+    let all: serde_json::Value = serde_json::from_str(&s).unwrap();
+    let reports = all["fabrication"].as_array().unwrap();
     assert_eq!(reports.len(), 3);
+    let psf = &all["psf"];
+    assert_eq!(psf["channels"].as_array().unwrap().len(), 3);
+    for f in psf["files"].as_array().unwrap() {
+        assert!(out.join("psf").join(f.as_str().unwrap()).exists(), "{f} missing");
+    }
     let kinds: Vec<&str> = reports
         .iter()
         .flat_map(|r| r["artifacts"].as_array().unwrap())
@@ -369,7 +375,7 @@ fn demo_runs_every_stage_on_the_built_in_design() {
     for k in ["grayscale_mask", "gds_mask_set", "stl", "report_markdown"] {
         assert!(kinds.contains(&k), "the demo wrote no {k}");
     }
-    for r in &reports {
+    for r in reports {
         assert_eq!(r["provenance"]["design"], "built-in:paper");
         for a in r["artifacts"].as_array().unwrap() {
             let path = PathBuf::from(a["path"].as_str().unwrap());
