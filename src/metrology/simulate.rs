@@ -177,6 +177,47 @@ pub fn simulate_scan(design: &Grid, p: &SimulateParams) -> Result<Grid> {
     Grid::new(values, pitch, Unit::Metre)?.with_mask(valid)
 }
 
+/// Parses "X,Y" lengths (e.g. "3.2um,-1.7um") into metres; one value means X = Y.
+pub fn parse_length_pair(text: &str) -> Result<[f64; 2]> {
+    let v: Vec<f64> = text.split(',').map(crate::units::parse_length).collect::<Result<_>>()?;
+    match v.as_slice() {
+        [x] => Ok([*x, *x]),
+        [x, y] => Ok([*x, *y]),
+        _ => Err(Error::param("length pair", format!("'{text}': expected X or X,Y"))),
+    }
+}
+
+/// Parses plane slopes "SX[,SY]" (dimensionless; one value is a slope along x only).
+pub fn parse_slopes(text: &str) -> Result<[f64; 2]> {
+    let v: Vec<f64> = text
+        .split(',')
+        .map(|t| {
+            t.trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| Error::param("tilt", format!("'{text}': '{t}' is not a number")))
+        })
+        .collect::<Result<_>>()?;
+    match v.as_slice() {
+        [x] => Ok([*x, 0.0]),
+        [x, y] => Ok([*x, *y]),
+        _ => Err(Error::param("tilt", format!("'{text}': expected SX or SX,SY"))),
+    }
+}
+
+/// Parses a scan size "N" (square) or "COLSxROWS" into `(rows, cols)`.
+pub fn parse_size(text: &str) -> Result<(usize, usize)> {
+    let bad = || Error::param("size", format!("'{text}': expected N or COLSxROWS (e.g. 2048x1536)"));
+    let n: Vec<usize> =
+        text.split('x').map(|t| t.trim().parse::<usize>().map_err(|_| bad())).collect::<Result<_>>()?;
+    match n.as_slice() {
+        [k] if *k > 0 => Ok((*k, *k)),
+        [c, r] if *c > 0 && *r > 0 => Ok((*r, *c)),
+        _ => Err(bad()),
+    }
+}
+
 /// Writes a scan as `.x3p` (f64, NaN for non-measured) or `.gsf` (f32), chosen by extension.
 pub fn write_scan(path: &Path, scan: &Grid) -> Result<()> {
     let values =
@@ -215,6 +256,19 @@ mod tests {
             1e-6 * (-r2 / 50.0).exp()
         });
         Grid::new(v, [1e-6, 1e-6], Unit::Metre).unwrap()
+    }
+
+    #[test]
+    fn command_line_values_parse() {
+        assert_eq!(parse_length_pair("3um,-2um").unwrap(), [3e-6, -2e-6]);
+        assert_eq!(parse_length_pair("1mm").unwrap(), [1e-3, 1e-3]);
+        assert!(parse_length_pair("3,2").is_err());
+        assert_eq!(parse_slopes("1e-4").unwrap(), [1e-4, 0.0]);
+        assert_eq!(parse_slopes("1e-4,-2e-4").unwrap(), [1e-4, -2e-4]);
+        assert!(parse_slopes("a").is_err());
+        assert_eq!(parse_size("2048x1536").unwrap(), (1536, 2048));
+        assert_eq!(parse_size("64").unwrap(), (64, 64));
+        assert!(parse_size("0").is_err() && parse_size("3x").is_err());
     }
 
     #[test]
