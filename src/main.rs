@@ -175,6 +175,57 @@ enum Command {
         #[arg(long, value_enum, default_value_t = SurfaceArg::Auto)]
         surface: SurfaceArg,
     },
+    /// A synthetic fabricated scan of a design (.x3p or .gsf): lateral blur, depth scale,
+    /// offset, tilt, placement (rotation, shift, scale, mirror), complement, noise, missing points.
+    SimulateScan {
+        /// Height map file, or built-in:paper / built-in:fresnel.
+        design: String,
+        /// Output scan (.x3p or .gsf).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Gaussian lateral blur (standard deviation), e.g. "2um".
+        #[arg(long, value_parser = clap_length, default_value = "0nm")]
+        blur: f64,
+        #[arg(long, default_value_t = 1.0)]
+        depth_scale: f64,
+        /// Height offset, e.g. "100nm".
+        #[arg(long, value_parser = clap_length, default_value = "0nm")]
+        offset: f64,
+        /// Plane slopes "SX[,SY]" (dz/dx, dz/dy), e.g. "1e-4".
+        #[arg(long, default_value = "0", allow_hyphen_values = true)]
+        tilt: String,
+        /// Counter-clockwise rotation of the part, e.g. "0.3deg".
+        #[arg(long, default_value = "0deg", allow_hyphen_values = true)]
+        rotate: String,
+        /// Shift of the part "X,Y", e.g. "3.2um,-1.7um".
+        #[arg(long, default_value = "0um,0um", allow_hyphen_values = true)]
+        shift: String,
+        /// Lateral scale of the part.
+        #[arg(long, default_value_t = 1.0)]
+        scale: f64,
+        /// The part is mirrored (x -> -x), as a replica is.
+        #[arg(long)]
+        mirror: bool,
+        /// The part is the height complement of the design (a cast).
+        #[arg(long)]
+        complement: bool,
+        /// White Gaussian noise (standard deviation), e.g. "20nm".
+        #[arg(long, value_parser = clap_length, default_value = "0nm")]
+        noise: f64,
+        /// Fraction of non-measured points, e.g. "5%".
+        #[arg(long, default_value = "0")]
+        missing: String,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Scan pitch (default: the design's).
+        #[arg(long, value_parser = clap_length)]
+        scan_pitch: Option<f64>,
+        /// Scan size "N" or "COLSxROWS" (default: the design's extent).
+        #[arg(long)]
+        size: Option<String>,
+        #[command(flatten)]
+        read: ReadArgs,
+    },
     /// What a profilometer scan holds: size, pitch, units, valid fraction, warnings, ISO 25178
     /// height parameters (raw and after removing the least-squares plane).
     ScanInfo {
@@ -384,6 +435,59 @@ fn run(cli: &Cli) -> Result<()> {
                     meta.size_px[0],
                     meta.size_px[1],
                     meta.bits,
+                    output.display()
+                )
+            })
+        }
+        Command::SimulateScan {
+            design,
+            output,
+            blur,
+            depth_scale,
+            offset,
+            tilt,
+            rotate,
+            shift,
+            scale,
+            mirror,
+            complement,
+            noise,
+            missing,
+            seed,
+            scan_pitch,
+            size,
+            read,
+        } => {
+            use doefab::metrology::simulate as sim;
+            let loaded = chain::load_design(&DesignSource::parse(Some(design), read.options()?))?;
+            let params = sim::SimulateParams {
+                blur: *blur,
+                depth_scale: *depth_scale,
+                offset: *offset,
+                tilt: sim::parse_slopes(tilt)?,
+                pose: doefab::metrology::register::Pose {
+                    mirror: *mirror,
+                    rotation: doefab::units::parse_angle(rotate)?,
+                    scale: *scale,
+                    shift: sim::parse_length_pair(shift)?,
+                },
+                complement: *complement,
+                noise: *noise,
+                missing: doefab::units::parse_fraction(missing)?,
+                seed: *seed,
+                pitch: scan_pitch.map(|p| [p, p]),
+                size: size.as_deref().map(sim::parse_size).transpose()?,
+            };
+            let scan = sim::simulate_scan(&loaded.heights, &params)?;
+            sim::write_scan(output, &scan)?;
+            let (rows, cols) = scan.dim();
+            print_result(cli, &params, || {
+                println!(
+                    "{} x {} scan of {} ({:.1}% measured) -> {}",
+                    cols,
+                    rows,
+                    loaded.name,
+                    100.0 * scan.valid_count() as f64 / (rows * cols) as f64,
                     output.display()
                 )
             })

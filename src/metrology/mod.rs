@@ -9,4 +9,6 @@ pub mod fill;
 pub mod info;
 pub mod level;
 pub mod outliers;
+pub mod register;
+pub mod simulate;
 pub mod stats;

@@ -1,0 +1,83 @@
+//! `doefab simulate-scan` through its files, and registration of what it wrote to the design.
+
+mod common;
+
+use std::process::Command;
+
+use doefab::design::PAPER_PITCH;
+use doefab::fabrication::chain::{load_design, DesignSource};
+use doefab::io::heightmap::ReadOptions;
+use doefab::io::scan::{read_scan, ScanOptions};
+use doefab::metrology::register::{register, RegisterOptions};
+
+fn doefab(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_doefab")).args(args).output().expect("doefab runs")
+}
+
+#[test]
+fn a_simulated_x3p_scan_of_the_built_in_design_registers_to_the_injected_pose() {
+    let dir = common::tempdir();
+    let out = dir.path().join("scan.x3p");
+    // Half the design's resolution: 653 x 653 samples at 8.58 um.
+    let o = doefab(&[
+        "simulate-scan",
+        "built-in:paper",
+        "--blur",
+        "2um",
+        "--depth-scale",
+        "0.95",
+        "--noise",
+        "20nm",
+        "--tilt",
+        "1e-4,-2e-5",
+        "--rotate",
+        "-0.4deg",
+        "--shift",
+        "12.5um,-7.3um",
+        "--mirror",
+        "--complement",
+        "--missing",
+        "10%",
+        "--scan-pitch",
+        "8.58um",
+        "--seed",
+        "5",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let scan = read_scan(&out, &ScanOptions::default()).unwrap();
+    assert_eq!(scan.grid.dim(), (653, 653));
+    assert_eq!(scan.grid.pitch(), [8.58e-6, 8.58e-6]);
+    let missing = 1.0 - scan.grid.valid_count() as f64 / (653.0 * 653.0);
+    assert!((0.1..0.2).contains(&missing), "{missing}");
+    let design = load_design(&DesignSource::BuiltIn("paper".into())).unwrap().heights;
+    let r = register(&design, &scan.grid, &RegisterOptions::default()).unwrap();
+    assert!(r.pose.mirror && r.complement, "{r:?}");
+    let e = [(r.pose.shift[0] - 12.5e-6) / PAPER_PITCH, (r.pose.shift[1] + 7.3e-6) / PAPER_PITCH];
+    assert!(e[0].abs() <= 0.02 && e[1].abs() <= 0.02, "{e:?} {r:?}");
+    assert!((r.pose.rotation.to_degrees() + 0.4).abs() <= 0.01, "{r:?}");
+    assert!((r.depth_scale / 0.95 - 1.0).abs() <= 0.005, "{r:?}");
+    assert!((r.tilt[0] - 1e-4).abs() < 1e-6 && (r.tilt[1] + 2e-5).abs() < 1e-6, "{r:?}");
+}
+
+#[test]
+fn simulate_scan_writes_gsf_and_refuses_other_formats() {
+    let dir = common::tempdir();
+    let gsf = dir.path().join("s.gsf");
+    let o = doefab(&["simulate-scan", "built-in:paper", "--size", "96x64", "-o", gsf.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let scan = read_scan(&gsf, &ScanOptions::default()).unwrap();
+    assert_eq!(scan.grid.dim(), (64, 96));
+    // The centre of the design with no blur, noise or shift: the design's own samples (f32).
+    let design = load_design(&DesignSource::parse(Some("built-in:paper"), ReadOptions::default())).unwrap();
+    let d = design.heights.values();
+    for (i, j) in [(0, 0), (31, 47), (63, 95)] {
+        let want = d[[653 - 32 + i, 653 - 48 + j]];
+        assert!((scan.grid.values()[[i, j]] - want).abs() < 1e-12, "{i} {j}");
+    }
+    let png = dir.path().join("s.png");
+    let o = doefab(&["simulate-scan", "built-in:paper", "-o", png.to_str().unwrap()]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains(".x3p or .gsf"));
+    assert!(!png.exists());
+}
