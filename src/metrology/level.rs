@@ -91,9 +91,9 @@ fn lstsq(points: &[(usize, usize, f64)], m: usize, basis: impl Fn(f64, f64, &mut
     solve(a, b, m)
 }
 
-/// Solves the symmetric `m x m` normal equations `a x = b` (row-major `a`) by Gaussian
-/// elimination with partial pivoting.
-fn solve(mut a: Vec<f64>, mut b: Vec<f64>, m: usize) -> Result<Vec<f64>> {
+/// Solves the `m x m` system `a x = b` (row-major `a`) by Gaussian elimination with partial
+/// pivoting; refuses pivots below 1e-12 of the largest diagonal entry.
+pub(crate) fn solve(mut a: Vec<f64>, mut b: Vec<f64>, m: usize) -> Result<Vec<f64>> {
     let scale = (0..m).map(|k| a[k * m + k]).fold(0.0f64, f64::max);
     // Gaussian elimination with partial pivoting.
     for col in 0..m {

@@ -379,32 +379,10 @@ fn level_img(img: &mut Img, w: &[f64]) {
     }
 }
 
-/// Solves the `n x n` system `a x = r` by Gaussian elimination with partial pivoting.
+/// Solves the `n x n` system `a x = r` ([`crate::metrology::level::solve`]); `None` where it
+/// is singular or the solution is not finite.
 fn solve(a: &mut [f64], r: &mut [f64], n: usize) -> Option<Vec<f64>> {
-    for c in 0..n {
-        let p = (c..n).max_by(|&x, &y| a[x * n + c].abs().total_cmp(&a[y * n + c].abs()))?;
-        if a[p * n + c].abs() < 1e-300 || !a[p * n + c].is_finite() {
-            return None;
-        }
-        if p != c {
-            for k in 0..n {
-                a.swap(p * n + k, c * n + k);
-            }
-            r.swap(p, c);
-        }
-        for row in c + 1..n {
-            let f = a[row * n + c] / a[c * n + c];
-            for k in c..n {
-                a[row * n + k] -= f * a[c * n + k];
-            }
-            r[row] -= f * r[c];
-        }
-    }
-    let mut x = vec![0.0; n];
-    for c in (0..n).rev() {
-        let s: f64 = (c + 1..n).map(|k| a[c * n + k] * x[k]).sum();
-        x[c] = (r[c] - s) / a[c * n + c];
-    }
+    let x = crate::metrology::level::solve(a.to_vec(), r.to_vec(), n).ok()?;
     x.iter().all(|v| v.is_finite()).then_some(x)
 }
 
