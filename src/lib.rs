@@ -14,6 +14,7 @@
 //! * [`metrology`]: profilometer scans (read by [`io::scan`]): levelling, outliers, filling,
 //!   ISO 25178 height parameters.
 //! * [`optics`]: the optical system and the DOE's PSF by several propagation methods.
+//! * [`report`]: charts and false-colour maps (plotters, embedded font).
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
 //! * [`error`]: the library's error type.
@@ -26,6 +27,7 @@ pub mod io;
 pub mod material;
 pub mod metrology;
 pub mod optics;
+pub mod report;
 pub mod rng;
 pub mod table;
 pub mod units;

@@ -1,0 +1,111 @@
+//! Reports for people: charts and false-colour maps, drawn with `plotters`.
+//!
+//! Every chart is drawn twice from one drawing function, once into an RGB buffer written as
+//! PNG (through [`crate::io::png`], atomically) and once as SVG. Text uses DejaVu Sans,
+//! embedded in the binary (`assets/fonts/`, Bitstream Vera licence), so charts look the same
+//! on every machine and need no system fonts.
+
+use std::path::Path;
+
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+
+use crate::error::{Error, Result};
+use crate::io::atomic::write_bytes;
+
+/// The family name under which the embedded font is registered; use it in `TextStyle`s.
+pub const FONT: &str = "sans-serif";
+
+static DEJAVU_SANS: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
+
+/// Registers the embedded font with plotters (idempotent).
+pub fn register_font() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        // The bytes are a valid TrueType font shipped with the crate; a failure here would be
+        // a packaging error, and plotters then draws no text rather than failing.
+        let _ = plotters::style::register_font(FONT, FontStyle::Normal, DEJAVU_SANS);
+    });
+}
+
+fn chart_error(path: &Path, e: impl std::fmt::Display) -> Error {
+    Error::format(path, format!("drawing the chart failed: {e}"))
+}
+
+/// Draws `draw` into a `width` x `height` RGB bitmap and writes it as an 8-bit PNG at `path`.
+pub fn write_png_chart<F>(path: &Path, width: u32, height: u32, draw: F) -> Result<()>
+where
+    F: FnOnce(&DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>) -> std::result::Result<(), String>,
+{
+    register_font();
+    let mut rgb = vec![255u8; (width * height * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut rgb, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| chart_error(path, e))?;
+        draw(&root).map_err(|e| chart_error(path, e))?;
+        root.present().map_err(|e| chart_error(path, e))?;
+    }
+    let mut bytes = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut bytes, width, height);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut w = enc.write_header().map_err(|e| chart_error(path, e))?;
+        w.write_image_data(&rgb).map_err(|e| chart_error(path, e))?;
+    }
+    write_bytes(path, &bytes)
+}
+
+/// Draws `draw` as an SVG document of `width` x `height` and writes it at `path`.
+pub fn write_svg_chart<F>(path: &Path, width: u32, height: u32, draw: F) -> Result<()>
+where
+    F: FnOnce(&DrawingArea<SVGBackend<'_>, plotters::coord::Shift>) -> std::result::Result<(), String>,
+{
+    register_font();
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (width, height)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| chart_error(path, e))?;
+        draw(&root).map_err(|e| chart_error(path, e))?;
+        root.present().map_err(|e| chart_error(path, e))?;
+    }
+    write_bytes(path, svg.as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn png_chart_has_text_and_a_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("c.png");
+        write_png_chart(&path, 320, 240, |root| {
+            let mut chart = ChartBuilder::on(root)
+                .caption("y = x", (FONT, 20))
+                .margin(10)
+                .x_label_area_size(30)
+                .y_label_area_size(30)
+                .build_cartesian_2d(0.0..1.0, 0.0..1.0)
+                .map_err(|e| e.to_string())?;
+            chart.configure_mesh().draw().map_err(|e| e.to_string())?;
+            chart
+                .draw_series(LineSeries::new((0..=10).map(|i| (i as f64 / 10.0, i as f64 / 10.0)), &RED))
+                .map_err(|e| e.to_string())?;
+            Ok(())
+        })
+        .unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        let red = img.pixels().filter(|p| p[0] > 200 && p[1] < 60 && p[2] < 60).count();
+        let dark = img.pixels().filter(|p| p[0] < 80 && p[1] < 80 && p[2] < 80).count();
+        assert!(red > 100, "the red line is drawn ({red} px)");
+        assert!(dark > 200, "axes and caption text are drawn ({dark} px)");
+        let svg_path = dir.path().join("c.svg");
+        write_svg_chart(&svg_path, 320, 240, |root| {
+            root.draw(&Text::new("label", (10, 10), (FONT, 12).into_font())).map_err(|e| e.to_string())
+        })
+        .unwrap();
+        let svg = std::fs::read_to_string(&svg_path).unwrap();
+        assert!(svg.starts_with("<svg") && svg.contains("label"));
+    }
+}
