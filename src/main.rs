@@ -240,7 +240,22 @@ enum Command {
         /// Height per count for integer images without a scale, e.g. "0.1nm".
         #[arg(long, value_parser = clap_length)]
         z_scale: Option<f64>,
+        /// Levelling before the "levelled" statistics: least-squares plane, facet levelling, or
+        /// a plane through the substrate (outside `--aperture`, else the lowest level).
+        #[arg(long, value_enum, default_value_t = LevelArg::Plane)]
+        level: LevelArg,
+        /// Diameter of the part's aperture, centred on the scan, for `--level substrate`.
+        #[arg(long, value_parser = clap_length)]
+        aperture: Option<f64>,
     },
+}
+
+/// Levelling choice on the command line (`scan-info --level`).
+#[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
+enum LevelArg {
+    Plane,
+    Facet,
+    Substrate,
 }
 
 /// Mesher choice on the command line.
@@ -492,14 +507,23 @@ fn run(cli: &Cli) -> Result<()> {
                 )
             })
         }
-        Command::ScanInfo { file, pitch, z_unit, z_scale } => {
+        Command::ScanInfo { file, pitch, z_unit, z_scale, level, aperture } => {
             let opts = doefab::io::scan::ScanOptions {
                 pitch: pitch.map(|p| [p, p]),
                 z_unit: z_unit.as_deref().map(length_unit).transpose()?,
                 z_scale: *z_scale,
                 ..Default::default()
             };
-            let info = doefab::metrology::info::scan_info(file, &opts)?;
+            use doefab::metrology::level::LevelMethod;
+            let method = match level {
+                LevelArg::Plane => LevelMethod::Plane,
+                LevelArg::Facet => LevelMethod::Facet,
+                LevelArg::Substrate => LevelMethod::Substrate { aperture: *aperture },
+            };
+            if aperture.is_some() && *level != LevelArg::Substrate {
+                anyhow::bail!("--aperture applies to --level substrate only");
+            }
+            let info = doefab::metrology::info::scan_info(file, &opts, method)?;
             warn(&info.warnings);
             print_result(cli, &info, || print!("{}", info.summary()))
         }

@@ -313,7 +313,7 @@ fn scan_info_command_prints_the_statistics() {
     assert!((v["valid_fraction"].as_f64().unwrap() - 0.98).abs() < 1e-12);
     let sa = v["levelled"]["sa"].as_f64().unwrap();
     assert!((sa * 1e9 - S3_PLANE.v[0]).abs() < 1e-6 * S3_PLANE.v[0], "{sa}");
-    assert!((v["plane"]["a"].as_f64().unwrap() - 328.636652e-9).abs() < 1e-6 * 328.6e-9);
+    assert!((v["levelling"]["plane"]["a"].as_f64().unwrap() - 328.636652e-9).abs() < 1e-6 * 328.6e-9);
     // Human output, and a refusal that names the missing option.
     let out = std::process::Command::new(exe)
         .arg("scan-info")

@@ -1,5 +1,5 @@
 //! What `doefab scan-info` reports: a scan's geometry, validity, warnings and ISO 25178 height
-//! parameters, raw and after removing the least-squares plane.
+//! parameters, raw and after levelling (least-squares plane unless another method is asked for).
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use crate::error::Result;
 use crate::io::scan::{read_scan, Scan, ScanFormat, ScanOptions};
-use crate::metrology::level::{level_plane, Plane};
+use crate::metrology::level::{level, LevelMethod, Levelling};
 use crate::metrology::stats::{height_params, HeightParams};
 use crate::units::format_length;
 
@@ -30,20 +30,20 @@ pub struct ScanInfo {
     pub warnings: Vec<String>,
     /// Height parameters of the scan as read (reference: the mean).
     pub raw: HeightParams,
-    /// The least-squares plane fitted on the valid samples (per pixel).
-    pub plane: Plane,
+    /// The levelling applied: method, plane removed (per pixel) and what it was fitted on.
+    pub levelling: Levelling,
     /// Height parameters after subtracting that plane.
     pub levelled: HeightParams,
     /// The file's own key/values.
     pub metadata: Vec<(String, String)>,
 }
 
-/// Summarises a scan already read from `path`.
-pub fn summarize(path: &Path, scan: &Scan) -> Result<ScanInfo> {
+/// Summarises a scan already read from `path`, levelled by `method`.
+pub fn summarize(path: &Path, scan: &Scan, method: LevelMethod) -> Result<ScanInfo> {
     let g = &scan.grid;
     let (rows, cols) = g.dim();
     let raw = height_params(g)?;
-    let (lev, plane) = level_plane(g, None)?;
+    let (lev, levelling) = level(g, method)?;
     let levelled = height_params(&lev)?;
     Ok(ScanInfo {
         file: path.display().to_string(),
@@ -56,16 +56,16 @@ pub fn summarize(path: &Path, scan: &Scan) -> Result<ScanInfo> {
         valid_fraction: g.valid_count() as f64 / (rows * cols) as f64,
         warnings: scan.warnings.clone(),
         raw,
-        plane,
+        levelling,
         levelled,
         metadata: scan.metadata.clone(),
     })
 }
 
 /// Reads and summarises a scan.
-pub fn scan_info(path: &Path, opts: &ScanOptions) -> Result<ScanInfo> {
+pub fn scan_info(path: &Path, opts: &ScanOptions, method: LevelMethod) -> Result<ScanInfo> {
     let scan = read_scan(path, opts)?;
-    summarize(path, &scan)
+    summarize(path, &scan, method)
 }
 
 impl ScanInfo {
@@ -93,13 +93,26 @@ impl ScanInfo {
             self.size[0] * self.size[1],
             100.0 * self.valid_fraction
         );
+        let l = &self.levelling;
+        let how = match l.method {
+            LevelMethod::Plane => "least-squares plane".to_string(),
+            LevelMethod::Facet => format!("facet levelling, {} iterations", l.iterations.unwrap_or(0)),
+            LevelMethod::Substrate { aperture: Some(d) } => {
+                format!("substrate outside a {} aperture, {} points", format_length(d), l.fitted_points)
+            }
+            LevelMethod::Substrate { aperture: None } => format!("lowest level, {} points", l.fitted_points),
+        };
         let _ = writeln!(
             s,
-            "  plane: a = {}, bx = {} / px, by = {} / px",
-            nm(self.plane.a),
-            nm(self.plane.bx),
-            nm(self.plane.by)
+            "  plane ({how}): a = {}, bx = {} / px, by = {} / px",
+            nm(l.plane.a),
+            nm(l.plane.bx),
+            nm(l.plane.by)
         );
+        if let Some(low) = l.lowest_level {
+            let _ =
+                writeln!(s, "  substrate spread {}, next level at {}", nm(low.spread), nm(low.next_level));
+        }
         let _ = writeln!(s, "  {:<10} {:>14} {:>14}", "", "raw", "levelled");
         let rows: [(&str, f64, f64, bool); 7] = [
             ("Sa", self.raw.sa, self.levelled.sa, true),
