@@ -1,0 +1,20 @@
+#!/bin/sh
+# Fills corpus/TARGET/ with seed inputs: small files written by make_seeds.py plus the
+# third-party reference files (profilometry/ of this repository and, when present beside the
+# checkout or at $SHARED, shared/data/surfaces/). Run from the fuzz/ directory.
+set -e
+python3 make_seeds.py corpus
+S=${SHARED:-../../shared}/data/surfaces
+add() { # TARGET FILE...
+    t=$1; shift
+    mkdir -p "corpus/$t"
+    for f in "$@"; do [ -f "$f" ] && cp "$f" "corpus/$t/$(echo "$f" | tr / _)"; done
+    return 0
+}
+add x3p ../profilometry/*.x3p $S/surfalize/*.x3p $S/surfacetopography/*.x3p
+add gsf ../profilometry/*.gsf
+add sdf_binary $S/sdfio/s1_tilt_pedestal.bin.sdf
+add sdf_ascii $S/gwyddion/s1_tilt_pedestal.sdf
+add sur ../profilometry/*.sur
+add png_pcal ../profilometry/*.png
+add tiff ../profilometry/*.tiff
