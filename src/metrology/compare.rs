@@ -77,7 +77,7 @@ impl Default for CompareOptions {
             levels: None,
             optics: WrapSpec::default(),
             min_coverage: 0.99,
-            fit_side: 384,
+            fit_side: 2048,
             fit_points: 150_000,
         }
     }
@@ -152,6 +152,9 @@ pub struct EfficiencyLoss {
 #[derive(Debug, Clone, Serialize)]
 pub struct Comparison {
     pub registration: Registration,
+    /// Correlation coefficient of the part and the design over the central [`INTERIOR`] of the
+    /// aperture (the aperture's edge left out): the confidence that the scan shows this design.
+    pub interior_correlation: f64,
     /// The as-fabricated surface on the design grid (invalid: not measured or outside the scan).
     #[serde(skip)]
     pub surface: Grid,
@@ -184,7 +187,8 @@ fn centred(g: &Grid, i: usize, j: usize) -> [f64; 2] {
 ///
 /// Errors: a scan whose footprint is smaller than the aperture, or that covers less than
 /// `min_coverage` of it once registered; a registration that is refused (no match, ambiguous,
-/// featureless) is returned as [`Error::Registration`].
+/// featureless), or whose part correlates with the design by less than the registration's
+/// `min_correlation` inside the aperture, is returned as [`Error::Registration`].
 pub fn compare(design: &Grid, scan: &Grid, opts: &CompareOptions) -> Result<Comparison> {
     for (name, g) in [("design", design), ("scan", scan)] {
         if g.unit() != Unit::Metre {
@@ -231,6 +235,17 @@ pub fn compare(design: &Grid, scan: &Grid, opts: &CompareOptions) -> Result<Comp
             coverage * 100.0,
             aperture * 1e3,
             opts.min_coverage * 100.0
+        )));
+    }
+    let interior_correlation = interior_correlation(design, &surface, aperture);
+    if !(interior_correlation >= opts.register.min_correlation) {
+        return Err(Error::Registration(format!(
+            "the scan does not match the design inside the aperture: correlation {interior_correlation:.3} \
+             over the central {:.0}% of the aperture is below {:.2} (the registration correlation of {:.3} \
+             comes from the aperture's edge or the overall shape, not the design's structure)",
+            100.0 * INTERIOR,
+            opts.register.min_correlation,
+            reg.correlation
         )));
     }
     let (nr, nc) = design.dim();
@@ -291,6 +306,7 @@ pub fn compare(design: &Grid, scan: &Grid, opts: &CompareOptions) -> Result<Comp
     let efficiency = efficiency_loss(&opts.optics, opts.levels.map(|l| l.count), model.depth_scale)?;
     Ok(Comparison {
         registration: reg,
+        interior_correlation,
         surface,
         difference,
         aperture,
@@ -304,6 +320,31 @@ pub fn compare(design: &Grid, scan: &Grid, opts: &CompareOptions) -> Result<Comp
         efficiency,
         warnings,
     })
+}
+
+/// Fraction of the aperture's diameter over which [`Comparison::interior_correlation`] runs.
+pub const INTERIOR: f64 = 0.9;
+
+/// Pearson correlation of `surface` and `design` over the measured samples within
+/// `INTERIOR * aperture / 2` of the centre (NaN when there are none or either is constant).
+fn interior_correlation(design: &Grid, surface: &Grid, aperture: f64) -> f64 {
+    let r2 = (0.5 * INTERIOR * aperture).powi(2);
+    let (nr, nc) = design.dim();
+    let mut m = [0.0f64; 6];
+    for i in 0..nr {
+        for j in 0..nc {
+            let x = centred(design, i, j);
+            if x[0] * x[0] + x[1] * x[1] <= r2 && design.is_valid(i, j) && surface.is_valid(i, j) {
+                let (a, b) = (surface.values()[[i, j]], design.values()[[i, j]]);
+                for (k, v) in [1.0, a, b, a * a, b * b, a * b].iter().enumerate() {
+                    m[k] += v;
+                }
+            }
+        }
+    }
+    let [n, sa, sb, saa, sbb, sab] = m;
+    let cov = sab / n - sa * sb / (n * n);
+    cov / ((saa / n - (sa / n).powi(2)) * (sbb / n - (sb / n).powi(2))).sqrt()
 }
 
 /// The scan on the design grid (module docs), the aperture mask and the fraction of the
@@ -431,25 +472,32 @@ struct LinFit {
 fn fit_at_blur(window: &Grid, pts: &[([f64; 2], f64, [f64; 2])], sigma: f64) -> Result<LinFit> {
     let blurred = gaussian_blur(window, sigma)?;
     let sampler = Sampler::new(&blurred);
+    let hs: Vec<Option<f64>> = pts.iter().map(|(xd, _, _)| sampler.at_position(*xd)).collect();
+    // Columns scaled to order 1 (heights per micrometre, positions per millimetre) so that the
+    // normal equations stay well conditioned.
+    let (hu, xu) = (1e-6, 1e-3);
     let mut a = [0.0; 16];
     let mut r = [0.0; 4];
-    let mut zz = 0.0;
-    let mut n = 0usize;
-    for (xd, z, xs) in pts {
-        let Some(h) = sampler.at_position(*xd) else { continue };
-        let f = [h, 1.0, xs[0], xs[1]];
+    for ((_, z, xs), h) in pts.iter().zip(&hs) {
+        let Some(h) = *h else { continue };
+        let f = [h / hu, 1.0, xs[0] / xu, xs[1] / xu];
         for p in 0..4 {
             r[p] += f[p] * z;
             for q in 0..4 {
                 a[p * 4 + q] += f[p] * f[q];
             }
         }
-        zz += z * z;
-        n += 1;
     }
     let x = crate::metrology::level::solve(a.to_vec(), r.to_vec(), 4)?;
-    // SSE = z.z - x . (F^T z) at the least-squares solution.
-    let sse = (zz - x.iter().zip(&r).map(|(u, v)| u * v).sum::<f64>()).max(0.0);
+    let x = [x[0] / hu, x[1], x[2] / xu, x[3] / xu];
+    // The residuals summed directly (z.z - x.F^T z would cancel catastrophically).
+    let (mut sse, mut n) = (0.0, 0usize);
+    for ((_, z, xs), h) in pts.iter().zip(&hs) {
+        if let Some(h) = *h {
+            sse += (z - x[0] * h - x[1] - x[2] * xs[0] - x[3] * xs[1]).powi(2);
+            n += 1;
+        }
+    }
     Ok(LinFit { sse, k: x[0], b: x[1], n })
 }
 
@@ -628,6 +676,156 @@ pub fn psf_comparison(
     let mut warnings = a.warnings.clone();
     warnings.extend(b.warnings.iter().filter(|w| !a.warnings.contains(w)).cloned());
     Ok(PsfComparison { method: method.name().into(), channels, filled_samples, warnings })
+}
+
+/// The reference surface a part is compared with: the design itself, or, given the chain's
+/// parameters (a recipe or a level count), the design wrapped and quantized as the recipe makes
+/// it (design side, not the master), with its level spec. Also returns the optics of the
+/// efficiency prediction.
+pub fn reference_surface(
+    design: &crate::fabrication::chain::LoadedDesign,
+    chain: Option<&crate::fabrication::chain::ChainParams>,
+) -> Result<(Grid, Option<LevelSpec>, WrapSpec)> {
+    match chain {
+        None => Ok((design.heights.clone(), None, WrapSpec::default())),
+        Some(p) => {
+            let p = crate::fabrication::chain::ChainParams {
+                replica_mode: crate::fabrication::ReplicaMode::Design,
+                ..p.clone()
+            };
+            let prep = crate::fabrication::chain::prepare(design, &p)?;
+            let q = prep.quantized;
+            let spec = LevelSpec { count: q.level_count, step: q.period / q.level_count as f64 };
+            Ok((q.heights, Some(spec), p.wrap_spec()?))
+        }
+    }
+}
+
+/// What `doefab compare` reports and writes as `compare.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct CompareReport {
+    pub scan: String,
+    pub design: String,
+    pub design_sha256: String,
+    pub units: String,
+    /// Problems the scan reader reported.
+    pub scan_warnings: Vec<String>,
+    #[serde(flatten)]
+    pub comparison: Comparison,
+    pub psf: Option<PsfComparison>,
+    /// Files written, relative to the output folder.
+    pub files: Vec<String>,
+}
+
+/// `surface.json`: how `surface.exr` was made.
+#[derive(Serialize)]
+struct SurfaceMeta<'a> {
+    units: &'static str,
+    pitch: [f64; 2],
+    scan: &'a str,
+    design: &'a str,
+    registration: &'a Registration,
+    height_reference: &'static str,
+    measured_fraction: f64,
+    filled_samples: usize,
+}
+
+/// Compares a scan with a reference surface, computes the PSF comparison (unless `psf` is
+/// `None`; skipped with a warning where the method's validity guard refuses the part's surface
+/// and the options do not force it) and writes the outputs into `out` at once: `compare.json`, `surface.exr` (the part
+/// on the design grid, non-measured samples filled, readable by `doefab psf`) with
+/// `surface.json`, false-colour maps `design.png`, `scan.png`, `difference.png`,
+/// `profiles.png` and `histogram.png`. `step` is called before each stage.
+#[allow(clippy::too_many_arguments)]
+pub fn compare_and_write(
+    scan_path: &std::path::Path,
+    scan: &crate::io::scan::Scan,
+    design: &crate::fabrication::chain::LoadedDesign,
+    reference: &Grid,
+    opts: &CompareOptions,
+    psf: Option<(crate::optics::Method, &crate::optics::Options)>,
+    out: &std::path::Path,
+    step: &mut dyn FnMut(&str),
+) -> Result<CompareReport> {
+    use crate::report::metrology_charts::{height_histogram, height_map, profiles, Palette};
+    step("register and compare");
+    let mut c = compare(reference, &scan.grid, opts)?;
+    let (filled, filled_samples) = crate::metrology::fill::fill_missing(&c.surface)?;
+    let psf = match psf {
+        Some((method, o)) => {
+            step("design and as-fabricated PSFs");
+            let mut system = crate::optics::output::system_for(reference);
+            system.material = opts.optics.material.clone();
+            system.aperture = c.aperture;
+            match psf_comparison(reference, &filled, &system, method, o) {
+                Ok(p) => Some(p),
+                Err(Error::Validity(m)) => {
+                    c.warnings.push(format!("the PSF comparison was skipped: {m}"));
+                    None
+                }
+                Err(e) => return Err(e),
+            }
+        }
+        None => None,
+    };
+    step("write");
+    let mut stage = crate::io::atomic::StagedDir::new(out)?;
+    let scan_name = scan_path.display().to_string();
+    let meta = SurfaceMeta {
+        units: "lengths and heights in metres, angles in radians",
+        pitch: reference.pitch(),
+        scan: &scan_name,
+        design: &design.name,
+        registration: &c.registration,
+        height_reference:
+            "sign(a) (z - b - tilt . x): the scan's plane and offset removed, depth errors kept",
+        measured_fraction: c.measured_fraction,
+        filled_samples,
+    };
+    let json = serde_json::to_string(&meta).map_err(|e| Error::Data(e.to_string()))?;
+    let exr_meta = crate::io::heightmap::Metadata::heights(reference.pitch())
+        .with("quantity", "height")
+        .with("surface", json);
+    crate::io::exr::write_exr(
+        &stage.stage_path("surface.exr"),
+        &[("height", &filled.values().mapv(|v| v as f32))],
+        &exr_meta,
+    )?;
+    crate::io::atomic::write_json(&stage.stage_path("surface.json"), &meta)?;
+    height_map(&stage.stage_path("design.png"), reference, "design", Palette::Sequential)?;
+    height_map(&stage.stage_path("scan.png"), &c.surface, "part (registered scan)", Palette::Sequential)?;
+    height_map(&stage.stage_path("difference.png"), &c.difference, "part - design", Palette::Diverging)?;
+    profiles(&stage.stage_path("profiles.png"), reference, &c.surface)?;
+    let heights: Vec<f64> = c
+        .surface
+        .values()
+        .indexed_iter()
+        .filter(|((i, j), _)| c.difference.is_valid(*i, *j))
+        .map(|(_, v)| *v)
+        .collect();
+    let (dl, ml): (Vec<f64>, Vec<f64>) = c
+        .levels
+        .as_ref()
+        .map_or((vec![], vec![]), |l| l.levels.iter().map(|s| (s.design_height, s.mean)).unzip());
+    height_histogram(&stage.stage_path("histogram.png"), &heights, &dl, &ml)?;
+    let files = ["compare.json", "surface.exr", "surface.json", "design.png", "scan.png", "difference.png"]
+        .iter()
+        .chain(&["profiles.png", "histogram.png"])
+        .map(|s| s.to_string())
+        .collect();
+    let report = CompareReport {
+        scan: scan_name,
+        design: design.name.clone(),
+        design_sha256: design.sha256.clone(),
+        units: "lengths and heights in metres, angles in radians".into(),
+        scan_warnings: scan.warnings.clone(),
+        comparison: c,
+        psf,
+        files,
+    };
+    crate::io::atomic::write_json(&stage.stage_path("compare.json"), &report)?;
+    stage.commit()?;
+    Ok(report)
 }
 
 #[cfg(test)]
@@ -870,5 +1068,33 @@ mod tests {
             assert!((c.strehl_vs_design / want - 1.0).abs() < 0.01, "{c:?} vs {want}");
             assert!(c.relative_l2 > 0.0);
         }
+    }
+
+    /// A Fresnel lens in the same circular aperture registers on the aperture's edge alone; the
+    /// interior correlation refuses it.
+    #[test]
+    fn a_part_matching_only_at_the_aperture_edge_is_refused() {
+        let d = paper(300);
+        let aperture = 0.9 * 300.0 * PAPER_PITCH;
+        let c = (300.0 - 1.0) * 0.5;
+        let f = Array2::from_shape_fn((300, 300), |(i, j)| {
+            let r2 = ((i as f64 - c).powi(2) + (j as f64 - c).powi(2)) * PAPER_PITCH * PAPER_PITCH;
+            if r2 <= 0.25 * aperture * aperture {
+                1.2e-6 * (r2 / 4.2e-8).fract()
+            } else {
+                0.0
+            }
+        });
+        let f = Grid::new(f, [PAPER_PITCH; 2], Unit::Metre).unwrap();
+        let scan = simulate_scan(&f, &SimulateParams { noise: 5e-9, ..Default::default() }).unwrap();
+        let opts = CompareOptions { aperture: Some(aperture), ..Default::default() };
+        match compare(&d, &scan, &opts) {
+            Err(Error::Registration(m)) => assert!(m.contains("inside the aperture"), "{m}"),
+            other => panic!("expected a registration error, got {other:?}"),
+        }
+        // The design's own scan passes the same check.
+        let own = simulate_scan(&d, &SimulateParams { noise: 5e-9, ..Default::default() }).unwrap();
+        let c = compare(&d, &own, &opts).unwrap();
+        assert!(c.interior_correlation > 0.99, "{}", c.interior_correlation);
     }
 }
