@@ -25,6 +25,10 @@ pub enum Error {
     /// A numerical method would run outside its validity range (sampling, aliasing, conditioning).
     #[error("outside the method's validity: {0}")]
     Validity(String),
+    /// A scan could not be registered to its design: it does not match, the match is
+    /// ambiguous (periodic or rotationally symmetric design) or the scan is featureless.
+    #[error("registration refused: {0}")]
+    Registration(String),
     /// A size limit would be exceeded.
     #[error("{0}")]
     Limit(String),

@@ -226,6 +226,51 @@ enum Command {
         #[command(flatten)]
         read: ReadArgs,
     },
+    /// Compare a scan of the fabricated part with its design: registration, difference map,
+    /// RMS/PV error, level step heights, fabrication model (depth scale, offset, blur),
+    /// efficiency loss, design vs as-fabricated PSF; JSON, maps, profiles, histogram and the
+    /// part in the design frame (surface.exr, readable by `doefab psf`). Exit status 3 when the
+    /// scan cannot be registered to the design (no match, ambiguous or featureless).
+    Compare {
+        /// Scan file (.x3p, .gsf, .sdf, .sur, .dat, .xyz, .txt/.csv/.asc, .png, .tif, .npy).
+        scan: PathBuf,
+        /// Height map file, or built-in:paper / built-in:fresnel.
+        #[arg(long)]
+        design: String,
+        /// Output folder.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Process recipe: compare with the design wrapped and quantized as it makes it.
+        #[arg(long)]
+        recipe: Option<PathBuf>,
+        /// Level count (overrides the recipe's; without a recipe, wraps and quantizes the
+        /// design at --wavelength / --material / --order).
+        #[arg(long)]
+        levels: Option<usize>,
+        /// Clear-aperture diameter (default: 5 mm for built-in:paper, else the largest circle
+        /// in the design grid).
+        #[arg(long, value_parser = clap_length)]
+        aperture: Option<f64>,
+        /// PSF method for the design vs as-fabricated comparison, or "none".
+        #[arg(long, default_value = "matrix_dft")]
+        psf_method: String,
+        /// Compute the PSFs even where the method's validity conditions fail (as warnings).
+        #[arg(long)]
+        allow_invalid: bool,
+        /// Scan sample pitch, e.g. "1um" (for scan files that carry none).
+        #[arg(long, value_parser = clap_length)]
+        scan_pitch: Option<f64>,
+        /// Unit of the scan's stored heights, e.g. "nm" (for scan files that state none).
+        #[arg(long)]
+        scan_z_unit: Option<String>,
+        /// Height per count of an integer scan image without a scale, e.g. "0.1nm".
+        #[arg(long, value_parser = clap_length)]
+        scan_z_scale: Option<f64>,
+        #[command(flatten)]
+        read: ReadArgs,
+        #[command(flatten)]
+        optics: OpticsArgs,
+    },
     /// What a profilometer scan holds: size, pitch, units, valid fraction, warnings, ISO 25178
     /// height parameters (raw and after removing the least-squares plane).
     ScanInfo {
@@ -305,6 +350,9 @@ struct OpticsArgs {
     order: u32,
 }
 
+/// Exit status of a scan that cannot be registered to its design (`doefab compare`).
+const EXIT_UNREGISTERED: u8 = 3;
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match run(&cli) {
@@ -314,7 +362,10 @@ fn main() -> ExitCode {
             for cause in e.chain().skip(1) {
                 eprintln!("  caused by: {cause}");
             }
-            ExitCode::from(2)
+            let unregistered = e
+                .chain()
+                .any(|c| matches!(c.downcast_ref::<doefab::Error>(), Some(doefab::Error::Registration(_))));
+            ExitCode::from(if unregistered { EXIT_UNREGISTERED } else { 2 })
         }
     }
 }
@@ -507,6 +558,49 @@ fn run(cli: &Cli) -> Result<()> {
                 )
             })
         }
+        Command::Compare {
+            scan,
+            design,
+            output,
+            recipe,
+            levels,
+            aperture,
+            psf_method,
+            allow_invalid,
+            scan_pitch,
+            scan_z_unit,
+            scan_z_scale,
+            read,
+            optics,
+        } => {
+            let scan_opts = doefab::io::scan::ScanOptions {
+                pitch: scan_pitch.map(|p| [p, p]),
+                z_unit: scan_z_unit.as_deref().map(length_unit).transpose()?,
+                z_scale: *scan_z_scale,
+                ..Default::default()
+            };
+            let source = DesignSource::parse(Some(design), read.options()?);
+            let chain = match (recipe, levels) {
+                (Some(r), _) => {
+                    let r = Recipe::read(r)?;
+                    let n = levels.unwrap_or(r.level_count);
+                    Some(chain_params_of_recipe(&r, n))
+                }
+                (None, Some(n)) => {
+                    Some(chain_params(optics, *n, QuantizeMethod::Round, ReplicaMode::Design, 1e-6, false))
+                }
+                (None, None) => None,
+            };
+            let psf =
+                (psf_method != "none").then(|| doefab::optics::Method::from_name(psf_method)).transpose()?;
+            let psf = psf.map(|m| (m, doefab::optics::Options { allow_invalid: *allow_invalid }));
+            let report = compare(cli, scan, &scan_opts, &source, chain.as_ref(), *aperture, psf, output)?;
+            warn(&report.comparison.warnings);
+            if let Some(p) = &report.psf {
+                warn(&p.warnings);
+            }
+            print_result(cli, &report, || print_comparison(&report, output))
+        }
         Command::ScanInfo { file, pitch, z_unit, z_scale, level, aperture } => {
             let opts = doefab::io::scan::ScanOptions {
                 pitch: pitch.map(|p| [p, p]),
@@ -593,6 +687,118 @@ fn chain_params(
     }
 }
 
+fn chain_params_of_recipe(r: &Recipe, level_count: usize) -> ChainParams {
+    ChainParams {
+        wavelength: r.wavelength,
+        material: r.material.clone(),
+        order: r.order,
+        level_count,
+        quantization: r.quantization,
+        replica_mode: ReplicaMode::Design,
+        min_feature: r.min_feature,
+        fill: false,
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn compare(
+    cli: &Cli,
+    scan_path: &Path,
+    scan_opts: &doefab::io::scan::ScanOptions,
+    source: &DesignSource,
+    chain: Option<&ChainParams>,
+    aperture: Option<f64>,
+    psf: Option<(doefab::optics::Method, doefab::optics::Options)>,
+    output: &Path,
+) -> Result<doefab::metrology::compare::CompareReport> {
+    use doefab::metrology::compare::{compare_and_write, reference_surface, CompareOptions};
+    let pb = progress(cli, 4);
+    pb.set_message("read");
+    let scan = doefab::io::scan::read_scan(scan_path, scan_opts)?;
+    warn(&scan.warnings);
+    let design = chain::load_design(source)?;
+    let (reference, levels, optics) = reference_surface(&design, chain)?;
+    let aperture = aperture
+        .or(matches!(source, DesignSource::BuiltIn(n) if n == "paper")
+            .then_some(doefab::design::PAPER_APERTURE));
+    let opts = CompareOptions { aperture, levels, optics, ..Default::default() };
+    let report = compare_and_write(
+        scan_path,
+        &scan,
+        &design,
+        &reference,
+        &opts,
+        psf.as_ref().map(|(m, o)| (*m, o)),
+        output,
+        &mut |s: &str| {
+            pb.inc(1);
+            pb.set_message(s.to_string());
+        },
+    )?;
+    pb.finish_and_clear();
+    Ok(report)
+}
+
+fn print_comparison(r: &doefab::metrology::compare::CompareReport, output: &Path) {
+    let c = &r.comparison;
+    let g = &c.registration;
+    println!(
+        "registered: shift ({:.3}, {:.3}) um, rotation {:.4} deg, scale {:.5}, mirror {}, complement {}, \
+         correlation {:.4}",
+        g.pose.shift[0] * 1e6,
+        g.pose.shift[1] * 1e6,
+        g.pose.rotation.to_degrees(),
+        g.pose.scale,
+        g.pose.mirror,
+        g.complement,
+        g.correlation
+    );
+    println!(
+        "error over the {:.3} mm aperture: RMS {:.2} nm, PV {:.2} nm, mean {:.2} nm ({:.1}% measured)",
+        c.aperture * 1e3,
+        c.rms_error * 1e9,
+        c.pv_error * 1e9,
+        c.mean_error * 1e9,
+        c.measured_fraction * 100.0
+    );
+    let m = &c.model;
+    println!(
+        "fabrication model: depth scale {:.4}, offset {:.2} nm, blur {:.3} +- {:.3} um, residual {:.2} nm RMS",
+        m.depth_scale,
+        m.offset * 1e9,
+        m.blur * 1e6,
+        m.blur_sigma * 1e6,
+        m.rms_residual * 1e9
+    );
+    if let Some(l) = &c.levels {
+        println!(
+            "{} levels: mean step {:.2} nm (nominal {:.2} nm), spread {:.2} nm",
+            l.count,
+            l.mean_step * 1e9,
+            l.step * 1e9,
+            l.step_std * 1e9
+        );
+    }
+    for e in &c.efficiency {
+        println!(
+            "  {:5.1} nm: efficiency {:.4} -> {:.4} (loss {:.4})",
+            e.wavelength * 1e9,
+            e.design,
+            e.fabricated,
+            e.loss
+        );
+    }
+    if let Some(p) = &r.psf {
+        for ch in &p.channels {
+            println!(
+                "  PSF {}: Strehl vs design {:.4}, relative L2 {:.4}",
+                ch.name, ch.strehl_vs_design, ch.relative_l2
+            );
+        }
+    }
+    println!("wrote {}", output.display());
+}
+
 fn print_efficiency(rows: &[doefab::fabrication::quantize::EfficiencyRow]) {
     println!("  wavelength  n        detuning  eta(order)  eta(continuous)");
     for r in rows {
@@ -676,8 +882,52 @@ fn demo(cli: &Cli, output: &Path) -> Result<()> {
     )?;
     pb.finish_and_clear();
     warn(&psf.warnings);
+    // The metrology stage: a synthetic scan of the part the 8-level recipe makes (cast:
+    // mirrored, complemented, 5% too shallow, blurred, tilted, noisy, 10% missing), compared
+    // with the design.
+    use doefab::metrology::simulate::{simulate_scan, write_scan, SimulateParams};
+    let metro = output.join("metrology");
+    let recipe = Recipe::read(&masks.join("binary-3mask-8level.toml"))?;
+    let params = chain_params_of_recipe(&recipe, recipe.level_count);
+    let (part, _, _) = doefab::metrology::compare::reference_surface(&loaded, Some(&params))?;
+    let sp = SimulateParams {
+        blur: 2e-6,
+        depth_scale: 0.95,
+        offset: 0.1e-6,
+        tilt: [1e-4, -5e-5],
+        pose: doefab::metrology::register::Pose {
+            mirror: true,
+            rotation: 0.3f64.to_radians(),
+            scale: 1.0,
+            shift: [3.2e-6, -1.7e-6],
+        },
+        complement: true,
+        noise: 20e-9,
+        missing: 0.1,
+        seed: 1,
+        ..Default::default()
+    };
+    let scan_path = metro.join("scan.x3p");
+    std::fs::create_dir_all(&metro).with_context(|| format!("creating {}", metro.display()))?;
+    write_scan(&scan_path, &simulate_scan(&part, &sp)?)?;
+    let cmp_dir = metro.join("compare");
+    let cmp = compare(
+        cli,
+        &scan_path,
+        &doefab::io::scan::ScanOptions::default(),
+        &source,
+        Some(&params),
+        None,
+        Some((Method::MatrixDft, Options { allow_invalid: true })),
+        &cmp_dir,
+    )?;
+    warn(&cmp.comparison.warnings);
+    if !cli.quiet && !cli.json {
+        println!("simulated scan: {}", scan_path.display());
+        print_comparison(&cmp, &cmp_dir);
+    }
     if cli.json {
-        let all = serde_json::json!({ "fabrication": reports, "psf": psf });
+        let all = serde_json::json!({ "fabrication": reports, "psf": psf, "metrology": cmp });
         println!("{}", serde_json::to_string_pretty(&all)?);
     } else if !cli.quiet {
         println!("psf: {}", psf_dir.display());

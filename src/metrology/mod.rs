@@ -1,10 +1,12 @@
 //! Metrology of fabricated surfaces: ISO 25178 height parameters ([`stats`]), form removal
-//! ([`level`]), outlier detection ([`outliers`]) and filling of non-measured points ([`fill`]).
+//! ([`level`]), outlier detection ([`outliers`]), filling of non-measured points ([`fill`]),
+//! registration to the design ([`register`]) and the comparison with it ([`compare`]).
 //!
 //! Everything works on a [`crate::grid::Grid`] of heights and reads valid samples only: a
 //! non-measured point (an invalid sample of the grid's mask) never enters a sum, a fit or a
 //! statistic. Scans are read by [`crate::io::scan::read_scan`].
 
+pub mod compare;
 pub mod fill;
 pub mod info;
 pub mod level;

@@ -5,6 +5,8 @@
 //! embedded in the binary (`assets/fonts/`, Bitstream Vera licence), so charts look the same
 //! on every machine and need no system fonts.
 
+pub mod metrology_charts;
+
 use std::path::Path;
 
 use plotters::prelude::*;

@@ -1,0 +1,308 @@
+//! Charts of the metrology comparison: false-colour height maps with a colour bar in nm,
+//! profiles through the centre (design against the part) and the height histogram with the
+//! level heights marked. PNG through [`write_png_chart`].
+
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use super::{write_png_chart, FONT};
+use crate::error::Result;
+use crate::grid::Grid;
+
+/// Most map pixels drawn per side (larger grids are shown by nearest-sample decimation).
+const MAP_SIDE: usize = 560;
+
+/// Colour maps of [`height_map`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Palette {
+    /// Perceptually ordered dark blue -> green -> yellow (viridis anchors), for heights.
+    Sequential,
+    /// Blue -> white -> red, symmetric about 0, for differences.
+    Diverging,
+}
+
+/// Colour of `t` in [0, 1].
+fn colour(p: Palette, t: f64) -> RGBColor {
+    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
+    let anchors: &[(u8, u8, u8)] = match p {
+        // Viridis at 0, 1/4, 1/2, 3/4, 1 (matplotlib's table).
+        Palette::Sequential => &[(68, 1, 84), (59, 82, 139), (33, 145, 140), (94, 201, 98), (253, 231, 37)],
+        Palette::Diverging => {
+            &[(33, 102, 172), (146, 197, 222), (247, 247, 247), (244, 165, 130), (178, 24, 43)]
+        }
+    };
+    let x = t * (anchors.len() - 1) as f64;
+    let k = (x.floor() as usize).min(anchors.len() - 2);
+    let f = x - k as f64;
+    let mix = |a: u8, b: u8| (a as f64 + f * (b as f64 - a as f64)).round() as u8;
+    let (a, b) = (anchors[k], anchors[k + 1]);
+    RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
+}
+
+/// Range of the valid values (nm). A diverging range is symmetric about 0 and spans the 99th
+/// percentile of `|v|` (a few edge spikes would otherwise wash the map out; larger values are
+/// drawn at the end colours).
+fn range_nm(g: &Grid, p: Palette) -> (f64, f64) {
+    let (lo, hi) = if p == Palette::Diverging {
+        let mut a: Vec<f64> = g
+            .values()
+            .indexed_iter()
+            .filter(|((i, j), _)| g.is_valid(*i, *j))
+            .map(|(_, v)| v.abs() * 1e9)
+            .collect();
+        a.sort_by(f64::total_cmp);
+        let m =
+            a.get(((a.len() as f64 * 0.99) as usize).min(a.len().saturating_sub(1))).copied().unwrap_or(0.0);
+        (-m, m)
+    } else {
+        let (lo, hi) = g.min_max().unwrap_or((0.0, 0.0));
+        (lo * 1e9, hi * 1e9)
+    };
+    if hi > lo {
+        (lo, hi)
+    } else {
+        (lo - 1.0, hi + 1.0)
+    }
+}
+
+fn err(e: impl std::fmt::Display) -> String {
+    e.to_string()
+}
+
+/// A false-colour map of `g` (heights in metres) titled `title`, with a colour bar in nm;
+/// invalid (non-measured) samples are grey. Row 0 at the top.
+pub fn height_map(path: &Path, g: &Grid, title: &str, palette: Palette) -> Result<()> {
+    let (nr, nc) = g.dim();
+    let step = nr.max(nc).div_ceil(MAP_SIDE).max(1);
+    let (h, w) = (nr.div_ceil(step), nc.div_ceil(step));
+    let (lo, hi) = range_nm(g, palette);
+    let (width, height) = (w as u32 + 170, h as u32 + 70);
+    write_png_chart(path, width, height, |root| {
+        let (map_area, bar_area) = root.split_horizontally(w as u32 + 30);
+        map_area.draw(&Text::new(title.to_string(), (15, 10), (FONT, 18).into_font())).map_err(err)?;
+        let mm = [nc as f64 * g.pitch()[0] * 1e3, nr as f64 * g.pitch()[1] * 1e3];
+        map_area
+            .draw(&Text::new(
+                format!("{:.2} x {:.2} mm, {} x {} samples", mm[0], mm[1], nc, nr),
+                (15, h as i32 + 45),
+                (FONT, 13).into_font(),
+            ))
+            .map_err(err)?;
+        for i in 0..h {
+            for j in 0..w {
+                let (si, sj) = (i * step, j * step);
+                let c = if g.is_valid(si, sj) {
+                    colour(palette, (g.values()[[si, sj]] * 1e9 - lo) / (hi - lo))
+                } else {
+                    RGBColor(160, 160, 160)
+                };
+                map_area.draw_pixel((15 + j as i32, 35 + i as i32), &c).map_err(err)?;
+            }
+        }
+        let mut bar = ChartBuilder::on(&bar_area)
+            .margin_top(35)
+            .margin_bottom(35)
+            .margin_right(10)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0.0..1.0, lo..hi)
+            .map_err(err)?;
+        bar.configure_mesh()
+            .disable_x_mesh()
+            .disable_y_mesh()
+            .disable_x_axis()
+            .y_desc("height (nm)")
+            .label_style((FONT, 13))
+            .axis_desc_style((FONT, 14))
+            .draw()
+            .map_err(err)?;
+        let n = 200;
+        bar.draw_series((0..n).map(|k| {
+            let (a, b) = (lo + (hi - lo) * k as f64 / n as f64, lo + (hi - lo) * (k + 1) as f64 / n as f64);
+            Rectangle::new([(0.0, a), (1.0, b)], colour(palette, (k as f64 + 0.5) / n as f64).filled())
+        }))
+        .map_err(err)?;
+        Ok(())
+    })
+}
+
+/// Runs of consecutive valid samples of a profile, as (position mm, height nm) lines.
+fn runs(points: impl Iterator<Item = (f64, Option<f64>)>) -> Vec<Vec<(f64, f64)>> {
+    let mut out: Vec<Vec<(f64, f64)>> = vec![Vec::new()];
+    for (x, v) in points {
+        match v {
+            Some(z) => out.last_mut().map_or((), |r| r.push((x * 1e3, z * 1e9))),
+            None if out.last().is_some_and(|r| !r.is_empty()) => out.push(Vec::new()),
+            None => {}
+        }
+    }
+    out.retain(|r| !r.is_empty());
+    out
+}
+
+/// Profiles through the centre of the design grid along x (centre row) and y (centre column):
+/// the design and the as-fabricated surface, heights in nm against position in mm.
+pub fn profiles(path: &Path, design: &Grid, surface: &Grid) -> Result<()> {
+    let (nr, nc) = design.dim();
+    let (ci, cj) = (nr / 2, nc / 2);
+    let p = design.pitch();
+    let xs = |j: usize| (j as f64 - (nc as f64 - 1.0) * 0.5) * p[0];
+    let ys = |i: usize| (i as f64 - (nr as f64 - 1.0) * 0.5) * p[1];
+    let val = |g: &Grid, i: usize, j: usize| g.is_valid(i, j).then(|| g.values()[[i, j]]);
+    let panels = [
+        (
+            "x (mm), centre row",
+            runs((0..nc).map(|j| (xs(j), val(design, ci, j)))),
+            runs((0..nc).map(|j| (xs(j), val(surface, ci, j)))),
+            (xs(0), xs(nc - 1)),
+        ),
+        (
+            "y (mm), centre column",
+            runs((0..nr).map(|i| (ys(i), val(design, i, cj)))),
+            runs((0..nr).map(|i| (ys(i), val(surface, i, cj)))),
+            (ys(0), ys(nr - 1)),
+        ),
+    ];
+    let all = [design, surface].map(|g| g.min_max().unwrap_or((0.0, 0.0)));
+    let lo = all[0].0.min(all[1].0) * 1e9;
+    let hi = all[0].1.max(all[1].1) * 1e9;
+    let pad = 0.05 * (hi - lo).max(1.0);
+    write_png_chart(path, 1000, 760, |root| {
+        let areas = root.split_evenly((2, 1));
+        for (area, (label, d, s, (x0, x1))) in areas.iter().zip(&panels) {
+            let mut ch = ChartBuilder::on(area)
+                .margin(12)
+                .x_label_area_size(40)
+                .y_label_area_size(70)
+                .build_cartesian_2d(x0 * 1e3..x1 * 1e3, lo - pad..hi + pad)
+                .map_err(err)?;
+            ch.configure_mesh()
+                .x_desc(*label)
+                .y_desc("height (nm)")
+                .label_style((FONT, 13))
+                .axis_desc_style((FONT, 14))
+                .draw()
+                .map_err(err)?;
+            for (k, r) in d.iter().enumerate() {
+                let s =
+                    ch.draw_series(LineSeries::new(r.iter().copied(), BLACK.stroke_width(1))).map_err(err)?;
+                if k == 0 {
+                    s.label("design").legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLACK));
+                }
+            }
+            for (k, r) in s.iter().enumerate() {
+                let s =
+                    ch.draw_series(LineSeries::new(r.iter().copied(), RED.stroke_width(1))).map_err(err)?;
+                if k == 0 {
+                    s.label("part (registered scan)")
+                        .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RED));
+                }
+            }
+            ch.configure_series_labels()
+                .label_font((FONT, 13))
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()
+                .map_err(err)?;
+        }
+        Ok(())
+    })
+}
+
+/// Histogram of `heights` (metres) with the design's level heights (grey) and the measured
+/// level means (red) marked.
+pub fn height_histogram(
+    path: &Path,
+    heights: &[f64],
+    design_levels: &[f64],
+    measured_levels: &[f64],
+) -> Result<()> {
+    let nm: Vec<f64> = heights.iter().filter(|v| v.is_finite()).map(|v| v * 1e9).collect();
+    let marks = design_levels.iter().chain(measured_levels).filter(|v| v.is_finite()).map(|v| v * 1e9);
+    let (lo, hi) = nm
+        .iter()
+        .copied()
+        .chain(marks)
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    let (lo, hi) = if hi > lo { (lo, hi) } else { (lo - 1.0, lo + 1.0) };
+    let bins = 200usize;
+    let width = (hi - lo) / bins as f64;
+    let mut counts = vec![0usize; bins];
+    for v in &nm {
+        counts[(((v - lo) / width) as usize).min(bins - 1)] += 1;
+    }
+    let top = counts.iter().copied().max().unwrap_or(1).max(1) as f64 * 1.05;
+    write_png_chart(path, 1000, 500, |root| {
+        let mut ch = ChartBuilder::on(root)
+            .caption("heights over the aperture", (FONT, 18))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(70)
+            .build_cartesian_2d(lo..hi, 0.0..top)
+            .map_err(err)?;
+        ch.configure_mesh()
+            .x_desc("height (nm)")
+            .y_desc("samples")
+            .label_style((FONT, 13))
+            .axis_desc_style((FONT, 14))
+            .draw()
+            .map_err(err)?;
+        ch.draw_series(counts.iter().enumerate().map(|(k, &c)| {
+            let x = lo + k as f64 * width;
+            Rectangle::new([(x, 0.0), (x + width, c as f64)], RGBColor(59, 82, 139).filled())
+        }))
+        .map_err(err)?
+        .label("part")
+        .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], RGBColor(59, 82, 139).filled()));
+        let grey = RGBColor(120, 120, 120);
+        ch.draw_series(
+            design_levels.iter().map(|v| PathElement::new([(v * 1e9, 0.0), (v * 1e9, top)], grey)),
+        )
+        .map_err(err)?
+        .label("design levels")
+        .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], grey));
+        ch.draw_series(
+            measured_levels
+                .iter()
+                .filter(|v| v.is_finite())
+                .map(|v| PathElement::new([(v * 1e9, 0.0), (v * 1e9, top)], RED.stroke_width(2))),
+        )
+        .map_err(err)?
+        .label("measured level means")
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RED));
+        ch.configure_series_labels()
+            .label_font((FONT, 13))
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(err)?;
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::Unit;
+    use ndarray::Array2;
+
+    /// The map's pixels follow the palette: the lowest sample is viridis' first colour, the
+    /// highest its last, an invalid one grey.
+    #[test]
+    fn height_map_colours_follow_the_values() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.png");
+        let v = Array2::from_shape_fn((40, 60), |(_, j)| j as f64 * 1e-9);
+        let mut mask = Array2::from_elem((40, 60), true);
+        mask[[20, 30]] = false;
+        let g = Grid::new(v, [1e-6; 2], Unit::Metre).unwrap().with_mask(mask).unwrap();
+        height_map(&path, &g, "t", Palette::Sequential).unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (230, 110));
+        // Map pixel (i, j) sits at (15 + j, 35 + i).
+        assert_eq!(img.get_pixel(15, 40).0, [68, 1, 84]);
+        assert_eq!(img.get_pixel(15 + 59, 40).0, [253, 231, 37]);
+        assert_eq!(img.get_pixel(15 + 30, 35 + 20).0, [160, 160, 160]);
+        assert_eq!(colour(Palette::Diverging, 0.5), RGBColor(247, 247, 247));
+    }
+}
