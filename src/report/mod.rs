@@ -5,6 +5,8 @@
 //! embedded in the binary (`assets/fonts/`, Bitstream Vera licence), so charts look the same
 //! on every machine and need no system fonts.
 
+pub mod training_chart;
+
 use std::path::Path;
 
 use plotters::prelude::*;
