@@ -14,11 +14,14 @@
 //! * [`metrology`]: profilometer scans (read by [`io::scan`]): levelling, outliers, filling,
 //!   ISO 25178 height parameters.
 //! * [`optics`]: the optical system and the DOE's PSF by several propagation methods.
+//! * [`decoder`]: the paper's U-Net decoder: weights, measurement model, reconstruction of
+//!   captures, fine-tuning for a fabricated part's PSF.
 //! * [`report`]: charts and false-colour maps (plotters, embedded font).
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
 //! * [`error`]: the library's error type.
 
+pub mod decoder;
 pub mod design;
 pub mod error;
 pub mod fabrication;

@@ -293,6 +293,82 @@ enum Command {
         #[arg(long, value_parser = clap_length)]
         aperture: Option<f64>,
     },
+    /// Reconstruct the linear HDR image of a capture through the DOE with a decoder: EXR plus a
+    /// tone-mapped PNG.
+    Reconstruct {
+        /// The capture: RGB PNG or TIFF, 8 or 16 bits, linear sensor values.
+        capture: PathBuf,
+        /// Decoder file (.safetensors), e.g. the paper's decoder_measured_psf.safetensors.
+        #[arg(long)]
+        decoder: PathBuf,
+        /// Output EXR (linear, 1 = the capture's clipping level).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Tone-mapped PNG (default: the output with the extension .png).
+        #[arg(long)]
+        png: Option<PathBuf>,
+        /// Exposure of the tone-mapped PNG, stops.
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        ev: f64,
+        /// Largest tile fed to the network, pixels (a multiple of 16).
+        #[arg(long, default_value_t = 1024)]
+        tile: usize,
+        /// Context kept around each tile's core, pixels (a multiple of 16; 128 covers the
+        /// receptive field, so tiles then match one pass).
+        #[arg(long, default_value_t = 128)]
+        overlap: usize,
+        /// Write negative outputs as they are instead of max(y, 0).
+        #[arg(long)]
+        keep_negative: bool,
+        /// Run on the GPU (builds with the `cuda` feature).
+        #[arg(long)]
+        gpu: bool,
+    },
+    /// Fine-tune a decoder for a fixed PSF (the measured PSF of a fabricated part).
+    Finetune {
+        /// PSF (.npz or .npy, (H, W, 1, 3) as the paper's).
+        #[arg(long)]
+        psf: PathBuf,
+        /// Array name inside a .npz holding several (e.g. psf_val).
+        #[arg(long)]
+        psf_key: Option<String>,
+        /// PSF pixel pitch (the sensor's).
+        #[arg(long, value_parser = clap_length, default_value = "4.29um")]
+        pitch: f64,
+        /// Initial decoder (default: the paper's simulated-PSF decoder from the shared data).
+        #[arg(long)]
+        init: Option<PathBuf>,
+        /// Folder of HDR training images (.exr, .hdr).
+        #[arg(long)]
+        data: Option<PathBuf>,
+        /// Output folder: checkpoint, decoder, training curve.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Continue the run in the output folder's checkpoint.
+        #[arg(long)]
+        resume: bool,
+        #[arg(long, default_value_t = 1000)]
+        steps: usize,
+        #[arg(long, default_value_t = 8)]
+        batch: usize,
+        /// Crop side, pixels (a multiple of 16).
+        #[arg(long, default_value_t = 320)]
+        crop: usize,
+        /// Adam step size (on --resume, replaces the saved one when given).
+        #[arg(long)]
+        lr: Option<f64>,
+        /// Validate and checkpoint every this many steps.
+        #[arg(long, default_value_t = 100)]
+        checkpoint_every: usize,
+        /// Validation set size.
+        #[arg(long, default_value_t = 8)]
+        validation: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Run on the GPU (builds with the `cuda` feature).
+        #[arg(long)]
+        gpu: bool,
+    },
 }
 
 /// Levelling choice on the command line (`scan-info --level`).
@@ -621,6 +697,34 @@ fn run(cli: &Cli) -> Result<()> {
             warn(&info.warnings);
             print_result(cli, &info, || print!("{}", info.summary()))
         }
+        Command::Reconstruct { capture, decoder, output, png, ev, tile, overlap, keep_negative, gpu } => {
+            use doefab::decoder::reconstruct::{reconstruct_file, Negatives, ReconstructOptions};
+            let opts = ReconstructOptions {
+                tile: *tile,
+                overlap: *overlap,
+                negatives: if *keep_negative { Negatives::Keep } else { Negatives::Clamp },
+            };
+            let png = png.clone().unwrap_or_else(|| output.with_extension("png"));
+            let device = doefab::decoder::device(*gpu);
+            let report = reconstruct_file(capture, decoder, output, &png, *ev, &opts, &device)?;
+            warn(&report.report.warnings);
+            print_result(cli, &report, || {
+                let r = &report.report;
+                println!(
+                    "{} x {} in {} pass(es); raw minimum {:.3}, {} values < 0 and {} < -1 ({}) -> {}, {}",
+                    r.cols,
+                    r.rows,
+                    r.tiles,
+                    r.min_raw,
+                    r.values_below_zero,
+                    r.values_below_minus_one,
+                    if *keep_negative { "kept" } else { "clamped to 0" },
+                    output.display(),
+                    png.display()
+                )
+            })
+        }
+        Command::Finetune { .. } => finetune(cli),
         Command::Gds { levels, output, writer_pitch, mirror } => {
             let report = chain::gds_file(levels, *writer_pitch, *mirror, output)?;
             print_result(cli, &report, || {
@@ -936,4 +1040,97 @@ fn demo(cli: &Cli, output: &Path) -> Result<()> {
         }
     }
     Ok(())
+}
+
+fn finetune(cli: &Cli) -> Result<()> {
+    use doefab::decoder::finetune::{read_psf, FinetuneConfig, ImageSet, SceneSource, Trainer, CHECKPOINT};
+    let Command::Finetune {
+        psf,
+        psf_key,
+        pitch,
+        init,
+        data,
+        output,
+        resume,
+        steps,
+        batch,
+        crop,
+        lr,
+        checkpoint_every,
+        validation,
+        seed,
+        gpu,
+    } = &cli.command
+    else {
+        unreachable!("called for finetune only")
+    };
+    let psf_model = read_psf(psf, psf_key.as_deref(), *pitch)?;
+    let psf_sha = doefab::io::file_sha256(psf)?;
+    let source: Box<dyn SceneSource> = match data {
+        Some(dir) => Box::new(ImageSet::load(dir)?),
+        None => bail!("--data is required: give a folder of HDR training images (.exr, .hdr)"),
+    };
+    let device = doefab::decoder::device(*gpu);
+    let mut trainer = if *resume {
+        let ckpt = output.join(CHECKPOINT);
+        Trainer::resume(&ckpt, &psf_model, &psf_sha, source.as_ref(), *steps, *lr, &device)
+            .with_context(|| format!("resuming from {}", ckpt.display()))?
+    } else {
+        let init = match init {
+            Some(p) => p.clone(),
+            None => doefab::decoder::default_init()?,
+        };
+        let weights = doefab::decoder::weights::DecoderWeights::read(&init)?;
+        let cfg = FinetuneConfig {
+            steps: *steps,
+            batch: *batch,
+            crop: *crop,
+            lr: lr.unwrap_or(1e-4),
+            checkpoint_every: *checkpoint_every,
+            validation: *validation,
+            seed: *seed,
+            ..FinetuneConfig::default()
+        };
+        let net = doefab::decoder::unet::UNet::from_weights(&weights, &device);
+        let desc = format!("{} (sha256 {})", init.display(), doefab::io::file_sha256(&init)?);
+        Trainer::new(net, &psf_model, &psf_sha, source.as_ref(), cfg, &desc)?
+    };
+    let pb = progress(cli, *steps as u64);
+    if let Ok(style) =
+        ProgressStyle::with_template("{bar:30} {pos}/{len} {elapsed_precise} eta {eta_precise} {msg}")
+    {
+        pb.set_style(style);
+    }
+    pb.set_position(trainer.step() as u64);
+    let mut last_psnr = None;
+    let result = trainer.run(output, &mut |r| {
+        last_psnr = r.val_psnr.or(last_psnr);
+        let val = last_psnr.map_or(String::new(), |p: f64| format!(", validation {p:.2} dB"));
+        pb.set_message(format!("loss {:.5}{val}", r.loss));
+        pb.set_position(r.step as u64);
+    });
+    pb.finish_and_clear();
+    if let Err(e) = result {
+        let ckpt = output.join(CHECKPOINT);
+        if ckpt.exists() {
+            return Err(anyhow::Error::new(e)
+                .context(format!("stopped; the last good checkpoint is {}", ckpt.display())));
+        }
+        return Err(e.into());
+    }
+    trainer.write_outputs(output)?;
+    let summary = serde_json::json!({
+        "output": output.display().to_string(),
+        "steps": trainer.step(),
+        "history": trainer.history(),
+    });
+    print_result(cli, &summary, || {
+        let last = trainer.history().iter().rev().find_map(|h| h.val_psnr);
+        println!(
+            "{} steps; validation PSNR {} -> {}",
+            trainer.step(),
+            last.map_or("n/a".into(), |p| format!("{p:.2} dB")),
+            output.display()
+        )
+    })
 }

@@ -1,0 +1,81 @@
+//! The image decoder of the paper: its U-Net ([`unet`]), the weights format ([`weights`]),
+//! the measurement model used to train it ([`simulate`]), reconstruction of captures
+//! ([`reconstruct`]) and fine-tuning for one fabricated part's PSF ([`finetune`]).
+//!
+//! Images here are `(H, W, 3)` `f32` arrays (row-major, channels last, as the paper's NHWC);
+//! the network runs on NCHW burn tensors on the CPU (burn's Flex backend) or, with the `cuda`
+//! feature, on an NVIDIA GPU.
+
+pub mod finetune;
+pub mod reconstruct;
+pub mod simulate;
+pub mod unet;
+pub mod weights;
+
+use burn::tensor::{Device, Tensor, TensorData};
+use ndarray::{Array3, Array4};
+
+use crate::error::Result;
+use unet::{tensor_values, UNet};
+
+/// The device the decoder runs on: the first CUDA GPU when built with the `cuda` feature and
+/// `gpu` is asked for, else burn's Flex CPU backend.
+pub fn device(gpu: bool) -> Device {
+    #[cfg(feature = "cuda")]
+    if gpu {
+        return Device::cuda(0);
+    }
+    let _ = gpu;
+    Device::flex()
+}
+
+/// The paper's decoder trained with the simulated PSF, the default starting point of
+/// fine-tuning: `decoder_simulated_psf.safetensors` in `$DOEFAB_SHARED/data/deepoptics-hdr/`,
+/// else in `../shared/data/deepoptics-hdr/` or `shared/data/deepoptics-hdr/` from the working
+/// directory.
+pub fn default_init() -> Result<std::path::PathBuf> {
+    let rel = "data/deepoptics-hdr/decoder_simulated_psf.safetensors";
+    let mut tried = Vec::new();
+    let bases = std::env::var_os("DOEFAB_SHARED")
+        .map(std::path::PathBuf::from)
+        .into_iter()
+        .chain(["../shared".into(), "shared".into()]);
+    for base in bases {
+        let p = base.join(rel);
+        if p.exists() {
+            return Ok(p);
+        }
+        tried.push(p.display().to_string());
+    }
+    Err(crate::error::Error::param(
+        "init",
+        format!("no decoder given and the paper's simulated-PSF decoder is not at {}", tried.join(", ")),
+    ))
+}
+
+/// A batch of `(H, W, 3)` images as an NCHW tensor on `device`.
+pub fn to_tensor(images: &[&Array3<f32>], device: &Device) -> Tensor<4> {
+    let (h, w, c) = images[0].dim();
+    let mut data: Vec<f32> = Vec::with_capacity(images.len() * h * w * c);
+    for img in images {
+        assert_eq!(img.dim(), (h, w, c), "a batch of one size");
+        for ch in 0..c {
+            data.extend(img.index_axis(ndarray::Axis(2), ch).iter());
+        }
+    }
+    Tensor::from_data(TensorData::new(data, [images.len(), c, h, w]), device)
+}
+
+/// An NCHW tensor back as `(N, H, W, C)`.
+pub fn from_tensor(t: Tensor<4>) -> Result<Array4<f32>> {
+    let [n, c, h, w] = t.dims();
+    let v = tensor_values(t)?;
+    let nchw = Array4::from_shape_vec((n, c, h, w), v).expect("tensor shape");
+    Ok(nchw.permuted_axes([0, 2, 3, 1]).as_standard_layout().to_owned())
+}
+
+/// The network's output for one `(H, W, 3)` image (H, W multiples of 16), no clamping.
+pub fn infer(net: &UNet, x: &Array3<f32>) -> Result<Array3<f32>> {
+    let y = from_tensor(net.forward(to_tensor(&[x], net.device()))?)?;
+    Ok(y.index_axis_move(ndarray::Axis(0), 0))
+}

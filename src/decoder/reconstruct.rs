@@ -1,0 +1,339 @@
+//! Reconstruction of an HDR image from one capture through the DOE.
+//!
+//! * Input: an RGB PNG or TIFF of linear sensor values, 8 or 16 bits per sample, read as
+//!   `x = value / (2^bits - 1)` (the paper's `PNG / 255`; 1 = the clipping level).
+//! * Sizes: the U-Net needs H and W that are multiples of 16. Other sizes are padded at the
+//!   bottom and right by repeating the last row and column (edge replication: zero padding
+//!   would add black border cells, which is where the paper's network makes its large negative
+//!   blobs), and the output is cropped back.
+//! * Tiling: an image larger than the tile is cut into tiles whose cores are written and whose
+//!   overlap (context on every side) is discarded. Tile and core origins are multiples of 16,
+//!   so pooling cells line up with the full image's. The network's receptive field reaches at
+//!   most [`RECEPTIVE_RADIUS`] pixels from an output pixel (bound below); with an overlap at
+//!   least that large every core pixel sees exactly the input it sees in one pass, and tiled
+//!   equals untiled up to float rounding (the gemm blocking differs with the tile size).
+//! * Negative outputs: the network has no output activation. DECODER.md documents large
+//!   negative blobs in near-black areas at the image border (down to -293 on the shared
+//!   Kitchen frame). [`Negatives::Clamp`] (the default) applies the upstream demo's
+//!   `max(y, 0)`; [`Negatives::Keep`] writes the raw output. Either way the counts of values
+//!   below 0 and below -1 and the minimum are reported.
+//!
+//! Receptive-field bound, in full-resolution pixels from an output pixel: the encoder's 3x3
+//! convs reach 2 cells per level at scales 1, 2, 4, 8, 16 (2 + 4 + 8 + 16 + 32 = 62), the four
+//! poolings add at most one finer cell each (1 + 2 + 4 + 8 = 15), the four transposed convs
+//! one coarser cell plus one finer cell of alignment each (24 + 12 + 6 + 3 = 45): 122 < 128.
+
+use std::path::Path;
+
+use ndarray::{s, Array3};
+use serde::Serialize;
+
+use crate::decoder::infer;
+use crate::decoder::unet::{UNet, SIZE_MULTIPLE};
+use crate::error::{Error, Result};
+
+/// An upper bound of the U-Net's receptive-field radius, pixels (see the module docs),
+/// rounded up to a multiple of 16.
+pub const RECEPTIVE_RADIUS: usize = 128;
+
+/// What to do with negative network outputs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Negatives {
+    /// `max(y, 0)`, as the paper's demo.
+    Clamp,
+    /// Write the raw output.
+    Keep,
+}
+
+/// Tiling and output options.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ReconstructOptions {
+    /// Largest tile side fed to the network (a multiple of 16).
+    pub tile: usize,
+    /// Context kept on each side of a tile's core (a multiple of 16).
+    pub overlap: usize,
+    pub negatives: Negatives,
+}
+
+impl Default for ReconstructOptions {
+    fn default() -> Self {
+        ReconstructOptions { tile: 1024, overlap: RECEPTIVE_RADIUS, negatives: Negatives::Clamp }
+    }
+}
+
+/// What happened during a reconstruction (for the JSON report).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ReconstructReport {
+    pub rows: usize,
+    pub cols: usize,
+    /// Size after padding to multiples of 16.
+    pub padded_rows: usize,
+    pub padded_cols: usize,
+    /// Network passes (1 when the image fits in one tile).
+    pub tiles: usize,
+    pub negatives: Negatives,
+    /// Raw output values (over pixels and channels) below 0 and below -1, and the minimum.
+    pub values_below_zero: usize,
+    pub values_below_minus_one: usize,
+    pub min_raw: f32,
+    pub max: f32,
+    /// Warnings (e.g. an overlap smaller than the receptive field).
+    pub warnings: Vec<String>,
+}
+
+/// Reads an RGB capture (8- or 16-bit PNG or TIFF, linear) as `value / (2^bits - 1)`.
+pub fn read_capture(path: &Path) -> Result<Array3<f32>> {
+    let img = image::ImageReader::open(path)
+        .map_err(|e| Error::io(path, e))?
+        .with_guessed_format()
+        .map_err(|e| Error::io(path, e))?
+        .decode()
+        .map_err(|e| {
+            Error::format(
+                path,
+                format!("cannot decode the capture (it must be an RGB PNG or TIFF with 8 or 16 bits per sample): {e}"),
+            )
+        })?;
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    match img {
+        image::DynamicImage::ImageRgb8(b) => Ok(Array3::from_shape_vec(
+            (h, w, 3),
+            b.into_raw().into_iter().map(|v| v as f32 / 255.0).collect(),
+        )
+        .expect("RGB buffer")),
+        image::DynamicImage::ImageRgb16(b) => Ok(Array3::from_shape_vec(
+            (h, w, 3),
+            b.into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
+        )
+        .expect("RGB buffer")),
+        other => {
+            let c = other.color();
+            Err(Error::format(
+                path,
+                format!(
+                    "is {c:?} ({} channels, {} bits per sample); a capture must be RGB with 8 or 16 bits \
+                     per sample (linear sensor values)",
+                    c.channel_count(),
+                    c.bits_per_pixel() / c.channel_count() as u16
+                ),
+            ))
+        }
+    }
+}
+
+/// Pads `x` at the bottom and right by edge replication to multiples of 16.
+fn pad_to_multiple(x: &Array3<f32>) -> Array3<f32> {
+    let (h, w, c) = x.dim();
+    let (ph, pw) = (h.next_multiple_of(SIZE_MULTIPLE), w.next_multiple_of(SIZE_MULTIPLE));
+    Array3::from_shape_fn((ph, pw, c), |(i, j, k)| x[[i.min(h - 1), j.min(w - 1), k]])
+}
+
+/// Tile windows along one axis of length `n`: `(window_start, window_end, core_start,
+/// core_end)`, cores of `tile - 2 overlap` tiling `[0, n)`, windows the cores widened by the
+/// overlap and clipped to the image.
+fn windows(n: usize, tile: usize, overlap: usize) -> Vec<(usize, usize, usize, usize)> {
+    if n <= tile {
+        return vec![(0, n, 0, n)];
+    }
+    let core = tile - 2 * overlap;
+    (0..n)
+        .step_by(core)
+        .map(|c0| {
+            let c1 = (c0 + core).min(n);
+            (c0.saturating_sub(overlap), (c1 + overlap).min(n), c0, c1)
+        })
+        .collect()
+}
+
+/// The network's raw output for an image whose sides are multiples of 16, tiled when larger
+/// than `tile`. Returns the output and the number of passes.
+pub fn infer_tiled(net: &UNet, x: &Array3<f32>, tile: usize, overlap: usize) -> Result<(Array3<f32>, usize)> {
+    let (h, w, _) = x.dim();
+    if !tile.is_multiple_of(SIZE_MULTIPLE) || !overlap.is_multiple_of(SIZE_MULTIPLE) || tile <= 2 * overlap {
+        return Err(Error::param(
+            "tile",
+            format!("tile {tile} and overlap {overlap} must be multiples of 16 with tile > 2 x overlap"),
+        ));
+    }
+    let (rows, cols) = (windows(h, tile, overlap), windows(w, tile, overlap));
+    if rows.len() == 1 && cols.len() == 1 {
+        return Ok((infer(net, x)?, 1));
+    }
+    let mut out = Array3::zeros(x.dim());
+    for &(r0, r1, cr0, cr1) in &rows {
+        for &(c0, c1, cc0, cc1) in &cols {
+            let y = infer(net, &x.slice(s![r0..r1, c0..c1, ..]).to_owned())?;
+            out.slice_mut(s![cr0..cr1, cc0..cc1, ..]).assign(&y.slice(s![
+                cr0 - r0..cr1 - r0,
+                cc0 - c0..cc1 - c0,
+                ..
+            ]));
+        }
+    }
+    Ok((out, rows.len() * cols.len()))
+}
+
+/// Reconstructs the HDR image of capture `x` (`(H, W, 3)`, 1 = clipping level).
+pub fn reconstruct(
+    net: &UNet,
+    x: &Array3<f32>,
+    opts: &ReconstructOptions,
+) -> Result<(Array3<f32>, ReconstructReport)> {
+    let (h, w, c) = x.dim();
+    if c != 3 || h == 0 || w == 0 {
+        return Err(Error::param("capture", format!("is {h} x {w} x {c}; an RGB image is needed")));
+    }
+    let mut warnings = Vec::new();
+    if opts.overlap < RECEPTIVE_RADIUS {
+        warnings.push(format!(
+            "overlap {} px is below the receptive-field radius {RECEPTIVE_RADIUS} px: tiles larger than \
+             the image are exact, smaller ones differ near their seams",
+            opts.overlap
+        ));
+    }
+    let padded = pad_to_multiple(x);
+    let (ph, pw, _) = padded.dim();
+    let (y, tiles) = infer_tiled(net, &padded, opts.tile, opts.overlap)?;
+    let mut y = y.slice(s![..h, ..w, ..]).to_owned();
+    let values_below_zero = y.iter().filter(|&&v| v < 0.0).count();
+    let values_below_minus_one = y.iter().filter(|&&v| v < -1.0).count();
+    let min_raw = y.iter().copied().fold(f32::INFINITY, f32::min);
+    if let Some(bad) = y.iter().find(|v| !v.is_finite()) {
+        return Err(Error::Data(format!("the decoder produced {bad}: the weights are broken")));
+    }
+    if opts.negatives == Negatives::Clamp {
+        y.mapv_inplace(|v| v.max(0.0));
+    }
+    let max = y.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    let report = ReconstructReport {
+        rows: h,
+        cols: w,
+        padded_rows: ph,
+        padded_cols: pw,
+        tiles,
+        negatives: opts.negatives,
+        values_below_zero,
+        values_below_minus_one,
+        min_raw,
+        max,
+        warnings,
+    };
+    Ok((y, report))
+}
+
+/// A reconstruction written to disk (the command's JSON report).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ReconstructFileReport {
+    pub capture: String,
+    pub decoder: String,
+    pub decoder_sha256: String,
+    pub exr: String,
+    pub png: String,
+    pub ev: f64,
+    pub options: ReconstructOptions,
+    #[serde(flatten)]
+    pub report: ReconstructReport,
+}
+
+/// Reads `capture`, reconstructs it with the decoder file `decoder` on `device`, writes the
+/// linear HDR as EXR (channels R, G, B; 1 = the capture's clipping level) at `exr` and its
+/// tone-mapped sRGB rendering at exposure `ev` at `png`.
+pub fn reconstruct_file(
+    capture: &Path,
+    decoder: &Path,
+    exr: &Path,
+    png_path: &Path,
+    ev: f64,
+    opts: &ReconstructOptions,
+    device: &burn::tensor::Device,
+) -> Result<ReconstructFileReport> {
+    let x = read_capture(capture)?;
+    let weights = crate::decoder::weights::DecoderWeights::read(decoder)?;
+    let net = UNet::from_weights(&weights, device);
+    let (y, report) = reconstruct(&net, &x, opts)?;
+    let decoder_sha256 = crate::io::file_sha256(decoder)?;
+    let text = vec![
+        ("quantity".to_string(), "linear HDR radiance, 1 = sensor clipping level of the capture".to_string()),
+        ("source".to_string(), capture.display().to_string()),
+        ("decoder_sha256".to_string(), decoder_sha256.clone()),
+        ("negatives".to_string(), format!("{:?}", opts.negatives).to_lowercase()),
+    ];
+    let channels: Vec<ndarray::Array2<f32>> = (0..3).map(|c| y.slice(s![.., .., c]).to_owned()).collect();
+    let meta = crate::io::heightmap::Metadata { pitch: None, unit: None, text: text.clone() };
+    crate::io::exr::write_exr(exr, &[("R", &channels[0]), ("G", &channels[1]), ("B", &channels[2])], &meta)?;
+    let mut png_text = text;
+    png_text.push(("tone_map".into(), format!("sRGB of clip(y * 2^{ev}, 0, 1)")));
+    write_rgb_png(png_path, &tone_map(&y, ev), &png_text)?;
+    Ok(ReconstructFileReport {
+        capture: capture.display().to_string(),
+        decoder: decoder.display().to_string(),
+        decoder_sha256,
+        exr: exr.display().to_string(),
+        png: png_path.display().to_string(),
+        ev,
+        options: *opts,
+        report,
+    })
+}
+
+/// Tone-maps linear HDR to 8-bit sRGB at exposure `ev` stops: `v = clip(y 2^ev, 0, 1)`, then
+/// the sRGB transfer function (IEC 61966-2-1: `12.92 v` below 0.0031308, else
+/// `1.055 v^(1/2.4) - 0.055`), rounded to 8 bits.
+pub fn tone_map(y: &Array3<f32>, ev: f64) -> Array3<u8> {
+    let gain = 2f64.powf(ev);
+    y.mapv(|v| {
+        let v = (v as f64 * gain).clamp(0.0, 1.0);
+        let s = if v <= 0.0031308 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+        (s * 255.0).round() as u8
+    })
+}
+
+/// Writes an 8-bit RGB PNG atomically, with text chunks.
+pub fn write_rgb_png(path: &Path, rgb: &Array3<u8>, text: &[(String, String)]) -> Result<()> {
+    let (h, w, c) = rgb.dim();
+    if c != 3 {
+        return Err(Error::param("image", format!("has {c} channels, RGB needs 3")));
+    }
+    let fail = |e: png::EncodingError| Error::format(path, format!("PNG encoding: {e}"));
+    let mut bytes = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut bytes, w as u32, h as u32);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        for (k, v) in text {
+            enc.add_text_chunk(k.clone(), v.clone()).map_err(fail)?;
+        }
+        let mut wr = enc.write_header().map_err(fail)?;
+        wr.write_image_data(rgb.as_standard_layout().as_slice().expect("standard layout")).map_err(fail)?;
+    }
+    crate::io::atomic::write_bytes(path, &bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn windows_cover_the_axis_with_aligned_cores() {
+        assert_eq!(windows(640, 1024, 128), vec![(0, 640, 0, 640)]);
+        let w = windows(700, 384, 128);
+        assert_eq!(w[0], (0, 256, 0, 128));
+        assert_eq!(w[1], (0, 384, 128, 256));
+        let last = *w.last().unwrap();
+        assert_eq!(last.3, 700);
+        for pair in w.windows(2) {
+            assert_eq!(pair[0].3, pair[1].2, "cores abut");
+        }
+        assert!(w.iter().all(|&(a, b, c, _)| a.is_multiple_of(16) && c.is_multiple_of(16) && b - a <= 384));
+    }
+
+    #[test]
+    fn tone_map_follows_srgb() {
+        let y = Array3::from_shape_vec((1, 4, 1), vec![0.0, 0.5, 1.0, 8.0]).unwrap();
+        let t = tone_map(&y, 0.0);
+        assert_eq!(t.iter().copied().collect::<Vec<_>>(), vec![0, 188, 255, 255]);
+        assert_eq!(tone_map(&y, -3.0)[[0, 3, 0]], 255);
+        assert_eq!(tone_map(&y, -4.0)[[0, 3, 0]], 188);
+    }
+}

@@ -1,0 +1,505 @@
+//! The decoder against the independent TensorFlow reference outputs in the shared data set
+//! (`deepoptics-hdr/parity/`), the weights format, and bad decoder files.
+//!
+//! The shared data set sits beside the checkout (`../shared`), or where `DOEFAB_SHARED` points;
+//! tests that need it say so and return when it is absent.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use doefab::decoder::unet::UNet;
+use doefab::decoder::weights::{encode_safetensors, DecoderWeights, NamedTensor};
+use doefab::decoder::{device, infer};
+use doefab::io::npy::read_npy_nd;
+use ndarray::Array3;
+
+/// `deepoptics-hdr/` of the shared data set, if present.
+fn data_dir() -> Option<PathBuf> {
+    let base = std::env::var_os("DOEFAB_SHARED")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared"));
+    let dir = base.join("data/deepoptics-hdr");
+    if dir.exists() {
+        Some(dir)
+    } else {
+        eprintln!("notice: {} is not here; skipping", dir.display());
+        None
+    }
+}
+
+fn npy3(path: &Path) -> Array3<f32> {
+    let (h, a) = read_npy_nd(path).unwrap();
+    let [r, c, k] = h.shape[..] else { panic!("{h:?}") };
+    a.mapv(|v| v as f32).into_shape_with_order((r, c, k)).unwrap()
+}
+
+/// Asserts DECODER.md's suggested tolerance: `|d| <= 1e-5 + 1e-4 |ref|` per element and
+/// relative L2 <= 1e-5. Returns (relative L2, max |d|).
+fn assert_parity(out: &Array3<f32>, reference: &Array3<f32>, what: &str) -> (f64, f64) {
+    assert_eq!(out.dim(), reference.dim(), "{what}");
+    let (mut num, mut den, mut max_d) = (0.0f64, 0.0f64, 0.0f64);
+    for (&a, &r) in out.iter().zip(reference) {
+        let d = (a as f64 - r as f64).abs();
+        assert!(d <= 1e-5 + 1e-4 * (r as f64).abs(), "{what}: {a} vs reference {r}");
+        num += d * d;
+        den += (r as f64) * (r as f64);
+        max_d = max_d.max(d);
+    }
+    let rel = (num / den).sqrt();
+    assert!(rel <= 1e-5, "{what}: relative L2 {rel}");
+    eprintln!("{what}: relative L2 {rel:.3e}, max |d| {max_d:.3e}");
+    (rel, max_d)
+}
+
+#[test]
+fn the_papers_decoders_reproduce_the_tensorflow_crops() {
+    let Some(dir) = data_dir() else { return };
+    let x = npy3(&dir.join("parity/kitchen_crop_input.npy"));
+    for which in ["measured", "simulated"] {
+        let w = DecoderWeights::read(&dir.join(format!("decoder_{which}_psf.safetensors"))).unwrap();
+        assert_eq!(w.parameter_count(), 630_820);
+        let net = UNet::from_weights(&w, &device(false));
+        let y = infer(&net, &x).unwrap();
+        let reference = npy3(&dir.join(format!("parity/kitchen_crop_output_decoder_{which}_psf.npy")));
+        assert_parity(&y, &reference, &format!("{which}-PSF crop"));
+    }
+}
+
+#[test]
+fn the_full_frame_reproduces_the_negative_blob() {
+    let Some(dir) = data_dir() else { return };
+    let img = image::open(dir.join("captures/Kitchen/wPSF_0_stop.png")).unwrap().to_rgb8();
+    let x =
+        Array3::from_shape_fn((640, 640, 3), |(i, j, c)| img.get_pixel(j as u32, i as u32)[c] as f32 / 255.0);
+    let crop = npy3(&dir.join("parity/kitchen_crop_input.npy"));
+    assert_eq!(x.slice(ndarray::s![352..416, 240..304, ..]), crop, "PNG / 255 is the parity input");
+    let w = DecoderWeights::read(&dir.join("decoder_measured_psf.safetensors")).unwrap();
+    let y = infer(&UNet::from_weights(&w, &device(false)), &x).unwrap();
+    let reference = npy3(&dir.join("parity/kitchen_full_output_decoder_measured_psf.npy"));
+    assert_parity(&y, &reference, "measured-PSF full frame");
+    let min = y.iter().cloned().fold(f32::INFINITY, f32::min);
+    assert!((min + 292.96).abs() < 0.01, "the blob's minimum {min}");
+    assert_eq!(y.iter().filter(|&&v| v < -1.0).count(), 76, "values below -1 (parity.json)");
+}
+
+#[test]
+fn decoder_files_round_trip_with_their_metadata() {
+    let Some(dir) = data_dir() else { return };
+    let src = dir.join("decoder_simulated_psf.safetensors");
+    let w = DecoderWeights::read(&src).unwrap();
+    let net = UNet::from_weights(&w, &device(false));
+    let mut back = net.to_weights().unwrap();
+    assert_eq!(back.tensors, w.tensors, "TF -> burn -> TF layouts are exact inverses");
+    back.metadata = BTreeMap::from([
+        ("psf_sha256".to_string(), "ab".repeat(32)),
+        ("training_steps".to_string(), "12".to_string()),
+        ("final_loss".to_string(), "0.0123".to_string()),
+    ]);
+    let t = common::tempdir();
+    let out = t.path().join("d.safetensors");
+    back.write(&out).unwrap();
+    let again = DecoderWeights::read(&out).unwrap();
+    assert_eq!(again.tensors, w.tensors);
+    assert_eq!(again.metadata["training_steps"], "12");
+    assert_eq!(again.metadata["psf_sha256"], "ab".repeat(32));
+    assert!(again.metadata["order"].starts_with("[\"enc1.conv1.weight\",\"enc1.conv1.bias\""));
+    // Writing twice gives the same bytes.
+    let out2 = t.path().join("d2.safetensors");
+    again.write(&out2).unwrap();
+    assert_eq!(std::fs::read(&out).unwrap(), std::fs::read(&out2).unwrap());
+}
+
+#[test]
+fn missing_and_misshaped_tensors_are_named() {
+    let t = common::tempdir();
+    let mut tensors: BTreeMap<String, NamedTensor> = doefab::decoder::weights::tensor_specs()
+        .into_iter()
+        .map(|(n, s)| {
+            let len = s.iter().product();
+            (n, NamedTensor { shape: s, values: vec![0.0; len] })
+        })
+        .collect();
+    tensors.remove("dec3.bn.gamma");
+    tensors.insert("head.fuse.weight".into(), NamedTensor { shape: vec![1, 1, 3, 6], values: vec![0.0; 18] });
+    tensors.insert("extra".into(), NamedTensor { shape: vec![1], values: vec![0.0] });
+    let refs: Vec<(&str, &NamedTensor)> = tensors.iter().map(|(n, t)| (n.as_str(), t)).collect();
+    let path = t.path().join("bad.safetensors");
+    std::fs::write(&path, encode_safetensors(&refs, &BTreeMap::new())).unwrap();
+    let err = DecoderWeights::read(&path).unwrap_err().to_string();
+    assert!(err.contains("bad.safetensors"), "{err}");
+    assert!(err.contains("'dec3.bn.gamma' is missing"), "{err}");
+    assert!(err.contains("'head.fuse.weight' has shape [1, 1, 3, 6], expected [1, 1, 6, 3]"), "{err}");
+    assert!(err.contains("'extra' is not part of the decoder"), "{err}");
+    // A file that is not safetensors at all.
+    std::fs::write(&path, b"\x0a\x00\x00\x00\x00\x00\x00\x00{not json}").unwrap();
+    let err = DecoderWeights::read(&path).unwrap_err().to_string();
+    assert!(err.contains("header is not a JSON object"), "{err}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reconstruction: analytic decoders, tiling, captures, the command
+
+use doefab::decoder::finetune::{gamma_loss, Adam, FinetuneConfig, ImageSet, Trainer};
+use doefab::decoder::reconstruct::{infer_tiled, read_capture, reconstruct, Negatives, ReconstructOptions};
+use doefab::decoder::to_tensor;
+use doefab::rng::Lcg;
+
+/// Seeded random weights (He-like scale, unit BatchNorm).
+fn random_weights(seed: u64) -> DecoderWeights {
+    let mut g = Lcg(seed);
+    let tensors = doefab::decoder::weights::tensor_specs()
+        .into_iter()
+        .map(|(name, shape)| {
+            let n: usize = shape.iter().product();
+            let fan_in: usize = if shape.len() == 4 { shape[0] * shape[1] * shape[2] } else { 1 };
+            let values = if name.ends_with("moving_variance") || name.ends_with("gamma") {
+                vec![1.0; n]
+            } else if name.ends_with("moving_mean") || name.ends_with("beta") {
+                vec![0.0; n]
+            } else {
+                let sd = if shape.len() == 4 { (2.0 / fan_in as f64).sqrt() } else { 0.01 };
+                (0..n).map(|_| (g.normal() * sd) as f32).collect()
+            };
+            (name, NamedTensor { shape, values })
+        })
+        .collect();
+    DecoderWeights { tensors, metadata: Default::default() }
+}
+
+/// A decoder whose output is `sign * x`: every tensor zero except unit BatchNorm variances and
+/// gammas and the `x` part of `head.fuse` (`[1, 1, 6, 3]`, input channels 3..6), `sign * I`.
+fn linear_weights(sign: f32) -> DecoderWeights {
+    let mut w = random_weights(1);
+    for (name, t) in &mut w.tensors {
+        let keep_one = name.ends_with("moving_variance") || name.ends_with("gamma");
+        t.values.iter_mut().for_each(|v| *v = if keep_one { 1.0 } else { 0.0 });
+        if name == "head.fuse.weight" {
+            for c in 0..3 {
+                t.values[(3 + c) * 3 + c] = sign;
+            }
+        }
+    }
+    w
+}
+
+fn rgb(seed: u64, h: usize, w: usize) -> Array3<f32> {
+    let mut g = Lcg(seed);
+    Array3::from_shape_fn((h, w, 3), |_| g.uniform() as f32)
+}
+
+#[test]
+fn identity_decoder_reconstructs_odd_sizes_exactly_through_padding_and_tiles() {
+    let net = UNet::from_weights(&linear_weights(1.0), &device(false));
+    let x = rgb(5, 53, 290);
+    let opts = ReconstructOptions { tile: 64, overlap: 16, negatives: Negatives::Keep };
+    let (y, report) = reconstruct(&net, &x, &opts).unwrap();
+    assert_eq!((report.padded_rows, report.padded_cols), (64, 304));
+    assert!(report.tiles > 1, "tiled: {report:?}");
+    assert_eq!(y, x, "y = x exactly");
+    assert!(!report.warnings.is_empty(), "an overlap below the receptive field is reported");
+    // The negative decoder: max(y, 0) removes every value and the counts say so.
+    let neg = UNet::from_weights(&linear_weights(-1.0), &device(false));
+    let (y, report) = reconstruct(&neg, &x, &ReconstructOptions::default()).unwrap();
+    assert!(y.iter().all(|&v| v == 0.0));
+    assert_eq!(report.values_below_zero, x.iter().filter(|&&v| v > 0.0).count());
+    assert_eq!(report.values_below_minus_one, 0);
+    assert_eq!(report.min_raw, -x.iter().cloned().fold(0.0, f32::max));
+}
+
+#[test]
+fn tiles_with_an_overlap_over_the_receptive_field_match_one_pass() {
+    let net = UNet::from_weights(&random_weights(11), &device(false));
+    let x = rgb(6, 384, 256);
+    let (whole, n) = infer_tiled(&net, &x, 1024, 128).unwrap();
+    assert_eq!(n, 1);
+    let scale = whole.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let (tiled, n) = infer_tiled(&net, &x, 320, 128).unwrap();
+    assert_eq!(n, 6, "six row tiles of 320 with cores of 64");
+    let max_d = whole.iter().zip(&tiled).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+    eprintln!("tiled vs one pass, overlap 128: max |d| = {max_d:.3e} (scale {scale:.3})");
+    assert!(max_d <= 1e-5 * scale.max(1.0), "{max_d}");
+    // An overlap of 32 px is inside the receptive field: the seams show.
+    let (short, _) = infer_tiled(&net, &x, 320, 32).unwrap();
+    let max_s = whole.iter().zip(&short).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+    eprintln!("overlap 32: max |d| = {max_s:.3e}");
+    assert!(max_s > 100.0 * max_d.max(1e-7 * scale), "{max_s}");
+    assert!(infer_tiled(&net, &x, 320, 200).is_err(), "overlap not a multiple of 16");
+}
+
+#[test]
+fn captures_are_read_as_linear_rgb_and_bad_ones_refused() {
+    let t = common::tempdir();
+    let p8 = t.path().join("c8.png");
+    image::RgbImage::from_fn(5, 4, |x, y| image::Rgb([(x * 50) as u8, (y * 60) as u8, 255]))
+        .save(&p8)
+        .unwrap();
+    let x = read_capture(&p8).unwrap();
+    assert_eq!(x.dim(), (4, 5, 3));
+    assert_eq!(x[[3, 4, 0]], 200.0 / 255.0);
+    assert_eq!(x[[3, 4, 1]], 180.0 / 255.0);
+    let p16 = t.path().join("c16.tif");
+    image::ImageBuffer::<image::Rgb<u16>, Vec<u16>>::from_fn(5, 4, |x, _| {
+        image::Rgb([x as u16 * 1000, 65535, 0])
+    })
+    .save(&p16)
+    .unwrap();
+    let x = read_capture(&p16).unwrap();
+    assert_eq!((x[[0, 3, 0]], x[[0, 0, 1]]), (3000.0 / 65535.0, 1.0));
+    let gray = t.path().join("gray.png");
+    image::GrayImage::new(4, 4).save(&gray).unwrap();
+    let err = read_capture(&gray).unwrap_err().to_string();
+    assert!(err.contains("gray.png") && err.contains("1 channels") && err.contains("RGB"), "{err}");
+    let rgba = t.path().join("rgba.png");
+    image::RgbaImage::new(4, 4).save(&rgba).unwrap();
+    let err = read_capture(&rgba).unwrap_err().to_string();
+    assert!(err.contains("4 channels"), "{err}");
+    let f32tif = t.path().join("f.tif");
+    doefab::io::tiff::write_tiff_f32(&f32tif, &ndarray::Array2::zeros((4, 4)), &Default::default()).unwrap();
+    let err = read_capture(&f32tif).unwrap_err().to_string();
+    assert!(err.contains("f.tif") && err.contains("8 or 16 bits"), "{err}");
+}
+
+#[test]
+fn reconstruct_command_writes_exr_png_and_reports_negatives() {
+    let t = common::tempdir();
+    let dec = t.path().join("neg.safetensors");
+    linear_weights(-1.0).write(&dec).unwrap();
+    let cap = t.path().join("cap.png");
+    image::RgbImage::from_fn(40, 23, |x, y| image::Rgb([(x * 6) as u8, (y * 11) as u8, 0]))
+        .save(&cap)
+        .unwrap();
+    let out = t.path().join("hdr.exr");
+    let run = |extra: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
+            .args(["--json", "reconstruct"])
+            .arg(&cap)
+            .arg("--decoder")
+            .arg(&dec)
+            .arg("-o")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = run(&["--keep-negative", "--ev", "-1"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let positive = (0..23)
+        .flat_map(|y| (0..40).map(move |x| (x, y)))
+        .map(|(x, y)| (x > 0) as usize + (y > 0) as usize)
+        .sum::<usize>();
+    assert_eq!(report["values_below_zero"], positive);
+    assert_eq!(report["padded_rows"], 32);
+    let exr = image::open(&out).unwrap().to_rgb32f();
+    assert_eq!(exr.dimensions(), (40, 23));
+    assert_eq!(exr.get_pixel(10, 5)[0], -(60.0f32 / 255.0), "kept negative");
+    let png = image::open(t.path().join("hdr.png")).unwrap().to_rgb8();
+    assert_eq!(png.dimensions(), (40, 23));
+    // Clamped (the default), the EXR holds no negative value.
+    let o = run(&[]);
+    assert!(o.status.success());
+    assert!(image::open(&out).unwrap().to_rgb32f().pixels().all(|p| p.0.iter().all(|&v| v == 0.0)));
+    // A bad capture: a clear error and a non-zero exit, the earlier output left as it was.
+    let before = std::fs::read(&out).unwrap();
+    image::GrayImage::new(4, 4).save(&cap).unwrap();
+    let o = run(&[]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("cap.png") && err.contains("RGB"), "{err}");
+    assert_eq!(std::fs::read(&out).unwrap(), before);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fine-tuning: gradients, exact resume, divergence, outputs, the command
+
+/// A small RGB PSF: a Gaussian core with a faint streak (9 x 9), sums to 1 per channel.
+fn small_psf() -> doefab::optics::psf::Psf {
+    use doefab::optics::psf::{Channel, Psf};
+    let channels = (0..3)
+        .map(|c| {
+            let s = 1.0 + 0.3 * c as f64;
+            let k = ndarray::Array2::from_shape_fn((9, 9), |(i, j)| {
+                let (y, x) = (i as f64 - 4.0, j as f64 - 4.0);
+                (-(x * x + y * y) / (2.0 * s * s)).exp() + if i == 4 { 0.02 } else { 0.0 }
+            });
+            Channel {
+                name: ["R", "G", "B"][c].into(),
+                wavelength: None,
+                grid: doefab::Grid::new(k, [4.29e-6; 2], doefab::Unit::Dimensionless).unwrap(),
+                captured: None,
+            }
+        })
+        .collect();
+    Psf::new(channels, "test").unwrap()
+}
+
+/// HDR test images: log-normal texture with a few bright emitters.
+fn hdr_images() -> Vec<(String, Array3<f32>)> {
+    (0..2)
+        .map(|k| {
+            let mut g = Lcg(100 + k);
+            let mut img = Array3::from_shape_fn((96, 96, 3), |_| (0.8 * g.normal() - 1.0).exp() as f32);
+            for _ in 0..4 {
+                let (r, c) = ((g.uniform() * 90.0) as usize, (g.uniform() * 90.0) as usize);
+                img.slice_mut(ndarray::s![r..r + 4, c..c + 4, ..]).fill(40.0);
+            }
+            (format!("test{k}"), img)
+        })
+        .collect()
+}
+
+fn tiny_config(steps: usize) -> FinetuneConfig {
+    FinetuneConfig {
+        steps,
+        batch: 2,
+        crop: 32,
+        checkpoint_every: 2,
+        validation: 2,
+        seed: 9,
+        ..FinetuneConfig::default()
+    }
+}
+
+#[test]
+fn an_adam_step_lowers_the_loss_on_its_batch() {
+    let dev = device(false);
+    let mut net = UNet::from_weights(&random_weights(3), &dev);
+    let mut adam = Adam::new(&net, &FinetuneConfig { lr: 1e-3, ..FinetuneConfig::default() });
+    let x = [rgb(1, 32, 32), rgb(2, 32, 32)];
+    let t = [rgb(3, 32, 32).mapv(|v| v * 2.0), rgb(4, 32, 32)];
+    let batch = |a: &[Array3<f32>; 2]| to_tensor(&[&a[0], &a[1]], &dev);
+    let l0 = adam.step(&mut net, batch(&x), batch(&t)).unwrap();
+    let l1 = adam.step(&mut net, batch(&x), batch(&t)).unwrap();
+    let l2 = adam.step(&mut net, batch(&x), batch(&t)).unwrap();
+    eprintln!("loss {l0:.6} -> {l1:.6} -> {l2:.6}");
+    assert!(l1 < l0 && l2 < l1, "{l0} {l1} {l2}");
+    // The loss itself, against its formula evaluated here.
+    let y = doefab::decoder::infer(&net, &x[0]).unwrap();
+    let e = 1.0f64 / 255.0;
+    let mse: f64 = y
+        .iter()
+        .zip(&t[0])
+        .map(|(&a, &b)| ((a.max(0.0) as f64 + e).sqrt() - (b as f64 + e).sqrt()).powi(2))
+        .sum::<f64>()
+        / y.len() as f64;
+    let ours = doefab::decoder::unet::tensor_values(gamma_loss(
+        net.forward(to_tensor(&[&x[0]], &dev)).unwrap(),
+        to_tensor(&[&t[0]], &dev),
+    ))
+    .unwrap()[0] as f64;
+    assert!((ours - mse.sqrt()).abs() < 1e-5 * mse.sqrt(), "{ours} vs {}", mse.sqrt());
+}
+
+#[test]
+fn resume_continues_exactly_and_divergence_keeps_the_last_good_checkpoint() {
+    let dev = device(false);
+    let psf = small_psf();
+    let images = ImageSet::new("test images", hdr_images()).unwrap();
+    let init = random_weights(4);
+    let t = common::tempdir();
+    let (a, b) = (t.path().join("a"), t.path().join("b"));
+    // Four steps in one go.
+    let mut run =
+        Trainer::new(UNet::from_weights(&init, &dev), &psf, "ab12", &images, tiny_config(4), "random")
+            .unwrap();
+    run.run(&a, &mut |_| {}).unwrap();
+    run.write_outputs(&a).unwrap();
+    // Two steps, then two more resumed from the checkpoint.
+    let mut half =
+        Trainer::new(UNet::from_weights(&init, &dev), &psf, "ab12", &images, tiny_config(2), "random")
+            .unwrap();
+    half.run(&b, &mut |_| {}).unwrap();
+    let ckpt = b.join("checkpoint.safetensors");
+    let saved = std::fs::read(&ckpt).unwrap();
+    let mut rest = Trainer::resume(&ckpt, &psf, "ab12", &images, 4, None, &dev).unwrap();
+    assert_eq!(rest.step(), 2);
+    rest.run(&b, &mut |_| {}).unwrap();
+    rest.write_outputs(&b).unwrap();
+    let da = DecoderWeights::read(&a.join("decoder.safetensors")).unwrap();
+    let db = DecoderWeights::read(&b.join("decoder.safetensors")).unwrap();
+    assert_eq!(da.tensors, db.tensors, "4 steps == 2 + 2 resumed, bit for bit");
+    assert_eq!(run.history(), rest.history());
+    assert_ne!(da.tensors, init.tensors, "training changed the weights");
+    assert_eq!(da.metadata["training_steps"], "4");
+    assert_eq!(da.metadata["psf_sha256"], "ab12");
+    assert!(da.metadata["training_data"].contains("test images (2 HDR images)"));
+    assert!(da.metadata["final_loss"].parse::<f64>().unwrap() > 0.0);
+    assert!(a.join("training_curve.png").exists() && a.join("training.json").exists());
+    // A different PSF is refused on resume.
+    let err = Trainer::resume(&ckpt, &psf, "cd34", &images, 4, None, &dev).err().unwrap().to_string();
+    assert!(err.contains("SHA-256"), "{err}");
+    // Resuming the step-2 checkpoint with a huge step size diverges: the run stops with a
+    // message and the checkpoint on disk is still the step-2 one.
+    let c = t.path().join("c");
+    std::fs::create_dir_all(&c).unwrap();
+    std::fs::write(c.join("checkpoint.safetensors"), &saved).unwrap();
+    let mut wild =
+        Trainer::resume(&c.join("checkpoint.safetensors"), &psf, "ab12", &images, 6, Some(1e4), &dev)
+            .unwrap();
+    let err = wild.run(&c, &mut |_| {}).unwrap_err().to_string();
+    eprintln!("{err}");
+    assert!(err.contains("diverged") || err.contains("loss is"), "{err}");
+    assert_eq!(std::fs::read(c.join("checkpoint.safetensors")).unwrap(), saved);
+}
+
+#[test]
+fn finetune_command_trains_resumes_and_refuses_bad_input() {
+    let t = common::tempdir();
+    let data = t.path().join("data");
+    for (name, img) in hdr_images() {
+        let ch: Vec<ndarray::Array2<f32>> =
+            (0..3).map(|c| img.slice(ndarray::s![.., .., c]).to_owned()).collect();
+        doefab::io::exr::write_exr(
+            &data.join(format!("{name}.exr")),
+            &[("R", &ch[0]), ("G", &ch[1]), ("B", &ch[2])],
+            &Default::default(),
+        )
+        .unwrap();
+    }
+    let psf = t.path().join("psf.npy");
+    doefab::io::npy::write_npy_f32_4d(&psf, &small_psf().to_array4()).unwrap();
+    let init = t.path().join("init.safetensors");
+    random_weights(8).write(&init).unwrap();
+    let out = t.path().join("out");
+    let run = |extra: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
+            .args(["--quiet", "finetune", "--psf"])
+            .arg(&psf)
+            .arg("--init")
+            .arg(&init)
+            .arg("--data")
+            .arg(&data)
+            .arg("-o")
+            .arg(&out)
+            .args(["--batch", "1", "--validation", "1", "--checkpoint-every", "1"])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = run(&["--steps", "2", "--crop", "32"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = run(&["--steps", "3", "--crop", "32", "--resume"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let d = DecoderWeights::read(&out.join("decoder.safetensors")).unwrap();
+    assert_eq!(d.metadata["training_steps"], "3");
+    assert_eq!(d.metadata["psf_sha256"], doefab::io::file_sha256(&psf).unwrap());
+    let o = run(&["--steps", "2", "--crop", "40"]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("crop") && err.contains("multiple of 16"), "{err}");
+    let bad = t.path().join("psf.txt");
+    std::fs::write(&bad, "1 2 3").unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
+        .args(["finetune", "--psf"])
+        .arg(&bad)
+        .arg("--data")
+        .arg(&data)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("psf.txt"), "{}", String::from_utf8_lossy(&o.stderr));
+}
