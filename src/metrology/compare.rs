@@ -547,14 +547,14 @@ fn fit_model(design: &Grid, scan: &Grid, reg: &Registration, opts: &CompareOptio
             pts.len()
         )));
     }
-    // Golden-section search of SSE(sigma) on [0, hi_sigma] to 0.002 design pitches.
+    // Golden-section search of SSE(sigma) on [0, hi_sigma] to 0.01 design pitches.
     let g = 0.5 * (5f64.sqrt() - 1.0);
     let (mut a, mut b) = (0.0, hi_sigma);
     let mut x1 = b - g * (b - a);
     let mut x2 = a + g * (b - a);
     let mut f1 = fit_at_blur(&window, &pts, x1)?.sse;
     let mut f2 = fit_at_blur(&window, &pts, x2)?.sse;
-    while b - a > 0.002 * pmax {
+    while b - a > 0.01 * pmax {
         if f1 <= f2 {
             b = x2;
             x2 = x1;
