@@ -238,7 +238,7 @@ pub fn compare(design: &Grid, scan: &Grid, opts: &CompareOptions) -> Result<Comp
         )));
     }
     let interior_correlation = interior_correlation(design, &surface, aperture);
-    if !(interior_correlation >= opts.register.min_correlation) {
+    if interior_correlation.is_nan() || interior_correlation < opts.register.min_correlation {
         return Err(Error::Registration(format!(
             "the scan does not match the design inside the aperture: correlation {interior_correlation:.3} \
              over the central {:.0}% of the aperture is below {:.2} (the registration correlation of {:.3} \
