@@ -1097,4 +1097,20 @@ mod tests {
         let c = compare(&d, &own, &opts).unwrap();
         assert!(c.interior_correlation > 0.99, "{}", c.interior_correlation);
     }
+
+    /// Different x and y pitches (a stage that steps 3.5 um in x and 5 um in y) are supported.
+    #[test]
+    fn a_scan_with_different_x_and_y_pitches_is_compared() {
+        let d = paper(300);
+        let sp = SimulateParams { pitch: Some([3.5e-6, 5e-6]), ..goals_params(2) };
+        let scan = simulate_scan(&d, &sp).unwrap();
+        let opts = CompareOptions { aperture: Some(0.8 * 300.0 * PAPER_PITCH), ..Default::default() };
+        let c = compare(&d, &scan, &opts).unwrap();
+        let r = &c.registration;
+        let e = [(r.pose.shift[0] - 3.2e-6) / PAPER_PITCH, (r.pose.shift[1] + 1.7e-6) / PAPER_PITCH];
+        assert!(e[0].abs() <= 0.02 && e[1].abs() <= 0.02, "shift error {e:?} px");
+        assert!((r.pose.rotation.to_degrees() - 0.3).abs() <= 0.01, "{r:?}");
+        assert!((c.model.depth_scale / 0.95 - 1.0).abs() <= 0.005, "{:?}", c.model);
+        assert!((c.model.blur - 2e-6).abs() <= 0.15e-6, "{:?}", c.model);
+    }
 }
