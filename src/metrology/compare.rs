@@ -355,40 +355,53 @@ fn design_frame(
     reg: &Registration,
     aperture: f64,
 ) -> Result<(Grid, Array2<bool>, f64)> {
+    use rayon::prelude::*;
     let (nr, nc) = design.dim();
     let (sr, sc) = scan.dim();
     let ps = scan.pitch();
     let sign = if reg.complement { -1.0 } else { 1.0 };
     let r2 = (0.5 * aperture).powi(2);
-    let mut values = Array2::zeros((nr, nc));
-    let mut valid = Array2::from_elem((nr, nc), false);
-    let mut inside = Array2::from_elem((nr, nc), false);
-    let (mut n_ap, mut n_cov) = (0usize, 0usize);
-    for i in 0..nr {
-        for j in 0..nc {
-            let xd = centred(design, i, j);
-            let xs = reg.pose.design_to_scan(xd);
-            let fi = xs[1] / ps[1] + (sr as f64 - 1.0) * 0.5;
-            let fj = xs[0] / ps[0] + (sc as f64 - 1.0) * 0.5;
-            let in_scan = fi >= -0.5 && fj >= -0.5 && fi <= sr as f64 - 0.5 && fj <= sc as f64 - 0.5;
-            if xd[0] * xd[0] + xd[1] * xd[1] <= r2 && design.is_valid(i, j) {
-                inside[[i, j]] = true;
-                n_ap += 1;
-                n_cov += usize::from(in_scan);
+    // Per design row: heights, measured, inside the aperture, aperture and covered counts.
+    type Row = (Vec<f64>, Vec<bool>, Vec<bool>, usize, usize);
+    let rows: Vec<Row> = (0..nr)
+        .into_par_iter()
+        .map(|i| {
+            let (mut v, mut ok, mut ins) = (vec![0.0; nc], vec![false; nc], vec![false; nc]);
+            let (mut n_ap, mut n_cov) = (0, 0);
+            for j in 0..nc {
+                let xd = centred(design, i, j);
+                let xs = reg.pose.design_to_scan(xd);
+                let fi = xs[1] / ps[1] + (sr as f64 - 1.0) * 0.5;
+                let fj = xs[0] / ps[0] + (sc as f64 - 1.0) * 0.5;
+                let in_scan = fi >= -0.5 && fj >= -0.5 && fi <= sr as f64 - 0.5 && fj <= sc as f64 - 0.5;
+                if xd[0] * xd[0] + xd[1] * xd[1] <= r2 && design.is_valid(i, j) {
+                    ins[j] = true;
+                    n_ap += 1;
+                    n_cov += usize::from(in_scan);
+                }
+                if !in_scan {
+                    continue;
+                }
+                let z = [Interpolation::Bicubic, Interpolation::Bilinear, Interpolation::Nearest]
+                    .iter()
+                    .find_map(|&m| scan.sample_index(fi, fj, m));
+                if let Some(z) = z {
+                    let plane = reg.offset + reg.tilt[0] * xs[0] + reg.tilt[1] * xs[1];
+                    v[j] = sign * (z - plane);
+                    ok[j] = true;
+                }
             }
-            if !in_scan {
-                continue;
-            }
-            let z = [Interpolation::Bicubic, Interpolation::Bilinear, Interpolation::Nearest]
-                .iter()
-                .find_map(|&m| scan.sample_index(fi, fj, m));
-            if let Some(z) = z {
-                let plane = reg.offset + reg.tilt[0] * xs[0] + reg.tilt[1] * xs[1];
-                values[[i, j]] = sign * (z - plane);
-                valid[[i, j]] = true;
-            }
-        }
-    }
+            (v, ok, ins, n_ap, n_cov)
+        })
+        .collect();
+    let (n_ap, n_cov) = rows.iter().fold((0, 0), |(a, c), r| (a + r.3, c + r.4));
+    let shape = |e: ndarray::ShapeError| Error::Data(format!("design frame: {e}"));
+    let values = Array2::from_shape_vec((nr, nc), rows.iter().flat_map(|r| r.0.iter().copied()).collect())
+        .map_err(shape)?;
+    let valid = Array2::from_shape_vec((nr, nc), rows.iter().flat_map(|r| r.1.iter().copied()).collect())
+        .map_err(shape)?;
+    let inside = Array2::from_shape_vec((nr, nc), rows.iter().flat_map(|r| r.2.iter().copied()).collect())
+        .map_err(shape)?;
     let surface =
         Grid::new(values, design.pitch(), Unit::Metre)?.with_mask(valid)?.with_origin(design.origin());
     Ok((surface, inside, n_cov as f64 / n_ap.max(1) as f64))
