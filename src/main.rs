@@ -1026,6 +1026,9 @@ fn demo(cli: &Cli, output: &Path) -> Result<()> {
         &cmp_dir,
     )?;
     warn(&cmp.comparison.warnings);
+    if let Some(p) = &cmp.psf {
+        warn(&p.warnings);
+    }
     if !cli.quiet && !cli.json {
         println!("simulated scan: {}", scan_path.display());
         print_comparison(&cmp, &cmp_dir);

@@ -375,6 +375,18 @@ fn demo_runs_every_stage_on_the_built_in_design() {
     for k in ["grayscale_mask", "gds_mask_set", "stl", "report_markdown"] {
         assert!(kinds.contains(&k), "the demo wrote no {k}");
     }
+    // The metrology stage: the simulated 8-level cast (5% shallow, 2 um blur) is recovered.
+    let m = &all["metrology"];
+    for f in m["files"].as_array().unwrap() {
+        assert!(out.join("metrology/compare").join(f.as_str().unwrap()).exists(), "{f} missing");
+    }
+    assert!(out.join("metrology/scan.x3p").exists());
+    let depth = m["model"]["depth_scale"].as_f64().unwrap();
+    assert!((depth / 0.95 - 1.0).abs() < 0.005, "{depth}");
+    assert!((m["model"]["blur"].as_f64().unwrap() - 2e-6).abs() < 0.1e-6, "{}", m["model"]);
+    let step = m["levels"]["mean_step"].as_f64().unwrap() / m["levels"]["step"].as_f64().unwrap();
+    assert!((step / 0.95 - 1.0).abs() < 0.005, "{step}");
+    assert_eq!(m["psf"]["channels"].as_array().unwrap().len(), 3);
     for r in reports {
         assert_eq!(r["provenance"]["design"], "built-in:paper");
         for a in r["artifacts"].as_array().unwrap() {

@@ -238,7 +238,7 @@ pub fn compare(design: &Grid, scan: &Grid, opts: &CompareOptions) -> Result<Comp
         )));
     }
     let interior_correlation = interior_correlation(design, &surface, aperture);
-    if !(interior_correlation >= opts.register.min_correlation) {
+    if interior_correlation.is_nan() || interior_correlation < opts.register.min_correlation {
         return Err(Error::Registration(format!(
             "the scan does not match the design inside the aperture: correlation {interior_correlation:.3} \
              over the central {:.0}% of the aperture is below {:.2} (the registration correlation of {:.3} \
@@ -355,40 +355,53 @@ fn design_frame(
     reg: &Registration,
     aperture: f64,
 ) -> Result<(Grid, Array2<bool>, f64)> {
+    use rayon::prelude::*;
     let (nr, nc) = design.dim();
     let (sr, sc) = scan.dim();
     let ps = scan.pitch();
     let sign = if reg.complement { -1.0 } else { 1.0 };
     let r2 = (0.5 * aperture).powi(2);
-    let mut values = Array2::zeros((nr, nc));
-    let mut valid = Array2::from_elem((nr, nc), false);
-    let mut inside = Array2::from_elem((nr, nc), false);
-    let (mut n_ap, mut n_cov) = (0usize, 0usize);
-    for i in 0..nr {
-        for j in 0..nc {
-            let xd = centred(design, i, j);
-            let xs = reg.pose.design_to_scan(xd);
-            let fi = xs[1] / ps[1] + (sr as f64 - 1.0) * 0.5;
-            let fj = xs[0] / ps[0] + (sc as f64 - 1.0) * 0.5;
-            let in_scan = fi >= -0.5 && fj >= -0.5 && fi <= sr as f64 - 0.5 && fj <= sc as f64 - 0.5;
-            if xd[0] * xd[0] + xd[1] * xd[1] <= r2 && design.is_valid(i, j) {
-                inside[[i, j]] = true;
-                n_ap += 1;
-                n_cov += usize::from(in_scan);
+    // Per design row: heights, measured, inside the aperture, aperture and covered counts.
+    type Row = (Vec<f64>, Vec<bool>, Vec<bool>, usize, usize);
+    let rows: Vec<Row> = (0..nr)
+        .into_par_iter()
+        .map(|i| {
+            let (mut v, mut ok, mut ins) = (vec![0.0; nc], vec![false; nc], vec![false; nc]);
+            let (mut n_ap, mut n_cov) = (0, 0);
+            for j in 0..nc {
+                let xd = centred(design, i, j);
+                let xs = reg.pose.design_to_scan(xd);
+                let fi = xs[1] / ps[1] + (sr as f64 - 1.0) * 0.5;
+                let fj = xs[0] / ps[0] + (sc as f64 - 1.0) * 0.5;
+                let in_scan = fi >= -0.5 && fj >= -0.5 && fi <= sr as f64 - 0.5 && fj <= sc as f64 - 0.5;
+                if xd[0] * xd[0] + xd[1] * xd[1] <= r2 && design.is_valid(i, j) {
+                    ins[j] = true;
+                    n_ap += 1;
+                    n_cov += usize::from(in_scan);
+                }
+                if !in_scan {
+                    continue;
+                }
+                let z = [Interpolation::Bicubic, Interpolation::Bilinear, Interpolation::Nearest]
+                    .iter()
+                    .find_map(|&m| scan.sample_index(fi, fj, m));
+                if let Some(z) = z {
+                    let plane = reg.offset + reg.tilt[0] * xs[0] + reg.tilt[1] * xs[1];
+                    v[j] = sign * (z - plane);
+                    ok[j] = true;
+                }
             }
-            if !in_scan {
-                continue;
-            }
-            let z = [Interpolation::Bicubic, Interpolation::Bilinear, Interpolation::Nearest]
-                .iter()
-                .find_map(|&m| scan.sample_index(fi, fj, m));
-            if let Some(z) = z {
-                let plane = reg.offset + reg.tilt[0] * xs[0] + reg.tilt[1] * xs[1];
-                values[[i, j]] = sign * (z - plane);
-                valid[[i, j]] = true;
-            }
-        }
-    }
+            (v, ok, ins, n_ap, n_cov)
+        })
+        .collect();
+    let (n_ap, n_cov) = rows.iter().fold((0, 0), |(a, c), r| (a + r.3, c + r.4));
+    let shape = |e: ndarray::ShapeError| Error::Data(format!("design frame: {e}"));
+    let values = Array2::from_shape_vec((nr, nc), rows.iter().flat_map(|r| r.0.iter().copied()).collect())
+        .map_err(shape)?;
+    let valid = Array2::from_shape_vec((nr, nc), rows.iter().flat_map(|r| r.1.iter().copied()).collect())
+        .map_err(shape)?;
+    let inside = Array2::from_shape_vec((nr, nc), rows.iter().flat_map(|r| r.2.iter().copied()).collect())
+        .map_err(shape)?;
     let surface =
         Grid::new(values, design.pitch(), Unit::Metre)?.with_mask(valid)?.with_origin(design.origin());
     Ok((surface, inside, n_cov as f64 / n_ap.max(1) as f64))
@@ -547,14 +560,14 @@ fn fit_model(design: &Grid, scan: &Grid, reg: &Registration, opts: &CompareOptio
             pts.len()
         )));
     }
-    // Golden-section search of SSE(sigma) on [0, hi_sigma] to 0.002 design pitches.
+    // Golden-section search of SSE(sigma) on [0, hi_sigma] to 0.01 design pitches.
     let g = 0.5 * (5f64.sqrt() - 1.0);
     let (mut a, mut b) = (0.0, hi_sigma);
     let mut x1 = b - g * (b - a);
     let mut x2 = a + g * (b - a);
     let mut f1 = fit_at_blur(&window, &pts, x1)?.sse;
     let mut f2 = fit_at_blur(&window, &pts, x2)?.sse;
-    while b - a > 0.002 * pmax {
+    while b - a > 0.01 * pmax {
         if f1 <= f2 {
             b = x2;
             x2 = x1;
@@ -1096,5 +1109,21 @@ mod tests {
         let own = simulate_scan(&d, &SimulateParams { noise: 5e-9, ..Default::default() }).unwrap();
         let c = compare(&d, &own, &opts).unwrap();
         assert!(c.interior_correlation > 0.99, "{}", c.interior_correlation);
+    }
+
+    /// Different x and y pitches (a stage that steps 3.5 um in x and 5 um in y) are supported.
+    #[test]
+    fn a_scan_with_different_x_and_y_pitches_is_compared() {
+        let d = paper(300);
+        let sp = SimulateParams { pitch: Some([3.5e-6, 5e-6]), ..goals_params(2) };
+        let scan = simulate_scan(&d, &sp).unwrap();
+        let opts = CompareOptions { aperture: Some(0.8 * 300.0 * PAPER_PITCH), ..Default::default() };
+        let c = compare(&d, &scan, &opts).unwrap();
+        let r = &c.registration;
+        let e = [(r.pose.shift[0] - 3.2e-6) / PAPER_PITCH, (r.pose.shift[1] + 1.7e-6) / PAPER_PITCH];
+        assert!(e[0].abs() <= 0.02 && e[1].abs() <= 0.02, "shift error {e:?} px");
+        assert!((r.pose.rotation.to_degrees() - 0.3).abs() <= 0.01, "{r:?}");
+        assert!((c.model.depth_scale / 0.95 - 1.0).abs() <= 0.005, "{:?}", c.model);
+        assert!((c.model.blur - 2e-6).abs() <= 0.15e-6, "{:?}", c.model);
     }
 }

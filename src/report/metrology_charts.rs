@@ -209,7 +209,7 @@ pub fn profiles(path: &Path, design: &Grid, surface: &Grid) -> Result<()> {
     })
 }
 
-/// Histogram of `heights` (metres) with the design's level heights (grey) and the measured
+/// Histogram of `heights` (metres) with the design's level heights (dark grey) and the measured
 /// level means (red) marked.
 pub fn height_histogram(
     path: &Path,
@@ -241,6 +241,8 @@ pub fn height_histogram(
             .build_cartesian_2d(lo..hi, 0.0..top)
             .map_err(err)?;
         ch.configure_mesh()
+            .disable_x_mesh()
+            .disable_y_mesh()
             .x_desc("height (nm)")
             .y_desc("samples")
             .label_style((FONT, 13))
@@ -254,9 +256,11 @@ pub fn height_histogram(
         .map_err(err)?
         .label("part")
         .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], RGBColor(59, 82, 139).filled()));
-        let grey = RGBColor(120, 120, 120);
+        let grey = RGBColor(90, 90, 90);
         ch.draw_series(
-            design_levels.iter().map(|v| PathElement::new([(v * 1e9, 0.0), (v * 1e9, top)], grey)),
+            design_levels
+                .iter()
+                .map(|v| PathElement::new([(v * 1e9, 0.0), (v * 1e9, top)], grey.stroke_width(2))),
         )
         .map_err(err)?
         .label("design levels")
