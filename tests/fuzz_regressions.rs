@@ -1,0 +1,77 @@
+//! Inputs the fuzz targets (`fuzz/`) found to crash, hang or allocate without bound, checked
+//! here without the fuzzer: each must now be refused with an error naming the file and the
+//! field, and no reader may allocate more than its input can justify. The largest single
+//! allocation is measured by a counting global allocator (per thread, so parallel tests do not
+//! see each other's).
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::path::Path;
+
+use doefab::io::scan::{decode_scan_raw, ScanOptions};
+
+struct Counting;
+
+thread_local! {
+    static LARGEST: Cell<usize> = const { Cell::new(0) };
+}
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let _ = LARGEST.try_with(|l| l.set(l.get().max(layout.size())));
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let _ = LARGEST.try_with(|l| l.set(l.get().max(new_size)));
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Counting = Counting;
+
+/// Decodes `bytes` as the file `name`; returns the error text and the largest allocation.
+fn refused(name: &str, bytes: &[u8]) -> (String, usize) {
+    LARGEST.with(|l| l.set(0));
+    let r = decode_scan_raw(Path::new(name), bytes, &ScanOptions::default());
+    let largest = LARGEST.with(|l| l.get());
+    match r {
+        Ok(raw) => panic!("{name} decoded: {:?}", raw.raw.values.dim()),
+        Err(e) => (e.to_string(), largest),
+    }
+}
+
+/// A 6 x 5 ASCII SDF whose header claims `points` points per profile.
+fn sdf_ascii(points_lines: &str) -> String {
+    format!(
+        "aISO-1.0\n{points_lines}NumProfiles = 5\nXscale = 1e-06\nYscale = 1e-06\nZscale = 1\n*\n{}*\n",
+        "0 1e-09 2e-09 3e-09 4e-09 5e-09\n".repeat(5)
+    )
+}
+
+/// sdf_ascii, found after 0.36 M runs: `NumPoints = 20250000` reserved 20250000 x 5 f64
+/// (810 MB) before reading the 30 values the file holds; the key was also given twice (first
+/// one used, the second would have fitted the data).
+#[test]
+fn ascii_sdf_size_claim_reserves_no_memory() {
+    let (e, largest) = refused("a.sdf", sdf_ascii("NumPoints = 20250000\n").as_bytes());
+    assert!(e.contains("a.sdf") && e.contains("holds 30 values"), "{e}");
+    assert!(largest < 1 << 20, "largest allocation {largest} bytes for a 200-byte file");
+    let (e, _) = refused("a.sdf", sdf_ascii("NumPoints = 20250000\nNumPoints = 6\n").as_bytes());
+    assert!(e.contains("line 3") && e.contains("'NumPoints' is given twice"), "{e}");
+    // The same file with one honest NumPoints reads.
+    let ok = sdf_ascii("NumPoints = 6\n");
+    assert!(decode_scan_raw(Path::new("a.sdf"), ok.as_bytes(), &ScanOptions::default()).is_ok());
+}
+
+#[test]
+fn gsf_header_key_given_twice_is_refused() {
+    let mut f = b"Gwyddion Simple Field 1.0\nXRes = 2\nYRes = 1\nXRes = 1\n".to_vec();
+    f.resize(f.len().next_multiple_of(4) + if f.len() % 4 == 0 { 4 } else { 0 }, 0);
+    f.extend_from_slice(&[0u8; 8]);
+    let (e, _) = refused("a.gsf", &f);
+    assert!(e.contains("a.gsf") && e.contains("'XRes' is given twice"), "{e}");
+}
