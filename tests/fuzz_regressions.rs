@@ -75,3 +75,22 @@ fn gsf_header_key_given_twice_is_refused() {
     let (e, _) = refused("a.gsf", &f);
     assert!(e.contains("a.gsf") && e.contains("'XRes' is given twice"), "{e}");
 }
+
+/// The stored input of a fuzz finding (`tests/fuzz/`).
+fn finding(name: &str) -> Vec<u8> {
+    std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fuzz").join(name)).unwrap()
+}
+
+/// png_pcal: Gwyddion's 2929-byte S1 PNG with the IHDR width changed to 14878664 made the PNG
+/// decoder reserve its 5.95 GB output buffer before reading any image data. (Fuzz builds skip
+/// PNG's chunk CRCs; the stored file has them recomputed so that this build takes the same path.)
+#[test]
+fn png_size_claim_beyond_deflate_is_refused_before_allocating() {
+    let (e, largest) = refused("s1.png", &finding("png_pcal-ihdr-14878664x200.png"));
+    assert!(e.contains("s1.png") && e.contains("14878664 x 200") && e.contains("1032:1"), "{e}");
+    assert!(largest < 1 << 20, "largest allocation {largest} bytes");
+    // The unmodified file (the same IHDR but 200 x 200) still reads.
+    let good = Path::new(env!("CARGO_MANIFEST_DIR")).join("profilometry/s1_tilt_pedestal.grey16.png");
+    let bytes = std::fs::read(&good).unwrap();
+    assert!(decode_scan_raw(&good, &bytes, &ScanOptions::default()).is_ok());
+}
