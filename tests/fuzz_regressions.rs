@@ -94,3 +94,15 @@ fn png_size_claim_beyond_deflate_is_refused_before_allocating() {
     let bytes = std::fs::read(&good).unwrap();
     assert!(decode_scan_raw(&good, &bytes, &ScanOptions::default()).is_ok());
 }
+
+/// exr: a 6 x 5 seed whose dataWindow's x max became 0x500000ea made the OpenEXR decoder
+/// reserve 7.4 GB of samples for a 452-byte file.
+#[test]
+fn exr_data_window_beyond_the_file_is_refused_before_allocating() {
+    let path = Path::new("w.exr");
+    LARGEST.with(|l| l.set(0));
+    let e = doefab::io::exr::decode_exr(path, &finding("exr-data-window.exr"), None).unwrap_err().to_string();
+    let largest = LARGEST.with(|l| l.get());
+    assert!(e.contains("w.exr") && e.contains("data window") && e.contains("452-byte"), "{e}");
+    assert!(largest < 1 << 20, "largest allocation {largest} bytes");
+}
