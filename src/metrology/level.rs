@@ -10,15 +10,18 @@
 //! well-conditioned normal matrix). Fits solve the normal equations by Gaussian elimination with
 //! partial pivoting; a singular system (too few or collinear points) is refused.
 //!
-//! **Facet levelling** (Gwyddion's "Facet Level", `modules/process/facet-level.c`): on every
-//! 2 x 2 cell of valid samples the gradient `g = (gx, gy)` is taken as in [`crate::metrology::stats`]
-//! (averaged forward differences over the pitch). With `s2 = mean |g|^2 / 20` the cells are
-//! weighted by `w = exp(-|g|^2 / s2)`, so that near-flat cells count and steps and spikes do not,
-//! and the weighted mean of the unit normals `n = (-gx, -gy, 1) / sqrt(1 + |g|^2)` gives the
-//! dominant facet's slope `(-Nx / Nz, -Ny / Nz)`. That slope is subtracted and the step repeated
-//! until it is below 1e-9 of the weighting width `sqrt(s2)` plus the slope (at most 100 times, every other
-//! step extrapolated by Aitken's method; no convergence is refused). Only the tilt is fixed this way: the
-//! offset `a` is chosen so that the levelled valid samples have zero mean.
+//! **Facet levelling** (the scheme of Gwyddion's "Facet Level", `modules/process/facet-level.c`
+//! with `libprocess/level.c`): on every 2 x 2 cell of valid samples the gradient `g = (gx, gy)`
+//! is taken as in [`crate::metrology::stats`] (averaged forward differences over the pitch). With
+//! `s2` a fraction (1/20 here) of the mean `|g|^2`, the cells are weighted by
+//! `w = exp(-|g|^2 / s2)`, so that near-flat cells count and steps and spikes do not, and the
+//! weighted mean of the unit normals `n = (-gx, -gy, 1) / sqrt(1 + |g|^2)` gives the dominant
+//! facet's slope `(-Nx / Nz, -Ny / Nz)`. That slope is subtracted and the step repeated until it
+//! is below 1e-9 of the weighting width `sqrt(s2)` plus the slope (at most 100 times; no
+//! convergence is refused). Noise makes the steps shrink only geometrically (a mean shift with a
+//! narrow kernel), so every other step jumps to the limit of the series (Aitken's
+//! extrapolation). Only the tilt is fixed this way: the offset `a` is chosen so that the
+//! levelled valid samples have zero mean.
 //!
 //! **Substrate plane**: the least-squares plane through the substrate only, either a region the
 //! caller names (outside the aperture of the part) or the lowest level of a quantized surface.
@@ -391,8 +394,7 @@ pub fn fit_facet(g: &Grid) -> Result<(Plane, usize)> {
         if dx.hypot(dy) <= 1e-9 * (s2.sqrt() + sx.hypot(sy)) {
             return Ok((facet_plane(g, (sx + dx) * px, (sy + dy) * py), it));
         }
-        // Steps shrink geometrically when noise widens the facet (a mean shift with a narrow
-        // kernel); every other step jumps to the limit of the series (Aitken's extrapolation).
+        // Aitken's extrapolation on every other step (module docs).
         let mut k = 1.0;
         if let Some((ox, oy)) = prev.take() {
             let rho = (dx * ox + dy * oy) / (ox * ox + oy * oy);
