@@ -32,7 +32,9 @@
 //! The fit and the selection are repeated until the selection no longer changes (at most 10
 //! times). The levels must be resolved: a second peak must exist and the valley between the two
 //! must fall below half the lower peak's height, else tilt or noise blur the levels into one
-//! another and the fit is refused with the reason.
+//! another and the fit is refused with the reason; and the substrate samples must lie within a
+//! sixth of the step to the next level (rms about the plane), else the surface is not terraced
+//! (a smooth relief's height histogram also has a lowest peak) and the fit is refused.
 
 use ndarray::Array2;
 
@@ -446,7 +448,15 @@ pub fn fit_lowest_level(g: &Grid) -> Result<(Plane, usize, LowestLevel)> {
             ss += (z - plane.at(i as f64, j as f64)).powi(2);
         }
     }
-    Ok((plane, n, LowestLevel { next_level: next, spread: (ss / n as f64).sqrt() }))
+    let spread = (ss / n as f64).sqrt();
+    if next < 6.0 * spread {
+        return Err(Error::Data(format!(
+            "the lowest level spreads {spread:.4e} m (rms) about its plane, more than a sixth of the \
+             {next:.4e} m step to the next level: the surface is not terraced (or too rough) for a \
+             lowest-level substrate; name the substrate region (an aperture) or use facet levelling"
+        )));
+    }
+    Ok((plane, n, LowestLevel { next_level: next, spread }))
 }
 
 /// The valid samples in the lowest level's band about `plane` (module docs), and the histogram
@@ -613,6 +623,19 @@ mod tests {
                 .unwrap();
         let e = level(&flat, LevelMethod::Substrate { aperture: None }).unwrap_err().to_string();
         assert!(e.contains("single level") || e.contains("flat"), "{e}");
+        // A smooth relief of concentric sinusoidal rings: its height histogram peaks at both
+        // extremes, but the lower "level" is half the surface, not a terrace.
+        let rings = Array2::from_shape_fn((200, 200), |(i, j)| {
+            let (x, y) = (j as f64 - 100.0, i as f64 - 100.0);
+            300e-9 * ((x * x + y * y).sqrt() * 0.2).sin() + 1e-9 * x
+        });
+        let e = level(
+            &Grid::new(rings, [1e-6; 2], Unit::Metre).unwrap(),
+            LevelMethod::Substrate { aperture: None },
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("not terraced"), "{e}");
     }
 
     #[test]
