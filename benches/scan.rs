@@ -9,7 +9,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use doefab::io::scan::{decode_scan_raw, scan_from_raw, zygo, ScanOptions};
-use doefab::metrology::level::level_plane;
+use doefab::metrology::level::{level, level_plane, LevelMethod};
 use doefab::metrology::outliers::nsigma_outliers;
 use doefab::metrology::stats::height_params;
 use ndarray::Array2;
@@ -64,7 +64,25 @@ fn main() -> doefab::Result<()> {
     println!("height parameters      {:.3} s (Sq {:.1} nm)", t.elapsed().as_secs_f64(), p.sq * 1e9);
     let t = Instant::now();
     let (lev, _) = level_plane(&g, None)?;
-    println!("least-squares plane    {:.3} s", t.elapsed().as_secs_f64());
+    let plane_s = t.elapsed().as_secs_f64();
+    println!("least-squares plane    {plane_s:.3} s");
+    for (name, method) in [
+        ("facet levelling", LevelMethod::Facet),
+        ("lowest-level plane", LevelMethod::Substrate { aperture: None }),
+    ] {
+        let t = Instant::now();
+        let r = level(&g, method);
+        let s = t.elapsed().as_secs_f64();
+        match r {
+            Ok((_, l)) => println!(
+                "{name:<22} {s:.3} s ({:.1} x the plane; {} iterations, {} points fitted)",
+                s / plane_s,
+                l.iterations.map_or("-".to_string(), |i| i.to_string()),
+                l.fitted_points
+            ),
+            Err(e) => println!("{name:<22} {s:.3} s, refused: {e}"),
+        }
+    }
     let t = Instant::now();
     let o = nsigma_outliers(&lev, 3.0, 1, 10)?;
     println!(

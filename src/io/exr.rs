@@ -41,6 +41,29 @@ pub fn decode_exr(path: &Path, bytes: &[u8], channel: Option<&str>) -> Result<Ra
         return Err(Error::format(path, "not an OpenEXR file: bad magic (expected 76 2f 31 01)"));
     }
     // The decoder is third-party code fed with user bytes: a panic in it becomes an error.
+    let headers =
+        std::panic::catch_unwind(|| exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false))
+            .map_err(|_| Error::format(path, "OpenEXR: the header decoder failed on malformed data"))?
+            .map_err(|e| Error::format(path, format!("OpenEXR: {e}")))?
+            .headers;
+    // The decoder reserves every layer's samples from the header's data window: refuse a window
+    // the file cannot hold. Deflate compresses at most 1032:1 (RFC 1951); the lossy DWA codecs
+    // keep at least one coefficient per 8 x 8 block on top of it, hence 1032 x 64.
+    for h in &headers {
+        let (w, hgt) = (h.layer_size.width(), h.layer_size.height());
+        let raw = w.saturating_mul(hgt).saturating_mul(h.channels.bytes_per_pixel);
+        if w.saturating_mul(hgt) > 1 << 28 || raw / (1032 * 64) > bytes.len() {
+            return Err(Error::format(
+                path,
+                format!(
+                    "OpenEXR: the data window is {w} x {hgt} pixels of {} bytes, more than a {}-byte \
+                     file can hold (and above the 2^28-sample limit for a height map)",
+                    h.channels.bytes_per_pixel,
+                    bytes.len()
+                ),
+            ));
+        }
+    }
     let decoded = std::panic::catch_unwind(|| {
         read()
             .no_deep_data()

@@ -61,6 +61,19 @@ pub fn decode_png(path: &Path, bytes: &[u8]) -> Result<RawMap> {
                 ))
             }
         };
+        // The header's size is a claim: deflate compresses at most 1032:1 (RFC 1951: a 258-byte
+        // match in at most 2 bits), so a file cannot hold more raw image bytes than that.
+        let raw = (w * bits as usize / 8 + 1) * h;
+        if raw / 1032 > bytes.len() {
+            return Err(Error::format(
+                path,
+                format!(
+                    "byte offset 16: IHDR says {w} x {h} samples of {bits} bits ({raw} bytes), more than \
+                     a {}-byte file can hold at deflate's best ratio (1032:1)",
+                    bytes.len()
+                ),
+            ));
+        }
         let mut buf = vec![0u8; reader.output_buffer_size()];
         let frame = reader.next_frame(&mut buf).map_err(|e| fail("cannot read the image data", e))?;
         reader.finish().map_err(|e| fail("cannot read the chunks after the image data", e))?;

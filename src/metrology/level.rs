@@ -10,15 +10,18 @@
 //! well-conditioned normal matrix). Fits solve the normal equations by Gaussian elimination with
 //! partial pivoting; a singular system (too few or collinear points) is refused.
 //!
-//! **Facet levelling** (Gwyddion's "Facet Level", `modules/process/facet-level.c`): on every
-//! 2 x 2 cell of valid samples the gradient `g = (gx, gy)` is taken as in [`crate::metrology::stats`]
-//! (averaged forward differences over the pitch). With `s2 = mean |g|^2 / 20` the cells are
-//! weighted by `w = exp(-|g|^2 / s2)`, so that near-flat cells count and steps and spikes do not,
-//! and the weighted mean of the unit normals `n = (-gx, -gy, 1) / sqrt(1 + |g|^2)` gives the
-//! dominant facet's slope `(-Nx / Nz, -Ny / Nz)`. That slope is subtracted and the step repeated
-//! until it is below 1e-9 of the weighting width `sqrt(s2)` plus the slope (at most 100 times, every other
-//! step extrapolated by Aitken's method; no convergence is refused). Only the tilt is fixed this way: the
-//! offset `a` is chosen so that the levelled valid samples have zero mean.
+//! **Facet levelling** (the scheme of Gwyddion's "Facet Level", `modules/process/facet-level.c`
+//! with `libprocess/level.c`): on every 2 x 2 cell of valid samples the gradient `g = (gx, gy)`
+//! is taken as in [`crate::metrology::stats`] (averaged forward differences over the pitch). With
+//! `s2` a fraction (1/20 here) of the mean `|g|^2`, the cells are weighted by
+//! `w = exp(-|g|^2 / s2)`, so that near-flat cells count and steps and spikes do not, and the
+//! weighted mean of the unit normals `n = (-gx, -gy, 1) / sqrt(1 + |g|^2)` gives the dominant
+//! facet's slope `(-Nx / Nz, -Ny / Nz)`. That slope is subtracted and the step repeated until it
+//! is below 1e-9 of the weighting width `sqrt(s2)` plus the slope (at most 100 times; no
+//! convergence is refused). Noise makes the steps shrink only geometrically (a mean shift with a
+//! narrow kernel), so every other step jumps to the limit of the series (Aitken's
+//! extrapolation). Only the tilt is fixed this way: the offset `a` is chosen so that the
+//! levelled valid samples have zero mean.
 //!
 //! **Substrate plane**: the least-squares plane through the substrate only, either a region the
 //! caller names (outside the aperture of the part) or the lowest level of a quantized surface.
@@ -29,7 +32,9 @@
 //! The fit and the selection are repeated until the selection no longer changes (at most 10
 //! times). The levels must be resolved: a second peak must exist and the valley between the two
 //! must fall below half the lower peak's height, else tilt or noise blur the levels into one
-//! another and the fit is refused with the reason.
+//! another and the fit is refused with the reason; and the substrate samples must lie within a
+//! sixth of the step to the next level (rms about the plane), else the surface is not terraced
+//! (a smooth relief's height histogram also has a lowest peak) and the fit is refused.
 
 use ndarray::Array2;
 
@@ -391,8 +396,7 @@ pub fn fit_facet(g: &Grid) -> Result<(Plane, usize)> {
         if dx.hypot(dy) <= 1e-9 * (s2.sqrt() + sx.hypot(sy)) {
             return Ok((facet_plane(g, (sx + dx) * px, (sy + dy) * py), it));
         }
-        // Steps shrink geometrically when noise widens the facet (a mean shift with a narrow
-        // kernel); every other step jumps to the limit of the series (Aitken's extrapolation).
+        // Aitken's extrapolation on every other step (module docs).
         let mut k = 1.0;
         if let Some((ox, oy)) = prev.take() {
             let rho = (dx * ox + dy * oy) / (ox * ox + oy * oy);
@@ -444,7 +448,15 @@ pub fn fit_lowest_level(g: &Grid) -> Result<(Plane, usize, LowestLevel)> {
             ss += (z - plane.at(i as f64, j as f64)).powi(2);
         }
     }
-    Ok((plane, n, LowestLevel { next_level: next, spread: (ss / n as f64).sqrt() }))
+    let spread = (ss / n as f64).sqrt();
+    if next < 6.0 * spread {
+        return Err(Error::Data(format!(
+            "the lowest level spreads {spread:.4e} m (rms) about its plane, more than a sixth of the \
+             {next:.4e} m step to the next level: the surface is not terraced (or too rough) for a \
+             lowest-level substrate; name the substrate region (an aperture) or use facet levelling"
+        )));
+    }
+    Ok((plane, n, LowestLevel { next_level: next, spread }))
 }
 
 /// The valid samples in the lowest level's band about `plane` (module docs), and the histogram
@@ -611,6 +623,19 @@ mod tests {
                 .unwrap();
         let e = level(&flat, LevelMethod::Substrate { aperture: None }).unwrap_err().to_string();
         assert!(e.contains("single level") || e.contains("flat"), "{e}");
+        // A smooth relief of concentric sinusoidal rings: its height histogram peaks at both
+        // extremes, but the lower "level" is half the surface, not a terrace.
+        let rings = Array2::from_shape_fn((200, 200), |(i, j)| {
+            let (x, y) = (j as f64 - 100.0, i as f64 - 100.0);
+            300e-9 * ((x * x + y * y).sqrt() * 0.2).sin() + 1e-9 * x
+        });
+        let e = level(
+            &Grid::new(rings, [1e-6; 2], Unit::Metre).unwrap(),
+            LevelMethod::Substrate { aperture: None },
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("not terraced"), "{e}");
     }
 
     #[test]

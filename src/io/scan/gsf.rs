@@ -54,6 +54,12 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         let (k, v) = line.split_once('=').ok_or_else(|| {
             Error::format(path, format!("header line {}: '{line}' is not 'Key = Value'", n + 1))
         })?;
+        if metadata.iter().any(|(key, _)| key == k.trim()) {
+            return Err(Error::format(
+                path,
+                format!("header line {}: key '{}' is given twice", n + 1, k.trim()),
+            ));
+        }
         metadata.push((k.trim().to_string(), v.trim().to_string()));
     }
     let get = |k: &str| metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());

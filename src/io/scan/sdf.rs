@@ -102,6 +102,12 @@ pub fn decode_ascii(path: &Path, text: &str) -> Result<ScanRaw> {
         let (k, v) = t
             .split_once('=')
             .ok_or_else(|| Error::format(path, format!("line {}: '{t}' is not 'Key = Value'", n + 1)))?;
+        if metadata.iter().any(|(key, _)| key == k.trim()) {
+            return Err(Error::format(
+                path,
+                format!("line {}: header key '{}' is given twice", n + 1, k.trim()),
+            ));
+        }
         metadata.push((k.trim().to_string(), v.trim().to_string()));
     }
     if !closed {
@@ -123,7 +129,9 @@ pub fn decode_ascii(path: &Path, text: &str) -> Result<ScanRaw> {
     let (xres, yres) = (count("NumPoints")?, count("NumProfiles")?);
     let scales = [float("Xscale")?, float("Yscale")?, float("Zscale")?];
     let n = data_len(path, yres, xres, 1)?;
-    let mut data = Vec::with_capacity(n);
+    // The header's size is a claim: reserve no more than the text can hold (a number and a
+    // separator take at least two bytes).
+    let mut data = Vec::with_capacity(n.min(text.len() / 2 + 1));
     let mut ended = false;
     'lines: for (ln, line) in lines {
         for tok in line.split_whitespace() {
