@@ -126,12 +126,18 @@ fn main() -> doefab::Result<()> {
         println!("notice: no Python with torch found; the PyTorch comparison is skipped");
         return Ok(());
     };
-    // Lines "name seconds" from the script.
-    let get =
-        |k: &str| text.lines().find_map(|l| l.strip_prefix(k).and_then(|v| v.trim().parse::<f64>().ok()));
-    for (k, ours) in [("inference_640", infer_s), ("train_b2_128", small_s), ("train_b8_320", step_s)] {
-        if let Some(t) = get(k) {
-            println!("torch      {k:<28} {t:>8.3} s   burn / torch = {:.2}", ours / t);
+    // Lines "name wall_seconds cpu_seconds" from the script.
+    let get = |k: &str| {
+        text.lines().find_map(|l| {
+            let v: Vec<f64> = l.strip_prefix(k)?.split_whitespace().filter_map(|x| x.parse().ok()).collect();
+            (v.len() == 2).then(|| (v[0], v[1]))
+        })
+    };
+    for (k, (wall, cpu)) in [("inference_640", infer_s), ("train_b2_128", small_s), ("train_b8_320", step_s)]
+    {
+        if let Some((tw, tc)) = get(k) {
+            let cpu_ratio = cpu.map_or("-".into(), |c| format!("{:.2}", c / tc));
+            println!("torch      {k:<30} wall {tw:>8.3} s  cpu {tc:.3} s   burn / torch: wall {:.2}, cpu {cpu_ratio}", wall / tw);
         }
     }
     Ok(())
