@@ -794,6 +794,7 @@ fn finetune(cli: &Cli) -> Result<()> {
     let psf_sha = doefab::io::file_sha256(psf)?;
     let source: Box<dyn SceneSource> = match data {
         Some(dir) => Box::new(ImageSet::load(dir)?),
+        // Built-in scenes plug in here as a `GeneratedScenes { name, generate }`.
         None => bail!("--data is required: give a folder of HDR training images (.exr, .hdr)"),
     };
     let device = doefab::decoder::device(*gpu)?;

@@ -451,6 +451,33 @@ fn resume_continues_exactly_and_divergence_keeps_the_last_good_checkpoint() {
 }
 
 #[test]
+fn generated_scenes_feed_a_run_and_bad_values_are_refused() {
+    use doefab::decoder::finetune::GeneratedScenes;
+    let dev = device(false).unwrap();
+    // A stand-in generator: a seeded log-normal texture.
+    let texture = GeneratedScenes {
+        name: "log-normal texture",
+        generate: |seed: u64, rows: usize, cols: usize| {
+            let mut g = Lcg(seed);
+            Array3::from_shape_fn((rows, cols, 3), |_| (g.normal() - 1.0).exp() as f32)
+        },
+    };
+    let net = UNet::from_weights(&random_weights(5), &dev);
+    let mut run = Trainer::new(net, &small_psf(), "ff", &texture, tiny_config(1), "random").unwrap();
+    assert!(run.train_step().unwrap().is_finite());
+    let d = run.decoder().unwrap();
+    assert_eq!(d.metadata["training_data"], "log-normal texture");
+    let broken = GeneratedScenes {
+        name: "broken",
+        generate: |_, r: usize, c: usize| Array3::from_elem((r, c, 3), f32::NAN),
+    };
+    let net = UNet::from_weights(&random_weights(5), &dev);
+    let err =
+        Trainer::new(net, &small_psf(), "ff", &broken, tiny_config(1), "random").err().unwrap().to_string();
+    assert!(err.contains("broken") && err.contains("NaN"), "{err}");
+}
+
+#[test]
 fn finetune_command_trains_resumes_and_refuses_bad_input() {
     let t = common::tempdir();
     let data = t.path().join("data");
