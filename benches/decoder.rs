@@ -47,9 +47,20 @@ fn image(g: &mut Lcg, n: usize, hi: f64) -> Array3<f32> {
     Array3::from_shape_fn((n, n, 3), |_| (g.uniform() * hi) as f32)
 }
 
-/// Median of `runs` timings of `f` after one warm-up call, seconds.
-fn time(runs: usize, mut f: impl FnMut()) -> f64 {
+/// CPU time of this process (user + system, all threads), seconds, from `/proc/self/stat`
+/// (Linux; `None` elsewhere). On a shared machine wall time depends on the other load, CPU
+/// time much less.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0) // USER_HZ is 100 on Linux
+}
+
+/// Median wall time and mean CPU time of `runs` calls of `f` after one warm-up call, seconds.
+fn time(runs: usize, mut f: impl FnMut()) -> (f64, Option<f64>) {
     f();
+    let c0 = cpu_seconds();
     let mut t: Vec<f64> = (0..runs)
         .map(|_| {
             let s = Instant::now();
@@ -57,12 +68,20 @@ fn time(runs: usize, mut f: impl FnMut()) -> f64 {
             s.elapsed().as_secs_f64()
         })
         .collect();
+    let cpu = c0.zip(cpu_seconds()).map(|(a, b)| (b - a) / runs as f64);
     t.sort_by(f64::total_cmp);
-    t[runs / 2]
+    (t[runs / 2], cpu)
 }
 
-fn train_step_time(w: &DecoderWeights, batch: usize, side: usize, runs: usize) -> f64 {
-    let dev = device(false);
+fn show(label: &str, (wall, cpu): (f64, Option<f64>)) {
+    println!(
+        "burn flex  {label:<30} wall {wall:>8.3} s  cpu {}",
+        cpu.map_or("-".into(), |c| format!("{c:.3} s"))
+    );
+}
+
+fn train_step_time(w: &DecoderWeights, batch: usize, side: usize, runs: usize) -> (f64, Option<f64>) {
+    let dev = device(false).unwrap();
     let mut net = UNet::from_weights(w, &dev);
     let mut adam = Adam::new(&net, &FinetuneConfig::default());
     let mut g = Lcg(2);
@@ -84,17 +103,17 @@ fn torch(python: &str) -> Option<String> {
 fn main() -> doefab::Result<()> {
     let w = weights();
     println!("threads: {}", rayon::current_num_threads());
-    let dev = device(false);
+    let dev = device(false)?;
     let net = UNet::from_weights(&w, &dev);
     let x = image(&mut Lcg(3), 640, 1.0);
     let infer_s = time(3, || {
         infer(&net, &x).expect("inference");
     });
-    println!("burn flex  inference 640x640            {infer_s:>8.3} s");
+    show("inference 640x640", infer_s);
     let small_s = train_step_time(&w, 2, 128, 3);
-    println!("burn flex  train step batch 2, 128x128   {small_s:>8.3} s");
+    show("train step batch 2, 128x128", small_s);
     let step_s = train_step_time(&w, 8, 320, 2);
-    println!("burn flex  train step batch 8, 320x320   {step_s:>8.3} s");
+    show("train step batch 8, 320x320", step_s);
 
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let candidates = [
@@ -107,12 +126,18 @@ fn main() -> doefab::Result<()> {
         println!("notice: no Python with torch found; the PyTorch comparison is skipped");
         return Ok(());
     };
-    // Lines "name seconds" from the script.
-    let get =
-        |k: &str| text.lines().find_map(|l| l.strip_prefix(k).and_then(|v| v.trim().parse::<f64>().ok()));
-    for (k, ours) in [("inference_640", infer_s), ("train_b2_128", small_s), ("train_b8_320", step_s)] {
-        if let Some(t) = get(k) {
-            println!("torch      {k:<28} {t:>8.3} s   burn / torch = {:.2}", ours / t);
+    // Lines "name wall_seconds cpu_seconds" from the script.
+    let get = |k: &str| {
+        text.lines().find_map(|l| {
+            let v: Vec<f64> = l.strip_prefix(k)?.split_whitespace().filter_map(|x| x.parse().ok()).collect();
+            (v.len() == 2).then(|| (v[0], v[1]))
+        })
+    };
+    for (k, (wall, cpu)) in [("inference_640", infer_s), ("train_b2_128", small_s), ("train_b8_320", step_s)]
+    {
+        if let Some((tw, tc)) = get(k) {
+            let cpu_ratio = cpu.map_or("-".into(), |c| format!("{:.2}", c / tc));
+            println!("torch      {k:<30} wall {tw:>8.3} s  cpu {tc:.3} s   burn / torch: wall {:.2}, cpu {cpu_ratio}", wall / tw);
         }
     }
     Ok(())

@@ -6,7 +6,8 @@ transposed conv + frozen BatchNorm + ReLU with 1x1 fuse convs of cat[decoder, sk
 1x1 conv to 3 channels, BatchNorm and a 1x1 fuse of cat[head, x]. Random weights (speed does not
 depend on them); the loss is the paper's gamma-corrected L2; Adam lr 1e-4.
 
-Prints "name seconds" lines (median of a few runs after a warm-up):
+Prints "name wall_seconds cpu_seconds" lines (median wall time and mean process CPU time of a
+few runs after a warm-up):
 inference_640, train_b2_128, train_b8_320. Exits 1 when torch is missing.
 """
 import sys
@@ -74,14 +75,17 @@ def loss_fn(y, x):
 
 
 def timed(runs, f):
+    """Median wall time and mean process CPU time of `runs` calls after a warm-up, as text."""
     f()
     ts = []
+    c0 = time.process_time()
     for _ in range(runs):
         t = time.perf_counter()
         f()
         ts.append(time.perf_counter() - t)
+    cpu = (time.process_time() - c0) / runs
     ts.sort()
-    return ts[runs // 2]
+    return f"{ts[runs // 2]:.4f} {cpu:.4f}"
 
 
 def main():
@@ -95,7 +99,7 @@ def main():
             net(x640)
 
     print(f"threads {torch.get_num_threads()}")
-    print(f"inference_640 {timed(3, infer):.4f}")
+    print(f"inference_640 {timed(3, infer)}")
     for name, b, n, runs in [("train_b2_128", 2, 128, 3), ("train_b8_320", 8, 320, 2)]:
         x = torch.rand(b, 3, n, n)
         t = torch.rand(b, 3, n, n) * 4
@@ -105,7 +109,7 @@ def main():
             loss_fn(net(x), t).backward()
             opt.step()
 
-        print(f"{name} {timed(runs, step):.4f}")
+        print(f"{name} {timed(runs, step)}")
 
 
 if __name__ == "__main__":

@@ -705,7 +705,7 @@ fn run(cli: &Cli) -> Result<()> {
                 negatives: if *keep_negative { Negatives::Keep } else { Negatives::Clamp },
             };
             let png = png.clone().unwrap_or_else(|| output.with_extension("png"));
-            let device = doefab::decoder::device(*gpu);
+            let device = doefab::decoder::device(*gpu)?;
             let report = reconstruct_file(capture, decoder, output, &png, *ev, &opts, &device)?;
             warn(&report.report.warnings);
             print_result(cli, &report, || {
@@ -1071,9 +1071,10 @@ fn finetune(cli: &Cli) -> Result<()> {
     let psf_sha = doefab::io::file_sha256(psf)?;
     let source: Box<dyn SceneSource> = match data {
         Some(dir) => Box::new(ImageSet::load(dir)?),
+        // Built-in scenes plug in here as a `GeneratedScenes { name, generate }`.
         None => bail!("--data is required: give a folder of HDR training images (.exr, .hdr)"),
     };
-    let device = doefab::decoder::device(*gpu);
+    let device = doefab::decoder::device(*gpu)?;
     let mut trainer = if *resume {
         let ckpt = output.join(CHECKPOINT);
         Trainer::resume(&ckpt, &psf_model, &psf_sha, source.as_ref(), *steps, *lr, &device)

@@ -60,7 +60,7 @@ fn the_papers_decoders_reproduce_the_tensorflow_crops() {
     for which in ["measured", "simulated"] {
         let w = DecoderWeights::read(&dir.join(format!("decoder_{which}_psf.safetensors"))).unwrap();
         assert_eq!(w.parameter_count(), 630_820);
-        let net = UNet::from_weights(&w, &device(false));
+        let net = UNet::from_weights(&w, &device(false).unwrap());
         let y = infer(&net, &x).unwrap();
         let reference = npy3(&dir.join(format!("parity/kitchen_crop_output_decoder_{which}_psf.npy")));
         assert_parity(&y, &reference, &format!("{which}-PSF crop"));
@@ -76,7 +76,7 @@ fn the_full_frame_reproduces_the_negative_blob() {
     let crop = npy3(&dir.join("parity/kitchen_crop_input.npy"));
     assert_eq!(x.slice(ndarray::s![352..416, 240..304, ..]), crop, "PNG / 255 is the parity input");
     let w = DecoderWeights::read(&dir.join("decoder_measured_psf.safetensors")).unwrap();
-    let y = infer(&UNet::from_weights(&w, &device(false)), &x).unwrap();
+    let y = infer(&UNet::from_weights(&w, &device(false).unwrap()), &x).unwrap();
     let reference = npy3(&dir.join("parity/kitchen_full_output_decoder_measured_psf.npy"));
     assert_parity(&y, &reference, "measured-PSF full frame");
     let min = y.iter().cloned().fold(f32::INFINITY, f32::min);
@@ -89,7 +89,7 @@ fn decoder_files_round_trip_with_their_metadata() {
     let Some(dir) = data_dir() else { return };
     let src = dir.join("decoder_simulated_psf.safetensors");
     let w = DecoderWeights::read(&src).unwrap();
-    let net = UNet::from_weights(&w, &device(false));
+    let net = UNet::from_weights(&w, &device(false).unwrap());
     let mut back = net.to_weights().unwrap();
     assert_eq!(back.tensors, w.tensors, "TF -> burn -> TF layouts are exact inverses");
     back.metadata = BTreeMap::from([
@@ -191,7 +191,7 @@ fn rgb(seed: u64, h: usize, w: usize) -> Array3<f32> {
 
 #[test]
 fn identity_decoder_reconstructs_odd_sizes_exactly_through_padding_and_tiles() {
-    let net = UNet::from_weights(&linear_weights(1.0), &device(false));
+    let net = UNet::from_weights(&linear_weights(1.0), &device(false).unwrap());
     let x = rgb(5, 53, 290);
     let opts = ReconstructOptions { tile: 64, overlap: 16, negatives: Negatives::Keep };
     let (y, report) = reconstruct(&net, &x, &opts).unwrap();
@@ -200,7 +200,7 @@ fn identity_decoder_reconstructs_odd_sizes_exactly_through_padding_and_tiles() {
     assert_eq!(y, x, "y = x exactly");
     assert!(!report.warnings.is_empty(), "an overlap below the receptive field is reported");
     // The negative decoder: max(y, 0) removes every value and the counts say so.
-    let neg = UNet::from_weights(&linear_weights(-1.0), &device(false));
+    let neg = UNet::from_weights(&linear_weights(-1.0), &device(false).unwrap());
     let (y, report) = reconstruct(&neg, &x, &ReconstructOptions::default()).unwrap();
     assert!(y.iter().all(|&v| v == 0.0));
     assert_eq!(report.values_below_zero, x.iter().filter(|&&v| v > 0.0).count());
@@ -210,7 +210,7 @@ fn identity_decoder_reconstructs_odd_sizes_exactly_through_padding_and_tiles() {
 
 #[test]
 fn tiles_with_an_overlap_over_the_receptive_field_match_one_pass() {
-    let net = UNet::from_weights(&random_weights(11), &device(false));
+    let net = UNet::from_weights(&random_weights(11), &device(false).unwrap());
     let x = rgb(6, 384, 256);
     let (whole, n) = infer_tiled(&net, &x, 1024, 128).unwrap();
     assert_eq!(n, 1);
@@ -301,6 +301,12 @@ fn reconstruct_command_writes_exr_png_and_reports_negatives() {
     let o = run(&[]);
     assert!(o.status.success());
     assert!(image::open(&out).unwrap().to_rgb32f().pixels().all(|p| p.0.iter().all(|&v| v == 0.0)));
+    // Without the `cuda` feature, --gpu is refused rather than run on the CPU.
+    if !cfg!(feature = "cuda") {
+        let o = run(&["--gpu"]);
+        assert!(!o.status.success());
+        assert!(String::from_utf8_lossy(&o.stderr).contains("no GPU backend"));
+    }
     // A bad capture: a clear error and a non-zero exit, the earlier output left as it was.
     let before = std::fs::read(&out).unwrap();
     image::GrayImage::new(4, 4).save(&cap).unwrap();
@@ -364,7 +370,7 @@ fn tiny_config(steps: usize) -> FinetuneConfig {
 
 #[test]
 fn an_adam_step_lowers_the_loss_on_its_batch() {
-    let dev = device(false);
+    let dev = device(false).unwrap();
     let mut net = UNet::from_weights(&random_weights(3), &dev);
     let mut adam = Adam::new(&net, &FinetuneConfig { lr: 1e-3, ..FinetuneConfig::default() });
     let x = [rgb(1, 32, 32), rgb(2, 32, 32)];
@@ -394,7 +400,7 @@ fn an_adam_step_lowers_the_loss_on_its_batch() {
 
 #[test]
 fn resume_continues_exactly_and_divergence_keeps_the_last_good_checkpoint() {
-    let dev = device(false);
+    let dev = device(false).unwrap();
     let psf = small_psf();
     let images = ImageSet::new("test images", hdr_images()).unwrap();
     let init = random_weights(4);
@@ -442,6 +448,33 @@ fn resume_continues_exactly_and_divergence_keeps_the_last_good_checkpoint() {
     eprintln!("{err}");
     assert!(err.contains("diverged") || err.contains("loss is"), "{err}");
     assert_eq!(std::fs::read(c.join("checkpoint.safetensors")).unwrap(), saved);
+}
+
+#[test]
+fn generated_scenes_feed_a_run_and_bad_values_are_refused() {
+    use doefab::decoder::finetune::GeneratedScenes;
+    let dev = device(false).unwrap();
+    // A stand-in generator: a seeded log-normal texture.
+    let texture = GeneratedScenes {
+        name: "log-normal texture",
+        generate: |seed: u64, rows: usize, cols: usize| {
+            let mut g = Lcg(seed);
+            Array3::from_shape_fn((rows, cols, 3), |_| (g.normal() - 1.0).exp() as f32)
+        },
+    };
+    let net = UNet::from_weights(&random_weights(5), &dev);
+    let mut run = Trainer::new(net, &small_psf(), "ff", &texture, tiny_config(1), "random").unwrap();
+    assert!(run.train_step().unwrap().is_finite());
+    let d = run.decoder().unwrap();
+    assert_eq!(d.metadata["training_data"], "log-normal texture");
+    let broken = GeneratedScenes {
+        name: "broken",
+        generate: |_, r: usize, c: usize| Array3::from_elem((r, c, 3), f32::NAN),
+    };
+    let net = UNet::from_weights(&random_weights(5), &dev);
+    let err =
+        Trainer::new(net, &small_psf(), "ff", &broken, tiny_config(1), "random").err().unwrap().to_string();
+    assert!(err.contains("broken") && err.contains("NaN"), "{err}");
 }
 
 #[test]

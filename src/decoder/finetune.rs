@@ -117,6 +117,31 @@ impl SceneSource for ImageSet {
     }
 }
 
+/// Scenes from a generator `f(seed, rows, cols)` (such as a procedural scene generator), each
+/// with a seed drawn from the run's generator.
+pub struct GeneratedScenes<F> {
+    pub name: &'static str,
+    pub generate: F,
+}
+
+impl<F> SceneSource for GeneratedScenes<F>
+where
+    F: Fn(u64, usize, usize) -> Array3<f32> + Sync,
+{
+    fn describe(&self) -> String {
+        self.name.to_string()
+    }
+
+    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Array3<f32>> {
+        let seed = (rng.uniform() * (1u64 << 53) as f64) as u64;
+        let scene = (self.generate)(seed, rows, cols);
+        if let Some(v) = scene.iter().find(|v| !v.is_finite() || **v < 0.0) {
+            return Err(Error::Data(format!("{} (seed {seed}) made the value {v}", self.name)));
+        }
+        Ok(scene)
+    }
+}
+
 /// Reads a PSF for training: NumPy `.npz` (array `key`, or its only array) or `.npy`, of shape
 /// `(H, W)`, `(H, W, C)` or `(H, W, 1, C)` (the paper's layout), at pixel `pitch` (metres).
 pub fn read_psf(path: &Path, key: Option<&str>, pitch: f64) -> Result<Psf> {

@@ -18,15 +18,17 @@ use ndarray::{Array3, Array4};
 use crate::error::Result;
 use unet::{tensor_values, UNet};
 
-/// The device the decoder runs on: the first CUDA GPU when built with the `cuda` feature and
-/// `gpu` is asked for, else burn's Flex CPU backend.
-pub fn device(gpu: bool) -> Device {
-    #[cfg(feature = "cuda")]
-    if gpu {
-        return Device::cuda(0);
+/// The device the decoder runs on: burn's Flex CPU backend, or with `gpu` the first CUDA GPU,
+/// which needs a build with the `cuda` feature (refused otherwise, rather than running on the
+/// CPU unasked).
+pub fn device(gpu: bool) -> Result<Device> {
+    if !gpu {
+        return Ok(Device::flex());
     }
-    let _ = gpu;
-    Device::flex()
+    #[cfg(feature = "cuda")]
+    return Ok(Device::cuda(0));
+    #[cfg(not(feature = "cuda"))]
+    Err(crate::error::Error::param("gpu", "this build has no GPU backend; rebuild with `--features cuda`"))
 }
 
 /// The paper's decoder trained with the simulated PSF, the default starting point of
