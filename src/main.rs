@@ -339,7 +339,7 @@ fn run(cli: &Cli) -> Result<()> {
             let mut system = psf_out::system_for(&loaded.heights);
             system.subsample = *subsample;
             system.material = doefab::material::Material::by_name(material)?;
-            let opts = Options { allow_invalid: *allow_invalid };
+            let opts = Options { allow_invalid: *allow_invalid, ..Default::default() };
             let report = psf_out::simulate_and_write(
                 &loaded.heights,
                 &system,

@@ -273,7 +273,8 @@ fn an_invalid_configuration_is_refused_or_runs_with_a_warning() {
     let e = simulate(&s, &doe, Method::Fresnel, &Options::default()).unwrap_err().to_string();
     assert!(e.contains("lens_sampling at 530.0 nm") && e.contains("lens_sampling at 450.0 nm"), "{e}");
     assert!(!e.contains("635.0 nm"), "{e}");
-    let psf = simulate(&s, &doe, Method::Fresnel, &Options { allow_invalid: true }).unwrap();
+    let psf =
+        simulate(&s, &doe, Method::Fresnel, &Options { allow_invalid: true, ..Default::default() }).unwrap();
     assert_eq!(psf.warnings.len(), 2);
     assert!(psf.warnings[0].contains("lens_sampling"));
     let valid = simulate(&s, &doe, Method::MatrixDft, &Options::default()).unwrap();
@@ -418,7 +419,8 @@ fn each_propagation_step_conserves_energy() {
     let (_, _, w) = propagate::fresnel::grid(&s);
     assert_eq!(w, 90);
     let doe = smooth_doe(60, 4e-6, L550);
-    let psf = simulate(&s, &doe, Method::Fresnel, &Options { allow_invalid: true }).unwrap();
+    let psf =
+        simulate(&s, &doe, Method::Fresnel, &Options { allow_invalid: true, ..Default::default() }).unwrap();
     assert!((psf.channels[0].captured.unwrap() - 1.0).abs() < 1e-12);
 
     // The single transform over one full replica period, sampled at lambda g / (n dx), is a
@@ -429,7 +431,7 @@ fn each_propagation_step_conserves_energy() {
     let u1 = s.pupil_field(&doe, n, dx, L550, true).unwrap();
     let p = L550 * 7e-3 / (n as f64 * dx);
     let xs: Vec<f64> = (0..n).map(|q| (q as f64 - (n as f64 - 1.0) * 0.5) * p).collect();
-    let i = matrix_dft::transform(&s, &u1, dx, &xs, L550).unwrap();
+    let i = matrix_dft::transform::<f64>(&s, &u1, dx, &xs, L550).unwrap();
     assert!((i.sum() * p * p / field_power(&u1, dx) - 1.0).abs() < 1e-10);
 }
 
@@ -557,4 +559,60 @@ fn a_finite_object_focuses_at_the_thin_lens_image_distance() {
     assert!((at / infinity / (g / b).powi(2) - 1.0).abs() < 2e-3, "{at} vs {infinity}");
     assert_eq!(Method::from_name("angular-spectrum").unwrap(), Method::AngularSpectrum);
     assert!(Method::from_name("fft").unwrap_err().to_string().contains("unknown method 'fft'"));
+}
+
+#[test]
+fn the_folded_real_transform_equals_the_direct_collins_sum_in_f64_and_f32() {
+    use doefab::optics::Precision;
+    use rustfft::num_complex::Complex64;
+    // Defocused (A != 0), cells on, an asymmetric field, odd pupil and both crop parities.
+    for (n, crop) in [(41usize, 12usize), (40, 7)] {
+        let s = OpticalSystem {
+            lens_to_sensor: 7.3e-3,
+            cells: true,
+            crop,
+            subsample: 1,
+            sensor_pitch: 3e-6,
+            ..f7(3e-6, crop)
+        };
+        let dx = 5e-6;
+        let u1 = Array2::from_shape_fn((n, n), |(i, j)| {
+            Complex64::from_polar(1.0 + 0.3 * ((i + 2 * j) % 3) as f64, 0.1 * (i * i) as f64 + 0.7 * j as f64)
+        });
+        let xs = s.sensor_coords();
+        let got = matrix_dft::transform::<f64>(&s, &u1, dx, &xs, L550).unwrap();
+        let got32 = matrix_dft::transform::<f32>(&s, &u1, dx, &xs, L550).unwrap();
+        // Collins' integral summed term by term.
+        let m = s.abcd();
+        let lb = L550 * m.b;
+        let c = (n as f64 - 1.0) * 0.5;
+        let u = |j: usize| (j as f64 - c) * dx;
+        let sinc = doefab::optics::system::sinc;
+        let pi = std::f64::consts::PI;
+        let mut want = Array2::<f64>::zeros((crop, crop));
+        for ((p, q), w) in want.indexed_iter_mut() {
+            let (y, x) = (xs[p], xs[q]);
+            let mut acc = Complex64::new(0.0, 0.0);
+            for ((i, j), v) in u1.indexed_iter() {
+                let ph =
+                    pi * m.a * (u(i).powi(2) + u(j).powi(2)) / lb - 2.0 * pi * (x * u(j) + y * u(i)) / lb;
+                acc += v * Complex64::from_polar(1.0, ph);
+            }
+            *w = (acc * sinc(x * dx / lb) * sinc(y * dx / lb)).norm_sqr() * (dx * dx / lb).powi(2);
+        }
+        let e = doefab::optics::psf::relative_l2(&got, &want);
+        assert!(e < 1e-12, "n {n} crop {crop}: f64 {e}");
+        let e32 = doefab::optics::psf::relative_l2(&got32, &want);
+        assert!(e32 < 1e-6 && e32 > 1e-10, "n {n} crop {crop}: f32 {e32}");
+    }
+    // Points not symmetric about the axis are refused.
+    let s = f7(3e-6, 4);
+    let u1 = Array2::from_elem((8, 8), Complex64::new(1.0, 0.0));
+    let e = matrix_dft::transform::<f64>(&s, &u1, 5e-6, &[0.0, 1e-6, 2e-6], L550).unwrap_err().to_string();
+    assert!(e.contains("symmetric"), "{e}");
+    // f32 is refused for the FFT methods rather than silently run in f64.
+    let doe = flat(204, 5e-6);
+    let o = Options { precision: Precision::F32, ..Default::default() };
+    let e = simulate(&f7(3e-6, 8), &doe, Method::Fresnel, &o).unwrap_err().to_string();
+    assert!(e.contains("f32 is implemented for matrix_dft only"), "{e}");
 }

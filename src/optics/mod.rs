@@ -14,6 +14,6 @@ pub mod propagate;
 pub mod psf;
 pub mod system;
 
-pub use propagate::{simulate, Method, Options, Violation};
+pub use propagate::{simulate, Method, Options, Precision, Violation};
 pub use psf::{Channel, Psf};
 pub use system::OpticalSystem;

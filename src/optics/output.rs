@@ -72,7 +72,7 @@ pub fn simulate_and_write(
     let psf = simulate(system, doe, method, opts)?;
     // The flat reference on an odd crop, so that its peak pixel sits on the axis.
     let odd = OpticalSystem { crop: system.crop | 1, ..system.clone() };
-    let flat = simulate(&odd, &flat_doe(&odd)?, method, &Options { allow_invalid: true })?;
+    let flat = simulate(&odd, &flat_doe(&odd)?, method, &Options { allow_invalid: true, ..opts.clone() })?;
     let strehl: Vec<f64> = (0..psf.channels.len())
         .map(|c| {
             let a = psf.peak(c).0 * psf.channels[c].captured.unwrap_or(f64::NAN);
