@@ -244,8 +244,16 @@ impl OpticalSystem {
                 ),
             ));
         }
-        let same = doe.dim() == (n, n) && doe.pitch().iter().all(|p| (p / pitch - 1.0).abs() < 1e-12);
-        let g = if same { doe.clone() } else { doe.resample_to(n, n, [pitch, pitch], self.interpolation)? };
+        // At the DOE's own pitch, with the same parity and no more samples, the pupil samples
+        // are DOE samples: a centred crop, no interpolation.
+        let (r, c) = doe.dim();
+        let same_pitch = doe.pitch().iter().all(|p| (p / pitch - 1.0).abs() < 1e-12);
+        let g = if same_pitch && r >= n && c >= n && (r - n) % 2 == 0 && (c - n) % 2 == 0 {
+            let (i0, j0) = ((r - n) / 2, (c - n) / 2);
+            doe.crop(i0..i0 + n, j0..j0 + n)?
+        } else {
+            doe.resample_to(n, n, [pitch, pitch], self.interpolation)?
+        };
         let r2max = (self.aperture * 0.5).powi(2);
         let c = (n as f64 - 1.0) * 0.5;
         let mut out = Array2::<f64>::zeros((n, n));
