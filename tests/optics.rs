@@ -498,14 +498,25 @@ fn psf_command_writes_exr_npy_png_and_json() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("psf");
     let run = std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
-        .args(["psf", "built-in:paper", "-o"])
+        .args(["psf", "built-in:paper", "--explain", "-o"])
         .arg(&out)
         .arg("--json")
         .output()
         .unwrap();
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    // The default plan at 1e-3: the DOE's own samples, Gauss-Legendre pixels, f32, and the
+    // explanation of each choice on stderr.
+    for needle in
+        ["plan for tolerance 1.0e-3", "pupil pitch", "the DOE's own 4.290 um samples", "precision", "f32"]
+    {
+        assert!(stderr.contains(needle), "{needle}: {stderr}");
+    }
     let report: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
-    assert_eq!(report["method"], "matrix_dft");
+    assert_eq!(report["method"], "matrix_dft (plan, tolerance 1e-3)");
+    assert_eq!(report["plan"]["precision"], "f32");
+    assert_eq!(report["plan"]["system"]["pixel_rule"], "gauss_legendre");
+    assert!(report["plan"]["estimate"]["total"].as_f64().unwrap() <= 1e-3);
     let channels = report["channels"].as_array().unwrap();
     assert_eq!(channels.len(), 3);
     for c in channels {
@@ -526,7 +537,7 @@ fn psf_command_writes_exr_npy_png_and_json() {
     }
     let exr = doefab::io::exr::read_exr(&out.join("psf.exr"), Some("530nm")).unwrap();
     assert_eq!(exr.pitch, Some([4.29e-6, 4.29e-6]));
-    assert!(exr.metadata.iter().any(|(k, v)| k == "method" && v == "matrix_dft"));
+    assert!(exr.metadata.iter().any(|(k, v)| k == "method" && v == "matrix_dft (plan, tolerance 1e-3)"));
     assert!(exr.metadata.iter().any(|(k, v)| k == "wavelengths_m" && v == "6.35e-7,5.3e-7,4.5e-7"));
 }
 

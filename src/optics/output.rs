@@ -10,8 +10,10 @@ use std::path::Path;
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
+use super::plan::{run, Plan};
 use super::propagate::{simulate, Method, Options};
 use super::psf::{ChannelSummary, Psf};
+use super::spectrum::Band;
 use super::system::{flat_doe, OpticalSystem};
 use crate::error::Result;
 use crate::grid::Grid;
@@ -30,6 +32,8 @@ pub struct PsfReport {
     pub method: String,
     pub normalisation: String,
     pub system: OpticalSystem,
+    /// The automatic plan that chose the configuration, when one did.
+    pub plan: Option<Plan>,
     pub channels: Vec<ChannelReport>,
     /// Validity conditions a forced run violated.
     pub warnings: Vec<String>,
@@ -73,6 +77,26 @@ pub fn simulate_and_write(
     // The flat reference on an odd crop, so that its peak pixel sits on the axis.
     let odd = OpticalSystem { crop: system.crop | 1, ..system.clone() };
     let flat = simulate(&odd, &flat_doe(&odd)?, method, &Options { allow_invalid: true, ..opts.clone() })?;
+    report_and_write(&psf, &flat, system, None, out)
+}
+
+/// Runs `plan` on `doe` (and on a flat DOE for the Strehl ratio, with the same plan on an odd
+/// crop) and writes the outputs into `out`, the plan in the JSON summary.
+pub fn plan_and_write(doe: &Grid, plan: &Plan, bands: &[Band], out: &Path) -> Result<PsfReport> {
+    let psf = run(plan, doe, bands)?;
+    let odd =
+        Plan { system: OpticalSystem { crop: plan.system.crop | 1, ..plan.system.clone() }, ..plan.clone() };
+    let flat = run(&odd, &flat_doe(&odd.system)?, bands)?;
+    report_and_write(&psf, &flat, &plan.system, Some(plan), out)
+}
+
+fn report_and_write(
+    psf: &Psf,
+    flat: &Psf,
+    system: &OpticalSystem,
+    plan: Option<&Plan>,
+    out: &Path,
+) -> Result<PsfReport> {
     let strehl: Vec<f64> = (0..psf.channels.len())
         .map(|c| {
             let a = psf.peak(c).0 * psf.channels[c].captured.unwrap_or(f64::NAN);
@@ -96,14 +120,15 @@ pub fn simulate_and_write(
         })
         .collect();
     let mut report = PsfReport {
-        method: method.name().into(),
+        method: psf.method.clone(),
         normalisation: "each channel sums to 1 over the crop".into(),
         system: system.clone(),
+        plan: plan.cloned(),
         channels,
         warnings: psf.warnings.clone(),
         files: Vec::new(),
     };
-    write_psf(&psf, &mut report, out)?;
+    write_psf(psf, &mut report, out)?;
     Ok(report)
 }
 

@@ -30,7 +30,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::psf::{Channel, Psf};
-use super::system::OpticalSystem;
+use super::system::{OpticalSystem, PixelRule};
 use crate::error::{Error, Result};
 use crate::grid::{Grid, Unit};
 
@@ -185,6 +185,14 @@ pub fn simulate(system: &OpticalSystem, doe: &Grid, method: Method, opts: &Optio
             format!("f32 is implemented for matrix_dft only; {method} computes in f64"),
         ));
     }
+    if system.pixel_rule == PixelRule::GaussLegendre
+        && matches!(method, Method::Fresnel | Method::AngularSpectrum)
+    {
+        return Err(Error::param(
+            "pixel_rule",
+            format!("{method} samples the sensor on its uniform FFT grid: Gauss-Legendre pixel integration needs matrix_dft or rayleigh_sommerfeld"),
+        ));
+    }
     let fields: Vec<Result<SensorIntensity>> = system
         .wavelengths
         .par_iter()
@@ -214,17 +222,19 @@ pub fn simulate(system: &OpticalSystem, doe: &Grid, method: Method, opts: &Optio
     })
 }
 
-/// Sums `subsample x subsample` blocks of the sub-sample intensity into pixels and normalises
+/// Sums `subsample x subsample` blocks of the sub-sample intensity, each sample times its
+/// quadrature weight, into pixels and normalises
 /// to sum 1; returns the pixel grid and the captured fraction of the input power.
 fn bin_pixels(system: &OpticalSystem, f: &SensorIntensity) -> Result<(Grid, f64)> {
     let (c, s) = (system.crop, system.subsample);
+    let w = system.pixel_weights();
     let mut px = Array2::<f64>::zeros((c, c));
     for ((i, j), v) in f.intensity.indexed_iter() {
-        px[[i / s, j / s]] += v;
+        px[[i / s, j / s]] += w[i] * w[j] * v;
     }
     let total: f64 = px.sum();
-    let dxs = system.sample_pitch();
-    let captured = total * dxs * dxs / f.input_power;
+    let p = system.sensor_pitch;
+    let captured = total * p * p / f.input_power;
     if !(total > 0.0 && total.is_finite()) {
         return Err(Error::Data(format!("no light reaches the {c} x {c} sensor window (total {total})")));
     }
