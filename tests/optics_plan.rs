@@ -183,3 +183,59 @@ fn a_wide_spectral_band() {
     let p = check("wide band", &scene(), &doe, &[band]);
     assert!(p.spectral_samples > 1, "{}", p.explain());
 }
+
+#[test]
+fn the_plan_refuses_what_it_cannot_meet_and_names_why() {
+    let s = scene();
+    let doe = heights(|_, _| 0.0);
+    for bad in [0.0, -1e-3, 1.5, f64::NAN] {
+        let e = plan(&s, &doe, &[], bad).unwrap_err().to_string();
+        assert!(e.contains("tolerance"), "{e}");
+    }
+    // A band reaching outside PDMS's dispersion formula names the range.
+    let uv = Band::flat("UV", 350e-9, 450e-9).unwrap();
+    let e = plan(&s, &doe, &[uv], TOL).unwrap_err().to_string();
+    assert!(e.contains("band 'UV'") && e.contains("400-700 nm"), "{e}");
+    // A crop wider than the replica period lambda B / dx of any pupil sampling the plan
+    // considers (DOE pitch / 8 still leaves 2.0 mm at 450 nm over a 3 mm crop), with the FFT
+    // method's grid over its size limit: refused with both reasons.
+    let wide = OpticalSystem { crop: 1000, ..s.clone() };
+    let e = plan(&wide, &doe, &[], TOL).unwrap_err().to_string();
+    assert!(
+        e.contains("no method is valid") && e.contains("matrix_dft") && e.contains("angular_spectrum"),
+        "{e}"
+    );
+    // One pupil refinement lifts the replica period over the crop: the plan interpolates the
+    // DOE at half its pitch and says why.
+    let c = (0.55e-3 / 3e-6) as usize; // 183 pixels = 0.55 mm > lambda B / dx = 0.315 mm at 450 nm
+    let p = plan(&OpticalSystem { crop: c, ..s }, &doe, &[], TOL).unwrap();
+    assert_eq!((p.method, p.system.pupil_pitch), (Method::MatrixDft, PITCH / 2.0), "{}", p.explain());
+    assert!(p.explain().contains("output_window"), "{}", p.explain());
+}
+
+#[test]
+fn a_sensor_response_csv_gives_one_band_per_column() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("response.csv");
+    std::fs::write(
+        &path,
+        "# camera\nwavelength_nm,r,g,b\n450,0.0,0.1,1.0\n550,0.1,1.0,0.2\n650,1.0,0.1,0.0\n",
+    )
+    .unwrap();
+    let bands = doefab::optics::spectrum::read_response_csv(&path).unwrap();
+    let names: Vec<&str> = bands.iter().map(|b| b.name.as_str()).collect();
+    assert_eq!(names, ["r", "g", "b"]);
+    let (lo, hi) = bands[1].range();
+    assert!((lo - 450e-9).abs() < 1e-18 && (hi - 650e-9).abs() < 1e-18);
+    assert!((bands[1].response_at(550e-9) - 1.0).abs() < 1e-12);
+    for (text, needle) in [
+        ("wavelength,r\n450,1\n550,1\n", "wavelength_<unit>"),
+        ("wavelength_nm,r\n450,1\n550\n", "line 3: expected 2 fields, got 1"),
+        ("wavelength_nm,r\n450,1\n550,x\n", "line 3: r 'x' is not a number"),
+        ("wavelength_nm,r\n550,1\n450,1\n", "wavelengths must increase"),
+    ] {
+        std::fs::write(&path, text).unwrap();
+        let e = doefab::optics::spectrum::read_response_csv(&path).unwrap_err().to_string();
+        assert!(e.contains(needle) && e.contains("response.csv"), "{text}: {e}");
+    }
+}
