@@ -229,7 +229,7 @@ fn a_sensor_response_csv_gives_one_band_per_column() {
     assert!((lo - 450e-9).abs() < 1e-18 && (hi - 650e-9).abs() < 1e-18);
     assert!((bands[1].response_at(550e-9) - 1.0).abs() < 1e-12);
     for (text, needle) in [
-        ("wavelength,r\n450,1\n550,1\n", "wavelength_<unit>"),
+        ("wavelength,r\n450,1\n550,1\n", "names no unit"),
         ("wavelength_nm,r\n450,1\n550\n", "line 3: expected 2 fields, got 1"),
         ("wavelength_nm,r\n450,1\n550,x\n", "line 3: r 'x' is not a number"),
         ("wavelength_nm,r\n550,1\n450,1\n", "wavelengths must increase"),
