@@ -10,10 +10,14 @@
 use std::time::Instant;
 
 use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
-use doefab::optics::propagate::check;
-use doefab::optics::system::OpticalSystem;
+use doefab::optics::plan::{plan, Plan};
+use doefab::optics::propagate::{check, matrix_dft};
+use doefab::optics::psf::relative_l2;
+use doefab::optics::system::{OpticalSystem, PixelRule};
 use doefab::optics::{simulate, Method, Options, Precision, Psf};
 use doefab::Result;
+use ndarray::Array2;
+use rustfft::num_complex::Complex64;
 
 fn run(
     label: &str,
@@ -66,5 +70,68 @@ fn main() -> Result<()> {
     // The single transform with the DOE's own 4.29 um pupil and 2x2 pixel integration.
     let s3 = OpticalSystem { subsample: 2, ..OpticalSystem::default() };
     run("paper, 4.29 um pupil, 2x2 pixels", &s3, &doe, Method::MatrixDft, Precision::F64, Some(&r2))?;
+
+    // The plan at two tolerances against the converged pixel integral (Gauss-Legendre 8 x 8,
+    // f64, estimated error 1e-9), the DOE's own samples.
+    let conv =
+        OpticalSystem { subsample: 8, pixel_rule: PixelRule::GaussLegendre, ..OpticalSystem::default() };
+    let reference = simulate(&conv, &doe, Method::MatrixDft, &Options::default())?;
+    for tol in [1e-3, 1e-4] {
+        let p = plan(&OpticalSystem::default(), &doe, &[], tol)?;
+        run_plan(&p, &doe)?;
+        let mut secs = f64::INFINITY;
+        let mut psf = None;
+        for _ in 0..3 {
+            let t = Instant::now();
+            psf = Some(run_plan(&p, &doe)?);
+            secs = secs.min(t.elapsed().as_secs_f64());
+        }
+        let err = psf.expect("three runs").relative_l2(&reference)?;
+        println!(
+            "plan tolerance {tol:.0e}: {} {} {:?} {}x{}  {secs:>7.3} s  estimate {:.1e}  L2 vs converged {}",
+            p.method,
+            p.precision.name(),
+            p.system.pixel_rule,
+            p.system.subsample,
+            p.system.subsample,
+            p.estimate.total,
+            err.iter().map(|x| format!("{x:.2e}")).collect::<Vec<_>>().join(" / ")
+        );
+    }
+
+    // Speed of the folded real products against the plain complex matrix DFT `F G F^T`
+    // (ndarray's GEMM), one wavelength, point pixels, same process.
+    let s = OpticalSystem::default();
+    let (n, dx) = matrix_dft::pupil_grid(&s, &doe);
+    let u1 = s.pupil_field(&doe, n, dx, 530e-9, true)?;
+    let xs = s.sensor_coords();
+    let lb = 530e-9 * s.abcd().b;
+    let c = (n as f64 - 1.0) * 0.5;
+    let time = |f: &dyn Fn() -> Result<ndarray::Array2<f64>>| -> Result<(f64, ndarray::Array2<f64>)> {
+        f()?;
+        let t = Instant::now();
+        let r = f()?;
+        Ok((t.elapsed().as_secs_f64(), r))
+    };
+    let (t_plain, plain) = time(&|| {
+        let f = Array2::from_shape_fn((xs.len(), n), |(q, j)| {
+            Complex64::from_polar(1.0, -2.0 * std::f64::consts::PI * xs[q] * (j as f64 - c) * dx / lb)
+        });
+        let u2 = f.dot(&u1.dot(&f.t()));
+        Ok(u2.mapv(|v| v.norm_sqr() * (dx * dx / lb).powi(2)))
+    })?;
+    let (t64, r64) = time(&|| matrix_dft::transform::<f64>(&s, &u1, dx, &xs, 530e-9))?;
+    let (t32, r32) = time(&|| matrix_dft::transform::<f32>(&s, &u1, dx, &xs, 530e-9))?;
+    println!(
+        "one wavelength: complex F G F^T {t_plain:.3} s; folded f64 {t64:.3} s ({:.1}x, L2 {:.1e}); folded f32 {t32:.3} s ({:.1}x, L2 {:.1e})",
+        t_plain / t64,
+        relative_l2(&r64, &plain),
+        t_plain / t32,
+        relative_l2(&r32, &plain)
+    );
     Ok(())
+}
+
+fn run_plan(p: &Plan, doe: &doefab::Grid) -> Result<Psf> {
+    doefab::optics::plan::run(p, doe, &[])
 }
