@@ -56,6 +56,10 @@ enum Command {
         /// integrated over its band (plan only).
         #[arg(long)]
         response: Option<PathBuf>,
+        /// Optical system TOML (fields of the system, lengths with units: aperture = "5 mm");
+        /// unset fields keep the paper's values. The plan chooses pupil_pitch and subsample.
+        #[arg(long)]
+        system: Option<PathBuf>,
         /// Material of the DOE (pdms, fused_silica, noa61, pmma, ip_dip).
         #[arg(long, default_value = "pdms")]
         material: String,
@@ -352,6 +356,7 @@ fn run(cli: &Cli) -> Result<()> {
             tolerance,
             explain,
             response,
+            system: system_file,
             material,
             allow_invalid,
             read,
@@ -360,6 +365,9 @@ fn run(cli: &Cli) -> Result<()> {
             let loaded = chain::load_design(&DesignSource::parse(design.as_deref(), read.options()?))?;
             let mut system = psf_out::system_for(&loaded.heights);
             system.material = doefab::material::Material::by_name(material)?;
+            if let Some(p) = system_file {
+                system = doefab::optics::system::OpticalSystem::read_toml(p, &system)?;
+            }
             let report = if let Some(method) = method {
                 if response.is_some() {
                     bail!("--response needs the automatic plan: leave out --method");

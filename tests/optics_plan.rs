@@ -239,3 +239,50 @@ fn a_sensor_response_csv_gives_one_band_per_column() {
         assert!(e.contains(needle) && e.contains("response.csv"), "{text}: {e}");
     }
 }
+
+#[test]
+fn psf_command_with_a_system_file_and_a_sensor_response() {
+    let dir = tempfile::tempdir().unwrap();
+    let sys = dir.path().join("system.toml");
+    std::fs::write(
+        &sys,
+        "aperture = \"1 mm\"\nfocal_length = \"7 mm\"\nlens_to_sensor = \"7 mm\"\ncrop = 33\nsensor_pitch = \"3 um\"\n",
+    )
+    .unwrap();
+    let csv = dir.path().join("sensor.csv");
+    std::fs::write(&csv, "wavelength_nm,g,b\n430,0,1\n480,0.2,0.6\n530,1,0.1\n580,0.2,0\n").unwrap();
+    let out = dir.path().join("psf");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
+        .args(["psf", "built-in:paper", "--json", "--system"])
+        .arg(&sys)
+        .arg("--response")
+        .arg(&csv)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(r["system"]["aperture"], 1e-3);
+    let names: Vec<&str> =
+        r["channels"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["g", "b"]);
+    // Each band is simulated at its spectral samples: 430-580 nm, twice the samples per band.
+    let n = r["plan"]["spectral_samples"].as_u64().unwrap() as usize;
+    assert!(n > 1 && r["plan"]["system"]["wavelengths"].as_array().unwrap().len() == 2 * n, "{r}");
+    let (h, _) = doefab::io::npy::read_npy_nd(&out.join("psf.npy")).unwrap();
+    assert_eq!(h.shape, vec![33, 33, 1, 2]);
+    // A bad system file names itself and the field, and writes nothing.
+    std::fs::write(&sys, "aperture = \"1\"\n").unwrap();
+    let out2 = dir.path().join("psf2");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
+        .args(["psf", "--system"])
+        .arg(&sys)
+        .arg("-o")
+        .arg(&out2)
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success() && e.contains("system.toml") && e.contains("aperture"), "{e}");
+    assert!(!out2.exists());
+}

@@ -367,6 +367,80 @@ impl OpticalSystem {
     }
 }
 
+/// An optical system as written in a TOML file: every length a string with its unit
+/// ("5 mm", "4.29um", "infinity" for the object distance), every field optional (the base
+/// system fills the rest), unknown fields refused.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SystemFile {
+    aperture: Option<String>,
+    doe_to_lens: Option<String>,
+    focal_length: Option<String>,
+    lens_to_sensor: Option<String>,
+    object_distance: Option<String>,
+    sensor_pitch: Option<String>,
+    crop: Option<usize>,
+    subsample: Option<usize>,
+    pixel_rule: Option<PixelRule>,
+    pupil_pitch: Option<String>,
+    pupil_window: Option<String>,
+    wavelengths: Option<Vec<String>>,
+    material: Option<String>,
+    cells: Option<bool>,
+}
+
+impl OpticalSystem {
+    /// Reads a system TOML file over `base` (see [`SystemFile`]'s fields: those of
+    /// [`OpticalSystem`], lengths with units, `material` a name as [`Material::by_name`]) and
+    /// validates the result. Errors name the file and the field.
+    pub fn read_toml(path: &std::path::Path, base: &OpticalSystem) -> Result<OpticalSystem> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let f: SystemFile = toml::from_str(&text).map_err(|e| Error::format(path, e.to_string()))?;
+        let length = |field: &str, v: &Option<String>, into: &mut f64| -> Result<()> {
+            if let Some(t) = v {
+                *into = crate::units::parse_length(t)
+                    .map_err(|e| Error::format(path, format!("{field}: {e}")))?;
+            }
+            Ok(())
+        };
+        let mut s = base.clone();
+        length("aperture", &f.aperture, &mut s.aperture)?;
+        length("doe_to_lens", &f.doe_to_lens, &mut s.doe_to_lens)?;
+        length("focal_length", &f.focal_length, &mut s.focal_length)?;
+        length("lens_to_sensor", &f.lens_to_sensor, &mut s.lens_to_sensor)?;
+        length("sensor_pitch", &f.sensor_pitch, &mut s.sensor_pitch)?;
+        length("pupil_pitch", &f.pupil_pitch, &mut s.pupil_pitch)?;
+        length("pupil_window", &f.pupil_window, &mut s.pupil_window)?;
+        if let Some(z) = &f.object_distance {
+            s.object_distance = if z.trim().eq_ignore_ascii_case("infinity") {
+                None
+            } else {
+                let mut v = 0.0;
+                length("object_distance", &Some(z.clone()), &mut v)?;
+                Some(v)
+            };
+        }
+        if let Some(w) = &f.wavelengths {
+            s.wavelengths = w
+                .iter()
+                .map(|t| {
+                    crate::units::parse_length(t)
+                        .map_err(|e| Error::format(path, format!("wavelengths: {e}")))
+                })
+                .collect::<Result<_>>()?;
+        }
+        if let Some(m) = &f.material {
+            s.material = Material::by_name(m).map_err(|e| Error::format(path, format!("material: {e}")))?;
+        }
+        s.crop = f.crop.unwrap_or(s.crop);
+        s.subsample = f.subsample.unwrap_or(s.subsample);
+        s.pixel_rule = f.pixel_rule.unwrap_or(s.pixel_rule);
+        s.cells = f.cells.unwrap_or(s.cells);
+        s.validate().map_err(|e| Error::format(path, e.to_string()))?;
+        Ok(s)
+    }
+}
+
 /// `sin(pi t) / (pi t)`.
 pub fn sinc(t: f64) -> f64 {
     if t.abs() < 1e-8 {
@@ -398,6 +472,34 @@ mod tests {
         assert!((m.a * m.d - m.b * m.c - 1.0).abs() < 1e-12);
         assert_eq!(s.sensor_coords().len(), 320);
         assert!((s.sensor_coords()[160] - 0.5 * 4.29e-6).abs() < 1e-18);
+    }
+
+    #[test]
+    fn a_system_file_sets_lengths_with_units_and_names_bad_fields() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("system.toml");
+        std::fs::write(
+            &p,
+            "aperture = \"2.5 mm\"\nfocal_length = \"17.5mm\"\nlens_to_sensor = \"17.5 mm\"\n\
+             object_distance = \"infinity\"\nwavelengths = [\"550nm\", \"0.45 um\"]\ncrop = 64\n\
+             material = \"fused_silica\"\npixel_rule = \"gauss_legendre\"\n",
+        )
+        .unwrap();
+        let s = OpticalSystem::read_toml(&p, &OpticalSystem::default()).unwrap();
+        assert_eq!((s.aperture, s.focal_length, s.crop), (2.5e-3, 17.5e-3, 64));
+        assert!((s.wavelengths[1] - 450e-9).abs() < 1e-20 && (s.f_number() - 7.0).abs() < 1e-12);
+        assert_eq!((s.material, s.pixel_rule), (Material::fused_silica(), PixelRule::GaussLegendre));
+        for (text, needle) in [
+            ("aperture = \"5\"", "aperture: "),
+            ("lens_to_sensor = \"-3 mm\"", "lens_to_sensor"),
+            ("focal = \"3 mm\"", "unknown field `focal`"),
+            ("wavelengths = [\"1500 nm\"]", "400-700 nm"),
+            ("sensor_pitch = \"4.29 furlongs\"", "sensor_pitch"),
+        ] {
+            std::fs::write(&p, text).unwrap();
+            let e = OpticalSystem::read_toml(&p, &OpticalSystem::default()).unwrap_err().to_string();
+            assert!(e.contains(needle) && e.contains("system.toml"), "{text}: {e}");
+        }
     }
 
     #[test]
