@@ -534,6 +534,11 @@ fn psf_command_writes_exr_npy_png_and_json() {
         let strehl = c["strehl"].as_f64().unwrap();
         assert!(strehl > 0.05 && strehl < 0.95, "{strehl}");
         assert!(c["captured"].as_f64().unwrap() > 0.5);
+        // The central peak and six copies, brightest first, the first at the peak pixel.
+        let peaks = c["peaks"].as_array().unwrap();
+        assert_eq!(peaks.len(), 7);
+        assert_eq!(peaks[0]["position"], c["peak_position"]);
+        assert!(peaks.windows(2).all(|w| w[0]["value"].as_f64() >= w[1]["value"].as_f64()));
     }
     for f in ["psf.exr", "psf.npy", "psf_log.png", "psf.json"] {
         assert!(out.join(f).exists(), "{f}");

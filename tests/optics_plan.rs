@@ -286,3 +286,34 @@ fn psf_command_with_a_system_file_and_a_sensor_response() {
     assert!(!run.status.success() && e.contains("system.toml") && e.contains("aperture"), "{e}");
     assert!(!out2.exists());
 }
+
+#[test]
+fn peaks_find_the_central_spot_and_its_copies_with_their_energies() {
+    // Three Gaussian spots of energies 0.5, 0.3, 0.2 (sigma 1.5 pixels) on a 41 x 41 grid.
+    let pitch = 2e-6;
+    let spots = [(20.0, 20.0, 0.5), (20.0, 32.0, 0.3), (8.0, 10.0, 0.2)];
+    let norm = 1.0 / (2.0 * std::f64::consts::PI * 1.5f64.powi(2));
+    let v = Array2::from_shape_fn((41, 41), |(i, j)| {
+        spots
+            .iter()
+            .map(|&(r, c, e)| {
+                e * norm * (-((i as f64 - r).powi(2) + (j as f64 - c).powi(2)) / (2.0 * 1.5f64.powi(2))).exp()
+            })
+            .sum::<f64>()
+    });
+    let ch = doefab::optics::Channel {
+        name: "G".into(),
+        wavelength: None,
+        grid: Grid::new(v, [pitch; 2], Unit::Dimensionless).unwrap(),
+        captured: None,
+    };
+    let psf = Psf::new(vec![ch], "test").unwrap();
+    let p = psf.peaks(0, 7, 6.0 * pitch);
+    assert_eq!(p.len(), 3);
+    for (peak, &(r, c, e)) in p.iter().zip(&spots) {
+        assert!((peak.position[0] - (c - 20.0) * pitch).abs() < 1e-12, "{peak:?}");
+        assert!((peak.position[1] - (r - 20.0) * pitch).abs() < 1e-12, "{peak:?}");
+        // Within 6 pixels = 4 sigma: 1 - exp(-8) of the spot's energy.
+        assert!((peak.energy - e * (1.0 - (-8.0f64).exp())).abs() < 2e-3, "{peak:?} vs {e}");
+    }
+}

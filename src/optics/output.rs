@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use super::plan::{run, Plan};
 use super::propagate::{simulate, Method, Options};
-use super::psf::{ChannelSummary, Psf};
+use super::psf::{ChannelSummary, Peak, Psf};
 use super::spectrum::Band;
 use super::system::{flat_doe, OpticalSystem};
 use crate::error::Result;
@@ -22,6 +22,10 @@ use crate::io::exr::write_exr;
 use crate::io::heightmap::Metadata;
 use crate::io::npy::write_npy_f32_4d;
 use crate::io::png::write_png_u8;
+
+/// Peaks listed per channel in the summary (the paper's design: a central peak and six
+/// copies).
+pub const PEAKS: usize = 7;
 
 /// Decades shown by the log-scale PNG.
 pub const LOG_DECADES: f64 = 5.0;
@@ -48,6 +52,10 @@ pub struct ChannelReport {
     pub summary: ChannelSummary,
     /// Fraction of the channel inside `1.22 lambda F#` of its peak.
     pub encircled_energy_airy: Option<f64>,
+    /// The central peak and its shifted copies: the brightest local maxima at least the Airy
+    /// radius `1.22 lambda F#` (two pixels without a wavelength) apart, with the energy
+    /// within that radius.
+    pub peaks: Vec<Peak>,
     /// Whether the sensor sub-samples resolve the intensity (`pitch / subsample <= lambda F# / 2`,
     /// the intensity's Nyquist pitch). If not, pixel values are point samples rather than pixel
     /// integrals, and `captured` (a Riemann sum) can exceed 1.
@@ -113,6 +121,11 @@ fn report_and_write(
                 .wavelength
                 .map(|l| psf.encircled_energy(c, summary.peak_position, 1.22 * l * f_number)),
             strehl: Some(strehl[c]),
+            peaks: psf.peaks(
+                c,
+                PEAKS,
+                summary.wavelength.map_or(2.0 * psf.pitch()[0], |l| 1.22 * l * f_number),
+            ),
             pixel_integration_resolved: summary
                 .wavelength
                 .map(|l| system.sample_pitch() <= 0.5 * l * f_number),
