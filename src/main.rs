@@ -39,12 +39,27 @@ enum Command {
         /// Output folder.
         #[arg(short, long)]
         output: PathBuf,
-        /// matrix_dft, fresnel, angular_spectrum or rayleigh_sommerfeld.
-        #[arg(long, default_value = "matrix_dft")]
-        method: String,
-        /// Sub-samples per pixel and axis (pixel integration).
+        /// Force a method (matrix_dft, fresnel, angular_spectrum or rayleigh_sommerfeld) at the
+        /// DOE's pitch with --subsample; without it the automatic plan chooses everything.
+        #[arg(long)]
+        method: Option<String>,
+        /// Sub-samples per pixel and axis (pixel integration), with --method.
         #[arg(long, default_value_t = 1)]
         subsample: usize,
+        /// The plan's tolerance: relative L2 error per channel.
+        #[arg(long, default_value_t = doefab::optics::plan::DEFAULT_TOLERANCE)]
+        tolerance: f64,
+        /// Print the plan's choices and the condition that bounds each.
+        #[arg(long)]
+        explain: bool,
+        /// Sensor spectral response CSV (wavelength_nm,r,g,b): one channel per response column,
+        /// integrated over its band (plan only).
+        #[arg(long)]
+        response: Option<PathBuf>,
+        /// Optical system TOML (fields of the system, lengths with units: aperture = "5 mm");
+        /// unset fields keep the paper's values. The plan chooses pupil_pitch and subsample.
+        #[arg(long)]
+        system: Option<PathBuf>,
         /// Material of the DOE (pdms, fused_silica, noa61, pmma, ip_dip).
         #[arg(long, default_value = "pdms")]
         material: String,
@@ -475,20 +490,58 @@ fn warn(warnings: &[String]) {
 
 fn run(cli: &Cli) -> Result<()> {
     match &cli.command {
-        Command::Psf { design, output, method, subsample, material, allow_invalid, read } => {
-            use doefab::optics::{output as psf_out, Method, Options};
+        Command::Psf {
+            design,
+            output,
+            method,
+            subsample,
+            tolerance,
+            explain,
+            response,
+            system: system_file,
+            material,
+            allow_invalid,
+            read,
+        } => {
+            use doefab::optics::{output as psf_out, plan, spectrum, Method, Options};
             let loaded = chain::load_design(&DesignSource::parse(design.as_deref(), read.options()?))?;
             let mut system = psf_out::system_for(&loaded.heights);
-            system.subsample = *subsample;
             system.material = doefab::material::Material::by_name(material)?;
-            let opts = Options { allow_invalid: *allow_invalid };
-            let report = psf_out::simulate_and_write(
-                &loaded.heights,
-                &system,
-                Method::from_name(method)?,
-                &opts,
-                output,
-            )?;
+            if let Some(p) = system_file {
+                system = doefab::optics::system::OpticalSystem::read_toml(p, &system)?;
+            }
+            let report = if let Some(method) = method {
+                if response.is_some() {
+                    bail!("--response needs the automatic plan: leave out --method");
+                }
+                system.subsample = *subsample;
+                let opts = Options { allow_invalid: *allow_invalid, ..Default::default() };
+                psf_out::simulate_and_write(
+                    &loaded.heights,
+                    &system,
+                    Method::from_name(method)?,
+                    &opts,
+                    output,
+                )?
+            } else {
+                let bands = match response {
+                    Some(p) => spectrum::read_response_csv(p)?,
+                    None => Vec::new(),
+                };
+                let plan = plan::plan(&system, &loaded.heights, &bands, *tolerance)?;
+                if *explain {
+                    eprint!("{}", plan.explain());
+                }
+                let pb = progress(cli, 1);
+                pb.set_message(format!(
+                    "PSF by {} ({} wavelengths)",
+                    plan.method,
+                    plan.system.wavelengths.len()
+                ));
+                let r = psf_out::plan_and_write(&loaded.heights, &plan, &bands, output)?;
+                pb.finish_and_clear();
+                r
+            };
             warn(&report.warnings);
             print_result(cli, &report, || {
                 for c in &report.channels {
@@ -970,20 +1023,15 @@ fn demo(cli: &Cli, output: &Path) -> Result<()> {
         }
         reports.push(report);
     }
-    // The optics stage: the built-in design's RGB PSF by the single-transform method.
-    use doefab::optics::{output as psf_out, Method, Options};
+    // The optics stage: the built-in design's RGB PSF as the plan chooses it.
+    use doefab::optics::{output as psf_out, plan};
     let loaded = chain::load_design(&source)?;
     let system = psf_out::system_for(&loaded.heights);
     let psf_dir = output.join("psf");
+    let plan = plan::plan(&system, &loaded.heights, &[], plan::DEFAULT_TOLERANCE)?;
     let pb = progress(cli, 1);
-    pb.set_message("PSF of the built-in design");
-    let psf = psf_out::simulate_and_write(
-        &loaded.heights,
-        &system,
-        Method::MatrixDft,
-        &Options::default(),
-        &psf_dir,
-    )?;
+    pb.set_message(format!("PSF of the built-in design by {}", plan.method));
+    let psf = psf_out::plan_and_write(&loaded.heights, &plan, &[], &psf_dir)?;
     pb.finish_and_clear();
     warn(&psf.warnings);
     // The metrology stage: a synthetic scan of the part the 8-level recipe makes (cast:

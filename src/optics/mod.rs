@@ -6,14 +6,19 @@
 //! * [`psf`]: the PSF type (one grid per channel), its measures, the `.npz` reader.
 //! * [`propagate`]: the propagation methods, one file each, with their validity checks.
 //! * [`output`]: the PSF written as EXR, NPY, log-scale PNG and a JSON summary.
+//! * [`plan`]: the automatic plan (method, sampling, precision, spectral samples for a
+//!   tolerance).
+//! * [`spectrum`]: spectral bands weighted by a sensor response.
 //! * [`fft`]: planned square 2-D FFTs (rustfft stays inside this stage).
 
 pub mod fft;
 pub mod output;
+pub mod plan;
 pub mod propagate;
 pub mod psf;
+pub mod spectrum;
 pub mod system;
 
-pub use propagate::{simulate, Method, Options, Violation};
+pub use propagate::{simulate, Method, Options, Precision, Violation};
 pub use psf::{Channel, Psf};
 pub use system::OpticalSystem;

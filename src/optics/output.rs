@@ -10,8 +10,10 @@ use std::path::Path;
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
+use super::plan::{run, Plan};
 use super::propagate::{simulate, Method, Options};
-use super::psf::{ChannelSummary, Psf};
+use super::psf::{ChannelSummary, Peak, Psf};
+use super::spectrum::Band;
 use super::system::{flat_doe, OpticalSystem};
 use crate::error::Result;
 use crate::grid::Grid;
@@ -20,6 +22,10 @@ use crate::io::exr::write_exr;
 use crate::io::heightmap::Metadata;
 use crate::io::npy::write_npy_f32_4d;
 use crate::io::png::write_png_u8;
+
+/// Peaks listed per channel in the summary (the paper's design: a central peak and six
+/// copies).
+pub const PEAKS: usize = 7;
 
 /// Decades shown by the log-scale PNG.
 pub const LOG_DECADES: f64 = 5.0;
@@ -30,6 +36,8 @@ pub struct PsfReport {
     pub method: String,
     pub normalisation: String,
     pub system: OpticalSystem,
+    /// The automatic plan that chose the configuration, when one did.
+    pub plan: Option<Plan>,
     pub channels: Vec<ChannelReport>,
     /// Validity conditions a forced run violated.
     pub warnings: Vec<String>,
@@ -44,6 +52,10 @@ pub struct ChannelReport {
     pub summary: ChannelSummary,
     /// Fraction of the channel inside `1.22 lambda F#` of its peak.
     pub encircled_energy_airy: Option<f64>,
+    /// The central peak and its shifted copies: the brightest local maxima at least the Airy
+    /// radius `1.22 lambda F#` (two pixels without a wavelength) apart, with the energy
+    /// within that radius.
+    pub peaks: Vec<Peak>,
     /// Whether the sensor sub-samples resolve the intensity (`pitch / subsample <= lambda F# / 2`,
     /// the intensity's Nyquist pitch). If not, pixel values are point samples rather than pixel
     /// integrals, and `captured` (a Riemann sum) can exceed 1.
@@ -72,7 +84,27 @@ pub fn simulate_and_write(
     let psf = simulate(system, doe, method, opts)?;
     // The flat reference on an odd crop, so that its peak pixel sits on the axis.
     let odd = OpticalSystem { crop: system.crop | 1, ..system.clone() };
-    let flat = simulate(&odd, &flat_doe(&odd)?, method, &Options { allow_invalid: true })?;
+    let flat = simulate(&odd, &flat_doe(&odd)?, method, &Options { allow_invalid: true, ..opts.clone() })?;
+    report_and_write(&psf, &flat, system, None, out)
+}
+
+/// Runs `plan` on `doe` (and on a flat DOE for the Strehl ratio, with the same plan on an odd
+/// crop) and writes the outputs into `out`, the plan in the JSON summary.
+pub fn plan_and_write(doe: &Grid, plan: &Plan, bands: &[Band], out: &Path) -> Result<PsfReport> {
+    let psf = run(plan, doe, bands)?;
+    let odd =
+        Plan { system: OpticalSystem { crop: plan.system.crop | 1, ..plan.system.clone() }, ..plan.clone() };
+    let flat = run(&odd, &flat_doe(&odd.system)?, bands)?;
+    report_and_write(&psf, &flat, &plan.system, Some(plan), out)
+}
+
+fn report_and_write(
+    psf: &Psf,
+    flat: &Psf,
+    system: &OpticalSystem,
+    plan: Option<&Plan>,
+    out: &Path,
+) -> Result<PsfReport> {
     let strehl: Vec<f64> = (0..psf.channels.len())
         .map(|c| {
             let a = psf.peak(c).0 * psf.channels[c].captured.unwrap_or(f64::NAN);
@@ -89,6 +121,11 @@ pub fn simulate_and_write(
                 .wavelength
                 .map(|l| psf.encircled_energy(c, summary.peak_position, 1.22 * l * f_number)),
             strehl: Some(strehl[c]),
+            peaks: psf.peaks(
+                c,
+                PEAKS,
+                summary.wavelength.map_or(2.0 * psf.pitch()[0], |l| 1.22 * l * f_number),
+            ),
             pixel_integration_resolved: summary
                 .wavelength
                 .map(|l| system.sample_pitch() <= 0.5 * l * f_number),
@@ -96,14 +133,15 @@ pub fn simulate_and_write(
         })
         .collect();
     let mut report = PsfReport {
-        method: method.name().into(),
+        method: psf.method.clone(),
         normalisation: "each channel sums to 1 over the crop".into(),
         system: system.clone(),
+        plan: plan.cloned(),
         channels,
         warnings: psf.warnings.clone(),
         files: Vec::new(),
     };
-    write_psf(&psf, &mut report, out)?;
+    write_psf(psf, &mut report, out)?;
     Ok(report)
 }
 

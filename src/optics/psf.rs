@@ -46,6 +46,15 @@ pub struct Psf {
     pub warnings: Vec<String>,
 }
 
+/// A local maximum of a channel: its position (metres from the window centre), its pixel
+/// value and the channel's energy within the search radius of it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Peak {
+    pub position: [f64; 2],
+    pub value: f64,
+    pub energy: f64,
+}
+
 /// Summary numbers of one channel (for reports and JSON).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ChannelSummary {
@@ -133,6 +142,38 @@ impl Psf {
             }
         }
         (best.0, [g.x(best.1 .1), g.y(best.1 .0)], best.1)
+    }
+
+    /// The `count` brightest local maxima of channel `c` (pixels above all 8 neighbours; the
+    /// window's border pixels are skipped), each at least `radius` (metres) from a brighter
+    /// one, with the energy within `radius` of it: the central peak and its shifted copies.
+    pub fn peaks(&self, c: usize, count: usize, radius: f64) -> Vec<Peak> {
+        let g = &self.channels[c].grid;
+        let v = g.values();
+        let (h, w) = v.dim();
+        let mut maxima: Vec<(f64, usize, usize)> = Vec::new();
+        for i in 1..h.saturating_sub(1) {
+            for j in 1..w.saturating_sub(1) {
+                let x = v[[i, j]];
+                let local = (0..3).all(|a| (0..3).all(|b| (a, b) == (1, 1) || x > v[[i + a - 1, j + b - 1]]));
+                if local {
+                    maxima.push((x, i, j));
+                }
+            }
+        }
+        maxima.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let mut out: Vec<Peak> = Vec::new();
+        for (x, i, j) in maxima {
+            let pos = [g.x(j), g.y(i)];
+            if out.iter().any(|p| (p.position[0] - pos[0]).hypot(p.position[1] - pos[1]) < radius) {
+                continue;
+            }
+            out.push(Peak { position: pos, value: x, energy: self.encircled_energy(c, pos, radius) });
+            if out.len() == count {
+                break;
+            }
+        }
+        out
     }
 
     /// Sum of channel `c` over pixels whose centre lies within `radius` of `centre` (metres).

@@ -10,9 +10,10 @@
 //! at any pitch; its centre sits on the optical axis, and it is resampled onto each method's
 //! pupil grid ([`OpticalSystem::pupil_field`]).
 //!
-//! Pixel integration: each pixel is sampled at `subsample x subsample` points (the centres of
-//! equal sub-cells) and the intensities are summed (binned), a midpoint rule for the integral
-//! of the intensity over the pixel.
+//! Pixel integration: each pixel is sampled at `subsample x subsample` points and the
+//! weighted intensities summed (binned): the centres of equal sub-cells with equal weights (the
+//! midpoint rule, [`PixelRule::Midpoint`]) or Gauss-Legendre nodes and weights
+//! ([`PixelRule::GaussLegendre`], for methods that evaluate arbitrary sensor points).
 
 use ndarray::Array2;
 use rustfft::num_complex::Complex64;
@@ -31,6 +32,57 @@ pub const PAPER_CROP: usize = 320;
 /// lens tube at "a slight distance" without a value; at `d_s = g` the PSF does not depend on it
 /// (paraxially), so this only matters for defocus.
 pub const DEFAULT_DOE_TO_LENS: f64 = 10e-3;
+
+/// The quadrature of the intensity over each pixel, per axis with `subsample` points.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PixelRule {
+    /// Sub-cell centres, equal weights: the composite midpoint rule. A frequency `f` of the
+    /// intensity is weighted by the Dirichlet kernel `sin(pi f p) / (s sin(pi f p / s))`
+    /// instead of `sinc(f p)` (error `O((f p / s)^2)`, aliasing once `f p / s >= 1`).
+    #[default]
+    Midpoint,
+    /// Gauss-Legendre nodes and weights (Abramowitz and Stegun 25.4.29): exact for
+    /// polynomials of degree `2 s - 1`; for `exp(2 pi i f x)` over a pixel of width `p` the
+    /// error falls as `(2 pi f p)^(2s) (s!)^4 / ((2s + 1) ((2s)!)^3)`. Needs a method that
+    /// evaluates arbitrary sensor points (matrix_dft, rayleigh_sommerfeld).
+    GaussLegendre,
+}
+
+/// The `s` Gauss-Legendre nodes on `[-1, 1]` and their weights (summing to 2), by Newton's
+/// iteration on the Legendre polynomial `P_s` from the Chebyshev-like initial guesses
+/// `cos(pi (i - 1/4) / (s + 1/2))` (Press et al., Numerical Recipes, sec. 4.6).
+pub fn gauss_legendre(s: usize) -> (Vec<f64>, Vec<f64>) {
+    let mut nodes = vec![0.0; s];
+    let mut weights = vec![0.0; s];
+    for i in 0..s.div_ceil(2) {
+        let mut x = (std::f64::consts::PI * (i as f64 + 0.75) / (s as f64 + 0.5)).cos();
+        let mut dp = 1.0;
+        for _ in 0..100 {
+            // P_s(x) and P_{s-1}(x) by the three-term recurrence.
+            let (mut p0, mut p1) = (1.0, x);
+            for k in 2..=s {
+                let p2 = ((2 * k - 1) as f64 * x * p1 - (k - 1) as f64 * p0) / k as f64;
+                p0 = p1;
+                p1 = p2;
+            }
+            let ps = if s == 0 { 1.0 } else { p1 };
+            let psm1 = if s == 1 { 1.0 } else { p0 };
+            dp = s as f64 * (x * ps - psm1) / (x * x - 1.0);
+            let step = ps / dp;
+            x -= step;
+            if step.abs() < 1e-15 {
+                break;
+            }
+        }
+        let w = 2.0 / ((1.0 - x * x) * dp * dp);
+        nodes[i] = -x;
+        nodes[s - 1 - i] = x;
+        weights[i] = w;
+        weights[s - 1 - i] = w;
+    }
+    (nodes, weights)
+}
 
 /// The optical system, SI units. See the module docs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -52,6 +104,9 @@ pub struct OpticalSystem {
     pub crop: usize,
     /// Sub-samples per pixel and axis for pixel integration (1 = point sampling).
     pub subsample: usize,
+    /// Their quadrature rule.
+    #[serde(default)]
+    pub pixel_rule: PixelRule,
     /// Pupil sample pitch for the single-transform method, metres (the transfer-function
     /// methods sample the pupil at `sensor_pitch / subsample`, the pitch they keep).
     pub pupil_pitch: f64,
@@ -83,6 +138,7 @@ impl Default for OpticalSystem {
             sensor_pitch: PAPER_PITCH,
             crop: PAPER_CROP,
             subsample: 1,
+            pixel_rule: PixelRule::Midpoint,
             pupil_pitch: PAPER_PITCH,
             pupil_window: crate::design::PAPER_SAMPLES as f64 * PAPER_PITCH,
             wavelengths: PAPER_WAVELENGTHS.to_vec(),
@@ -174,13 +230,37 @@ impl OpticalSystem {
         self.crop * self.subsample
     }
 
-    /// Coordinates (metres) of the sensor sub-samples along one axis, centred on the axis:
-    /// `x_q = (q - (M - 1)/2) * sensor_pitch / subsample`, `M = crop * subsample`. Binning
-    /// consecutive groups of `subsample` gives pixel centres `(j - (crop - 1)/2) sensor_pitch`.
+    /// Coordinates (metres) of the sensor sub-samples along one axis, centred on the axis,
+    /// `subsample` consecutive ones per pixel around the pixel centres
+    /// `(j - (crop - 1)/2) sensor_pitch`: for the midpoint rule `x_q = (q - (M - 1)/2) *
+    /// sensor_pitch / subsample`, `M = crop * subsample`; for Gauss-Legendre the centre plus
+    /// `t_k sensor_pitch / 2` with `t_k` the nodes.
     pub fn sensor_coords(&self) -> Vec<f64> {
-        let m = self.samples();
-        let p = self.sample_pitch();
-        (0..m).map(|q| (q as f64 - (m as f64 - 1.0) * 0.5) * p).collect()
+        let s = self.subsample;
+        match self.pixel_rule {
+            PixelRule::Midpoint => {
+                let m = self.samples();
+                let p = self.sample_pitch();
+                (0..m).map(|q| (q as f64 - (m as f64 - 1.0) * 0.5) * p).collect()
+            }
+            PixelRule::GaussLegendre => {
+                let (t, _) = gauss_legendre(s);
+                let c = (self.crop as f64 - 1.0) * 0.5;
+                (0..self.samples())
+                    .map(|q| ((q / s) as f64 - c) * self.sensor_pitch + t[q % s] * 0.5 * self.sensor_pitch)
+                    .collect()
+            }
+        }
+    }
+
+    /// The quadrature weight of each sub-sample along one axis (those of a pixel sum to 1).
+    pub fn pixel_weights(&self) -> Vec<f64> {
+        let s = self.subsample;
+        let w: Vec<f64> = match self.pixel_rule {
+            PixelRule::Midpoint => vec![1.0 / s as f64; s],
+            PixelRule::GaussLegendre => gauss_legendre(s).1.iter().map(|w| 0.5 * w).collect(),
+        };
+        (0..self.samples()).map(|q| w[q % s]).collect()
     }
 
     /// Side of the sensor window, metres.
@@ -244,8 +324,16 @@ impl OpticalSystem {
                 ),
             ));
         }
-        let same = doe.dim() == (n, n) && doe.pitch().iter().all(|p| (p / pitch - 1.0).abs() < 1e-12);
-        let g = if same { doe.clone() } else { doe.resample_to(n, n, [pitch, pitch], self.interpolation)? };
+        // At the DOE's own pitch, with the same parity and no more samples, the pupil samples
+        // are DOE samples: a centred crop, no interpolation.
+        let (r, c) = doe.dim();
+        let same_pitch = doe.pitch().iter().all(|p| (p / pitch - 1.0).abs() < 1e-12);
+        let g = if same_pitch && r >= n && c >= n && (r - n) % 2 == 0 && (c - n) % 2 == 0 {
+            let (i0, j0) = ((r - n) / 2, (c - n) / 2);
+            doe.crop(i0..i0 + n, j0..j0 + n)?
+        } else {
+            doe.resample_to(n, n, [pitch, pitch], self.interpolation)?
+        };
         let r2max = (self.aperture * 0.5).powi(2);
         let c = (n as f64 - 1.0) * 0.5;
         let mut out = Array2::<f64>::zeros((n, n));
@@ -276,6 +364,80 @@ impl OpticalSystem {
             n += 1;
         }
         n
+    }
+}
+
+/// An optical system as written in a TOML file: every length a string with its unit
+/// ("5 mm", "4.29um", "infinity" for the object distance), every field optional (the base
+/// system fills the rest), unknown fields refused.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SystemFile {
+    aperture: Option<String>,
+    doe_to_lens: Option<String>,
+    focal_length: Option<String>,
+    lens_to_sensor: Option<String>,
+    object_distance: Option<String>,
+    sensor_pitch: Option<String>,
+    crop: Option<usize>,
+    subsample: Option<usize>,
+    pixel_rule: Option<PixelRule>,
+    pupil_pitch: Option<String>,
+    pupil_window: Option<String>,
+    wavelengths: Option<Vec<String>>,
+    material: Option<String>,
+    cells: Option<bool>,
+}
+
+impl OpticalSystem {
+    /// Reads a system TOML file over `base` (see [`SystemFile`]'s fields: those of
+    /// [`OpticalSystem`], lengths with units, `material` a name as [`Material::by_name`]) and
+    /// validates the result. Errors name the file and the field.
+    pub fn read_toml(path: &std::path::Path, base: &OpticalSystem) -> Result<OpticalSystem> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let f: SystemFile = toml::from_str(&text).map_err(|e| Error::format(path, e.to_string()))?;
+        let length = |field: &str, v: &Option<String>, into: &mut f64| -> Result<()> {
+            if let Some(t) = v {
+                *into = crate::units::parse_length(t)
+                    .map_err(|e| Error::format(path, format!("{field}: {e}")))?;
+            }
+            Ok(())
+        };
+        let mut s = base.clone();
+        length("aperture", &f.aperture, &mut s.aperture)?;
+        length("doe_to_lens", &f.doe_to_lens, &mut s.doe_to_lens)?;
+        length("focal_length", &f.focal_length, &mut s.focal_length)?;
+        length("lens_to_sensor", &f.lens_to_sensor, &mut s.lens_to_sensor)?;
+        length("sensor_pitch", &f.sensor_pitch, &mut s.sensor_pitch)?;
+        length("pupil_pitch", &f.pupil_pitch, &mut s.pupil_pitch)?;
+        length("pupil_window", &f.pupil_window, &mut s.pupil_window)?;
+        if let Some(z) = &f.object_distance {
+            s.object_distance = if z.trim().eq_ignore_ascii_case("infinity") {
+                None
+            } else {
+                let mut v = 0.0;
+                length("object_distance", &Some(z.clone()), &mut v)?;
+                Some(v)
+            };
+        }
+        if let Some(w) = &f.wavelengths {
+            s.wavelengths = w
+                .iter()
+                .map(|t| {
+                    crate::units::parse_length(t)
+                        .map_err(|e| Error::format(path, format!("wavelengths: {e}")))
+                })
+                .collect::<Result<_>>()?;
+        }
+        if let Some(m) = &f.material {
+            s.material = Material::by_name(m).map_err(|e| Error::format(path, format!("material: {e}")))?;
+        }
+        s.crop = f.crop.unwrap_or(s.crop);
+        s.subsample = f.subsample.unwrap_or(s.subsample);
+        s.pixel_rule = f.pixel_rule.unwrap_or(s.pixel_rule);
+        s.cells = f.cells.unwrap_or(s.cells);
+        s.validate().map_err(|e| Error::format(path, e.to_string()))?;
+        Ok(s)
     }
 }
 
@@ -310,6 +472,67 @@ mod tests {
         assert!((m.a * m.d - m.b * m.c - 1.0).abs() < 1e-12);
         assert_eq!(s.sensor_coords().len(), 320);
         assert!((s.sensor_coords()[160] - 0.5 * 4.29e-6).abs() < 1e-18);
+    }
+
+    #[test]
+    fn a_system_file_sets_lengths_with_units_and_names_bad_fields() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("system.toml");
+        std::fs::write(
+            &p,
+            "aperture = \"2.5 mm\"\nfocal_length = \"17.5mm\"\nlens_to_sensor = \"17.5 mm\"\n\
+             object_distance = \"infinity\"\nwavelengths = [\"550nm\", \"0.45 um\"]\ncrop = 64\n\
+             material = \"fused_silica\"\npixel_rule = \"gauss_legendre\"\n",
+        )
+        .unwrap();
+        let s = OpticalSystem::read_toml(&p, &OpticalSystem::default()).unwrap();
+        assert_eq!((s.aperture, s.focal_length, s.crop), (2.5e-3, 17.5e-3, 64));
+        assert!((s.wavelengths[1] - 450e-9).abs() < 1e-20 && (s.f_number() - 7.0).abs() < 1e-12);
+        assert_eq!((s.material, s.pixel_rule), (Material::fused_silica(), PixelRule::GaussLegendre));
+        for (text, needle) in [
+            ("aperture = \"5\"", "aperture: "),
+            ("lens_to_sensor = \"-3 mm\"", "lens_to_sensor"),
+            ("focal = \"3 mm\"", "unknown field `focal`"),
+            ("wavelengths = [\"1500 nm\"]", "400-700 nm"),
+            ("sensor_pitch = \"4.29 furlongs\"", "sensor_pitch"),
+        ] {
+            std::fs::write(&p, text).unwrap();
+            let e = OpticalSystem::read_toml(&p, &OpticalSystem::default()).unwrap_err().to_string();
+            assert!(e.contains(needle) && e.contains("system.toml"), "{text}: {e}");
+        }
+    }
+
+    #[test]
+    fn gauss_legendre_integrates_polynomials_of_degree_2s_minus_1() {
+        // Abramowitz and Stegun table 25.4: s = 3 nodes 0, +-sqrt(3/5), weights 8/9, 5/9.
+        let (x, w) = gauss_legendre(3);
+        assert!((x[2] - 0.6f64.sqrt()).abs() < 1e-15 && x[1].abs() < 1e-15 && x[0] == -x[2]);
+        assert!((w[1] - 8.0 / 9.0).abs() < 1e-14 && (w[0] - 5.0 / 9.0).abs() < 1e-14);
+        for s in 1..=12 {
+            let (x, w) = gauss_legendre(s);
+            for d in 0..2 * s {
+                let got: f64 = x.iter().zip(&w).map(|(x, w)| w * x.powi(d as i32)).sum();
+                let want = if d % 2 == 1 { 0.0 } else { 2.0 / (d as f64 + 1.0) };
+                assert!((got - want).abs() < 1e-13, "s {s} degree {d}: {got} vs {want}");
+            }
+            // Degree 2s is not exact (its error, 2^(2s+1) (s!)^4 / ((2s+1) ((2s)!)^2), is
+            // 0.046 at s = 3 and falls below 1e-6 by s = 11).
+            if s > 6 {
+                continue;
+            }
+            let got: f64 = x.iter().zip(&w).map(|(x, w)| w * x.powi(2 * s as i32)).sum();
+            assert!((got - 2.0 / (2 * s + 1) as f64).abs() > 1e-6, "s {s}");
+        }
+        // The sensor points of a Gauss-Legendre system lie symmetric about the axis.
+        let s = OpticalSystem {
+            crop: 5,
+            subsample: 4,
+            pixel_rule: PixelRule::GaussLegendre,
+            ..Default::default()
+        };
+        let xs = s.sensor_coords();
+        assert!((0..20).all(|q| (xs[q] + xs[19 - q]).abs() < 1e-18));
+        assert!((s.pixel_weights()[..4].iter().sum::<f64>() - 1.0).abs() < 1e-15);
     }
 
     #[test]

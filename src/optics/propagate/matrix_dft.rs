@@ -21,10 +21,11 @@
 
 use std::f64::consts::PI;
 
-use ndarray::Array2;
+use ndarray::{s, Array2, Axis, LinalgScalar};
+use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 
-use super::{check_fresnel, field_power, pupil_phase, SensorIntensity, Violation};
+use super::{check_fresnel, field_power, pupil_phase, Precision, SensorIntensity, Violation};
 use crate::error::{Error, Result};
 use crate::grid::Grid;
 use crate::optics::system::{sinc, OpticalSystem};
@@ -96,19 +97,63 @@ pub fn check(system: &OpticalSystem, doe: &Grid, wavelength: f64) -> Result<Vec<
     Ok(out)
 }
 
-/// The sensor intensity at `wavelength` on the sub-sample grid (see the module docs).
-pub fn sensor_intensity(system: &OpticalSystem, doe: &Grid, wavelength: f64) -> Result<SensorIntensity> {
+/// The sensor intensity at `wavelength` on the sub-sample grid (see the module docs), with the
+/// matrix products in `precision`.
+pub fn sensor_intensity(
+    system: &OpticalSystem,
+    doe: &Grid,
+    wavelength: f64,
+    precision: Precision,
+) -> Result<SensorIntensity> {
     let (n, dx) = pupil_grid(system, doe);
     let u1 = system.pupil_field(doe, n, dx, wavelength, true)?;
     let input_power = field_power(&u1, dx);
     let xs = system.sensor_coords();
-    let intensity = transform(system, &u1, dx, &xs, wavelength)?;
+    let intensity = match precision {
+        Precision::F32 => transform::<f32>(system, &u1, dx, &xs, wavelength)?,
+        Precision::F64 => transform::<f64>(system, &u1, dx, &xs, wavelength)?,
+    };
     Ok(SensorIntensity { intensity, input_power })
 }
 
+/// A real type the matrix products run in (`f32` or `f64`); phases and trigonometry are
+/// always evaluated in `f64` and rounded once.
+pub trait Real: LinalgScalar + Send + Sync {
+    fn of(x: f64) -> Self;
+    fn wide(self) -> f64;
+}
+
+impl Real for f32 {
+    fn of(x: f64) -> f32 {
+        x as f32
+    }
+    fn wide(self) -> f64 {
+        self as f64
+    }
+}
+
+impl Real for f64 {
+    fn of(x: f64) -> f64 {
+        x
+    }
+    fn wide(self) -> f64 {
+        self
+    }
+}
+
 /// Collins' integral of the pupil field `u1` (pitch `dx`, centred) evaluated at the sensor
-/// points `xs x xs` (metres, both axes): the intensity `|U2|^2`.
-pub fn transform(
+/// points `xs x xs` (metres, both axes, symmetric about the axis as
+/// [`OpticalSystem::sensor_coords`]): the intensity `|U2|^2`.
+///
+/// Both coordinate sets are symmetric about 0 (`u_{n-1-j} = -u_j`, `x_{M-1-q} = -x_q`), so the
+/// kernel `exp(-i a x u) = cos(a x u) - i sin(a x u)` (`a = 2 pi / (lambda B)`) folds: with
+/// `G+-` the pupil columns at `+-u`, `sum_j G_j exp(-i a x u_j) = sum_{u > 0} (G+ + G-) cos -
+/// i (G+ - G-) sin`, and the result at `-x` is the same with `+i`. Each of the two 1-D transforms
+/// becomes two real matrix products over half the pupil for half the sensor, a quarter of the
+/// arithmetic of the complex product (`2 n^2 M` real multiply-adds for the first, `n M^2 / 2`
+/// for the second, n pupil and M sensor samples per side). The products run in `T` through
+/// `matrixmultiply`'s GEMM, split over rayon's threads by rows.
+pub fn transform<T: Real>(
     system: &OpticalSystem,
     u1: &Array2<Complex64>,
     dx: f64,
@@ -126,22 +171,97 @@ pub fn transform(
     // Only the quadratic term of the pupil that the transform itself adds (A/B); the object's
     // spherical wave is already in u1.
     let ca = PI * m.a / lb;
-    let g = Array2::from_shape_fn((n, n), |(i, j)| {
+    let g = |i: usize, j: usize| {
         let v = u1[[i, j]];
         if v == Complex64::new(0.0, 0.0) || ca == 0.0 {
             v
         } else {
             v * Complex64::from_polar(1.0, ca * (u[i] * u[i] + u[j] * u[j]))
         }
-    });
+    };
+    let big_m = xs.len();
+    let span = xs.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    if (0..big_m).any(|q| (xs[q] + xs[big_m - 1 - q]).abs() > 1e-9 * span) {
+        return Err(Error::param("xs", "the sensor points must lie symmetric about the axis"));
+    }
+    // Pupil pairs k = 0..h: columns (n-1-k, k) at +-w_k, w_k = u_{n-1-k} >= 0 (the centre
+    // column of an odd n pairs with itself and counts once). Sensor pairs p = 0..mh likewise.
+    let (h, mh) = (n.div_ceil(2), big_m.div_ceil(2));
+    let a = 2.0 * PI / lb;
     // Cell envelope: sinc of the sensor position's spatial frequency x / (lambda B) times dx
     // (exact in focus, where the transform is a Fourier transform).
-    let env: Vec<f64> = xs.iter().map(|&x| if system.cells { sinc(x * dx / lb) } else { 1.0 }).collect();
-    let f = Array2::from_shape_fn((xs.len(), n), |(q, j)| {
-        Complex64::from_polar(env[q], -2.0 * PI * xs[q] * u[j] / lb)
-    });
-    let t = g.dot(&f.t());
-    let u2 = f.dot(&t);
+    let (cos, sin) = {
+        let mut cm = Array2::<T>::zeros((mh, h));
+        let mut sm = Array2::<T>::zeros((mh, h));
+        for p in 0..mh {
+            let y = xs[big_m - 1 - p];
+            let env = if system.cells { sinc(y * dx / lb) } else { 1.0 };
+            for k in 0..h {
+                let (s, co) = (a * y * u[n - 1 - k]).sin_cos();
+                cm[[p, k]] = T::of(env * co);
+                sm[[p, k]] = T::of(env * s);
+            }
+        }
+        (cm, sm)
+    };
+    // Sum and difference of the paired samples (`get(r, k)`, k along the folded axis of length
+    // n), real and imaginary parts stacked: two `2 rows x h` real matrices.
+    let fold = |get: &dyn Fn(usize, usize) -> Complex64, rows: usize| {
+        let mut even = Array2::<T>::zeros((2 * rows, h));
+        let mut odd = Array2::<T>::zeros((2 * rows, h));
+        for r in 0..rows {
+            for k in 0..h {
+                let plus = get(r, n - 1 - k);
+                let (e, o) = if n - 1 - k == k {
+                    (plus, Complex64::new(0.0, 0.0))
+                } else {
+                    let minus = get(r, k);
+                    (plus + minus, plus - minus)
+                };
+                even[[r, k]] = T::of(e.re);
+                even[[rows + r, k]] = T::of(e.im);
+                odd[[r, k]] = T::of(o.re);
+                odd[[rows + r, k]] = T::of(o.im);
+            }
+        }
+        (even, odd)
+    };
+    // The folded transform of `rows` stacked rows: value at row r and sensor sample q.
+    // With P = even cos^T and Q = odd sin^T, the value at +x_p is P - i Q and at -x_p is P + i Q.
+    let unfold = |pm: &Array2<T>, qm: &Array2<T>, rows: usize, r: usize, q: usize| {
+        let plus = q >= big_m / 2;
+        let p = if plus { big_m - 1 - q } else { q };
+        let (pr, pi) = (pm[[r, p]].wide(), pm[[rows + r, p]].wide());
+        let (qr, qi) = (qm[[r, p]].wide(), qm[[rows + r, p]].wide());
+        if plus {
+            Complex64::new(pr + qi, pi - qr)
+        } else {
+            Complex64::new(pr - qi, pi + qr)
+        }
+    };
+    // Step 1, along the pupil's x (columns): rows are the pupil's y.
+    let (ge, go) = fold(&|i, j| g(i, j), n);
+    let (p1, q1) = (par_gemm(&ge, &cos), par_gemm(&go, &sin));
+    drop((ge, go));
+    // Step 2, along the pupil's y: rows are the sensor's x.
+    let (te, to) = fold(&|q, i| unfold(&p1, &q1, n, i, q), big_m);
+    let (p2, q2) = (par_gemm(&te, &cos), par_gemm(&to, &sin));
     let scale = (dx * dx / lb).powi(2);
-    Ok(u2.mapv(|v| v.norm_sqr() * scale))
+    Ok(Array2::from_shape_fn((big_m, big_m), |(row, col)| {
+        unfold(&p2, &q2, big_m, col, row).norm_sqr() * scale
+    }))
+}
+
+/// `a b^T` by GEMM, the rows of `a` split into blocks over rayon's threads.
+fn par_gemm<T: Real>(a: &Array2<T>, b: &Array2<T>) -> Array2<T> {
+    let rows = a.nrows();
+    let block = rows.div_ceil(2 * rayon::current_num_threads()).max(64);
+    let parts: Vec<Array2<T>> = (0..rows)
+        .step_by(block)
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .map(|r0| a.slice(s![r0..(r0 + block).min(rows), ..]).dot(&b.t()))
+        .collect();
+    let views: Vec<_> = parts.iter().map(|p| p.view()).collect();
+    ndarray::concatenate(Axis(0), &views).expect("blocks share their column count")
 }

@@ -1,0 +1,439 @@
+//! The automatic plan: model no more than a scene needs. Given the physical system, the DOE,
+//! the colour channels (wavelengths or spectral [`Band`]s) and a tolerance on the relative L2
+//! error of each channel, [`plan`] picks the method, pupil sampling, padding, pixel
+//! sub-sampling, precision and number of spectral samples: the cheapest configuration whose
+//! *estimated* error is within the tolerance, each choice with the condition that bounds it
+//! ([`Plan::choices`]).
+//!
+//! Error estimates (relative L2 per channel, summed over the terms: a triangle inequality):
+//!
+//! * Pixel integration by `s x s` midpoint sub-samples of spacing `h = p / s`. A spatial
+//!   frequency `f` of the intensity is integrated over the pixel with the factor
+//!   `pi f h / sin(pi f h)` relative to the exact box integral. The intensity spectrum is the
+//!   autocorrelation of the pupil, so for any phase-only DOE `|I^(f)| <= OTF_0(f)`, the
+//!   aberration-free OTF of the circular aperture with cutoff `f_c = D / (lambda |B|)`
+//!   (Goodman, Introduction to Fourier Optics, sec. 6.4). The estimate is the
+//!   `OTF_0^2`-weighted RMS of `g(f_x h) g(f_y h) - 1` (a diffraction-limited spectrum). Where
+//!   `f_c h >= 1` the sub-samples alias the intensity and the estimate is infinite.
+//! * Precision: `f32` products carry about `u sqrt(n + M)` relative error (`u = 2^-24`,
+//!   `n` pupil and `M` sensor samples per side; measured ten times below this in
+//!   `benches/psf.rs`), `f64` none worth counting.
+//! * Spectral samples: the composite midpoint rule over `N` sub-bands of a band of width `W`
+//!   errs by `W delta^2 / 24 f''` for the weighted PSF `f(lambda) = R(lambda) I_lambda`,
+//!   `delta = W / N`. A pilot run at the band's edges and centre measures the second
+//!   difference `D2 = f(lo) - 2 f(mid) + f(hi) = (W/2)^2 f''`, so the relative error is
+//!   `||D2|| / (6 N^2 ||f_mean||)`, `f_mean` Simpson's mean of the three. It sees the pattern's
+//!   scaling with wavelength, the DOE's dispersion and the response's curvature together;
+//!   variation finer than half the band (a response with narrow features) it cannot see.
+//!
+//! Method: [`Method::MatrixDft`] at the DOE's own pitch (its samples, no interpolation) when
+//! valid; otherwise at the DOE pitch divided by the smallest integer that satisfies its
+//! sampling conditions; [`Method::AngularSpectrum`] (2x padding) where the paraxial method
+//! is invalid or it costs less. Cost is counted in real multiply-adds.
+
+use std::f64::consts::PI;
+
+use serde::{Deserialize, Serialize};
+
+use super::propagate::{self, asm, matrix_dft, Method, Options, Precision, Violation};
+use super::psf::Psf;
+use super::spectrum::{combine, Band};
+use super::system::{sinc, OpticalSystem, PixelRule};
+use crate::error::{Error, Result};
+use crate::grid::Grid;
+
+/// The default tolerance of `doefab psf`: relative L2 error per channel.
+pub const DEFAULT_TOLERANCE: f64 = 1e-3;
+/// The largest pixel sub-sampling and pupil refinement the plan considers.
+const MAX_SUBSAMPLE: usize = 32;
+const MAX_REFINE: usize = 8;
+const MAX_SPECTRAL: usize = 64;
+/// The largest pupil or FFT grid side the plan considers (memory: 16 bytes a sample).
+const MAX_SIDE: usize = 8192;
+
+/// One choice of the plan with the condition that bounds it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Choice {
+    pub what: String,
+    pub value: String,
+    pub because: String,
+}
+
+/// Estimated relative L2 error of each term and their sum.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Estimate {
+    pub pixel_integration: f64,
+    pub precision: f64,
+    pub spectral: f64,
+    pub total: f64,
+}
+
+/// A configuration the plan chose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Plan {
+    pub tolerance: f64,
+    pub method: Method,
+    pub precision: Precision,
+    /// The system with the chosen pupil pitch, sub-sampling and the wavelengths to simulate.
+    pub system: OpticalSystem,
+    /// Spectral samples per band (1 for plain wavelengths).
+    pub spectral_samples: usize,
+    /// FFT window over pupil window (1 = none, the matrix DFT needs none).
+    pub padding: f64,
+    pub estimate: Estimate,
+    /// Real multiply-adds of the run (all wavelengths).
+    pub cost: f64,
+    pub choices: Vec<Choice>,
+}
+
+impl Plan {
+    /// The choices as lines of text.
+    pub fn explain(&self) -> String {
+        let mut s = format!(
+            "plan for tolerance {:.1e}: estimated error {:.2e} (pixels {:.1e}, precision {:.1e}, spectrum {:.1e}), {:.2e} multiply-adds\n",
+            self.tolerance,
+            self.estimate.total,
+            self.estimate.pixel_integration,
+            self.estimate.precision,
+            self.estimate.spectral,
+            self.cost
+        );
+        for c in &self.choices {
+            s.push_str(&format!("  {:<18} {:<22} {}\n", c.what, c.value, c.because));
+        }
+        s
+    }
+}
+
+/// The estimated pixel-integration error of `s` sub-samples per axis by `rule` for pixels of
+/// `pitch` and an intensity band-limited to `cutoff` cycles/m (see the module docs): the
+/// `OTF_0^2`-weighted RMS of `b_s(f_x) b_s(f_y) - b(f_x) b(f_y)` over that of `b(f_x) b(f_y)`,
+/// with `b(f) = sinc(f p)` the exact pixel integral of `exp(2 pi i f x)` and
+/// `b_s(f) = sum_k w_k cos(2 pi f x_k)` the rule's.
+pub fn pixel_error(rule: PixelRule, pitch: f64, s: usize, cutoff: f64) -> f64 {
+    let probe = OpticalSystem {
+        crop: 1,
+        subsample: s,
+        sensor_pitch: pitch,
+        pixel_rule: rule,
+        ..OpticalSystem::default()
+    };
+    let (xs, ws) = (probe.sensor_coords(), probe.pixel_weights());
+    let rule_b = |f: f64| xs.iter().zip(&ws).map(|(x, w)| w * (2.0 * PI * f * x).cos()).sum::<f64>();
+    let otf = |nu: f64| if nu >= 1.0 { 0.0 } else { 2.0 / PI * (nu.acos() - nu * (1.0 - nu * nu).sqrt()) };
+    let k = 128;
+    let f: Vec<f64> = (0..k).map(|a| (a as f64 + 0.5) / k as f64 * cutoff).collect();
+    let exact: Vec<f64> = f.iter().map(|&f| sinc(f * pitch)).collect();
+    let approx: Vec<f64> = f.iter().map(|&f| rule_b(f)).collect();
+    let (mut num, mut den) = (0.0, 0.0);
+    for a in 0..k {
+        for b in 0..k {
+            let w = otf((f[a] * f[a] + f[b] * f[b]).sqrt() / cutoff).powi(2);
+            num += w * (approx[a] * approx[b] - exact[a] * exact[b]).powi(2);
+            den += w * (exact[a] * exact[b]).powi(2);
+        }
+    }
+    (num / den).sqrt()
+}
+
+/// The estimated error of `f32` products for `n` pupil and `m` sensor samples per side.
+pub fn f32_error(n: usize, m: usize) -> f64 {
+    2f64.powi(-24) * ((n + m) as f64).sqrt()
+}
+
+/// The estimated relative error of `n` midpoint sub-bands for a band whose pilot PSFs
+/// (absolute intensities times the response) at its low edge, centre and high edge are
+/// `f` (see the module docs).
+pub fn spectral_error(f: [&ndarray::Array2<f64>; 3], n: usize) -> f64 {
+    let d2 = f[0] - &(f[1] * 2.0) + f[2];
+    let mean = (f[0] + &(f[1] * 4.0) + f[2]) / 6.0;
+    let norm = |a: &ndarray::Array2<f64>| a.iter().map(|v| v * v).sum::<f64>().sqrt();
+    norm(&d2) / (6.0 * (n * n) as f64 * norm(&mean))
+}
+
+/// The plan for `doe` in `system` (its aperture, distances, lens, sensor, material; its
+/// `pupil_pitch` and `subsample` are chosen here) with the colour channels `bands` (each
+/// simulated at its spectral samples) or, when `bands` is empty, the system's wavelengths.
+pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) -> Result<Plan> {
+    if !(tolerance > 0.0 && tolerance < 1.0) {
+        return Err(Error::param("tolerance", format!("must lie in (0, 1), got {tolerance}")));
+    }
+    system.validate()?;
+    let mut choices = Vec::new();
+    let mut say = |what: &str, value: String, because: String| {
+        choices.push(Choice { what: what.into(), value, because });
+    };
+    // Shortest and longest wavelength: every validity condition is monotone in the wavelength.
+    let mut edges: Vec<f64> = system.wavelengths.clone();
+    for b in bands {
+        let (lo, hi) = b.range();
+        for l in [lo, hi] {
+            system.material.index(l).map_err(|e| Error::param("band", format!("band '{}': {e}", b.name)))?;
+        }
+        edges.extend([lo, hi]);
+    }
+    if !bands.is_empty() {
+        edges.drain(..system.wavelengths.len());
+    }
+    let lmin = edges.iter().copied().fold(f64::INFINITY, f64::min);
+    let lmax = edges.iter().copied().fold(0.0, f64::max);
+    let extremes = OpticalSystem { wavelengths: vec![lmin, lmax], ..system.clone() };
+    let b = extremes.abcd().b.abs();
+    let cutoff = system.aperture / (lmin * b);
+
+    // Pixel sub-sampling: the smallest s per rule whose estimate takes at most half the
+    // tolerance (Gauss-Legendre for the matrix DFT, the midpoint rule for the FFT methods).
+    let share = 0.5 * tolerance;
+    let subsample = |rule: PixelRule| {
+        (1..=MAX_SUBSAMPLE).find(|&s| pixel_error(rule, system.sensor_pitch, s, cutoff) <= share).ok_or_else(|| {
+            Error::Validity(format!(
+                "pixel integration by {rule:?} would need more than {MAX_SUBSAMPLE} sub-samples per pixel for a tolerance of {tolerance:e}"
+            ))
+        })
+    };
+    let (s_gl, s_mid) = (subsample(PixelRule::GaussLegendre)?, subsample(PixelRule::Midpoint));
+
+    // Method and pupil sampling.
+    let doe_pitch = doe.pitch()[0].min(doe.pitch()[1]);
+    let base = OpticalSystem { subsample: s_gl, pixel_rule: PixelRule::GaussLegendre, ..extremes.clone() };
+    let mut candidates: Vec<(Method, OpticalSystem, f64, String)> = Vec::new();
+    let mut refusals: Vec<String> = Vec::new();
+    let mut last: Vec<Violation> = Vec::new();
+    for k in 1..=MAX_REFINE {
+        let s = OpticalSystem { pupil_pitch: doe_pitch / k as f64, ..base.clone() };
+        let n = matrix_dft::pupil_grid(&s, doe).0;
+        if n > MAX_SIDE {
+            refusals.push(format!(
+                "matrix_dft: a {n} x {n} pupil (DOE pitch / {k}) exceeds {MAX_SIDE} x {MAX_SIDE}"
+            ));
+            break;
+        }
+        let v = propagate::check(Method::MatrixDft, &s, doe)?;
+        if v.is_empty() {
+            let (n, _) = matrix_dft::pupil_grid(&s, doe);
+            let m = s.samples() as f64;
+            let cost = (n as f64).powi(2) * m + n as f64 * m * m;
+            let why = if k == 1 {
+                format!(
+                    "the DOE's own {:.3} um samples: no interpolation, every condition holds",
+                    doe_pitch * 1e6
+                )
+            } else {
+                format!(
+                    "DOE pitch / {k} (bilinear): at / {} {}",
+                    k - 1,
+                    last.iter().map(|v| v.condition.as_str()).collect::<Vec<_>>().join(", ")
+                )
+            };
+            candidates.push((Method::MatrixDft, s, cost, why));
+            break;
+        }
+        // Conditions no pupil refinement fixes.
+        if v.iter().any(|v| v.condition == "fresnel_approximation" || v.condition == "imaging_condition") {
+            refusals.push(format!("matrix_dft: {}", v[0]));
+            break;
+        }
+        last = v;
+    }
+    if candidates.is_empty() && refusals.is_empty() {
+        refusals.push(format!(
+            "matrix_dft: still invalid at DOE pitch / {MAX_REFINE}: {}",
+            last.first().map_or(String::new(), |v| v.to_string())
+        ));
+    }
+    // The angular spectrum samples the pupil at the sensor sub-sample pitch, the midpoint rule.
+    let s_mid = match s_mid {
+        Ok(s) => s,
+        Err(e) => {
+            refusals.push(format!("angular_spectrum: {e}"));
+            usize::MAX
+        }
+    };
+    for extra in (1..=MAX_REFINE).take_while(|_| s_mid != usize::MAX) {
+        let s =
+            OpticalSystem { subsample: s_mid * extra, pixel_rule: PixelRule::Midpoint, ..extremes.clone() };
+        let w = asm::grid(&s).2;
+        if w > MAX_SIDE {
+            refusals.push(format!(
+                "angular_spectrum: {s_mid} x {extra} sub-samples per pixel need a {w} x {w} FFT, over {MAX_SIDE} x {MAX_SIDE}"
+            ));
+            break;
+        }
+        let v = propagate::check(Method::AngularSpectrum, &s, doe)?;
+        if v.is_empty() {
+            let (_, _, w) = asm::grid(&s);
+            let w = w as f64;
+            // Two steps of forward and inverse complex FFTs, 5 N log2 N flops each (~ 2.5
+            // multiply-adds).
+            let cost = 4.0 * 2.5 * w * w * w.log2() * 2.0;
+            let why = format!(
+                "pupil at the sensor sub-sample pitch {:.3} um{}, 2x padding",
+                s.sample_pitch() * 1e6,
+                if extra > 1 {
+                    format!(" ({extra} x the pixel estimate's sub-samples, for its conditions)")
+                } else {
+                    String::new()
+                }
+            );
+            candidates.push((Method::AngularSpectrum, s, cost, why));
+            break;
+        }
+        if extra == MAX_REFINE || v.iter().all(|v| v.condition == "phase_gradient" && extra > 4) {
+            refusals.push(format!("angular_spectrum: {}", v[0]));
+            break;
+        }
+    }
+    candidates.sort_by(|a, b| a.2.total_cmp(&b.2));
+    let Some((method, chosen, mut cost, why)) = candidates.first().cloned() else {
+        return Err(Error::Validity(format!(
+            "no method is valid for this system:\n  {}",
+            refusals.join("\n  ")
+        )));
+    };
+    let others: Vec<String> = candidates[1..]
+        .iter()
+        .map(|c| format!("{} costs {:.1e}", c.0, c.2))
+        .chain(refusals.iter().cloned())
+        .collect();
+    say(
+        "method",
+        method.name().into(),
+        format!(
+            "cheapest valid ({:.1e} multiply-adds per wavelength){}",
+            cost,
+            if others.is_empty() { String::new() } else { format!("; {}", others.join("; ")) }
+        ),
+    );
+    say(
+        "pupil pitch",
+        format!(
+            "{:.4} um",
+            if method == Method::MatrixDft { chosen.pupil_pitch } else { chosen.sample_pitch() } * 1e6
+        ),
+        why,
+    );
+    let e_pix = pixel_error(chosen.pixel_rule, system.sensor_pitch, chosen.subsample, cutoff);
+    let below = chosen.subsample - 1;
+    say(
+        "pixel integration",
+        format!("{:?} {} x {}", chosen.pixel_rule, chosen.subsample, chosen.subsample),
+        format!(
+            "intensity band limit D / (lambda |B|) = {:.1} cycles/mm at {:.0} nm: estimate {:.1e} <= tolerance / 2{}",
+            cutoff * 1e-3,
+            lmin * 1e9,
+            e_pix,
+            if below > 0 {
+                format!(" ({below} per axis: {:.1e})", pixel_error(chosen.pixel_rule, system.sensor_pitch, below, cutoff))
+            } else {
+                String::new()
+            }
+        ),
+    );
+    let padding = if method == Method::MatrixDft { 1.0 } else { 2.0 };
+    say(
+        "padding",
+        if padding == 1.0 { "none".into() } else { "2x".into() },
+        if padding == 1.0 {
+            "the matrix DFT evaluates the sensor samples directly: no FFT window to wrap".into()
+        } else {
+            "band-limited angular spectrum: Q = 2 keeps the linear convolution (Matsushima and Shimobaba 2009)".into()
+        },
+    );
+
+    // Precision.
+    let (n, m) = (matrix_dft::pupil_grid(&chosen, doe).0, chosen.samples());
+    let e32 = f32_error(n, m);
+    let (precision, e_prec) = if method == Method::MatrixDft && e32 <= 0.1 * tolerance {
+        (Precision::F32, e32)
+    } else {
+        (Precision::F64, 0.0)
+    };
+    say(
+        "precision",
+        precision.name().into(),
+        if method != Method::MatrixDft {
+            format!("{method} computes in f64")
+        } else {
+            format!(
+                "f32 rounding estimate u sqrt(n + M) = {e32:.1e} {} tolerance / 10",
+                if precision == Precision::F32 { "<=" } else { ">" }
+            )
+        },
+    );
+    if precision == Precision::F32 {
+        cost *= 0.5;
+    }
+
+    // Spectral samples: what remains of the tolerance.
+    let remaining = tolerance - e_pix - e_prec;
+    let (samples, e_spec, wavelengths) = if bands.is_empty() {
+        say("spectral samples", "1 per channel".into(), "monochromatic channels".into());
+        (1, 0.0, system.wavelengths.clone())
+    } else {
+        let mut worst = (0, 0.0, String::new());
+        for b in bands {
+            let (lo, hi) = b.range();
+            let pilot_system = OpticalSystem { wavelengths: vec![lo, 0.5 * (lo + hi), hi], ..chosen.clone() };
+            let opts = Options { allow_invalid: false, precision };
+            let pilot = propagate::simulate(&pilot_system, doe, method, &opts)?;
+            let f: Vec<ndarray::Array2<f64>> = pilot
+                .channels
+                .iter()
+                .zip(&pilot_system.wavelengths)
+                .map(|(c, &l)| c.grid.values() * (c.captured.unwrap_or(1.0) * b.response_at(l)))
+                .collect();
+            let n = (1..=MAX_SPECTRAL).find(|&n| spectral_error([&f[0], &f[1], &f[2]], n) <= remaining).ok_or_else(|| {
+                Error::Validity(format!(
+                    "band '{}' would need more than {MAX_SPECTRAL} spectral samples for a tolerance of {tolerance:e}",
+                    b.name
+                ))
+            })?;
+            if n > worst.0 {
+                worst = (n, spectral_error([&f[0], &f[1], &f[2]], n), b.name.clone());
+            }
+        }
+        say(
+            "spectral samples",
+            format!("{} per band", worst.0),
+            format!(
+                "midpoint rule, band '{}' (pilot at its edges and centre): estimate {:.1e} <= the remaining {:.1e}",
+                worst.2, worst.1, remaining
+            ),
+        );
+        let wl = bands.iter().flat_map(|b| b.samples(worst.0)).map(|s| s.0).collect();
+        (worst.0, worst.1, wl)
+    };
+    cost *= wavelengths.len() as f64;
+    let system = OpticalSystem { wavelengths, ..chosen };
+    Ok(Plan {
+        tolerance,
+        method,
+        precision,
+        system,
+        spectral_samples: samples,
+        padding,
+        estimate: Estimate {
+            pixel_integration: e_pix,
+            precision: e_prec,
+            spectral: e_spec,
+            total: e_pix + e_prec + e_spec,
+        },
+        cost,
+        choices,
+    })
+}
+
+/// Runs a plan: simulates every wavelength and, for bands, combines the spectral samples
+/// into one channel per band.
+pub fn run(plan: &Plan, doe: &Grid, bands: &[Band]) -> Result<Psf> {
+    let opts = Options { allow_invalid: false, precision: plan.precision };
+    let psf = propagate::simulate(&plan.system, doe, plan.method, &opts)?;
+    let mut psf = if bands.is_empty() {
+        psf
+    } else {
+        let samples: Vec<Vec<(f64, f64)>> = bands.iter().map(|b| b.samples(plan.spectral_samples)).collect();
+        combine(&psf, bands, &samples)?
+    };
+    psf.method = format!("{} (plan, tolerance {:e})", plan.method, plan.tolerance);
+    Ok(psf)
+}

@@ -1,0 +1,319 @@
+//! The automatic plan on a suite of scenes: on each, the plan's PSF lies within the tolerance
+//! of a converged reference computed another way: the midpoint rule over each pixel at 16 and
+//! 32 sub-samples per axis, Richardson-extrapolated (`(4 I_32 - I_16) / 3`, the rule's error
+//! being even in the spacing), in f64, and for a band Gauss-Legendre nodes in wavelength,
+//! where the plan uses Gauss-Legendre pixel nodes, f32 where it estimates it suffices and the
+//! midpoint rule in wavelength. (The propagation itself is checked against the Fresnel,
+//! angular-spectrum and Rayleigh-Sommerfeld methods in `tests/optics.rs`.)
+
+use doefab::design::{paper_example, ExampleParams};
+use doefab::grid::{Grid, Unit};
+use doefab::material::Material;
+use doefab::optics::plan::{plan, run};
+use doefab::optics::spectrum::{combine, Band};
+use doefab::optics::system::{gauss_legendre, OpticalSystem, PixelRule};
+use doefab::optics::{simulate, Method, Options, Precision, Psf};
+use doefab::rng::Lcg;
+use ndarray::Array2;
+
+const TOL: f64 = 1e-3;
+const PITCH: f64 = 5e-6;
+const N: usize = 112;
+
+/// F/7 at 635 and 450 nm: 0.5 mm aperture, g = 3.5 mm, 3 um pixels, 40 x 40 crop, the DOE at
+/// 5 um.
+fn scene() -> OpticalSystem {
+    OpticalSystem {
+        aperture: 0.5e-3,
+        doe_to_lens: 1e-3,
+        focal_length: 3.5e-3,
+        lens_to_sensor: 3.5e-3,
+        sensor_pitch: 3e-6,
+        crop: 40,
+        pupil_pitch: PITCH,
+        pupil_window: N as f64 * PITCH,
+        wavelengths: vec![635e-9, 450e-9],
+        ..Default::default()
+    }
+}
+
+fn heights(phase: impl Fn(f64, f64) -> f64) -> Grid {
+    let l = 550e-9;
+    let k = 2.0 * std::f64::consts::PI / l * (Material::pdms().index(l).unwrap() - 1.0);
+    let c = (N as f64 - 1.0) * 0.5;
+    Grid::new(
+        Array2::from_shape_fn((N, N), |(i, j)| phase((j as f64 - c) * PITCH, (i as f64 - c) * PITCH) / k),
+        [PITCH; 2],
+        Unit::Metre,
+    )
+    .unwrap()
+}
+
+/// The midpoint rule at 16 and 32 sub-samples, Richardson-extrapolated, f64; with bands, each
+/// band integrated at 24 Gauss-Legendre wavelengths.
+fn reference(system: &OpticalSystem, doe: &Grid, bands: &[Band]) -> Vec<Array2<f64>> {
+    let samples: Vec<Vec<(f64, f64)>> = bands
+        .iter()
+        .map(|b| {
+            let (lo, hi) = b.range();
+            let (t, w) = gauss_legendre(24);
+            t.iter()
+                .zip(&w)
+                .map(|(t, w)| {
+                    let l = 0.5 * (lo + hi) + 0.5 * (hi - lo) * t;
+                    (l, 0.5 * (hi - lo) * w * b.response_at(l))
+                })
+                .collect()
+        })
+        .collect();
+    let at = |s: usize| -> Psf {
+        let wavelengths = if bands.is_empty() {
+            system.wavelengths.clone()
+        } else {
+            samples.iter().flatten().map(|s| s.0).collect()
+        };
+        let sys =
+            OpticalSystem { subsample: s, pixel_rule: PixelRule::Midpoint, wavelengths, ..system.clone() };
+        let psf = simulate(&sys, doe, Method::MatrixDft, &Options::default()).unwrap();
+        if bands.is_empty() {
+            psf
+        } else {
+            combine(&psf, bands, &samples).unwrap()
+        }
+    };
+    let (coarse, fine) = (at(16), at(32));
+    coarse
+        .channels
+        .iter()
+        .zip(&fine.channels)
+        .map(|(c, f)| (f.grid.values() * 4.0 - c.grid.values()) / 3.0)
+        .collect()
+}
+
+/// Plans, runs and compares with the reference; returns the plan's description.
+fn check(name: &str, system: &OpticalSystem, doe: &Grid, bands: &[Band]) -> doefab::optics::plan::Plan {
+    let p = plan(system, doe, bands, TOL).unwrap();
+    assert!(p.estimate.total <= TOL, "{name}: estimate {:?}", p.estimate);
+    let psf = run(&p, doe, bands).unwrap();
+    let want = reference(system, doe, bands);
+    for (c, w) in psf.channels.iter().zip(&want) {
+        let e = doefab::optics::psf::relative_l2(c.grid.values(), w);
+        eprintln!("{name} {}: error {e:.2e}, estimate {:.2e}\n{}", c.name, p.estimate.total, p.explain());
+        assert!(e <= TOL, "{name} {}: error {e:.2e} over the tolerance\n{}", c.name, p.explain());
+    }
+    p
+}
+
+#[test]
+fn flat_doe_and_fresnel_lens() {
+    let s = scene();
+    let p = check("flat", &s, &heights(|_, _| 0.0), &[]);
+    // The DOE's own samples, Gauss-Legendre pixels, f32 products.
+    assert_eq!((p.method, p.precision, p.system.pupil_pitch), (Method::MatrixDft, Precision::F32, PITCH));
+    assert_eq!(p.system.pixel_rule, PixelRule::GaussLegendre);
+    assert!(p.system.subsample >= 2, "{}", p.explain());
+    // A wrapped diffractive lens of 40 mm focal length at 550 nm.
+    let two_pi = 2.0 * std::f64::consts::PI;
+    let lens =
+        heights(|x, y| (-(x * x + y * y) * std::f64::consts::PI / (550e-9 * 40e-3)).rem_euclid(two_pi));
+    check("fresnel lens", &s, &lens, &[]);
+}
+
+#[test]
+fn built_in_doe_and_random_smooth_phase() {
+    let s = scene();
+    let params = ExampleParams {
+        samples: N,
+        pitch: PITCH,
+        aperture: 0.5e-3,
+        grating_period: 20.0 * PITCH,
+        ..Default::default()
+    };
+    check("built-in", &s, &paper_example(&params).unwrap(), &[]);
+    // Twelve random plane-wave phase ripples of periods 60-300 um and 0.5 rad each.
+    let mut rng = Lcg(7);
+    let waves: Vec<[f64; 4]> = (0..12)
+        .map(|_| {
+            let period = 60e-6 + 240e-6 * rng.uniform();
+            let angle = 2.0 * std::f64::consts::PI * rng.uniform();
+            [angle.cos() / period, angle.sin() / period, 2.0 * std::f64::consts::PI * rng.uniform(), 0.5]
+        })
+        .collect();
+    let smooth = heights(|x, y| {
+        waves
+            .iter()
+            .map(|w| w[3] * (2.0 * std::f64::consts::PI * (w[0] * x + w[1] * y) + w[2]).sin())
+            .sum::<f64>()
+            + 6.0
+    });
+    check("random smooth", &s, &smooth, &[]);
+}
+
+#[test]
+fn defocused_sensor_and_finite_object() {
+    let params = ExampleParams {
+        samples: N,
+        pitch: PITCH,
+        aperture: 0.5e-3,
+        grating_period: 20.0 * PITCH,
+        ..Default::default()
+    };
+    let doe = paper_example(&params).unwrap();
+    let defocus = OpticalSystem { lens_to_sensor: 3.5e-3 * 1.01, ..scene() };
+    check("defocused", &defocus, &doe, &[]);
+    // A point 100 mm in front of the DOE, the sensor at its thin-lens image distance.
+    let z = 100e-3;
+    let image = 1.0 / (1.0 / 3.5e-3 - 1.0 / (z + 1e-3));
+    let near = OpticalSystem { object_distance: Some(z), lens_to_sensor: image, ..scene() };
+    check("finite object", &near, &doe, &[]);
+}
+
+#[test]
+fn a_wide_spectral_band() {
+    let params = ExampleParams {
+        samples: N,
+        pitch: PITCH,
+        aperture: 0.5e-3,
+        grating_period: 20.0 * PITCH,
+        ..Default::default()
+    };
+    let doe = paper_example(&params).unwrap();
+    // 480-620 nm with a response rising towards the red.
+    let band = Band::new("G", vec![480e-9, 550e-9, 620e-9], vec![0.3, 0.8, 1.0]).unwrap();
+    let p = check("wide band", &scene(), &doe, &[band]);
+    assert!(p.spectral_samples > 1, "{}", p.explain());
+}
+
+#[test]
+fn the_plan_refuses_what_it_cannot_meet_and_names_why() {
+    let s = scene();
+    let doe = heights(|_, _| 0.0);
+    for bad in [0.0, -1e-3, 1.5, f64::NAN] {
+        let e = plan(&s, &doe, &[], bad).unwrap_err().to_string();
+        assert!(e.contains("tolerance"), "{e}");
+    }
+    // A band reaching outside PDMS's dispersion formula names the range.
+    let uv = Band::flat("UV", 350e-9, 450e-9).unwrap();
+    let e = plan(&s, &doe, &[uv], TOL).unwrap_err().to_string();
+    assert!(e.contains("band 'UV'") && e.contains("400-700 nm"), "{e}");
+    // A crop wider than the replica period lambda B / dx of any pupil sampling the plan
+    // considers (DOE pitch / 8 still leaves 2.0 mm at 450 nm over a 3 mm crop), with the FFT
+    // method's grid over its size limit: refused with both reasons.
+    let wide = OpticalSystem { crop: 1000, ..s.clone() };
+    let e = plan(&wide, &doe, &[], TOL).unwrap_err().to_string();
+    assert!(
+        e.contains("no method is valid") && e.contains("matrix_dft") && e.contains("angular_spectrum"),
+        "{e}"
+    );
+    // One pupil refinement lifts the replica period over the crop: the plan interpolates the
+    // DOE at half its pitch and says why.
+    let c = (0.55e-3 / 3e-6) as usize; // 183 pixels = 0.55 mm > lambda B / dx = 0.315 mm at 450 nm
+    let p = plan(&OpticalSystem { crop: c, ..s }, &doe, &[], TOL).unwrap();
+    assert_eq!((p.method, p.system.pupil_pitch), (Method::MatrixDft, PITCH / 2.0), "{}", p.explain());
+    assert!(p.explain().contains("output_window"), "{}", p.explain());
+}
+
+#[test]
+fn a_sensor_response_csv_gives_one_band_per_column() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("response.csv");
+    std::fs::write(
+        &path,
+        "# camera\nwavelength_nm,r,g,b\n450,0.0,0.1,1.0\n550,0.1,1.0,0.2\n650,1.0,0.1,0.0\n",
+    )
+    .unwrap();
+    let bands = doefab::optics::spectrum::read_response_csv(&path).unwrap();
+    let names: Vec<&str> = bands.iter().map(|b| b.name.as_str()).collect();
+    assert_eq!(names, ["r", "g", "b"]);
+    let (lo, hi) = bands[1].range();
+    assert!((lo - 450e-9).abs() < 1e-18 && (hi - 650e-9).abs() < 1e-18);
+    assert!((bands[1].response_at(550e-9) - 1.0).abs() < 1e-12);
+    for (text, needle) in [
+        ("wavelength,r\n450,1\n550,1\n", "names no unit"),
+        ("wavelength_nm,r\n450,1\n550\n", "line 3: expected 2 fields, got 1"),
+        ("wavelength_nm,r\n450,1\n550,x\n", "line 3: r 'x' is not a number"),
+        ("wavelength_nm,r\n550,1\n450,1\n", "wavelengths must increase"),
+    ] {
+        std::fs::write(&path, text).unwrap();
+        let e = doefab::optics::spectrum::read_response_csv(&path).unwrap_err().to_string();
+        assert!(e.contains(needle) && e.contains("response.csv"), "{text}: {e}");
+    }
+}
+
+#[test]
+fn psf_command_with_a_system_file_and_a_sensor_response() {
+    let dir = tempfile::tempdir().unwrap();
+    let sys = dir.path().join("system.toml");
+    std::fs::write(
+        &sys,
+        "aperture = \"1 mm\"\nfocal_length = \"7 mm\"\nlens_to_sensor = \"7 mm\"\ncrop = 33\nsensor_pitch = \"3 um\"\n",
+    )
+    .unwrap();
+    let csv = dir.path().join("sensor.csv");
+    std::fs::write(&csv, "wavelength_nm,g,b\n430,0,1\n480,0.2,0.6\n530,1,0.1\n580,0.2,0\n").unwrap();
+    let out = dir.path().join("psf");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
+        .args(["psf", "built-in:paper", "--json", "--system"])
+        .arg(&sys)
+        .arg("--response")
+        .arg(&csv)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(r["system"]["aperture"], 1e-3);
+    let names: Vec<&str> =
+        r["channels"].as_array().unwrap().iter().map(|c| c["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["g", "b"]);
+    // Each band is simulated at its spectral samples: 430-580 nm, twice the samples per band.
+    let n = r["plan"]["spectral_samples"].as_u64().unwrap() as usize;
+    assert!(n > 1 && r["plan"]["system"]["wavelengths"].as_array().unwrap().len() == 2 * n, "{r}");
+    let (h, _) = doefab::io::npy::read_npy_nd(&out.join("psf.npy")).unwrap();
+    assert_eq!(h.shape, vec![33, 33, 1, 2]);
+    // A bad system file names itself and the field, and writes nothing.
+    std::fs::write(&sys, "aperture = \"1\"\n").unwrap();
+    let out2 = dir.path().join("psf2");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
+        .args(["psf", "--system"])
+        .arg(&sys)
+        .arg("-o")
+        .arg(&out2)
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success() && e.contains("system.toml") && e.contains("aperture"), "{e}");
+    assert!(!out2.exists());
+}
+
+#[test]
+fn peaks_find_the_central_spot_and_its_copies_with_their_energies() {
+    // Three Gaussian spots of energies 0.5, 0.3, 0.2 (sigma 1.5 pixels) on a 41 x 41 grid.
+    let pitch = 2e-6;
+    let spots = [(20.0, 20.0, 0.5), (20.0, 32.0, 0.3), (8.0, 10.0, 0.2)];
+    let norm = 1.0 / (2.0 * std::f64::consts::PI * 1.5f64.powi(2));
+    let v = Array2::from_shape_fn((41, 41), |(i, j)| {
+        spots
+            .iter()
+            .map(|&(r, c, e)| {
+                e * norm * (-((i as f64 - r).powi(2) + (j as f64 - c).powi(2)) / (2.0 * 1.5f64.powi(2))).exp()
+            })
+            .sum::<f64>()
+    });
+    let ch = doefab::optics::Channel {
+        name: "G".into(),
+        wavelength: None,
+        grid: Grid::new(v, [pitch; 2], Unit::Dimensionless).unwrap(),
+        captured: None,
+    };
+    let psf = Psf::new(vec![ch], "test").unwrap();
+    let p = psf.peaks(0, 7, 6.0 * pitch);
+    assert_eq!(p.len(), 3);
+    for (peak, &(r, c, e)) in p.iter().zip(&spots) {
+        assert!((peak.position[0] - (c - 20.0) * pitch).abs() < 1e-12, "{peak:?}");
+        assert!((peak.position[1] - (r - 20.0) * pitch).abs() < 1e-12, "{peak:?}");
+        // Within 6 pixels = 4 sigma: 1 - exp(-8) of the spot's energy.
+        assert!((peak.energy - e * (1.0 - (-8.0f64).exp())).abs() < 2e-3, "{peak:?} vs {e}");
+    }
+}
