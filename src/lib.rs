@@ -14,11 +14,16 @@
 //! * [`metrology`]: profilometer scans (read by [`io::scan`]): levelling, outliers, filling,
 //!   ISO 25178 height parameters.
 //! * [`optics`]: the optical system and the DOE's PSF by several propagation methods.
+//! * [`calibration`]: exposure brackets -> HDR merge (Debevec-Malik) -> measured PSF
+//!   (`calibrate-psf`); PSNR of reconstructions against references, affine registration.
+//! * [`decoder`]: the image decoder and its data (procedural HDR scenes).
 //! * [`report`]: charts and false-colour maps (plotters, embedded font).
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
 //! * [`error`]: the library's error type.
 
+pub mod calibration;
+pub mod decoder;
 pub mod design;
 pub mod error;
 pub mod fabrication;
