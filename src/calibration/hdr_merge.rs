@@ -14,7 +14,7 @@
 //!
 //! A pixel that no frame sees between `lo` and `hi` has no trustworthy value: where every frame
 //! is saturated it takes the shortest frame's value over time (a lower bound); where every
-//! frame is in the noise floor, the sum of values over the sum of times. Both sets are counted
+//! frame is in the noise floor, the longest unsaturated frame's value over time. Both sets are counted
 //! and located in the report ([`PixelSet`]) and the caller decides whether to refuse them.
 //!
 //! Listed exposure times can be wrong (the paper's shortest frames drift 10-30 % from what the
@@ -27,12 +27,16 @@
 //! `(v_k / t_k - E) / E` over the pixels it sees well exposed: for 8-bit captures the
 //! quantization step alone gives `1 / (255 z sqrt(12))`, 1.1 % at `z = 0.1`.
 
-use ndarray::{Array3, Zip};
+use std::path::Path;
+
+use ndarray::{Array2, Array3, Zip};
 use serde::Serialize;
 
 use super::capture::Capture;
 use super::response::Response;
 use crate::error::{Error, Result};
+use crate::io::exr::write_exr;
+use crate::io::heightmap::Metadata;
 
 /// Thresholds of the merge.
 #[derive(Debug, Clone, PartialEq)]
@@ -210,7 +214,9 @@ pub fn merge(
         times.to_vec()
     };
 
-    let weight = |z: f64| if z > lo && z < hi { (z - lo).min(hi - z) } else { 0.0 };
+    // The noise floor is measured above the dark level, saturation on the raw value.
+    let dark_at = |i: usize, j: usize, c: usize| dark.map_or(0.0, |d| d[[i, j, c]]);
+    let weight = |z: f64, d: f64| if z - d > lo && z < hi { (z - d - lo).min(hi - z) } else { 0.0 };
     let mut radiance = Array3::<f64>::zeros(shape);
     let mut saturated_everywhere = PixelSet::default();
     let mut dark_everywhere = PixelSet::default();
@@ -218,8 +224,9 @@ pub fn merge(
     order.sort_by(|&a, &b| used[a].total_cmp(&used[b]));
     for ((i, j, c), e) in radiance.indexed_iter_mut() {
         let (mut num, mut den) = (0.0, 0.0);
+        let d = dark_at(i, j, c);
         for k in 0..n {
-            let w = weight(frames[k].values[[i, j, c]]);
+            let w = weight(frames[k].values[[i, j, c]], d);
             num += w * linear[k][[i, j, c]] / used[k];
             den += w;
         }
@@ -227,15 +234,12 @@ pub fn merge(
             *e = num / den;
             continue;
         }
-        // No usable frame: the unsaturated frames' values over their times, or a lower bound
+        // No usable frame: the longest unsaturated frame's value over its time (one frame, so
+        // that the dark frame's error is not multiplied by the frame count), or a lower bound
         // from the shortest frame.
-        if (0..n).any(|k| frames[k].values[[i, j, c]] < hi) {
-            let (sv, st): (f64, f64) = (0..n)
-                    .filter(|&k| frames[k].values[[i, j, c]] < hi)
-                    .map(|k| (linear[k][[i, j, c]], used[k]))
-                    .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
-                *e = sv / st;
-                dark_everywhere.add(i, j, c);
+        if let Some(&k) = order.iter().rev().find(|&&k| frames[k].values[[i, j, c]] < hi) {
+            *e = linear[k][[i, j, c]] / used[k];
+            dark_everywhere.add(i, j, c);
         } else {
             let k = order[0];
             *e = linear[k][[i, j, c]] / used[k];
@@ -251,9 +255,9 @@ pub fn merge(
         for ((i, j, c), &z) in f.values.indexed_iter() {
             if z >= hi {
                 sat[c] += 1;
-            } else if z <= lo {
+            } else if z - dark_at(i, j, c) <= lo {
                 floor[c] += 1;
-            } else if z >= 0.1 {
+            } else if z - dark_at(i, j, c) >= 0.1 {
                 let e = radiance[[i, j, c]];
                 if e > 0.0 {
                     dev.push((linear[k][[i, j, c]] / used[k] - e) / e);
@@ -377,4 +381,21 @@ fn estimate_times(
         }
     }
     used
+}
+
+/// Writes merged radiance as an OpenEXR file (channels R, G, B, or Y for one channel; f32),
+/// with its unit and the pixel pitch when known.
+pub fn write_merged(path: &Path, merged: &Merged, pitch: Option<f64>) -> Result<()> {
+    let nc = merged.radiance.dim().2;
+    let planes: Vec<Array2<f32>> =
+        (0..nc).map(|c| merged.radiance.index_axis(ndarray::Axis(2), c).mapv(|v| v as f32)).collect();
+    let names: Vec<String> =
+        if nc == 3 { ["R", "G", "B"].map(String::from).to_vec() } else { (0..nc).map(|c| if nc == 1 { "Y".into() } else { format!("C{c}") }).collect() };
+    let channels: Vec<(&str, &Array2<f32>)> = names.iter().map(|s| s.as_str()).zip(planes.iter()).collect();
+    let meta = Metadata { pitch: pitch.map(|p| [p, p]), unit: None, text: Vec::new() }
+        .with("radiance_unit", merged.report.unit.clone())
+        .with("merge", "Debevec-Malik weighted mean of value/time, hat weights")
+        .with("noise_floor", format!("{}", merged.report.noise_floor))
+        .with("saturation", format!("{}", merged.report.saturation));
+    write_exr(path, &channels, &meta)
 }

@@ -19,6 +19,6 @@
 pub mod capture;
 //pub mod evaluate;
 pub mod hdr_merge;
-//pub mod psf_extract;
+pub mod psf_extract;
 //pub mod register;
 pub mod response;
