@@ -54,6 +54,65 @@ enum Command {
         #[command(flatten)]
         read: ReadArgs,
     },
+    /// Merge an exposure bracket of linear (or, with --response debevec, non-linear 8-bit)
+    /// captures into an HDR radiance image (OpenEXR, channels R, G, B).
+    Merge {
+        #[command(flatten)]
+        bracket: BracketArgs,
+        /// Output OpenEXR file.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Recover the camera response from the bracket (Debevec-Malik) instead of assuming
+        /// linear captures.
+        #[arg(long, value_enum, default_value_t = ResponseArg::Linear)]
+        response: ResponseArg,
+    },
+    /// The measured PSF from a pinhole bracket: merge, dark and background, hot pixels,
+    /// centring, crop, normalisation. Writes psf.exr, psf.npy (H, W, 1, C), psf_log.png,
+    /// merged.exr and psf.json.
+    CalibratePsf {
+        #[command(flatten)]
+        bracket: BracketArgs,
+        /// Output folder.
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Crop size in sensor pixels (the paper: 319 measured, 320 simulated).
+        #[arg(long, default_value_t = 319)]
+        crop: usize,
+        /// What goes to the crop centre.
+        #[arg(long, value_enum, default_value_t = doefab::calibration::psf_extract::Centre::Centroid)]
+        centre: doefab::calibration::psf_extract::Centre,
+        /// Pixel pitch of the captures.
+        #[arg(long, value_parser = clap_length, default_value = "4.29um")]
+        capture_pitch: f64,
+        /// Pixel pitch of the sensor the PSF is for.
+        #[arg(long, value_parser = clap_length, default_value = "4.29um")]
+        sensor_pitch: f64,
+    },
+    /// PSNR of a reconstruction against a reference HDR image, linear and gamma (sqrt), over
+    /// all pixels and over the pixels saturated in the capture.
+    Evaluate {
+        /// The reconstruction (OpenEXR, or an 8/16-bit PNG/TIFF capture).
+        recon: PathBuf,
+        /// The reference HDR image (OpenEXR, e.g. from `doefab merge`).
+        #[arg(long)]
+        reference: PathBuf,
+        /// The LDR capture the reconstruction was made from (marks saturated pixels).
+        #[arg(long)]
+        ldr: Option<PathBuf>,
+        /// Saturation level of the capture, fraction of full scale.
+        #[arg(long, default_value_t = 0.98)]
+        saturation: f64,
+        /// Fit an affine map of the reference onto the reconstruction first.
+        #[arg(long)]
+        register: bool,
+        /// Largest displacement the registration searches, pixels.
+        #[arg(long, default_value_t = 48)]
+        max_shift: usize,
+        /// Tile side of the registration, pixels.
+        #[arg(long, default_value_t = 48)]
+        tile: usize,
+    },
     /// Run every stage on the built-in example design (no input needed).
     Demo {
         /// Output folder.
@@ -243,6 +302,41 @@ enum Command {
     },
 }
 
+/// An exposure bracket on the command line.
+#[derive(Args, Clone)]
+struct BracketArgs {
+    /// Capture files (8/16-bit PNG or TIFF), with --times; or none, with --exposures.
+    files: Vec<PathBuf>,
+    /// Exposure list (JSON: {"frames": [{"file", "exposure_s", "doe"}], "reference_exposure_s"}).
+    #[arg(long, conflicts_with = "times")]
+    exposures: Option<PathBuf>,
+    /// Exposure times of FILES, comma-separated ("1/60,1/30,0.1", "250ms").
+    #[arg(long, value_delimiter = ',')]
+    times: Vec<String>,
+    /// From the exposure list take the frames with "doe": true (default: those without).
+    #[arg(long)]
+    doe_frames: bool,
+    /// Dark frames (averaged and subtracted from every frame).
+    #[arg(long, num_args = 1..)]
+    dark: Vec<PathBuf>,
+    /// Noise floor above the dark level, fraction of full scale.
+    #[arg(long, default_value_t = 0.02)]
+    noise_floor: f64,
+    /// Saturation level, fraction of full scale.
+    #[arg(long, default_value_t = 0.98)]
+    saturation: f64,
+    /// Use the listed exposure times as they are (default: estimate them from the pixels).
+    #[arg(long)]
+    listed_times: bool,
+}
+
+/// Camera response choice on the command line.
+#[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
+enum ResponseArg {
+    Linear,
+    Debevec,
+}
+
 /// Mesher choice on the command line.
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum SurfaceArg {
@@ -361,6 +455,59 @@ fn run(cli: &Cli) -> Result<()> {
                     );
                 }
                 println!("wrote {}", output.display());
+            })
+        }
+        Command::Merge { bracket, output, response } => {
+            let merged = merge_bracket(cli, bracket, *response)?;
+            doefab::calibration::hdr_merge::write_merged(output, &merged, None)?;
+            warn(&merged.report.warnings);
+            print_result(cli, &merged.report, || print_merge(&merged.report, output))
+        }
+        Command::CalibratePsf { bracket, output, crop, centre, capture_pitch, sensor_pitch } => {
+            use doefab::calibration::psf_extract as pe;
+            let merged = merge_bracket(cli, bracket, ResponseArg::Linear)?;
+            let opts = pe::PsfOptions {
+                crop: *crop,
+                centre: *centre,
+                capture_pitch: *capture_pitch,
+                sensor_pitch: *sensor_pitch,
+                ..Default::default()
+            };
+            let (psf, mut report) = pe::calibrate_psf(&merged, &opts)?;
+            pe::write_calibration(&psf, &merged, &mut report, output)?;
+            warn(&report.warnings);
+            print_result(cli, &report, || print_calibration(&report, output))
+        }
+        Command::Evaluate { recon, reference, ldr, saturation, register, max_shift, tile } => {
+            use doefab::calibration::{capture::read_capture, evaluate as ev, register as rg};
+            let read = |p: &Path| -> Result<ndarray::Array3<f64>> {
+                let exr = p.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+                Ok(if exr { ev::read_rgb_exr(p)? } else { read_capture(p)?.values })
+            };
+            let reference = read(reference)?;
+            let recon = read(recon)?;
+            let ldr = ldr.as_deref().map(read_capture).transpose()?;
+            let opts = rg::RegisterOptions { max_shift: *max_shift, tile: *tile };
+            let e = ev::evaluate(
+                &reference,
+                &recon,
+                ldr.as_ref().map(|c| &c.values),
+                *saturation,
+                register.then_some(&opts),
+            )?;
+            print_result(cli, &e, || {
+                if let Some(r) = &e.registration {
+                    println!(
+                        "registered: scale {:.4}, rotation {:.3} deg, shift ({:.2}, {:.2}) px; {} of {} tiles, residual {:.3} px RMS; {} pixels outside the overlap",
+                        r.scale, r.rotation_deg, r.affine.b[0], r.affine.b[1], r.tiles_used, r.tiles_matched, r.residual_rms_px, e.excluded_pixels
+                    );
+                }
+                println!("all pixels ({}): PSNR-L {:.2} dB, PSNR-gamma {:.2} dB (peak {:.4})", e.all.pixels, e.all.linear_db, e.all.gamma_db, e.all.peak);
+                match (&e.saturated, e.saturated_pixels) {
+                    (Some(s), _) => println!("saturated pixels ({}): PSNR-L {:.2} dB, PSNR-gamma {:.2} dB", s.pixels, s.linear_db, s.gamma_db),
+                    (None, Some(0)) => println!("no pixel of the capture is saturated"),
+                    _ => {}
+                }
             })
         }
         Command::Demo { output } => demo(cli, output),
@@ -546,6 +693,92 @@ fn run(cli: &Cli) -> Result<()> {
                 )
             })
         }
+    }
+}
+
+/// Reads a bracket (files with times, or an exposure list) and its dark frames, and merges it.
+fn merge_bracket(
+    cli: &Cli,
+    b: &BracketArgs,
+    response: ResponseArg,
+) -> Result<doefab::calibration::hdr_merge::Merged> {
+    use doefab::calibration::{capture, hdr_merge, response as dm};
+    let list = match &b.exposures {
+        Some(json) => {
+            if !b.files.is_empty() {
+                bail!("give capture files with --times or an exposure list with --exposures, not both");
+            }
+            capture::read_exposures(json, b.doe_frames)?
+        }
+        None if b.files.is_empty() => bail!("no captures: give FILES with --times, or --exposures LIST"),
+        None => capture::exposures_from_times(&b.files, &b.times)?,
+    };
+    let pb = progress(cli, list.frames.len() as u64 + b.dark.len() as u64 + 1);
+    pb.set_message("reading the bracket");
+    let mut frames = Vec::new();
+    for (path, _) in &list.frames {
+        frames.push(capture::read_capture(path)?);
+        pb.inc(1);
+    }
+    let times: Vec<f64> = list.frames.iter().map(|f| f.1).collect();
+    let darks = b.dark.iter().map(|p| capture::read_capture(p)).collect::<doefab::Result<Vec<_>>>()?;
+    pb.inc(b.dark.len() as u64);
+    let dark = (!darks.is_empty()).then(|| hdr_merge::mean_dark(&darks)).transpose()?;
+    let curve = match response {
+        ResponseArg::Linear => None,
+        ResponseArg::Debevec => {
+            pb.set_message("recovering the response");
+            let r = dm::recover_response(&frames, &times, 0, 50.0)?;
+            warn(&r.warnings);
+            Some(r)
+        }
+    };
+    pb.set_message("merging");
+    let opts = hdr_merge::MergeOptions {
+        noise_floor: b.noise_floor,
+        saturation: b.saturation,
+        estimate_times: !b.listed_times,
+        reference_exposure: list.reference_exposure,
+    };
+    let merged = hdr_merge::merge(&frames, &times, dark.as_ref(), curve.as_ref(), &opts)?;
+    pb.finish_and_clear();
+    Ok(merged)
+}
+
+fn print_merge(r: &doefab::calibration::hdr_merge::MergeReport, output: &Path) {
+    println!("{} x {} x {} radiance ({}) -> {}", r.shape[1], r.shape[0], r.shape[2], r.unit, output.display());
+    println!("  frame                              listed s    used s   saturated  agreement (median)");
+    for f in &r.frames {
+        println!(
+            "  {:<32} {:>9.4} {:>9.4} {:>11} {:>8}",
+            Path::new(&f.file).file_name().map_or(f.file.clone(), |n| n.to_string_lossy().into_owned()),
+            f.exposure_listed,
+            f.exposure_used,
+            f.saturated.iter().sum::<usize>(),
+            f.agreement_median.map_or("-".into(), |m| format!("{:.2} %", 100.0 * m))
+        );
+    }
+    println!(
+        "  no usable frame: {} saturated everywhere, {} in the noise floor everywhere",
+        r.saturated_everywhere.count, r.dark_everywhere.count
+    );
+}
+
+fn print_calibration(r: &doefab::calibration::psf_extract::PsfCalibration, output: &Path) {
+    println!(
+        "PSF at row {:.2}, col {:.2} of the capture (peak {}, {}); {} hot pixels; {} x {} crop -> {}",
+        r.centroid_px[0], r.centroid_px[1], r.peak_px[0], r.peak_px[1], r.hot_pixels, r.crop, r.crop, output.display()
+    );
+    for (c, ch) in r.channels.iter().enumerate() {
+        println!(
+            "  {}: centroid ({:+.3}, {:+.3}) px, peak {:.3e}, outside the crop {:.2} %, zeroed below the noise floor {:.2} %",
+            ch.name,
+            ch.centroid[0] / r.sensor_pitch,
+            ch.centroid[1] / r.sensor_pitch,
+            ch.peak,
+            100.0 * r.energy_outside[c],
+            100.0 * r.below_floor[c]
+        );
     }
 }
 

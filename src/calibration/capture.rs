@@ -59,7 +59,9 @@ pub fn read_capture(path: &Path) -> Result<Capture> {
     // The decoder is third-party code fed with user bytes: a panic in it becomes an error.
     let img = std::panic::catch_unwind(move || reader.decode())
         .map_err(|_| Error::format(path, "the image decoder failed on malformed data"))?
-        .map_err(|e| Error::format(path, format!("cannot decode the image: {e}")))?;
+        .map_err(|e| {
+            Error::format(path, format!("cannot decode it as an 8- or 16-bit RGB or grayscale capture: {e}"))
+        })?;
     let (w, h) = (img.width() as usize, img.height() as usize);
     let (samples, channels, bits): (Vec<f64>, usize, u8) = match &img {
         DynamicImage::ImageLuma8(b) => (b.as_raw().iter().map(|&v| v as f64 / 255.0).collect(), 1, 8),
@@ -99,7 +101,7 @@ pub fn write_capture(path: &Path, values: &Array3<f64>, bits: u8) -> Result<()> 
     };
     let counts = values.iter().map(|v| (v.clamp(0.0, 1.0) * full).round());
     let data: Vec<u8> =
-        if bits == 8 { counts.map(|v| v as u8).collect() } else { counts.flat_map(|v| (v as u16).to_be_bytes()).collect() };
+        if bits == 8 { counts.map(|v| v as u8).collect() } else { counts.flat_map(|v| (v as u16).to_ne_bytes()).collect() };
     let mut bytes = Vec::new();
     image::codecs::png::PngEncoder::new(Cursor::new(&mut bytes))
         .write_image(&data, w as u32, h as u32, color)

@@ -17,8 +17,8 @@
 //!   rejection, then least squares).
 
 pub mod capture;
-//pub mod evaluate;
+pub mod evaluate;
 pub mod hdr_merge;
 pub mod psf_extract;
-//pub mod register;
+pub mod register;
 pub mod response;

@@ -3,11 +3,12 @@
 //! A scene is linear radiance `(H, W, 3)` in `[1e-5, 64]`, the range the paper clips its
 //! training targets to, built from layers drawn with a seeded generator ([`crate::rng::Lcg`]):
 //!
-//! * textured surfaces: overlapping rectangles (walls, tables, objects) of a random albedo and
-//!   tint, lit by a linear gradient, modulated by three octaves of value noise
-//!   (bilinear-smoothstep interpolation of a random lattice);
-//! * windows: rectangles of sky radiance 2-16 with dark mullions;
-//! * emitters: lamps as discs of radiance 8-64 with an inverse-square glow;
+//! * textured surfaces: overlapping rectangles (walls, tables, objects) of an albedo drawn
+//!   log-uniformly from 0.01 to 0.6 and a random tint, lit by an exponential gradient (up to
+//!   12x across the frame), modulated by three octaves of value noise (bilinear-smoothstep
+//!   interpolation of a random lattice);
+//! * windows: rectangles of sky radiance 1.5-6 with dark mullions;
+//! * emitters: lamps as discs of radiance 16-64 with an inverse-square glow;
 //! * filaments: thin zig-zag wires of radiance 20-64 (light-bulb filaments);
 //! * specular highlights: small Gaussian spots of radiance 1.5-8.
 //!
@@ -42,13 +43,13 @@ pub fn procedural_scene(seed: u64, height: usize, width: usize) -> Array3<f32> {
             let (r0, c0) = (uni(0.0, h as f64 - rh), uni(0.0, w as f64 - rw));
             (r0, c0, r0 + rh, c0 + rw)
         };
-        let albedo = uni(0.03, 0.6);
+        let albedo = uni(0.01f64.ln(), 0.6f64.ln()).exp();
         let tint = [uni(0.6, 1.0), uni(0.6, 1.0), uni(0.6, 1.0)];
-        let (gy, gx) = (uni(-0.6, 0.6), uni(-0.6, 0.6));
+        let (gy, gx) = (uni(-2.5, 2.5), uni(-2.5, 2.5));
         let contrast = uni(0.3, 0.9);
         for i in (r0 as usize)..(r1 as usize).min(h) {
             for j in (c0 as usize)..(c1 as usize).min(w) {
-                let light = 1.0 + gy * (i as f64 / h as f64 - 0.5) + gx * (j as f64 / w as f64 - 0.5);
+                let light = (gy * (i as f64 / h as f64 - 0.5) + gx * (j as f64 / w as f64 - 0.5)).exp();
                 let t = 1.0 - contrast + contrast * 2.0 * texture[[i, j]];
                 for (c, tc) in tint.iter().enumerate() {
                     img[[i, j, c]] = albedo * tc * light * t;
@@ -61,7 +62,7 @@ pub fn procedural_scene(seed: u64, height: usize, width: usize) -> Array3<f32> {
     for _ in 0..(uni(0.0, 2.5) as usize) {
         let (wh, ww) = (uni(0.1, 0.3) * h as f64, uni(0.1, 0.3) * w as f64);
         let (r0, c0) = (uni(0.0, h as f64 - wh), uni(0.0, w as f64 - ww));
-        let sky = uni(2.0, 16.0);
+        let sky = uni(1.5, 6.0);
         let bar = (size / 80.0).max(1.0);
         for i in (r0 as usize)..((r0 + wh) as usize).min(h) {
             for j in (c0 as usize)..((c0 + ww) as usize).min(w) {
@@ -79,7 +80,7 @@ pub fn procedural_scene(seed: u64, height: usize, width: usize) -> Array3<f32> {
     for _ in 0..(1 + uni(0.0, 3.0) as usize) {
         let (ci, cj) = (uni(0.0, h as f64), uni(0.0, w as f64));
         let radius = uni(0.005, 0.03) * size + 1.0;
-        let peak = uni(8.0, 64.0);
+        let peak = uni(16.0, 64.0);
         let warm = [1.0, uni(0.7, 0.95), uni(0.4, 0.8)];
         let reach = (radius * 8.0) as isize;
         for i in (ci as isize - reach).max(0)..(ci as isize + reach).min(h as isize) {
