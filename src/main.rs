@@ -502,9 +502,15 @@ fn run(cli: &Cli) -> Result<()> {
                         r.scale, r.rotation_deg, r.affine.b[0], r.affine.b[1], r.tiles_used, r.tiles_matched, r.residual_rms_px, e.excluded_pixels
                     );
                 }
-                println!("all pixels ({}): PSNR-L {:.2} dB, PSNR-gamma {:.2} dB (peak {:.4})", e.all.pixels, e.all.linear_db, e.all.gamma_db, e.all.peak);
+                println!(
+                    "all pixels ({}): PSNR-L {:.2} dB, PSNR-gamma {:.2} dB (peak {:.4})",
+                    e.all.pixels, e.all.linear_db, e.all.gamma_db, e.all.peak
+                );
                 match (&e.saturated, e.saturated_pixels) {
-                    (Some(s), _) => println!("saturated pixels ({}): PSNR-L {:.2} dB, PSNR-gamma {:.2} dB", s.pixels, s.linear_db, s.gamma_db),
+                    (Some(s), _) => println!(
+                        "saturated pixels ({}): PSNR-L {:.2} dB, PSNR-gamma {:.2} dB",
+                        s.pixels, s.linear_db, s.gamma_db
+                    ),
                     (None, Some(0)) => println!("no pixel of the capture is saturated"),
                     _ => {}
                 }
@@ -746,7 +752,14 @@ fn merge_bracket(
 }
 
 fn print_merge(r: &doefab::calibration::hdr_merge::MergeReport, output: &Path) {
-    println!("{} x {} x {} radiance ({}) -> {}", r.shape[1], r.shape[0], r.shape[2], r.unit, output.display());
+    println!(
+        "{} x {} x {} radiance ({}) -> {}",
+        r.shape[1],
+        r.shape[0],
+        r.shape[2],
+        r.unit,
+        output.display()
+    );
     println!("  frame                              listed s    used s   saturated  agreement (median)");
     for f in &r.frames {
         println!(
@@ -767,7 +780,14 @@ fn print_merge(r: &doefab::calibration::hdr_merge::MergeReport, output: &Path) {
 fn print_calibration(r: &doefab::calibration::psf_extract::PsfCalibration, output: &Path) {
     println!(
         "PSF at row {:.2}, col {:.2} of the capture (peak {}, {}); {} hot pixels; {} x {} crop -> {}",
-        r.centroid_px[0], r.centroid_px[1], r.peak_px[0], r.peak_px[1], r.hot_pixels, r.crop, r.crop, output.display()
+        r.centroid_px[0],
+        r.centroid_px[1],
+        r.peak_px[0],
+        r.peak_px[1],
+        r.hot_pixels,
+        r.crop,
+        r.crop,
+        output.display()
     );
     for (c, ch) in r.channels.iter().enumerate() {
         println!(
@@ -885,8 +905,9 @@ fn demo(cli: &Cli, output: &Path) -> Result<()> {
     )?;
     pb.finish_and_clear();
     warn(&psf.warnings);
+    let calibration = demo_calibration(cli, &psf_dir, &output.join("calibration"))?;
     if cli.json {
-        let all = serde_json::json!({ "fabrication": reports, "psf": psf });
+        let all = serde_json::json!({ "fabrication": reports, "psf": psf, "calibration": calibration });
         println!("{}", serde_json::to_string_pretty(&all)?);
     } else if !cli.quiet {
         println!("psf: {}", psf_dir.display());
@@ -895,4 +916,70 @@ fn demo(cli: &Cli, output: &Path) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The calibration stage of the demo: a synthetic pinhole bracket of the simulated PSF
+/// (written as 8-bit PNGs with exposures.json and a dark frame), calibrated back with
+/// calibrate-psf; reports the relative L2 between the calibrated and the simulated PSF.
+fn demo_calibration(cli: &Cli, psf_dir: &Path, out: &Path) -> Result<serde_json::Value> {
+    use doefab::calibration::{capture, hdr_merge, psf_extract as pe};
+    let simulated = pe::read_psf_npy(&psf_dir.join("psf.npy"), 4.29e-6)?;
+    let pb = progress(cli, 3);
+    pb.set_message("synthetic pinhole bracket of the simulated PSF");
+    let (frames, times, dark) = pe::simulate_pinhole_bracket(&simulated, 60, 12, 0.002, 0.03, 1);
+    let bracket = out.join("bracket");
+    let mut list = Vec::new();
+    for (k, (f, t)) in frames.iter().zip(&times).enumerate() {
+        let name = format!("pinhole_{k:02}.png");
+        capture::write_capture(&bracket.join(&name), f, 8)?;
+        list.push(serde_json::json!({ "file": name, "exposure_s": t }));
+    }
+    capture::write_capture(&bracket.join("dark.png"), &dark, 8)?;
+    doefab::io::atomic::write_json(&bracket.join("exposures.json"), &serde_json::json!({ "frames": list }))?;
+    pb.inc(1);
+    pb.set_message("calibrate-psf");
+    let read = capture::read_exposures(&bracket.join("exposures.json"), false)?;
+    let captures =
+        read.frames.iter().map(|(p, _)| capture::read_capture(p)).collect::<doefab::Result<Vec<_>>>()?;
+    let dark = hdr_merge::mean_dark(&[capture::read_capture(&bracket.join("dark.png"))?])?;
+    let merge_opts = hdr_merge::MergeOptions { estimate_times: false, ..Default::default() };
+    let merged = hdr_merge::merge(&captures, &times, Some(&dark), None, &merge_opts)?;
+    let opts = pe::PsfOptions { crop: 319, centre: pe::Centre::Peak, ..Default::default() };
+    let (psf, mut report) = pe::calibrate_psf(&merged, &opts)?;
+    let psf_out = out.join("psf");
+    pe::write_calibration(&psf, &merged, &mut report, &psf_out)?;
+    pb.inc(2);
+    pb.finish_and_clear();
+    warn(&report.warnings);
+    // The simulated PSF's 319 x 319 window around its channel-sum peak, as calibrated.
+    let sim = simulated.to_array4();
+    let (h, w, _, nc) = sim.dim();
+    let sum =
+        ndarray::Array2::from_shape_fn((h, w), |(i, j)| (0..nc).map(|c| sim[[i, j, 0, c]]).sum::<f32>());
+    let (pi, pj) = sum.indexed_iter().fold((0, 0), |b, (p, v)| if *v > sum[b] { p } else { b });
+    if pi < 159 || pj < 159 || pi + 160 > h || pj + 160 > w {
+        bail!("the simulated PSF's peak at ({pi}, {pj}) is too close to its border for the comparison");
+    }
+    let window = sim.slice(ndarray::s![pi - 159..pi + 160, pj - 159..pj + 160, 0, ..]);
+    let got = psf.to_array4();
+    let l2: Vec<f64> = (0..nc)
+        .map(|c| {
+            let want = window.index_axis(ndarray::Axis(2), c);
+            let s: f64 = want.iter().map(|&v| v as f64).sum();
+            let (mut num, mut den) = (0.0, 0.0);
+            for ((i, j), &v) in want.indexed_iter() {
+                let t = v as f64 / s;
+                num += (got[[i, j, 0, c]] as f64 - t).powi(2);
+                den += t * t;
+            }
+            (num / den).sqrt()
+        })
+        .collect();
+    if !cli.quiet && !cli.json {
+        println!("calibration: {} (bracket in {})", psf_out.display(), bracket.display());
+        println!("  calibrated vs simulated PSF, relative L2 per channel: {l2:.4?}");
+    }
+    Ok(
+        serde_json::json!({ "bracket": bracket, "psf": psf_out, "relative_l2_to_simulated": l2, "report": report }),
+    )
 }

@@ -117,7 +117,8 @@ use doefab::rng::Lcg;
 
 /// A DOE-like analytic PSF, 319 x 319 x 3: a core at (159, 159), shifted copies, a wide halo.
 fn analytic_psf() -> Array3<f64> {
-    let copies = [(0.0, 0.0, 1.0, 1.2), (-40.0, 25.0, 0.05, 2.0), (35.0, 30.0, 0.02, 2.5), (10.0, -60.0, 0.01, 3.0)];
+    let copies =
+        [(0.0, 0.0, 1.0, 1.2), (-40.0, 25.0, 0.05, 2.0), (35.0, 30.0, 0.02, 2.5), (10.0, -60.0, 0.01, 3.0)];
     Array3::from_shape_fn((319, 319, 3), |(i, j, c)| {
         let (y, x) = (i as f64 - 159.0, j as f64 - 159.0);
         let s = 1.0 + 0.15 * c as f64;
@@ -132,8 +133,14 @@ fn analytic_psf() -> Array3<f64> {
 /// An 8-bit bracket of `truth` (normalised per channel) placed with its pixel (159, 159) at
 /// (row0 + 159, col0 + 159) of an `h x w` capture: 11 frames one stop apart, the core
 /// saturated by 2^9 in the longest, read noise 0.002, a dark level 0.03 with a fixed pattern,
-/// and a stuck pixel at `hot` (not in the dark frames). Returns frames, times and 2 darks.
-fn pinhole_bracket(truth: &Array3<f64>, h: usize, w: usize, at: (usize, usize), hot: (usize, usize)) -> (Vec<Capture>, Vec<f64>, Vec<Capture>) {
+/// and stuck pixels at `hot` (not in the dark frames). Returns frames, times and 2 darks.
+fn pinhole_bracket(
+    truth: &Array3<f64>,
+    h: usize,
+    w: usize,
+    at: (usize, usize),
+    hot: &[(usize, usize)],
+) -> (Vec<Capture>, Vec<f64>, Vec<Capture>) {
     let (th, tw, nc) = truth.dim();
     let mut e = Array3::<f64>::zeros((h, w, nc));
     for c in 0..nc {
@@ -153,9 +160,13 @@ fn pinhole_bracket(truth: &Array3<f64>, h: usize, w: usize, at: (usize, usize), 
         .iter()
         .enumerate()
         .map(|(k, &t)| {
-            let mut v = Array3::from_shape_fn((h, w, nc), |(i, j, c)| quant(pattern[[i, j, c]] + e[[i, j, c]] * t + 0.002 * rng.normal()));
-            for c in 0..nc {
-                v[[hot.0, hot.1, c]] = 0.4;
+            let mut v = Array3::from_shape_fn((h, w, nc), |(i, j, c)| {
+                quant(pattern[[i, j, c]] + e[[i, j, c]] * t + 0.002 * rng.normal())
+            });
+            for &(i, j) in hot {
+                for c in 0..nc {
+                    v[[i, j, c]] = 0.4;
+                }
             }
             Capture { path: PathBuf::from(format!("frame{k}.png")), values: v, bits: 8 }
         })
@@ -163,7 +174,9 @@ fn pinhole_bracket(truth: &Array3<f64>, h: usize, w: usize, at: (usize, usize), 
     let darks = (0..2)
         .map(|k| Capture {
             path: PathBuf::from(format!("dark{k}.png")),
-            values: Array3::from_shape_fn((h, w, nc), |(i, j, c)| quant(pattern[[i, j, c]] + 0.002 * rng.normal())),
+            values: Array3::from_shape_fn((h, w, nc), |(i, j, c)| {
+                quant(pattern[[i, j, c]] + 0.002 * rng.normal())
+            }),
             bits: 8,
         })
         .collect();
@@ -184,10 +197,11 @@ fn normalised(t: &Array3<f64>) -> Array3<f64> {
     t
 }
 
-/// The known PSF comes back from a noisy, dark-offset, saturated 8-bit bracket with a stuck
-/// pixel. Relative L2 per channel: the analytic PSF below 1 % (measured 0.45-0.55 %); the
-/// paper's measured PSF below 4 % (measured 1.9 / 0.5 / 3.0 % R/G/B: half of its energy lies
-/// in tails near the 8-bit noise floor, where the 1-sigma floor trades lost tail for noise).
+/// The known PSF comes back from a noisy, dark-offset, saturated 8-bit bracket with two
+/// stuck pixels (one inside the crop window, both found in all three channels). Relative L2
+/// per channel: the analytic PSF below 1 % (measured 0.45-0.55 %); the paper's measured PSF
+/// below 4 % (measured 1.9 / 0.5 / 3.0 % R/G/B: much of its energy lies in tails near the
+/// 8-bit noise floor, where the 1-sigma floor trades lost tail for noise).
 #[test]
 fn a_known_psf_is_recovered_from_its_synthetic_bracket() {
     let mut truths = vec![("analytic", analytic_psf())];
@@ -197,13 +211,20 @@ fn a_known_psf_is_recovered_from_its_synthetic_bracket() {
         truths.push(("measured", Array3::from_shape_fn((319, 319, 3), |(i, j, c)| a[[i, j, 0, c]] as f64)));
     }
     for (name, truth) in truths {
-        let (frames, times, darks) = pinhole_bracket(&truth, 420, 400, (40, 30), (100, 260));
+        let (frames, times, darks) = pinhole_bracket(&truth, 420, 400, (40, 30), &[(45, 35), (400, 20)]);
         let dark = mean_dark(&darks).unwrap();
-        let merged = merge(&frames, &times, Some(&dark), None, &MergeOptions { estimate_times: false, ..Default::default() }).unwrap();
+        let merged = merge(
+            &frames,
+            &times,
+            Some(&dark),
+            None,
+            &MergeOptions { estimate_times: false, ..Default::default() },
+        )
+        .unwrap();
         let opts = PsfOptions { centre: Centre::Peak, ..Default::default() };
         let (psf, report) = calibrate_psf(&merged, &opts).unwrap();
         assert_eq!(report.peak_px, [199, 189], "{name}");
-        assert!(report.hot_pixels >= 3, "{name}: {} hot pixels", report.hot_pixels);
+        assert_eq!(report.hot_pixels, 6, "{name}");
         let got = psf.to_array4();
         let got = Array3::from_shape_fn((319, 319, 3), |(i, j, c)| got[[i, j, 0, c]] as f64);
         let want = normalised(&truth);
@@ -217,7 +238,8 @@ fn a_known_psf_is_recovered_from_its_synthetic_bracket() {
         }
         // Centroid centring puts every channel's centroid near the crop centre.
         let (psf, _) = calibrate_psf(&merged, &PsfOptions::default()).unwrap();
-        let sum_centroid: Vec<f64> = (0..2).map(|k| (0..3).map(|c| psf.centroid(c)[k]).sum::<f64>() / 3.0 / 4.29e-6).collect();
+        let sum_centroid: Vec<f64> =
+            (0..2).map(|k| (0..3).map(|c| psf.centroid(c)[k]).sum::<f64>() / 3.0 / 4.29e-6).collect();
         assert!(sum_centroid.iter().all(|v| v.abs() < 0.25), "{name}: centroid {sum_centroid:?} px");
     }
 }
@@ -259,7 +281,9 @@ fn warped(img: &Array3<f64>, a: [[f64; 2]; 2], b: [f64; 2]) -> Array3<f64> {
     let (h, w, nc) = img.dim();
     let det = a[0][0] * a[1][1] - a[0][1] * a[1][0];
     let grids: Vec<Grid> = (0..nc)
-        .map(|c| Grid::new(img.index_axis(ndarray::Axis(2), c).to_owned(), [1.0; 2], Unit::Dimensionless).unwrap())
+        .map(|c| {
+            Grid::new(img.index_axis(ndarray::Axis(2), c).to_owned(), [1.0; 2], Unit::Dimensionless).unwrap()
+        })
         .collect();
     Array3::from_shape_fn((h, w, nc), |(i, j, c)| {
         let (u, v) = (j as f64 - b[0], i as f64 - b[1]);
@@ -309,7 +333,7 @@ fn doefab(args: &[&str]) -> std::process::Output {
 
 fn small_bracket() -> (Vec<Capture>, Vec<f64>, Vec<Capture>) {
     let truth = analytic_psf().slice(ndarray::s![100..219, 100..219, ..]).to_owned();
-    pinhole_bracket(&truth, 180, 170, (30, 25), (10, 150))
+    pinhole_bracket(&truth, 180, 170, (30, 25), &[(20, 150)])
 }
 
 #[test]
@@ -403,7 +427,8 @@ fn calibrate_psf_and_merge_run_end_to_end() {
     assert!(!bad.exists());
     // merge with times on the command line, then evaluate the merge against itself.
     let hdr = dir.path().join("hdr.exr").to_string_lossy().into_owned();
-    let files: Vec<String> = (0..11).map(|k| dir.path().join(format!("frame{k}.png")).to_string_lossy().into_owned()).collect();
+    let files: Vec<String> =
+        (0..11).map(|k| dir.path().join(format!("frame{k}.png")).to_string_lossy().into_owned()).collect();
     let t: Vec<String> = times.iter().map(|t| format!("{t}")).collect();
     let mut args = vec!["merge", "-o", &hdr, "--times"];
     let joined = t.join(",");

@@ -49,12 +49,7 @@ pub fn read_capture(path: &Path) -> Result<Capture> {
         .map_err(|e| Error::io(path, e))?;
     match reader.format() {
         Some(image::ImageFormat::Png | image::ImageFormat::Tiff) => {}
-        other => {
-            return Err(Error::format(
-                path,
-                format!("is {other:?}, not a PNG or TIFF capture"),
-            ))
-        }
+        other => return Err(Error::format(path, format!("is {other:?}, not a PNG or TIFF capture"))),
     }
     // The decoder is third-party code fed with user bytes: a panic in it becomes an error.
     let img = std::panic::catch_unwind(move || reader.decode())
@@ -72,9 +67,9 @@ pub fn read_capture(path: &Path) -> Result<Capture> {
             return Err(Error::format(
                 path,
                 format!(
-                    "holds {:?} samples; a capture must be 8- or 16-bit RGB or grayscale (no alpha, no float)",
-                    other.color()
-                ),
+                "holds {:?} samples; a capture must be 8- or 16-bit RGB or grayscale (no alpha, no float)",
+                other.color()
+            ),
             ))
         }
     };
@@ -100,8 +95,11 @@ pub fn write_capture(path: &Path, values: &Array3<f64>, bits: u8) -> Result<()> 
         _ => return Err(Error::param("channels", format!("a capture has 1 or 3 channels, not {c}"))),
     };
     let counts = values.iter().map(|v| (v.clamp(0.0, 1.0) * full).round());
-    let data: Vec<u8> =
-        if bits == 8 { counts.map(|v| v as u8).collect() } else { counts.flat_map(|v| (v as u16).to_ne_bytes()).collect() };
+    let data: Vec<u8> = if bits == 8 {
+        counts.map(|v| v as u8).collect()
+    } else {
+        counts.flat_map(|v| (v as u16).to_ne_bytes()).collect()
+    };
     let mut bytes = Vec::new();
     image::codecs::png::PngEncoder::new(Cursor::new(&mut bytes))
         .write_image(&data, w as u32, h as u32, color)
@@ -176,11 +174,8 @@ pub fn exposures_from_times(files: &[PathBuf], times: &[String]) -> Result<Expos
             format!("{} exposure times for {} files", times.len(), files.len()),
         ));
     }
-    let frames = files
-        .iter()
-        .zip(times)
-        .map(|(f, t)| Ok((f.clone(), parse_time(t)?)))
-        .collect::<Result<Vec<_>>>()?;
+    let frames =
+        files.iter().zip(times).map(|(f, t)| Ok((f.clone(), parse_time(t)?))).collect::<Result<Vec<_>>>()?;
     Ok(ExposureList { frames, reference_exposure: None })
 }
 
@@ -199,7 +194,9 @@ pub fn parse_time(text: &str) -> Result<f64> {
     };
     let num = num.trim();
     let value = match num.split_once('/') {
-        Some((a, b)) => a.trim().parse::<f64>().map_err(|_| bad())? / b.trim().parse::<f64>().map_err(|_| bad())?,
+        Some((a, b)) => {
+            a.trim().parse::<f64>().map_err(|_| bad())? / b.trim().parse::<f64>().map_err(|_| bad())?
+        }
         None => num.parse::<f64>().map_err(|_| bad())?,
     } * scale;
     if value.is_finite() && value > 0.0 {

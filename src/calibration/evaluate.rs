@@ -76,16 +76,25 @@ pub fn psnr(reference: &Array3<f64>, recon: &Array3<f64>, mask: Option<&Array2<b
         return Err(Error::Data("no samples with a positive reference to evaluate".into()));
     }
     let (ml, mg) = (sl / n as f64, sg / n as f64);
-    Ok(Psnr { linear_db: 10.0 * (peak * peak / ml).log10(), gamma_db: 10.0 * (peak / mg).log10(), peak, pixels })
+    Ok(Psnr {
+        linear_db: 10.0 * (peak * peak / ml).log10(),
+        gamma_db: 10.0 * (peak / mg).log10(),
+        peak,
+        pixels,
+    })
 }
 
 /// Reads an RGB (or single-channel) OpenEXR image as `(H, W, C)`.
 pub fn read_rgb_exr(path: &Path) -> Result<Array3<f64>> {
     let planes = match read_exr(path, Some("R")) {
         Ok(r) => vec![r.values, read_exr(path, Some("G"))?.values, read_exr(path, Some("B"))?.values],
-        Err(Error::Parameter { .. }) => vec![read_exr(path, None)
-            .map_err(|e| Error::format(path, format!("expected channels R, G, B or a single channel: {e}")))?
-            .values],
+        Err(Error::Parameter { .. }) => vec![
+            read_exr(path, None)
+                .map_err(|e| {
+                    Error::format(path, format!("expected channels R, G, B or a single channel: {e}"))
+                })?
+                .values,
+        ],
         Err(e) => return Err(e),
     };
     let (h, w) = planes[0].dim();

@@ -147,7 +147,10 @@ fn check_frames(frames: &[Capture], times: &[f64], dark: Option<&Array3<f64>>) -
             ));
         }
         if !(t.is_finite() && t > 0.0) {
-            return Err(Error::param("times", format!("{}: exposure {t} s is not positive", f.path.display())));
+            return Err(Error::param(
+                "times",
+                format!("{}: exposure {t} s is not positive", f.path.display()),
+            ));
         }
     }
     if let Some(d) = dark {
@@ -183,7 +186,7 @@ pub fn merge(
 ) -> Result<Merged> {
     check_frames(frames, times, dark)?;
     let (lo, hi) = (opts.noise_floor, opts.saturation);
-    if !(0.0..1.0).contains(&lo) || !(lo < hi && hi <= 1.0) {
+    if !((0.0..1.0).contains(&lo) && lo < hi && hi <= 1.0) {
         return Err(Error::param(
             "noise_floor/saturation",
             format!("need 0 <= noise floor < saturation <= 1, got {lo} and {hi}"),
@@ -264,7 +267,8 @@ pub fn merge(
                 }
             }
         }
-        let rms = (!dev.is_empty()).then(|| (dev.iter().map(|d| d * d).sum::<f64>() / dev.len() as f64).sqrt());
+        let rms =
+            (!dev.is_empty()).then(|| (dev.iter().map(|d| d * d).sum::<f64>() / dev.len() as f64).sqrt());
         let mut abs: Vec<f64> = dev.iter().map(|d| d.abs()).collect();
         abs.sort_by(f64::total_cmp);
         reports.push(FrameReport {
@@ -389,8 +393,11 @@ pub fn write_merged(path: &Path, merged: &Merged, pitch: Option<f64>) -> Result<
     let nc = merged.radiance.dim().2;
     let planes: Vec<Array2<f32>> =
         (0..nc).map(|c| merged.radiance.index_axis(ndarray::Axis(2), c).mapv(|v| v as f32)).collect();
-    let names: Vec<String> =
-        if nc == 3 { ["R", "G", "B"].map(String::from).to_vec() } else { (0..nc).map(|c| if nc == 1 { "Y".into() } else { format!("C{c}") }).collect() };
+    let names: Vec<String> = if nc == 3 {
+        ["R", "G", "B"].map(String::from).to_vec()
+    } else {
+        (0..nc).map(|c| if nc == 1 { "Y".into() } else { format!("C{c}") }).collect()
+    };
     let channels: Vec<(&str, &Array2<f32>)> = names.iter().map(|s| s.as_str()).zip(planes.iter()).collect();
     let meta = Metadata { pitch: pitch.map(|p| [p, p]), unit: None, text: Vec::new() }
         .with("radiance_unit", merged.report.unit.clone())

@@ -56,7 +56,8 @@ impl Affine {
             return None;
         }
         let ai = [[d / det, -b / det], [-c / det, a / det]];
-        let bi = [-(ai[0][0] * self.b[0] + ai[0][1] * self.b[1]), -(ai[1][0] * self.b[0] + ai[1][1] * self.b[1])];
+        let bi =
+            [-(ai[0][0] * self.b[0] + ai[0][1] * self.b[1]), -(ai[1][0] * self.b[0] + ai[1][1] * self.b[1])];
         Some(Affine { a: ai, b: bi })
     }
 }
@@ -92,7 +93,9 @@ pub struct Registration {
 /// The square root of the channel mean of an `(H, W, C)` image (negative values as 0).
 pub fn luminance(img: &Array3<f64>) -> Array2<f64> {
     let (h, w, c) = img.dim();
-    Array2::from_shape_fn((h, w), |(i, j)| ((0..c).map(|k| img[[i, j, k]]).sum::<f64>() / c as f64).max(0.0).sqrt())
+    Array2::from_shape_fn((h, w), |(i, j)| {
+        ((0..c).map(|k| img[[i, j, k]]).sum::<f64>() / c as f64).max(0.0).sqrt()
+    })
 }
 
 fn bin(img: &Array2<f64>, f: usize) -> Array2<f64> {
@@ -109,7 +112,15 @@ fn bin(img: &Array2<f64>, f: usize) -> Array2<f64> {
 }
 
 /// NCC of the `t x t` tile of `r` at `(r0, c0)` with `g` at `(r0 + dy, c0 + dx)`; `None` outside.
-fn ncc(r: &Array2<f64>, g: &Array2<f64>, r0: usize, c0: usize, t: usize, dy: isize, dx: isize) -> Option<f64> {
+fn ncc(
+    r: &Array2<f64>,
+    g: &Array2<f64>,
+    r0: usize,
+    c0: usize,
+    t: usize,
+    dy: isize,
+    dx: isize,
+) -> Option<f64> {
     let (gi, gj) = (r0 as isize + dy, c0 as isize + dx);
     if gi < 0 || gj < 0 || gi as usize + t > g.dim().0 || gj as usize + t > g.dim().1 {
         return None;
@@ -134,7 +145,17 @@ fn ncc(r: &Array2<f64>, g: &Array2<f64>, r0: usize, c0: usize, t: usize, dy: isi
 }
 
 /// Best offset of a tile within `radius` of `(cy, cx)`.
-fn search(r: &Array2<f64>, g: &Array2<f64>, r0: usize, c0: usize, t: usize, cy: isize, cx: isize, radius: isize) -> Option<(isize, isize, f64)> {
+#[allow(clippy::too_many_arguments)]
+fn search(
+    r: &Array2<f64>,
+    g: &Array2<f64>,
+    r0: usize,
+    c0: usize,
+    t: usize,
+    cy: isize,
+    cx: isize,
+    radius: isize,
+) -> Option<(isize, isize, f64)> {
     let mut best: Option<(isize, isize, f64)> = None;
     for dy in cy - radius..=cy + radius {
         for dx in cx - radius..=cx + radius {
@@ -155,7 +176,11 @@ fn std_dev(img: &Array2<f64>) -> f64 {
 }
 
 /// Finds the affine map of `reference` onto `target` (both single-channel, e.g. [`luminance`]).
-pub fn register_affine(reference: &Array2<f64>, target: &Array2<f64>, opts: &RegisterOptions) -> Result<Registration> {
+pub fn register_affine(
+    reference: &Array2<f64>,
+    target: &Array2<f64>,
+    opts: &RegisterOptions,
+) -> Result<Registration> {
     let first = match_and_fit(reference, target, opts)?;
     // Refinement: the target mapped back through the first fit differs from the reference by
     // a fraction of a pixel, where the parabola's sub-pixel estimate is unbiased.
@@ -171,10 +196,8 @@ pub fn register_affine(reference: &Array2<f64>, target: &Array2<f64>, opts: &Reg
         [a0.a[0][0] * c[0][0] + a0.a[0][1] * c[1][0], a0.a[0][0] * c[0][1] + a0.a[0][1] * c[1][1]],
         [a0.a[1][0] * c[0][0] + a0.a[1][1] * c[1][0], a0.a[1][0] * c[0][1] + a0.a[1][1] * c[1][1]],
     ];
-    let b = [
-        a0.a[0][0] * d[0] + a0.a[0][1] * d[1] + a0.b[0],
-        a0.a[1][0] * d[0] + a0.a[1][1] * d[1] + a0.b[1],
-    ];
+    let b =
+        [a0.a[0][0] * d[0] + a0.a[0][1] * d[1] + a0.b[0], a0.a[1][0] * d[0] + a0.a[1][1] * d[1] + a0.b[1]];
     let affine = Affine { a, b };
     let det = a[0][0] * a[1][1] - a[0][1] * a[1][0];
     Ok(Registration {
@@ -188,7 +211,11 @@ pub fn register_affine(reference: &Array2<f64>, target: &Array2<f64>, opts: &Reg
 }
 
 /// One pass of tile matching and the robust least-squares fit.
-fn match_and_fit(reference: &Array2<f64>, target: &Array2<f64>, opts: &RegisterOptions) -> Result<Registration> {
+fn match_and_fit(
+    reference: &Array2<f64>,
+    target: &Array2<f64>,
+    opts: &RegisterOptions,
+) -> Result<Registration> {
     const BIN: usize = 4;
     const MIN_CURVATURE: f64 = 2e-3;
     let t = opts.tile.max(16) / BIN * BIN;
@@ -237,7 +264,8 @@ fn match_and_fit(reference: &Array2<f64>, target: &Array2<f64>, opts: &RegisterO
     let mut keep = vec![true; matched];
     let mut fit = None;
     for _ in 0..10 {
-        let used: Vec<&([f64; 2], [f64; 2])> = matches.iter().zip(&keep).filter(|(_, k)| **k).map(|(m, _)| m).collect();
+        let used: Vec<&([f64; 2], [f64; 2])> =
+            matches.iter().zip(&keep).filter(|(_, k)| **k).map(|(m, _)| m).collect();
         if used.len() < 6 {
             return Err(Error::Data(format!(
                 "only {} of {matched} tiles matched consistently (6 needed): the images do not show the same \
@@ -308,7 +336,12 @@ fn fit_affine(pairs: &[&([f64; 2], [f64; 2])]) -> Result<Affine> {
 
 /// The reference resampled onto the target's pixels (`rows x cols`) through `affine`
 /// (bilinear), with the mask of target pixels whose source lies inside the reference.
-pub fn warp(reference: &Array3<f64>, affine: &Affine, rows: usize, cols: usize) -> Result<(Array3<f64>, Array2<bool>)> {
+pub fn warp(
+    reference: &Array3<f64>,
+    affine: &Affine,
+    rows: usize,
+    cols: usize,
+) -> Result<(Array3<f64>, Array2<bool>)> {
     let inv = affine.inverse().ok_or_else(|| Error::Data("the affine map is singular".into()))?;
     let (h, w, nc) = reference.dim();
     let mut out = Array3::<f64>::zeros((rows, cols, nc));
@@ -319,7 +352,10 @@ pub fn warp(reference: &Array3<f64>, affine: &Affine, rows: usize, cols: usize) 
             if x < 0.0 || y < 0.0 || x > (w - 1) as f64 || y > (h - 1) as f64 {
                 continue;
             }
-            let (i0, j0) = ((y.floor() as usize).min(h.saturating_sub(2)), (x.floor() as usize).min(w.saturating_sub(2)));
+            let (i0, j0) = (
+                (y.floor() as usize).min(h.saturating_sub(2)),
+                (x.floor() as usize).min(w.saturating_sub(2)),
+            );
             let (ty, tx) = (y - i0 as f64, x - j0 as f64);
             for c in 0..nc {
                 let v = (1.0 - ty) * ((1.0 - tx) * reference[[i0, j0, c]] + tx * reference[[i0, j0 + 1, c]])

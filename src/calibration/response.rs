@@ -73,12 +73,18 @@ impl Response {
 pub fn recover_response(frames: &[Capture], times: &[f64], samples: usize, lambda: f64) -> Result<Response> {
     let p = frames.len();
     if p < 2 || times.len() != p {
-        return Err(Error::param("bracket", format!("response recovery needs 2 or more frames with times, got {p}")));
+        return Err(Error::param(
+            "bracket",
+            format!("response recovery needs 2 or more frames with times, got {p}"),
+        ));
     }
     let dim = frames[0].values.dim();
     for f in frames {
         if f.bits != 8 {
-            return Err(Error::format(&f.path, format!("is {}-bit; response recovery is for 8-bit captures", f.bits)));
+            return Err(Error::format(
+                &f.path,
+                format!("is {}-bit; response recovery is for 8-bit captures", f.bits),
+            ));
         }
         if f.values.dim() != dim {
             return Err(Error::format(&f.path, format!("is {:?}, the first frame {dim:?}", f.values.dim())));
@@ -86,7 +92,10 @@ pub fn recover_response(frames: &[Capture], times: &[f64], samples: usize, lambd
     }
     let (tmin, tmax) = times.iter().fold((f64::INFINITY, 0.0f64), |a, &t| (a.0.min(t), a.1.max(t)));
     if !(tmin > 0.0 && tmax > tmin * 1.01) {
-        return Err(Error::param("times", "response recovery needs frames of different positive exposure times"));
+        return Err(Error::param(
+            "times",
+            "response recovery needs frames of different positive exposure times",
+        ));
     }
     if !(lambda.is_finite() && lambda > 0.0) {
         return Err(Error::param("lambda", format!("must be positive, got {lambda}")));
