@@ -14,6 +14,8 @@
 //! * [`metrology`]: profilometer scans (read by [`io::scan`]): levelling, outliers, filling,
 //!   ISO 25178 height parameters.
 //! * [`optics`]: the optical system and the DOE's PSF by several propagation methods.
+//! * [`calibration`]: exposure brackets -> HDR merge (Debevec-Malik) -> measured PSF
+//!   (`calibrate-psf`); PSNR of reconstructions against references, affine registration.
 //! * [`decoder`]: the paper's U-Net decoder: weights, measurement model, reconstruction of
 //!   captures, fine-tuning for a fabricated part's PSF.
 //! * [`report`]: charts and false-colour maps (plotters, embedded font).
@@ -21,6 +23,7 @@
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
 //! * [`error`]: the library's error type.
 
+pub mod calibration;
 pub mod decoder;
 pub mod design;
 pub mod error;

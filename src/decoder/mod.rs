@@ -1,6 +1,7 @@
 //! The image decoder of the paper: its U-Net ([`unet`]), the weights format ([`weights`]),
 //! the measurement model used to train it ([`simulate`]), reconstruction of captures
-//! ([`reconstruct`]) and fine-tuning for one fabricated part's PSF ([`finetune`]).
+//! ([`reconstruct`]), fine-tuning for one fabricated part's PSF ([`finetune`]) and seeded
+//! procedural HDR scenes to train on without a data set ([`scenes`]).
 //!
 //! Images here are `(H, W, 3)` `f32` arrays (row-major, channels last, as the paper's NHWC);
 //! the network runs on NCHW burn tensors on the CPU (burn's Flex backend) or, with the `cuda`
@@ -8,6 +9,7 @@
 
 pub mod finetune;
 pub mod reconstruct;
+pub mod scenes;
 pub mod simulate;
 pub mod unet;
 pub mod weights;

@@ -148,6 +148,14 @@ fn report_and_write(
 /// Writes `psf.exr`, `psf.npy`, `psf_log.png` and `psf.json` into `out`, atomically as a folder.
 pub fn write_psf(psf: &Psf, report: &mut PsfReport, out: &Path) -> Result<()> {
     let mut stage = StagedDir::new(out)?;
+    report.files = stage_psf_files(psf, &report.normalisation, &mut stage)?;
+    report.files.push("psf.json".into());
+    write_json(&stage.stage_path("psf.json"), report)?;
+    stage.commit()
+}
+
+/// Writes `psf.exr`, `psf.npy` and `psf_log.png` into `stage`; returns their names.
+pub fn stage_psf_files(psf: &Psf, normalisation: &str, stage: &mut StagedDir) -> Result<Vec<String>> {
     let wavelengths: Vec<String> = psf
         .channels
         .iter()
@@ -157,7 +165,7 @@ pub fn write_psf(psf: &Psf, report: &mut PsfReport, out: &Path) -> Result<()> {
         .with("wavelengths_m", wavelengths.join(","))
         .with("channel_names", psf.channels.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(","))
         .with("method", psf.method.clone())
-        .with("normalisation", report.normalisation.clone());
+        .with("normalisation", normalisation);
     if !psf.warnings.is_empty() {
         meta = meta.with("warnings", psf.warnings.join(" | "));
     }
@@ -167,9 +175,7 @@ pub fn write_psf(psf: &Psf, report: &mut PsfReport, out: &Path) -> Result<()> {
     write_exr(&stage.stage_path("psf.exr"), &channels, &meta)?;
     write_npy_f32_4d(&stage.stage_path("psf.npy"), &psf.to_array4())?;
     write_png_u8(&stage.stage_path("psf_log.png"), &log_panels(psf), &meta)?;
-    report.files = ["psf.exr", "psf.npy", "psf_log.png", "psf.json"].map(String::from).to_vec();
-    write_json(&stage.stage_path("psf.json"), report)?;
-    stage.commit()
+    Ok(["psf.exr", "psf.npy", "psf_log.png"].map(String::from).to_vec())
 }
 
 /// The channels side by side, each `255 * (1 + log10(v / peak) / LOG_DECADES)` clamped to 0..255.

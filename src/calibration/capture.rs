@@ -1,0 +1,237 @@
+//! Sensor captures and exposure brackets.
+//!
+//! A capture is an 8- or 16-bit PNG or TIFF, RGB or grayscale, holding *linear* sensor values
+//! (value / full scale proportional to irradiance times exposure time, as the paper's captures
+//! are) unless a response curve says otherwise ([`crate::calibration::response`]). It is read
+//! into an `(H, W, C)` array of values in `[0, 1]` (counts / (2^bits - 1)); 16-bit palette,
+//! alpha, float or other bit depths are refused with what was found.
+//!
+//! A bracket's exposure times come from a JSON file in the layout of the paper's data
+//! (`{"reference_exposure_s": t, "frames": [{"file", "exposure_s", "doe"}]}`, file names
+//! relative to the JSON file) or from the caller.
+
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+
+use image::{DynamicImage, ImageEncoder};
+use ndarray::Array3;
+use serde::Deserialize;
+
+use crate::error::{Error, Result};
+use crate::io::atomic::write_bytes;
+
+/// One capture: linear values in `[0, 1]` with its bit depth.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Capture {
+    pub path: PathBuf,
+    /// `(H, W, C)`, counts divided by the full-scale count.
+    pub values: Array3<f64>,
+    /// 8 or 16.
+    pub bits: u8,
+}
+
+impl Capture {
+    /// The full-scale count, `2^bits - 1`.
+    pub fn full_scale(&self) -> f64 {
+        if self.bits == 8 {
+            255.0
+        } else {
+            65535.0
+        }
+    }
+}
+
+/// Reads an 8/16-bit RGB or grayscale PNG or TIFF capture.
+pub fn read_capture(path: &Path) -> Result<Capture> {
+    let reader = image::ImageReader::open(path)
+        .map_err(|e| Error::io(path, e))?
+        .with_guessed_format()
+        .map_err(|e| Error::io(path, e))?;
+    match reader.format() {
+        Some(image::ImageFormat::Png | image::ImageFormat::Tiff) => {}
+        other => return Err(Error::format(path, format!("is {other:?}, not a PNG or TIFF capture"))),
+    }
+    // The decoder is third-party code fed with user bytes: a panic in it becomes an error.
+    let img = std::panic::catch_unwind(move || reader.decode())
+        .map_err(|_| Error::format(path, "the image decoder failed on malformed data"))?
+        .map_err(|e| {
+            Error::format(path, format!("cannot decode it as an 8- or 16-bit RGB or grayscale capture: {e}"))
+        })?;
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let (samples, channels, bits): (Vec<f64>, usize, u8) = match &img {
+        DynamicImage::ImageLuma8(b) => (b.as_raw().iter().map(|&v| v as f64 / 255.0).collect(), 1, 8),
+        DynamicImage::ImageRgb8(b) => (b.as_raw().iter().map(|&v| v as f64 / 255.0).collect(), 3, 8),
+        DynamicImage::ImageLuma16(b) => (b.as_raw().iter().map(|&v| v as f64 / 65535.0).collect(), 1, 16),
+        DynamicImage::ImageRgb16(b) => (b.as_raw().iter().map(|&v| v as f64 / 65535.0).collect(), 3, 16),
+        other => {
+            return Err(Error::format(
+                path,
+                format!(
+                "holds {:?} samples; a capture must be 8- or 16-bit RGB or grayscale (no alpha, no float)",
+                other.color()
+            ),
+            ))
+        }
+    };
+    let values = Array3::from_shape_vec((h, w, channels), samples)
+        .map_err(|e| Error::format(path, format!("the image data does not fill {w} x {h}: {e}")))?;
+    Ok(Capture { path: path.to_path_buf(), values, bits })
+}
+
+/// Writes `values` (`(H, W, 1 or 3)`, clipped to `[0, 1]`, rounded to counts) as an 8- or
+/// 16-bit PNG capture, atomically.
+pub fn write_capture(path: &Path, values: &Array3<f64>, bits: u8) -> Result<()> {
+    let (h, w, c) = values.dim();
+    let full = match bits {
+        8 => 255.0,
+        16 => 65535.0,
+        b => return Err(Error::param("bits", format!("a capture has 8 or 16 bits, not {b}"))),
+    };
+    let color = match (c, bits) {
+        (1, 8) => image::ExtendedColorType::L8,
+        (3, 8) => image::ExtendedColorType::Rgb8,
+        (1, 16) => image::ExtendedColorType::L16,
+        (3, 16) => image::ExtendedColorType::Rgb16,
+        _ => return Err(Error::param("channels", format!("a capture has 1 or 3 channels, not {c}"))),
+    };
+    let counts = values.iter().map(|v| (v.clamp(0.0, 1.0) * full).round());
+    let data: Vec<u8> = if bits == 8 {
+        counts.map(|v| v as u8).collect()
+    } else {
+        counts.flat_map(|v| (v as u16).to_ne_bytes()).collect()
+    };
+    let mut bytes = Vec::new();
+    image::codecs::png::PngEncoder::new(Cursor::new(&mut bytes))
+        .write_image(&data, w as u32, h as u32, color)
+        .map_err(|e| Error::format(path, format!("PNG encoding failed: {e}")))?;
+    write_bytes(path, &bytes)
+}
+
+/// A bracket: capture files with their exposure times (seconds).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExposureList {
+    pub frames: Vec<(PathBuf, f64)>,
+    /// The exposure the merged radiance is expressed at (value 1 = full scale at this time).
+    pub reference_exposure: Option<f64>,
+}
+
+#[derive(Deserialize)]
+struct JsonList {
+    reference_exposure_s: Option<f64>,
+    frames: Vec<JsonFrame>,
+}
+
+#[derive(Deserialize)]
+struct JsonFrame {
+    file: String,
+    exposure_s: f64,
+    #[serde(default)]
+    doe: Option<bool>,
+}
+
+/// Reads an exposure list (see the module docs). Frames marked `"doe": true` are taken when
+/// `with_doe`, the others (`false` or absent) otherwise.
+pub fn read_exposures(path: &Path, with_doe: bool) -> Result<ExposureList> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let list: JsonList = serde_json::from_str(&text).map_err(|e| {
+        Error::format(
+            path,
+            format!("not an exposure list ({{\"frames\": [{{\"file\", \"exposure_s\"}}]}}): {e}"),
+        )
+    })?;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut frames = Vec::new();
+    for (k, f) in list.frames.iter().enumerate() {
+        if !(f.exposure_s.is_finite() && f.exposure_s > 0.0) {
+            return Err(Error::format(
+                path,
+                format!("frames[{k}].exposure_s is {}; expected a positive time in seconds", f.exposure_s),
+            ));
+        }
+        if f.doe.unwrap_or(false) == with_doe {
+            frames.push((dir.join(&f.file), f.exposure_s));
+        }
+    }
+    if frames.is_empty() {
+        return Err(Error::format(
+            path,
+            format!("lists no frame with \"doe\": {with_doe} (of {} frames)", list.frames.len()),
+        ));
+    }
+    if let Some(t) = list.reference_exposure_s {
+        if !(t.is_finite() && t > 0.0) {
+            return Err(Error::format(path, format!("reference_exposure_s is {t}; expected seconds > 0")));
+        }
+    }
+    Ok(ExposureList { frames, reference_exposure: list.reference_exposure_s })
+}
+
+/// Pairs files with times given on the command line ("1/60", "0.5", "2s", "250ms").
+pub fn exposures_from_times(files: &[PathBuf], times: &[String]) -> Result<ExposureList> {
+    if files.len() != times.len() {
+        return Err(Error::param(
+            "times",
+            format!("{} exposure times for {} files", times.len(), files.len()),
+        ));
+    }
+    let frames =
+        files.iter().zip(times).map(|(f, t)| Ok((f.clone(), parse_time(t)?))).collect::<Result<Vec<_>>>()?;
+    Ok(ExposureList { frames, reference_exposure: None })
+}
+
+/// An exposure time in seconds: "0.5", "1/60", "2s", "250ms", "100us".
+pub fn parse_time(text: &str) -> Result<f64> {
+    let t = text.trim();
+    let bad = || Error::param("time", format!("'{text}' is not an exposure time (e.g. 0.5, 1/60, 250ms)"));
+    let (num, scale) = if let Some(v) = t.strip_suffix("ms") {
+        (v, 1e-3)
+    } else if let Some(v) = t.strip_suffix("us") {
+        (v, 1e-6)
+    } else if let Some(v) = t.strip_suffix('s') {
+        (v, 1.0)
+    } else {
+        (t, 1.0)
+    };
+    let num = num.trim();
+    let value = match num.split_once('/') {
+        Some((a, b)) => {
+            a.trim().parse::<f64>().map_err(|_| bad())? / b.trim().parse::<f64>().map_err(|_| bad())?
+        }
+        None => num.parse::<f64>().map_err(|_| bad())?,
+    } * scale;
+    if value.is_finite() && value > 0.0 {
+        Ok(value)
+    } else {
+        Err(bad())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn times_parse_with_units_and_fractions() {
+        assert_eq!(parse_time("1/4").unwrap(), 0.25);
+        assert_eq!(parse_time("250ms").unwrap(), 0.25);
+        assert_eq!(parse_time("2 s").unwrap(), 2.0);
+        assert!((parse_time("100us").unwrap() - 1e-4).abs() < 1e-18);
+        for bad in ["", "-1", "0", "1/0", "fast"] {
+            assert!(parse_time(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn captures_round_trip_at_8_and_16_bits() {
+        let dir = tempfile::tempdir().unwrap();
+        let v = Array3::from_shape_fn((5, 7, 3), |(i, j, c)| (i * 21 + j * 3 + c) as f64 / 120.0);
+        for bits in [8u8, 16] {
+            let p = dir.path().join(format!("c{bits}.png"));
+            write_capture(&p, &v, bits).unwrap();
+            let c = read_capture(&p).unwrap();
+            assert_eq!(c.bits, bits);
+            let step = 0.5 / c.full_scale() + 1e-12;
+            assert!(c.values.iter().zip(&v).all(|(a, b)| (a - b).abs() <= step));
+        }
+    }
+}

@@ -1,0 +1,170 @@
+//! Recovery of a camera's response curve from an 8-bit exposure bracket (Debevec & Malik,
+//! "Recovering High Dynamic Range Radiance Maps from Photographs", SIGGRAPH 1997, Sec. 2.1).
+//!
+//! A pixel value is `Z = f(E t)`; with `g = ln f^-1`, every sample pixel `i` seen in frame `j`
+//! gives `g(Z_ij) = ln E_i + ln t_j`. The 256 values of `g` (per channel) and the `N` unknown
+//! `ln E_i` minimise (eq. 3)
+//!
+//! `sum_ij [w(Z_ij) (g(Z_ij) - ln E_i - ln t_j)]^2 + lambda sum_z [w(z) g''(z)]^2`
+//!
+//! with the hat weight `w(z) = min(z, 255 - z)` and `g''(z) = g(z-1) - 2 g(z) + g(z+1)`. The
+//! curve is fixed by `g(128) = ln(128/255)`, so that a linear camera gives `exp(g(z)) = z/255`
+//! (the scale of linear captures). The normal equations of this sparse least-squares problem
+//! (`256 + N` unknowns) are solved by Gaussian elimination with partial pivoting.
+//!
+//! Validity: the samples must span the curve. The sample pixels are picked from the middle
+//! frame at evenly spaced values, `N >= 2 * 256 / (P - 1)` of them for `P` frames (the paper
+//! asks `N (P - 1) > 255`); a bracket whose weighted observations cover less than half of the
+//! value range leaves `g` unconstrained there and is refused, and a recovered curve that
+//! decreases anywhere inside the observed range is reported.
+
+use ndarray::Array3;
+use serde::Serialize;
+
+use super::capture::Capture;
+use crate::error::{Error, Result};
+use crate::metrology::level::solve;
+
+/// The recovered `g(z) = ln f^-1(z)` per channel, 256 values each.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Response {
+    pub log_exposure: Vec<Vec<f64>>,
+    /// Sample pixels per channel and the smoothness weight used.
+    pub samples: usize,
+    pub lambda: f64,
+    pub warnings: Vec<String>,
+}
+
+/// Hat weight of an 8-bit value.
+fn w(z: usize) -> f64 {
+    z.min(255 - z) as f64
+}
+
+impl Response {
+    /// `exp(g(z))` for every value (rounded to its 8-bit count).
+    pub fn linearize(&self, values: &Array3<f64>) -> Array3<f64> {
+        Array3::from_shape_fn(values.dim(), |(i, j, c)| {
+            let z = (values[[i, j, c]] * 255.0).round().clamp(0.0, 255.0) as usize;
+            self.log_exposure[c][z].exp()
+        })
+    }
+
+    /// Refuses frames this curve cannot linearize (not 8-bit, other channel count).
+    pub fn check(&self, frames: &[Capture]) -> Result<()> {
+        for f in frames {
+            if f.bits != 8 || f.values.dim().2 != self.log_exposure.len() {
+                return Err(Error::format(
+                    &f.path,
+                    format!(
+                        "is {}-bit with {} channels; the response curve is for 8-bit captures with {} channels",
+                        f.bits,
+                        f.values.dim().2,
+                        self.log_exposure.len()
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Recovers the response from a bracket of 8-bit `frames` with exposure `times` (seconds);
+/// `samples` pixels per channel (0: the minimum above), smoothness `lambda`.
+pub fn recover_response(frames: &[Capture], times: &[f64], samples: usize, lambda: f64) -> Result<Response> {
+    let p = frames.len();
+    if p < 2 || times.len() != p {
+        return Err(Error::param(
+            "bracket",
+            format!("response recovery needs 2 or more frames with times, got {p}"),
+        ));
+    }
+    let dim = frames[0].values.dim();
+    for f in frames {
+        if f.bits != 8 {
+            return Err(Error::format(
+                &f.path,
+                format!("is {}-bit; response recovery is for 8-bit captures", f.bits),
+            ));
+        }
+        if f.values.dim() != dim {
+            return Err(Error::format(&f.path, format!("is {:?}, the first frame {dim:?}", f.values.dim())));
+        }
+    }
+    let (tmin, tmax) = times.iter().fold((f64::INFINITY, 0.0f64), |a, &t| (a.0.min(t), a.1.max(t)));
+    if !(tmin > 0.0 && tmax > tmin * 1.01) {
+        return Err(Error::param(
+            "times",
+            "response recovery needs frames of different positive exposure times",
+        ));
+    }
+    if !(lambda.is_finite() && lambda > 0.0) {
+        return Err(Error::param("lambda", format!("must be positive, got {lambda}")));
+    }
+    let n = if samples == 0 { (512 / (p - 1)).clamp(50, 300) } else { samples };
+    let mut order: Vec<usize> = (0..p).collect();
+    order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
+    let middle = &frames[order[p / 2]].values;
+    let count = |v: f64| (v * 255.0).round().clamp(0.0, 255.0) as usize;
+    let mut curves = Vec::new();
+    let mut warnings = Vec::new();
+    for c in 0..dim.2 {
+        // The first pixel of every value in the middle frame, then N of them evenly spaced.
+        let mut first: Vec<Option<(usize, usize)>> = vec![None; 256];
+        for ((i, j, cc), &v) in middle.indexed_iter() {
+            if cc == c && first[count(v)].is_none() {
+                first[count(v)] = Some((i, j));
+            }
+        }
+        let distinct: Vec<(usize, usize)> = first.into_iter().flatten().collect();
+        let picks: Vec<(usize, usize)> = if distinct.len() <= n {
+            distinct
+        } else {
+            (0..n).map(|k| distinct[k * distinct.len() / n]).collect()
+        };
+        let m = 256 + picks.len();
+        let mut ata = vec![0.0; m * m];
+        let mut atb = vec![0.0; m];
+        let mut add_row = |entries: &[(usize, f64)], rhs: f64| {
+            for &(a, va) in entries {
+                atb[a] += va * rhs;
+                for &(b, vb) in entries {
+                    ata[a * m + b] += va * vb;
+                }
+            }
+        };
+        let (mut zmin, mut zmax) = (255, 0);
+        for (s, &(i, j)) in picks.iter().enumerate() {
+            for k in 0..p {
+                let z = count(frames[k].values[[i, j, c]]);
+                let wz = w(z);
+                if wz > 0.0 {
+                    zmin = zmin.min(z);
+                    zmax = zmax.max(z);
+                }
+                add_row(&[(z, wz), (256 + s, -wz)], wz * times[k].ln());
+            }
+        }
+        add_row(&[(128, 1.0)], (128.0f64 / 255.0).ln());
+        for z in 1..255 {
+            let s = lambda * w(z);
+            add_row(&[(z - 1, s), (z, -2.0 * s), (z + 1, s)], 0.0);
+        }
+        if zmax < zmin + 128 {
+            return Err(Error::Validity(format!(
+                "channel {c}: the bracket's samples span only values {zmin}..{zmax} of 0..255; the response \
+                 outside is unconstrained (add shorter and longer exposures)"
+            )));
+        }
+        let x = solve(ata, atb, m)
+            .map_err(|_| Error::Validity(format!("channel {c}: the response equations are singular")))?;
+        let g = x[..256].to_vec();
+        if let Some(z) = (zmin..zmax).find(|&z| g[z + 1] < g[z]) {
+            warnings.push(format!(
+                "channel {c}: the recovered response decreases at value {z}; more samples or a larger \
+                 lambda may help"
+            ));
+        }
+        curves.push(g);
+    }
+    Ok(Response { log_exposure: curves, samples: n, lambda, warnings })
+}
