@@ -387,6 +387,17 @@ fn demo_runs_every_stage_on_the_built_in_design() {
     let step = m["levels"]["mean_step"].as_f64().unwrap() / m["levels"]["step"].as_f64().unwrap();
     assert!((step / 0.95 - 1.0).abs() < 0.005, "{step}");
     assert_eq!(m["psf"]["channels"].as_array().unwrap().len(), 3);
+    // The calibration stage: the synthetic pinhole bracket gives the simulated PSF back.
+    for l2 in all["calibration"]["relative_l2_to_simulated"].as_array().unwrap() {
+        assert!(l2.as_f64().unwrap() < 0.02, "{l2}");
+    }
+    // The decoder stage: two fine-tuning steps and a reconstruction, written where it says.
+    let dec = &all["decoder"];
+    assert_eq!(dec["history"].as_array().unwrap().iter().filter(|h| h["loss"].is_number()).count(), 2);
+    assert!(PathBuf::from(dec["decoder"].as_str().unwrap()).exists());
+    for k in ["exr", "png"] {
+        assert!(PathBuf::from(dec["reconstruction"][k].as_str().unwrap()).exists(), "{k} missing");
+    }
     for r in reports {
         assert_eq!(r["provenance"]["design"], "built-in:paper");
         for a in r["artifacts"].as_array().unwrap() {
