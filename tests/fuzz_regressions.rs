@@ -70,7 +70,7 @@ fn ascii_sdf_size_claim_reserves_no_memory() {
 #[test]
 fn gsf_header_key_given_twice_is_refused() {
     let mut f = b"Gwyddion Simple Field 1.0\nXRes = 2\nYRes = 1\nXRes = 1\n".to_vec();
-    f.resize(f.len().next_multiple_of(4) + if f.len() % 4 == 0 { 4 } else { 0 }, 0);
+    f.resize(f.len().next_multiple_of(4) + if f.len().is_multiple_of(4) { 4 } else { 0 }, 0);
     f.extend_from_slice(&[0u8; 8]);
     let (e, _) = refused("a.gsf", &f);
     assert!(e.contains("a.gsf") && e.contains("'XRes' is given twice"), "{e}");

@@ -448,7 +448,7 @@ mod tests {
                     }
                 }
                 xs.sort_unstable();
-                assert!(xs.len() % 2 == 0);
+                assert!(xs.len().is_multiple_of(2));
                 for pair in xs.chunks(2) {
                     for c in pair[0]..pair[1] {
                         count[[r, c as usize]] += 1;
@@ -473,7 +473,7 @@ mod tests {
     /// hole), positive orientation, and the vertex limit.
     fn check_polygon(p: &Polygon, max_vertices: usize) {
         let n = p.len();
-        assert!(n >= 4 && n % 2 == 0 && n <= max_vertices, "{n} vertices");
+        assert!(n >= 4 && n.is_multiple_of(2) && n <= max_vertices, "{n} vertices");
         let mut seen = std::collections::HashSet::new();
         for k in 0..n {
             let (a, b, c) = (p[k], p[(k + 1) % n], p[(k + 2) % n]);

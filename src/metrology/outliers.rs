@@ -78,7 +78,7 @@ pub fn nsigma_outliers(g: &Grid, n: f64, order: usize, max_iterations: usize) ->
 
 /// The median-filter test (see the module docs); `size` is odd, >= 3.
 pub fn median_outliers(g: &Grid, size: usize, n: f64, min_step: f64) -> Result<Outliers> {
-    if size < 3 || size % 2 == 0 {
+    if size < 3 || size.is_multiple_of(2) {
         return Err(Error::param("median size", format!("must be odd and at least 3, got {size}")));
     }
     let (nr, nc) = g.dim();

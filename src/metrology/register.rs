@@ -440,7 +440,7 @@ fn fast_len(m: usize) -> usize {
     loop {
         let mut k = n;
         for f in [2, 3, 5] {
-            while k % f == 0 {
+            while k.is_multiple_of(f) {
                 k /= f;
             }
         }

@@ -94,7 +94,7 @@ pub fn good_size(n: usize, parity: usize) -> usize {
         if m % 2 == parity % 2 {
             let mut r = m;
             for p in [2, 3, 5] {
-                while r % p == 0 {
+                while r.is_multiple_of(p) {
                     r /= p;
                 }
             }

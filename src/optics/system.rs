@@ -328,7 +328,7 @@ impl OpticalSystem {
         // are DOE samples: a centred crop, no interpolation.
         let (r, c) = doe.dim();
         let same_pitch = doe.pitch().iter().all(|p| (p / pitch - 1.0).abs() < 1e-12);
-        let g = if same_pitch && r >= n && c >= n && (r - n) % 2 == 0 && (c - n) % 2 == 0 {
+        let g = if same_pitch && r >= n && c >= n && (r - n).is_multiple_of(2) && (c - n).is_multiple_of(2) {
             let (i0, j0) = ((r - n) / 2, (c - n) / 2);
             doe.crop(i0..i0 + n, j0..j0 + n)?
         } else {

@@ -254,7 +254,7 @@ impl Terraces {
         let s = &self.saddles[(p - self.kps.len()) / 2];
         let (r, c) = (s.r as f64, s.c as f64);
         let d = CHAMFER_FRACTION;
-        if (p - self.kps.len()) % 2 == 0 {
+        if (p - self.kps.len()).is_multiple_of(2) {
             [c, r - d]
         } else {
             [c + d, r]

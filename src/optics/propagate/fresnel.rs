@@ -130,7 +130,7 @@ pub(crate) fn two_step(
 ) -> Result<Array2<Complex64>> {
     let n = u0.dim().0;
     let m = system.samples();
-    if m > w || (w - n) % 2 != 0 || (w - m) % 2 != 0 {
+    if m > w || !(w - n).is_multiple_of(2) || !(w - m).is_multiple_of(2) {
         return Err(Error::Validity(format!(
             "the sensor crop ({m} samples) does not fit centred in the {w}-sample propagation window"
         )));
