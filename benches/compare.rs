@@ -106,7 +106,7 @@ fn main() -> doefab::Result<()> {
     let t_fill = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let system = doefab::optics::output::system_for(&design);
-    let opts = doefab::optics::Options { allow_invalid: true };
+    let opts = doefab::optics::Options { allow_invalid: true, ..Default::default() };
     let psf = psf_comparison(&design, &filled, &system, doefab::optics::Method::MatrixDft, &opts)?;
     println!(
         "fill {t_fill:.3} s; PSF comparison (matrix DFT, 2 x RGB) {:.3} s: Strehl vs design {}",

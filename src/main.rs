@@ -722,7 +722,7 @@ fn run(cli: &Cli) -> Result<()> {
             };
             let psf =
                 (psf_method != "none").then(|| doefab::optics::Method::from_name(psf_method)).transpose()?;
-            let psf = psf.map(|m| (m, doefab::optics::Options { allow_invalid: *allow_invalid }));
+            let psf = psf.map(|m| (m, doefab::optics::Options { allow_invalid: *allow_invalid, ..Default::default() }));
             let report = compare(cli, scan, &scan_opts, &source, chain.as_ref(), *aperture, psf, output)?;
             warn(&report.comparison.warnings);
             if let Some(p) = &report.psf {
@@ -1070,7 +1070,10 @@ fn demo(cli: &Cli, output: &Path) -> Result<()> {
         &source,
         Some(&params),
         None,
-        Some((Method::MatrixDft, Options { allow_invalid: true })),
+        Some((
+            doefab::optics::Method::MatrixDft,
+            doefab::optics::Options { allow_invalid: true, ..Default::default() },
+        )),
         &cmp_dir,
     )?;
     warn(&cmp.comparison.warnings);

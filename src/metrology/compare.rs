@@ -1046,7 +1046,7 @@ mod tests {
             crop: 33,
             ..Default::default()
         };
-        let opts = Options { allow_invalid: true };
+        let opts = Options { allow_invalid: true, ..Default::default() };
         let piston = design.map_values(Array2::from_elem((n, n), 0.3e-6), Unit::Metre).unwrap();
         let p = psf_comparison(&design, &piston, &system, Method::MatrixDft, &opts).unwrap();
         for c in &p.channels {
