@@ -30,6 +30,17 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
+enum BenchCommand {
+    /// Error against run time of every PSF method, precision and sub-sampling on a small
+    /// scene, and error against pupil sampling with the guard's refusals: PNG + SVG + JSON.
+    Psf {
+        /// Output folder.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+}
+
+#[derive(Subcommand)]
 enum Command {
     /// Simulate the RGB PSF of a height map in the paper's camera: EXR, NPY (H, W, 1, 3),
     /// log-scale PNG and a JSON summary.
@@ -89,6 +100,11 @@ enum Command {
         /// radius at the paper's F/7, or two pixels without a wavelength.
         #[arg(long, value_parser = clap_length)]
         radius: Option<f64>,
+    },
+    /// Benchmarks with charts.
+    Bench {
+        #[command(subcommand)]
+        what: BenchCommand,
     },
     /// Run every stage on the built-in example design (no input needed).
     Demo {
@@ -611,6 +627,38 @@ fn run(cli: &Cli) -> Result<()> {
                         c.b.encircled_energy
                     );
                 }
+            })
+        }
+        Command::Bench { what: BenchCommand::Psf { output } } => {
+            let pb = progress(cli, doefab::optics::bench::RUNS as u64);
+            let points = doefab::optics::bench::run_bench(|p| {
+                pb.set_message(format!("{} {} s={}", p.method, p.precision, p.subsample));
+                pb.inc(1);
+            })?;
+            pb.finish_and_clear();
+            let mut stage = doefab::io::atomic::StagedDir::new(output)?;
+            doefab::report::psf_charts::write_psf_charts(|n| stage.stage_path(n), &points)?;
+            doefab::io::atomic::write_json(&stage.stage_path("bench_psf.json"), &points)?;
+            stage.commit()?;
+            print_result(cli, &points, || {
+                for p in &points {
+                    println!(
+                        "{:<17} {} s={} pupil {:.2} um  {:.4} s  L2 {:.2e}{}{}",
+                        p.method,
+                        p.precision,
+                        p.subsample,
+                        p.pupil_pitch * 1e6,
+                        p.seconds,
+                        p.error,
+                        if p.pareto { "  [Pareto]" } else { "" },
+                        if p.violations.is_empty() {
+                            String::new()
+                        } else {
+                            format!("  refused: {}", p.violations.join("; "))
+                        }
+                    );
+                }
+                println!("wrote {}", output.display());
             })
         }
         Command::Demo { output } => demo(cli, output),
