@@ -30,6 +30,17 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
+enum BenchCommand {
+    /// Error against run time of every PSF method, precision and sub-sampling on a small
+    /// scene, and error against pupil sampling with the guard's refusals: PNG + SVG + JSON.
+    Psf {
+        /// Output folder.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+}
+
+#[derive(Subcommand)]
 enum Command {
     /// Simulate the RGB PSF of a height map in the paper's camera: EXR, NPY (H, W, 1, 3),
     /// log-scale PNG and a JSON summary.
@@ -127,6 +138,31 @@ enum Command {
         /// Tile side of the registration, pixels.
         #[arg(long, default_value_t = 48)]
         tile: usize,
+    /// Compare two PSFs (design, as-fabricated, measured): each one's peaks, encircled energy
+    /// and centroid per channel, and the relative L2 after centroid alignment.
+    PsfCompare {
+        /// Reference PSF: .npy (with psf.json beside it), .exr as `psf` writes, or .npz.
+        a: PathBuf,
+        /// PSF compared against it (moved onto its centroid).
+        b: PathBuf,
+        /// Write the comparison as JSON to this file.
+        #[arg(short, long)]
+        output: Option<PathBuf>,
+        /// Pixel pitch for a file that states none ("4.29 um").
+        #[arg(long, value_parser = clap_length)]
+        pitch: Option<f64>,
+        /// Array to read from a .npz archive holding several (the paper's: psf_val).
+        #[arg(long)]
+        key: Option<String>,
+        /// Radius of the encircled energy and the peak search ("5 um"); default the Airy
+        /// radius at the paper's F/7, or two pixels without a wavelength.
+        #[arg(long, value_parser = clap_length)]
+        radius: Option<f64>,
+    },
+    /// Benchmarks with charts.
+    Bench {
+        #[command(subcommand)]
+        what: BenchCommand,
     },
     /// Run every stage on the built-in example design (no input needed).
     Demo {
@@ -709,6 +745,72 @@ fn run(cli: &Cli) -> Result<()> {
                     (None, Some(0)) => println!("no pixel of the capture is saturated"),
                     _ => {}
                 }
+            })
+        }
+        Command::PsfCompare { a, b, output, pitch, key, radius } => {
+            use doefab::optics::compare::{compare, read_psf, CompareOptions};
+            let opts = CompareOptions { pitch: *pitch, key: key.clone(), radius: *radius };
+            let pa = read_psf(a, &opts)?;
+            let pb = read_psf(b, &opts)?;
+            let r = compare(&pa, &pb, &a.display().to_string(), &b.display().to_string(), &opts)?;
+            if let Some(out) = output {
+                doefab::io::atomic::write_json(out, &r)?;
+            }
+            warn(&r.warnings);
+            print_result(cli, &r, || {
+                if r.window != "same size" {
+                    println!("{}", r.window);
+                }
+                for c in &r.channels {
+                    let um = |p: [f64; 2]| format!("({:.2}, {:.2}) um", p[0] * 1e6, p[1] * 1e6);
+                    println!(
+                        "{}: L2 {:.3e}, aligned {:.3e} (B's centroid {} from A's); peak A {:.3e} at {}, \
+                         B {:.3e} at {}; EE({:.2} um) A {:.4}, B {:.4}",
+                        c.name,
+                        c.relative_l2,
+                        c.relative_l2_aligned,
+                        um(c.centroid_offset),
+                        c.a.summary.peak,
+                        um(c.a.summary.peak_position),
+                        c.b.summary.peak,
+                        um(c.b.summary.peak_position),
+                        c.radius * 1e6,
+                        c.a.encircled_energy,
+                        c.b.encircled_energy
+                    );
+                }
+            })
+        }
+        Command::Bench { what: BenchCommand::Psf { output } } => {
+            let pb = progress(cli, doefab::optics::bench::RUNS as u64);
+            let points = doefab::optics::bench::run_bench(|p| {
+                pb.set_message(format!("{} {} s={}", p.method, p.precision, p.subsample));
+                pb.inc(1);
+            })?;
+            pb.finish_and_clear();
+            let mut stage = doefab::io::atomic::StagedDir::new(output)?;
+            doefab::report::psf_charts::write_psf_charts(|n| stage.stage_path(n), &points)?;
+            doefab::io::atomic::write_json(&stage.stage_path("bench_psf.json"), &points)?;
+            stage.commit()?;
+            print_result(cli, &points, || {
+                for p in &points {
+                    println!(
+                        "{:<17} {} s={} pupil {:.2} um  {:.4} s  L2 {:.2e}{}{}",
+                        p.method,
+                        p.precision,
+                        p.subsample,
+                        p.pupil_pitch * 1e6,
+                        p.seconds,
+                        p.error,
+                        if p.pareto { "  [Pareto]" } else { "" },
+                        if p.violations.is_empty() {
+                            String::new()
+                        } else {
+                            format!("  refused: {}", p.violations.join("; "))
+                        }
+                    );
+                }
+                println!("wrote {}", output.display());
             })
         }
         Command::Demo { output } => demo(cli, output),

@@ -13,7 +13,7 @@
 use std::io::Read;
 use std::path::Path;
 
-use ndarray::{Array2, Array4};
+use ndarray::{Array2, Array4, ArrayD};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -285,18 +285,32 @@ impl Psf {
             .map_err(|e| Error::format(path, format!("cannot inflate '{entry}': {e}")))?;
         let inner = path.join(&entry);
         let (h, arr) = decode_npy(&inner, &bytes)?;
-        let (rows, cols, nc) = match h.shape.as_slice() {
+        Psf::from_array(&inner, &h.shape, arr, [pitch, pitch], wavelengths)
+    }
+
+    /// A PSF from an array of shape `(H, W)`, `(H, W, C)` or `(H, W, 1, C)` (the paper's
+    /// layout) at pixel `pitch` `[x, y]` (metres); `path` names its source in errors.
+    /// Channels of three are named R, G, B; `wavelengths`, if given, must have one entry per
+    /// channel. Each channel is normalised to sum 1.
+    pub fn from_array(
+        path: &Path,
+        shape: &[usize],
+        arr: ArrayD<f64>,
+        pitch: [f64; 2],
+        wavelengths: Option<&[f64]>,
+    ) -> Result<Psf> {
+        let (rows, cols, nc) = match shape {
             [r, c] => (*r, *c, 1),
             [r, c, k] | [r, c, 1, k] => (*r, *c, *k),
             s => {
                 return Err(Error::format(
-                    &inner,
+                    path,
                     format!("shape {s:?} is not a PSF (expected (H, W), (H, W, C) or (H, W, 1, C))"),
                 ))
             }
         };
         if rows == 0 || cols == 0 || nc == 0 {
-            return Err(Error::format(&inner, format!("empty PSF of shape {:?}", h.shape)));
+            return Err(Error::format(path, format!("empty PSF of shape {shape:?}")));
         }
         if let Some(w) = wavelengths {
             if w.len() != nc {
@@ -308,7 +322,7 @@ impl Psf {
         }
         let flat = arr
             .into_shape_with_order((rows, cols, nc))
-            .map_err(|e| Error::format(&inner, format!("cannot view as {rows} x {cols} x {nc}: {e}")))?;
+            .map_err(|e| Error::format(path, format!("cannot view as {rows} x {cols} x {nc}: {e}")))?;
         let mut channels = Vec::new();
         for c in 0..nc {
             let values = Array2::from_shape_fn((rows, cols), |(i, j)| flat[[i, j, c]]);
@@ -316,12 +330,12 @@ impl Psf {
             channels.push(Channel {
                 name,
                 wavelength: wavelengths.map(|w| w[c]),
-                grid: Grid::new(values, [pitch, pitch], Unit::Dimensionless)?,
+                grid: Grid::new(values, pitch, Unit::Dimensionless)?,
                 captured: None,
             });
         }
         Psf::new(channels, "file").map_err(|e| match e {
-            Error::Data(m) => Error::format(&inner, m),
+            Error::Data(m) => Error::format(path, m),
             other => other,
         })
     }

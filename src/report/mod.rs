@@ -6,6 +6,7 @@
 //! on every machine and need no system fonts.
 
 pub mod metrology_charts;
+pub mod psf_charts;
 pub mod training_chart;
 
 use std::path::Path;

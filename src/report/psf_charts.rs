@@ -1,0 +1,197 @@
+//! Charts of `doefab bench psf`: error against run time for every method, precision and
+//! sub-sampling, with the Pareto front of the valid runs; and the stability chart, error
+//! against sub-sampling (the FFT methods' pupil grid) per method, with the runs its guard refuses marked by crosses.
+
+use std::path::PathBuf;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use crate::error::{Error, Result};
+use crate::optics::bench::BenchPoint;
+use crate::report::{write_png_chart, write_svg_chart, FONT};
+
+const SERIES: [(&str, &str, RGBColor); 4] = [
+    ("matrix_dft", "f64", BLUE),
+    ("matrix_dft", "f32", GREEN),
+    ("fresnel", "f64", RED),
+    ("angular_spectrum", "f64", MAGENTA),
+];
+
+/// Log range covering `values` (positive ones), padded by a factor of 2.
+fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    if lo.is_finite() {
+        lo / 2.0..hi * 2.0
+    } else {
+        1e-6..1.0
+    }
+}
+
+fn speed_chart<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    points: &[BenchPoint],
+) -> std::result::Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let mut chart = ChartBuilder::on(root)
+        .caption("PSF: error vs run time (filled: valid, hollow: guard refuses)", (FONT, 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(
+            log_range(points.iter().map(|p| p.seconds)).log_scale(),
+            log_range(points.iter().map(|p| p.error)).log_scale(),
+        )
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("run time, s")
+        .y_desc("relative L2 vs converged reference")
+        .x_label_formatter(&|v| format!("{v:.0e}"))
+        .y_label_formatter(&|v| format!("{v:.0e}"))
+        .label_style((FONT, 13))
+        .draw()
+        .map_err(|x| e(&x))?;
+    for (method, precision, colour) in SERIES {
+        let own: Vec<&BenchPoint> =
+            points.iter().filter(|p| p.method == method && p.precision == precision).collect();
+        chart
+            .draw_series(own.iter().map(|p| {
+                let style = if p.violations.is_empty() { colour.filled() } else { colour.stroke_width(1) };
+                Circle::new((p.seconds, p.error.max(1e-300)), 4, style)
+            }))
+            .map_err(|x| e(&x))?
+            .label(format!("{method} {precision}"))
+            .legend(move |(x, y)| Circle::new((x + 8, y), 4, colour.filled()));
+    }
+    let front: Vec<(f64, f64)> = points.iter().filter(|p| p.pareto).map(|p| (p.seconds, p.error)).collect();
+    let mut front = front;
+    front.sort_by(|a, b| a.0.total_cmp(&b.0));
+    chart
+        .draw_series(LineSeries::new(front, BLACK.stroke_width(2)))
+        .map_err(|x| e(&x))?
+        .label("Pareto front (valid runs)")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
+    chart
+        .configure_series_labels()
+        .label_font((FONT, 13))
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|x| e(&x))?;
+    Ok(())
+}
+
+fn stability_chart<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    points: &[BenchPoint],
+) -> std::result::Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let s_max = points.iter().map(|p| p.subsample).max().unwrap_or(1) as f64;
+    let mut chart = ChartBuilder::on(root)
+        .caption("PSF: error vs sampling (x: guard refuses)", (FONT, 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.5..s_max + 0.5, log_range(points.iter().map(|p| p.error)).log_scale())
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("sub-samples per pixel s (FFT methods: pupil pitch = pixel pitch / s)")
+        .y_desc("relative L2 vs converged reference")
+        .x_label_formatter(&|v| format!("{v:.0}"))
+        .y_label_formatter(&|v| format!("{v:.0e}"))
+        .label_style((FONT, 13))
+        .draw()
+        .map_err(|x| e(&x))?;
+    for (method, precision, colour) in SERIES {
+        let mut own: Vec<(f64, f64, bool)> = points
+            .iter()
+            .filter(|p| p.method == method && p.precision == precision)
+            .map(|p| (p.subsample as f64, p.error.max(1e-300), p.violations.is_empty()))
+            .collect();
+        own.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
+        chart
+            .draw_series(LineSeries::new(own.iter().map(|&(x, y, _)| (x, y)), colour))
+            .map_err(|x| e(&x))?
+            .label(format!("{method} {precision}"))
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour));
+        chart
+            .draw_series(own.iter().map(|&(x, y, valid)| -> DynElement<DB, (f64, f64)> {
+                if valid {
+                    Circle::new((x, y), 3, colour.filled()).into_dyn()
+                } else {
+                    Cross::new((x, y), 6, colour.stroke_width(2)).into_dyn()
+                }
+            }))
+            .map_err(|x| e(&x))?;
+    }
+    chart
+        .configure_series_labels()
+        .label_font((FONT, 13))
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|x| e(&x))?;
+    Ok(())
+}
+
+/// Writes `speed_accuracy.{png,svg}` and `stability.{png,svg}`, each at `path_for(name)`;
+/// returns the names.
+pub fn write_psf_charts(
+    mut path_for: impl FnMut(&str) -> PathBuf,
+    points: &[BenchPoint],
+) -> Result<Vec<String>> {
+    if points.is_empty() {
+        return Err(Error::Data("no benchmark runs to chart".into()));
+    }
+    write_png_chart(&path_for("speed_accuracy.png"), 1000, 650, |r| speed_chart(r, points))?;
+    write_svg_chart(&path_for("speed_accuracy.svg"), 1000, 650, |r| speed_chart(r, points))?;
+    write_png_chart(&path_for("stability.png"), 1000, 650, |r| stability_chart(r, points))?;
+    write_svg_chart(&path_for("stability.svg"), 1000, 650, |r| stability_chart(r, points))?;
+    Ok(["speed_accuracy.png", "speed_accuracy.svg", "stability.png", "stability.svg"]
+        .map(String::from)
+        .to_vec())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn point(method: &str, s: usize, seconds: f64, error: f64, valid: bool) -> BenchPoint {
+        BenchPoint {
+            method: method.into(),
+            precision: "f64".into(),
+            subsample: s,
+            pixel_rule: "midpoint".into(),
+            pupil_pitch: 3e-6 / s as f64,
+            seconds,
+            error,
+            violations: if valid { vec![] } else { vec!["lens_sampling".into()] },
+            pareto: valid && s == 1,
+        }
+    }
+
+    #[test]
+    fn the_chart_files_are_written() {
+        let pts = vec![
+            point("matrix_dft", 1, 0.01, 1e-3, true),
+            point("matrix_dft", 2, 0.02, 1e-5, true),
+            point("fresnel", 1, 0.05, 1e-1, false),
+            point("fresnel", 2, 0.1, 1e-4, true),
+        ];
+        let d = tempfile::tempdir().unwrap();
+        let names = write_psf_charts(|n| d.path().join(n), &pts).unwrap();
+        for n in &names {
+            let len = std::fs::metadata(d.path().join(n)).unwrap().len();
+            assert!(len > 1000, "{n}: {len} bytes");
+        }
+        let svg = std::fs::read_to_string(d.path().join("speed_accuracy.svg")).unwrap();
+        assert!(svg.contains("Pareto front") && svg.contains("fresnel f64"));
+        assert!(write_psf_charts(|n| d.path().join(n), &[]).is_err());
+    }
+}
