@@ -138,6 +138,7 @@ enum Command {
         /// Tile side of the registration, pixels.
         #[arg(long, default_value_t = 48)]
         tile: usize,
+    },
     /// Compare two PSFs (design, as-fabricated, measured): each one's peaks, encircled energy
     /// and centroid per channel, and the relative L2 after centroid alignment.
     PsfCompare {
