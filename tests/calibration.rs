@@ -3,6 +3,8 @@
 
 mod common;
 
+use common::doefab;
+
 use std::path::PathBuf;
 
 use doefab::calibration::capture::{read_capture, read_exposures, Capture};
@@ -325,11 +327,6 @@ fn a_known_affine_warp_is_recovered() {
 // Bad input, and the commands end to end
 
 use doefab::calibration::capture::write_capture;
-use std::process::Command;
-
-fn doefab(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_doefab")).args(args).output().expect("doefab runs")
-}
 
 fn small_bracket() -> (Vec<Capture>, Vec<f64>, Vec<Capture>) {
     let truth = analytic_psf().slice(ndarray::s![100..219, 100..219, ..]).to_owned();

@@ -2,30 +2,14 @@
 
 mod common;
 
+use common::{fails, ok};
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use ndarray::Array2;
 
 use doefab::fabrication::contrast::ContrastCurve;
 use doefab::io::npy::write_npy_f64;
-
-fn doefab(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_doefab")).args(args).output().expect("doefab runs")
-}
-
-fn ok(args: &[&str]) -> String {
-    let out = doefab(args);
-    assert!(out.status.success(), "doefab {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-/// Fails with a non-zero exit; returns stderr.
-fn fails(args: &[&str]) -> String {
-    let out = doefab(args);
-    assert!(!out.status.success(), "doefab {args:?} should have failed");
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
 
 fn masks(name: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("masks").join(name).display().to_string()

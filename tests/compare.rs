@@ -3,16 +3,13 @@
 
 mod common;
 
+use common::doefab;
+
 use std::path::Path;
-use std::process::Command;
 
 use doefab::design::{PAPER_APERTURE, PAPER_PITCH};
 use doefab::fabrication::chain::{load_design, DesignSource};
 use doefab::io::heightmap::{read_heightmap, ReadOptions};
-
-fn doefab(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_doefab")).args(args).output().expect("doefab runs")
-}
 
 fn simulate(out: &Path, extra: &[&str]) {
     let mut args = vec!["simulate-scan", "-o", out.to_str().unwrap(), "--quiet"];

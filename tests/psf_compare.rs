@@ -3,26 +3,11 @@
 
 mod common;
 
+use common::{fails, ok};
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use ndarray::Array4;
-
-fn doefab(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_doefab")).args(args).output().expect("doefab runs")
-}
-
-fn ok(args: &[&str]) -> String {
-    let out = doefab(args);
-    assert!(out.status.success(), "doefab {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn err(args: &[&str]) -> String {
-    let out = doefab(args);
-    assert!(!out.status.success(), "doefab {args:?} should fail");
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
 
 /// The paper's 320 x 320 RGB PSF of the built-in design (matrix DFT, point pixels).
 fn simulated(dir: &Path) -> PathBuf {
@@ -100,10 +85,10 @@ fn the_measured_psf_compares_against_a_simulated_one() {
     // The measured PSF is sampled coarser than its Nyquist pitch: the sub-pixel shift says so.
     assert!(r["warnings"].as_array().unwrap().iter().any(|w| w.as_str().unwrap().contains("band-limited")));
     // The archive states no pitch.
-    let e = err(&["psf-compare", a, b, "--key", "psf_val"]);
+    let e = fails(&["psf-compare", a, b, "--key", "psf_val"]);
     assert!(e.contains("measured_psf.npz") && e.contains("give --pitch"), "{e}");
     // A pitch that contradicts the file's metadata is refused.
-    let e = err(&["psf-compare", a, b, "--key", "psf_val", "--pitch", "5um"]);
+    let e = fails(&["psf-compare", a, b, "--key", "psf_val", "--pitch", "5um"]);
     assert!(e.contains("psf.npy") && e.contains("--pitch is"), "{e}");
 }
 
@@ -118,16 +103,16 @@ fn bad_input_is_refused_with_the_reason() {
         (-((i as f32 - 160.0).powi(2) + (j as f32 - 160.0).powi(2)) / 8.0).exp()
     });
     doefab::io::npy::write_npy_f32_4d(&mono, &v).unwrap();
-    let e = err(&["psf-compare", npy.to_str().unwrap(), mono.to_str().unwrap(), "--pitch", "4.29um"]);
+    let e = fails(&["psf-compare", npy.to_str().unwrap(), mono.to_str().unwrap(), "--pitch", "4.29um"]);
     assert!(e.contains("has 3 channels") && e.contains("has 1") && e.contains("mono.npy"), "{e}");
-    let e = err(&["psf-compare", npy.to_str().unwrap(), mono.to_str().unwrap()]);
+    let e = fails(&["psf-compare", npy.to_str().unwrap(), mono.to_str().unwrap()]);
     assert!(e.contains("mono.npy") && e.contains("give --pitch"), "{e}");
     // A summary beside the .npy without the pitch field.
     std::fs::write(d.path().join("mono.json"), "{\"channels\": [{\"name\": \"G\"}]}").unwrap();
-    let e = err(&["psf-compare", mono.to_str().unwrap(), mono.to_str().unwrap()]);
+    let e = fails(&["psf-compare", mono.to_str().unwrap(), mono.to_str().unwrap()]);
     assert!(e.contains("mono.json") && e.contains("system.sensor_pitch"), "{e}");
     // An unknown format.
-    let e = err(&["psf-compare", npy.to_str().unwrap(), psf.join("psf_log.png").to_str().unwrap()]);
+    let e = fails(&["psf-compare", npy.to_str().unwrap(), psf.join("psf_log.png").to_str().unwrap()]);
     assert!(e.contains("psf_log.png") && e.contains(".npy, .npz or .exr"), "{e}");
     // The inputs are untouched.
     assert_eq!(doefab::io::npy::read_npy_nd(&mono).unwrap().0.shape, vec![320, 320, 1, 1]);

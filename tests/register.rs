@@ -2,17 +2,13 @@
 
 mod common;
 
-use std::process::Command;
+use common::doefab;
 
 use doefab::design::PAPER_PITCH;
 use doefab::fabrication::chain::{load_design, DesignSource};
 use doefab::io::heightmap::ReadOptions;
 use doefab::io::scan::{read_scan, ScanOptions};
 use doefab::metrology::register::{register, RegisterOptions};
-
-fn doefab(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_doefab")).args(args).output().expect("doefab runs")
-}
 
 #[test]
 fn a_simulated_x3p_scan_of_the_built_in_design_registers_to_the_injected_pose() {

@@ -32,3 +32,22 @@ pub fn run_python(script: &str, args: &[&str]) -> String {
 pub fn tempdir() -> tempfile::TempDir {
     tempfile::tempdir().expect("temp dir")
 }
+
+/// Runs the `doefab` binary with `args`.
+pub fn doefab(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_doefab")).args(args).output().expect("doefab runs")
+}
+
+/// Runs `doefab` expecting success; returns stdout.
+pub fn ok(args: &[&str]) -> String {
+    let out = doefab(args);
+    assert!(out.status.success(), "doefab {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// Runs `doefab` expecting a non-zero exit; returns stderr.
+pub fn fails(args: &[&str]) -> String {
+    let out = doefab(args);
+    assert!(!out.status.success(), "doefab {args:?} should have failed");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
