@@ -8,7 +8,6 @@
 
 use doefab::design::{paper_example, ExampleParams};
 use doefab::grid::{Grid, Unit};
-use doefab::material::Material;
 use doefab::optics::plan::{plan, run};
 use doefab::optics::spectrum::{combine, Band};
 use doefab::optics::system::{gauss_legendre, OpticalSystem, PixelRule};
@@ -17,36 +16,13 @@ use doefab::rng::Lcg;
 use ndarray::Array2;
 
 const TOL: f64 = 1e-3;
-const PITCH: f64 = 5e-6;
-const N: usize = 112;
 
-/// F/7 at 635 and 450 nm: 0.5 mm aperture, g = 3.5 mm, 3 um pixels, 40 x 40 crop, the DOE at
-/// 5 um.
-fn scene() -> OpticalSystem {
-    OpticalSystem {
-        aperture: 0.5e-3,
-        doe_to_lens: 1e-3,
-        focal_length: 3.5e-3,
-        lens_to_sensor: 3.5e-3,
-        sensor_pitch: 3e-6,
-        crop: 40,
-        pupil_pitch: PITCH,
-        pupil_window: N as f64 * PITCH,
-        wavelengths: vec![635e-9, 450e-9],
-        ..Default::default()
-    }
-}
+// The bench's small F/7 scene: 0.5 mm aperture, g = 3.5 mm, 3 um pixels, 40 x 40 crop, the DOE
+// at 5 um, 635 and 450 nm.
+use doefab::optics::bench::{scene, N, PITCH};
 
 fn heights(phase: impl Fn(f64, f64) -> f64) -> Grid {
-    let l = 550e-9;
-    let k = 2.0 * std::f64::consts::PI / l * (Material::pdms().index(l).unwrap() - 1.0);
-    let c = (N as f64 - 1.0) * 0.5;
-    Grid::new(
-        Array2::from_shape_fn((N, N), |(i, j)| phase((j as f64 - c) * PITCH, (i as f64 - c) * PITCH) / k),
-        [PITCH; 2],
-        Unit::Metre,
-    )
-    .unwrap()
+    doefab::optics::bench::heights(phase).unwrap()
 }
 
 /// The midpoint rule at 16 and 32 sub-samples, Richardson-extrapolated, f64; with bands, each

@@ -25,9 +25,10 @@ use crate::error::Result;
 use crate::grid::{Grid, Unit};
 use crate::material::Material;
 
-/// DOE samples per side and their pitch (metres).
-const N: usize = 112;
-const PITCH: f64 = 5e-6;
+/// Samples across the bench scene's DOE grid.
+pub const N: usize = 112;
+/// Pitch of the bench scene's DOE grid, metres.
+pub const PITCH: f64 = 5e-6;
 
 /// Sub-samples per pixel and axis swept, 1 to this.
 const SUBSAMPLES: usize = 5;
@@ -86,14 +87,17 @@ pub fn scene() -> OpticalSystem {
 /// The bench DOE: phase `3 (cos(2 pi x / 60 um) + cos(2 pi y / 85 um))` radians at 550 nm in
 /// PDMS, as heights.
 pub fn doe() -> Result<Grid> {
+    let tau = 2.0 * std::f64::consts::PI;
+    heights(|x, y| 3.0 * ((tau * x / 60e-6).cos() + (tau * y / 85e-6).cos()))
+}
+
+/// The heights on the bench scene's `N x N` grid (centred, pitch `PITCH`) of a DOE whose phase
+/// at 550 nm in PDMS is `phase(x, y)` radians: `h = phase / (2 pi (n - 1) / lambda)`.
+pub fn heights(phase: impl Fn(f64, f64) -> f64) -> Result<Grid> {
     let l = 550e-9;
     let k = 2.0 * std::f64::consts::PI / l * (Material::pdms().index(l)? - 1.0);
     let c = (N as f64 - 1.0) * 0.5;
-    let tau = 2.0 * std::f64::consts::PI;
-    let v = Array2::from_shape_fn((N, N), |(i, j)| {
-        let (x, y) = ((j as f64 - c) * PITCH, (i as f64 - c) * PITCH);
-        3.0 * ((tau * x / 60e-6).cos() + (tau * y / 85e-6).cos()) / k
-    });
+    let v = Array2::from_shape_fn((N, N), |(i, j)| phase((j as f64 - c) * PITCH, (i as f64 - c) * PITCH) / k);
     Grid::new(v, [PITCH; 2], Unit::Metre)
 }
 
