@@ -38,6 +38,33 @@ enum BenchCommand {
         #[arg(short, long)]
         output: PathBuf,
     },
+    /// The decoder on the real captures: fine-tune the paper's simulated-PSF decoder on the
+    /// measured PSF for --steps steps (procedural scenes), then score it, the decoder it
+    /// started from and the paper's measured-PSF decoder against bracket-merged references
+    /// (PSNR over the registered pixels and their saturated part): JSON report + decoder.
+    Decoder {
+        /// The paper's data release: captures/<scene>/exposures.json, measured_psf.npz and the
+        /// two decoders.
+        #[arg(long, default_value = "../shared/data/deepoptics-hdr")]
+        data: PathBuf,
+        /// Fine-tuning steps.
+        #[arg(long, default_value_t = 50)]
+        steps: usize,
+        /// Batch size of the fine-tuning.
+        #[arg(long, default_value_t = 2)]
+        batch: usize,
+        /// Training crop side, pixels (a multiple of 16).
+        #[arg(long, default_value_t = 128)]
+        crop: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Tile side of the registration, pixels.
+        #[arg(long, default_value_t = 48)]
+        tile: usize,
+        /// Output folder.
+        #[arg(short, long)]
+        output: PathBuf,
+    },
 }
 
 #[derive(Subcommand)]
@@ -129,9 +156,10 @@ enum Command {
         /// Saturation level of the capture, fraction of full scale.
         #[arg(long, default_value_t = 0.98)]
         saturation: f64,
-        /// Fit an affine map of the reference onto the reconstruction first.
-        #[arg(long)]
-        register: bool,
+        /// Register the reference onto the reconstruction first: one affine map (`--register`),
+        /// or a local displacement field for scenes with parallax (`--register local`).
+        #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "affine")]
+        register: Option<RegisterArg>,
         /// Largest displacement the registration searches, pixels.
         #[arg(long, default_value_t = 48)]
         max_shift: usize,
@@ -525,6 +553,13 @@ enum ResponseArg {
     Debevec,
 }
 
+/// Registration model on the command line.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum RegisterArg {
+    Affine,
+    Local,
+}
+
 /// Mesher choice on the command line.
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum SurfaceArg {
@@ -719,13 +754,20 @@ fn run(cli: &Cli) -> Result<()> {
             let reference = read(reference)?;
             let recon = read(recon)?;
             let ldr = ldr.as_deref().map(read_capture).transpose()?;
-            let opts = rg::RegisterOptions { max_shift: *max_shift, tile: *tile };
+            let opts = register.map(|m| rg::RegisterOptions {
+                max_shift: *max_shift,
+                tile: *tile,
+                model: match m {
+                    RegisterArg::Affine => rg::Model::Affine,
+                    RegisterArg::Local => rg::Model::Local,
+                },
+            });
             let e = ev::evaluate(
                 &reference,
                 &recon,
                 ldr.as_ref().map(|c| &c.values),
                 *saturation,
-                register.then_some(&opts),
+                opts.as_ref(),
             )?;
             print_result(cli, &e, || {
                 if let Some(r) = &e.registration {
@@ -733,6 +775,9 @@ fn run(cli: &Cli) -> Result<()> {
                         "registered: scale {:.4}, rotation {:.3} deg, shift ({:.2}, {:.2}) px; {} of {} tiles, residual {:.3} px RMS; {} pixels outside the overlap",
                         r.scale, r.rotation_deg, r.affine.b[0], r.affine.b[1], r.tiles_used, r.tiles_matched, r.residual_rms_px, e.excluded_pixels
                     );
+                }
+                if let Some(r) = &e.local_registration {
+                    print_local_registration(r, e.excluded_pixels);
                 }
                 println!(
                     "all pixels ({}): PSNR-L {:.2} dB, PSNR-gamma {:.2} dB (peak {:.4})",
@@ -782,6 +827,7 @@ fn run(cli: &Cli) -> Result<()> {
                 }
             })
         }
+        Command::Bench { what: BenchCommand::Decoder { .. } } => bench_decoder(cli),
         Command::Bench { what: BenchCommand::Psf { output } } => {
             let pb = progress(cli, doefab::optics::bench::RUNS as u64);
             let points = doefab::optics::bench::run_bench(|p| {
@@ -1129,6 +1175,24 @@ fn merge_bracket(
     let merged = hdr_merge::merge(&frames, &times, dark.as_ref(), curve.as_ref(), &opts)?;
     pb.finish_and_clear();
     Ok(merged)
+}
+
+fn print_local_registration(r: &doefab::calibration::register::LocalRegistration, excluded: usize) {
+    let [lo, hi] = r.displacement_range_px;
+    println!(
+        "registered locally: {} of {} tiles on a {} px grid, leave-one-out residual {:.2} px RMS, \
+         displacements x {:.1}..{:.1} px, y {:.1}..{:.1} px; {:.0} % covered, {} pixels left out",
+        r.tiles_used,
+        r.tiles_matched,
+        r.node_spacing_px,
+        r.residual_rms_px,
+        lo[0],
+        hi[0],
+        lo[1],
+        hi[1],
+        100.0 * r.covered_fraction,
+        excluded
+    );
 }
 
 fn print_merge(r: &doefab::calibration::hdr_merge::MergeReport, output: &Path) {
@@ -1557,6 +1621,132 @@ fn finetune(cli: &Cli) -> Result<()> {
             last.map_or("n/a".into(), |p| format!("{p:.2} dB")),
             output.display()
         )
+    })
+}
+
+/// `doefab bench decoder`: see [`doefab::decoder::bench`].
+fn bench_decoder(cli: &Cli) -> Result<()> {
+    use doefab::calibration::register::RegisterOptions;
+    use doefab::decoder::bench::{prepare_scene, scene_dirs, score_decoder, score_image};
+    use doefab::decoder::finetune::{read_psf, FinetuneConfig, GeneratedScenes, Trainer};
+    use doefab::decoder::{unet::UNet, weights::DecoderWeights};
+    let Command::Bench { what: BenchCommand::Decoder { data, steps, batch, crop, seed, tile, output } } =
+        &cli.command
+    else {
+        unreachable!("called for bench decoder only")
+    };
+    let scenes_dir = data.join("captures");
+    let dirs = scene_dirs(&scenes_dir)?;
+    let pb = progress(cli, dirs.len() as u64 * 5 + *steps as u64);
+    let register = RegisterOptions { tile: *tile, ..RegisterOptions::default() };
+    let mut scenes = Vec::new();
+    for d in &dirs {
+        pb.set_message(format!("merging and registering {}", d.display()));
+        scenes.push(prepare_scene(d, &register).with_context(|| format!("scene {}", d.display()))?);
+        pb.inc(1);
+    }
+    let device = doefab::decoder::device(false)?;
+    let start_path = data.join("decoder_simulated_psf.safetensors");
+    let paper_path = data.join("decoder_measured_psf.safetensors");
+    let psf_path = data.join("measured_psf.npz");
+    let start = DecoderWeights::read(&start_path)?;
+    let psf = read_psf(&psf_path, Some("psf_val"), 4.29e-6)?;
+    let cfg = FinetuneConfig {
+        steps: *steps,
+        batch: *batch,
+        crop: *crop,
+        seed: *seed,
+        checkpoint_every: (*steps).max(1),
+        validation: 4,
+        ..FinetuneConfig::default()
+    };
+    let source = GeneratedScenes {
+        name: "procedural HDR scenes",
+        generate: doefab::decoder::scenes::procedural_scene,
+    };
+    let desc = format!("{} (sha256 {})", start_path.display(), doefab::io::file_sha256(&start_path)?);
+    let mut trainer = Trainer::new(
+        UNet::from_weights(&start, &device),
+        &psf,
+        &doefab::io::file_sha256(&psf_path)?,
+        &source,
+        cfg,
+        &desc,
+    )?;
+    let tuned_dir = output.join("finetuned");
+    let clock = std::time::Instant::now();
+    trainer.run(&tuned_dir, &mut |r| {
+        pb.set_message(format!("fine-tuning: loss {:.5}", r.loss));
+        pb.inc(1);
+    })?;
+    let seconds_per_step = clock.elapsed().as_secs_f64() / (*steps).max(1) as f64;
+    trainer.write_outputs(&tuned_dir)?;
+    let tuned = UNet::from_weights(&trainer.decoder()?, &device);
+    let before = UNet::from_weights(&start, &device);
+    let paper = UNet::from_weights(&DecoderWeights::read(&paper_path)?, &device);
+    let tuned_name = format!("fine-tuned here ({steps} steps on the measured PSF)");
+    let decoders = [
+        ("paper, simulated PSF (start of the fine-tuning)", &before),
+        (tuned_name.as_str(), &tuned),
+        ("paper, measured PSF", &paper),
+    ];
+    let mut scores = Vec::new();
+    for s in &scenes {
+        pb.set_message(format!("reconstructing {}", s.name));
+        scores.push(score_image(s, "capture as it is", &s.capture)?);
+        for (name, net) in &decoders {
+            scores.push(score_decoder(s, name, net)?);
+            pb.inc(1);
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let report = serde_json::json!({
+        "data": data.display().to_string(),
+        "units": "PSNR in dB; images in units of the capture's clipping level",
+        "saturation": doefab::decoder::bench::SATURATION,
+        "scenes": scenes.iter().map(|s| &s.report).collect::<Vec<_>>(),
+        "finetune": {
+            "steps": trainer.step(),
+            "seconds_per_step": seconds_per_step,
+            "history": trainer.history(),
+            "decoder": tuned_dir.join(doefab::decoder::finetune::DECODER).display().to_string(),
+        },
+        "scores": scores,
+    });
+    doefab::io::atomic::write_json(&output.join("report.json"), &report)?;
+    for s in scenes.iter().filter(|s| !s.report.merge_warnings.is_empty()) {
+        let n = s.report.merge_warnings.len();
+        eprintln!("warning: {}: the merge of its bracket gave {n} warnings (in report.json)", s.name);
+    }
+    print_result(cli, &report, || {
+        for s in &scenes {
+            let r = &s.report;
+            println!(
+                "{}: {} pixels registered ({:.0} %, residual {:.2} px), {} saturated in the capture, gain {:.3}",
+                r.name,
+                r.pixels,
+                100.0 * r.registration.covered_fraction,
+                r.registration.residual_rms_px,
+                r.saturated_pixels,
+                r.gain
+            );
+            for sc in scores.iter().filter(|sc| sc.scene == s.name) {
+                let sat = sc
+                    .saturated
+                    .as_ref()
+                    .map_or("n/a".into(), |p| format!("{:.2} / {:.2}", p.linear_db, p.gamma_db));
+                println!(
+                    "  {:<52} all {:.2} / {:.2} dB   saturated {sat} dB (linear / gamma)",
+                    sc.decoder, sc.all.linear_db, sc.all.gamma_db
+                );
+            }
+        }
+        println!(
+            "fine-tuning: {} steps, {seconds_per_step:.2} s a step -> {}",
+            trainer.step(),
+            output.display()
+        );
     })
 }
 

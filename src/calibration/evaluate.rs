@@ -11,8 +11,9 @@
 //!
 //! Both are reported over all pixels and over the pixels saturated in the LDR capture (any
 //! channel at or above the saturation level). With `register`, the reference is first mapped
-//! onto the reconstruction by an affine fit ([`super::register`]) and pixels it does not cover
-//! are left out. Both images must be in the same units (the merge's radiance at the capture's
+//! onto the reconstruction by an affine fit or, where objects at different depths move
+//! differently (parallax), a local displacement field ([`super::register`]); pixels the map
+//! does not cover are left out. Both images must be in the same units (the merge's radiance at the capture's
 //! exposure: value 1 = full scale).
 
 use std::path::Path;
@@ -20,7 +21,9 @@ use std::path::Path;
 use ndarray::{Array2, Array3};
 use serde::Serialize;
 
-use super::register::{luminance, register_affine, warp, RegisterOptions, Registration};
+use super::register::{
+    luminance, register_affine, register_local, warp, LocalRegistration, Model, RegisterOptions, Registration,
+};
 use crate::error::{Error, Result};
 use crate::io::exr::read_exr;
 
@@ -42,6 +45,7 @@ pub struct Evaluation {
     pub saturated: Option<Psnr>,
     pub saturated_pixels: Option<usize>,
     pub registration: Option<Registration>,
+    pub local_registration: Option<LocalRegistration>,
     /// Pixels left out because the registered reference does not cover them.
     pub excluded_pixels: usize,
 }
@@ -120,13 +124,18 @@ pub fn evaluate(
             )));
         }
     }
-    let (reference, cover, registration) = match register {
-        Some(opts) => {
+    let (reference, cover, registration, local_registration) = match register {
+        Some(opts) if opts.model == Model::Affine => {
             let reg = register_affine(&luminance(reference), &luminance(recon), opts)?;
             let (warped, inside) = warp(reference, &reg.affine, h, w)?;
-            (warped, Some(inside), Some(reg))
+            (warped, Some(inside), Some(reg), None)
         }
-        None => (reference.clone(), None, None),
+        Some(opts) => {
+            let reg = register_local(&luminance(reference), &luminance(recon), opts)?;
+            let (warped, inside) = reg.warp(reference);
+            (warped, Some(inside), None, Some(reg))
+        }
+        None => (reference.clone(), None, None, None),
     };
     let excluded = cover.as_ref().map_or(0, |m| m.iter().filter(|v| !**v).count());
     let all = psnr(&reference, recon, cover.as_ref())?;
@@ -141,5 +150,12 @@ pub fn evaluate(
         }
         None => (None, None),
     };
-    Ok(Evaluation { all, saturated, saturated_pixels, registration, excluded_pixels: excluded })
+    Ok(Evaluation {
+        all,
+        saturated,
+        saturated_pixels,
+        registration,
+        local_registration,
+        excluded_pixels: excluded,
+    })
 }

@@ -32,6 +32,8 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::metrology::level::solve;
+use crate::rng::Lcg;
+use rayon::prelude::*;
 
 /// `q = a p + b` in pixel coordinates `(x, y) = (col, row)`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -62,18 +64,30 @@ impl Affine {
     }
 }
 
-/// Options of [`register_affine`].
+/// Options of [`register_affine`] and [`register_local`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct RegisterOptions {
     /// Tile side, pixels.
     pub tile: usize,
     /// Largest displacement searched, pixels.
     pub max_shift: usize,
+    /// Which motion model [`super::evaluate::evaluate`] fits.
+    pub model: Model,
+}
+
+/// The motion model of a registration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Model {
+    /// One affine map ([`register_affine`]).
+    Affine,
+    /// A smooth displacement field ([`register_local`]).
+    Local,
 }
 
 impl Default for RegisterOptions {
     fn default() -> Self {
-        RegisterOptions { tile: 48, max_shift: 48 }
+        RegisterOptions { tile: 48, max_shift: 48, model: Model::Affine }
     }
 }
 
@@ -210,14 +224,12 @@ pub fn register_affine(
     })
 }
 
-/// One pass of tile matching and the robust least-squares fit.
-fn match_and_fit(
-    reference: &Array2<f64>,
-    target: &Array2<f64>,
-    opts: &RegisterOptions,
-) -> Result<Registration> {
+/// Matched tile centres `(p, q)`: square tiles of `reference` (overlapping by half) found in
+/// `target` by NCC, coarse on 4x binned images within `max_shift`, then at full resolution
+/// within 3 px, refined to sub-pixel by a parabola (tiles with little texture, a weak or flat
+/// peak are dropped; see the module docs).
+fn match_tiles(reference: &Array2<f64>, target: &Array2<f64>, opts: &RegisterOptions) -> Result<Vec<Match>> {
     const BIN: usize = 4;
-    const MIN_CURVATURE: f64 = 2e-3;
     let t = opts.tile.max(16) / BIN * BIN;
     let (h, w) = reference.dim();
     if h < 3 * t || w < 3 * t || target.dim().0 < 3 * t || target.dim().1 < 3 * t {
@@ -226,82 +238,74 @@ fn match_and_fit(
     let (rb, gb) = (bin(reference, BIN), bin(target, BIN));
     let texture = 0.02 * std_dev(reference);
     let radius = (opts.max_shift / BIN).max(1) as isize;
-    let mut matches: Vec<([f64; 2], [f64; 2])> = Vec::new();
     let margin = t / 2;
-    let mut r0 = margin;
-    while r0 + t + margin <= h {
-        let mut c0 = margin;
-        while c0 + t + margin <= w {
+    let corners: Vec<(usize, usize)> = (0..)
+        .map(|k| margin + k * t / 2)
+        .take_while(|r0| r0 + t + margin <= h)
+        .flat_map(|r0| {
+            (0..).map(move |k| (r0, margin + k * t / 2)).take_while(|(_, c0)| c0 + t + margin <= w)
+        })
+        .collect();
+    Ok(corners
+        .par_iter()
+        .filter_map(|&(r0, c0)| {
             let tile = reference.slice(ndarray::s![r0..r0 + t, c0..c0 + t]).to_owned();
-            if std_dev(&tile) > texture {
-                let coarse = search(&rb, &gb, r0 / BIN, c0 / BIN, t / BIN, 0, 0, radius);
-                if let Some((cy, cx, _)) = coarse {
-                    let fine = search(reference, target, r0, c0, t, cy * BIN as isize, cx * BIN as isize, 3);
-                    if let Some((dy, dx, v)) = fine.filter(|f| f.2 > 0.6) {
-                        // Sub-pixel offset of a parabola through three samples; `None` where
-                        // the peak is flat along that axis (an edge: the aperture problem).
-                        let sub = |m: Option<f64>, p: Option<f64>| match (m, p) {
-                            (Some(m), Some(p)) if m + p - 2.0 * v < -MIN_CURVATURE => {
-                                Some(0.5 * (m - p) / (m + p - 2.0 * v))
-                            }
-                            _ => None,
-                        };
-                        let at = |y: isize, x: isize| ncc(reference, target, r0, c0, t, y, x);
-                        let fy = sub(at(dy - 1, dx), at(dy + 1, dx));
-                        let fx = sub(at(dy, dx - 1), at(dy, dx + 1));
-                        if let (Some(fy), Some(fx)) = (fy, fx) {
-                            let p = [c0 as f64 + (t as f64 - 1.0) * 0.5, r0 as f64 + (t as f64 - 1.0) * 0.5];
-                            matches.push((p, [p[0] + dx as f64 + fx, p[1] + dy as f64 + fy]));
-                        }
-                    }
-                }
+            if std_dev(&tile) <= texture {
+                return None;
             }
-            c0 += t / 2;
-        }
-        r0 += t / 2;
-    }
-    let matched = matches.len();
-    let mut keep = vec![true; matched];
-    let mut fit = None;
-    for _ in 0..10 {
-        let used: Vec<&([f64; 2], [f64; 2])> =
-            matches.iter().zip(&keep).filter(|(_, k)| **k).map(|(m, _)| m).collect();
-        if used.len() < 6 {
-            return Err(Error::Data(format!(
-                "only {} of {matched} tiles matched consistently (6 needed): the images do not show the same \
-                 scene, or move by more than {} px",
-                used.len(),
-                opts.max_shift
-            )));
-        }
-        let affine = fit_affine(&used)?;
-        let res: Vec<f64> = matches
-            .iter()
-            .map(|(p, q)| {
-                let f = affine.apply(*p);
-                ((f[0] - q[0]).powi(2) + (f[1] - q[1]).powi(2)).sqrt()
-            })
-            .collect();
-        let mut kept: Vec<f64> = res.iter().zip(&keep).filter(|(_, k)| **k).map(|(r, _)| *r).collect();
-        kept.sort_by(f64::total_cmp);
-        let sigma = 1.4826 * kept[kept.len() / 2];
-        let limit = (3.0 * sigma).max(1.0);
-        let next: Vec<bool> = res.iter().map(|&r| r <= limit).collect();
-        let rms = (kept.iter().map(|r| r * r).sum::<f64>() / kept.len() as f64).sqrt();
-        fit = Some((affine, rms, kept.len()));
-        if next == keep {
-            break;
-        }
-        keep = next;
-    }
-    let Some((affine, rms, used)) = fit else {
-        return Err(Error::Data("no tiles matched".into()));
+            let (cy, cx, _) = search(&rb, &gb, r0 / BIN, c0 / BIN, t / BIN, 0, 0, radius)?;
+            let (dy, dx) = refine(reference, target, r0, c0, t, cy * BIN as isize, cx * BIN as isize, 3)?;
+            let p = [c0 as f64 + (t as f64 - 1.0) * 0.5, r0 as f64 + (t as f64 - 1.0) * 0.5];
+            Some((p, [p[0] + dx, p[1] + dy]))
+        })
+        .collect())
+}
+
+/// A matched pair of tile centres, reference `p` and target `q`, pixels `(x, y)`.
+type Match = ([f64; 2], [f64; 2]);
+
+/// Best whole-pixel offset of the `t x t` tile of `r` at `(r0, c0)` in `g` within `radius` of
+/// `(cy, cx)`, refined to sub-pixel by a parabola through the NCC peak and its neighbours
+/// along each axis; `None` where the peak NCC is below 0.6 or flat along an axis (second
+/// difference above -0.002: an edge, whose shift along itself is unknown).
+#[allow(clippy::too_many_arguments)]
+fn refine(
+    r: &Array2<f64>,
+    g: &Array2<f64>,
+    r0: usize,
+    c0: usize,
+    t: usize,
+    cy: isize,
+    cx: isize,
+    radius: isize,
+) -> Option<(f64, f64)> {
+    const MIN_CURVATURE: f64 = 2e-3;
+    let (dy, dx, v) = search(r, g, r0, c0, t, cy, cx, radius).filter(|f| f.2 > 0.6)?;
+    let sub = |m: Option<f64>, p: Option<f64>| match (m, p) {
+        (Some(m), Some(p)) if m + p - 2.0 * v < -MIN_CURVATURE => Some(0.5 * (m - p) / (m + p - 2.0 * v)),
+        _ => None,
     };
-    if rms > 2.0 {
+    let at = |y: isize, x: isize| ncc(r, g, r0, c0, t, y, x);
+    let fy = sub(at(dy - 1, dx), at(dy + 1, dx))?;
+    let fx = sub(at(dy, dx - 1), at(dy, dx + 1))?;
+    Some((dy as f64 + fy, dx as f64 + fx))
+}
+
+/// One pass of tile matching and the robust fit.
+fn match_and_fit(
+    reference: &Array2<f64>,
+    target: &Array2<f64>,
+    opts: &RegisterOptions,
+) -> Result<Registration> {
+    let matches = match_tiles(reference, target, opts)?;
+    let (affine, rms, used) = robust_affine(&matches, opts.max_shift)?;
+    if 2 * used < matches.len() {
         return Err(Error::Validity(format!(
-            "the affine fit leaves {rms:.2} px RMS over {used} tiles: the motion is not affine, or the \
-             tiles locked onto different features (a raw capture through the DOE holds shifted copies \
-             of the scene; register its reconstruction instead)"
+            "one affine map fits only {used} of {} matched tiles within 1.5 px: the motion is not \
+             affine (parallax between objects at different depths), or the tiles locked onto different \
+             features (a raw capture through the DOE holds shifted copies of the scene; register its \
+             reconstruction instead); a local registration follows such motion",
+            matches.len()
         )));
     }
     let [[a, b], [c, d]] = affine.a;
@@ -309,14 +313,74 @@ fn match_and_fit(
         affine,
         scale: (a * d - b * c).abs().sqrt(),
         rotation_deg: (c - b).atan2(a + d).to_degrees(),
-        tiles_matched: matched,
+        tiles_matched: matches.len(),
         tiles_used: used,
         residual_rms_px: rms,
     })
 }
 
+/// The affine map best supported by `matches`: RANSAC over triples of tiles (500 draws of a
+/// seeded generator, inliers within 1.5 px; Fischler and Bolles 1981), then least squares on
+/// the inliers, selecting the inliers of that fit and refitting until they do not change (at
+/// most 10 times). Returns the map, the RMS
+/// residual over the tiles used and their number; fewer than 6 consistent tiles are refused.
+fn robust_affine(matches: &[Match], max_shift: usize) -> Result<(Affine, f64, usize)> {
+    const DRAWS: usize = 500;
+    const INLIER_PX: f64 = 1.5;
+    let matched = matches.len();
+    let too_few = |n: usize| {
+        Error::Data(format!(
+            "only {n} of {matched} tiles matched consistently (6 needed): the images do not show the same \
+             scene, or move by more than {max_shift} px"
+        ))
+    };
+    if matched < 6 {
+        return Err(too_few(matched));
+    }
+    let residuals = |a: &Affine| -> Vec<f64> {
+        matches
+            .iter()
+            .map(|(p, q)| {
+                let f = a.apply(*p);
+                ((f[0] - q[0]).powi(2) + (f[1] - q[1]).powi(2)).sqrt()
+            })
+            .collect()
+    };
+    let mut rng = Lcg(0x5eed_a551);
+    let mut keep = vec![true; matched];
+    let mut best = 0;
+    for _ in 0..DRAWS {
+        let pick: Vec<&Match> = (0..3).map(|_| &matches[(rng.uniform() * matched as f64) as usize]).collect();
+        let Ok(a) = fit_affine(&pick) else { continue };
+        let inside: Vec<bool> = residuals(&a).iter().map(|r| *r <= INLIER_PX).collect();
+        let n = inside.iter().filter(|v| **v).count();
+        if n > best {
+            best = n;
+            keep = inside;
+        }
+    }
+    let mut fit = None;
+    for _ in 0..10 {
+        let used: Vec<&Match> = matches.iter().zip(&keep).filter(|(_, k)| **k).map(|(m, _)| m).collect();
+        if used.len() < 6 {
+            return Err(too_few(used.len()));
+        }
+        let affine = fit_affine(&used)?;
+        let res = residuals(&affine);
+        let kept: Vec<f64> = res.iter().zip(&keep).filter(|(_, k)| **k).map(|(r, _)| *r).collect();
+        let next: Vec<bool> = res.iter().map(|&r| r <= INLIER_PX).collect();
+        let rms = (kept.iter().map(|r| r * r).sum::<f64>() / kept.len() as f64).sqrt();
+        fit = Some((affine, rms, kept.len()));
+        if next == keep {
+            break;
+        }
+        keep = next;
+    }
+    fit.ok_or_else(|| Error::Data("no tiles matched".into()))
+}
+
 /// Least squares `q = A p + b` over point pairs.
-fn fit_affine(pairs: &[&([f64; 2], [f64; 2])]) -> Result<Affine> {
+fn fit_affine(pairs: &[&Match]) -> Result<Affine> {
     let mut ata = vec![0.0; 9];
     let mut atq = [vec![0.0; 3], vec![0.0; 3]];
     for (p, q) in pairs {
@@ -343,27 +407,261 @@ pub fn warp(
     cols: usize,
 ) -> Result<(Array3<f64>, Array2<bool>)> {
     let inv = affine.inverse().ok_or_else(|| Error::Data("the affine map is singular".into()))?;
-    let (h, w, nc) = reference.dim();
+    let nc = reference.dim().2;
     let mut out = Array3::<f64>::zeros((rows, cols, nc));
     let mut inside = Array2::from_elem((rows, cols), false);
     for i in 0..rows {
         for j in 0..cols {
             let [x, y] = inv.apply([j as f64, i as f64]);
-            if x < 0.0 || y < 0.0 || x > (w - 1) as f64 || y > (h - 1) as f64 {
-                continue;
+            if let Some(v) = bilinear(reference, y, x) {
+                for (c, v) in v.into_iter().enumerate() {
+                    out[[i, j, c]] = v;
+                }
+                inside[[i, j]] = true;
             }
-            let (i0, j0) = (
-                (y.floor() as usize).min(h.saturating_sub(2)),
-                (x.floor() as usize).min(w.saturating_sub(2)),
-            );
-            let (ty, tx) = (y - i0 as f64, x - j0 as f64);
-            for c in 0..nc {
-                let v = (1.0 - ty) * ((1.0 - tx) * reference[[i0, j0, c]] + tx * reference[[i0, j0 + 1, c]])
-                    + ty * ((1.0 - tx) * reference[[i0 + 1, j0, c]] + tx * reference[[i0 + 1, j0 + 1, c]]);
-                out[[i, j, c]] = v;
-            }
-            inside[[i, j]] = true;
         }
     }
     Ok((out, inside))
+}
+
+/// Bilinear sample of every channel at `(y, x)`, `None` outside the image.
+fn bilinear(img: &Array3<f64>, y: f64, x: f64) -> Option<Vec<f64>> {
+    let (h, w, nc) = img.dim();
+    if !(x >= 0.0 && y >= 0.0 && x <= (w - 1) as f64 && y <= (h - 1) as f64) {
+        return None;
+    }
+    let (i0, j0) =
+        ((y.floor() as usize).min(h.saturating_sub(2)), (x.floor() as usize).min(w.saturating_sub(2)));
+    let (ty, tx) = (y - i0 as f64, x - j0 as f64);
+    Some(
+        (0..nc)
+            .map(|c| {
+                (1.0 - ty) * ((1.0 - tx) * img[[i0, j0, c]] + tx * img[[i0, j0 + 1, c]])
+                    + ty * ((1.0 - tx) * img[[i0 + 1, j0, c]] + tx * img[[i0 + 1, j0 + 1, c]])
+            })
+            .collect(),
+    )
+}
+
+/// A displacement field from local tile matching: where a target pixel's scene point lies in
+/// the reference, for motion that no single affine map follows (parallax between objects at
+/// different depths when the camera's centre of projection moves).
+///
+/// Method: the tiles of the *target* on the regular grid of [`register_affine`]'s step 2
+/// (nodes `T/2` apart) are matched into the reference, each giving a displacement `u = p - q`,
+/// and the dominant affine map over them is found as in [`register_affine`]. A match is kept
+/// when at least 3 other matches lie within 2 nodes and its departure from that map is within
+/// 3 px of theirs (component-wise median; repeated until nothing changes). The field at each node is the
+/// affine map plus the Gaussian-weighted mean departure of the kept matches (sigma 1 node,
+/// truncated at 2 nodes): nodes whose
+/// weight is below `exp(-1/2)` (no kept match within about a node) are uncovered, and pixels
+/// between uncovered nodes are left out. Pixels interpolate the field bilinearly between nodes.
+/// The residual is the leave-one-out error: each kept match against the field made without it.
+/// Depth edges are smoothed over about a tile; the residual says how far that matters.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LocalRegistration {
+    pub node_spacing_px: usize,
+    pub nodes: usize,
+    pub tiles_matched: usize,
+    pub tiles_used: usize,
+    /// Leave-one-out RMS error of the field at the kept matches, pixels.
+    pub residual_rms_px: f64,
+    /// Fraction of the image's pixels the field covers.
+    pub covered_fraction: f64,
+    /// Range of the field's displacements over covered nodes, pixels: `[[min x, min y], [max x, max y]]`.
+    pub displacement_range_px: [[f64; 2]; 2],
+    /// The dominant affine map, target to reference, that the departures are measured from.
+    pub affine: Affine,
+    #[serde(skip)]
+    field: Array3<f64>,
+    #[serde(skip)]
+    covered: Array2<bool>,
+    #[serde(skip)]
+    origin: f64,
+}
+
+/// Fits a [`LocalRegistration`] of `reference` onto `target` (same size, single-channel).
+pub fn register_local(
+    reference: &Array2<f64>,
+    target: &Array2<f64>,
+    opts: &RegisterOptions,
+) -> Result<LocalRegistration> {
+    if reference.dim() != target.dim() {
+        return Err(Error::Data(format!(
+            "the reference is {:?} and the target {:?}: local registration needs one size",
+            reference.dim(),
+            target.dim()
+        )));
+    }
+    let matches = match_tiles(target, reference, opts)?;
+    let t = opts.tile.max(16) / 4 * 4;
+    let step = t / 2;
+    let origin = (t / 2) as f64 + (t as f64 - 1.0) * 0.5;
+    let (h, w) = target.dim();
+    let (ny, nx) = ((h - 2 * (t / 2) - t) / step + 1, (w - 2 * (t / 2) - t) / step + 1);
+    let node = |p: [f64; 2]| {
+        (((p[1] - origin) / step as f64).round() as usize, ((p[0] - origin) / step as f64).round() as usize)
+    };
+    // The consensus test runs on the departures from the dominant affine map, so that a few
+    // per cent of scale (pixels per node) does not read as disagreement between neighbours.
+    let (affine, _, _) = robust_affine(&matches, opts.max_shift)?;
+    let base = |q: [f64; 2]| {
+        let p = affine.apply(q);
+        [p[0] - q[0], p[1] - q[1]]
+    };
+    let mut u: Array2<Option<[f64; 2]>> = Array2::from_elem((ny, nx), None);
+    for (q, p) in &matches {
+        let b = base(*q);
+        u[node(*q)] = Some([p[0] - q[0] - b[0], p[1] - q[1] - b[1]]);
+    }
+    let neighbours = |u: &Array2<Option<[f64; 2]>>, i: usize, j: usize| -> Vec<[f64; 2]> {
+        let mut v = Vec::new();
+        for a in i.saturating_sub(2)..(i + 3).min(ny) {
+            for b in j.saturating_sub(2)..(j + 3).min(nx) {
+                if (a, b) != (i, j) {
+                    v.extend(u[[a, b]]);
+                }
+            }
+        }
+        v
+    };
+    for _ in 0..10 {
+        let next = Array2::from_shape_fn((ny, nx), |(i, j)| {
+            let d = u[[i, j]]?;
+            let n = neighbours(&u, i, j);
+            if n.len() < 3 {
+                return None;
+            }
+            let med = |k: usize| {
+                let mut c: Vec<f64> = n.iter().map(|v| v[k]).collect();
+                c.sort_by(f64::total_cmp);
+                c[c.len() / 2]
+            };
+            ((d[0] - med(0)).hypot(d[1] - med(1)) <= 3.0).then_some(d)
+        });
+        if next == u {
+            break;
+        }
+        u = next;
+    }
+    let used = u.iter().filter(|v| v.is_some()).count();
+    if used < 6 {
+        return Err(Error::Data(format!(
+            "only {used} of {} matched tiles agree with their neighbours (6 needed): the images do not \
+             show the same scene, or move by more than {} px",
+            matches.len(),
+            opts.max_shift
+        )));
+    }
+    // Gaussian-weighted sums over kept matches within 2 nodes: (weight, sum x, sum y).
+    let sums = |i: usize, j: usize| {
+        let mut s = [0.0; 3];
+        for a in i.saturating_sub(2)..(i + 3).min(ny) {
+            for b in j.saturating_sub(2)..(j + 3).min(nx) {
+                if let Some(d) = u[[a, b]] {
+                    let r2 = (a as f64 - i as f64).powi(2) + (b as f64 - j as f64).powi(2);
+                    let g = (-0.5 * r2).exp();
+                    s[0] += g;
+                    s[1] += g * d[0];
+                    s[2] += g * d[1];
+                }
+            }
+        }
+        s
+    };
+    let min_weight = (-0.5f64).exp();
+    let mut field = Array3::<f64>::zeros((ny, nx, 2));
+    let mut covered = Array2::from_elem((ny, nx), false);
+    let (mut loo, mut lo, mut hi) = (0.0, [f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for i in 0..ny {
+        for j in 0..nx {
+            let s = sums(i, j);
+            if s[0] >= min_weight {
+                covered[[i, j]] = true;
+                let b = base([origin + (j * step) as f64, origin + (i * step) as f64]);
+                for k in 0..2 {
+                    field[[i, j, k]] = s[k + 1] / s[0] + b[k];
+                    lo[k] = lo[k].min(field[[i, j, k]]);
+                    hi[k] = hi[k].max(field[[i, j, k]]);
+                }
+            }
+            if let Some(d) = u[[i, j]] {
+                // Without this match (its own weight is 1); an isolated match counts its
+                // distance to the field's zero, which the 3-neighbour rule rules out anyway.
+                let rest = s[0] - 1.0;
+                let f = if rest > 0.0 { [(s[1] - d[0]) / rest, (s[2] - d[1]) / rest] } else { [0.0; 2] };
+                loo += (f[0] - d[0]).powi(2) + (f[1] - d[1]).powi(2);
+            }
+        }
+    }
+    let mut reg = LocalRegistration {
+        node_spacing_px: step,
+        nodes: ny * nx,
+        tiles_matched: matches.len(),
+        tiles_used: used,
+        residual_rms_px: (loo / used as f64).sqrt(),
+        covered_fraction: 0.0,
+        displacement_range_px: [lo, hi],
+        affine,
+        field,
+        covered,
+        origin,
+    };
+    let inside =
+        (0..h).flat_map(|i| (0..w).map(move |j| (i, j))).filter(|&(i, j)| reg.at(i, j).is_some()).count();
+    reg.covered_fraction = inside as f64 / (h * w) as f64;
+    if reg.covered_fraction < 0.25 {
+        return Err(Error::Validity(format!(
+            "the matched tiles cover only {:.0} % of the image (25 % needed): too little texture to follow \
+             the motion",
+            100.0 * reg.covered_fraction
+        )));
+    }
+    Ok(reg)
+}
+
+impl LocalRegistration {
+    /// The field's displacement at target pixel `(row, col)`, `None` where it is not covered.
+    pub fn at(&self, row: usize, col: usize) -> Option<[f64; 2]> {
+        let (ny, nx) = self.covered.dim();
+        let s = self.node_spacing_px as f64;
+        let f = |x: f64, n: usize| ((x - self.origin) / s).clamp(0.0, (n - 1) as f64);
+        let (fy, fx) = (f(row as f64, ny), f(col as f64, nx));
+        let (i0, j0) = ((fy as usize).min(ny.saturating_sub(2)), (fx as usize).min(nx.saturating_sub(2)));
+        let (i1, j1) = ((i0 + 1).min(ny - 1), (j0 + 1).min(nx - 1));
+        if !(self.covered[[i0, j0]]
+            && self.covered[[i0, j1]]
+            && self.covered[[i1, j0]]
+            && self.covered[[i1, j1]])
+        {
+            return None;
+        }
+        let (ty, tx) = (fy - i0 as f64, fx - j0 as f64);
+        let v = |k: usize| {
+            (1.0 - ty) * ((1.0 - tx) * self.field[[i0, j0, k]] + tx * self.field[[i0, j1, k]])
+                + ty * ((1.0 - tx) * self.field[[i1, j0, k]] + tx * self.field[[i1, j1, k]])
+        };
+        Some([v(0), v(1)])
+    }
+
+    /// The reference resampled onto the target's pixels through the field (bilinear), with the
+    /// mask of pixels the field covers and whose source lies inside the reference.
+    pub fn warp(&self, reference: &Array3<f64>) -> (Array3<f64>, Array2<bool>) {
+        let (h, w, nc) = reference.dim();
+        let mut out = Array3::<f64>::zeros((h, w, nc));
+        let mut inside = Array2::from_elem((h, w), false);
+        for i in 0..h {
+            for j in 0..w {
+                let Some(d) = self.at(i, j) else { continue };
+                let (x, y) = (j as f64 + d[0], i as f64 + d[1]);
+                if let Some(v) = bilinear(reference, y, x) {
+                    for (c, v) in v.into_iter().enumerate().take(nc) {
+                        out[[i, j, c]] = v;
+                    }
+                    inside[[i, j]] = true;
+                }
+            }
+        }
+        (out, inside)
+    }
 }

@@ -1,12 +1,14 @@
 //! The image decoder of the paper: its U-Net ([`unet`]), the weights format ([`weights`]),
 //! the measurement model used to train it ([`simulate`]), reconstruction of captures
 //! ([`reconstruct`]), fine-tuning for one fabricated part's PSF ([`finetune`]) and seeded
-//! procedural HDR scenes to train on without a data set ([`scenes`]).
+//! procedural HDR scenes to train on without a data set ([`scenes`]), and the benchmark of
+//! decoders on real captures against bracket-merged references ([`bench`]).
 //!
 //! Images here are `(H, W, 3)` `f32` arrays (row-major, channels last, as the paper's NHWC);
 //! the network runs on NCHW burn tensors on the CPU (burn's Flex backend) or, with the `cuda`
 //! feature, on an NVIDIA GPU.
 
+pub mod bench;
 pub mod finetune;
 pub mod reconstruct;
 pub mod scenes;

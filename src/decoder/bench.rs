@@ -1,0 +1,184 @@
+//! The decoder on real captures (`doefab bench decoder`): PSNR of reconstructions of a scene
+//! captured through the DOE against the HDR merged from a bracket of the same scene taken
+//! without it, for any number of decoders on one common footing.
+//!
+//! Per scene folder (an `exposures.json` listing one frame with `"doe": true` and a bracket
+//! without the DOE, as in the paper's data release):
+//!
+//! 1. The bracket is merged ([`crate::calibration::hdr_merge`]) into radiance at the listed
+//!    reference exposure (value 1 = the sensor's clipping level).
+//! 2. The reference is registered onto the *capture* through the DOE, not onto each
+//!    reconstruction, so that every decoder is scored against the same warped reference over
+//!    the same pixels. Attaching the DOE moves the camera's centre of projection, and objects
+//!    at different depths move differently (on the shared scenes an affine map fits under a
+//!    third of the tiles): the registration is a local displacement field
+//!    ([`crate::calibration::register::register_local`]), matched on the square root of both
+//!    images with the reference clipped at the capture's clipping level. Pixels the field does
+//!    not cover are left out, and the report gives the fraction kept and the field's
+//!    leave-one-out residual.
+//! 3. A gain `g` maps the reference onto the capture: the DOE and its mount absorb part of the
+//!    light and the bracket's effective times drift from the listed ones. Where the capture is
+//!    well exposed (0.05..0.9 of full scale in every channel) it is the convolution of the scene
+//!    with a PSF summing to 1, so `g` = the median of `capture / reference` there.
+//! 4. Each decoder reconstructs the capture ([`super::reconstruct::reconstruct`], negatives
+//!    clamped), and PSNR ([`crate::calibration::evaluate::psnr`]) is computed over the covered
+//!    pixels and over those of them saturated in the capture. The capture itself is scored
+//!    the same way as the baseline a decoder must beat.
+
+use std::path::{Path, PathBuf};
+
+use ndarray::{Array2, Array3, Zip};
+use serde::Serialize;
+
+use super::reconstruct::{reconstruct, ReconstructOptions};
+use super::unet::UNet;
+use crate::calibration::capture::{read_capture, read_exposures};
+use crate::calibration::evaluate::{psnr, Psnr};
+use crate::calibration::hdr_merge::{merge, MergeOptions};
+use crate::calibration::register::{luminance, register_local, LocalRegistration, RegisterOptions};
+use crate::error::{Error, Result};
+
+/// Saturation level of the 8-bit captures, fraction of full scale.
+pub const SATURATION: f64 = 0.98;
+
+/// A scene prepared for scoring: the capture through the DOE and the registered reference.
+#[derive(Debug, Clone)]
+pub struct BenchScene {
+    pub name: String,
+    /// The capture through the DOE, `(H, W, 3)`, 1 = clipping level.
+    pub capture: Array3<f64>,
+    /// The merged reference mapped onto the capture's pixels and scaled by `gain`.
+    pub reference: Array3<f64>,
+    /// Pixels the registration covers.
+    pub mask: Array2<bool>,
+    /// `mask` and saturated (any channel at or above [`SATURATION`]) in the capture.
+    pub saturated: Array2<bool>,
+    pub report: SceneReport,
+}
+
+/// How a scene was prepared (for the JSON report).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SceneReport {
+    pub name: String,
+    pub capture: String,
+    pub bracket_frames: usize,
+    pub merge_warnings: Vec<String>,
+    pub registration: LocalRegistration,
+    /// `capture / reference` over well-exposed pixels (see the module docs).
+    pub gain: f64,
+    pub gain_samples: usize,
+    pub pixels: usize,
+    pub saturated_pixels: usize,
+}
+
+/// PSNR of one decoder (or of the capture as it is) on one scene.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Score {
+    pub scene: String,
+    pub decoder: String,
+    pub all: Psnr,
+    pub saturated: Option<Psnr>,
+}
+
+/// The scene folders under `dir`: those holding an `exposures.json`, in name order.
+pub fn scene_dirs(dir: &Path) -> Result<Vec<PathBuf>> {
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join("exposures.json").is_file())
+        .collect();
+    dirs.sort();
+    if dirs.is_empty() {
+        return Err(Error::format(dir, "holds no scene folder with an exposures.json"));
+    }
+    Ok(dirs)
+}
+
+/// Merges, registers and gain-matches the scene in `dir` (steps 1-3 of the module docs).
+pub fn prepare_scene(dir: &Path, register: &RegisterOptions) -> Result<BenchScene> {
+    let list_path = dir.join("exposures.json");
+    let doe = read_exposures(&list_path, true)?;
+    let [(capture_path, _)] = doe.frames.as_slice() else {
+        return Err(Error::format(
+            &list_path,
+            format!("lists {} frames with \"doe\": true; expected exactly one capture", doe.frames.len()),
+        ));
+    };
+    let bracket = read_exposures(&list_path, false)?;
+    let frames = bracket.frames.iter().map(|(p, _)| read_capture(p)).collect::<Result<Vec<_>>>()?;
+    let times: Vec<f64> = bracket.frames.iter().map(|f| f.1).collect();
+    let opts = MergeOptions {
+        saturation: SATURATION,
+        reference_exposure: bracket.reference_exposure,
+        ..MergeOptions::default()
+    };
+    let merged = merge(&frames, &times, None, None, &opts)?;
+    let capture = read_capture(capture_path)?.values;
+    if capture.dim() != merged.radiance.dim() || capture.dim().2 != 3 {
+        return Err(Error::format(
+            capture_path,
+            format!(
+                "is {:?} (rows, cols, channels); the bracket is {:?} and both must be RGB of one size",
+                capture.dim(),
+                merged.radiance.dim()
+            ),
+        ));
+    }
+    let clipped = merged.radiance.mapv(|v| v.min(1.0));
+    let registration = register_local(&luminance(&clipped), &luminance(&capture), register)?;
+    let (mut reference, mask) = registration.warp(&merged.radiance);
+    let mut ratios = Vec::new();
+    Zip::indexed(&mask).for_each(|(i, j), &inside| {
+        let exposed =
+            (0..3).all(|c| (0.05..=0.9).contains(&capture[[i, j, c]]) && reference[[i, j, c]] > 0.0);
+        if inside && exposed {
+            ratios.extend((0..3).map(|c| capture[[i, j, c]] / reference[[i, j, c]]));
+        }
+    });
+    if ratios.len() < 300 {
+        return Err(Error::Data(format!(
+            "{}: only {} well-exposed samples (0.05..0.9 of full scale) to match the reference's gain; \
+             300 needed",
+            capture_path.display(),
+            ratios.len()
+        )));
+    }
+    ratios.sort_by(f64::total_cmp);
+    let gain = ratios[ratios.len() / 2];
+    reference.mapv_inplace(|v| v * gain);
+    let saturated = Array2::from_shape_fn(mask.dim(), |(i, j)| {
+        mask[[i, j]] && (0..3).any(|c| capture[[i, j, c]] >= SATURATION)
+    });
+    let name =
+        dir.file_name().map_or_else(|| dir.display().to_string(), |n| n.to_string_lossy().into_owned());
+    let report = SceneReport {
+        name: name.clone(),
+        capture: capture_path.display().to_string(),
+        bracket_frames: frames.len(),
+        merge_warnings: merged.report.warnings.clone(),
+        registration,
+        gain,
+        gain_samples: ratios.len(),
+        pixels: mask.iter().filter(|v| **v).count(),
+        saturated_pixels: saturated.iter().filter(|v| **v).count(),
+    };
+    Ok(BenchScene { name, capture, reference, mask, saturated, report })
+}
+
+/// PSNR of `image` (a reconstruction, or the capture itself) against the scene's reference.
+pub fn score_image(scene: &BenchScene, decoder: &str, image: &Array3<f64>) -> Result<Score> {
+    let all = psnr(&scene.reference, image, Some(&scene.mask))?;
+    let saturated = if scene.report.saturated_pixels > 0 {
+        Some(psnr(&scene.reference, image, Some(&scene.saturated))?)
+    } else {
+        None
+    };
+    Ok(Score { scene: scene.name.clone(), decoder: decoder.into(), all, saturated })
+}
+
+/// Reconstructs the scene's capture with `net` and scores it.
+pub fn score_decoder(scene: &BenchScene, decoder: &str, net: &UNet) -> Result<Score> {
+    let x = scene.capture.mapv(|v| v as f32);
+    let (y, _) = reconstruct(net, &x, &ReconstructOptions::default())?;
+    score_image(scene, decoder, &y.mapv(f64::from))
+}
