@@ -14,10 +14,12 @@
 //!    (standard deviation below 2 % of the image's), a peak NCC below 0.6, or a peak flat
 //!    along x or y (second difference above -0.002: a straight edge, whose shift along itself
 //!    is unknown) are dropped.
-//! 3. *Least squares with outlier rejection*: `A, b` from the matched tile centres by linear
-//!    least squares; tiles whose residual exceeds `max(3 sigma, 1 px)` (`sigma = 1.4826 MAD`)
-//!    are rejected and the fit repeated until no tile changes (at most 10 times). Fewer than 6
-//!    tiles, or a fit whose RMS residual is above 2 px, are refused.
+//! 3. *Robust fit*: RANSAC (Fischler and Bolles 1981) over triples of matched tile centres
+//!    finds the affine map that most tiles follow within 1.5 px; least squares on those
+//!    inliers, re-selected until they do not change, gives `A, b`. Fewer than 6 inliers, or
+//!    fewer than two thirds of the matched tiles, are refused: the motion is then not one
+//!    affine map (parallax between objects at different depths: [`register_local`] follows
+//!    it), or the tiles locked onto different features.
 //! 4. *Refinement*: the target is mapped back through the fit (bilinear) and steps 2-3 run
 //!    again within 4 px; the parabola's sub-pixel estimate is biased towards whole pixels
 //!    (up to about 0.1 px at half a pixel) and unbiased near zero shift, so the residual map
@@ -299,9 +301,9 @@ fn match_and_fit(
 ) -> Result<Registration> {
     let matches = match_tiles(reference, target, opts)?;
     let (affine, rms, used) = robust_affine(&matches, opts.max_shift)?;
-    if 2 * used < matches.len() {
+    if 3 * used < 2 * matches.len() {
         return Err(Error::Validity(format!(
-            "one affine map fits only {used} of {} matched tiles within 1.5 px: the motion is not \
+            "one affine map fits only {used} of {} matched tiles within 1.5 px (two thirds needed): the motion is not \
              affine (parallax between objects at different depths), or the tiles locked onto different \
              features (a raw capture through the DOE holds shifted copies of the scene; register its \
              reconstruction instead); a local registration follows such motion",
