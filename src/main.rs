@@ -707,6 +707,9 @@ fn run(cli: &Cli) -> Result<()> {
                      (the default --response linear) has none"
                 );
             }
+            if !ev.is_finite() {
+                bail!("--ev must be a finite number of stops, got {ev}");
+            }
             let png = png.clone().unwrap_or_else(|| output.with_extension("png"));
             if png == *output || response_out.as_ref().is_some_and(|r| r == output || *r == png) {
                 bail!(

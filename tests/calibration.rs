@@ -514,6 +514,33 @@ fn merge_writes_a_tone_mapped_png_of_its_exr() {
     assert_eq!(get("radiance_unit"), Some("fraction of full scale per second of exposure"));
     assert_eq!(get("ev"), Some("-2"));
     assert!(get("tone_map").unwrap().contains("2^-2"), "{text:?}");
+    assert_eq!(report["tone_map"]["warnings"].as_array().unwrap().len(), 0);
+
+    // A picture mostly white, or all but black, is written with a warning that names the EV
+    // putting the 99th percentile (or the maximum) at white, computed here from the EXR.
+    let mut sorted: Vec<f64> = hdr.pixels().flat_map(|p| p.0).map(f64::from).collect();
+    sorted.sort_by(f64::total_cmp);
+    let ev_p99 = -sorted[(sorted.len() - 1) * 99 / 100].log2();
+    let ev_max = -sorted[sorted.len() - 1].log2();
+    for (ev, want) in [("6", ev_p99), ("-30", ev_max)] {
+        let mut args = vec!["--json", "merge", "-o", &e, "--ev", ev, "--listed-times", "--times", &times];
+        args.extend(files.iter().map(|s| s.as_str()));
+        let r = doefab(&args);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(err.contains(&format!("--ev {want:.1} puts")), "EV {ev}: {err}");
+        let report: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
+        let key = if ev == "6" { "ev_p99" } else { "ev_max" };
+        assert!((report["tone_map"][key].as_f64().unwrap() - want).abs() < 1e-9, "{report}");
+    }
+    // A non-finite EV is refused before anything is written.
+    std::fs::remove_file(&exr).unwrap();
+    let mut args = vec!["merge", "-o", &e, "--ev", "inf", "--times", &times];
+    args.extend(files.iter().map(|s| s.as_str()));
+    let r = doefab(&args);
+    assert_eq!(r.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("--ev must be a finite number"));
+    assert!(!exr.exists());
 }
 
 /// `merge --response debevec --response-out curve.csv` saves the recovered response of a

@@ -424,16 +424,17 @@ pub struct ToneMapReport {
     pub ev: f64,
     /// Fraction of samples at white (`E 2^ev >= 1`).
     pub clipped_fraction: f64,
-    /// The exposure that puts the 99th percentile of the radiance at white (`None` when it
-    /// is not positive).
+    /// The exposures that put the 99th percentile and the maximum of the radiance at white
+    /// (`None` where that value is not positive).
     pub ev_p99: Option<f64>,
+    pub ev_max: Option<f64>,
     pub warnings: Vec<String>,
 }
 
 /// Writes the merge's picture at exposure `ev` stops: [`tone_map`] (sRGB of
 /// `clip(E 2^ev, 0, 1)`) of the radiance as the EXR stores it (f32), as an 8-bit grayscale or
-/// RGB PNG with the EXR's metadata and the tone map. Warns when more than a quarter of the
-/// samples are white or the 99th percentile is darker than 5 % of white, with the EV that fits.
+/// RGB PNG with the EXR's metadata and the tone map. Warns, with the EV that fits, when more
+/// than a quarter of the samples are white or the brightest is below 5 % of white.
 pub fn write_tone_mapped(path: &Path, merged: &Merged, ev: f64, pitch: Option<f64>) -> Result<ToneMapReport> {
     if !ev.is_finite() {
         return Err(Error::param("ev", format!("must be a finite number of stops, got {ev}")));
@@ -449,21 +450,27 @@ pub fn write_tone_mapped(path: &Path, merged: &Merged, ev: f64, pitch: Option<f6
         let k = (values.len() - 1) * 99 / 100;
         *values.select_nth_unstable_by(k, f32::total_cmp).1 as f64
     };
-    let ev_p99 = (p99 > 0.0).then(|| -p99.log2());
+    let max = radiance.iter().fold(0.0f64, |m, &v| m.max(v as f64));
+    let fit = |v: f64| (v > 0.0).then(|| -v.log2());
+    let (ev_p99, ev_max) = (fit(p99), fit(max));
     let mut warnings = Vec::new();
-    if clipped_fraction > 0.25 || p99 * gain < 0.05 {
-        let fit =
-            ev_p99.map_or(String::new(), |e| format!("; --ev {e:.1} puts the 99th percentile at white"));
+    if let (true, Some(e)) = (clipped_fraction > 0.25, ev_p99) {
         warnings.push(format!(
-            "{}: at EV {ev}, {:.1} % of the samples are white and the 99th percentile is at {:.3} of white{fit}",
+            "{}: at EV {ev}, {:.1} % of the samples are white; --ev {e:.1} puts the 99th percentile at white",
             path.display(),
-            100.0 * clipped_fraction,
-            p99 * gain
+            100.0 * clipped_fraction
+        ));
+    }
+    if let (true, Some(e)) = (max * gain < 0.05, ev_max) {
+        warnings.push(format!(
+            "{}: at EV {ev}, the brightest sample is at {:.4} of white; --ev {e:.1} puts it at white",
+            path.display(),
+            max * gain
         ));
     }
     let meta = metadata(merged, pitch)
         .with("tone_map", format!("sRGB (IEC 61966-2-1) of clip(E * 2^{ev}, 0, 1), 8 bits"))
         .with("ev", format!("{ev}"));
     write_png_image_u8(path, &tone_map(&radiance, ev), &meta)?;
-    Ok(ToneMapReport { png: path.display().to_string(), ev, clipped_fraction, ev_p99, warnings })
+    Ok(ToneMapReport { png: path.display().to_string(), ev, clipped_fraction, ev_p99, ev_max, warnings })
 }
