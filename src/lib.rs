@@ -18,7 +18,7 @@
 //!   (`calibrate-psf`); PSNR of reconstructions against references, affine registration.
 //! * [`decoder`]: the paper's U-Net decoder: weights, measurement model, reconstruction of
 //!   captures, fine-tuning for a fabricated part's PSF.
-//! * [`report`]: charts and false-colour maps (plotters, embedded font).
+//! * [`report`]: charts and false-colour maps (plotters, embedded font), tone mapping.
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
 //! * [`error`]: the library's error type.

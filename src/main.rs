@@ -119,6 +119,16 @@ enum Command {
         /// linear captures.
         #[arg(long, value_enum, default_value_t = ResponseArg::Linear)]
         response: ResponseArg,
+        /// Tone-mapped PNG (default: the output with the extension .png).
+        #[arg(long)]
+        png: Option<PathBuf>,
+        /// Exposure of the tone-mapped PNG, stops.
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        ev: f64,
+        /// Save the recovered response curve as CSV (z, then ln exposure g(z) per channel);
+        /// needs --response debevec.
+        #[arg(long)]
+        response_out: Option<PathBuf>,
     },
     /// The measured PSF from a pinhole bracket: merge, dark and background, hot pixels,
     /// centring, crop, normalisation. Writes psf.exr, psf.npy (H, W, 1, C), psf_log.png,
@@ -724,11 +734,60 @@ fn run(cli: &Cli) -> Result<()> {
                 println!("wrote {}", output.display());
             })
         }
-        Command::Merge { bracket, output, response } => {
+        Command::Merge { bracket, output, response, png, ev, response_out } => {
+            use doefab::calibration::hdr_merge as hm;
+            if response_out.is_some() && *response != ResponseArg::Debevec {
+                bail!(
+                    "--response-out saves the curve that --response debevec recovers; a linear merge \
+                     (the default --response linear) has none"
+                );
+            }
+            if !ev.is_finite() {
+                bail!("--ev must be a finite number of stops, got {ev}");
+            }
+            let png = png.clone().unwrap_or_else(|| output.with_extension("png"));
+            if png == *output || response_out.as_ref().is_some_and(|r| r == output || *r == png) {
+                bail!(
+                    "the EXR ({}), the PNG ({}) and --response-out must be different files",
+                    output.display(),
+                    png.display()
+                );
+            }
             let merged = merge_bracket(cli, bracket, *response)?;
-            doefab::calibration::hdr_merge::write_merged(output, &merged, None)?;
+            hm::write_merged(output, &merged, None)?;
+            let tone = hm::write_tone_mapped(&png, &merged, *ev, None)?;
+            if let (Some(path), Some(curve)) = (response_out, &merged.response) {
+                curve.write_csv(path)?;
+            }
             warn(&merged.report.warnings);
-            print_result(cli, &merged.report, || print_merge(&merged.report, output))
+            warn(&tone.warnings);
+            #[derive(serde::Serialize)]
+            struct MergeOutputs<'a> {
+                #[serde(flatten)]
+                report: &'a hm::MergeReport,
+                tone_map: &'a hm::ToneMapReport,
+                response_csv: Option<String>,
+            }
+            let response_csv = response_out.as_ref().map(|p| p.display().to_string());
+            let out = MergeOutputs { report: &merged.report, tone_map: &tone, response_csv };
+            print_result(cli, &out, || {
+                print_merge(&merged.report, output);
+                println!(
+                    "  tone-mapped at EV {} ({:.1} % white) -> {}",
+                    tone.ev,
+                    100.0 * tone.clipped_fraction,
+                    png.display()
+                );
+                if let (Some(path), Some(curve)) = (response_out, &merged.response) {
+                    let ranges: Vec<String> =
+                        curve.observed.iter().map(|[a, b]| format!("{a}..{b}")).collect();
+                    println!(
+                        "  response curve (observed values {}) -> {}",
+                        ranges.join(", "),
+                        path.display()
+                    );
+                }
+            })
         }
         Command::CalibratePsf { bracket, output, crop, centre, capture_pitch, sensor_pitch } => {
             use doefab::calibration::psf_extract as pe;

@@ -37,6 +37,8 @@ use super::response::Response;
 use crate::error::{Error, Result};
 use crate::io::exr::write_exr;
 use crate::io::heightmap::Metadata;
+use crate::io::png::write_png_image_u8;
+use crate::report::tone::tone_map;
 
 /// Thresholds of the merge.
 #[derive(Debug, Clone, PartialEq)]
@@ -116,11 +118,13 @@ pub struct MergeReport {
     pub warnings: Vec<String>,
 }
 
-/// A merged bracket: radiance `(H, W, C)` and the report.
+/// A merged bracket: radiance `(H, W, C)`, the report and the response curve the frames were
+/// linearized through (`None`: linear captures).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Merged {
     pub radiance: Array3<f64>,
     pub report: MergeReport,
+    pub response: Option<Response>,
 }
 
 /// Checks that the frames agree in shape and bit depth and that the dark frame matches.
@@ -316,6 +320,7 @@ pub fn merge(
             dark_everywhere,
             warnings,
         },
+        response: response.cloned(),
     })
 }
 
@@ -387,6 +392,15 @@ fn estimate_times(
     used
 }
 
+/// The metadata of the merge's files: radiance unit, method, thresholds, pitch when known.
+fn metadata(merged: &Merged, pitch: Option<f64>) -> Metadata {
+    Metadata { pitch: pitch.map(|p| [p, p]), unit: None, text: Vec::new() }
+        .with("radiance_unit", merged.report.unit.clone())
+        .with("merge", "Debevec-Malik weighted mean of value/time, hat weights")
+        .with("noise_floor", format!("{}", merged.report.noise_floor))
+        .with("saturation", format!("{}", merged.report.saturation))
+}
+
 /// Writes merged radiance as an OpenEXR file (channels R, G, B, or Y for one channel; f32),
 /// with its unit and the pixel pitch when known.
 pub fn write_merged(path: &Path, merged: &Merged, pitch: Option<f64>) -> Result<()> {
@@ -399,10 +413,64 @@ pub fn write_merged(path: &Path, merged: &Merged, pitch: Option<f64>) -> Result<
         (0..nc).map(|c| if nc == 1 { "Y".into() } else { format!("C{c}") }).collect()
     };
     let channels: Vec<(&str, &Array2<f32>)> = names.iter().map(|s| s.as_str()).zip(planes.iter()).collect();
-    let meta = Metadata { pitch: pitch.map(|p| [p, p]), unit: None, text: Vec::new() }
-        .with("radiance_unit", merged.report.unit.clone())
-        .with("merge", "Debevec-Malik weighted mean of value/time, hat weights")
-        .with("noise_floor", format!("{}", merged.report.noise_floor))
-        .with("saturation", format!("{}", merged.report.saturation));
-    write_exr(path, &channels, &meta)
+    write_exr(path, &channels, &metadata(merged, pitch))
+}
+
+/// What the tone-mapped picture of a merge shows.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ToneMapReport {
+    pub png: String,
+    /// Exposure of the picture, stops.
+    pub ev: f64,
+    /// Fraction of samples at white (`E 2^ev >= 1`).
+    pub clipped_fraction: f64,
+    /// The exposures that put the 99th percentile and the maximum of the radiance at white
+    /// (`None` where that value is not positive).
+    pub ev_p99: Option<f64>,
+    pub ev_max: Option<f64>,
+    pub warnings: Vec<String>,
+}
+
+/// Writes the merge's picture at exposure `ev` stops: [`tone_map`] (sRGB of
+/// `clip(E 2^ev, 0, 1)`) of the radiance as the EXR stores it (f32), as an 8-bit grayscale or
+/// RGB PNG with the EXR's metadata and the tone map. Warns, with the EV that fits, when more
+/// than a quarter of the samples are white or the brightest is below 5 % of white.
+pub fn write_tone_mapped(path: &Path, merged: &Merged, ev: f64, pitch: Option<f64>) -> Result<ToneMapReport> {
+    if !ev.is_finite() {
+        return Err(Error::param("ev", format!("must be a finite number of stops, got {ev}")));
+    }
+    let radiance = merged.radiance.mapv(|v| v as f32);
+    let gain = 2f64.powf(ev);
+    let n = radiance.len().max(1);
+    let clipped_fraction = radiance.iter().filter(|&&v| v as f64 * gain >= 1.0).count() as f64 / n as f64;
+    let mut values: Vec<f32> = radiance.iter().copied().collect();
+    let p99 = if values.is_empty() {
+        0.0
+    } else {
+        let k = (values.len() - 1) * 99 / 100;
+        *values.select_nth_unstable_by(k, f32::total_cmp).1 as f64
+    };
+    let max = radiance.iter().fold(0.0f64, |m, &v| m.max(v as f64));
+    let fit = |v: f64| (v > 0.0).then(|| -v.log2());
+    let (ev_p99, ev_max) = (fit(p99), fit(max));
+    let mut warnings = Vec::new();
+    if let (true, Some(e)) = (clipped_fraction > 0.25, ev_p99) {
+        warnings.push(format!(
+            "{}: at EV {ev}, {:.1} % of the samples are white; --ev {e:.1} puts the 99th percentile at white",
+            path.display(),
+            100.0 * clipped_fraction
+        ));
+    }
+    if let (true, Some(e)) = (max * gain < 0.05, ev_max) {
+        warnings.push(format!(
+            "{}: at EV {ev}, the brightest sample is at {:.4} of white; --ev {e:.1} puts it at white",
+            path.display(),
+            max * gain
+        ));
+    }
+    let meta = metadata(merged, pitch)
+        .with("tone_map", format!("sRGB (IEC 61966-2-1) of clip(E * 2^{ev}, 0, 1), 8 bits"))
+        .with("ev", format!("{ev}"));
+    write_png_image_u8(path, &tone_map(&radiance, ev), &meta)?;
+    Ok(ToneMapReport { png: path.display().to_string(), ev, clipped_fraction, ev_p99, ev_max, warnings })
 }

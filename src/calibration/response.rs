@@ -18,17 +18,24 @@
 //! value range leaves `g` unconstrained there and is refused, and a recovered curve that
 //! decreases anywhere inside the observed range is reported.
 
-use ndarray::Array3;
+use std::path::Path;
+
+use ndarray::{Array2, Array3};
 use serde::Serialize;
 
 use super::capture::Capture;
 use crate::error::{Error, Result};
+use crate::io::csv::write_csv;
+use crate::io::heightmap::Metadata;
 use crate::metrology::level::solve;
 
 /// The recovered `g(z) = ln f^-1(z)` per channel, 256 values each.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Response {
     pub log_exposure: Vec<Vec<f64>>,
+    /// Per channel, the lowest and highest value the samples observe with non-zero weight;
+    /// outside this range `g` is an extrapolation by the smoothness term alone.
+    pub observed: Vec<[usize; 2]>,
     /// Sample pixels per channel and the smoothness weight used.
     pub samples: usize,
     pub lambda: f64,
@@ -47,6 +54,45 @@ impl Response {
             let z = (values[[i, j, c]] * 255.0).round().clamp(0.0, 255.0) as usize;
             self.log_exposure[c][z].exp()
         })
+    }
+
+    /// Writes the curve as CSV ([`crate::io::csv::write_csv`]): one row per value
+    /// `z = 0..=255`, columns `z` and `g(z)` per channel (R, G, B, or Y for one channel), after
+    /// `# key: value` lines naming the columns and units, the observed range per channel, the
+    /// sample count and lambda. Atomic.
+    pub fn write_csv(&self, path: &Path) -> Result<()> {
+        let nc = self.log_exposure.len();
+        let names: Vec<String> = match nc {
+            3 => ["R", "G", "B"].map(String::from).to_vec(),
+            1 => vec!["Y".into()],
+            _ => (0..nc).map(|c| format!("C{c}")).collect(),
+        };
+        let columns: Vec<String> = names.iter().map(|n| format!("g_{n} (ln exposure)")).collect();
+        let mut meta = Metadata::default()
+            .with("quantity", "camera response g(z) = ln f^-1(z) (Debevec & Malik 1997)")
+            .with("columns", format!("z (8-bit value, counts), {}", columns.join(", ")))
+            .with(
+                "g_unit",
+                "ln of the exposure E t that gives value z; exp(g) in fractions of full scale, \
+                 fixed by g(128) = ln(128/255)",
+            );
+        for (name, [lo, hi]) in names.iter().zip(&self.observed) {
+            meta = meta.with(format!("observed_{name}"), format!("{lo}..{hi} (outside: smoothness only)"));
+        }
+        let meta =
+            meta.with("samples", format!("{}", self.samples)).with("lambda", format!("{}", self.lambda));
+        let table =
+            Array2::from_shape_fn(
+                (256, nc + 1),
+                |(z, k)| {
+                    if k == 0 {
+                        z as f64
+                    } else {
+                        self.log_exposure[k - 1][z]
+                    }
+                },
+            );
+        write_csv(path, &table, &meta)
     }
 
     /// Refuses frames this curve cannot linearize (not 8-bit, other channel count).
@@ -106,6 +152,7 @@ pub fn recover_response(frames: &[Capture], times: &[f64], samples: usize, lambd
     let middle = &frames[order[p / 2]].values;
     let count = |v: f64| (v * 255.0).round().clamp(0.0, 255.0) as usize;
     let mut curves = Vec::new();
+    let mut observed = Vec::new();
     let mut warnings = Vec::new();
     for c in 0..dim.2 {
         // The first pixel of every value in the middle frame, then N of them evenly spaced.
@@ -165,6 +212,7 @@ pub fn recover_response(frames: &[Capture], times: &[f64], samples: usize, lambd
             ));
         }
         curves.push(g);
+        observed.push([zmin, zmax]);
     }
-    Ok(Response { log_exposure: curves, samples: n, lambda, warnings })
+    Ok(Response { log_exposure: curves, observed, samples: n, lambda, warnings })
 }

@@ -31,6 +31,7 @@ use serde::Serialize;
 use crate::decoder::infer;
 use crate::decoder::unet::{UNet, SIZE_MULTIPLE};
 use crate::error::{Error, Result};
+use crate::report::tone::tone_map;
 
 /// An upper bound of the U-Net's receptive-field radius, pixels (see the module docs),
 /// rounded up to a multiple of 16.
@@ -260,11 +261,10 @@ pub fn reconstruct_file(
         ("negatives".to_string(), format!("{:?}", opts.negatives).to_lowercase()),
     ];
     let channels: Vec<ndarray::Array2<f32>> = (0..3).map(|c| y.slice(s![.., .., c]).to_owned()).collect();
-    let meta = crate::io::heightmap::Metadata { pitch: None, unit: None, text: text.clone() };
+    let meta = crate::io::heightmap::Metadata { pitch: None, unit: None, text };
     crate::io::exr::write_exr(exr, &[("R", &channels[0]), ("G", &channels[1]), ("B", &channels[2])], &meta)?;
-    let mut png_text = text;
-    png_text.push(("tone_map".into(), format!("sRGB of clip(y * 2^{ev}, 0, 1)")));
-    write_rgb_png(png_path, &tone_map(&y, ev), &png_text)?;
+    let png_meta = meta.with("tone_map", format!("sRGB of clip(y * 2^{ev}, 0, 1)"));
+    crate::io::png::write_png_image_u8(png_path, &tone_map(&y, ev), &png_meta)?;
     Ok(ReconstructFileReport {
         capture: capture.display().to_string(),
         decoder: decoder.display().to_string(),
@@ -275,39 +275,6 @@ pub fn reconstruct_file(
         options: *opts,
         report,
     })
-}
-
-/// Tone-maps linear HDR to 8-bit sRGB at exposure `ev` stops: `v = clip(y 2^ev, 0, 1)`, then
-/// the sRGB transfer function (IEC 61966-2-1: `12.92 v` below 0.0031308, else
-/// `1.055 v^(1/2.4) - 0.055`), rounded to 8 bits.
-pub fn tone_map(y: &Array3<f32>, ev: f64) -> Array3<u8> {
-    let gain = 2f64.powf(ev);
-    y.mapv(|v| {
-        let v = (v as f64 * gain).clamp(0.0, 1.0);
-        let s = if v <= 0.0031308 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
-        (s * 255.0).round() as u8
-    })
-}
-
-/// Writes an 8-bit RGB PNG atomically, with text chunks.
-pub fn write_rgb_png(path: &Path, rgb: &Array3<u8>, text: &[(String, String)]) -> Result<()> {
-    let (h, w, c) = rgb.dim();
-    if c != 3 {
-        return Err(Error::param("image", format!("has {c} channels, RGB needs 3")));
-    }
-    let fail = |e: png::EncodingError| Error::format(path, format!("PNG encoding: {e}"));
-    let mut bytes = Vec::new();
-    {
-        let mut enc = png::Encoder::new(&mut bytes, w as u32, h as u32);
-        enc.set_color(png::ColorType::Rgb);
-        enc.set_depth(png::BitDepth::Eight);
-        for (k, v) in text {
-            enc.add_text_chunk(k.clone(), v.clone()).map_err(fail)?;
-        }
-        let mut wr = enc.write_header().map_err(fail)?;
-        wr.write_image_data(rgb.as_standard_layout().as_slice().expect("standard layout")).map_err(fail)?;
-    }
-    crate::io::atomic::write_bytes(path, &bytes)
 }
 
 #[cfg(test)]
@@ -326,14 +293,5 @@ mod tests {
             assert_eq!(pair[0].3, pair[1].2, "cores abut");
         }
         assert!(w.iter().all(|&(a, b, c, _)| a.is_multiple_of(16) && c.is_multiple_of(16) && b - a <= 384));
-    }
-
-    #[test]
-    fn tone_map_follows_srgb() {
-        let y = Array3::from_shape_vec((1, 4, 1), vec![0.0, 0.5, 1.0, 8.0]).unwrap();
-        let t = tone_map(&y, 0.0);
-        assert_eq!(t.iter().copied().collect::<Vec<_>>(), vec![0, 188, 255, 255]);
-        assert_eq!(tone_map(&y, -3.0)[[0, 3, 0]], 255);
-        assert_eq!(tone_map(&y, -4.0)[[0, 3, 0]], 188);
     }
 }

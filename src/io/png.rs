@@ -11,13 +11,13 @@
 //! metres, else Gwyddion's `Gwy::XReal` / `Gwy::YReal` (the full field width and height, with
 //! `Gwy::XYUnit` = `m`), divided by the number of columns / rows.
 //!
-//! Writing: 8/16-bit grayscale with text chunks (`tEXt`, or `iTXt` for text beyond Latin-1) in
+//! Writing: 8/16-bit grayscale (and 8-bit RGB for pictures) with text chunks (`tEXt`, or `iTXt` for text beyond Latin-1) in
 //! the order given, before the image data; no time chunk; deterministic bytes.
 
 use std::io::Cursor;
 use std::path::Path;
 
-use ndarray::Array2;
+use ndarray::{Array2, Array3};
 
 use crate::error::{Error, Result};
 use crate::io::atomic::write_bytes;
@@ -135,6 +135,7 @@ fn encode(
     path: &Path,
     dim: (usize, usize),
     depth: png::BitDepth,
+    color: png::ColorType,
     data: &[u8],
     meta: &Metadata,
 ) -> Result<Vec<u8>> {
@@ -147,7 +148,7 @@ fn encode(
     let mut out = Vec::new();
     {
         let mut enc = png::Encoder::new(&mut out, w32, h32);
-        enc.set_color(png::ColorType::Grayscale);
+        enc.set_color(color);
         enc.set_depth(depth);
         enc.set_compression(png::Compression::Default);
         for (k, v) in meta.key_values(path)? {
@@ -174,13 +175,13 @@ fn encode(
 /// Encodes a 16-bit grayscale PNG in memory (what [`write_png_u16`] writes).
 pub fn encode_png_u16(path: &Path, values: &Array2<u16>, meta: &Metadata) -> Result<Vec<u8>> {
     let data: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
-    encode(path, values.dim(), png::BitDepth::Sixteen, &data, meta)
+    encode(path, values.dim(), png::BitDepth::Sixteen, png::ColorType::Grayscale, &data, meta)
 }
 
 /// Encodes an 8-bit grayscale PNG in memory (what [`write_png_u8`] writes).
 pub fn encode_png_u8(path: &Path, values: &Array2<u8>, meta: &Metadata) -> Result<Vec<u8>> {
     let data: Vec<u8> = values.iter().copied().collect();
-    encode(path, values.dim(), png::BitDepth::Eight, &data, meta)
+    encode(path, values.dim(), png::BitDepth::Eight, png::ColorType::Grayscale, &data, meta)
 }
 
 /// Writes a 16-bit grayscale PNG (row 0 at the top) with `meta` as text chunks, atomically.
@@ -191,6 +192,32 @@ pub fn write_png_u16(path: &Path, values: &Array2<u16>, meta: &Metadata) -> Resu
 /// Writes an 8-bit grayscale PNG with `meta` as text chunks, atomically.
 pub fn write_png_u8(path: &Path, values: &Array2<u8>, meta: &Metadata) -> Result<()> {
     write_bytes(path, &encode_png_u8(path, values, meta)?)
+}
+
+/// Encodes an 8-bit picture `(H, W, C)` in memory: grayscale for C = 1, RGB for C = 3.
+pub fn encode_png_image_u8(path: &Path, values: &Array3<u8>, meta: &Metadata) -> Result<Vec<u8>> {
+    let (h, w, c) = values.dim();
+    let color = match c {
+        1 => png::ColorType::Grayscale,
+        3 => png::ColorType::Rgb,
+        _ => {
+            return Err(Error::param(
+                "image",
+                format!(
+                    "{} has {c} channels; an 8-bit PNG picture is grayscale (1) or RGB (3)",
+                    path.display()
+                ),
+            ))
+        }
+    };
+    let data: Vec<u8> = values.iter().copied().collect();
+    encode(path, (h, w), png::BitDepth::Eight, color, &data, meta)
+}
+
+/// Writes an 8-bit grayscale or RGB picture (what [`encode_png_image_u8`] encodes) with `meta`
+/// as text chunks, atomically.
+pub fn write_png_image_u8(path: &Path, values: &Array3<u8>, meta: &Metadata) -> Result<()> {
+    write_bytes(path, &encode_png_image_u8(path, values, meta)?)
 }
 
 #[cfg(test)]
@@ -215,6 +242,26 @@ mod tests {
         assert_eq!(r.kind, SampleKind::Counts { bits: 8 });
         assert_eq!(r.values, b.mapv(f64::from));
         assert_eq!(r.pitch, None);
+    }
+
+    #[test]
+    fn rgb_and_gray_pictures_read_back_through_the_png_crate() {
+        let rgb = Array3::from_shape_fn((2, 3, 3), |(i, j, c)| (i * 100 + j * 10 + c) as u8);
+        let meta = Metadata::default().with("ev", "-2");
+        let bytes = encode_png_image_u8(Path::new("p.png"), &rgb, &meta).unwrap();
+        let mut reader = png::Decoder::new(Cursor::new(bytes)).read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size()];
+        let frame = reader.next_frame(&mut buf).unwrap();
+        assert_eq!((frame.width, frame.height, frame.color_type), (3, 2, png::ColorType::Rgb));
+        assert_eq!(&buf[..frame.buffer_size()], rgb.as_slice().unwrap());
+        let text = &reader.info().uncompressed_latin1_text;
+        assert_eq!((text[0].keyword.as_str(), text[0].text.as_str()), ("ev", "-2"));
+        let gray = Array3::from_shape_fn((2, 3, 1), |(i, j, _)| (i * 3 + j) as u8);
+        let r =
+            decode_png(Path::new("g.png"), &encode_png_image_u8(Path::new("g.png"), &gray, &meta).unwrap());
+        assert_eq!(r.unwrap().values, gray.index_axis(ndarray::Axis(2), 0).mapv(f64::from));
+        let e = encode_png_image_u8(Path::new("two.png"), &Array3::zeros((2, 2, 2)), &meta).unwrap_err();
+        assert!(e.to_string().contains("two.png") && e.to_string().contains("2 channels"), "{e}");
     }
 
     #[test]

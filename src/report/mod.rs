@@ -1,4 +1,5 @@
-//! Reports for people: charts and false-colour maps, drawn with `plotters`.
+//! Reports for people: charts and false-colour maps, drawn with `plotters`; tone-mapped
+//! pictures of HDR images ([`tone`]).
 //!
 //! Every chart is drawn twice from one drawing function, once into an RGB buffer written as
 //! PNG (through [`crate::io::png`], atomically) and once as SVG. Text uses DejaVu Sans,
@@ -7,6 +8,7 @@
 
 pub mod metrology_charts;
 pub mod psf_charts;
+pub mod tone;
 pub mod training_chart;
 
 use std::path::Path;
