@@ -41,7 +41,8 @@ enum BenchCommand {
     /// The decoder on the real captures: fine-tune the paper's simulated-PSF decoder on the
     /// measured PSF for --steps steps (procedural scenes), then score it, the decoder it
     /// started from and the paper's measured-PSF decoder against bracket-merged references
-    /// (PSNR over the registered pixels and their saturated part): JSON report + decoder.
+    /// (PSNR over the registered pixels and their saturated part): JSON report, a chart of
+    /// PSNR along the fine-tuning, and the decoder.
     Decoder {
         /// The paper's data release: captures/<scene>/exposures.json, measured_psf.npz and the
         /// two decoders.
@@ -58,6 +59,14 @@ enum BenchCommand {
         crop: usize,
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Score the decoder being fine-tuned on the real scenes every this many steps
+        /// (default: a fifth of the run).
+        #[arg(long)]
+        evaluate_every: Option<usize>,
+        /// HDR images to fine-tune on (a folder of EXR / Radiance .hdr; default: procedural
+        /// scenes). Not the benchmark's own scenes, or the scores measure memory.
+        #[arg(long)]
+        train_data: Option<PathBuf>,
         /// Tile side of the registration, pixels.
         #[arg(long, default_value_t = 48)]
         tile: usize,
@@ -1686,101 +1695,45 @@ fn finetune(cli: &Cli) -> Result<()> {
 /// `doefab bench decoder`: see [`doefab::decoder::bench`].
 fn bench_decoder(cli: &Cli) -> Result<()> {
     use doefab::calibration::register::RegisterOptions;
-    use doefab::decoder::bench::{prepare_scene, scene_dirs, score_decoder, score_image};
-    use doefab::decoder::finetune::{read_psf, FinetuneConfig, GeneratedScenes, Trainer};
-    use doefab::decoder::{unet::UNet, weights::DecoderWeights};
-    let Command::Bench { what: BenchCommand::Decoder { data, steps, batch, crop, seed, tile, output } } =
-        &cli.command
+    use doefab::decoder::bench::{run, BenchConfig};
+    use doefab::decoder::finetune::FinetuneConfig;
+    let Command::Bench {
+        what:
+            BenchCommand::Decoder { data, steps, batch, crop, seed, evaluate_every, train_data, tile, output },
+    } = &cli.command
     else {
         unreachable!("called for bench decoder only")
     };
-    let scenes_dir = data.join("captures");
-    let dirs = scene_dirs(&scenes_dir)?;
-    let pb = progress(cli, dirs.len() as u64 * 5 + *steps as u64);
-    let register = RegisterOptions { tile: *tile, ..RegisterOptions::default() };
-    let mut scenes = Vec::new();
-    for d in &dirs {
-        pb.set_message(format!("merging and registering {}", d.display()));
-        scenes.push(prepare_scene(d, &register).with_context(|| format!("scene {}", d.display()))?);
-        pb.inc(1);
-    }
-    let device = doefab::decoder::device(false)?;
-    let start_path = data.join("decoder_simulated_psf.safetensors");
-    let paper_path = data.join("decoder_measured_psf.safetensors");
-    let psf_path = data.join("measured_psf.npz");
-    let start = DecoderWeights::read(&start_path)?;
-    let psf = read_psf(&psf_path, Some("psf_val"), 4.29e-6)?;
-    let cfg = FinetuneConfig {
-        steps: *steps,
-        batch: *batch,
-        crop: *crop,
-        seed: *seed,
-        checkpoint_every: (*steps).max(1),
-        validation: 4,
-        ..FinetuneConfig::default()
-    };
-    let source = GeneratedScenes {
-        name: "procedural HDR scenes",
-        generate: doefab::decoder::scenes::procedural_scene,
-    };
-    let desc = format!("{} (sha256 {})", start_path.display(), doefab::io::file_sha256(&start_path)?);
-    let mut trainer = Trainer::new(
-        UNet::from_weights(&start, &device),
-        &psf,
-        &doefab::io::file_sha256(&psf_path)?,
-        &source,
-        cfg,
-        &desc,
-    )?;
-    let tuned_dir = output.join("finetuned");
-    let clock = std::time::Instant::now();
-    trainer.run(&tuned_dir, &mut |r| {
-        pb.set_message(format!("fine-tuning: loss {:.5}", r.loss));
-        pb.inc(1);
-    })?;
-    let seconds_per_step = clock.elapsed().as_secs_f64() / (*steps).max(1) as f64;
-    trainer.write_outputs(&tuned_dir)?;
-    let tuned = UNet::from_weights(&trainer.decoder()?, &device);
-    let before = UNet::from_weights(&start, &device);
-    let paper = UNet::from_weights(&DecoderWeights::read(&paper_path)?, &device);
-    let tuned_name = format!("fine-tuned here ({steps} steps on the measured PSF)");
-    let decoders = [
-        ("paper, simulated PSF (start of the fine-tuning)", &before),
-        (tuned_name.as_str(), &tuned),
-        ("paper, measured PSF", &paper),
-    ];
-    let mut scores = Vec::new();
-    for s in &scenes {
-        pb.set_message(format!("reconstructing {}", s.name));
-        scores.push(score_image(s, "capture as it is", &s.capture)?);
-        for (name, net) in &decoders {
-            scores.push(score_decoder(s, name, net)?);
-            pb.inc(1);
-        }
-        pb.inc(1);
-    }
-    pb.finish_and_clear();
-    let report = serde_json::json!({
-        "data": data.display().to_string(),
-        "units": "PSNR in dB; images in units of the capture's clipping level",
-        "saturation": doefab::decoder::bench::SATURATION,
-        "scenes": scenes.iter().map(|s| &s.report).collect::<Vec<_>>(),
-        "finetune": {
-            "steps": trainer.step(),
-            "seconds_per_step": seconds_per_step,
-            "history": trainer.history(),
-            "decoder": tuned_dir.join(doefab::decoder::finetune::DECODER).display().to_string(),
+    let evaluate_every = evaluate_every.unwrap_or((*steps / 5).max(1));
+    let cfg = BenchConfig {
+        data: data.clone(),
+        finetune: FinetuneConfig {
+            steps: *steps,
+            batch: *batch,
+            crop: *crop,
+            seed: *seed,
+            checkpoint_every: evaluate_every,
+            validation: 4,
+            ..FinetuneConfig::default()
         },
-        "scores": scores,
-    });
-    doefab::io::atomic::write_json(&output.join("report.json"), &report)?;
-    for s in scenes.iter().filter(|s| !s.report.merge_warnings.is_empty()) {
-        let n = s.report.merge_warnings.len();
+        evaluate_every,
+        train_data: train_data.clone(),
+        register: RegisterOptions { tile: *tile, ..RegisterOptions::default() },
+    };
+    let pb = progress(cli, *steps as u64 + 4);
+    let report = run(&cfg, output, &mut |msg, done| {
+        if !msg.is_empty() {
+            pb.set_message(msg.to_string());
+        }
+        pb.inc(done);
+    })?;
+    pb.finish_and_clear();
+    for s in report.scenes.iter().filter(|s| !s.merge_warnings.is_empty()) {
+        let n = s.merge_warnings.len();
         eprintln!("warning: {}: the merge of its bracket gave {n} warnings (in report.json)", s.name);
     }
     print_result(cli, &report, || {
-        for s in &scenes {
-            let r = &s.report;
+        for r in &report.scenes {
             println!(
                 "{}: {} pixels registered ({:.0} %, residual {:.2} px), {} saturated in the capture, gain {:.3}",
                 r.name,
@@ -1790,20 +1743,22 @@ fn bench_decoder(cli: &Cli) -> Result<()> {
                 r.saturated_pixels,
                 r.gain
             );
-            for sc in scores.iter().filter(|sc| sc.scene == s.name) {
+            for sc in report.scores.iter().filter(|sc| sc.scene == r.name) {
                 let sat = sc
                     .saturated
                     .as_ref()
                     .map_or("n/a".into(), |p| format!("{:.2} / {:.2}", p.linear_db, p.gamma_db));
                 println!(
-                    "  {:<52} all {:.2} / {:.2} dB   saturated {sat} dB (linear / gamma)",
+                    "  {:<48} all {:.2} / {:.2} dB   saturated {sat} dB (linear / gamma)",
                     sc.decoder, sc.all.linear_db, sc.all.gamma_db
                 );
             }
         }
         println!(
-            "fine-tuning: {} steps, {seconds_per_step:.2} s a step -> {}",
-            trainer.step(),
+            "fine-tuning: {} steps on {}, {:.2} s a step -> {}",
+            report.steps,
+            report.training_data,
+            report.seconds_per_step,
             output.display()
         );
     })

@@ -593,6 +593,13 @@ fn bench_decoder_scores_the_papers_decoders_on_the_real_captures() {
         assert!(paper > capture + 1.0, "{scene}: {paper} vs {capture} dB");
     }
     assert!(scores.iter().all(|s| s["all"]["linear_db"].as_f64().unwrap().is_finite()));
+    // The curve starts at the starting decoder's scores and ends at the fine-tuned one's.
+    let curve = report["curve"].as_array().unwrap();
+    assert_eq!(curve.iter().map(|p| p["step"].as_u64().unwrap()).collect::<Vec<_>>(), [0, 1]);
+    let start =
+        scores.iter().find(|s| s["decoder"].as_str().unwrap().starts_with("paper, simulated")).unwrap();
+    assert_eq!(curve[0]["scores"][0]["all"], start["all"]);
+    assert!(out.join("psnr_vs_steps.png").is_file());
     let tuned = DecoderWeights::read(&out.join("finetuned/decoder.safetensors")).unwrap();
     assert!(tuned.metadata.get("training_steps").is_some_and(|v| v == "1"), "{:?}", tuned.metadata);
     // A data folder without captures, or without scenes in them, is refused with its name.

@@ -30,8 +30,12 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array2, Array3, Zip};
 use serde::Serialize;
 
+use super::finetune::{
+    read_psf, FinetuneConfig, GeneratedScenes, HistoryEntry, ImageSet, SceneSource, Trainer,
+};
 use super::reconstruct::{reconstruct, ReconstructOptions};
 use super::unet::UNet;
+use super::weights::DecoderWeights;
 use crate::calibration::capture::{read_capture, read_exposures};
 use crate::calibration::evaluate::{psnr, Psnr};
 use crate::calibration::hdr_merge::{merge, MergeOptions};
@@ -40,6 +44,9 @@ use crate::error::{Error, Result};
 
 /// Saturation level of the 8-bit captures, fraction of full scale.
 pub const SATURATION: f64 = 0.98;
+
+/// Pixel pitch of the paper's sensor (Canon Rebel T5), metres: the measured PSF's sampling.
+pub const SENSOR_PITCH: f64 = 4.29e-6;
 
 /// A scene prepared for scoring: the capture through the DOE and the registered reference.
 #[derive(Debug, Clone)]
@@ -181,4 +188,144 @@ pub fn score_decoder(scene: &BenchScene, decoder: &str, net: &UNet) -> Result<Sc
     let x = scene.capture.mapv(|v| v as f32);
     let (y, _) = reconstruct(net, &x, &ReconstructOptions::default())?;
     score_image(scene, decoder, &y.mapv(f64::from))
+}
+
+/// Settings of [`run`].
+#[derive(Debug, Clone)]
+pub struct BenchConfig {
+    /// The paper's data release: `captures/<scene>/`, `measured_psf.npz`, the two decoders.
+    pub data: PathBuf,
+    /// The fine-tuning of the simulated-PSF decoder on the measured PSF.
+    pub finetune: FinetuneConfig,
+    /// Score the decoder being fine-tuned on the real scenes every this many steps.
+    pub evaluate_every: usize,
+    /// HDR images to fine-tune on (a folder of EXR / Radiance .hdr); `None`: procedural scenes.
+    pub train_data: Option<PathBuf>,
+    pub register: RegisterOptions,
+}
+
+/// The decoder being fine-tuned, scored on the real scenes at one step.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CurvePoint {
+    pub step: usize,
+    /// Training time up to this step (scoring excluded), seconds.
+    pub seconds: f64,
+    pub scores: Vec<Score>,
+}
+
+/// What `doefab bench decoder` reports.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BenchReport {
+    pub data: String,
+    pub units: &'static str,
+    pub saturation: f64,
+    pub scenes: Vec<SceneReport>,
+    /// The capture as it is, the starting decoder, the fine-tuned one and the paper's
+    /// measured-PSF decoder, per scene.
+    pub scores: Vec<Score>,
+    /// The fine-tuned decoder's scores along the run (step 0 = the starting decoder).
+    pub curve: Vec<CurvePoint>,
+    pub steps: usize,
+    pub seconds_per_step: f64,
+    pub training_data: String,
+    /// The training curve on simulated data (loss, validation PSNR).
+    pub history: Vec<HistoryEntry>,
+}
+
+/// Names of the decoders in the report.
+pub const START: &str = "paper, simulated PSF (start of the fine-tuning)";
+pub const TUNED: &str = "fine-tuned here";
+pub const PAPER: &str = "paper, measured PSF";
+pub const CAPTURE: &str = "capture as it is";
+
+/// Runs the benchmark: prepares every scene, fine-tunes the paper's simulated-PSF decoder on
+/// the measured PSF (scoring it on the scenes every `evaluate_every` steps) and scores the
+/// capture, the start, the result and the paper's measured-PSF decoder. Writes into `out`:
+/// `finetuned/` (the decoder and its training record), `report.json`, and
+/// `psnr_vs_steps.png` (PSNR-gamma on the real scenes along the run against the paper's
+/// decoder). `progress` is told what is happening and each unit of work done.
+pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -> Result<BenchReport> {
+    if cfg.evaluate_every == 0 {
+        return Err(Error::param("evaluate_every", "must be at least 1 step"));
+    }
+    let dirs = scene_dirs(&cfg.data.join("captures"))?;
+    let mut scenes = Vec::new();
+    for d in &dirs {
+        progress(&format!("merging and registering {}", d.display()), 0);
+        scenes.push(prepare_scene(d, &cfg.register)?);
+        progress("", 1);
+    }
+    let device = super::device(false)?;
+    let start_path = cfg.data.join("decoder_simulated_psf.safetensors");
+    let paper_path = cfg.data.join("decoder_measured_psf.safetensors");
+    let psf_path = cfg.data.join("measured_psf.npz");
+    let start = DecoderWeights::read(&start_path)?;
+    let psf = read_psf(&psf_path, Some("psf_val"), SENSOR_PITCH)?;
+    let source: Box<dyn SceneSource> = match &cfg.train_data {
+        Some(dir) => Box::new(ImageSet::load(dir)?),
+        None => Box::new(GeneratedScenes {
+            name: "procedural HDR scenes",
+            generate: super::scenes::procedural_scene,
+        }),
+    };
+    let desc = format!("{} (sha256 {})", start_path.display(), crate::io::file_sha256(&start_path)?);
+    let tuned_dir = out.join("finetuned");
+    let mut trainer = Trainer::new(
+        UNet::from_weights(&start, &device),
+        &psf,
+        &crate::io::file_sha256(&psf_path)?,
+        source.as_ref(),
+        cfg.finetune.clone(),
+        &desc,
+    )?;
+    let score_all = |name: &str, net: &UNet| -> Result<Vec<Score>> {
+        scenes.iter().map(|s| score_decoder(s, name, net)).collect()
+    };
+    let mut curve = Vec::new();
+    let mut seconds = 0.0;
+    let steps = cfg.finetune.steps;
+    while trainer.step() <= steps {
+        if trainer.step() % cfg.evaluate_every == 0 || trainer.step() == steps {
+            progress(&format!("scoring step {} on the real scenes", trainer.step()), 0);
+            let net = UNet::from_weights(&trainer.decoder()?, &device);
+            curve.push(CurvePoint { step: trainer.step(), seconds, scores: score_all(TUNED, &net)? });
+        }
+        if trainer.step() == steps {
+            break;
+        }
+        let clock = std::time::Instant::now();
+        let loss = trainer.train_step()?;
+        if trainer.step() % cfg.finetune.checkpoint_every == 0 || trainer.step() == steps {
+            trainer.evaluate()?;
+        }
+        seconds += clock.elapsed().as_secs_f64();
+        progress(&format!("fine-tuning: loss {loss:.5}"), 1);
+    }
+    trainer.write_outputs(&tuned_dir)?;
+    progress("scoring the paper's decoders", 0);
+    let paper = UNet::from_weights(&DecoderWeights::read(&paper_path)?, &device);
+    let mut scores = Vec::new();
+    for (k, s) in scenes.iter().enumerate() {
+        scores.push(score_image(s, CAPTURE, &s.capture)?);
+        let at = |step: usize| curve.iter().find(|p| p.step == step).map(|p| p.scores[k].clone());
+        scores.extend(at(0).map(|sc| Score { decoder: START.into(), ..sc }));
+        scores.extend(at(steps));
+        scores.push(score_decoder(s, PAPER, &paper)?);
+        progress("", 1);
+    }
+    let report = BenchReport {
+        data: cfg.data.display().to_string(),
+        units: "PSNR in dB; images in units of the capture's clipping level; seconds",
+        saturation: SATURATION,
+        scenes: scenes.iter().map(|s| s.report.clone()).collect(),
+        scores,
+        curve,
+        steps,
+        seconds_per_step: seconds / steps.max(1) as f64,
+        training_data: source.describe(),
+        history: trainer.history().to_vec(),
+    };
+    crate::io::atomic::write_json(&out.join("report.json"), &report)?;
+    crate::report::decoder_charts::write_bench_chart(&out.join("psnr_vs_steps.png"), &report)?;
+    Ok(report)
 }
