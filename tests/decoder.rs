@@ -600,6 +600,12 @@ fn bench_decoder_scores_the_papers_decoders_on_the_real_captures() {
         scores.iter().find(|s| s["decoder"].as_str().unwrap().starts_with("paper, simulated")).unwrap();
     assert_eq!(curve[0]["scores"][0]["all"], start["all"]);
     assert!(out.join("psnr_vs_steps.png").is_file());
+    for scene in ["Fruit", "Kitchen"] {
+        for picture in ["reference", "capture", "start", "finetuned", "paper_measured_psf"] {
+            let img = image::open(out.join(scene).join(format!("{picture}.png"))).unwrap();
+            assert_eq!((img.width(), img.height()), (640, 640), "{scene}/{picture}");
+        }
+    }
     let tuned = DecoderWeights::read(&out.join("finetuned/decoder.safetensors")).unwrap();
     assert!(tuned.metadata.get("training_steps").is_some_and(|v| v == "1"), "{:?}", tuned.metadata);
     // A data folder without captures, or without scenes in them, is refused with its name.

@@ -183,11 +183,41 @@ pub fn score_image(scene: &BenchScene, decoder: &str, image: &Array3<f64>) -> Re
     Ok(Score { scene: scene.name.clone(), decoder: decoder.into(), all, saturated })
 }
 
-/// Reconstructs the scene's capture with `net` and scores it.
-pub fn score_decoder(scene: &BenchScene, decoder: &str, net: &UNet) -> Result<Score> {
+/// Reconstructs the scene's capture with `net` and scores it; returns the reconstruction too.
+pub fn score_decoder(scene: &BenchScene, decoder: &str, net: &UNet) -> Result<(Score, Array3<f32>)> {
     let x = scene.capture.mapv(|v| v as f32);
     let (y, _) = reconstruct(net, &x, &ReconstructOptions::default())?;
-    score_image(scene, decoder, &y.mapv(f64::from))
+    Ok((score_image(scene, decoder, &y.mapv(f64::from))?, y))
+}
+
+/// Exposure of the pictures `run` writes, stops: highlights a few times the clipping level
+/// stay visible.
+pub const PICTURE_EV: f64 = -2.0;
+
+/// Writes `images` of `scene` as tone-mapped PNGs (sRGB of clip(y 2^[`PICTURE_EV`], 0, 1))
+/// into `dir`, each named by its key, with the registered reference (black where the
+/// registration does not cover) as `reference.png`.
+fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(&str, &Array3<f32>)]) -> Result<()> {
+    let mut reference = scene.reference.mapv(|v| v as f32);
+    Zip::from(reference.lanes_mut(ndarray::Axis(2))).and(&scene.mask).for_each(|mut px, &inside| {
+        if !inside {
+            px.fill(0.0);
+        }
+    });
+    let meta = crate::io::heightmap::Metadata {
+        pitch: None,
+        unit: None,
+        text: vec![
+            ("quantity".into(), "linear HDR radiance, 1 = sensor clipping level of the capture".into()),
+            ("scene".into(), scene.name.clone()),
+            ("tone_map".into(), format!("sRGB of clip(y * 2^{PICTURE_EV}, 0, 1)")),
+        ],
+    };
+    for (name, image) in std::iter::once(("reference", &reference)).chain(images.iter().copied()) {
+        let path = dir.join(format!("{name}.png"));
+        crate::io::png::write_png_image_u8(&path, &crate::report::tone::tone_map(image, PICTURE_EV), &meta)?;
+    }
+    Ok(())
 }
 
 /// Settings of [`run`].
@@ -241,9 +271,10 @@ pub const CAPTURE: &str = "capture as it is";
 /// Runs the benchmark: prepares every scene, fine-tunes the paper's simulated-PSF decoder on
 /// the measured PSF (scoring it on the scenes every `evaluate_every` steps) and scores the
 /// capture, the start, the result and the paper's measured-PSF decoder. Writes into `out`:
-/// `finetuned/` (the decoder and its training record), `report.json`, and
+/// `finetuned/` (the decoder and its training record), `report.json`,
 /// `psnr_vs_steps.png` (PSNR-gamma on the real scenes along the run against the paper's
-/// decoder). `progress` is told what is happening and each unit of work done.
+/// decoder) and per scene `<scene>/*.png`, the registered reference, the capture and the
+/// three reconstructions tone-mapped at [`PICTURE_EV`]. `progress` is told what is happening and each unit of work done.
 pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -> Result<BenchReport> {
     if cfg.evaluate_every == 0 {
         return Err(Error::param("evaluate_every", "must be at least 1 step"));
@@ -278,17 +309,24 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
         cfg.finetune.clone(),
         &desc,
     )?;
-    let score_all = |name: &str, net: &UNet| -> Result<Vec<Score>> {
+    let score_all = |name: &str, net: &UNet| -> Result<Vec<(Score, Array3<f32>)>> {
         scenes.iter().map(|s| score_decoder(s, name, net)).collect()
     };
     let mut curve = Vec::new();
+    let (mut first, mut last) = (Vec::new(), Vec::new());
     let mut seconds = 0.0;
     let steps = cfg.finetune.steps;
     while trainer.step() <= steps {
         if trainer.step() % cfg.evaluate_every == 0 || trainer.step() == steps {
             progress(&format!("scoring step {} on the real scenes", trainer.step()), 0);
             let net = UNet::from_weights(&trainer.decoder()?, &device);
-            curve.push(CurvePoint { step: trainer.step(), seconds, scores: score_all(TUNED, &net)? });
+            let (scores, images): (Vec<Score>, Vec<Array3<f32>>) =
+                score_all(TUNED, &net)?.into_iter().unzip();
+            curve.push(CurvePoint { step: trainer.step(), seconds, scores });
+            if trainer.step() == 0 {
+                first = images.clone();
+            }
+            last = images;
         }
         if trainer.step() == steps {
             break;
@@ -310,7 +348,16 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
         let at = |step: usize| curve.iter().find(|p| p.step == step).map(|p| p.scores[k].clone());
         scores.extend(at(0).map(|sc| Score { decoder: START.into(), ..sc }));
         scores.extend(at(steps));
-        scores.push(score_decoder(s, PAPER, &paper)?);
+        let (score, paper_image) = score_decoder(s, PAPER, &paper)?;
+        scores.push(score);
+        let capture = s.capture.mapv(|v| v as f32);
+        let pictures = [
+            ("capture", &capture),
+            ("start", &first[k]),
+            ("finetuned", &last[k]),
+            ("paper_measured_psf", &paper_image),
+        ];
+        write_pictures(&out.join(&s.name), s, &pictures)?;
         progress("", 1);
     }
     let report = BenchReport {
