@@ -91,8 +91,10 @@ pub struct Folders {
 pub struct CalibrationStage {
     pub bracket: PathBuf,
     pub psf: PathBuf,
-    /// Per channel, [`Psf::relative_l2`] of the calibrated PSF against the simulated PSF's
-    /// window of the same size around its peak ([`window_at_peak`]).
+    /// Per channel, `||c - s|| / ||s||` ([`Psf::relative_l2`]) of the calibrated PSF `c`
+    /// against the simulated PSF's window of the same size around its peak, `s`
+    /// ([`window_at_peak`]), each summing to 1. Not [`crate::optics::compare::compare`]: that
+    /// one crops to the centred common window and aligns the centroids first.
     pub relative_l2_to_simulated: Vec<f64>,
     pub report: PsfCalibration,
 }
