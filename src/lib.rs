@@ -18,6 +18,7 @@
 //!   (`calibrate-psf`); PSNR of reconstructions against references, affine registration.
 //! * [`decoder`]: the paper's U-Net decoder: weights, measurement model, reconstruction of
 //!   captures, fine-tuning for a fabricated part's PSF.
+//! * [`demo`]: every stage on the built-in design (`doefab demo`), no input needed.
 //! * [`report`]: charts and false-colour maps (plotters, embedded font), tone mapping.
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
@@ -25,6 +26,7 @@
 
 pub mod calibration;
 pub mod decoder;
+pub mod demo;
 pub mod design;
 pub mod error;
 pub mod fabrication;

@@ -1083,7 +1083,7 @@ fn run(cli: &Cli) -> Result<()> {
                 (Some(r), _) => {
                     let r = Recipe::read(r)?;
                     let n = levels.unwrap_or(r.level_count);
-                    Some(chain_params_of_recipe(&r, n))
+                    Some(ChainParams { level_count: n, ..ChainParams::of_recipe(&r, false) })
                 }
                 (None, Some(n)) => {
                     Some(chain_params(optics, *n, QuantizeMethod::Round, ReplicaMode::Design, 1e-6, false))
@@ -1096,10 +1096,7 @@ fn run(cli: &Cli) -> Result<()> {
                 (m, doefab::optics::Options { allow_invalid: *allow_invalid, ..Default::default() })
             });
             let report = compare(cli, scan, &scan_opts, &source, chain.as_ref(), *aperture, psf, output)?;
-            warn(&report.comparison.warnings);
-            if let Some(p) = &report.psf {
-                warn(&p.warnings);
-            }
+            warn_comparison(&report);
             print_result(cli, &report, || print_comparison(&report, output))
         }
         Command::ScanInfo { file, pitch, z_unit, z_scale, level, aperture } => {
@@ -1334,19 +1331,6 @@ fn chain_params(
     }
 }
 
-fn chain_params_of_recipe(r: &Recipe, level_count: usize) -> ChainParams {
-    ChainParams {
-        wavelength: r.wavelength,
-        material: r.material.clone(),
-        order: r.order,
-        level_count,
-        quantization: r.quantization,
-        replica_mode: ReplicaMode::Design,
-        min_feature: r.min_feature,
-        fill: false,
-    }
-}
-
 #[allow(clippy::too_many_arguments)]
 fn compare(
     cli: &Cli,
@@ -1358,23 +1342,13 @@ fn compare(
     psf: Option<(doefab::optics::Method, doefab::optics::Options)>,
     output: &Path,
 ) -> Result<doefab::metrology::compare::CompareReport> {
-    use doefab::metrology::compare::{compare_and_write, reference_surface, CompareOptions};
     let pb = progress(cli, 4);
-    pb.set_message("read");
-    let scan = doefab::io::scan::read_scan(scan_path, scan_opts)?;
-    warn(&scan.warnings);
-    let design = chain::load_design(source)?;
-    let (reference, levels, optics) = reference_surface(&design, chain)?;
-    let aperture = aperture
-        .or(matches!(source, DesignSource::BuiltIn(n) if n == "paper")
-            .then_some(doefab::design::PAPER_APERTURE));
-    let opts = CompareOptions { aperture, levels, optics, ..Default::default() };
-    let report = compare_and_write(
+    let report = doefab::metrology::compare::compare_scan_file(
         scan_path,
-        &scan,
-        &design,
-        &reference,
-        &opts,
+        scan_opts,
+        source,
+        chain,
+        aperture,
         psf.as_ref().map(|(m, o)| (*m, o)),
         output,
         &mut |s: &str| {
@@ -1384,6 +1358,15 @@ fn compare(
     )?;
     pb.finish_and_clear();
     Ok(report)
+}
+
+/// Prints the warnings of a scan comparison: the scan reader's, the comparison's, the PSFs'.
+fn warn_comparison(r: &doefab::metrology::compare::CompareReport) {
+    warn(&r.scan_warnings);
+    warn(&r.comparison.warnings);
+    if let Some(p) = &r.psf {
+        warn(&p.warnings);
+    }
 }
 
 fn print_comparison(r: &doefab::metrology::compare::CompareReport, output: &Path) {
@@ -1487,111 +1470,45 @@ fn fab(
 }
 
 fn demo(cli: &Cli, output: &Path) -> Result<()> {
-    let masks = Path::new(env!("CARGO_MANIFEST_DIR")).join("masks");
-    let names = ["laser-writer-grayscale", "binary-3mask-8level", "two-photon-stl"];
-    let source = DesignSource::BuiltIn("paper".into());
-    let mut reports = Vec::new();
-    for name in names {
-        let path = masks.join(format!("{name}.toml"));
-        if !path.exists() {
-            bail!("the bundled recipe {} is missing", path.display());
-        }
-        let recipe = Recipe::read(&path)?;
-        let out = output.join(name);
-        let pb = progress(cli, chain::step_count(&recipe) as u64);
-        let report = chain::run_recipe(&source, &recipe, &out, &FabOptions::default(), &mut |step: &str| {
-            pb.set_message(format!("{name}: {step}"));
-            pb.inc(1);
-        })?;
-        pb.finish_and_clear();
-        warn(&report.warnings);
-        if !cli.quiet && !cli.json {
-            println!("{name}: {}", out.join("report.md").display());
-            for a in &report.artifacts {
-                println!("  {:<16} {}", a.kind, a.path.display());
-            }
-        }
-        reports.push(report);
-    }
-    // The optics stage: the built-in design's RGB PSF as the plan chooses it.
-    use doefab::optics::{output as psf_out, plan};
-    let loaded = chain::load_design(&source)?;
-    let system = psf_out::system_for(&loaded.heights);
-    let psf_dir = output.join("psf");
-    let plan = plan::plan(&system, &loaded.heights, &[], plan::DEFAULT_TOLERANCE)?;
-    let pb = progress(cli, 1);
-    pb.set_message(format!("PSF of the built-in design by {}", plan.method));
-    let psf = psf_out::plan_and_write(&loaded.heights, &plan, &[], &psf_dir)?;
+    let pb = progress(cli, 0);
+    let report = doefab::demo::run(output, &mut |message: &str, done, total| {
+        pb.set_length(total);
+        pb.set_position(done);
+        pb.set_message(message.to_string());
+    })?;
     pb.finish_and_clear();
-    warn(&psf.warnings);
-    // The metrology stage: a synthetic scan of the part the 8-level recipe makes (cast:
-    // mirrored, complemented, 5% too shallow, blurred, tilted, noisy, 10% missing), compared
-    // with the design.
-    use doefab::metrology::simulate::{simulate_scan, write_scan, SimulateParams};
-    let metro = output.join("metrology");
-    let recipe = Recipe::read(&masks.join("binary-3mask-8level.toml"))?;
-    let params = chain_params_of_recipe(&recipe, recipe.level_count);
-    let (part, _, _) = doefab::metrology::compare::reference_surface(&loaded, Some(&params))?;
-    let sp = SimulateParams {
-        blur: 2e-6,
-        depth_scale: 0.95,
-        offset: 0.1e-6,
-        tilt: [1e-4, -5e-5],
-        pose: doefab::metrology::register::Pose {
-            mirror: true,
-            rotation: 0.3f64.to_radians(),
-            scale: 1.0,
-            shift: [3.2e-6, -1.7e-6],
-        },
-        complement: true,
-        noise: 20e-9,
-        missing: 0.1,
-        seed: 1,
-        ..Default::default()
-    };
-    let scan_path = metro.join("scan.x3p");
-    std::fs::create_dir_all(&metro).with_context(|| format!("creating {}", metro.display()))?;
-    write_scan(&scan_path, &simulate_scan(&part, &sp)?)?;
-    let cmp_dir = metro.join("compare");
-    let cmp = compare(
-        cli,
-        &scan_path,
-        &doefab::io::scan::ScanOptions::default(),
-        &source,
-        Some(&params),
-        None,
-        Some((
-            doefab::optics::Method::MatrixDft,
-            doefab::optics::Options { allow_invalid: true, ..Default::default() },
-        )),
-        &cmp_dir,
-    )?;
-    warn(&cmp.comparison.warnings);
-    if let Some(p) = &cmp.psf {
-        warn(&p.warnings);
+    for r in &report.fabrication {
+        warn(&r.warnings);
     }
-    if !cli.quiet && !cli.json {
-        println!("simulated scan: {}", scan_path.display());
-        print_comparison(&cmp, &cmp_dir);
-    }
-    let calibration = demo_calibration(cli, &psf_dir, &output.join("calibration"))?;
-    let decoder = demo_decoder(cli, &output.join("calibration/psf/psf.npy"), &output.join("decoder"))?;
-    if cli.json {
-        let all = serde_json::json!({
-            "fabrication": reports,
-            "psf": psf,
-            "metrology": cmp,
-            "calibration": calibration,
-            "decoder": decoder
-        });
-        println!("{}", serde_json::to_string_pretty(&all)?);
-    } else if !cli.quiet {
-        println!("psf: {}", psf_dir.display());
-        for f in &psf.files {
-            println!("  {}", psf_dir.join(f).display());
+    warn(&report.psf.warnings);
+    warn_comparison(&report.metrology);
+    warn(&report.calibration.report.warnings);
+    warn(&report.warnings);
+    // Through a JSON value, whose maps sort their keys: one order at every depth.
+    print_result(cli, &serde_json::to_value(&report)?, || print_demo(&report))
+}
+
+fn print_demo(r: &doefab::demo::DemoReport) {
+    let dirs = &r.folders;
+    for ((name, out), fab) in dirs.fabrication.iter().zip(&r.fabrication) {
+        println!("{name}: {}", out.join("report.md").display());
+        for a in &fab.artifacts {
+            println!("  {:<16} {}", a.kind, a.path.display());
         }
     }
-    Ok(())
+    println!("simulated scan: {}", dirs.scan.display());
+    print_comparison(&r.metrology, &dirs.compare);
+    let c = &r.calibration;
+    println!("calibration: {} (bracket in {})", c.psf.display(), c.bracket.display());
+    println!("  calibrated vs simulated PSF, relative L2 per channel: {:.4?}", c.relative_l2_to_simulated);
+    if let Some(d) = &r.decoder {
+        println!("decoder: {} (fine-tuned {} steps)", d.decoder.display(), d.steps());
+        println!("  reconstruction of {}: {}", d.reconstruction.capture, d.reconstruction.exr);
+    }
+    println!("psf: {}", dirs.psf.display());
+    for f in &r.psf.files {
+        println!("  {}", dirs.psf.join(f).display());
+    }
 }
 
 fn finetune(cli: &Cli) -> Result<()> {
@@ -1762,133 +1679,4 @@ fn bench_decoder(cli: &Cli) -> Result<()> {
             output.display()
         );
     })
-}
-
-/// The calibration stage of the demo: a synthetic pinhole bracket of the simulated PSF
-/// (written as 8-bit PNGs with exposures.json and a dark frame), calibrated back with
-/// calibrate-psf; reports the relative L2 between the calibrated and the simulated PSF.
-fn demo_calibration(cli: &Cli, psf_dir: &Path, out: &Path) -> Result<serde_json::Value> {
-    use doefab::calibration::{capture, hdr_merge, psf_extract as pe};
-    let simulated = pe::read_psf_npy(&psf_dir.join("psf.npy"), 4.29e-6)?;
-    let pb = progress(cli, 3);
-    pb.set_message("synthetic pinhole bracket of the simulated PSF");
-    let (frames, times, dark) = pe::simulate_pinhole_bracket(&simulated, 60, 12, 0.002, 0.03, 1);
-    let bracket = out.join("bracket");
-    let mut list = Vec::new();
-    for (k, (f, t)) in frames.iter().zip(&times).enumerate() {
-        let name = format!("pinhole_{k:02}.png");
-        capture::write_capture(&bracket.join(&name), f, 8)?;
-        list.push(serde_json::json!({ "file": name, "exposure_s": t }));
-    }
-    capture::write_capture(&bracket.join("dark.png"), &dark, 8)?;
-    doefab::io::atomic::write_json(&bracket.join("exposures.json"), &serde_json::json!({ "frames": list }))?;
-    pb.inc(1);
-    pb.set_message("calibrate-psf");
-    let read = capture::read_exposures(&bracket.join("exposures.json"), false)?;
-    let captures =
-        read.frames.iter().map(|(p, _)| capture::read_capture(p)).collect::<doefab::Result<Vec<_>>>()?;
-    let dark = hdr_merge::mean_dark(&[capture::read_capture(&bracket.join("dark.png"))?])?;
-    let merge_opts = hdr_merge::MergeOptions { estimate_times: false, ..Default::default() };
-    let merged = hdr_merge::merge(&captures, &times, Some(&dark), None, &merge_opts)?;
-    let opts = pe::PsfOptions { crop: 319, centre: pe::Centre::Peak, ..Default::default() };
-    let (psf, mut report) = pe::calibrate_psf(&merged, &opts)?;
-    let psf_out = out.join("psf");
-    pe::write_calibration(&psf, &merged, &mut report, &psf_out)?;
-    pb.inc(2);
-    pb.finish_and_clear();
-    warn(&report.warnings);
-    // The simulated PSF's 319 x 319 window around its channel-sum peak, as calibrated.
-    let sim = simulated.to_array4();
-    let (h, w, _, nc) = sim.dim();
-    let sum =
-        ndarray::Array2::from_shape_fn((h, w), |(i, j)| (0..nc).map(|c| sim[[i, j, 0, c]]).sum::<f32>());
-    let (pi, pj) = sum.indexed_iter().fold((0, 0), |b, (p, v)| if *v > sum[b] { p } else { b });
-    if pi < 159 || pj < 159 || pi + 160 > h || pj + 160 > w {
-        bail!("the simulated PSF's peak at ({pi}, {pj}) is too close to its border for the comparison");
-    }
-    let window = sim.slice(ndarray::s![pi - 159..pi + 160, pj - 159..pj + 160, 0, ..]);
-    let got = psf.to_array4();
-    let l2: Vec<f64> = (0..nc)
-        .map(|c| {
-            let want = window.index_axis(ndarray::Axis(2), c);
-            let s: f64 = want.iter().map(|&v| v as f64).sum();
-            let (mut num, mut den) = (0.0, 0.0);
-            for ((i, j), &v) in want.indexed_iter() {
-                let t = v as f64 / s;
-                num += (got[[i, j, 0, c]] as f64 - t).powi(2);
-                den += t * t;
-            }
-            (num / den).sqrt()
-        })
-        .collect();
-    if !cli.quiet && !cli.json {
-        println!("calibration: {} (bracket in {})", psf_out.display(), bracket.display());
-        println!("  calibrated vs simulated PSF, relative L2 per channel: {l2:.4?}");
-    }
-    Ok(
-        serde_json::json!({ "bracket": bracket, "psf": psf_out, "relative_l2_to_simulated": l2, "report": report }),
-    )
-}
-
-/// The decoder stage of the demo: two fine-tuning steps of the paper's simulated-PSF decoder
-/// with the calibrated PSF on procedural scenes, then the reconstruction of a capture of a
-/// procedural scene simulated through that PSF. Skipped, with a warning, where the paper's
-/// weights (the shared data set) are not beside the checkout.
-fn demo_decoder(cli: &Cli, psf_path: &Path, out: &Path) -> Result<serde_json::Value> {
-    use doefab::decoder::{finetune as ft, reconstruct as rc, scenes, simulate};
-    let init = match doefab::decoder::default_init() {
-        Ok(p) => p,
-        Err(e) => {
-            eprintln!("warning: decoder stage skipped: {e}");
-            return Ok(serde_json::Value::Null);
-        }
-    };
-    let psf = ft::read_psf(psf_path, None, 4.29e-6)?;
-    let psf_sha = doefab::io::file_sha256(psf_path)?;
-    let source = ft::GeneratedScenes { name: "procedural HDR scenes", generate: scenes::procedural_scene };
-    let cfg = ft::FinetuneConfig {
-        steps: 2,
-        batch: 1,
-        crop: 64,
-        validation: 1,
-        checkpoint_every: 2,
-        ..Default::default()
-    };
-    let device = doefab::decoder::device(false)?;
-    let net = doefab::decoder::unet::UNet::from_weights(
-        &doefab::decoder::weights::DecoderWeights::read(&init)?,
-        &device,
-    );
-    let desc = format!("{} (sha256 {})", init.display(), doefab::io::file_sha256(&init)?);
-    let mut trainer = ft::Trainer::new(net, &psf, &psf_sha, &source, cfg, &desc)?;
-    let pb = progress(cli, 3);
-    pb.set_message("fine-tuning the decoder on the calibrated PSF (2 steps)");
-    let ft_dir = out.join("finetune");
-    trainer.run(&ft_dir, &mut |r| pb.set_position(r.step as u64))?;
-    trainer.write_outputs(&ft_dir)?;
-    pb.set_message("reconstructing a simulated capture");
-    let (kh, kw) = psf.dim();
-    let size = 256;
-    let conv = simulate::Convolver::new(&psf, (size + kh - 1, size + kw - 1))?;
-    let scene = scenes::procedural_scene(7, size + kh - 1, size + kw - 1);
-    let m =
-        simulate::measure(&scene, &conv, &simulate::MeasurementModel::default(), &mut doefab::rng::Lcg(7))?;
-    let capture = out.join("capture.png");
-    doefab::calibration::capture::write_capture(&capture, &m.capture.mapv(f64::from), 8)?;
-    let decoder = ft_dir.join(ft::DECODER);
-    let rec = rc::reconstruct_file(
-        &capture,
-        &decoder,
-        &out.join("reconstruction.exr"),
-        &out.join("reconstruction.png"),
-        0.0,
-        &rc::ReconstructOptions::default(),
-        &device,
-    )?;
-    pb.finish_and_clear();
-    if !cli.quiet && !cli.json {
-        println!("decoder: {} (fine-tuned {} steps)", decoder.display(), trainer.step());
-        println!("  reconstruction of {}: {}", capture.display(), rec.exr);
-    }
-    Ok(serde_json::json!({ "decoder": decoder, "history": trainer.history(), "reconstruction": rec }))
 }

@@ -110,6 +110,20 @@ pub struct ChainParams {
 }
 
 impl ChainParams {
+    /// The parameters `recipe` fixes; `fill` as `doefab fab --fill` sets it.
+    pub fn of_recipe(recipe: &Recipe, fill: bool) -> ChainParams {
+        ChainParams {
+            wavelength: recipe.wavelength,
+            material: recipe.material.clone(),
+            order: recipe.order,
+            level_count: recipe.level_count,
+            quantization: recipe.quantization,
+            replica_mode: recipe.replica_mode,
+            min_feature: recipe.min_feature,
+            fill,
+        }
+    }
+
     pub fn wrap_spec(&self) -> Result<WrapSpec> {
         Ok(WrapSpec {
             wavelength: self.wavelength,
@@ -550,16 +564,7 @@ pub fn run_recipe(
 ) -> Result<FabReport> {
     let design = load_design(source)?;
     progress("design loaded");
-    let params = ChainParams {
-        wavelength: recipe.wavelength,
-        material: recipe.material.clone(),
-        order: recipe.order,
-        level_count: recipe.level_count,
-        quantization: recipe.quantization,
-        replica_mode: recipe.replica_mode,
-        min_feature: recipe.min_feature,
-        fill: opts.fill,
-    };
+    let params = ChainParams::of_recipe(recipe, opts.fill);
     let prep = prepare(&design, &params)?;
     let mut warnings = prep.warnings.clone();
     progress("wrapped and quantized");

@@ -841,6 +841,34 @@ pub fn compare_and_write(
     Ok(report)
 }
 
+/// `doefab compare` from files: reads the scan at `scan_path`, loads the design, makes its
+/// reference surface ([`reference_surface`] with `chain`, the design itself without) and runs
+/// [`compare_and_write`] into `out`. The clear aperture is `aperture` (metres), else the
+/// paper's 5 mm for `built-in:paper`, else the largest circle the design grid holds. The scan
+/// reader's warnings are in the report's `scan_warnings`. `step` is called before each stage
+/// (four with a PSF comparison, three without).
+#[allow(clippy::too_many_arguments)]
+pub fn compare_scan_file(
+    scan_path: &std::path::Path,
+    scan_opts: &crate::io::scan::ScanOptions,
+    source: &crate::fabrication::chain::DesignSource,
+    chain: Option<&crate::fabrication::chain::ChainParams>,
+    aperture: Option<f64>,
+    psf: Option<(crate::optics::Method, &crate::optics::Options)>,
+    out: &std::path::Path,
+    step: &mut dyn FnMut(&str),
+) -> Result<CompareReport> {
+    use crate::fabrication::chain::{load_design, DesignSource};
+    step("read");
+    let scan = crate::io::scan::read_scan(scan_path, scan_opts)?;
+    let design = load_design(source)?;
+    let (reference, levels, optics) = reference_surface(&design, chain)?;
+    let paper = matches!(source, DesignSource::BuiltIn(n) if n == "paper");
+    let aperture = aperture.or(paper.then_some(crate::design::PAPER_APERTURE));
+    let opts = CompareOptions { aperture, levels, optics, ..Default::default() };
+    compare_and_write(scan_path, &scan, &design, &reference, &opts, psf, out, step)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,0 +1,439 @@
+//! `doefab demo`: every stage on the built-in example design, no input needed.
+//!
+//! Below the output folder:
+//!
+//! 1. *Fabrication*: the three bundled recipes of `masks/` ([`RECIPES`]), each into a folder of
+//!    its name ([`crate::fabrication::chain::run_recipe`]).
+//! 2. *Optics*: `psf/`, the design's RGB PSF as the automatic plan chooses it
+//!    ([`crate::optics::plan`]).
+//! 3. *Metrology*: `metrology/scan.x3p`, a synthetic scan of the part the 8-level recipe makes
+//!    (a cast: mirrored, complemented, 5 % too shallow, blurred by 2 um, tilted, noisy, 10 %
+//!    missing), compared with the design into `metrology/compare/`
+//!    ([`crate::metrology::compare::compare_scan_file`]).
+//! 4. *Calibration*: `calibration/bracket/`, a synthetic 8-bit pinhole bracket of the simulated
+//!    PSF, calibrated back into `calibration/psf/` as `calibrate-psf --crop 319 --centre peak`
+//!    does; reports the relative L2 of the result against the simulated PSF ([`window_at_peak`]).
+//! 5. *Decoder*: `decoder/`, two fine-tuning steps of the paper's simulated-PSF decoder with the
+//!    calibrated PSF on procedural scenes, and the reconstruction of a capture of a procedural
+//!    scene simulated through that PSF. Skipped, with a warning, where the paper's weights
+//!    ([`crate::decoder::default_init`]) are not found.
+//!
+//! Every stage is seeded: the same build writes the same bytes.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::calibration::psf_extract::{self as pe, PsfCalibration};
+use crate::decoder::finetune::HistoryEntry;
+use crate::decoder::reconstruct::ReconstructFileReport;
+use crate::error::{Error, Result};
+use crate::fabrication::chain::{self, ChainParams, DesignSource, FabOptions, FabReport, LoadedDesign};
+use crate::fabrication::recipe::Recipe;
+use crate::metrology::compare::CompareReport;
+use crate::optics::output::PsfReport;
+use crate::optics::psf::Psf;
+
+/// The bundled recipes (`masks/NAME.toml`) the demo runs, in order.
+pub const RECIPES: [&str; 3] = ["laser-writer-grayscale", "binary-3mask-8level", "two-photon-stl"];
+
+/// The recipe whose part the metrology stage scans.
+const SCANNED_RECIPE: &str = "binary-3mask-8level";
+
+/// Sensor pixel pitch of the simulated and calibrated PSFs, metres (the paper's 4.29 um).
+const SENSOR_PITCH: f64 = 4.29e-6;
+
+/// Side of the calibrated PSF, pixels (the paper's measured PSF is 319 x 319).
+const CALIBRATED_CROP: usize = 319;
+
+/// Fine-tuning steps of the decoder stage.
+const FINETUNE_STEPS: usize = 2;
+
+/// Progress steps of the stages after fabrication: the PSF; the scan and the four steps of
+/// the comparison; the bracket and its calibration; the fine-tuning steps and the
+/// reconstruction.
+const PSF_STEPS: u64 = 1;
+const METROLOGY_STEPS: u64 = 5;
+const CALIBRATION_STEPS: u64 = 2;
+const DECODER_STEPS: u64 = FINETUNE_STEPS as u64 + 1;
+
+/// What the demo did, stage by stage (the `--json` output of `doefab demo`).
+#[derive(Debug, Clone, Serialize)]
+pub struct DemoReport {
+    /// One report per recipe of [`RECIPES`], in order.
+    pub fabrication: Vec<FabReport>,
+    pub psf: PsfReport,
+    pub metrology: CompareReport,
+    pub calibration: CalibrationStage,
+    /// `None` where the stage was skipped (see `warnings`).
+    pub decoder: Option<DecoderStage>,
+    /// The demo's own warnings (a skipped stage); each stage's report carries its own.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
+    /// Where each stage wrote.
+    #[serde(skip)]
+    pub folders: Folders,
+}
+
+/// The folders and files the stages wrote, for a summary.
+#[derive(Debug, Clone, Default)]
+pub struct Folders {
+    /// Each recipe's name and output folder, in the order of [`RECIPES`].
+    pub fabrication: Vec<(String, PathBuf)>,
+    pub psf: PathBuf,
+    pub scan: PathBuf,
+    pub compare: PathBuf,
+}
+
+/// The calibration stage: where the bracket and the calibrated PSF are, and how close the
+/// calibrated PSF is to the simulated one.
+#[derive(Debug, Clone, Serialize)]
+pub struct CalibrationStage {
+    pub bracket: PathBuf,
+    pub psf: PathBuf,
+    /// Per channel, `||c - s|| / ||s||` ([`Psf::relative_l2`]) of the calibrated PSF `c`
+    /// against the simulated PSF's window of the same size around its peak, `s`
+    /// ([`window_at_peak`]), each summing to 1. Not [`crate::optics::compare::compare`]: that
+    /// one crops to the centred common window and aligns the centroids first.
+    pub relative_l2_to_simulated: Vec<f64>,
+    pub report: PsfCalibration,
+}
+
+/// The decoder stage: the fine-tuned decoder, its training curve and the reconstruction.
+#[derive(Debug, Clone, Serialize)]
+pub struct DecoderStage {
+    pub decoder: PathBuf,
+    pub history: Vec<HistoryEntry>,
+    pub reconstruction: ReconstructFileReport,
+}
+
+impl DecoderStage {
+    /// Fine-tuning steps taken.
+    pub fn steps(&self) -> usize {
+        self.history.last().map_or(0, |h| h.step)
+    }
+}
+
+/// Counts finished steps towards the total and passes them on.
+struct Progress<'a> {
+    done: u64,
+    total: u64,
+    report: &'a mut dyn FnMut(&str, u64, u64),
+}
+
+impl Progress<'_> {
+    /// Reports `message` (what runs now) at the current count.
+    fn show(&mut self, message: &str) {
+        (self.report)(message, self.done, self.total);
+    }
+
+    /// Counts one more step done and reports `message`.
+    fn step(&mut self, message: &str) {
+        self.done = (self.done + 1).min(self.total);
+        self.show(message);
+    }
+}
+
+/// Runs every stage into `output` (see the module docs). `progress(message, done, total)` is
+/// called as the work goes on, `done` counting finished steps of `total`.
+pub fn run(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<DemoReport> {
+    let masks = Path::new(env!("CARGO_MANIFEST_DIR")).join("masks");
+    let recipes = RECIPES
+        .iter()
+        .map(|name| {
+            let path = masks.join(format!("{name}.toml"));
+            if !path.exists() {
+                return Err(Error::Data(format!("the bundled recipe {} is missing", path.display())));
+            }
+            Ok((name.to_string(), Recipe::read(&path)?))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let fab_steps: u64 = recipes.iter().map(|(_, r)| chain::step_count(r) as u64).sum();
+    let total = fab_steps + PSF_STEPS + METROLOGY_STEPS + CALIBRATION_STEPS + DECODER_STEPS;
+    let mut p = Progress { done: 0, total, report: progress };
+    let source = DesignSource::BuiltIn("paper".into());
+    let mut warnings = Vec::new();
+    let mut folders = Folders::default();
+
+    let mut fabrication = Vec::new();
+    for (name, recipe) in &recipes {
+        let out = output.join(name);
+        let report = chain::run_recipe(&source, recipe, &out, &FabOptions::default(), &mut |step: &str| {
+            p.step(&format!("{name}: {step}"))
+        })?;
+        fabrication.push(report);
+        folders.fabrication.push((name.clone(), out));
+    }
+
+    let design = chain::load_design(&source)?;
+    folders.psf = output.join("psf");
+    let psf = design_psf(&design, &folders.psf, &mut p)?;
+
+    let scanned = recipes.iter().find(|(n, _)| n == SCANNED_RECIPE).map(|(_, r)| r);
+    let scanned = scanned.ok_or_else(|| Error::Data(format!("the demo has no recipe {SCANNED_RECIPE}")))?;
+    let metro = output.join("metrology");
+    folders.scan = metro.join("scan.x3p");
+    folders.compare = metro.join("compare");
+    let params = ChainParams::of_recipe(scanned, false);
+    let metrology = scan_and_compare(&design, &source, &params, &folders.scan, &folders.compare, &mut p)?;
+
+    let calibration = calibrate(&folders.psf, &output.join("calibration"), &mut p)?;
+
+    let decoder = match crate::decoder::default_init() {
+        Ok(init) => {
+            Some(fine_tune(&init, &calibration.psf.join("psf.npy"), &output.join("decoder"), &mut p)?)
+        }
+        Err(e) => {
+            warnings.push(format!("decoder stage skipped: {e}"));
+            None
+        }
+    };
+    Ok(DemoReport { fabrication, psf, metrology, calibration, decoder, warnings, folders })
+}
+
+/// The optics stage: the design's RGB PSF as the plan chooses it, into `out`.
+fn design_psf(design: &LoadedDesign, out: &Path, p: &mut Progress) -> Result<PsfReport> {
+    use crate::optics::{output as psf_out, plan};
+    let system = psf_out::system_for(&design.heights);
+    let plan = plan::plan(&system, &design.heights, &[], plan::DEFAULT_TOLERANCE)?;
+    p.show(&format!("PSF of the built-in design by {}", plan.method));
+    let psf = psf_out::plan_and_write(&design.heights, &plan, &[], out)?;
+    p.step("PSF written");
+    Ok(psf)
+}
+
+/// The metrology stage: a synthetic scan of the part `params` makes of `design` (see the
+/// module docs) written to `scan`, then compared with the design into `out`, with the design
+/// and as-fabricated PSFs by the matrix DFT (run past its validity guard, with warnings).
+fn scan_and_compare(
+    design: &LoadedDesign,
+    source: &DesignSource,
+    params: &ChainParams,
+    scan: &Path,
+    out: &Path,
+    p: &mut Progress,
+) -> Result<CompareReport> {
+    use crate::metrology::simulate::{simulate_scan, write_scan, SimulateParams};
+    p.show("simulated scan of the 8-level part");
+    let (part, _, _) = crate::metrology::compare::reference_surface(design, Some(params))?;
+    let sp = SimulateParams {
+        blur: 2e-6,
+        depth_scale: 0.95,
+        offset: 0.1e-6,
+        tilt: [1e-4, -5e-5],
+        pose: crate::metrology::register::Pose {
+            mirror: true,
+            rotation: 0.3f64.to_radians(),
+            scale: 1.0,
+            shift: [3.2e-6, -1.7e-6],
+        },
+        complement: true,
+        noise: 20e-9,
+        missing: 0.1,
+        seed: 1,
+        ..Default::default()
+    };
+    if let Some(dir) = scan.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
+    write_scan(scan, &simulate_scan(&part, &sp)?)?;
+    p.step("scan written");
+    let psf_opts = crate::optics::Options { allow_invalid: true, ..Default::default() };
+    let report = crate::metrology::compare::compare_scan_file(
+        scan,
+        &crate::io::scan::ScanOptions::default(),
+        source,
+        Some(params),
+        None,
+        Some((crate::optics::Method::MatrixDft, &psf_opts)),
+        out,
+        &mut |s: &str| p.step(s),
+    )?;
+    Ok(report)
+}
+
+/// The calibration stage: a synthetic pinhole bracket of the simulated PSF in `psf_dir`
+/// (8-bit PNGs, `exposures.json` and a dark frame in `out/bracket`), merged and calibrated
+/// back into `out/psf`, and compared with the simulated PSF.
+fn calibrate(psf_dir: &Path, out: &Path, p: &mut Progress) -> Result<CalibrationStage> {
+    use crate::calibration::{capture, hdr_merge};
+    let simulated = pe::read_psf_npy(&psf_dir.join("psf.npy"), SENSOR_PITCH)?;
+    p.show("synthetic pinhole bracket of the simulated PSF");
+    let (frames, times, dark) = pe::simulate_pinhole_bracket(&simulated, 60, 12, 0.002, 0.03, 1);
+    let bracket = out.join("bracket");
+    let mut list = Vec::new();
+    for (k, (f, t)) in frames.iter().zip(&times).enumerate() {
+        let name = format!("pinhole_{k:02}.png");
+        capture::write_capture(&bracket.join(&name), f, 8)?;
+        list.push(serde_json::json!({ "file": name, "exposure_s": t }));
+    }
+    capture::write_capture(&bracket.join("dark.png"), &dark, 8)?;
+    crate::io::atomic::write_json(&bracket.join("exposures.json"), &serde_json::json!({ "frames": list }))?;
+    p.step("calibrate-psf");
+    let read = capture::read_exposures(&bracket.join("exposures.json"), false)?;
+    let captures = read.frames.iter().map(|(f, _)| capture::read_capture(f)).collect::<Result<Vec<_>>>()?;
+    let dark = hdr_merge::mean_dark(&[capture::read_capture(&bracket.join("dark.png"))?])?;
+    let merge_opts = hdr_merge::MergeOptions { estimate_times: false, ..Default::default() };
+    let merged = hdr_merge::merge(&captures, &times, Some(&dark), None, &merge_opts)?;
+    let opts = pe::PsfOptions { crop: CALIBRATED_CROP, centre: pe::Centre::Peak, ..Default::default() };
+    let (psf, mut report) = pe::calibrate_psf(&merged, &opts)?;
+    let psf_out = out.join("psf");
+    pe::write_calibration(&psf, &merged, &mut report, &psf_out)?;
+    p.step("calibrated");
+    let relative_l2_to_simulated = psf.relative_l2(&window_at_peak(&simulated, CALIBRATED_CROP)?)?;
+    Ok(CalibrationStage { bracket, psf: psf_out, relative_l2_to_simulated, report })
+}
+
+/// The `size` x `size` window of `psf` whose centre pixel, `(size - 1) / 2` (rounded down),
+/// is the peak of the channel sum (the first maximum in row-major order), each channel
+/// renormalised to sum 1 over the window: what `calibrate-psf --centre peak --crop size`
+/// keeps of a pinhole image of `psf`, to compare its output with. Refused where the window
+/// would leave the PSF.
+pub fn window_at_peak(psf: &Psf, size: usize) -> Result<Psf> {
+    let (h, w) = psf.dim();
+    let (mut peak, mut best) = ((0, 0), f64::NEG_INFINITY);
+    for i in 0..h {
+        for j in 0..w {
+            let v: f64 = psf.channels.iter().map(|c| c.grid.values()[[i, j]]).sum();
+            if v > best {
+                (peak, best) = ((i, j), v);
+            }
+        }
+    }
+    let before = (size.max(1) - 1) / 2;
+    let (pi, pj) = peak;
+    if pi < before || pj < before || pi - before + size > h || pj - before + size > w {
+        return Err(Error::Data(format!(
+            "the PSF's peak at ({pi}, {pj}) is too close to the border of its {h} x {w} window for a \
+             {size} x {size} window around it"
+        )));
+    }
+    let (rows, cols) = (pi - before..pi - before + size, pj - before..pj - before + size);
+    let channels = psf
+        .channels
+        .iter()
+        .map(|c| {
+            let grid = c.grid.crop(rows.clone(), cols.clone())?;
+            Ok(crate::optics::psf::Channel { grid, ..c.clone() })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Psf::new(channels, &psf.method)
+}
+
+/// The decoder stage: fine-tunes the paper's decoder `init` with the PSF at `psf_path` on
+/// procedural scenes into `out/finetune`, then reconstructs a capture simulated through that
+/// PSF (`out/capture.png` -> `out/reconstruction.exr` and `.png`).
+fn fine_tune(init: &Path, psf_path: &Path, out: &Path, p: &mut Progress) -> Result<DecoderStage> {
+    use crate::decoder::{finetune as ft, reconstruct as rc, scenes, simulate};
+    let psf = ft::read_psf(psf_path, None, SENSOR_PITCH)?;
+    let psf_sha = crate::io::file_sha256(psf_path)?;
+    let source = ft::GeneratedScenes { name: "procedural HDR scenes", generate: scenes::procedural_scene };
+    let cfg = ft::FinetuneConfig {
+        steps: FINETUNE_STEPS,
+        batch: 1,
+        crop: 64,
+        validation: 1,
+        checkpoint_every: FINETUNE_STEPS,
+        ..Default::default()
+    };
+    let device = crate::decoder::device(false)?;
+    let net = crate::decoder::unet::UNet::from_weights(
+        &crate::decoder::weights::DecoderWeights::read(init)?,
+        &device,
+    );
+    let desc = format!("{} (sha256 {})", init.display(), crate::io::file_sha256(init)?);
+    let mut trainer = ft::Trainer::new(net, &psf, &psf_sha, &source, cfg, &desc)?;
+    let message = format!("fine-tuning the decoder on the calibrated PSF ({FINETUNE_STEPS} steps)");
+    p.show(&message);
+    let ft_dir = out.join("finetune");
+    trainer.run(&ft_dir, &mut |_| p.step(&message))?;
+    trainer.write_outputs(&ft_dir)?;
+    p.show("reconstructing a simulated capture");
+    let (kh, kw) = psf.dim();
+    let size = 256;
+    let conv = simulate::Convolver::new(&psf, (size + kh - 1, size + kw - 1))?;
+    let scene = scenes::procedural_scene(7, size + kh - 1, size + kw - 1);
+    let m =
+        simulate::measure(&scene, &conv, &simulate::MeasurementModel::default(), &mut crate::rng::Lcg(7))?;
+    let capture = out.join("capture.png");
+    crate::calibration::capture::write_capture(&capture, &m.capture.mapv(f64::from), 8)?;
+    let decoder = ft_dir.join(ft::DECODER);
+    let reconstruction = rc::reconstruct_file(
+        &capture,
+        &decoder,
+        &out.join("reconstruction.exr"),
+        &out.join("reconstruction.png"),
+        0.0,
+        &rc::ReconstructOptions::default(),
+        &device,
+    )?;
+    p.step("reconstructed");
+    Ok(DecoderStage { decoder, history: trainer.history().to_vec(), reconstruction })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::{Grid, Unit};
+    use crate::optics::psf::Channel;
+    use ndarray::Array2;
+
+    /// A 3-channel 9 x 11 PSF whose channel sum peaks at `peak` (row, col), while each
+    /// channel alone peaks elsewhere.
+    fn psf_peaking_at(peak: (usize, usize)) -> Psf {
+        let channels = (0..3)
+            .map(|c| {
+                let mut v = Array2::from_shape_fn((9, 11), |(i, j)| 1.0 + (i * 11 + j) as f64 * 1e-3);
+                v[peak] += 5.0;
+                v[[c * 3, 10 - c]] += 6.0;
+                Channel {
+                    name: format!("C{c}"),
+                    wavelength: None,
+                    grid: Grid::new(v, [2e-6, 2e-6], Unit::Dimensionless).unwrap(),
+                    captured: None,
+                }
+            })
+            .collect();
+        Psf::new(channels, "test").unwrap()
+    }
+
+    #[test]
+    fn the_window_is_centred_on_the_peak_of_the_channel_sum_and_renormalised() {
+        let psf = psf_peaking_at((4, 6));
+        for size in [5, 4] {
+            let w = window_at_peak(&psf, size).unwrap();
+            assert_eq!(w.dim(), (size, size));
+            let centre = (size - 1) / 2;
+            for (a, b) in psf.channels.iter().zip(&w.channels) {
+                let (g, h) = (&a.grid, &b.grid);
+                assert!((h.values().sum() - 1.0).abs() < 1e-12);
+                // Same physical position of the centre pixel, values scaled by one factor.
+                assert!((h.x(centre) - g.x(6)).abs() < 1e-15 && (h.y(centre) - g.y(4)).abs() < 1e-15);
+                let scale = h.values()[[centre, centre]] / g.values()[[4, 6]];
+                let corner = h.values()[[0, 0]] / g.values()[[4 - centre, 6 - centre]];
+                assert!((corner / scale - 1.0).abs() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn a_window_leaving_the_psf_is_refused_on_every_side() {
+        // 9 x 11, a 5 x 5 window needs 2 pixels before the peak and 2 after it.
+        for (peak, fits) in [
+            ((2, 5), true),
+            ((1, 5), false),
+            ((6, 5), true),
+            ((7, 5), false),
+            ((4, 2), true),
+            ((4, 1), false),
+            ((4, 8), true),
+            ((4, 9), false),
+        ] {
+            let r = window_at_peak(&psf_peaking_at(peak), 5);
+            assert_eq!(r.is_ok(), fits, "peak {peak:?}");
+            if let Err(e) = r {
+                assert!(e.to_string().contains("too close to the border"), "{e}");
+            }
+        }
+    }
+}
