@@ -127,62 +127,71 @@ fn bin(img: &Array2<f64>, f: usize) -> Array2<f64> {
     })
 }
 
-/// NCC of the `t x t` tile of `r` at `(r0, c0)` with `g` at `(r0 + dy, c0 + dx)`; `None` outside.
-fn ncc(
-    r: &Array2<f64>,
-    g: &Array2<f64>,
+/// The `t x t` tile of `r` at `(r0, c0)`, to be found in `g`.
+struct Tile<'a> {
+    r: &'a Array2<f64>,
+    g: &'a Array2<f64>,
     r0: usize,
     c0: usize,
     t: usize,
-    dy: isize,
-    dx: isize,
-) -> Option<f64> {
-    let (gi, gj) = (r0 as isize + dy, c0 as isize + dx);
-    if gi < 0 || gj < 0 || gi as usize + t > g.dim().0 || gj as usize + t > g.dim().1 {
-        return None;
-    }
-    let (gi, gj) = (gi as usize, gj as usize);
-    let n = (t * t) as f64;
-    let (mut sa, mut sb, mut saa, mut sbb, mut sab) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for i in 0..t {
-        for j in 0..t {
-            let a = r[[r0 + i, c0 + j]];
-            let b = g[[gi + i, gj + j]];
-            sa += a;
-            sb += b;
-            saa += a * a;
-            sbb += b * b;
-            sab += a * b;
-        }
-    }
-    let va = saa - sa * sa / n;
-    let vb = sbb - sb * sb / n;
-    (va > 0.0 && vb > 0.0).then(|| (sab - sa * sb / n) / (va * vb).sqrt())
 }
 
-/// Best offset of a tile within `radius` of `(cy, cx)`.
-#[allow(clippy::too_many_arguments)]
-fn search(
-    r: &Array2<f64>,
-    g: &Array2<f64>,
-    r0: usize,
-    c0: usize,
-    t: usize,
-    cy: isize,
-    cx: isize,
-    radius: isize,
-) -> Option<(isize, isize, f64)> {
-    let mut best: Option<(isize, isize, f64)> = None;
-    for dy in cy - radius..=cy + radius {
-        for dx in cx - radius..=cx + radius {
-            if let Some(v) = ncc(r, g, r0, c0, t, dy, dx) {
-                if best.is_none_or(|b| v > b.2) {
-                    best = Some((dy, dx, v));
+impl Tile<'_> {
+    /// NCC of the tile with `g` at `(r0 + dy, c0 + dx)`; `None` outside `g`.
+    fn ncc(&self, dy: isize, dx: isize) -> Option<f64> {
+        let (r, g, r0, c0, t) = (self.r, self.g, self.r0, self.c0, self.t);
+        let (gi, gj) = (r0 as isize + dy, c0 as isize + dx);
+        if gi < 0 || gj < 0 || gi as usize + t > g.dim().0 || gj as usize + t > g.dim().1 {
+            return None;
+        }
+        let (gi, gj) = (gi as usize, gj as usize);
+        let n = (t * t) as f64;
+        let (mut sa, mut sb, mut saa, mut sbb, mut sab) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for i in 0..t {
+            for j in 0..t {
+                let a = r[[r0 + i, c0 + j]];
+                let b = g[[gi + i, gj + j]];
+                sa += a;
+                sb += b;
+                saa += a * a;
+                sbb += b * b;
+                sab += a * b;
+            }
+        }
+        let va = saa - sa * sa / n;
+        let vb = sbb - sb * sb / n;
+        (va > 0.0 && vb > 0.0).then(|| (sab - sa * sb / n) / (va * vb).sqrt())
+    }
+
+    /// Best whole-pixel offset within `radius` of `(cy, cx)`, with its NCC.
+    fn search(&self, cy: isize, cx: isize, radius: isize) -> Option<(isize, isize, f64)> {
+        let mut best: Option<(isize, isize, f64)> = None;
+        for dy in cy - radius..=cy + radius {
+            for dx in cx - radius..=cx + radius {
+                if let Some(v) = self.ncc(dy, dx) {
+                    if best.is_none_or(|b| v > b.2) {
+                        best = Some((dy, dx, v));
+                    }
                 }
             }
         }
+        best
     }
-    best
+
+    /// [`Tile::search`] refined to sub-pixel by a parabola through the NCC peak and its
+    /// neighbours along each axis; `None` where the peak NCC is below 0.6 or flat along an axis
+    /// (second difference above -0.002: an edge, whose shift along itself is unknown).
+    fn refine(&self, cy: isize, cx: isize, radius: isize) -> Option<(f64, f64)> {
+        const MIN_CURVATURE: f64 = 2e-3;
+        let (dy, dx, v) = self.search(cy, cx, radius).filter(|f| f.2 > 0.6)?;
+        let sub = |m: Option<f64>, p: Option<f64>| match (m, p) {
+            (Some(m), Some(p)) if m + p - 2.0 * v < -MIN_CURVATURE => Some(0.5 * (m - p) / (m + p - 2.0 * v)),
+            _ => None,
+        };
+        let fy = sub(self.ncc(dy - 1, dx), self.ncc(dy + 1, dx))?;
+        let fx = sub(self.ncc(dy, dx - 1), self.ncc(dy, dx + 1))?;
+        Some((dy as f64 + fy, dx as f64 + fx))
+    }
 }
 
 fn std_dev(img: &Array2<f64>) -> f64 {
@@ -255,8 +264,10 @@ fn match_tiles(reference: &Array2<f64>, target: &Array2<f64>, opts: &RegisterOpt
             if std_dev(&tile) <= texture {
                 return None;
             }
-            let (cy, cx, _) = search(&rb, &gb, r0 / BIN, c0 / BIN, t / BIN, 0, 0, radius)?;
-            let (dy, dx) = refine(reference, target, r0, c0, t, cy * BIN as isize, cx * BIN as isize, 3)?;
+            let coarse = Tile { r: &rb, g: &gb, r0: r0 / BIN, c0: c0 / BIN, t: t / BIN };
+            let (cy, cx, _) = coarse.search(0, 0, radius)?;
+            let fine = Tile { r: reference, g: target, r0, c0, t };
+            let (dy, dx) = fine.refine(cy * BIN as isize, cx * BIN as isize, 3)?;
             let p = [c0 as f64 + (t as f64 - 1.0) * 0.5, r0 as f64 + (t as f64 - 1.0) * 0.5];
             Some((p, [p[0] + dx, p[1] + dy]))
         })
@@ -265,33 +276,6 @@ fn match_tiles(reference: &Array2<f64>, target: &Array2<f64>, opts: &RegisterOpt
 
 /// A matched pair of tile centres, reference `p` and target `q`, pixels `(x, y)`.
 type Match = ([f64; 2], [f64; 2]);
-
-/// Best whole-pixel offset of the `t x t` tile of `r` at `(r0, c0)` in `g` within `radius` of
-/// `(cy, cx)`, refined to sub-pixel by a parabola through the NCC peak and its neighbours
-/// along each axis; `None` where the peak NCC is below 0.6 or flat along an axis (second
-/// difference above -0.002: an edge, whose shift along itself is unknown).
-#[allow(clippy::too_many_arguments)]
-fn refine(
-    r: &Array2<f64>,
-    g: &Array2<f64>,
-    r0: usize,
-    c0: usize,
-    t: usize,
-    cy: isize,
-    cx: isize,
-    radius: isize,
-) -> Option<(f64, f64)> {
-    const MIN_CURVATURE: f64 = 2e-3;
-    let (dy, dx, v) = search(r, g, r0, c0, t, cy, cx, radius).filter(|f| f.2 > 0.6)?;
-    let sub = |m: Option<f64>, p: Option<f64>| match (m, p) {
-        (Some(m), Some(p)) if m + p - 2.0 * v < -MIN_CURVATURE => Some(0.5 * (m - p) / (m + p - 2.0 * v)),
-        _ => None,
-    };
-    let at = |y: isize, x: isize| ncc(r, g, r0, c0, t, y, x);
-    let fy = sub(at(dy - 1, dx), at(dy + 1, dx))?;
-    let fx = sub(at(dy, dx - 1), at(dy, dx + 1))?;
-    Some((dy as f64 + fy, dx as f64 + fx))
-}
 
 /// One pass of tile matching and the robust fit.
 fn match_and_fit(
