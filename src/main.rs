@@ -57,6 +57,9 @@ enum BenchCommand {
         /// Training crop side, pixels (a multiple of 16).
         #[arg(long, default_value_t = 128)]
         crop: usize,
+        /// Adam step size.
+        #[arg(long, default_value_t = 1e-4)]
+        lr: f64,
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// Score the decoder being fine-tuned on the real scenes every this many steps
@@ -1616,7 +1619,7 @@ fn bench_decoder(cli: &Cli) -> Result<()> {
     use doefab::decoder::finetune::FinetuneConfig;
     let Command::Bench {
         what:
-            BenchCommand::Decoder { data, steps, batch, crop, seed, evaluate_every, train_data, tile, output },
+            BenchCommand::Decoder { data, steps, batch, crop, lr, seed, evaluate_every, train_data, tile, output },
     } = &cli.command
     else {
         unreachable!("called for bench decoder only")
@@ -1628,6 +1631,7 @@ fn bench_decoder(cli: &Cli) -> Result<()> {
             steps: *steps,
             batch: *batch,
             crop: *crop,
+            lr: *lr,
             seed: *seed,
             checkpoint_every: evaluate_every,
             validation: 4,
