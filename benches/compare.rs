@@ -16,24 +16,15 @@ use doefab::design::{paper_example, ExampleParams, PAPER_APERTURE, PAPER_PITCH};
 use doefab::io::scan::{decode_scan_raw, scan_from_raw, ScanOptions};
 use doefab::metrology::compare::{compare, psf_comparison, CompareOptions};
 use doefab::metrology::level::level_plane;
-use doefab::metrology::register::{register, Pose};
+use doefab::metrology::register::register;
 use doefab::metrology::simulate::{simulate_scan, SimulateParams};
 
 fn main() -> doefab::Result<()> {
     let design = paper_example(&ExampleParams::default())?;
-    let pose = Pose { mirror: true, rotation: 0.3f64.to_radians(), scale: 1.0, shift: [3.2e-6, -1.7e-6] };
     let sp = SimulateParams {
-        blur: 2e-6,
-        depth_scale: 0.95,
-        offset: 0.1e-6,
-        tilt: [1e-4, 0.0],
-        pose,
-        complement: true,
-        noise: 20e-9,
-        missing: 0.1,
-        seed: 1,
         pitch: Some([2.7e-6, 2.7e-6]),
         size: Some((2048, 2048)),
+        ..SimulateParams::typical_cast()
     };
     let scan = simulate_scan(&design, &sp)?;
     let values = ndarray::Array2::from_shape_fn(scan.dim(), |(i, j)| {
@@ -82,9 +73,9 @@ fn main() -> doefab::Result<()> {
     println!(
         "errors: shift [{:.4}, {:.4}] px, rotation {:.5} deg, depth scale {:.3}% (registration) \
          {:.3}% (model); blur {:.3} +- {:.3} um (injected 2); residual {:.2} nm (noise 20)",
-        (r.pose.shift[0] - pose.shift[0]) / PAPER_PITCH,
-        (r.pose.shift[1] - pose.shift[1]) / PAPER_PITCH,
-        (r.pose.rotation - pose.rotation).to_degrees(),
+        (r.pose.shift[0] - sp.pose.shift[0]) / PAPER_PITCH,
+        (r.pose.shift[1] - sp.pose.shift[1]) / PAPER_PITCH,
+        (r.pose.rotation - sp.pose.rotation).to_degrees(),
         100.0 * (r.depth_scale / 0.95 - 1.0),
         100.0 * (m.depth_scale / 0.95 - 1.0),
         m.blur * 1e6,

@@ -12,24 +12,15 @@ use std::time::Instant;
 use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
 use doefab::io::scan::{decode_scan_raw, scan_from_raw, ScanOptions};
 use doefab::metrology::level::level_plane;
-use doefab::metrology::register::{register, Pose, RegisterOptions};
+use doefab::metrology::register::{register, RegisterOptions};
 use doefab::metrology::simulate::{simulate_scan, SimulateParams};
 
 fn main() -> doefab::Result<()> {
     let design = paper_example(&ExampleParams::default())?;
-    let pose = Pose { mirror: true, rotation: 0.3f64.to_radians(), scale: 1.0, shift: [3.2e-6, -1.7e-6] };
     let sp = SimulateParams {
-        blur: 2e-6,
-        depth_scale: 0.95,
-        offset: 0.1e-6,
-        tilt: [1e-4, 0.0],
-        pose,
-        complement: true,
-        noise: 20e-9,
-        missing: 0.1,
-        seed: 1,
         pitch: Some([2.7e-6, 2.7e-6]),
         size: Some((2048, 2048)),
+        ..SimulateParams::typical_cast()
     };
     let t = Instant::now();
     let scan = simulate_scan(&design, &sp)?;
@@ -76,9 +67,9 @@ fn main() -> doefab::Result<()> {
     println!(
         "errors: shift [{:.4}, {:.4}] px, rotation {:.5} deg, depth scale {:.3}%, blur {:.2} um, \
          correlation {:.5}, peak ratio {:.3}, rotation contrast {:.3}, {} points",
-        (r.pose.shift[0] - pose.shift[0]) / PAPER_PITCH,
-        (r.pose.shift[1] - pose.shift[1]) / PAPER_PITCH,
-        (r.pose.rotation - pose.rotation).to_degrees(),
+        (r.pose.shift[0] - sp.pose.shift[0]) / PAPER_PITCH,
+        (r.pose.shift[1] - sp.pose.shift[1]) / PAPER_PITCH,
+        (r.pose.rotation - sp.pose.rotation).to_degrees(),
         100.0 * (r.depth_scale / 0.95 - 1.0),
         r.blur * 1e6,
         r.correlation,

@@ -216,23 +216,7 @@ fn scan_and_compare(
     use crate::metrology::simulate::{simulate_scan, write_scan, SimulateParams};
     p.show("simulated scan of the 8-level part");
     let (part, _, _) = crate::metrology::compare::reference_surface(design, Some(params))?;
-    let sp = SimulateParams {
-        blur: 2e-6,
-        depth_scale: 0.95,
-        offset: 0.1e-6,
-        tilt: [1e-4, -5e-5],
-        pose: crate::metrology::register::Pose {
-            mirror: true,
-            rotation: 0.3f64.to_radians(),
-            scale: 1.0,
-            shift: [3.2e-6, -1.7e-6],
-        },
-        complement: true,
-        noise: 20e-9,
-        missing: 0.1,
-        seed: 1,
-        ..Default::default()
-    };
+    let sp = SimulateParams::typical_cast();
     if let Some(dir) = scan.parent() {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     }

@@ -68,6 +68,26 @@ impl Default for SimulateParams {
     }
 }
 
+impl SimulateParams {
+    /// A plausible cast of a replica-moulded part as the demo and the benchmarks scan it:
+    /// mirrored and complemented (a replica of the master), 5 % too shallow, 0.1 um offset,
+    /// blurred by a 2 um Gaussian, tilted (1e-4, -5e-5), rotated 0.3 deg and shifted by
+    /// (3.2, -1.7) um, 20 nm of noise and 10 % of samples missing; at the design's pitch.
+    pub fn typical_cast() -> SimulateParams {
+        SimulateParams {
+            blur: 2e-6,
+            depth_scale: 0.95,
+            offset: 0.1e-6,
+            tilt: [1e-4, -5e-5],
+            pose: Pose { mirror: true, rotation: 0.3f64.to_radians(), scale: 1.0, shift: [3.2e-6, -1.7e-6] },
+            complement: true,
+            noise: 20e-9,
+            missing: 0.1,
+            ..SimulateParams::default()
+        }
+    }
+}
+
 /// Separable Gaussian blur (standard deviation `sigma` metres) normalised over valid samples:
 /// `sum w g v / sum w g` with `w` the validity (Knutsson & Westin's normalized convolution).
 pub fn gaussian_blur(g: &Grid, sigma: f64) -> Result<Grid> {
