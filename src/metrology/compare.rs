@@ -883,18 +883,7 @@ mod tests {
     }
 
     fn goals_params(seed: u64) -> SimulateParams {
-        SimulateParams {
-            blur: 2e-6,
-            depth_scale: 0.95,
-            offset: 0.2e-6,
-            tilt: [1e-4, -0.5e-4],
-            pose: Pose { mirror: true, rotation: 0.3f64.to_radians(), scale: 1.0, shift: [3.2e-6, -1.7e-6] },
-            complement: true,
-            noise: 20e-9,
-            missing: 0.1,
-            seed,
-            ..Default::default()
-        }
+        SimulateParams { offset: 0.2e-6, seed, ..SimulateParams::typical_cast() }
     }
 
     /// The accuracy goals on a synthetic cast (20 nm noise, 2 um blur, 10% missing):
