@@ -27,13 +27,7 @@ fn main() -> doefab::Result<()> {
         ..SimulateParams::typical_cast()
     };
     let scan = simulate_scan(&design, &sp)?;
-    let values = ndarray::Array2::from_shape_fn(scan.dim(), |(i, j)| {
-        if scan.is_valid(i, j) {
-            scan.values()[[i, j]]
-        } else {
-            f64::NAN
-        }
-    });
+    let values = scan.values_nan_invalid();
     let bytes = doefab::io::scan::x3p::encode(&values, scan.pitch())?;
     let opts = CompareOptions { aperture: Some(PAPER_APERTURE), ..Default::default() };
     let p = Path::new("scan.x3p");

@@ -25,13 +25,7 @@ fn main() -> doefab::Result<()> {
     let t = Instant::now();
     let scan = simulate_scan(&design, &sp)?;
     println!("simulate 2048 x 2048 scan       {:.3} s", t.elapsed().as_secs_f64());
-    let values = ndarray::Array2::from_shape_fn(scan.dim(), |(i, j)| {
-        if scan.is_valid(i, j) {
-            scan.values()[[i, j]]
-        } else {
-            f64::NAN
-        }
-    });
+    let values = scan.values_nan_invalid();
     let bytes = doefab::io::scan::x3p::encode(&values, scan.pitch())?;
     let opts = RegisterOptions::default();
     let mut best = f64::INFINITY;

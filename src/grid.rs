@@ -115,6 +115,18 @@ impl Grid {
         Grid::new(values, pitch, unit)?.with_mask(valid)
     }
 
+    /// The values with invalid samples as NaN (how NaN-bearing files store them; the inverse of
+    /// [`Grid::from_values_nan_invalid`] for finite valid values).
+    pub fn values_nan_invalid(&self) -> Array2<f64> {
+        Array2::from_shape_fn(self.values.dim(), |(i, j)| {
+            if self.is_valid(i, j) {
+                self.values[[i, j]]
+            } else {
+                f64::NAN
+            }
+        })
+    }
+
     pub fn values(&self) -> &Array2<f64> {
         &self.values
     }
@@ -583,5 +595,11 @@ mod tests {
         let g = Grid::from_values_nan_invalid(nan, [1.0, 1.0], Unit::Metre).unwrap();
         assert_eq!(g.valid_count(), 6);
         assert_eq!(g.min_max(), Some((1.0, 1.0)));
+        // And back: invalid samples (here holding 0 after masking) come out as NaN.
+        let back = g.values_nan_invalid();
+        assert!(back.row(1).iter().all(|v| v.is_nan()));
+        assert!(back.row(0).iter().chain(back.row(2).iter()).all(|&v| v == 1.0));
+        let masked = ramp(6, 6).with_mask(Array2::from_shape_fn((6, 6), |(i, j)| (i, j) != (2, 2))).unwrap();
+        assert!(masked.values_nan_invalid()[[2, 2]].is_nan() && masked.values_nan_invalid()[[2, 3]] == 23.0);
     }
 }

@@ -280,17 +280,7 @@ pub fn parse_size(text: &str) -> Result<(usize, usize)> {
 
 /// Writes a scan as `.x3p` (f64, NaN for non-measured) or `.gsf` (f32), chosen by extension.
 pub fn write_scan(path: &Path, scan: &Grid) -> Result<()> {
-    let values =
-        Array2::from_shape_fn(
-            scan.dim(),
-            |(i, j)| {
-                if scan.is_valid(i, j) {
-                    scan.values()[[i, j]]
-                } else {
-                    f64::NAN
-                }
-            },
-        );
+    let values = scan.values_nan_invalid();
     let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).unwrap_or_default();
     let bytes = match ext.as_str() {
         "x3p" => crate::io::scan::x3p::encode(&values, scan.pitch())?,
