@@ -35,31 +35,28 @@ pub fn read_exr(path: &Path, channel: Option<&str>) -> Result<RawMap> {
     decode_exr(path, &bytes, channel)
 }
 
-/// The channel names of every layer of an OpenEXR file, in header order (the format stores
-/// them sorted by name), from its header alone.
-pub fn exr_channel_names(path: &Path, bytes: &[u8]) -> Result<Vec<String>> {
+/// The layer headers of an OpenEXR file, after checking its magic number. The decoder is
+/// third-party code fed with user bytes: a panic in it becomes an error.
+fn read_headers(path: &Path, bytes: &[u8]) -> Result<exr::meta::Headers> {
     if bytes.len() < 4 || bytes[..4] != [0x76, 0x2f, 0x31, 0x01] {
         return Err(Error::format(path, "not an OpenEXR file: bad magic (expected 76 2f 31 01)"));
     }
-    let headers =
-        std::panic::catch_unwind(|| exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false))
-            .map_err(|_| Error::format(path, "OpenEXR: the header decoder failed on malformed data"))?
-            .map_err(|e| Error::format(path, format!("OpenEXR: {e}")))?
-            .headers;
+    Ok(std::panic::catch_unwind(|| exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false))
+        .map_err(|_| Error::format(path, "OpenEXR: the header decoder failed on malformed data"))?
+        .map_err(|e| Error::format(path, format!("OpenEXR: {e}")))?
+        .headers)
+}
+
+/// The channel names of every layer of an OpenEXR file, in header order (the format stores
+/// them sorted by name), from its header alone.
+pub fn exr_channel_names(path: &Path, bytes: &[u8]) -> Result<Vec<String>> {
+    let headers = read_headers(path, bytes)?;
     Ok(headers.iter().flat_map(|h| h.channels.list.iter().map(|c| c.name.to_string())).collect())
 }
 
 /// Decodes the bytes of an OpenEXR file (see [`read_exr`]); `path` names it in errors.
 pub fn decode_exr(path: &Path, bytes: &[u8], channel: Option<&str>) -> Result<RawMap> {
-    if bytes.len() < 4 || bytes[..4] != [0x76, 0x2f, 0x31, 0x01] {
-        return Err(Error::format(path, "not an OpenEXR file: bad magic (expected 76 2f 31 01)"));
-    }
-    // The decoder is third-party code fed with user bytes: a panic in it becomes an error.
-    let headers =
-        std::panic::catch_unwind(|| exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false))
-            .map_err(|_| Error::format(path, "OpenEXR: the header decoder failed on malformed data"))?
-            .map_err(|e| Error::format(path, format!("OpenEXR: {e}")))?
-            .headers;
+    let headers = read_headers(path, bytes)?;
     // The decoder reserves every layer's samples from the header's data window: refuse a window
     // the file cannot hold. Deflate compresses at most 1032:1 (RFC 1951); the lossy DWA codecs
     // keep at least one coefficient per 8 x 8 block on top of it, hence 1032 x 64.
