@@ -110,6 +110,24 @@ fn compare_recovers_a_simulated_cast_and_its_surface_feeds_psf() {
     assert!(psf.join("psf.json").exists());
 }
 
+/// Runs `compare SCAN --design built-in:paper` expecting exit status `code`; checks that no
+/// output folder was left and returns the error text.
+fn compare_refused(scan: &Path, code: i32) -> String {
+    let out = scan.with_file_name("cmp");
+    let o = doefab(&[
+        "compare",
+        scan.to_str().unwrap(),
+        "--design",
+        "built-in:paper",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(code), "{err}");
+    assert!(!out.exists());
+    err
+}
+
 #[test]
 fn a_scan_of_another_part_exits_with_status_3() {
     // Smooth random bumps (white noise blurred by 3 samples), 5.6 mm across.
@@ -120,19 +138,8 @@ fn a_scan_of_another_part_exits_with_status_3() {
     let g = doefab::Grid::new(v, [PAPER_PITCH; 2], doefab::Unit::Metre).unwrap();
     let g = doefab::metrology::simulate::gaussian_blur(&g, 3.0 * PAPER_PITCH).unwrap();
     doefab::metrology::simulate::write_scan(&scan, &g).unwrap();
-    let out = dir.path().join("cmp");
-    let o = doefab(&[
-        "compare",
-        scan.to_str().unwrap(),
-        "--design",
-        "built-in:paper",
-        "-o",
-        out.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(3), "{err}");
+    let err = compare_refused(&scan, 3);
     assert!(err.contains("registration refused") && err.contains("does not match"), "{err}");
-    assert!(!out.exists());
 }
 
 #[test]
@@ -140,19 +147,8 @@ fn a_scan_smaller_than_the_aperture_is_refused() {
     let dir = common::tempdir();
     let scan = dir.path().join("small.x3p");
     simulate(&scan, &["built-in:paper", "--size", "800"]);
-    let out = dir.path().join("cmp");
-    let o = doefab(&[
-        "compare",
-        scan.to_str().unwrap(),
-        "--design",
-        "built-in:paper",
-        "-o",
-        out.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
+    let err = compare_refused(&scan, 2);
     assert!(err.contains("3.432 x 3.432 mm") && err.contains("smaller than the 5.000 mm aperture"), "{err}");
-    assert!(!out.exists());
 }
 
 #[test]
@@ -161,17 +157,6 @@ fn a_part_that_matches_only_at_the_aperture_edge_exits_with_status_3() {
     let dir = common::tempdir();
     let scan = dir.path().join("fresnel.gsf");
     simulate(&scan, &["built-in:fresnel", "--noise", "5nm"]);
-    let out = dir.path().join("cmp");
-    let o = doefab(&[
-        "compare",
-        scan.to_str().unwrap(),
-        "--design",
-        "built-in:paper",
-        "-o",
-        out.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(3), "{err}");
+    let err = compare_refused(&scan, 3);
     assert!(err.contains("does not match the design inside the aperture"), "{err}");
-    assert!(!out.exists());
 }

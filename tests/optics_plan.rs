@@ -95,17 +95,22 @@ fn flat_doe_and_fresnel_lens() {
     check("fresnel lens", &s, &lens, &[]);
 }
 
-#[test]
-fn built_in_doe_and_random_smooth_phase() {
-    let s = scene();
-    let params = ExampleParams {
+/// The built-in example design scaled to the bench scene: 0.5 mm aperture, 100 um grating.
+fn built_in_doe() -> Grid {
+    paper_example(&ExampleParams {
         samples: N,
         pitch: PITCH,
         aperture: 0.5e-3,
         grating_period: 20.0 * PITCH,
         ..Default::default()
-    };
-    check("built-in", &s, &paper_example(&params).unwrap(), &[]);
+    })
+    .unwrap()
+}
+
+#[test]
+fn built_in_doe_and_random_smooth_phase() {
+    let s = scene();
+    check("built-in", &s, &built_in_doe(), &[]);
     // Twelve random plane-wave phase ripples of periods 60-300 um and 0.5 rad each.
     let mut rng = Lcg(7);
     let waves: Vec<[f64; 4]> = (0..12)
@@ -127,14 +132,7 @@ fn built_in_doe_and_random_smooth_phase() {
 
 #[test]
 fn defocused_sensor_and_finite_object() {
-    let params = ExampleParams {
-        samples: N,
-        pitch: PITCH,
-        aperture: 0.5e-3,
-        grating_period: 20.0 * PITCH,
-        ..Default::default()
-    };
-    let doe = paper_example(&params).unwrap();
+    let doe = built_in_doe();
     let defocus = OpticalSystem { lens_to_sensor: 3.5e-3 * 1.01, ..scene() };
     check("defocused", &defocus, &doe, &[]);
     // A point 100 mm in front of the DOE, the sensor at its thin-lens image distance.
@@ -146,14 +144,7 @@ fn defocused_sensor_and_finite_object() {
 
 #[test]
 fn a_wide_spectral_band() {
-    let params = ExampleParams {
-        samples: N,
-        pitch: PITCH,
-        aperture: 0.5e-3,
-        grating_period: 20.0 * PITCH,
-        ..Default::default()
-    };
-    let doe = paper_example(&params).unwrap();
+    let doe = built_in_doe();
     // 480-620 nm with a response rising towards the red.
     let band = Band::new("G", vec![480e-9, 550e-9, 620e-9], vec![0.3, 0.8, 1.0]).unwrap();
     let p = check("wide band", &scene(), &doe, &[band]);
