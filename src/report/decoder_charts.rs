@@ -90,14 +90,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], style));
                 }
             }
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::LowerRight)
-                .label_font((FONT, 12))
-                .background_style(WHITE.mix(0.8))
-                .border_style(BLACK)
-                .draw()
-                .map_err(|x| e(&x))?;
+            crate::report::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 12)?;
         }
         Ok(())
     })

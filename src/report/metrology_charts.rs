@@ -198,12 +198,7 @@ pub fn profiles(path: &Path, design: &Grid, surface: &Grid) -> Result<()> {
                         .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RED));
                 }
             }
-            ch.configure_series_labels()
-                .label_font((FONT, 13))
-                .background_style(WHITE.mix(0.8))
-                .border_style(BLACK)
-                .draw()
-                .map_err(err)?;
+            crate::report::draw_legend(&mut ch, SeriesLabelPosition::MiddleRight, 13)?;
         }
         Ok(())
     })
@@ -274,12 +269,7 @@ pub fn height_histogram(
         .map_err(err)?
         .label("measured level means")
         .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RED));
-        ch.configure_series_labels()
-            .label_font((FONT, 13))
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(err)?;
+        crate::report::draw_legend(&mut ch, SeriesLabelPosition::MiddleRight, 13)?;
         Ok(())
     })
 }

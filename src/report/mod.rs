@@ -39,6 +39,27 @@ fn chart_error(path: &Path, e: impl std::fmt::Display) -> Error {
     Error::format(path, format!("drawing the chart failed: {e}"))
 }
 
+/// Draws the legend of `chart`'s labelled series at `position`: labels in the embedded font at
+/// `size` pt on a translucent white box with a black border.
+pub fn draw_legend<'a, DB, CT>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    position: SeriesLabelPosition,
+    size: u32,
+) -> std::result::Result<(), String>
+where
+    DB: DrawingBackend + 'a,
+    CT: plotters::coord::CoordTranslate,
+{
+    chart
+        .configure_series_labels()
+        .position(position)
+        .label_font((FONT, size))
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| e.to_string())
+}
+
 /// Draws `draw` into a `width` x `height` RGB bitmap and writes it as an 8-bit PNG at `path`.
 pub fn write_png_chart<F>(path: &Path, width: u32, height: u32, draw: F) -> Result<()>
 where

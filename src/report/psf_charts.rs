@@ -75,13 +75,7 @@ fn speed_chart<DB: DrawingBackend>(
         .map_err(|x| e(&x))?
         .label("Pareto front (valid runs)")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
-    chart
-        .configure_series_labels()
-        .label_font((FONT, 13))
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|x| e(&x))?;
+    crate::report::draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 13)?;
     Ok(())
 }
 
@@ -130,13 +124,7 @@ fn stability_chart<DB: DrawingBackend>(
             }))
             .map_err(|x| e(&x))?;
     }
-    chart
-        .configure_series_labels()
-        .label_font((FONT, 13))
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|x| e(&x))?;
+    crate::report::draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 13)?;
     Ok(())
 }
 

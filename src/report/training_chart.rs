@@ -64,13 +64,7 @@ pub fn write_training_chart(path: &Path, history: &[HistoryEntry]) -> Result<()>
         chart
             .draw_secondary_series(psnr.iter().map(|&p| Circle::new(p, 3, RED.filled())))
             .map_err(|x| e(&x))?;
-        chart
-            .configure_series_labels()
-            .label_font((FONT, 13))
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|x| e(&x))?;
+        crate::report::draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 13)?;
         Ok(())
     })
 }
