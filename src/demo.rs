@@ -15,8 +15,8 @@
 //!    does; reports the relative L2 of the result against the simulated PSF ([`window_at_peak`]).
 //! 5. *Decoder*: `decoder/`, two fine-tuning steps of the paper's simulated-PSF decoder with the
 //!    calibrated PSF on procedural scenes, and the reconstruction of a capture of a procedural
-//!    scene simulated through that PSF. Skipped, with a warning, where the paper's weights
-//!    ([`crate::decoder::default_init`]) are not found.
+//!    scene simulated through that PSF. The paper's weights are compiled into the binary
+//!    ([`crate::decoder::default_init`]), so every stage runs on a fresh machine.
 //!
 //! Every stage is seeded: the same build writes the same bytes.
 
@@ -65,11 +65,7 @@ pub struct DemoReport {
     pub psf: PsfReport,
     pub metrology: CompareReport,
     pub calibration: CalibrationStage,
-    /// `None` where the stage was skipped (see `warnings`).
-    pub decoder: Option<DecoderStage>,
-    /// The demo's own warnings (a skipped stage); each stage's report carries its own.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub warnings: Vec<String>,
+    pub decoder: DecoderStage,
     /// Where each stage wrote.
     #[serde(skip)]
     pub folders: Folders,
@@ -137,22 +133,14 @@ impl Progress<'_> {
 /// Runs every stage into `output` (see the module docs). `progress(message, done, total)` is
 /// called as the work goes on, `done` counting finished steps of `total`.
 pub fn run(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<DemoReport> {
-    let masks = Path::new(env!("CARGO_MANIFEST_DIR")).join("masks");
     let recipes = RECIPES
         .iter()
-        .map(|name| {
-            let path = masks.join(format!("{name}.toml"));
-            if !path.exists() {
-                return Err(Error::Data(format!("the bundled recipe {} is missing", path.display())));
-            }
-            Ok((name.to_string(), Recipe::read(&path)?))
-        })
+        .map(|name| Ok((name.to_string(), Recipe::read(Path::new(&format!("built-in:{name}")))?)))
         .collect::<Result<Vec<_>>>()?;
     let fab_steps: u64 = recipes.iter().map(|(_, r)| chain::step_count(r) as u64).sum();
     let total = fab_steps + PSF_STEPS + METROLOGY_STEPS + CALIBRATION_STEPS + DECODER_STEPS;
     let mut p = Progress { done: 0, total, report: progress };
     let source = DesignSource::BuiltIn("paper".into());
-    let mut warnings = Vec::new();
     let mut folders = Folders::default();
 
     let mut fabrication = Vec::new();
@@ -179,16 +167,9 @@ pub fn run(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<De
 
     let calibration = calibrate(&folders.psf, &output.join("calibration"), &mut p)?;
 
-    let decoder = match crate::decoder::default_init() {
-        Ok(init) => {
-            Some(fine_tune(&init, &calibration.psf.join("psf.npy"), &output.join("decoder"), &mut p)?)
-        }
-        Err(e) => {
-            warnings.push(format!("decoder stage skipped: {e}"));
-            None
-        }
-    };
-    Ok(DemoReport { fabrication, psf, metrology, calibration, decoder, warnings, folders })
+    let init = crate::decoder::default_init();
+    let decoder = fine_tune(&init, &calibration.psf.join("psf.npy"), &output.join("decoder"), &mut p)?;
+    Ok(DemoReport { fabrication, psf, metrology, calibration, decoder, folders })
 }
 
 /// The optics stage: the design's RGB PSF as the plan chooses it, into `out`.

@@ -225,7 +225,8 @@ enum Command {
     Fab {
         /// Height map file, or built-in:paper / built-in:fresnel (default built-in:paper).
         design: Option<String>,
-        /// Process recipe (TOML), e.g. masks/laser-writer-grayscale.toml.
+        /// Process recipe (TOML), e.g. masks/laser-writer-grayscale.toml, or a bundled one:
+        /// built-in:laser-writer-grayscale, built-in:binary-3mask-8level, built-in:two-photon-stl.
         #[arg(long, short)]
         recipe: PathBuf,
         /// Output folder.
@@ -496,7 +497,8 @@ enum Command {
         /// PSF pixel pitch (the sensor's).
         #[arg(long, value_parser = clap_length, default_value = "4.29um")]
         pitch: f64,
-        /// Initial decoder (default: the paper's simulated-PSF decoder from the shared data).
+        /// Initial decoder: a file, or built-in:paper-simulated-psf (the default) /
+        /// built-in:paper-measured-psf, the paper's decoders compiled in.
         #[arg(long)]
         init: Option<PathBuf>,
         /// Folder of HDR training images (.exr, .hdr); without it, seeded procedural HDR scenes.
@@ -1486,7 +1488,6 @@ fn demo(cli: &Cli, output: &Path) -> Result<()> {
     warn(&report.psf.warnings);
     warn_comparison(&report.metrology);
     warn(&report.calibration.report.warnings);
-    warn(&report.warnings);
     // Through a JSON value, whose maps sort their keys: one order at every depth.
     print_result(cli, &serde_json::to_value(&report)?, || print_demo(&report))
 }
@@ -1504,10 +1505,9 @@ fn print_demo(r: &doefab::demo::DemoReport) {
     let c = &r.calibration;
     println!("calibration: {} (bracket in {})", c.psf.display(), c.bracket.display());
     println!("  calibrated vs simulated PSF, relative L2 per channel: {:.4?}", c.relative_l2_to_simulated);
-    if let Some(d) = &r.decoder {
-        println!("decoder: {} (fine-tuned {} steps)", d.decoder.display(), d.steps());
-        println!("  reconstruction of {}: {}", d.reconstruction.capture, d.reconstruction.exr);
-    }
+    let d = &r.decoder;
+    println!("decoder: {} (fine-tuned {} steps)", d.decoder.display(), d.steps());
+    println!("  reconstruction of {}: {}", d.reconstruction.capture, d.reconstruction.exr);
     println!("psf: {}", dirs.psf.display());
     for f in &r.psf.files {
         println!("  {}", dirs.psf.join(f).display());
@@ -1555,7 +1555,7 @@ fn finetune(cli: &Cli) -> Result<()> {
     } else {
         let init = match init {
             Some(p) => p.clone(),
-            None => doefab::decoder::default_init()?,
+            None => doefab::decoder::default_init(),
         };
         let weights = doefab::decoder::weights::DecoderWeights::read(&init)?;
         let cfg = FinetuneConfig {

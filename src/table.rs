@@ -70,6 +70,11 @@ pub struct TwoColumns {
 /// numbers. `expected` describes the header in error messages (e.g. "dose,depth_nm").
 pub fn read_two_columns(path: &Path, expected: &str) -> Result<TwoColumns> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    parse_two_columns(path, &text, expected)
+}
+
+/// Parses the text of a two-column CSV (see [`read_two_columns`]); `path` names it in errors.
+pub fn parse_two_columns(path: &Path, text: &str, expected: &str) -> Result<TwoColumns> {
     let mut lines =
         text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
     let Some((hl, header)) = lines.next() else {

@@ -13,18 +13,9 @@ use doefab::calibration::response::recover_response;
 use doefab::decoder::scenes::procedural_scene;
 use ndarray::Array3;
 
-/// `../shared/data/deepoptics-hdr/<rel>` beside the checkout (or under `$DOEFAB_SHARED`), if
-/// present.
-fn shared(rel: &str) -> Option<PathBuf> {
-    let beside = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared");
-    let root = std::env::var_os("DOEFAB_SHARED").map(PathBuf::from).unwrap_or(beside);
-    let p = root.join("data/deepoptics-hdr").join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!("notice: {} is not here; skipping", p.display());
-        None
-    }
+/// `deepoptics-hdr/<rel>` of the shared data set (the test fails when it is missing).
+fn shared(rel: &str) -> PathBuf {
+    common::shared_data(&format!("deepoptics-hdr/{rel}"))
 }
 
 fn load(list: &doefab::calibration::capture::ExposureList) -> (Vec<Capture>, Vec<f64>) {
@@ -40,7 +31,7 @@ fn load(list: &doefab::calibration::capture::ExposureList) -> (Vec<Capture>, Vec
 #[test]
 fn real_brackets_merge_into_an_hdr_every_frame_agrees_with() {
     for scene in ["Kitchen", "Fruit"] {
-        let Some(json) = shared(&format!("captures/{scene}/exposures.json")) else { return };
+        let json = shared(&format!("captures/{scene}/exposures.json"));
         let list = read_exposures(&json, false).unwrap();
         assert!(list.frames.iter().all(|(p, _)| !p.ends_with("wPSF_0_stop.png")));
         let (frames, times) = load(&list);
@@ -207,7 +198,8 @@ fn normalised(t: &Array3<f64>) -> Array3<f64> {
 #[test]
 fn a_known_psf_is_recovered_from_its_synthetic_bracket() {
     let mut truths = vec![("analytic", analytic_psf())];
-    if let Some(p) = shared("measured_psf.npz") {
+    {
+        let p = shared("measured_psf.npz");
         let psf = doefab::optics::Psf::read_npz(&p, Some("psf_val"), 4.29e-6, None).unwrap();
         let a = psf.to_array4();
         truths.push(("measured", Array3::from_shape_fn((319, 319, 3), |(i, j, c)| a[[i, j, 0, c]] as f64)));
@@ -712,7 +704,7 @@ fn merge_saves_the_recovered_response_curve() {
 /// residual, displacements 0..37 px in x) and reports the field.
 #[test]
 fn evaluate_registers_the_real_kitchen_scene_locally_and_refuses_one_affine_map() {
-    let Some(list) = shared("captures/Kitchen/exposures.json") else { return };
+    let list = shared("captures/Kitchen/exposures.json");
     let dir = common::tempdir();
     let hdr = dir.path().join("kitchen.exr").to_string_lossy().into_owned();
     let r = doefab(&["merge", "--exposures", list.to_str().unwrap(), "-o", &hdr, "-q"]);

@@ -338,12 +338,52 @@ fn stl_command_meshes_level_maps_and_heights() {
     assert!(e.contains("inch"), "{e}");
 }
 
+/// Every file below `dir` (relative path, bytes), sorted by path.
+fn read_tree(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let rel = p.strip_prefix(dir).unwrap().to_string_lossy().into_owned();
+                out.push((rel, std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// The demo from a folder outside the checkout, on 1 and on 7 threads: every stage runs, and
+/// every file it writes is byte-identical between the two (parallel work is split and summed
+/// the same way whatever the thread count).
 #[test]
 fn demo_runs_every_stage_on_the_built_in_design() {
     let d = common::tempdir();
-    let out = d.path().join("demo");
-    let s = ok(&["demo", "-o", out.to_str().unwrap(), "--json"]);
-    let all: serde_json::Value = serde_json::from_str(&s).unwrap();
+    let mut runs = Vec::new();
+    for threads in ["1", "7"] {
+        let cwd = d.path().join(format!("threads-{threads}"));
+        std::fs::create_dir_all(&cwd).unwrap();
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
+            .args(["demo", "-o", "demo", "--json"])
+            .current_dir(&cwd)
+            .env("RAYON_NUM_THREADS", threads)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "demo on {threads} threads failed:\n{}", String::from_utf8_lossy(&o.stderr));
+        runs.push((cwd.join("demo"), String::from_utf8(o.stdout).unwrap()));
+    }
+    let (a, b) = (read_tree(&runs[0].0), read_tree(&runs[1].0));
+    let names = |t: &[(String, Vec<u8>)]| t.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>();
+    assert_eq!(names(&a), names(&b), "the two runs wrote different files");
+    let differ: Vec<&str> = a.iter().zip(&b).filter(|(x, y)| x.1 != y.1).map(|(x, _)| x.0.as_str()).collect();
+    assert!(differ.is_empty(), "not byte-identical on 1 and 7 threads: {differ:?}");
+    assert_eq!(runs[0].1, runs[1].1, "the JSON reports differ between 1 and 7 threads");
+    let out = runs[0].0.clone();
+    let all: serde_json::Value = serde_json::from_str(&runs[0].1).unwrap();
     let reports = all["fabrication"].as_array().unwrap();
     assert_eq!(reports.len(), 3);
     let psf = &all["psf"];
@@ -378,14 +418,15 @@ fn demo_runs_every_stage_on_the_built_in_design() {
     // The decoder stage: two fine-tuning steps and a reconstruction, written where it says.
     let dec = &all["decoder"];
     assert_eq!(dec["history"].as_array().unwrap().iter().filter(|h| h["loss"].is_number()).count(), 2);
-    assert!(PathBuf::from(dec["decoder"].as_str().unwrap()).exists());
+    let cwd = out.parent().unwrap();
+    assert!(cwd.join(dec["decoder"].as_str().unwrap()).exists());
     for k in ["exr", "png"] {
-        assert!(PathBuf::from(dec["reconstruction"][k].as_str().unwrap()).exists(), "{k} missing");
+        assert!(cwd.join(dec["reconstruction"][k].as_str().unwrap()).exists(), "{k} missing");
     }
     for r in reports {
         assert_eq!(r["provenance"]["design"], "built-in:paper");
         for a in r["artifacts"].as_array().unwrap() {
-            let path = PathBuf::from(a["path"].as_str().unwrap());
+            let path = cwd.join(a["path"].as_str().unwrap());
             assert!(path.exists(), "{} listed but missing", path.display());
         }
     }

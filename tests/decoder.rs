@@ -15,20 +15,9 @@ use doefab::decoder::{device, infer};
 use doefab::io::npy::read_npy_nd;
 use ndarray::Array3;
 
-/// `deepoptics-hdr/` of the shared data set, if present.
-fn data_dir() -> Option<PathBuf> {
-    let base = std::env::var_os("DOEFAB_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared"));
-    let dir = base.join("data/deepoptics-hdr");
-    if dir.exists() {
-        Some(dir)
-    } else {
-        // CI always has the shared data beside the checkout: there a missing folder fails.
-        assert!(std::env::var_os("CI").is_none(), "{} is missing", dir.display());
-        eprintln!("notice: {} is not here; skipping", dir.display());
-        None
-    }
+/// `deepoptics-hdr/` of the shared data set (the test fails when it is missing).
+fn data_dir() -> PathBuf {
+    common::shared_data("deepoptics-hdr")
 }
 
 fn npy3(path: &Path) -> Array3<f32> {
@@ -57,7 +46,7 @@ fn assert_parity(out: &Array3<f32>, reference: &Array3<f32>, what: &str) -> (f64
 
 #[test]
 fn the_papers_decoders_reproduce_the_tensorflow_crops() {
-    let Some(dir) = data_dir() else { return };
+    let dir = data_dir();
     let x = npy3(&dir.join("parity/kitchen_crop_input.npy"));
     for which in ["measured", "simulated"] {
         let w = DecoderWeights::read(&dir.join(format!("decoder_{which}_psf.safetensors"))).unwrap();
@@ -71,7 +60,7 @@ fn the_papers_decoders_reproduce_the_tensorflow_crops() {
 
 #[test]
 fn the_full_frame_reproduces_the_negative_blob() {
-    let Some(dir) = data_dir() else { return };
+    let dir = data_dir();
     let img = image::open(dir.join("captures/Kitchen/wPSF_0_stop.png")).unwrap().to_rgb8();
     let x =
         Array3::from_shape_fn((640, 640, 3), |(i, j, c)| img.get_pixel(j as u32, i as u32)[c] as f32 / 255.0);
@@ -88,7 +77,7 @@ fn the_full_frame_reproduces_the_negative_blob() {
 
 #[test]
 fn decoder_files_round_trip_with_their_metadata() {
-    let Some(dir) = data_dir() else { return };
+    let dir = data_dir();
     let src = dir.join("decoder_simulated_psf.safetensors");
     let w = DecoderWeights::read(&src).unwrap();
     let net = UNet::from_weights(&w, &device(false).unwrap());
@@ -547,7 +536,7 @@ fn finetune_command_trains_resumes_and_refuses_bad_input() {
 /// itself holds them (PSNR-gamma over saturated pixels, measured +2.2 dB and +1.7 dB).
 #[test]
 fn bench_decoder_scores_the_papers_decoders_on_the_real_captures() {
-    let Some(data) = data_dir() else { return };
+    let data = data_dir();
     let tmp = common::tempdir();
     let out = tmp.path().join("bench");
     let stdout = common::ok(&[
@@ -630,7 +619,7 @@ fn bench_decoder_scores_the_papers_decoders_on_the_real_captures() {
 #[test]
 fn the_measured_psf_decoder_wins_on_captures_simulated_with_the_measured_psf() {
     use doefab::decoder::finetune::{read_psf, GeneratedScenes};
-    let Some(data) = data_dir() else { return };
+    let data = data_dir();
     let dev = device(false).unwrap();
     let psf = read_psf(&data.join("measured_psf.npz"), Some("psf_val"), 4.29e-6).unwrap();
     let mut rotated = psf.clone();

@@ -1,6 +1,8 @@
 //! Optics stage: analytic truths (Airy pattern, grating orders), energy conservation,
 //! agreement between the propagation methods, validity guards, the shared measured PSF.
 
+mod common;
+
 use doefab::fabrication::quantize::order_efficiency;
 use doefab::grid::{Grid, Unit};
 use doefab::material::Material;
@@ -447,14 +449,7 @@ fn each_propagation_step_conserves_energy() {
 
 #[test]
 fn the_measured_psf_loads_through_the_same_type() {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data/deepoptics-hdr/measured_psf.npz");
-    if !path.exists() {
-        // CI always has the shared data beside the checkout: there a missing file fails.
-        assert!(std::env::var_os("CI").is_none(), "{} is missing", path.display());
-        eprintln!("notice: {} is not here; skipping the measured-PSF test", path.display());
-        return;
-    }
+    let path = common::shared_data("deepoptics-hdr/measured_psf.npz");
     let psf = Psf::read_npz(&path, Some("psf_val"), 4.29e-6, Some(&[635e-9, 530e-9, 450e-9])).unwrap();
     assert_eq!(psf.dim(), (319, 319));
     assert_eq!(psf.to_array4().dim(), (319, 319, 1, 3));

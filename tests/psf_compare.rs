@@ -62,12 +62,7 @@ fn the_npy_and_exr_of_one_run_compare_equal() {
 
 #[test]
 fn the_measured_psf_compares_against_a_simulated_one() {
-    let measured =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/deepoptics-hdr/measured_psf.npz");
-    if !measured.exists() {
-        eprintln!("notice: {} is not here; skipping the measured-PSF comparison", measured.display());
-        return;
-    }
+    let measured = common::shared_data("deepoptics-hdr/measured_psf.npz");
     let d = common::tempdir();
     let npy = simulated(d.path()).join("psf.npy");
     let (a, b) = (npy.to_str().unwrap(), measured.to_str().unwrap());

@@ -1,7 +1,8 @@
 //! Scan readers and surface statistics against files written by third-party programs
 //! (Gwyddion 2.62, gsffile, sdfio, surfalize, x3pio, SurfaceTopography) and the reference
 //! statistics those programs computed (profilometry/README.md). The copies in `profilometry/`
-//! always run; the full shared set (`../shared/data/surfaces/`) runs when present.
+//! always run; the full shared set (`../shared/data/surfaces/`) is required (the test fails
+//! without it).
 //!
 //! Tolerances: 1e-6 relative everywhere the file holds the heights to that precision. That
 //! includes the `%g` text formats (ASCII SDF, text matrix, XYZ): `%g` keeps six significant
@@ -11,6 +12,8 @@
 //! reads back within one count of the truth; a difference from the mean or from a fitted plane
 //! (itself within a count) is then within three counts: Sa..Sz are held to 3 counts, Ssk and Sku
 //! to 6 counts / Sq relative.
+
+mod common;
 
 use std::path::{Path, PathBuf};
 
@@ -42,13 +45,9 @@ fn local(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("profilometry").join(name)
 }
 
-/// The shared reference folder, when this checkout has it.
-fn shared() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/surfaces");
-    let present = p.join("README.md").exists();
-    // CI always has the shared data beside the checkout: there a missing folder fails.
-    assert!(present || std::env::var_os("CI").is_none(), "{} is missing", p.display());
-    present.then_some(p)
+/// The shared reference surfaces (the test fails when they are missing).
+fn shared() -> PathBuf {
+    common::shared_data("surfaces")
 }
 
 /// The S1 surface, metres.
@@ -225,10 +224,7 @@ fn text_matrix_copy_reproduces_the_reference_statistics() {
 /// Every file of the shared set, when present.
 #[test]
 fn shared_reference_files_all_formats() {
-    let Some(dir) = shared() else {
-        eprintln!("../shared/data/surfaces is absent: only the copies in profilometry/ were checked");
-        return;
-    };
+    let dir = shared();
     let none = ScanOptions::default();
     let metres = ScanOptions { z_unit: Some(1.0), ..Default::default() };
     let s1_files: &[(&str, &ScanOptions)] = &[

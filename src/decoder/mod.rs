@@ -36,27 +36,9 @@ pub fn device(gpu: bool) -> Result<Device> {
 }
 
 /// The paper's decoder trained with the simulated PSF, the default starting point of
-/// fine-tuning: `decoder_simulated_psf.safetensors` in `$DOEFAB_SHARED/data/deepoptics-hdr/`,
-/// else in `../shared/data/deepoptics-hdr/` or `shared/data/deepoptics-hdr/` from the working
-/// directory.
-pub fn default_init() -> Result<std::path::PathBuf> {
-    let rel = "data/deepoptics-hdr/decoder_simulated_psf.safetensors";
-    let mut tried = Vec::new();
-    let bases = std::env::var_os("DOEFAB_SHARED")
-        .map(std::path::PathBuf::from)
-        .into_iter()
-        .chain(["../shared".into(), "shared".into()]);
-    for base in bases {
-        let p = base.join(rel);
-        if p.exists() {
-            return Ok(p);
-        }
-        tried.push(p.display().to_string());
-    }
-    Err(crate::error::Error::param(
-        "init",
-        format!("no decoder given and the paper's simulated-PSF decoder is not at {}", tried.join(", ")),
-    ))
+/// fine-tuning: compiled into the binary (see [`weights::BUILT_IN`]).
+pub fn default_init() -> std::path::PathBuf {
+    std::path::PathBuf::from("built-in:paper-simulated-psf")
 }
 
 /// A batch of `(H, W, 3)` images as an NCHW tensor on `device`.

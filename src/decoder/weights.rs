@@ -140,10 +140,30 @@ pub const LAYOUT: &str =
 (TF conv2d_transpose); BN: beta,gamma,moving_mean,moving_variance, eps=1e-5";
 
 /// Reads every tensor of a safetensors file (F32 only) and its metadata.
+/// `built-in:NAME` reads one of the paper's decoders compiled into the binary ([`BUILT_IN`]).
 pub fn read_safetensors(path: &Path) -> Result<(BTreeMap<String, NamedTensor>, BTreeMap<String, String>)> {
+    if let Some(name) = path.to_str().and_then(|p| p.strip_prefix("built-in:")) {
+        let Some((_, bytes)) = BUILT_IN.iter().find(|(n, _)| *n == name) else {
+            let names: Vec<_> = BUILT_IN.iter().map(|(n, _)| format!("built-in:{n}")).collect();
+            return Err(Error::format(path, format!("no bundled decoder of that name; bundled: {}", names.join(", "))));
+        };
+        return decode_safetensors(path, bytes);
+    }
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     decode_safetensors(path, &bytes)
 }
+
+/// The paper's two decoders (Metzler et al. 2020, BSD-3, `assets/deepoptics-hdr/LICENSE`),
+/// compiled in so that an installed binary fine-tunes and reconstructs with no data beside it:
+/// `paper-simulated-psf` (trained end to end with the simulated PSF) and
+/// `paper-measured-psf` (fine-tuned by the paper with its measured PSF).
+pub const BUILT_IN: &[(&str, &[u8])] = &[
+    (
+        "paper-simulated-psf",
+        include_bytes!("../../assets/deepoptics-hdr/decoder_simulated_psf.safetensors"),
+    ),
+    ("paper-measured-psf", include_bytes!("../../assets/deepoptics-hdr/decoder_measured_psf.safetensors")),
+];
 
 /// Decodes safetensors bytes (see [`read_safetensors`]); `path` names the source in errors.
 pub fn decode_safetensors(

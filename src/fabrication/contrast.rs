@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::table::{column_unit, hermite, pchip_slopes, read_two_columns};
+use crate::table::{column_unit, hermite, parse_two_columns, pchip_slopes};
 
 /// A monotone contrast curve. Invariants: at least 2 points, doses strictly increasing in
 /// [0, 1], depths strictly increasing.
@@ -73,8 +73,10 @@ impl ContrastCurve {
     }
 
     /// Reads the CSV described in the module docs.
+    /// `built-in:NAME` reads a curve bundled with the recipes (see [`crate::fabrication::bundled::BUNDLED`]).
     pub fn read_csv(path: &Path) -> Result<Self> {
-        let t = read_two_columns(path, "dose,depth_nm")?;
+        let text = crate::fabrication::bundled::read_text(path, ".csv")?;
+        let t = parse_two_columns(path, &text, "dose,depth_nm")?;
         if t.header[0] != "dose" {
             return Err(Error::format(path, format!("first column must be 'dose', got '{}'", t.header[0])));
         }

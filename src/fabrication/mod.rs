@@ -7,8 +7,10 @@
 //! * [`mask`]: grayscale lithography masks with frame, crosses and label ([`marks`]);
 //! * [`gds`]: the multi-level binary mask set as GDSII, polygons from [`trace`];
 //! * [`stl`]: watertight STL of the surface, exact terraces or an error-bounded height field;
-//! * [`recipe`]: process recipes; [`chain`]: the whole chain behind `doefab fab`.
+//! * [`recipe`]: process recipes ([`bundled`]: those of `masks/`, compiled in); [`chain`]: the
+//!   whole chain behind `doefab fab`.
 
+pub mod bundled;
 pub mod chain;
 pub mod contrast;
 pub mod gds;

@@ -1,12 +1,17 @@
 //! Process recipes: TOML files in `masks/` that fix the writer, the level count, the resist
 //! and which artifacts to produce. Lengths are strings with units ("1 um", "500 nm"), parsed
 //! here; paths (the contrast curve) are relative to the recipe file.
+//!
+//! The recipes and the contrast curve of `masks/` are also compiled into the binary
+//! ([`BUNDLED`](super::bundled::BUNDLED)): `built-in:NAME` names one of them wherever a recipe or curve path is taken,
+//! so an installed binary needs no source tree beside it.
 
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::fabrication::bundled::{read_text, BUILT_IN};
 use crate::fabrication::mask::Polarity;
 use crate::fabrication::quantize::{check_level_count, QuantizeMethod};
 use crate::fabrication::stl::StlUnit;
@@ -121,9 +126,10 @@ pub struct Recipe {
 }
 
 impl Recipe {
-    /// Reads and validates a recipe; errors name the file and the field.
+    /// Reads and validates a recipe (a file, or `built-in:NAME` for a bundled one);
+    /// errors name the file and the field.
     pub fn read(path: &Path) -> Result<Recipe> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let text = read_text(path, ".toml")?;
         let f: RecipeFile = toml::from_str(&text).map_err(|e| Error::format(path, e.to_string()))?;
         let len = |field: &str, v: &str| {
             parse_length(v).map_err(|e| Error::format(path, format!("field '{field}': {e}")))
@@ -137,8 +143,12 @@ impl Recipe {
         };
         check_level_count(f.process.level_count)
             .map_err(|e| Error::format(path, format!("field 'process.level_count': {e}")))?;
+        let bundled = path.to_str().is_some_and(|p| p.starts_with(BUILT_IN));
         let dir = path.parent().unwrap_or(Path::new("."));
-        let contrast_curve = f.process.contrast_curve.map(|c| dir.join(c));
+        let contrast_curve = f.process.contrast_curve.map(|c| match bundled {
+            true => PathBuf::from(format!("{BUILT_IN}{c}")),
+            false => dir.join(c),
+        });
         let needs_curve = f.outputs.iter().any(|o| matches!(o, Output::GrayscalePng | Output::GrayscaleTiff));
         if needs_curve && contrast_curve.is_none() {
             return Err(Error::format(path, "grayscale outputs need 'process.contrast_curve'"));
@@ -199,6 +209,7 @@ impl Recipe {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fabrication::bundled::BUNDLED;
 
     fn write(dir: &Path, text: &str) -> PathBuf {
         let p = dir.join("r.toml");
@@ -246,19 +257,27 @@ level_count = 8
     }
 
     #[test]
-    fn bundled_recipes_parse() {
+    fn bundled_recipes_parse_and_equal_the_files_in_masks() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("masks");
         let mut n = 0;
         for e in std::fs::read_dir(&dir).unwrap() {
             let p = e.unwrap().path();
-            if p.extension().is_some_and(|x| x == "toml") {
-                let r = Recipe::read(&p).unwrap_or_else(|e| panic!("{e}"));
-                if let Some(c) = &r.contrast_curve {
-                    crate::fabrication::contrast::ContrastCurve::read_csv(c).unwrap();
+            let name = p.file_name().unwrap().to_str().unwrap().to_string();
+            let bundled = BUNDLED.iter().find(|(b, _)| *b == name);
+            let (_, text) = bundled.unwrap_or_else(|| panic!("masks/{name} is not bundled"));
+            assert_eq!(*text, std::fs::read_to_string(&p).unwrap(), "masks/{name} differs from its bundled copy");
+            if name.ends_with(".toml") {
+                for path in [p.clone(), PathBuf::from(format!("{BUILT_IN}{}", name.trim_end_matches(".toml")))] {
+                    let r = Recipe::read(&path).unwrap_or_else(|e| panic!("{e}"));
+                    if let Some(c) = &r.contrast_curve {
+                        crate::fabrication::contrast::ContrastCurve::read_csv(c).unwrap();
+                    }
                 }
                 n += 1;
             }
         }
         assert!(n >= 3, "expected at least three bundled recipes, found {n}");
+        let e = Recipe::read(Path::new("built-in:nothing")).unwrap_err().to_string();
+        assert!(e.contains("built-in:laser-writer-grayscale"), "{e}");
     }
 }

@@ -1,6 +1,8 @@
 //! Atomic output: every writer goes through [`write_atomic`], which writes a temporary file
 //! beside the target and renames it into place only after the content is complete and synced.
 //! A failure (an error, a panic, a full disk) never leaves a partial or clobbered file.
+//! The file gets the permissions a plain write gives (0666 less the umask), not the private
+//! 0600 of a temporary file.
 
 use std::io::{BufWriter, Write};
 use std::path::Path;
@@ -17,9 +19,15 @@ where
         _ => Path::new("."),
     };
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let tmp = tempfile::Builder::new()
-        .prefix(".doefab-")
-        .suffix(".partial")
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".doefab-").suffix(".partial");
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        // Applied at creation, so the umask restricts it as it does any write.
+        builder.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let tmp = builder
         .tempfile_in(dir)
         .map_err(|e| Error::io(dir, e))?;
     {
@@ -116,6 +124,23 @@ mod tests {
         assert_eq!(names.len(), 1, "left behind: {names:?}");
         write_bytes(&p, b"new").unwrap();
         assert_eq!(std::fs::read(&p).unwrap(), b"new");
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn outputs_get_the_permissions_of_a_plain_write() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let plain = dir.path().join("plain.txt");
+        std::fs::write(&plain, b"x").unwrap();
+        let ours = dir.path().join("ours.txt");
+        write_bytes(&ours, b"x").unwrap();
+        let mut staged = StagedDir::new(&dir.path().join("out")).unwrap();
+        write_bytes(&staged.stage_path("s.txt"), b"x").unwrap();
+        staged.commit().unwrap();
+        let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode(&ours), mode(&plain));
+        assert_eq!(mode(&dir.path().join("out/s.txt")), mode(&plain));
     }
 
     #[test]

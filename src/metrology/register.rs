@@ -930,19 +930,30 @@ impl Normal {
     }
 }
 
-fn accumulate(ctx: &Ctx, pts: &[[f64; 3]], p: &Params, half: [f64; 2]) -> Normal {
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).clamp(1, 8);
-    let chunk = pts.len().div_ceil(threads).max(1);
-    let parts: Vec<Normal> = std::thread::scope(|sc| {
-        let hs: Vec<_> =
-            pts.chunks(chunk).map(|c| sc.spawn(move || accumulate_chunk(ctx, c, p, half))).collect();
-        hs.into_iter().map(|h| h.join().unwrap_or_else(|_| Normal::zero())).collect()
-    });
+/// Points per chunk of [`accumulate`]: fixed, so that the sums are added in the same order
+/// whatever the number of threads (the result is bit-identical on 1 or 64 cores).
+const ACCUMULATE_CHUNK: usize = 8192;
+
+/// The normal equations over all points: fixed chunks accumulated in parallel, then added in
+/// chunk order. A worker that panics is reported as an error, never taken as zeros.
+fn accumulate(ctx: &Ctx, pts: &[[f64; 3]], p: &Params, half: [f64; 2]) -> Result<Normal> {
+    use rayon::prelude::*;
+    let parts = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        pts.par_chunks(ACCUMULATE_CHUNK).map(|c| accumulate_chunk(ctx, c, p, half)).collect::<Vec<_>>()
+    }))
+    .map_err(|e| {
+        let why = e
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| e.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown cause".into());
+        Error::Data(format!("registration: a worker accumulating the normal equations panicked ({why})"))
+    })?;
     let mut total = Normal::zero();
     for q in &parts {
         total.add(q);
     }
-    total
+    Ok(total)
 }
 
 fn accumulate_chunk(ctx: &Ctx, pts: &[[f64; 3]], p: &Params, half: [f64; 2]) -> Normal {
@@ -1038,7 +1049,7 @@ fn refine(ctx: &Ctx, pts: &[[f64; 3]], p: &mut Params, radius_px: f64) -> Result
     // Plane slopes are fitted per metre (the normal equations are diagonally scaled).
     let half = [1.0, 1.0];
     // The linear parameters first, with the geometry fixed (exact least squares).
-    let mut nm = accumulate(ctx, pts, p, half);
+    let mut nm = accumulate(ctx, pts, p, half)?;
     if nm.n < 16.0 {
         return Err(Error::Validity(
             "the scan and the design barely overlap at the coarse placement: nothing to refine".into(),
@@ -1049,7 +1060,7 @@ fn refine(ctx: &Ctx, pts: &[[f64; 3]], p: &mut Params, radius_px: f64) -> Result
         let mut v = p.vec();
         v.iter_mut().zip(&d).for_each(|(x, y)| *x += y);
         *p = Params::from_vec(&v);
-        nm = accumulate(ctx, pts, p, half);
+        nm = accumulate(ctx, pts, p, half)?;
     }
     let mut lambda = 1e-3;
     for _ in 0..50 {
@@ -1057,7 +1068,7 @@ fn refine(ctx: &Ctx, pts: &[[f64; 3]], p: &mut Params, radius_px: f64) -> Result
         let mut v = p.vec();
         v.iter_mut().zip(&d).for_each(|(x, y)| *x += y);
         let q = Params::from_vec(&v);
-        let nq = accumulate(ctx, pts, &q, half);
+        let nq = accumulate(ctx, pts, &q, half)?;
         if nq.n >= 16.0 && nq.mse() <= nm.mse() {
             *p = q;
             nm = nq;

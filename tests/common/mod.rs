@@ -51,3 +51,20 @@ pub fn fails(args: &[&str]) -> String {
     assert!(!out.status.success(), "doefab {args:?} should have failed");
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
+
+/// `<shared>/data/<rel>`, where `<shared>` is `$DOEFAB_SHARED` or the `shared` folder beside
+/// the checkout. A test that needs it fails when it is missing, saying where it was expected:
+/// nothing is skipped in silence.
+pub fn shared_data(rel: &str) -> PathBuf {
+    let root = std::env::var_os("DOEFAB_SHARED")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared"));
+    let p = root.join("data").join(rel);
+    assert!(
+        p.exists(),
+        "{} is missing: this test reads the shared data set, expected in a folder `shared` beside \
+         the checkout (or where $DOEFAB_SHARED points)",
+        p.display()
+    );
+    p
+}
