@@ -306,8 +306,8 @@ fn fine_tune(init: &Path, psf_path: &Path, out: &Path, p: &mut Progress) -> Resu
         &crate::decoder::weights::DecoderWeights::read(init)?,
         &device,
     );
-    let desc = format!("{} (sha256 {})", init.display(), crate::io::file_sha256(init)?);
-    let mut trainer = ft::Trainer::new(net, &psf, &psf_sha, &source, cfg, &desc)?;
+    let desc = format!("{} (sha256 {})", init.display(), crate::decoder::weights::decoder_sha256(init)?);
+    let mut trainer = ft::Trainer::new(net, &psf, &psf_sha, &source, None, cfg, &desc)?;
     let message = format!("fine-tuning the decoder on the calibrated PSF ({FINETUNE_STEPS} steps)");
     p.show(&message);
     let ft_dir = out.join("finetune");

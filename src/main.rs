@@ -501,9 +501,16 @@ enum Command {
         /// built-in:paper-measured-psf, the paper's decoders compiled in.
         #[arg(long)]
         init: Option<PathBuf>,
-        /// Folder of HDR training images (.exr, .hdr); without it, seeded procedural HDR scenes.
+        /// Folder of real HDR images (.exr, .hdr, searched recursively; 2:1 images are taken as
+        /// equirectangular panoramas); without it, seeded procedural HDR scenes.
         #[arg(long)]
         data: Option<PathBuf>,
+        /// Folder of validation HDR images; without it, 1 in --holdout-every of --data's images,
+        /// chosen by name, validate and are never trained on.
+        #[arg(long)]
+        validation_data: Option<PathBuf>,
+        #[arg(long, default_value_t = 5)]
+        holdout_every: usize,
         /// Output folder: checkpoint, decoder, training curve.
         #[arg(short, long)]
         output: PathBuf,
@@ -517,9 +524,30 @@ enum Command {
         /// Crop side, pixels (a multiple of 16).
         #[arg(long, default_value_t = 320)]
         crop: usize,
-        /// Adam step size (on --resume, replaces the saved one when given).
+        /// Adam step size (default 1e-4; on --resume, replaces the saved one when given).
         #[arg(long)]
         lr: Option<f64>,
+        /// Step-size decay: lr * lr_decay^(step / 1000).
+        #[arg(long, default_value_t = 1.0)]
+        lr_decay: f64,
+        /// L2-SP pull toward the start weights (0 = none).
+        #[arg(long, default_value_t = 0.0)]
+        pull: f64,
+        /// Keep the encoder at its start weights.
+        #[arg(long)]
+        freeze_encoder: bool,
+        /// Stop after this many validations without a new best (0 = never).
+        #[arg(long, default_value_t = 0)]
+        patience: usize,
+        /// Read noise of the simulated captures, fraction of full scale.
+        #[arg(long, default_value_t = 0.02)]
+        read_noise: f64,
+        /// Shot noise of the simulated captures: variance per unit signal (full scale = 1).
+        #[arg(long, default_value_t = 0.0)]
+        shot_noise: f64,
+        /// Bit depth of the simulated captures (0 = not quantised).
+        #[arg(long, default_value_t = 0)]
+        bits: u32,
         /// Validate and checkpoint every this many steps.
         #[arg(long, default_value_t = 100)]
         checkpoint_every: usize,
@@ -1515,21 +1543,28 @@ fn print_demo(r: &doefab::demo::DemoReport) {
 }
 
 fn finetune(cli: &Cli) -> Result<()> {
-    use doefab::decoder::finetune::{
-        read_psf, FinetuneConfig, GeneratedScenes, ImageSet, SceneSource, Trainer, CHECKPOINT,
-    };
+    use doefab::decoder::finetune::{run_job, FinetuneConfig, FinetuneJob};
     let Command::Finetune {
         psf,
         psf_key,
         pitch,
         init,
         data,
+        validation_data,
+        holdout_every,
         output,
         resume,
         steps,
         batch,
         crop,
         lr,
+        lr_decay,
+        pull,
+        freeze_encoder,
+        patience,
+        read_noise,
+        shot_noise,
+        bits,
         checkpoint_every,
         validation,
         seed,
@@ -1538,39 +1573,34 @@ fn finetune(cli: &Cli) -> Result<()> {
     else {
         unreachable!("called for finetune only")
     };
-    let psf_model = read_psf(psf, psf_key.as_deref(), *pitch)?;
-    let psf_sha = doefab::io::file_sha256(psf)?;
-    let source: Box<dyn SceneSource> = match data {
-        Some(dir) => Box::new(ImageSet::load(dir)?),
-        None => Box::new(GeneratedScenes {
-            name: "procedural HDR scenes",
-            generate: doefab::decoder::scenes::procedural_scene,
-        }),
-    };
-    let device = doefab::decoder::device(*gpu)?;
-    let mut trainer = if *resume {
-        let ckpt = output.join(CHECKPOINT);
-        Trainer::resume(&ckpt, &psf_model, &psf_sha, source.as_ref(), *steps, *lr, &device)
-            .with_context(|| format!("resuming from {}", ckpt.display()))?
-    } else {
-        let init = match init {
-            Some(p) => p.clone(),
-            None => doefab::decoder::default_init(),
-        };
-        let weights = doefab::decoder::weights::DecoderWeights::read(&init)?;
-        let cfg = FinetuneConfig {
+    let job = FinetuneJob {
+        psf: psf.clone(),
+        psf_key: psf_key.clone(),
+        pitch: *pitch,
+        init: init.clone(),
+        data: data.clone(),
+        validation_data: validation_data.clone(),
+        holdout_every: *holdout_every,
+        output: output.clone(),
+        resume: *resume,
+        lr: *lr,
+        cfg: FinetuneConfig {
             steps: *steps,
             batch: *batch,
             crop: *crop,
-            lr: lr.unwrap_or(1e-4),
+            lr_decay: *lr_decay,
+            pull: *pull,
+            freeze_encoder: *freeze_encoder,
+            patience: *patience,
+            noise_sigma: *read_noise,
+            shot_noise: *shot_noise,
+            bits: (*bits > 0).then_some(*bits),
             checkpoint_every: *checkpoint_every,
             validation: *validation,
             seed: *seed,
             ..FinetuneConfig::default()
-        };
-        let net = doefab::decoder::unet::UNet::from_weights(&weights, &device);
-        let desc = format!("{} (sha256 {})", init.display(), doefab::io::file_sha256(&init)?);
-        Trainer::new(net, &psf_model, &psf_sha, source.as_ref(), cfg, &desc)?
+        },
+        gpu: *gpu,
     };
     let pb = progress(cli, *steps as u64);
     if let Ok(style) =
@@ -1578,36 +1608,24 @@ fn finetune(cli: &Cli) -> Result<()> {
     {
         pb.set_style(style);
     }
-    pb.set_position(trainer.step() as u64);
     let mut last_psnr = None;
-    let result = trainer.run(output, &mut |r| {
+    let outcome = run_job(&job, &mut |r| {
         last_psnr = r.val_psnr.or(last_psnr);
         let val = last_psnr.map_or(String::new(), |p: f64| format!(", validation {p:.2} dB"));
         pb.set_message(format!("loss {:.5}{val}", r.loss));
         pb.set_position(r.step as u64);
     });
     pb.finish_and_clear();
-    if let Err(e) = result {
-        let ckpt = output.join(CHECKPOINT);
-        if ckpt.exists() {
-            return Err(anyhow::Error::new(e)
-                .context(format!("stopped; the last good checkpoint is {}", ckpt.display())));
-        }
-        return Err(e.into());
-    }
-    trainer.write_outputs(output)?;
-    let summary = serde_json::json!({
-        "output": output.display().to_string(),
-        "steps": trainer.step(),
-        "history": trainer.history(),
-    });
-    print_result(cli, &summary, || {
-        let last = trainer.history().iter().rev().find_map(|h| h.val_psnr);
+    let outcome = outcome?;
+    print_result(cli, &outcome, || {
         println!(
-            "{} steps; validation PSNR {} -> {}",
-            trainer.step(),
-            last.map_or("n/a".into(), |p| format!("{p:.2} dB")),
-            output.display()
+            "{} steps{}; validation PSNR {} at the start, best {:.2} dB at step {} -> {}",
+            outcome.steps,
+            if outcome.stopped_early { " (stopped early)" } else { "" },
+            outcome.start_validation_psnr.map_or("n/a".into(), |p| format!("{p:.2} dB")),
+            outcome.best_validation_psnr,
+            outcome.best_step,
+            outcome.decoder.display()
         )
     })
 }

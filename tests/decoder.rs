@@ -132,7 +132,8 @@ fn missing_and_misshaped_tensors_are_named() {
 // ---------------------------------------------------------------------------------------------
 // Reconstruction: analytic decoders, tiling, captures, the command
 
-use doefab::decoder::finetune::{gamma_loss, Adam, FinetuneConfig, ImageSet, Trainer};
+use doefab::decoder::dataset::{HdrImage, HdrScenes};
+use doefab::decoder::finetune::{gamma_loss, Adam, FinetuneConfig, Trainer};
 use doefab::decoder::reconstruct::{infer_tiled, read_capture, reconstruct, Negatives, ReconstructOptions};
 use doefab::decoder::to_tensor;
 use doefab::rng::Lcg;
@@ -393,24 +394,28 @@ fn an_adam_step_lowers_the_loss_on_its_batch() {
 fn resume_continues_exactly_and_divergence_keeps_the_last_good_checkpoint() {
     let dev = device(false).unwrap();
     let psf = small_psf();
-    let images = ImageSet::new("test images", hdr_images()).unwrap();
+    let images = HdrScenes::new(
+        "test images",
+        hdr_images().into_iter().map(|(name, pixels)| HdrImage { name, pixels }).collect(),
+    )
+    .unwrap();
     let init = random_weights(4);
     let t = common::tempdir();
     let (a, b) = (t.path().join("a"), t.path().join("b"));
     // Four steps in one go.
     let mut run =
-        Trainer::new(UNet::from_weights(&init, &dev), &psf, "ab12", &images, tiny_config(4), "random")
+        Trainer::new(UNet::from_weights(&init, &dev), &psf, "ab12", &images, None, tiny_config(4), "random")
             .unwrap();
     run.run(&a, &mut |_| {}).unwrap();
     run.write_outputs(&a).unwrap();
     // Two steps, then two more resumed from the checkpoint.
     let mut half =
-        Trainer::new(UNet::from_weights(&init, &dev), &psf, "ab12", &images, tiny_config(2), "random")
+        Trainer::new(UNet::from_weights(&init, &dev), &psf, "ab12", &images, None, tiny_config(2), "random")
             .unwrap();
     half.run(&b, &mut |_| {}).unwrap();
     let ckpt = b.join("checkpoint.safetensors");
     let saved = std::fs::read(&ckpt).unwrap();
-    let mut rest = Trainer::resume(&ckpt, &psf, "ab12", &images, 4, None, &dev).unwrap();
+    let mut rest = Trainer::resume(&ckpt, &psf, "ab12", &images, None, 4, None, &dev).unwrap();
     assert_eq!(rest.step(), 2);
     rest.run(&b, &mut |_| {}).unwrap();
     rest.write_outputs(&b).unwrap();
@@ -421,11 +426,15 @@ fn resume_continues_exactly_and_divergence_keeps_the_last_good_checkpoint() {
     assert_ne!(da.tensors, init.tensors, "training changed the weights");
     assert_eq!(da.metadata["training_steps"], "4");
     assert_eq!(da.metadata["psf_sha256"], "ab12");
-    assert!(da.metadata["training_data"].contains("test images (2 HDR images)"));
+    assert!(
+        da.metadata["training_data"].contains("test images (2 real HDR images"),
+        "{}",
+        da.metadata["training_data"]
+    );
     assert!(da.metadata["final_loss"].parse::<f64>().unwrap() > 0.0);
     assert!(a.join("training_curve.png").exists() && a.join("training.json").exists());
     // A different PSF is refused on resume.
-    let err = Trainer::resume(&ckpt, &psf, "cd34", &images, 4, None, &dev).err().unwrap().to_string();
+    let err = Trainer::resume(&ckpt, &psf, "cd34", &images, None, 4, None, &dev).err().unwrap().to_string();
     assert!(err.contains("SHA-256"), "{err}");
     // Resuming the step-2 checkpoint with a huge step size diverges: the run stops with a
     // message and the checkpoint on disk is still the step-2 one.
@@ -433,7 +442,7 @@ fn resume_continues_exactly_and_divergence_keeps_the_last_good_checkpoint() {
     std::fs::create_dir_all(&c).unwrap();
     std::fs::write(c.join("checkpoint.safetensors"), &saved).unwrap();
     let mut wild =
-        Trainer::resume(&c.join("checkpoint.safetensors"), &psf, "ab12", &images, 6, Some(1e4), &dev)
+        Trainer::resume(&c.join("checkpoint.safetensors"), &psf, "ab12", &images, None, 6, Some(1e4), &dev)
             .unwrap();
     let err = wild.run(&c, &mut |_| {}).unwrap_err().to_string();
     eprintln!("{err}");
@@ -454,7 +463,7 @@ fn generated_scenes_feed_a_run_and_bad_values_are_refused() {
         },
     };
     let net = UNet::from_weights(&random_weights(5), &dev);
-    let mut run = Trainer::new(net, &small_psf(), "ff", &texture, tiny_config(1), "random").unwrap();
+    let mut run = Trainer::new(net, &small_psf(), "ff", &texture, None, tiny_config(1), "random").unwrap();
     assert!(run.train_step().unwrap().is_finite());
     let d = run.decoder().unwrap();
     assert_eq!(d.metadata["training_data"], "log-normal texture");
@@ -463,8 +472,10 @@ fn generated_scenes_feed_a_run_and_bad_values_are_refused() {
         generate: |_, r: usize, c: usize| Array3::from_elem((r, c, 3), f32::NAN),
     };
     let net = UNet::from_weights(&random_weights(5), &dev);
-    let err =
-        Trainer::new(net, &small_psf(), "ff", &broken, tiny_config(1), "random").err().unwrap().to_string();
+    let err = Trainer::new(net, &small_psf(), "ff", &broken, None, tiny_config(1), "random")
+        .err()
+        .unwrap()
+        .to_string();
     assert!(err.contains("broken") && err.contains("NaN"), "{err}");
 }
 
@@ -482,6 +493,10 @@ fn finetune_command_trains_resumes_and_refuses_bad_input() {
         )
         .unwrap();
     }
+    let validation = t.path().join("validation");
+    std::fs::create_dir_all(&validation).unwrap();
+    let first = std::fs::read_dir(&data).unwrap().next().unwrap().unwrap().path();
+    std::fs::copy(&first, validation.join("held-out.exr")).unwrap();
     let psf = t.path().join("psf.npy");
     doefab::io::npy::write_npy_f32_4d(&psf, &small_psf().to_array4()).unwrap();
     let init = t.path().join("init.safetensors");
@@ -495,6 +510,8 @@ fn finetune_command_trains_resumes_and_refuses_bad_input() {
             .arg(&init)
             .arg("--data")
             .arg(&data)
+            .arg("--validation-data")
+            .arg(&validation)
             .arg("-o")
             .arg(&out)
             .args(["--batch", "1", "--validation", "1", "--checkpoint-every", "1"])
@@ -631,8 +648,8 @@ fn the_measured_psf_decoder_wins_on_captures_simulated_with_the_measured_psf() {
     let cfg = FinetuneConfig { steps: 1, batch: 1, crop: 160, validation: 4, ..FinetuneConfig::default() };
     let psnr = |decoder: &str, psf: &doefab::optics::psf::Psf| {
         let w = DecoderWeights::read(&data.join(decoder)).unwrap();
-        let run =
-            Trainer::new(UNet::from_weights(&w, &dev), psf, "-", &scenes, cfg.clone(), decoder).unwrap();
+        let run = Trainer::new(UNet::from_weights(&w, &dev), psf, "-", &scenes, None, cfg.clone(), decoder)
+            .unwrap();
         run.history()[0].val_psnr.unwrap()
     };
     let (measured, simulated) =
@@ -640,4 +657,65 @@ fn the_measured_psf_decoder_wins_on_captures_simulated_with_the_measured_psf() {
     assert!(measured > simulated + 4.0, "{measured} vs {simulated} dB");
     let measured_rotated = psnr("decoder_measured_psf.safetensors", &rotated);
     assert!(measured_rotated < measured - 3.0, "{measured_rotated} vs {measured} dB");
+}
+
+/// The decoders compiled into the binary are the paper's files, byte for byte, and load.
+#[test]
+fn the_bundled_decoders_are_the_papers_files() {
+    use doefab::decoder::weights::{decoder_bytes, decoder_sha256};
+    let dir = data_dir();
+    for (name, file) in [
+        ("paper-simulated-psf", "decoder_simulated_psf.safetensors"),
+        ("paper-measured-psf", "decoder_measured_psf.safetensors"),
+    ] {
+        let builtin = PathBuf::from(format!("built-in:{name}"));
+        assert!(
+            decoder_bytes(&builtin).unwrap().as_ref() == std::fs::read(dir.join(file)).unwrap().as_slice()
+        );
+        assert_eq!(decoder_sha256(&builtin).unwrap(), doefab::io::file_sha256(&dir.join(file)).unwrap());
+        DecoderWeights::read(&builtin).unwrap();
+    }
+    let e = DecoderWeights::read(Path::new("built-in:nothing")).unwrap_err().to_string();
+    assert!(e.contains("built-in:paper-measured-psf"), "{e}");
+}
+
+/// The decoder written is the best validated one: a run whose steps all validate worse than
+/// its start (a step size far too large) writes the start decoder back, bit for bit, and
+/// says so; early stopping ends it after `patience` validations without a new best.
+#[test]
+fn a_run_that_only_gets_worse_writes_its_start_back() {
+    let dev = device(false).unwrap();
+    let images = HdrScenes::new(
+        "test images",
+        hdr_images().into_iter().map(|(name, pixels)| HdrImage { name, pixels }).collect(),
+    )
+    .unwrap();
+    let init = random_weights(4);
+    let t = common::tempdir();
+    let cfg = FinetuneConfig {
+        lr: 0.3,
+        steps: 8,
+        checkpoint_every: 1,
+        patience: 2,
+        divergence: 1e12,
+        ..tiny_config(8)
+    };
+    let mut run =
+        Trainer::new(UNet::from_weights(&init, &dev), &small_psf(), "ab", &images, None, cfg, "random")
+            .unwrap();
+    run.run(t.path(), &mut |_| {}).unwrap();
+    run.write_outputs(t.path()).unwrap();
+    let (best_step, _) = run.best();
+    let vals: Vec<f64> = run.history().iter().filter_map(|h| h.val_loss).collect();
+    eprintln!("validation losses {vals:?}");
+    assert!(vals[1..].iter().all(|&v| v > vals[0]), "the step size should make every step worse: {vals:?}");
+    assert_eq!(best_step, 0);
+    assert!(run.stopped_early() && run.step() == 2, "stopped at step {}", run.step());
+    let written = DecoderWeights::read(&t.path().join("decoder.safetensors")).unwrap();
+    assert_eq!(written.tensors, init.tensors, "the start decoder, bit for bit");
+    assert_eq!(written.metadata["best_step"], "0");
+    let record: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(t.path().join("training.json")).unwrap()).unwrap();
+    assert_eq!(record["best_step"], 0);
+    assert_eq!(record["stopped_early"], true);
 }

@@ -30,9 +30,7 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array2, Array3, Zip};
 use serde::Serialize;
 
-use super::finetune::{
-    read_psf, FinetuneConfig, GeneratedScenes, HistoryEntry, ImageSet, SceneSource, Trainer,
-};
+use super::finetune::{read_psf, FinetuneConfig, GeneratedScenes, HistoryEntry, SceneSource, Trainer};
 use super::reconstruct::{reconstruct, ReconstructOptions};
 use super::unet::UNet;
 use super::weights::DecoderWeights;
@@ -293,7 +291,10 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
     let start = DecoderWeights::read(&start_path)?;
     let psf = read_psf(&psf_path, Some("psf_val"), SENSOR_PITCH)?;
     let source: Box<dyn SceneSource> = match &cfg.train_data {
-        Some(dir) => Box::new(ImageSet::load(dir)?),
+        Some(dir) => Box::new(super::dataset::HdrScenes::new(
+            &dir.display().to_string(),
+            super::dataset::read_dir(dir)?,
+        )?),
         None => Box::new(GeneratedScenes {
             name: "procedural HDR scenes",
             generate: super::scenes::procedural_scene,
@@ -306,6 +307,7 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
         &psf,
         &crate::io::file_sha256(&psf_path)?,
         source.as_ref(),
+        None,
         cfg.finetune.clone(),
         &desc,
     )?;

@@ -45,78 +45,6 @@ pub trait SceneSource: Sync {
     fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Array3<f32>>;
 }
 
-/// HDR images held in memory (a folder of EXR / Radiance .hdr files, or arrays made by a
-/// program); scenes are random crops of a random image.
-pub struct ImageSet {
-    name: String,
-    images: Vec<(String, Array3<f32>)>,
-}
-
-impl ImageSet {
-    /// Named `(H, W, 3)` linear images; each must be finite and non-negative.
-    pub fn new(name: &str, images: Vec<(String, Array3<f32>)>) -> Result<ImageSet> {
-        if images.is_empty() {
-            return Err(Error::Data(format!("{name}: no training images")));
-        }
-        for (n, img) in &images {
-            if img.dim().2 != 3 {
-                return Err(Error::Data(format!("{n}: has {} channels, training needs RGB", img.dim().2)));
-            }
-            if let Some(v) = img.iter().find(|v| !v.is_finite() || **v < 0.0) {
-                return Err(Error::Data(format!("{n}: holds {v}; HDR radiance must be finite and >= 0")));
-            }
-        }
-        Ok(ImageSet { name: name.into(), images })
-    }
-
-    /// Every `.exr` and `.hdr` file of `dir` (sorted by name), read as linear RGB.
-    pub fn load(dir: &Path) -> Result<ImageSet> {
-        let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
-            .map_err(|e| Error::io(dir, e))?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| {
-                p.extension()
-                    .and_then(|e| e.to_str())
-                    .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "exr" | "hdr"))
-            })
-            .collect();
-        paths.sort();
-        let mut images = Vec::with_capacity(paths.len());
-        for p in paths {
-            let img = image::open(&p)
-                .map_err(|e| Error::format(&p, format!("cannot read as an HDR image: {e}")))?;
-            let rgb = img.to_rgb32f();
-            let (w, h) = (rgb.width() as usize, rgb.height() as usize);
-            let arr = Array3::from_shape_vec((h, w, 3), rgb.into_raw()).expect("RGB buffer");
-            images.push((p.display().to_string(), arr));
-        }
-        if images.is_empty() {
-            return Err(Error::format(dir, "holds no .exr or .hdr images"));
-        }
-        ImageSet::new(&dir.display().to_string(), images)
-    }
-}
-
-impl SceneSource for ImageSet {
-    fn describe(&self) -> String {
-        format!("{} ({} HDR images)", self.name, self.images.len())
-    }
-
-    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Array3<f32>> {
-        let k = ((rng.uniform() * self.images.len() as f64) as usize).min(self.images.len() - 1);
-        let (name, img) = &self.images[k];
-        let (h, w, _) = img.dim();
-        if h < rows || w < cols {
-            return Err(Error::Data(format!(
-                "{name}: is {h} x {w}, smaller than a training crop plus the PSF margins ({rows} x {cols})"
-            )));
-        }
-        let r = ((rng.uniform() * (h - rows + 1) as f64) as usize).min(h - rows);
-        let c = ((rng.uniform() * (w - cols + 1) as f64) as usize).min(w - cols);
-        Ok(img.slice(s![r..r + rows, c..c + cols, ..]).to_owned())
-    }
-}
-
 /// Scenes from a generator `f(seed, rows, cols)` (such as a procedural scene generator), each
 /// with a seed drawn from the run's generator.
 pub struct GeneratedScenes<F> {
@@ -196,7 +124,32 @@ pub struct FinetuneConfig {
     pub seed: u64,
     /// Stop when the validation loss exceeds this factor times the best so far.
     pub divergence: f64,
+    /// Gaussian read noise, fraction of the clipping level.
     pub noise_sigma: f64,
+    /// Shot noise: variance `shot_noise * y` added to the read noise's (units of the clipping
+    /// level; 0 = none).
+    #[serde(default)]
+    pub shot_noise: f64,
+    /// Bit depth the simulated captures are quantised to (`None`: not quantised).
+    #[serde(default)]
+    pub bits: Option<u32>,
+    /// L2-SP (Li et al. 2018): after each Adam step, trainable weights move toward the start
+    /// weights by `lr * pull * (w - w0)` (a decoupled pull, as AdamW decouples its decay).
+    #[serde(default)]
+    pub pull: f64,
+    /// Keep the encoder (`enc*` tensors) at its start weights.
+    #[serde(default)]
+    pub freeze_encoder: bool,
+    /// Exponential step-size decay: `lr_t = lr * lr_decay^(t / 1000)` (1 = constant).
+    #[serde(default = "one")]
+    pub lr_decay: f64,
+    /// Stop after this many validations without a new best (0 = never stop early).
+    #[serde(default)]
+    pub patience: usize,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 impl Default for FinetuneConfig {
@@ -214,6 +167,12 @@ impl Default for FinetuneConfig {
             seed: 1,
             divergence: 10.0,
             noise_sigma: 0.02,
+            shot_noise: 0.0,
+            bits: None,
+            pull: 0.0,
+            freeze_encoder: false,
+            lr_decay: 1.0,
+            patience: 0,
         }
     }
 }
@@ -236,11 +195,41 @@ impl FinetuneConfig {
         if self.divergence <= 1.0 {
             return bad("divergence", format!("{} must exceed 1", self.divergence));
         }
+        if !(self.pull >= 0.0 && self.pull.is_finite()) {
+            return bad("pull", format!("{} must be finite and >= 0", self.pull));
+        }
+        if !(self.lr_decay > 0.0 && self.lr_decay <= 1.0) {
+            return bad("lr_decay", format!("{} must lie in (0, 1]", self.lr_decay));
+        }
+        if !(self.shot_noise >= 0.0 && self.noise_sigma >= 0.0) {
+            return bad(
+                "noise",
+                format!("read {} and shot {} must be >= 0", self.noise_sigma, self.shot_noise),
+            );
+        }
+        if self.bits.is_some_and(|b| !(1..=16).contains(&b)) {
+            return bad("bits", format!("{:?} must lie in 1..=16", self.bits));
+        }
         Ok(())
     }
 
     fn model(&self) -> MeasurementModel {
-        MeasurementModel { noise_sigma: self.noise_sigma, ..MeasurementModel::default() }
+        MeasurementModel {
+            noise_sigma: self.noise_sigma,
+            shot_noise: self.shot_noise,
+            bits: self.bits,
+            ..MeasurementModel::default()
+        }
+    }
+
+    /// The step size of step `t` (1-based): `lr * lr_decay^(t / 1000)`.
+    pub fn lr_at(&self, t: usize) -> f64 {
+        self.lr * self.lr_decay.powf(t as f64 / 1000.0)
+    }
+
+    /// Whether the tensor `name` is updated: not a BatchNorm statistic, not a frozen encoder.
+    pub fn updates(&self, name: &str) -> bool {
+        is_trainable(name) && !(self.freeze_encoder && name.starts_with("enc"))
     }
 }
 
@@ -275,6 +264,8 @@ pub struct Adam {
     pub epsilon: f64,
     /// Steps taken (`t` of the bias corrections).
     pub t: usize,
+    /// Which of the network's tensors are updated.
+    updates: Vec<bool>,
     /// First and second moments per checkpoint entry (`None` for frozen or not yet updated).
     m: Vec<Option<Tensor<1>>>,
     v: Vec<Option<Tensor<1>>>,
@@ -290,6 +281,7 @@ impl Adam {
             beta2: cfg.beta2,
             epsilon: cfg.epsilon,
             t: 0,
+            updates: net.names().iter().map(|n| cfg.updates(n)).collect(),
             m: vec![None; n],
             v: vec![None; n],
         }
@@ -299,13 +291,13 @@ impl Adam {
     /// with targets `target` (on the network's device). Returns the loss before the update;
     /// a non-finite loss is an error and leaves `net` and the moments unchanged.
     pub fn step(&mut self, net: &mut UNet, x: Tensor<4>, target: Tensor<4>) -> Result<f64> {
-        let leaves: Vec<Tensor<1>> = net
-            .names()
+        let leaves: Vec<Tensor<1>> = self
+            .updates
             .iter()
             .zip(net.params())
-            .map(|(n, p)| {
+            .map(|(&update, p)| {
                 let t = p.clone().autodiff();
-                if is_trainable(n) {
+                if update {
                     t.require_grad()
                 } else {
                     t
@@ -359,8 +351,16 @@ pub struct Trainer<'a> {
     conv: Convolver,
     source: &'a dyn SceneSource,
     validation: Vec<Measurement>,
+    /// What the validation set was simulated from.
+    validation_data: String,
     psf_sha256: String,
     init: String,
+    /// The start weights (the pull of L2-SP) and the best validated ones, with their step.
+    start: Vec<Tensor<1>>,
+    best: Vec<Tensor<1>>,
+    best_step: usize,
+    /// Validations since the last new best.
+    stale: usize,
 }
 
 /// What one step reports to the caller (for a progress bar).
@@ -374,12 +374,14 @@ pub struct StepReport {
 
 impl<'a> Trainer<'a> {
     /// Starts a run from `net`. `psf_sha256` and `init` (the initial decoder's description)
-    /// are recorded in the outputs.
+    /// are recorded in the outputs. The validation set is simulated from `validation`
+    /// (held-out images) or, without it, from `source` with a seed of its own.
     pub fn new(
         net: UNet,
         psf: &Psf,
         psf_sha256: &str,
         source: &'a dyn SceneSource,
+        validation: Option<&dyn SceneSource>,
         cfg: FinetuneConfig,
         init: &str,
     ) -> Result<Trainer<'a>> {
@@ -392,6 +394,8 @@ impl<'a> Trainer<'a> {
         }
         let (kh, kw) = psf.dim();
         let conv = Convolver::new(psf, (cfg.crop + kh - 1, cfg.crop + kw - 1))?;
+        let start = net.params().to_vec();
+        let val_source = validation.unwrap_or(source);
         let mut t = Trainer {
             rng: Lcg(cfg.seed),
             adam: Adam::new(&net, &cfg),
@@ -403,10 +407,16 @@ impl<'a> Trainer<'a> {
             conv,
             source,
             validation: Vec::new(),
+            validation_data: val_source.describe(),
             psf_sha256: psf_sha256.into(),
             init: init.into(),
+            best: start.clone(),
+            start,
+            best_step: 0,
+            stale: 0,
         };
-        t.validation = t.simulate_batch(&mut Lcg(t.cfg.seed ^ 0x5eed_0000_7a11_da7e), t.cfg.validation)?;
+        t.validation =
+            t.simulate_batch(val_source, &mut Lcg(t.cfg.seed ^ 0x5eed_0000_7a11_da7e), t.cfg.validation)?;
         let v0 = t.validation_loss()?;
         t.check_validation(v0)?;
         t.history.push(HistoryEntry {
@@ -419,12 +429,14 @@ impl<'a> Trainer<'a> {
     }
 
     /// Continues the run saved in `checkpoint`, to `steps` total steps, with step size `lr`
-    /// (`None`: the saved one). The PSF must be the one the run started with.
+    /// (`None`: the saved one). The PSF and the data must be the ones the run started with.
+    #[allow(clippy::too_many_arguments)]
     pub fn resume(
         checkpoint: &Path,
         psf: &Psf,
         psf_sha256: &str,
         source: &'a dyn SceneSource,
+        validation: Option<&dyn SceneSource>,
         steps: usize,
         lr: Option<f64>,
         device: &burn::tensor::Device,
@@ -458,9 +470,15 @@ impl<'a> Trainer<'a> {
             .parse()
             .map_err(|e: std::num::ParseFloatError| parse_err("best_val_loss", e.to_string()))?;
         let init = field("init")?.clone();
+        let best_step: usize = field("best_step")?
+            .parse()
+            .map_err(|e: std::num::ParseIntError| parse_err("best_step", e.to_string()))?;
+        let stale: usize = field("stale")?
+            .parse()
+            .map_err(|e: std::num::ParseIntError| parse_err("stale", e.to_string()))?;
         let mut moments = BTreeMap::new();
         tensors.retain(|name, t| {
-            if name.starts_with("adam.") {
+            if ["adam.", "best.", "start."].iter().any(|p| name.starts_with(p)) {
                 moments.insert(name.clone(), t.clone());
                 false
             } else {
@@ -473,20 +491,25 @@ impl<'a> Trainer<'a> {
         if let Some(lr) = lr {
             cfg.lr = lr;
         }
-        let mut t = Trainer::new(net, psf, psf_sha256, source, cfg, &init)?;
+        let mut t = Trainer::new(net, psf, psf_sha256, source, validation, cfg, &init)?;
+        let mut take = |key: String| {
+            let mt = moments
+                .remove(&key)
+                .ok_or_else(|| Error::format(checkpoint, format!("checkpoint lacks tensor '{key}'")))?;
+            let n = mt.values.len();
+            Ok::<_, Error>(Tensor::<1>::from_data(TensorData::new(mt.values, [n]), device))
+        };
         for (i, name) in weights::tensor_specs().iter().map(|(n, _)| n).enumerate() {
+            t.best[i] = take(format!("best.{name}"))?;
+            t.start[i] = take(format!("start.{name}"))?;
             if !is_trainable(name) {
                 continue;
             }
-            for (which, slot) in [("m", &mut t.adam.m[i]), ("v", &mut t.adam.v[i])] {
-                let key = format!("adam.{which}.{name}");
-                let mt = moments
-                    .remove(&key)
-                    .ok_or_else(|| Error::format(checkpoint, format!("checkpoint lacks tensor '{key}'")))?;
-                let n = mt.values.len();
-                *slot = Some(Tensor::from_data(TensorData::new(mt.values, [n]), device));
-            }
+            t.adam.m[i] = Some(take(format!("adam.m.{name}"))?);
+            t.adam.v[i] = Some(take(format!("adam.v.{name}"))?);
         }
+        t.best_step = best_step;
+        t.stale = stale;
         t.step = step;
         t.adam.t = step;
         t.rng = Lcg(rng);
@@ -507,9 +530,15 @@ impl<'a> Trainer<'a> {
         &self.cfg
     }
 
-    /// `count` simulated captures, their scenes drawn from `rng` (seeds drawn in order, the
-    /// simulations run in parallel, so the result does not depend on the thread count).
-    fn simulate_batch(&self, rng: &mut Lcg, count: usize) -> Result<Vec<Measurement>> {
+    /// `count` simulated captures, their scenes drawn from `source` with `rng` (seeds drawn in
+    /// order, the simulations run in parallel, so the result does not depend on the thread
+    /// count).
+    fn simulate_batch(
+        &self,
+        source: &dyn SceneSource,
+        rng: &mut Lcg,
+        count: usize,
+    ) -> Result<Vec<Measurement>> {
         let (t, l, b, r) = self.conv.margins();
         let (rows, cols) = (self.cfg.crop + t + b, self.cfg.crop + l + r);
         let seeds: Vec<u64> = (0..count).map(|_| (rng.uniform() * (1u64 << 53) as f64) as u64).collect();
@@ -518,7 +547,7 @@ impl<'a> Trainer<'a> {
             .par_iter()
             .map(|&seed| {
                 let mut g = Lcg(seed);
-                let mut scene = self.source.scene(&mut g, rows, cols)?;
+                let mut scene = source.scene(&mut g, rows, cols)?;
                 if scene.dim() != (rows, cols, 3) {
                     return Err(Error::Data(format!(
                         "the scene source gave {:?}, not {rows} x {cols} x 3",
@@ -570,15 +599,37 @@ impl<'a> Trainer<'a> {
         Ok(())
     }
 
-    /// One Adam step on a fresh batch; returns the batch's loss (before the update).
+    /// One Adam step on a fresh batch (then the L2-SP pull, when set); returns the batch's
+    /// loss (before the update).
     pub fn train_step(&mut self) -> Result<f64> {
         let mut rng = self.rng.clone();
-        let batch = self.simulate_batch(&mut rng, self.cfg.batch)?;
+        let batch = self.simulate_batch(self.source, &mut rng, self.cfg.batch)?;
         let (x, target) = self.tensors(&batch, &self.net.device().clone());
+        self.adam.lr = self.cfg.lr_at(self.step + 1);
         let value = self.adam.step(&mut self.net, x, target).map_err(|e| match e {
             Error::Data(m) => Error::Data(format!("{m} at step {}; stopped", self.step + 1)),
             other => other,
         })?;
+        if self.cfg.pull > 0.0 {
+            let k = (self.adam.lr * self.cfg.pull) as f32;
+            let pulled = self
+                .net
+                .params()
+                .iter()
+                .zip(&self.start)
+                .zip(&self.adam.updates)
+                .map(
+                    |((p, p0), &update)| {
+                        if update {
+                            p.clone() - (p.clone() - p0.clone()) * k
+                        } else {
+                            p.clone()
+                        }
+                    },
+                )
+                .collect();
+            self.net.set_params(pulled);
+        }
         self.step += 1;
         self.rng = rng;
         self.history.push(HistoryEntry {
@@ -590,10 +641,19 @@ impl<'a> Trainer<'a> {
         Ok(value)
     }
 
-    /// Evaluates on the validation set, logs it and checks for divergence.
+    /// Evaluates on the validation set, logs it, checks for divergence and keeps the weights
+    /// when they are the best validated so far.
     pub fn evaluate(&mut self) -> Result<f64> {
         let val = self.validation_loss()?;
+        let improved = val < self.best_val;
         self.check_validation(val)?;
+        if improved {
+            self.best = self.net.params().to_vec();
+            self.best_step = self.step;
+            self.stale = 0;
+        } else {
+            self.stale += 1;
+        }
         if let Some(last) = self.history.last_mut().filter(|h| h.step == self.step) {
             last.val_loss = Some(val);
             last.val_psnr = Some(psnr_of_loss(val));
@@ -601,9 +661,28 @@ impl<'a> Trainer<'a> {
         Ok(psnr_of_loss(val))
     }
 
+    /// The step whose weights validated best (0: the start) and its validation loss.
+    pub fn best(&self) -> (usize, f64) {
+        (self.best_step, self.best_val)
+    }
+
+    /// The best validated decoder (see [`Trainer::decoder`]), as `write_outputs` writes it.
+    pub fn best_decoder(&self) -> Result<DecoderWeights> {
+        let mut net = self.net.clone();
+        net.set_params(self.best.clone());
+        let mut w = self.decoder_of(&net)?;
+        w.metadata.insert("best_step".into(), self.best_step.to_string());
+        w.metadata.insert("best_validation_loss".into(), format!("{:e}", self.best_val));
+        Ok(w)
+    }
+
     /// The current decoder with its training record in the metadata.
     pub fn decoder(&self) -> Result<DecoderWeights> {
-        let mut w = self.net.to_weights()?;
+        self.decoder_of(&self.net)
+    }
+
+    fn decoder_of(&self, net: &UNet) -> Result<DecoderWeights> {
+        let mut w = net.to_weights()?;
         let last_loss = self.history.iter().rev().find_map(|h| h.loss);
         let last_val = self.history.iter().rev().find_map(|h| h.val_loss);
         w.metadata = BTreeMap::from([
@@ -612,6 +691,7 @@ impl<'a> Trainer<'a> {
             ("init".into(), self.init.clone()),
             ("training_steps".into(), self.step.to_string()),
             ("training_data".into(), self.source.describe()),
+            ("validation_data".into(), self.validation_data.clone()),
             ("final_loss".into(), last_loss.map_or("none".into(), |l| format!("{l:.6e}"))),
             ("final_validation_loss".into(), last_val.map_or("none".into(), |l| format!("{l:.6e}"))),
             (
@@ -632,12 +712,18 @@ impl<'a> Trainer<'a> {
         meta.insert("checkpoint_step".into(), self.step.to_string());
         meta.insert("rng_state".into(), self.rng.0.to_string());
         meta.insert("best_val_loss".into(), format!("{:e}", self.best_val));
+        meta.insert("best_step".into(), self.best_step.to_string());
+        meta.insert("stale".into(), self.stale.to_string());
         meta.insert(
             "history".into(),
             serde_json::to_string(&self.history).map_err(|e| Error::Data(e.to_string()))?,
         );
         let mut owned: Vec<(String, NamedTensor)> = w.tensors.clone();
         for (i, name) in self.net.names().iter().enumerate() {
+            for (which, t) in [("best", &self.best[i]), ("start", &self.start[i])] {
+                let values = tensor_values(t.clone())?;
+                owned.push((format!("{which}.{name}"), NamedTensor { shape: vec![values.len()], values }));
+            }
             for (which, slot) in [("m", &self.adam.m[i]), ("v", &self.adam.v[i])] {
                 if let Some(t) = slot {
                     let values = tensor_values(t.clone())?;
@@ -659,7 +745,8 @@ impl<'a> Trainer<'a> {
     }
 
     /// Runs to the configured step count, validating and checkpointing into `out` every
-    /// `checkpoint_every` steps and at the end; `on_step` sees every step.
+    /// `checkpoint_every` steps and at the end; `on_step` sees every step. With `patience`
+    /// set, stops early after that many validations without a new best.
     pub fn run(&mut self, out: &Path, on_step: &mut dyn FnMut(&StepReport)) -> Result<()> {
         std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
         while self.step < self.cfg.steps {
@@ -670,20 +757,34 @@ impl<'a> Trainer<'a> {
                 self.write_checkpoint(&out.join(CHECKPOINT))?;
             }
             on_step(&StepReport { step: self.step, steps: self.cfg.steps, loss, val_psnr });
+            if self.stopped_early() {
+                break;
+            }
         }
         Ok(())
     }
 
-    /// Writes the final outputs into `out`: [`DECODER`] (the fine-tuned decoder with its
-    /// training record), `training.json` (configuration and curve) and `training_curve.png`.
+    /// Whether `patience` validations have passed without a new best.
+    pub fn stopped_early(&self) -> bool {
+        self.cfg.patience > 0 && self.stale >= self.cfg.patience
+    }
+
+    /// Writes the final outputs into `out`: [`DECODER`] (the best validated decoder, which is
+    /// the start decoder itself when no step validated better, with its training record),
+    /// `training.json` (configuration and curve) and `training_curve.png`.
     pub fn write_outputs(&self, out: &Path) -> Result<()> {
-        self.decoder()?.write(&out.join(DECODER))?;
+        self.best_decoder()?.write(&out.join(DECODER))?;
         let record = serde_json::json!({
             "config": self.cfg,
             "steps": self.step,
+            "stopped_early": self.stopped_early(),
+            "best_step": self.best_step,
+            "best_validation_loss": self.best_val,
+            "best_validation_psnr": psnr_of_loss(self.best_val),
             "psf_sha256": self.psf_sha256,
             "init": self.init,
             "data": self.source.describe(),
+            "validation_data": self.validation_data,
             "loss_units": "sqrt domain, relative to the sensor clipping level; PSNR in dB with peak 1",
             "history": self.history,
         });
@@ -697,3 +798,92 @@ pub const DECODER: &str = "decoder.safetensors";
 
 /// File name of the checkpoint inside the output folder.
 pub const CHECKPOINT: &str = "checkpoint.safetensors";
+
+/// A `doefab finetune` run: the PSF, the data and the configuration.
+#[derive(Debug, Clone)]
+pub struct FinetuneJob {
+    /// The PSF file (`.npz` with `psf_key`, or `.npy`) at pixel `pitch`, metres.
+    pub psf: PathBuf,
+    pub psf_key: Option<String>,
+    pub pitch: f64,
+    /// The start decoder (`None`: [`crate::decoder::default_init`]).
+    pub init: Option<PathBuf>,
+    /// Real HDR training images (see [`crate::decoder::dataset`]); `None`: procedural scenes.
+    pub data: Option<PathBuf>,
+    /// Validation images (`None`: held out from `data` by name, 1 in `holdout_every`).
+    pub validation_data: Option<PathBuf>,
+    pub holdout_every: usize,
+    pub output: PathBuf,
+    /// Continue the checkpoint in `output` (to `cfg.steps`, at `lr` when given).
+    pub resume: bool,
+    pub lr: Option<f64>,
+    pub cfg: FinetuneConfig,
+    pub gpu: bool,
+}
+
+/// What a finetune run did (the `--json` output of `doefab finetune`).
+#[derive(Debug, Clone, Serialize)]
+pub struct FinetuneOutcome {
+    pub output: PathBuf,
+    pub decoder: PathBuf,
+    pub steps: usize,
+    pub stopped_early: bool,
+    /// The step the written decoder comes from (0: no step validated better than the start).
+    pub best_step: usize,
+    pub start_validation_psnr: Option<f64>,
+    pub best_validation_psnr: f64,
+    pub data: String,
+    pub validation_data: String,
+    pub history: Vec<HistoryEntry>,
+}
+
+/// Runs a fine-tuning job into `job.output` (see the module docs): `on_step` sees every
+/// step. A run that stops on an error leaves the last good checkpoint and says so.
+pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Result<FinetuneOutcome> {
+    use crate::decoder::dataset::training_and_validation;
+    let psf = read_psf(&job.psf, job.psf_key.as_deref(), job.pitch)?;
+    let psf_sha = crate::io::file_sha256(&job.psf)?;
+    let procedural =
+        GeneratedScenes { name: "procedural HDR scenes", generate: crate::decoder::scenes::procedural_scene };
+    let real = match &job.data {
+        Some(dir) => Some(training_and_validation(dir, job.validation_data.as_deref(), job.holdout_every)?),
+        None => None,
+    };
+    let (source, validation): (&dyn SceneSource, Option<&dyn SceneSource>) = match &real {
+        Some((t, v)) => (t, Some(v)),
+        None => (&procedural, None),
+    };
+    let device = crate::decoder::device(job.gpu)?;
+    let mut trainer = if job.resume {
+        let ckpt = job.output.join(CHECKPOINT);
+        Trainer::resume(&ckpt, &psf, &psf_sha, source, validation, job.cfg.steps, job.lr, &device)?
+    } else {
+        let init = job.init.clone().unwrap_or_else(crate::decoder::default_init);
+        let weights = DecoderWeights::read(&init)?;
+        let net = UNet::from_weights(&weights, &device);
+        let desc = format!("{} (sha256 {})", init.display(), crate::decoder::weights::decoder_sha256(&init)?);
+        let cfg = FinetuneConfig { lr: job.lr.unwrap_or(job.cfg.lr), ..job.cfg.clone() };
+        Trainer::new(net, &psf, &psf_sha, source, validation, cfg, &desc)?
+    };
+    if let Err(e) = trainer.run(&job.output, on_step) {
+        let ckpt = job.output.join(CHECKPOINT);
+        return Err(match ckpt.exists() {
+            true => Error::Data(format!("{e}; the last good checkpoint is {}", ckpt.display())),
+            false => e,
+        });
+    }
+    trainer.write_outputs(&job.output)?;
+    let (best_step, best_val) = trainer.best();
+    Ok(FinetuneOutcome {
+        output: job.output.clone(),
+        decoder: job.output.join(DECODER),
+        steps: trainer.step(),
+        stopped_early: trainer.stopped_early(),
+        best_step,
+        start_validation_psnr: trainer.history().iter().find(|h| h.step == 0).and_then(|h| h.val_psnr),
+        best_validation_psnr: psnr_of_loss(best_val),
+        data: source.describe(),
+        validation_data: trainer.validation_data.clone(),
+        history: trainer.history().to_vec(),
+    })
+}

@@ -9,6 +9,7 @@
 //! feature, on an NVIDIA GPU.
 
 pub mod bench;
+pub mod dataset;
 pub mod finetune;
 pub mod reconstruct;
 pub mod scenes;

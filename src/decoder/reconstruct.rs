@@ -253,7 +253,7 @@ pub fn reconstruct_file(
     let weights = crate::decoder::weights::DecoderWeights::read(decoder)?;
     let net = UNet::from_weights(&weights, device);
     let (y, report) = reconstruct(&net, &x, opts)?;
-    let decoder_sha256 = crate::io::file_sha256(decoder)?;
+    let decoder_sha256 = crate::decoder::weights::decoder_sha256(decoder)?;
     let text = vec![
         ("quantity".to_string(), "linear HDR radiance, 1 = sensor clipping level of the capture".to_string()),
         ("source".to_string(), capture.display().to_string()),

@@ -3,7 +3,10 @@
 //! `y = clip(h * x + n, 1e-5, 1)`, with `x` the target HDR scene clipped to `[1e-5, 64]`,
 //! `h` the PSF of one colour channel, `*` linear convolution and `n` Gaussian read noise of
 //! standard deviation 0.02 (the paper's fine-tuning value; Metzler et al. 2020, Sec. 4 and the
-//! upstream training code). The exposure is scaled so that a chosen fraction (1-2 %) of the
+//! upstream training code). Optionally, as a real sensor adds: shot noise, `n` of variance
+//! `sigma^2 + a (h * x)` (the Poisson-Gaussian model, Foi et al. 2008, with `a` in units of
+//! the clipping level), and quantisation to `b` bits, `y = round(y (2^b - 1)) / (2^b - 1)`,
+//! before the clip. The exposure is scaled so that a chosen fraction (1-2 %) of the
 //! noise-free sensor values `h * x` reach the clipping level 1.
 //!
 //! Convolution: `(h * x)[i, j] = sum_{u, v} h[u, v] x[i + cy - u, j + cx - v]` with the PSF's
@@ -133,6 +136,10 @@ impl Convolver {
 pub struct MeasurementModel {
     /// Standard deviation of the Gaussian read noise, in units of the clipping level.
     pub noise_sigma: f64,
+    /// Shot noise: variance `shot_noise * y` (units of the clipping level; 0 = none).
+    pub shot_noise: f64,
+    /// Bit depth of the capture (`None`: not quantised).
+    pub bits: Option<u32>,
     /// The fraction of saturated sensor values is drawn uniformly from this range.
     pub saturation: (f64, f64),
     /// Target HDR range (the loss compares against the clipped target).
@@ -145,6 +152,8 @@ impl Default for MeasurementModel {
     fn default() -> Self {
         MeasurementModel {
             noise_sigma: 0.02,
+            shot_noise: 0.0,
+            bits: None,
             saturation: (0.01, 0.02),
             target_range: (1e-5, 64.0),
             sensor_range: (1e-5, 1.0),
@@ -196,7 +205,13 @@ pub fn measure(
     let sensor = crop(&conv.convolve(&scaled)?);
     let saturated_fraction = sensor.iter().filter(|&&y| y >= 1.0).count() as f64 / sensor.len() as f64;
     let (slo, shi) = model.sensor_range;
-    let capture = sensor.mapv(|y| ((y + model.noise_sigma * rng.normal()) as f32).clamp(slo, shi));
+    let levels = model.bits.map(|b| ((1u64 << b) - 1) as f64);
+    let capture = sensor.mapv(|y| {
+        let sd = (model.noise_sigma.powi(2) + model.shot_noise * y.max(0.0)).sqrt();
+        let v = y + sd * rng.normal();
+        let v = levels.map_or(v, |l| (v * l).round() / l);
+        (v as f32).clamp(slo, shi)
+    });
     let target = scaled.slice(s![t..t + ch, l..l + cw, ..]).to_owned();
     Ok(Measurement { target, capture, exposure, saturated_fraction })
 }

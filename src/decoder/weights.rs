@@ -142,15 +142,27 @@ pub const LAYOUT: &str =
 /// Reads every tensor of a safetensors file (F32 only) and its metadata.
 /// `built-in:NAME` reads one of the paper's decoders compiled into the binary ([`BUILT_IN`]).
 pub fn read_safetensors(path: &Path) -> Result<(BTreeMap<String, NamedTensor>, BTreeMap<String, String>)> {
+    decode_safetensors(path, &decoder_bytes(path)?)
+}
+
+/// The bytes of a decoder file, or of a bundled decoder for `built-in:NAME`.
+pub fn decoder_bytes(path: &Path) -> Result<std::borrow::Cow<'static, [u8]>> {
     if let Some(name) = path.to_str().and_then(|p| p.strip_prefix("built-in:")) {
         let Some((_, bytes)) = BUILT_IN.iter().find(|(n, _)| *n == name) else {
             let names: Vec<_> = BUILT_IN.iter().map(|(n, _)| format!("built-in:{n}")).collect();
-            return Err(Error::format(path, format!("no bundled decoder of that name; bundled: {}", names.join(", "))));
+            return Err(Error::format(
+                path,
+                format!("no bundled decoder of that name; bundled: {}", names.join(", ")),
+            ));
         };
-        return decode_safetensors(path, bytes);
+        return Ok(std::borrow::Cow::Borrowed(bytes));
     }
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    decode_safetensors(path, &bytes)
+    Ok(std::borrow::Cow::Owned(std::fs::read(path).map_err(|e| Error::io(path, e))?))
+}
+
+/// SHA-256 (hex) of a decoder file or bundled decoder, as recorded in outputs' metadata.
+pub fn decoder_sha256(path: &Path) -> Result<String> {
+    Ok(crate::io::hex_sha256(&decoder_bytes(path)?))
 }
 
 /// The paper's two decoders (Metzler et al. 2020, BSD-3, `assets/deepoptics-hdr/LICENSE`),
@@ -158,10 +170,7 @@ pub fn read_safetensors(path: &Path) -> Result<(BTreeMap<String, NamedTensor>, B
 /// `paper-simulated-psf` (trained end to end with the simulated PSF) and
 /// `paper-measured-psf` (fine-tuned by the paper with its measured PSF).
 pub const BUILT_IN: &[(&str, &[u8])] = &[
-    (
-        "paper-simulated-psf",
-        include_bytes!("../../assets/deepoptics-hdr/decoder_simulated_psf.safetensors"),
-    ),
+    ("paper-simulated-psf", include_bytes!("../../assets/deepoptics-hdr/decoder_simulated_psf.safetensors")),
     ("paper-measured-psf", include_bytes!("../../assets/deepoptics-hdr/decoder_measured_psf.safetensors")),
 ];
 
