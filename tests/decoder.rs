@@ -348,6 +348,12 @@ fn hdr_images() -> Vec<(String, Array3<f32>)> {
         .collect()
 }
 
+/// [`hdr_images`] as training scenes.
+fn test_scenes() -> HdrScenes {
+    let images = hdr_images().into_iter().map(|(name, pixels)| HdrImage { name, pixels }).collect();
+    HdrScenes::new("test images", images).unwrap()
+}
+
 fn tiny_config(steps: usize) -> FinetuneConfig {
     FinetuneConfig {
         steps,
@@ -394,11 +400,7 @@ fn an_adam_step_lowers_the_loss_on_its_batch() {
 fn resume_continues_exactly_and_divergence_keeps_the_last_good_checkpoint() {
     let dev = device(false).unwrap();
     let psf = small_psf();
-    let images = HdrScenes::new(
-        "test images",
-        hdr_images().into_iter().map(|(name, pixels)| HdrImage { name, pixels }).collect(),
-    )
-    .unwrap();
+    let images = test_scenes();
     let init = random_weights(4);
     let t = common::tempdir();
     let (a, b) = (t.path().join("a"), t.path().join("b"));
@@ -685,11 +687,7 @@ fn the_bundled_decoders_are_the_papers_files() {
 #[test]
 fn a_run_that_only_gets_worse_writes_its_start_back() {
     let dev = device(false).unwrap();
-    let images = HdrScenes::new(
-        "test images",
-        hdr_images().into_iter().map(|(name, pixels)| HdrImage { name, pixels }).collect(),
-    )
-    .unwrap();
+    let images = test_scenes();
     let init = random_weights(4);
     let t = common::tempdir();
     let cfg = FinetuneConfig {
