@@ -876,6 +876,7 @@ fn run(cli: &Cli) -> Result<()> {
                     register: rg::RegisterOptions {
                         max_shift: *max_shift,
                         tile: *tile,
+                        min_coverage: 0.0,
                         model: match register {
                             RegisterArg::Affine => rg::Model::Affine,
                             RegisterArg::Local => rg::Model::Local,
@@ -1304,7 +1305,10 @@ fn print_footing(f: &doefab::calibration::evaluate::Footing) {
 
 /// One image's scores: PSNR-L and PSNR-gamma over all scored pixels and the saturated ones.
 fn print_score(s: &doefab::calibration::evaluate::Score) {
-    let sat = s.saturated.as_ref().map_or("withheld".into(), |p| format!("{:.2} / {:.2} dB", p.linear_db, p.gamma_db));
+    let sat = s
+        .saturated
+        .as_ref()
+        .map_or("withheld".into(), |p| format!("{:.2} / {:.2} dB", p.linear_db, p.gamma_db));
     println!(
         "{}: all {:.2} / {:.2} dB, saturated {sat} (PSNR-L / PSNR-gamma); min output {:.3}, {:.2} % negative",
         s.name,

@@ -373,7 +373,11 @@ fn demo_runs_every_stage_on_the_built_in_design() {
             .env("RAYON_NUM_THREADS", threads)
             .output()
             .unwrap();
-        assert!(o.status.success(), "demo on {threads} threads failed:\n{}", String::from_utf8_lossy(&o.stderr));
+        assert!(
+            o.status.success(),
+            "demo on {threads} threads failed:\n{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
         runs.push((cwd.join("demo"), String::from_utf8(o.stdout).unwrap()));
     }
     let (a, b) = (read_tree(&runs[0].0), read_tree(&runs[1].0));

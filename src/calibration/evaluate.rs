@@ -322,7 +322,10 @@ pub fn prepare(
         return Err(Error::param("saturation", format!("{} is not in (0, 1]", opts.saturation)));
     }
     if !(0.0..=1.0).contains(&opts.min_coverage) {
-        return Err(Error::param("min_coverage", format!("{} is not a fraction in [0, 1]", opts.min_coverage)));
+        return Err(Error::param(
+            "min_coverage",
+            format!("{} is not a fraction in [0, 1]", opts.min_coverage),
+        ));
     }
     if let Some(bad) = reference.iter().chain(capture.iter()).find(|v| !v.is_finite()) {
         return Err(Error::Data(format!("the reference or the capture holds {bad}")));
@@ -335,6 +338,8 @@ pub fn prepare(
         None => reference.clone(),
     };
     let cap_lum = luminance(&capture);
+    // The floor is applied below, to the pixels scored.
+    let register = RegisterOptions { min_coverage: 0.0, ..opts.register.clone() };
     let mut gain = 1.0;
     let mut passes = 0;
     let (mask, registration, local_registration, gain_samples) = loop {
@@ -342,19 +347,20 @@ pub fn prepare(
         let source = luminance(&predicted.mapv(|v| (gain * v).clamp(0.0, 1.0)));
         let (warped, mask, reg, local) = match opts.register.model {
             Model::Affine => {
-                let reg = register_affine(&source, &cap_lum, &opts.register)?;
+                let reg = register_affine(&source, &cap_lum, &register)?;
                 let (warped, inside) = warp(&predicted, &reg.affine, h, w)?;
                 (warped, inside, Some(reg), None)
             }
             Model::Local => {
-                let reg = register_local(&source, &cap_lum, &opts.register)?;
+                let reg = register_local(&source, &cap_lum, &register)?;
                 let (warped, inside) = reg.warp(&predicted);
                 (warped, inside, None, Some(reg))
             }
         };
         let mut ratios = Vec::new();
         Zip::indexed(&mask).for_each(|(i, j), &inside| {
-            let exposed = (0..nc).all(|c| (0.05..=0.9).contains(&capture[[i, j, c]]) && warped[[i, j, c]] > 0.0);
+            let exposed =
+                (0..nc).all(|c| (0.05..=0.9).contains(&capture[[i, j, c]]) && warped[[i, j, c]] > 0.0);
             if inside && exposed {
                 ratios.extend((0..nc).map(|c| capture[[i, j, c]] / warped[[i, j, c]]));
             }

@@ -24,7 +24,9 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array3, Zip};
 use serde::Serialize;
 
-use super::finetune::{read_psf, FinetuneConfig, GeneratedScenes, HistoryEntry, ImageSet, SceneSource, Trainer};
+use super::finetune::{
+    read_psf, FinetuneConfig, GeneratedScenes, HistoryEntry, ImageSet, SceneSource, Trainer,
+};
 use super::reconstruct::{reconstruct, Negatives, ReconstructOptions};
 use super::unet::UNet;
 use super::weights::DecoderWeights;
@@ -145,7 +147,13 @@ pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<Ben
 pub fn score_image(scene: &BenchScene, decoder: &str, image: &Array3<f64>) -> Result<Score> {
     let s = scene.scoring.score(decoder, image)?;
     let min_output = image.iter().copied().fold(f64::INFINITY, f64::min);
-    Ok(Score { scene: scene.name.clone(), decoder: decoder.into(), all: s.all, saturated: s.saturated, min_output })
+    Ok(Score {
+        scene: scene.name.clone(),
+        decoder: decoder.into(),
+        all: s.all,
+        saturated: s.saturated,
+        min_output,
+    })
 }
 
 /// Reconstructs the scene's capture with `net` (negatives kept) and scores it; returns the
@@ -180,7 +188,8 @@ fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(String, &Array3<f32
             ("tone_map".into(), format!("sRGB of clip(y * 2^{PICTURE_EV}, 0, 1)")),
         ],
     };
-    for (name, image) in std::iter::once(("reference".to_string(), &reference)).chain(images.iter().cloned()) {
+    for (name, image) in std::iter::once(("reference".to_string(), &reference)).chain(images.iter().cloned())
+    {
         let path = dir.join(format!("{name}.png"));
         crate::io::png::write_png_image_u8(&path, &crate::report::tone::tone_map(image, PICTURE_EV), &meta)?;
     }
@@ -264,8 +273,10 @@ fn picture_name(decoder: &Path, taken: &mut Vec<String>) -> String {
         Some(n) => n.to_string(),
         None => decoder.file_stem().map_or_else(|| "decoder".into(), |s| s.to_string_lossy().into_owned()),
     };
-    let clean: String =
-        base.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' }).collect();
+    let clean: String = base
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' })
+        .collect();
     let mut name = clean.clone();
     let mut k = 2;
     while taken.contains(&name) || ["reference", "capture", "finetuned"].contains(&name.as_str()) {
@@ -366,7 +377,8 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
     let report = BenchReport {
         psf: cfg.psf.display().to_string(),
         units: "PSNR in dB; images in units of the capture's clipping level; seconds",
-        negatives: "reconstructions scored as the network writes them: negative outputs count as they are in \
+        negatives:
+            "reconstructions scored as the network writes them: negative outputs count as they are in \
                     PSNR-L and as 0 in PSNR-gamma",
         saturation: cfg.scoring.saturation,
         min_coverage: cfg.scoring.min_coverage,
@@ -397,7 +409,10 @@ fn run_finetune(
     let start = DecoderWeights::read(&f.init)?;
     let source: Box<dyn SceneSource> = match &f.train_data {
         Some(dir) => Box::new(ImageSet::load(dir)?),
-        None => Box::new(GeneratedScenes { name: "procedural HDR scenes", generate: super::scenes::procedural_scene }),
+        None => Box::new(GeneratedScenes {
+            name: "procedural HDR scenes",
+            generate: super::scenes::procedural_scene,
+        }),
     };
     let sha = |p: &Path| -> Result<String> {
         match p.to_str().and_then(|t| t.strip_prefix("built-in:")) {
@@ -424,8 +439,12 @@ fn run_finetune(
         if trainer.step() % f.evaluate_every == 0 || trainer.step() == steps {
             progress(&format!("scoring step {} on the real scenes", trainer.step()), 0);
             let net = UNet::from_weights(&trainer.decoder()?, device);
-            let (sc, im): (Vec<Score>, Vec<Array3<f32>>) =
-                scenes.iter().map(|s| score_decoder(s, name, &net)).collect::<Result<Vec<_>>>()?.into_iter().unzip();
+            let (sc, im): (Vec<Score>, Vec<Array3<f32>>) = scenes
+                .iter()
+                .map(|s| score_decoder(s, name, &net))
+                .collect::<Result<Vec<_>>>()?
+                .into_iter()
+                .unzip();
             curve.push(CurvePoint { step: trainer.step(), seconds, scores: sc });
             last = im;
         }

@@ -145,7 +145,10 @@ pub fn read_safetensors(path: &Path) -> Result<(BTreeMap<String, NamedTensor>, B
     if let Some(name) = path.to_str().and_then(|p| p.strip_prefix("built-in:")) {
         let Some((_, bytes)) = BUILT_IN.iter().find(|(n, _)| *n == name) else {
             let names: Vec<_> = BUILT_IN.iter().map(|(n, _)| format!("built-in:{n}")).collect();
-            return Err(Error::format(path, format!("no bundled decoder of that name; bundled: {}", names.join(", "))));
+            return Err(Error::format(
+                path,
+                format!("no bundled decoder of that name; bundled: {}", names.join(", ")),
+            ));
         };
         return decode_safetensors(path, bytes);
     }
@@ -158,10 +161,7 @@ pub fn read_safetensors(path: &Path) -> Result<(BTreeMap<String, NamedTensor>, B
 /// `paper-simulated-psf` (trained end to end with the simulated PSF) and
 /// `paper-measured-psf` (fine-tuned by the paper with its measured PSF).
 pub const BUILT_IN: &[(&str, &[u8])] = &[
-    (
-        "paper-simulated-psf",
-        include_bytes!("../../assets/deepoptics-hdr/decoder_simulated_psf.safetensors"),
-    ),
+    ("paper-simulated-psf", include_bytes!("../../assets/deepoptics-hdr/decoder_simulated_psf.safetensors")),
     ("paper-measured-psf", include_bytes!("../../assets/deepoptics-hdr/decoder_measured_psf.safetensors")),
 ];
 

@@ -265,9 +265,15 @@ level_count = 8
             let name = p.file_name().unwrap().to_str().unwrap().to_string();
             let bundled = BUNDLED.iter().find(|(b, _)| *b == name);
             let (_, text) = bundled.unwrap_or_else(|| panic!("masks/{name} is not bundled"));
-            assert_eq!(*text, std::fs::read_to_string(&p).unwrap(), "masks/{name} differs from its bundled copy");
+            assert_eq!(
+                *text,
+                std::fs::read_to_string(&p).unwrap(),
+                "masks/{name} differs from its bundled copy"
+            );
             if name.ends_with(".toml") {
-                for path in [p.clone(), PathBuf::from(format!("{BUILT_IN}{}", name.trim_end_matches(".toml")))] {
+                for path in
+                    [p.clone(), PathBuf::from(format!("{BUILT_IN}{}", name.trim_end_matches(".toml")))]
+                {
                     let r = Recipe::read(&path).unwrap_or_else(|e| panic!("{e}"));
                     if let Some(c) = &r.contrast_curve {
                         crate::fabrication::contrast::ContrastCurve::read_csv(c).unwrap();

@@ -62,7 +62,8 @@ pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()
         }
         for (panel, (title, unit, value)) in main.split_evenly((2, 2)).iter().zip(metrics) {
             let values: Vec<f64> = report.scores.iter().filter_map(value).collect();
-            let (lo, hi) = values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+            let (lo, hi) =
+                values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
             if !lo.is_finite() {
                 continue;
             }
@@ -142,9 +143,15 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                     Some(s.all.gamma_db)
                 }
             };
-            let all: Vec<f64> =
-                run.curve.iter().flat_map(|p| p.scores.iter()).chain(report.scores.iter()).filter_map(value).collect();
-            let (lo, hi) = all.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+            let all: Vec<f64> = run
+                .curve
+                .iter()
+                .flat_map(|p| p.scores.iter())
+                .chain(report.scores.iter())
+                .filter_map(value)
+                .collect();
+            let (lo, hi) =
+                all.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
             if !lo.is_finite() {
                 continue;
             }
@@ -165,17 +172,25 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                 .map_err(|x| e(&x))?;
             for (k, scene) in scenes.iter().enumerate() {
                 let color = COLORS[(k + 1) % COLORS.len()];
-                let line: Vec<(f64, f64)> =
-                    run.curve.iter().filter_map(|p| value(p.scores.get(k)?).map(|v| (p.step as f64, v))).collect();
+                let line: Vec<(f64, f64)> = run
+                    .curve
+                    .iter()
+                    .filter_map(|p| value(p.scores.get(k)?).map(|v| (p.step as f64, v)))
+                    .collect();
                 chart
                     .draw_series(LineSeries::new(line.iter().copied(), color.stroke_width(2)))
                     .map_err(|x| e(&x))?
                     .label(format!("{scene}: fine-tuned here"))
                     .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
-                chart.draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled()))).map_err(|x| e(&x))?;
+                chart
+                    .draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled())))
+                    .map_err(|x| e(&x))?;
                 for (d, decoder) in others.iter().enumerate() {
-                    let Some(v) =
-                        report.scores.iter().find(|s| s.scene == *scene && &s.decoder == *decoder).and_then(value)
+                    let Some(v) = report
+                        .scores
+                        .iter()
+                        .find(|s| s.scene == *scene && &s.decoder == *decoder)
+                        .and_then(value)
                     else {
                         continue;
                     };
