@@ -30,6 +30,8 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
+// Parsed once per run: the size of the larger variant costs nothing.
+#[allow(clippy::large_enum_variant)]
 enum BenchCommand {
     /// Error against run time of every PSF method, precision and sub-sampling on a small
     /// scene, and error against pupil sampling with the guard's refusals: PNG + SVG + JSON.

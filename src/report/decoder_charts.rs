@@ -194,7 +194,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                     else {
                         continue;
                     };
-                    // Fainter for later decoders, dashed-looking by width: one line per decoder.
+                    // One thin line per other decoder, fainter for later ones.
                     let style = color.mix(1.0 - 0.6 * d as f64 / others.len().max(1) as f64).stroke_width(1);
                     let short: String = decoder.chars().take(50).collect();
                     chart
