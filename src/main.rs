@@ -30,6 +30,8 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
+// Parsed once per run: the size of the larger variant costs nothing.
+#[allow(clippy::large_enum_variant)]
 enum BenchCommand {
     /// Error against run time of every PSF method, precision and sub-sampling on a small
     /// scene, and error against pupil sampling with the guard's refusals: PNG + SVG + JSON.
@@ -38,19 +40,34 @@ enum BenchCommand {
         #[arg(short, long)]
         output: PathBuf,
     },
-    /// The decoder on the real captures: fine-tune the paper's simulated-PSF decoder on the
-    /// measured PSF for --steps steps (procedural scenes), then score it, the decoder it
-    /// started from and the paper's measured-PSF decoder against bracket-merged references
-    /// (PSNR over the registered pixels and their saturated part): JSON report, a chart of
-    /// PSNR along the fine-tuning, and the decoder.
+    /// Decoders on real captures: each scene's reference is registered onto its capture once
+    /// (through the measured PSF), and the capture and every decoder are scored on the same
+    /// pixels (PSNR-L, PSNR-gamma over all and saturated pixels, coverage, smallest output);
+    /// optionally a decoder is fine-tuned on the PSF first. JSON report, decoder x scene chart.
     Decoder {
-        /// The paper's data release: captures/<scene>/exposures.json, measured_psf.npz and the
-        /// two decoders.
+        /// The paper's data release: the default scenes (captures/<scene>/) and measured_psf.npz.
         #[arg(long, default_value = "../shared/data/deepoptics-hdr")]
         data: PathBuf,
-        /// Fine-tuning steps.
+        /// A scene folder (exposures.json with one "doe" capture and a bracket); repeat for more
+        /// (default: every folder under <data>/captures).
+        #[arg(long = "scene")]
+        scenes: Vec<PathBuf>,
+        /// A decoder to score: a .safetensors file or built-in:paper-simulated-psf /
+        /// built-in:paper-measured-psf; repeat for more (default: the paper's two).
+        #[arg(long = "decoder")]
+        decoders: Vec<PathBuf>,
+        /// The measured PSF (default <data>/measured_psf.npz, array psf_val).
+        #[arg(long)]
+        psf: Option<PathBuf>,
+        /// Smallest fraction of a scene that must be registered; below it the scene is refused.
+        #[arg(long, default_value_t = 0.3)]
+        min_coverage: f64,
+        /// Fine-tuning steps of --init on the PSF (0: no fine-tuning).
         #[arg(long, default_value_t = 50)]
         steps: usize,
+        /// The decoder to fine-tune.
+        #[arg(long, default_value = "built-in:paper-simulated-psf")]
+        init: PathBuf,
         /// Batch size of the fine-tuning.
         #[arg(long, default_value_t = 2)]
         batch: usize,
@@ -164,30 +181,47 @@ enum Command {
         #[arg(long, value_parser = clap_length, default_value = "4.29um")]
         sensor_pitch: f64,
     },
-    /// PSNR of a reconstruction against a reference HDR image, linear and gamma (sqrt), over
-    /// all pixels and over the pixels saturated in the capture.
+    /// PSNR of reconstructions against a reference HDR image, linear and gamma (sqrt), over the
+    /// registered pixels and the saturated ones: the reference is registered onto the capture
+    /// once (through the PSF) and every reconstruction is scored on the same pixels.
     Evaluate {
-        /// The reconstruction (OpenEXR, or an 8/16-bit PNG/TIFF capture).
-        recon: PathBuf,
-        /// The reference HDR image (OpenEXR, e.g. from `doefab merge`).
+        /// The reconstructions (OpenEXR, .npy, or PNG/TIFF), in units of the capture's clipping
+        /// level; the capture itself is always scored too.
+        images: Vec<PathBuf>,
+        /// The reference HDR image (OpenEXR or .npy, e.g. from `doefab merge`).
         #[arg(long)]
         reference: PathBuf,
-        /// The LDR capture the reconstruction was made from (marks saturated pixels).
+        /// The capture through the DOE the reconstructions were made from (8/16-bit PNG/TIFF).
+        #[arg(long, alias = "ldr")]
+        capture: PathBuf,
+        /// The measured PSF (.npz, .npy or .exr, sampled at the capture's pixels): the reference
+        /// is convolved with it before registering onto the capture.
         #[arg(long)]
-        ldr: Option<PathBuf>,
-        /// Saturation level of the capture, fraction of full scale.
+        psf: Option<PathBuf>,
+        /// Array of a .npz PSF holding several (the paper's: psf_val).
+        #[arg(long)]
+        psf_key: Option<String>,
+        /// The capture's pixel pitch: a PSF stating another is refused.
+        #[arg(long, value_parser = clap_length, default_value = "4.29um")]
+        capture_pitch: f64,
+        /// Saturation level of the capture, fraction of its clipping level.
         #[arg(long, default_value_t = 0.98)]
         saturation: f64,
-        /// Register the reference onto the reconstruction first: one affine map (`--register`),
-        /// or a local displacement field for scenes with parallax (`--register local`).
-        #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "affine")]
-        register: Option<RegisterArg>,
+        /// Registration: a local displacement field (parallax) or one affine map.
+        #[arg(long, value_enum, default_value = "local")]
+        register: RegisterArg,
         /// Largest displacement the registration searches, pixels.
         #[arg(long, default_value_t = 48)]
         max_shift: usize,
         /// Tile side of the registration, pixels.
         #[arg(long, default_value_t = 48)]
         tile: usize,
+        /// Smallest fraction of the image that must be registered; below it the scene is refused.
+        #[arg(long, default_value_t = 0.3)]
+        min_coverage: f64,
+        /// Fewest saturated pixels that must be registered for the saturated figures.
+        #[arg(long, default_value_t = 100)]
+        min_saturated: usize,
     },
     /// Compare two PSFs (design, as-fabricated, measured): each one's peaks, encircled energy
     /// and centroid per channel, and the relative L2 after centroid alignment.
@@ -846,51 +880,49 @@ fn run(cli: &Cli) -> Result<()> {
             warn(&report.warnings);
             print_result(cli, &report, || print_calibration(&report, output))
         }
-        Command::Evaluate { recon, reference, ldr, saturation, register, max_shift, tile } => {
-            use doefab::calibration::{capture::read_capture, evaluate as ev, register as rg};
-            let read = |p: &Path| -> Result<ndarray::Array3<f64>> {
-                let exr = p.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
-                Ok(if exr { ev::read_rgb_exr(p)? } else { read_capture(p)?.values })
-            };
-            let reference = read(reference)?;
-            let recon = read(recon)?;
-            let ldr = ldr.as_deref().map(read_capture).transpose()?;
-            let opts = register.map(|m| rg::RegisterOptions {
-                max_shift: *max_shift,
-                tile: *tile,
-                model: match m {
-                    RegisterArg::Affine => rg::Model::Affine,
-                    RegisterArg::Local => rg::Model::Local,
+        Command::Evaluate {
+            images,
+            reference,
+            capture,
+            psf,
+            psf_key,
+            capture_pitch,
+            saturation,
+            register,
+            max_shift,
+            tile,
+            min_coverage,
+            min_saturated,
+        } => {
+            use doefab::calibration::{evaluate as ev, register as rg};
+            let files = ev::EvaluateFiles {
+                reference: reference.clone(),
+                capture: capture.clone(),
+                psf: psf.clone(),
+                psf_key: psf_key.clone(),
+                capture_pitch: *capture_pitch,
+                images: images.clone(),
+                options: ev::ScoringOptions {
+                    register: rg::RegisterOptions {
+                        max_shift: *max_shift,
+                        tile: *tile,
+                        min_coverage: 0.0,
+                        model: match register {
+                            RegisterArg::Affine => rg::Model::Affine,
+                            RegisterArg::Local => rg::Model::Local,
+                        },
+                    },
+                    saturation: *saturation,
+                    min_coverage: *min_coverage,
+                    min_saturated: *min_saturated,
                 },
-            });
-            let e = ev::evaluate(
-                &reference,
-                &recon,
-                ldr.as_ref().map(|c| &c.values),
-                *saturation,
-                opts.as_ref(),
-            )?;
+            };
+            let e = ev::evaluate_files(&files)?;
+            warn(&e.footing.warnings);
             print_result(cli, &e, || {
-                if let Some(r) = &e.registration {
-                    println!(
-                        "registered: scale {:.4}, rotation {:.3} deg, shift ({:.2}, {:.2}) px; {} of {} tiles, residual {:.3} px RMS; {} pixels outside the overlap",
-                        r.scale, r.rotation_deg, r.affine.b[0], r.affine.b[1], r.tiles_used, r.tiles_matched, r.residual_rms_px, e.excluded_pixels
-                    );
-                }
-                if let Some(r) = &e.local_registration {
-                    print_local_registration(r, e.excluded_pixels);
-                }
-                println!(
-                    "all pixels ({}): PSNR-L {:.2} dB, PSNR-gamma {:.2} dB (peak {:.4})",
-                    e.all.pixels, e.all.linear_db, e.all.gamma_db, e.all.peak
-                );
-                match (&e.saturated, e.saturated_pixels) {
-                    (Some(s), _) => println!(
-                        "saturated pixels ({}): PSNR-L {:.2} dB, PSNR-gamma {:.2} dB",
-                        s.pixels, s.linear_db, s.gamma_db
-                    ),
-                    (None, Some(0)) => println!("no pixel of the capture is saturated"),
-                    _ => {}
+                print_footing(&e.footing);
+                for s in &e.scores {
+                    print_score(s);
                 }
             })
         }
@@ -1275,6 +1307,48 @@ fn merge_bracket(
     Ok(merged)
 }
 
+/// How a scene was registered and what is scored (`evaluate`, `bench decoder`).
+fn print_footing(f: &doefab::calibration::evaluate::Footing) {
+    if let Some(r) = &f.registration {
+        println!(
+            "registered (affine): scale {:.4}, rotation {:.3} deg, shift ({:.2}, {:.2}) px; {} of {} tiles, residual {:.3} px RMS",
+            r.scale, r.rotation_deg, r.affine.b[0], r.affine.b[1], r.tiles_used, r.tiles_matched, r.residual_rms_px
+        );
+    }
+    if let Some(r) = &f.local_registration {
+        print_local_registration(r, f.rows * f.cols - f.pixels_scored);
+    }
+    println!(
+        "{} the PSF; gain {:.3} ({} samples); scored {} pixels ({:.1} %), {} of the capture's {} saturated pixels",
+        if f.psf { "predicted through" } else { "registered without" },
+        f.gain,
+        f.gain_samples,
+        f.pixels_scored,
+        100.0 * f.coverage,
+        f.saturated_scored,
+        f.saturated_in_capture
+    );
+    if let Some(why) = &f.saturated_withheld {
+        println!("saturated figures withheld: {why}");
+    }
+}
+
+/// One image's scores: PSNR-L and PSNR-gamma over all scored pixels and the saturated ones.
+fn print_score(s: &doefab::calibration::evaluate::Score) {
+    let sat = s
+        .saturated
+        .as_ref()
+        .map_or("withheld".into(), |p| format!("{:.2} / {:.2} dB", p.linear_db, p.gamma_db));
+    println!(
+        "{}: all {:.2} / {:.2} dB, saturated {sat} (PSNR-L / PSNR-gamma); min output {:.3}, {:.2} % negative",
+        s.name,
+        s.all.linear_db,
+        s.all.gamma_db,
+        s.all.min_output,
+        100.0 * s.all.negative_fraction
+    );
+}
+
 fn print_local_registration(r: &doefab::calibration::register::LocalRegistration, excluded: usize) {
     let [lo, hi] = r.displacement_range_px;
     println!(
@@ -1632,20 +1706,43 @@ fn finetune(cli: &Cli) -> Result<()> {
 
 /// `doefab bench decoder`: see [`doefab::decoder::bench`].
 fn bench_decoder(cli: &Cli) -> Result<()> {
-    use doefab::calibration::register::RegisterOptions;
-    use doefab::decoder::bench::{run, BenchConfig};
+    use doefab::calibration::evaluate::ScoringOptions;
+    use doefab::calibration::register::{Model, RegisterOptions};
+    use doefab::decoder::bench::{run, scene_dirs, BenchConfig, FinetuneBench};
     use doefab::decoder::finetune::FinetuneConfig;
     let Command::Bench {
         what:
-            BenchCommand::Decoder { data, steps, batch, crop, lr, seed, evaluate_every, train_data, tile, output },
+            BenchCommand::Decoder {
+                data,
+                scenes,
+                decoders,
+                psf,
+                min_coverage,
+                steps,
+                init,
+                batch,
+                crop,
+                lr,
+                seed,
+                evaluate_every,
+                train_data,
+                tile,
+                output,
+            },
     } = &cli.command
     else {
         unreachable!("called for bench decoder only")
     };
+    let scenes = if scenes.is_empty() { scene_dirs(&data.join("captures"))? } else { scenes.clone() };
+    let decoders = if decoders.is_empty() {
+        vec![PathBuf::from("built-in:paper-simulated-psf"), PathBuf::from("built-in:paper-measured-psf")]
+    } else {
+        decoders.clone()
+    };
     let evaluate_every = evaluate_every.unwrap_or((*steps / 5).max(1));
-    let cfg = BenchConfig {
-        data: data.clone(),
-        finetune: FinetuneConfig {
+    let finetune = (*steps > 0).then(|| FinetuneBench {
+        init: init.clone(),
+        config: FinetuneConfig {
             steps: *steps,
             batch: *batch,
             crop: *crop,
@@ -1657,9 +1754,20 @@ fn bench_decoder(cli: &Cli) -> Result<()> {
         },
         evaluate_every,
         train_data: train_data.clone(),
-        register: RegisterOptions { tile: *tile, ..RegisterOptions::default() },
+    });
+    let cfg = BenchConfig {
+        scenes: scenes.clone(),
+        decoders,
+        psf: psf.clone().unwrap_or_else(|| data.join("measured_psf.npz")),
+        psf_key: Some("psf_val".into()),
+        scoring: ScoringOptions {
+            register: RegisterOptions { tile: *tile, model: Model::Local, ..RegisterOptions::default() },
+            min_coverage: *min_coverage,
+            ..ScoringOptions::default()
+        },
+        finetune,
     };
-    let pb = progress(cli, *steps as u64 + 4);
+    let pb = progress(cli, *steps as u64 + 2 * scenes.len() as u64);
     let report = run(&cfg, output, &mut |msg, done| {
         if !msg.is_empty() {
             pb.set_message(msg.to_string());
@@ -1671,34 +1779,53 @@ fn bench_decoder(cli: &Cli) -> Result<()> {
         let n = s.merge_warnings.len();
         eprintln!("warning: {}: the merge of its bracket gave {n} warnings (in report.json)", s.name);
     }
+    for s in &report.scenes {
+        if let Some(e) = &s.error {
+            eprintln!("warning: scene {} not scored: {e}", s.name);
+        }
+    }
     print_result(cli, &report, || {
+        println!(
+            "{:<16} {:<52} {:>8} {:>15} {:>15} {:>9} {:>10}",
+            "scene", "decoder", "PSNR-L", "gamma all", "gamma sat.", "scored", "min out"
+        );
         for r in &report.scenes {
-            println!(
-                "{}: {} pixels registered ({:.0} %, residual {:.2} px), {} saturated in the capture, gain {:.3}",
-                r.name,
-                r.pixels,
-                100.0 * r.registration.covered_fraction,
-                r.registration.residual_rms_px,
-                r.saturated_pixels,
-                r.gain
-            );
+            let Some(f) = &r.footing else {
+                println!("{:<16} refused: {}", r.name, r.error.as_deref().unwrap_or(""));
+                continue;
+            };
             for sc in report.scores.iter().filter(|sc| sc.scene == r.name) {
-                let sat = sc
-                    .saturated
-                    .as_ref()
-                    .map_or("n/a".into(), |p| format!("{:.2} / {:.2}", p.linear_db, p.gamma_db));
+                let sat = sc.saturated.as_ref().map_or("withheld".into(), |p| format!("{:.2}", p.gamma_db));
+                let name: String = sc.decoder.chars().take(52).collect();
                 println!(
-                    "  {:<48} all {:.2} / {:.2} dB   saturated {sat} dB (linear / gamma)",
-                    sc.decoder, sc.all.linear_db, sc.all.gamma_db
+                    "{:<16} {:<52} {:>8.2} {:>15.2} {:>15} {:>8.1}% {:>10.3}",
+                    r.name,
+                    name,
+                    sc.all.linear_db,
+                    sc.all.gamma_db,
+                    sat,
+                    100.0 * f.coverage,
+                    sc.min_output
                 );
             }
+            println!(
+                "{:<16} {} pixels scored, {} of the capture's {} saturated pixels; gain {:.3}, residual {}",
+                "",
+                f.pixels_scored,
+                f.saturated_scored,
+                f.saturated_in_capture,
+                f.gain,
+                f.local_registration
+                    .as_ref()
+                    .map_or("n/a".into(), |l| format!("{:.2} px", l.residual_rms_px))
+            );
         }
-        println!(
-            "fine-tuning: {} steps on {}, {:.2} s a step -> {}",
-            report.steps,
-            report.training_data,
-            report.seconds_per_step,
-            output.display()
-        );
+        if let Some(run) = &report.finetune {
+            println!(
+                "fine-tuning: {} steps from {} on {}, {:.2} s a step",
+                run.steps, run.init, run.training_data, run.seconds_per_step
+            );
+        }
+        println!("-> {}", output.display());
     })
 }

@@ -1,31 +1,67 @@
-//! PSNR of a reconstruction against a reference HDR image (`doefab evaluate`).
+//! PSNR of reconstructions against a reference HDR image of the same scene (`doefab evaluate`,
+//! `doefab bench decoder`).
 //!
 //! The paper reports PSNR "computed in the linear domain (L) and in the gamma-corrected
 //! domain" (Table 1) without printing the formula; its loss uses `gamma = 1/2`. Here, over a
-//! set `S` of samples (pixel and channel):
+//! set `S` of samples (pixel and channel), reference `x`, reconstruction `y`:
 //!
 //! * linear: `PSNR_L = 10 log10(P^2 / mean_S (y - x)^2)`, with `P` the reference's maximum
-//!   over `S`;
+//!   over `S`. **Negative outputs count as they are**: a decoder that writes `y < 0` is charged
+//!   the full `(y - x)^2`, not credited with the clamp `max(y, 0)` a user may apply afterwards.
+//!   Every score reports the smallest output over `S` and the fraction of samples below zero.
 //! * gamma: `PSNR_gamma = 10 log10(P / mean_S (sqrt(y+) - sqrt(x+))^2)`, the same on square
-//!   roots (peak `sqrt(P)`, negative values as 0, as the loss's `max(y_hat, 0)`).
+//!   roots (peak `sqrt(P)`), with `y+ = max(y, 0)` (the square root of a negative radiance is
+//!   undefined; the paper's loss clamps the same way).
 //!
-//! Both are reported over all pixels and over the pixels saturated in the LDR capture (any
-//! channel at or above the saturation level). With `register`, the reference is first mapped
-//! onto the reconstruction by an affine fit or, where objects at different depths move
-//! differently (parallax), a local displacement field ([`super::register`]); pixels the map
-//! does not cover are left out. Both images must be in the same units (the merge's radiance at the capture's
-//! exposure: value 1 = full scale).
+//! # One geometry and one pixel set per scene
+//!
+//! The reference (a bracket merged without the DOE) and the capture through the DOE differ by
+//! the camera's motion when the DOE is attached: a few per cent of scale, tens of pixels, and
+//! parallax between objects at different depths. [`prepare`] registers the reference onto the
+//! *capture* once, from what both images share, and every reconstruction of that capture is
+//! scored against the same warped reference over the same pixels:
+//!
+//! 1. The capture is predicted from the reference by the measurement model
+//!    `c = clip(g (h * x), 0, 1)` (the paper's, Metzler et al. 2020, Sec. 4; `h` the measured
+//!    PSF normalised to sum 1 per channel, `*` linear convolution of the reference extended
+//!    past its border by its edge values, `g` the gain below, 1 = the capture's clipping
+//!    level). Without a PSF, `h` is the identity. The prediction carries the PSF's copies of
+//!    bright lights and the clipping that the capture shows, so tiles near lamps match.
+//! 2. The prediction is registered onto the capture ([`super::register::register_local`], or
+//!    one affine map [`super::register::register_affine`]), both compressed by a square root.
+//! 3. The gain `g` (the DOE and its mount absorb light; the bracket's times drift) is the
+//!    median of `capture / (h * x)` over the samples of covered pixels whose capture is well
+//!    exposed (0.05..0.9 of the clipping level in every channel) — where the capture *is*
+//!    `g (h * x)` up to noise. At least 300 samples are needed. When `g` is more than 5 % from
+//!    the gain the prediction was clipped with, steps 1-3 run once more with it.
+//! 4. The reference warped onto the capture's pixels and scaled by `g` is the target every
+//!    reconstruction is scored against, over the pixels the registration covers (all pixels)
+//!    and over those of them that are saturated in the capture (any channel at or above
+//!    `saturation` times the capture's clipping level).
+//!
+//! **Coverage floor.** The scored fraction of the image is reported with the number of the
+//! capture's saturated pixels and how many of them are scored. Below `min_coverage` of the
+//! image the scene is refused (with the figure); with fewer than `min_saturated` saturated
+//! pixels scored, the saturated figures are withheld and the reason is given, rather than a
+//! number over a handful of pixels or a claim that none is saturated.
+//!
+//! **Clipping level.** Captures are read as counts / full scale. A sensor of fewer bits than
+//! its file (12-bit data in a 16-bit PNG) clips below full scale; the capture's clipping level
+//! is then its maximum value, recognised by a pile-up of samples there (at least 0.01 % of them
+//! at exactly the maximum, which lies below `saturation`), and reported as a warning.
 
 use std::path::Path;
 
-use ndarray::{Array2, Array3};
+use ndarray::{s, Array2, Array3, Axis, Zip};
 use serde::Serialize;
 
 use super::register::{
     luminance, register_affine, register_local, warp, LocalRegistration, Model, RegisterOptions, Registration,
 };
+use crate::decoder::simulate::Convolver;
 use crate::error::{Error, Result};
 use crate::io::exr::read_exr;
+use crate::optics::psf::Psf;
 
 /// PSNR figures over one set of samples.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -35,19 +71,10 @@ pub struct Psnr {
     /// The peak `P` used and the pixels evaluated.
     pub peak: f64,
     pub pixels: usize,
-}
-
-/// What `doefab evaluate` reports.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Evaluation {
-    pub all: Psnr,
-    /// Over the pixels saturated in the capture (when one was given and any are).
-    pub saturated: Option<Psnr>,
-    pub saturated_pixels: Option<usize>,
-    pub registration: Option<Registration>,
-    pub local_registration: Option<LocalRegistration>,
-    /// Pixels left out because the registered reference does not cover them.
-    pub excluded_pixels: usize,
+    /// The smallest reconstruction value over the samples, and the fraction of samples below
+    /// zero (counted as they are in `linear_db`, as 0 in `gamma_db`).
+    pub min_output: f64,
+    pub negative_fraction: f64,
 }
 
 /// PSNR of `recon` against `reference` over the pixels where `mask` is true (all when `None`).
@@ -60,7 +87,13 @@ pub fn psnr(reference: &Array3<f64>, recon: &Array3<f64>, mask: Option<&Array2<b
         )));
     }
     let (h, w, nc) = reference.dim();
+    if let Some(m) = mask {
+        if m.dim() != (h, w) {
+            return Err(Error::Data(format!("the pixel mask is {:?}, the images {:?}", m.dim(), (h, w))));
+        }
+    }
     let (mut peak, mut sl, mut sg, mut n, mut pixels) = (0.0f64, 0.0, 0.0, 0usize, 0usize);
+    let (mut min_output, mut negative) = (f64::INFINITY, 0usize);
     for i in 0..h {
         for j in 0..w {
             if mask.is_some_and(|m| !m[[i, j]]) {
@@ -69,9 +102,16 @@ pub fn psnr(reference: &Array3<f64>, recon: &Array3<f64>, mask: Option<&Array2<b
             pixels += 1;
             for c in 0..nc {
                 let (x, y) = (reference[[i, j, c]], recon[[i, j, c]]);
+                if !x.is_finite() || !y.is_finite() {
+                    return Err(Error::Data(format!(
+                        "non-finite value at row {i}, column {j}, channel {c}: reference {x}, reconstruction {y}"
+                    )));
+                }
                 peak = peak.max(x);
                 sl += (y - x).powi(2);
                 sg += (y.max(0.0).sqrt() - x.max(0.0).sqrt()).powi(2);
+                min_output = min_output.min(y);
+                negative += usize::from(y < 0.0);
                 n += 1;
             }
         }
@@ -85,6 +125,8 @@ pub fn psnr(reference: &Array3<f64>, recon: &Array3<f64>, mask: Option<&Array2<b
         gamma_db: 10.0 * (peak / mg).log10(),
         peak,
         pixels,
+        min_output,
+        negative_fraction: negative as f64 / n as f64,
     })
 }
 
@@ -105,57 +147,382 @@ pub fn read_rgb_exr(path: &Path) -> Result<Array3<f64>> {
     Ok(Array3::from_shape_fn((h, w, planes.len()), |(i, j, c)| planes[c][[i, j]]))
 }
 
-/// Evaluates `recon` against `reference`; `ldr` (values in [0, 1]) marks saturated pixels at
-/// `saturation`; `register` maps the reference onto the reconstruction first.
-pub fn evaluate(
-    reference: &Array3<f64>,
-    recon: &Array3<f64>,
-    ldr: Option<&Array3<f64>>,
-    saturation: f64,
-    register: Option<&RegisterOptions>,
-) -> Result<Evaluation> {
-    let (h, w, _) = recon.dim();
-    if let Some(l) = ldr {
-        if (l.dim().0, l.dim().1) != (h, w) {
-            return Err(Error::Data(format!(
-                "the capture is {} x {} and the reconstruction {w} x {h}",
-                l.dim().1,
-                l.dim().0
-            )));
+/// Reads a linear image as `(H, W, C)`, by extension: OpenEXR (R, G, B or one channel),
+/// NumPy `.npy` of shape `(H, W)`, `(H, W, C)`, `(1, H, W, C)` or `(H, W, 1, C)` with `C` 1 or 3,
+/// or an 8/16-bit PNG/TIFF capture (counts / full scale). Non-finite values are refused.
+pub fn read_image(path: &Path) -> Result<Array3<f64>> {
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    let img = match ext.as_deref() {
+        Some("exr") => read_rgb_exr(path)?,
+        Some("npy") => {
+            let (header, a) = crate::io::npy::read_npy_nd(path)?;
+            let (h, w, c) = match header.shape[..] {
+                [h, w] => (h, w, 1),
+                [h, w, c] if c == 1 || c == 3 => (h, w, c),
+                [1, h, w, c] if c == 1 || c == 3 => (h, w, c),
+                [h, w, 1, c] if c == 1 || c == 3 => (h, w, c),
+                _ => {
+                    return Err(Error::format(
+                        path,
+                        format!(
+                            "has shape {:?}; an image is (H, W), (H, W, C), (1, H, W, C) or (H, W, 1, C) \
+                             with C = 1 or 3",
+                            header.shape
+                        ),
+                    ))
+                }
+            };
+            a.into_shape_with_order((h, w, c)).map_err(|e| Error::format(path, e.to_string()))?
+        }
+        Some("png" | "tif" | "tiff") => super::capture::read_capture(path)?.values,
+        _ => {
+            return Err(Error::format(
+                path,
+                "an image is read from .exr, .npy, .png, .tif or .tiff (by extension)",
+            ))
+        }
+    };
+    let (h, w, _) = img.dim();
+    if h == 0 || w == 0 {
+        return Err(Error::format(path, "is empty"));
+    }
+    let bad = img.iter().filter(|v| !v.is_finite()).count();
+    if bad > 0 {
+        return Err(Error::format(path, format!("holds {bad} non-finite values (NaN or infinite)")));
+    }
+    Ok(img)
+}
+
+/// Settings of [`prepare`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScoringOptions {
+    /// The registration (its `model`: a local field or one affine map).
+    pub register: RegisterOptions,
+    /// Saturation level, fraction of the capture's clipping level.
+    pub saturation: f64,
+    /// Smallest fraction of the image the registration must cover; below it the scene is refused.
+    pub min_coverage: f64,
+    /// Fewest saturated pixels of the capture that must be scored for the saturated figures.
+    pub min_saturated: usize,
+}
+
+impl Default for ScoringOptions {
+    fn default() -> Self {
+        ScoringOptions {
+            register: RegisterOptions { model: Model::Local, ..RegisterOptions::default() },
+            saturation: 0.98,
+            min_coverage: 0.3,
+            min_saturated: 100,
         }
     }
-    let (reference, cover, registration, local_registration) = match register {
-        Some(opts) if opts.model == Model::Affine => {
-            let reg = register_affine(&luminance(reference), &luminance(recon), opts)?;
-            let (warped, inside) = warp(reference, &reg.affine, h, w)?;
-            (warped, Some(inside), Some(reg), None)
-        }
-        Some(opts) => {
-            let reg = register_local(&luminance(reference), &luminance(recon), opts)?;
-            let (warped, inside) = reg.warp(reference);
-            (warped, Some(inside), None, Some(reg))
-        }
-        None => (reference.clone(), None, None, None),
+}
+
+/// How a scene's reference was registered onto its capture, and what is scored.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Footing {
+    pub rows: usize,
+    pub cols: usize,
+    /// Whether the capture was predicted through a PSF (else the reference itself, clipped).
+    pub psf: bool,
+    pub model: Model,
+    pub registration: Option<Registration>,
+    pub local_registration: Option<LocalRegistration>,
+    /// `capture / (h * reference)` over well-exposed samples (see the module docs), and their number.
+    pub gain: f64,
+    pub gain_samples: usize,
+    /// Registration passes (2 when the gain moved the clipping of the prediction).
+    pub passes: usize,
+    /// The capture's clipping level, fraction of its full scale (1 unless detected lower).
+    pub clipping_level: f64,
+    /// Pixels scored, and their fraction of the image.
+    pub pixels_scored: usize,
+    pub coverage: f64,
+    /// Pixels saturated in the capture, and how many of them are scored.
+    pub saturated_in_capture: usize,
+    pub saturated_scored: usize,
+    /// Why the saturated figures are withheld, if they are.
+    pub saturated_withheld: Option<String>,
+    pub warnings: Vec<String>,
+}
+
+/// A scene ready for scoring: the reference on the capture's pixels and the pixel sets.
+#[derive(Debug, Clone)]
+pub struct Scoring {
+    /// The registered reference, scaled by the gain (0 where not covered).
+    pub reference: Array3<f64>,
+    /// Pixels scored.
+    pub mask: Array2<bool>,
+    /// Scored pixels saturated in the capture.
+    pub saturated: Array2<bool>,
+    pub footing: Footing,
+}
+
+/// One image scored on a [`Scoring`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Score {
+    pub name: String,
+    pub all: Psnr,
+    /// `None` when the saturated figures are withheld ([`Footing::saturated_withheld`]).
+    pub saturated: Option<Psnr>,
+}
+
+/// The capture's clipping level (see the module docs): 1, or the maximum where samples pile up
+/// below `saturation`.
+fn clipping_level(capture: &Array3<f64>, saturation: f64, warnings: &mut Vec<String>) -> f64 {
+    let max = capture.iter().copied().fold(0.0f64, f64::max);
+    let at_max = capture.iter().filter(|v| **v == max).count();
+    if max > 0.0 && max < saturation && at_max as f64 >= 1e-4 * capture.len() as f64 {
+        warnings.push(format!(
+            "the capture's samples pile up at {max:.5} of full scale ({at_max} samples): taken as its clipping \
+             level (a sensor of fewer bits than its file)"
+        ));
+        max
+    } else {
+        1.0
+    }
+}
+
+/// `h * x` per channel, the same size as `x`, with `x` extended past its border by its edge
+/// values (light from just outside the frame lands inside it) and `h` normalised to sum 1.
+pub fn convolve_psf(x: &Array3<f64>, psf: &Psf) -> Result<Array3<f64>> {
+    let (h, w, nc) = x.dim();
+    if psf.channels.len() != nc {
+        return Err(Error::Data(format!("the PSF has {} channels and the images {nc}", psf.channels.len())));
+    }
+    let mut psf = psf.clone();
+    psf.normalise()?;
+    let (kh, kw) = psf.dim();
+    let (top, left) = (kh / 2, kw / 2);
+    let (ph, pw) = (h + kh - 1, w + kw - 1);
+    let padded = Array3::from_shape_fn((ph, pw, nc), |(i, j, c)| {
+        let (i, j) = (i.saturating_sub(top).min(h - 1), j.saturating_sub(left).min(w - 1));
+        x[[i, j, c]] as f32
+    });
+    let full = Convolver::new(&psf, (ph, pw))?.convolve(&padded)?;
+    Ok(full.slice(s![top..top + h, left..left + w, ..]).to_owned())
+}
+
+/// Registers `reference` (linear HDR, any scale) onto `capture` (values / full scale) through
+/// the measurement model with `psf`, and fixes the gain and the pixels scored (module docs).
+pub fn prepare(
+    reference: &Array3<f64>,
+    capture: &Array3<f64>,
+    psf: Option<&Psf>,
+    opts: &ScoringOptions,
+) -> Result<Scoring> {
+    let (h, w, nc) = capture.dim();
+    if reference.dim() != capture.dim() {
+        return Err(Error::Data(format!(
+            "the reference is {:?} and the capture {:?} (rows, cols, channels): both must be one size",
+            reference.dim(),
+            capture.dim()
+        )));
+    }
+    if !(opts.saturation > 0.0 && opts.saturation <= 1.0) {
+        return Err(Error::param("saturation", format!("{} is not in (0, 1]", opts.saturation)));
+    }
+    if !(0.0..=1.0).contains(&opts.min_coverage) {
+        return Err(Error::param(
+            "min_coverage",
+            format!("{} is not a fraction in [0, 1]", opts.min_coverage),
+        ));
+    }
+    if let Some(bad) = reference.iter().chain(capture.iter()).find(|v| !v.is_finite()) {
+        return Err(Error::Data(format!("the reference or the capture holds {bad}")));
+    }
+    let mut warnings = Vec::new();
+    let clip = clipping_level(capture, opts.saturation, &mut warnings);
+    let capture = capture.mapv(|v| v / clip);
+    let predicted = match psf {
+        Some(p) => convolve_psf(reference, p)?,
+        None => reference.clone(),
     };
-    let excluded = cover.as_ref().map_or(0, |m| m.iter().filter(|v| !**v).count());
-    let all = psnr(&reference, recon, cover.as_ref())?;
-    let (saturated, saturated_pixels) = match ldr {
-        Some(l) => {
-            let mask = Array2::from_shape_fn((h, w), |(i, j)| {
-                (0..l.dim().2).any(|c| l[[i, j, c]] >= saturation) && cover.as_ref().is_none_or(|m| m[[i, j]])
-            });
-            let count = mask.iter().filter(|v| **v).count();
-            let p = if count > 0 { Some(psnr(&reference, recon, Some(&mask))?) } else { None };
-            (p, Some(count))
+    let cap_lum = luminance(&capture);
+    // The floor is applied below, to the pixels scored.
+    let register = RegisterOptions { min_coverage: 0.0, ..opts.register.clone() };
+    let mut gain = 1.0;
+    let mut passes = 0;
+    let (mask, registration, local_registration, gain_samples) = loop {
+        passes += 1;
+        let source = luminance(&predicted.mapv(|v| (gain * v).clamp(0.0, 1.0)));
+        let (warped, mask, reg, local) = match opts.register.model {
+            Model::Affine => {
+                let reg = register_affine(&source, &cap_lum, &register)?;
+                let (warped, inside) = warp(&predicted, &reg.affine, h, w)?;
+                (warped, inside, Some(reg), None)
+            }
+            Model::Local => {
+                let reg = register_local(&source, &cap_lum, &register)?;
+                let (warped, inside) = reg.warp(&predicted);
+                (warped, inside, None, Some(reg))
+            }
+        };
+        let mut ratios = Vec::new();
+        Zip::indexed(&mask).for_each(|(i, j), &inside| {
+            let exposed =
+                (0..nc).all(|c| (0.05..=0.9).contains(&capture[[i, j, c]]) && warped[[i, j, c]] > 0.0);
+            if inside && exposed {
+                ratios.extend((0..nc).map(|c| capture[[i, j, c]] / warped[[i, j, c]]));
+            }
+        });
+        if ratios.len() < 300 {
+            return Err(Error::Validity(format!(
+                "only {} well-exposed samples (0.05..0.9 of the clipping level) among the registered pixels to \
+                 match the reference's gain; 300 needed",
+                ratios.len()
+            )));
         }
-        None => (None, None),
+        ratios.sort_by(f64::total_cmp);
+        let g = ratios[ratios.len() / 2];
+        let moved = (g / gain - 1.0).abs() > 0.05;
+        gain = g;
+        if !moved || passes == 2 {
+            break (mask, reg, local, ratios.len());
+        }
     };
-    Ok(Evaluation {
-        all,
-        saturated,
-        saturated_pixels,
+    let (mut warped_reference, _) = match (&registration, &local_registration) {
+        (_, Some(l)) => l.warp(reference),
+        (Some(r), None) => warp(reference, &r.affine, h, w)?,
+        (None, None) => return Err(Error::Data("no registration was made".into())),
+    };
+    Zip::from(warped_reference.lanes_mut(Axis(2))).and(&mask).for_each(|mut px, &inside| {
+        if inside {
+            px.mapv_inplace(|v| v * gain);
+        } else {
+            px.fill(0.0);
+        }
+    });
+    let saturated_capture =
+        Array2::from_shape_fn((h, w), |(i, j)| (0..nc).any(|c| capture[[i, j, c]] >= opts.saturation));
+    let saturated = &saturated_capture & &mask;
+    let pixels_scored = mask.iter().filter(|v| **v).count();
+    let coverage = pixels_scored as f64 / (h * w) as f64;
+    let saturated_in_capture = saturated_capture.iter().filter(|v| **v).count();
+    let saturated_scored = saturated.iter().filter(|v| **v).count();
+    if coverage < opts.min_coverage {
+        return Err(Error::Validity(format!(
+            "the registration covers {:.1} % of the image ({pixels_scored} of {} pixels; {saturated_scored} of the \
+             capture's {saturated_in_capture} saturated pixels); the floor is {:.0} %: too few pixels follow one \
+             geometry to score on",
+            100.0 * coverage,
+            h * w,
+            100.0 * opts.min_coverage
+        )));
+    }
+    let saturated_withheld = (saturated_scored < opts.min_saturated).then(|| {
+        if saturated_in_capture == 0 {
+            format!("no pixel of the capture reaches {} of its clipping level", opts.saturation)
+        } else {
+            format!(
+                "only {saturated_scored} of the capture's {saturated_in_capture} saturated pixels are registered \
+                 ({} needed)",
+                opts.min_saturated
+            )
+        }
+    });
+    let footing = Footing {
+        rows: h,
+        cols: w,
+        psf: psf.is_some(),
+        model: opts.register.model,
         registration,
         local_registration,
-        excluded_pixels: excluded,
-    })
+        gain,
+        gain_samples,
+        passes,
+        clipping_level: clip,
+        pixels_scored,
+        coverage,
+        saturated_in_capture,
+        saturated_scored,
+        saturated_withheld,
+        warnings,
+    };
+    Ok(Scoring { reference: warped_reference, mask, saturated, footing })
+}
+
+impl Scoring {
+    /// Scores `image` (a reconstruction, or the capture itself, in units of the capture's
+    /// clipping level) against the registered reference over the scene's pixel sets.
+    pub fn score(&self, name: &str, image: &Array3<f64>) -> Result<Score> {
+        if image.dim() != self.reference.dim() {
+            return Err(Error::Data(format!(
+                "{name}: is {:?} (rows, cols, channels); the capture is {:?}",
+                image.dim(),
+                self.reference.dim()
+            )));
+        }
+        let all = psnr(&self.reference, image, Some(&self.mask))?;
+        let saturated = match self.footing.saturated_withheld {
+            None => Some(psnr(&self.reference, image, Some(&self.saturated))?),
+            Some(_) => None,
+        };
+        Ok(Score { name: name.into(), all, saturated })
+    }
+}
+
+/// What `doefab evaluate` reports: one footing and every image's scores on it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Evaluation {
+    pub footing: Footing,
+    pub scores: Vec<Score>,
+}
+
+/// Registers `reference` onto `capture` once ([`prepare`]) and scores each named image on the
+/// same pixels (the capture itself first, as the baseline a decoder must beat).
+pub fn evaluate(
+    reference: &Array3<f64>,
+    capture: &Array3<f64>,
+    psf: Option<&Psf>,
+    images: &[(String, Array3<f64>)],
+    opts: &ScoringOptions,
+) -> Result<Evaluation> {
+    let scoring = prepare(reference, capture, psf, opts)?;
+    let clip = scoring.footing.clipping_level;
+    let mut scores = vec![scoring.score("capture as it is", &capture.mapv(|v| v / clip))?];
+    for (name, img) in images {
+        scores.push(scoring.score(name, img)?);
+    }
+    Ok(Evaluation { footing: scoring.footing, scores })
+}
+
+/// The files of one `doefab evaluate` run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EvaluateFiles {
+    /// The reference HDR (see [`read_image`]), e.g. from `doefab merge`.
+    pub reference: std::path::PathBuf,
+    /// The capture through the DOE that the reconstructions were made from (PNG/TIFF).
+    pub capture: std::path::PathBuf,
+    /// The measured PSF (`.npz`, `.npy`, `.exr`), sampled at the capture's pixels.
+    pub psf: Option<std::path::PathBuf>,
+    /// The array of a `.npz` PSF holding several (the paper's: `psf_val`).
+    pub psf_key: Option<String>,
+    /// The capture's pixel pitch, metres: a PSF file stating another pitch is refused.
+    pub capture_pitch: f64,
+    /// The reconstructions to score (see [`read_image`]).
+    pub images: Vec<std::path::PathBuf>,
+    pub options: ScoringOptions,
+}
+
+/// Reads the files and runs [`evaluate`]; each image is named by its path.
+pub fn evaluate_files(files: &EvaluateFiles) -> Result<Evaluation> {
+    let reference = read_image(&files.reference)?;
+    let capture = super::capture::read_capture(&files.capture)?.values;
+    let psf = match &files.psf {
+        Some(p) => {
+            let opts = crate::optics::compare::CompareOptions {
+                pitch: Some(files.capture_pitch),
+                key: files.psf_key.clone(),
+                radius: None,
+            };
+            Some(crate::optics::compare::read_psf(p, &opts)?)
+        }
+        None => None,
+    };
+    let images = files
+        .images
+        .iter()
+        .map(|p| Ok((p.display().to_string(), read_image(p)?)))
+        .collect::<Result<Vec<_>>>()?;
+    evaluate(&reference, &capture, psf.as_ref(), &images, &files.options)
 }

@@ -73,8 +73,11 @@ pub struct RegisterOptions {
     pub tile: usize,
     /// Largest displacement searched, pixels.
     pub max_shift: usize,
-    /// Which motion model [`super::evaluate::evaluate`] fits.
+    /// Which motion model [`super::evaluate::prepare`] fits.
     pub model: Model,
+    /// Smallest fraction of the image a local field must cover; below it [`register_local`]
+    /// refuses (too little texture to follow the motion).
+    pub min_coverage: f64,
 }
 
 /// The motion model of a registration.
@@ -89,7 +92,7 @@ pub enum Model {
 
 impl Default for RegisterOptions {
     fn default() -> Self {
-        RegisterOptions { tile: 48, max_shift: 48, model: Model::Affine }
+        RegisterOptions { tile: 48, max_shift: 48, model: Model::Affine, min_coverage: 0.25 }
     }
 }
 
@@ -440,13 +443,24 @@ fn bilinear(img: &Array3<f64>, y: f64, x: f64) -> Option<Vec<f64>> {
 /// 3 px of theirs (component-wise median; repeated until nothing changes). The field at each node is the
 /// affine map plus the Gaussian-weighted mean departure of the kept matches (sigma 1 node,
 /// truncated at 2 nodes): nodes whose
-/// weight is below `exp(-1/2)` (no kept match within about a node) are uncovered, and pixels
-/// between uncovered nodes are left out. Pixels interpolate the field bilinearly between nodes.
+/// weight is below `exp(-1/2)` (no kept match within about a node) are uncovered.
+///
+/// *Extension*: a tile without a kept match has too little texture to be matched, and there a
+/// displacement error changes the image little. An uncovered node with kept matches within
+/// 3 nodes takes their Gaussian-weighted mean departure (sigma 1.5 nodes, weight at least
+/// `exp(-2)`), and is covered when the reference moved by it agrees with the target over the
+/// node's tile — RMS of `target - a reference` (`a` the least-squares scale over the matched
+/// nodes' tiles) — at least as well as at 90 % of the nodes with kept matches. The test is
+/// relative to the scene's own matched tiles, so it holds whatever the scene's noise and
+/// texture. Pixels between uncovered nodes are left out; pixels interpolate the field
+/// bilinearly between nodes.
 /// The residual is the leave-one-out error: each kept match against the field made without it.
 /// Depth edges are smoothed over about a tile; the residual says how far that matters.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct LocalRegistration {
     pub node_spacing_px: usize,
+    /// Nodes covered by the extension (no kept match within a node) rather than by matches.
+    pub extended_nodes: usize,
     pub nodes: usize,
     pub tiles_matched: usize,
     pub tiles_used: usize,
@@ -580,8 +594,82 @@ pub fn register_local(
             }
         }
     }
+    // Extension (see the struct docs): uncovered nodes with kept matches within 3 nodes take
+    // their Gaussian-weighted mean departure (sigma 1.5 nodes) when the reference, moved by it,
+    // agrees with the target over the node's tile as well as at 90 % of the matched nodes.
+    let ref3 = reference.clone().insert_axis(ndarray::Axis(2));
+    let tile_pairs = |i: usize, j: usize, d: [f64; 2]| -> Vec<(f64, f64)> {
+        let (r0, c0) = (t / 2 + i * step, t / 2 + j * step);
+        let mut v = Vec::with_capacity(t * t);
+        for a in r0..r0 + t {
+            for b in c0..c0 + t {
+                if let Some(x) = bilinear(&ref3, a as f64 + d[1], b as f64 + d[0]) {
+                    v.push((target[[a, b]], x[0]));
+                }
+            }
+        }
+        v
+    };
+    let node_d = |f: &Array3<f64>, i: usize, j: usize| [f[[i, j, 0]], f[[i, j, 1]]];
+    let kept: Vec<(usize, usize)> =
+        (0..ny).flat_map(|i| (0..nx).map(move |j| (i, j))).filter(|&(i, j)| u[[i, j]].is_some()).collect();
+    let (mut stt, mut srr) = (0.0, 0.0);
+    for &(i, j) in &kept {
+        for (tv, rv) in tile_pairs(i, j, node_d(&field, i, j)) {
+            stt += tv * rv;
+            srr += rv * rv;
+        }
+    }
+    let scale = if srr > 0.0 { stt / srr } else { 1.0 };
+    let disagreement = |i: usize, j: usize, d: [f64; 2]| -> Option<f64> {
+        let v = tile_pairs(i, j, d);
+        (v.len() * 2 >= t * t).then(|| {
+            (v.iter().map(|(tv, rv)| (tv - scale * rv).powi(2)).sum::<f64>() / v.len() as f64).sqrt()
+        })
+    };
+    let mut matched_disagreement: Vec<f64> =
+        kept.iter().filter_map(|&(i, j)| disagreement(i, j, node_d(&field, i, j))).collect();
+    matched_disagreement.sort_by(f64::total_cmp);
+    let mut extended = 0;
+    if let Some(&limit) = matched_disagreement.get(matched_disagreement.len() * 9 / 10) {
+        let wide = |i: usize, j: usize| {
+            let mut s = [0.0; 3];
+            for a in i.saturating_sub(3)..(i + 4).min(ny) {
+                for b in j.saturating_sub(3)..(j + 4).min(nx) {
+                    if let Some(d) = u[[a, b]] {
+                        let r2 = (a as f64 - i as f64).powi(2) + (b as f64 - j as f64).powi(2);
+                        let g = (-r2 / (2.0 * 1.5 * 1.5)).exp();
+                        s[0] += g;
+                        s[1] += g * d[0];
+                        s[2] += g * d[1];
+                    }
+                }
+            }
+            s
+        };
+        for i in 0..ny {
+            for j in 0..nx {
+                let s = wide(i, j);
+                if covered[[i, j]] || s[0] < (-2.0f64).exp() {
+                    continue;
+                }
+                let b = base([origin + (j * step) as f64, origin + (i * step) as f64]);
+                let d = [s[1] / s[0] + b[0], s[2] / s[0] + b[1]];
+                if disagreement(i, j, d).is_some_and(|v| v <= limit) {
+                    covered[[i, j]] = true;
+                    extended += 1;
+                    for k in 0..2 {
+                        field[[i, j, k]] = d[k];
+                        lo[k] = lo[k].min(d[k]);
+                        hi[k] = hi[k].max(d[k]);
+                    }
+                }
+            }
+        }
+    }
     let mut reg = LocalRegistration {
         node_spacing_px: step,
+        extended_nodes: extended,
         nodes: ny * nx,
         tiles_matched: matches.len(),
         tiles_used: used,
@@ -596,11 +684,11 @@ pub fn register_local(
     let inside =
         (0..h).flat_map(|i| (0..w).map(move |j| (i, j))).filter(|&(i, j)| reg.at(i, j).is_some()).count();
     reg.covered_fraction = inside as f64 / (h * w) as f64;
-    if reg.covered_fraction < 0.25 {
+    if reg.covered_fraction < opts.min_coverage {
         return Err(Error::Validity(format!(
-            "the matched tiles cover only {:.0} % of the image (25 % needed): too little texture to follow \
-             the motion",
-            100.0 * reg.covered_fraction
+            "the field covers only {:.1} % of the image ({:.0} % needed): too little texture to follow the motion",
+            100.0 * reg.covered_fraction,
+            100.0 * opts.min_coverage
         )));
     }
     Ok(reg)

@@ -1,44 +1,38 @@
-//! The decoder on real captures (`doefab bench decoder`): PSNR of reconstructions of a scene
+//! The decoder on real captures (`doefab bench decoder`): PSNR of reconstructions of scenes
 //! captured through the DOE against the HDR merged from a bracket of the same scene taken
-//! without it, for any number of decoders on one common footing.
+//! without it, for any number of decoders and scenes, every decoder of a scene on one footing.
 //!
 //! Per scene folder (an `exposures.json` listing one frame with `"doe": true` and a bracket
 //! without the DOE, as in the paper's data release):
 //!
 //! 1. The bracket is merged ([`crate::calibration::hdr_merge`]) into radiance at the listed
 //!    reference exposure (value 1 = the sensor's clipping level).
-//! 2. The reference is registered onto the *capture* through the DOE, not onto each
-//!    reconstruction, so that every decoder is scored against the same warped reference over
-//!    the same pixels. Attaching the DOE moves the camera's centre of projection, and objects
-//!    at different depths move differently (on the shared scenes an affine map fits under a
-//!    third of the tiles): the registration is a local displacement field
-//!    ([`crate::calibration::register::register_local`]), matched on the square root of both
-//!    images with the reference clipped at the capture's clipping level. Pixels the field does
-//!    not cover are left out, and the report gives the fraction kept and the field's
-//!    leave-one-out residual.
-//! 3. A gain `g` maps the reference onto the capture: the DOE and its mount absorb part of the
-//!    light and the bracket's effective times drift from the listed ones. Where the capture is
-//!    well exposed (0.05..0.9 of full scale in every channel) it is the convolution of the scene
-//!    with a PSF summing to 1, so `g` = the median of `capture / reference` there.
-//! 4. Each decoder reconstructs the capture ([`super::reconstruct::reconstruct`], negatives
-//!    clamped), and PSNR ([`crate::calibration::evaluate::psnr`]) is computed over the covered
-//!    pixels and over those of them saturated in the capture. The capture itself is scored
-//!    the same way as the baseline a decoder must beat.
+//! 2. The reference is registered onto the *capture* once, through the measured PSF, and the
+//!    gain and the pixels scored are fixed ([`crate::calibration::evaluate::prepare`]): every
+//!    decoder of the scene is scored against the same warped reference over the same pixels.
+//! 3. Each decoder reconstructs the capture ([`super::reconstruct::reconstruct`]) with its
+//!    negative outputs *kept*, so that PSNR-L charges them (module docs of
+//!    [`crate::calibration::evaluate`]); the smallest output is reported. The capture itself is
+//!    scored the same way, as the baseline a decoder must beat.
+//!
+//! A scene that cannot be merged, registered or scored (too little coverage, a missing file)
+//! is reported with its reason and the others go on. Optionally the first decoder is
+//! fine-tuned on the measured PSF ([`super::finetune`]) and scored along the run.
 
 use std::path::{Path, PathBuf};
 
-use ndarray::{Array2, Array3, Zip};
+use ndarray::{Array3, Zip};
 use serde::Serialize;
 
 use super::finetune::{read_psf, FinetuneConfig, GeneratedScenes, HistoryEntry, SceneSource, Trainer};
-use super::reconstruct::{reconstruct, ReconstructOptions};
+use super::reconstruct::{reconstruct, Negatives, ReconstructOptions};
 use super::unet::UNet;
 use super::weights::DecoderWeights;
 use crate::calibration::capture::{read_capture, read_exposures};
-use crate::calibration::evaluate::{psnr, Psnr};
+use crate::calibration::evaluate::{prepare, Footing, Psnr, Scoring, ScoringOptions};
 use crate::calibration::hdr_merge::{merge, MergeOptions};
-use crate::calibration::register::{luminance, register_local, LocalRegistration, RegisterOptions};
 use crate::error::{Error, Result};
+use crate::optics::psf::Psf;
 
 /// Saturation level of the 8-bit captures, fraction of full scale.
 pub const SATURATION: f64 = 0.98;
@@ -46,34 +40,28 @@ pub const SATURATION: f64 = 0.98;
 /// Pixel pitch of the paper's sensor (Canon Rebel T5), metres: the measured PSF's sampling.
 pub const SENSOR_PITCH: f64 = 4.29e-6;
 
-/// A scene prepared for scoring: the capture through the DOE and the registered reference.
+/// A scene prepared for scoring.
 #[derive(Debug, Clone)]
 pub struct BenchScene {
     pub name: String,
     /// The capture through the DOE, `(H, W, 3)`, 1 = clipping level.
     pub capture: Array3<f64>,
-    /// The merged reference mapped onto the capture's pixels and scaled by `gain`.
-    pub reference: Array3<f64>,
-    /// Pixels the registration covers.
-    pub mask: Array2<bool>,
-    /// `mask` and saturated (any channel at or above [`SATURATION`]) in the capture.
-    pub saturated: Array2<bool>,
+    pub scoring: Scoring,
     pub report: SceneReport,
 }
 
-/// How a scene was prepared (for the JSON report).
+/// How a scene was prepared, or why it could not be (for the JSON report).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SceneReport {
     pub name: String,
-    pub capture: String,
+    pub dir: String,
+    pub capture: Option<String>,
     pub bracket_frames: usize,
     pub merge_warnings: Vec<String>,
-    pub registration: LocalRegistration,
-    /// `capture / reference` over well-exposed pixels (see the module docs).
-    pub gain: f64,
-    pub gain_samples: usize,
-    pub pixels: usize,
-    pub saturated_pixels: usize,
+    /// The registration, gain and pixel sets; `None` when the scene was refused.
+    pub footing: Option<Footing>,
+    /// Why the scene was not scored.
+    pub error: Option<String>,
 }
 
 /// PSNR of one decoder (or of the capture as it is) on one scene.
@@ -82,7 +70,10 @@ pub struct Score {
     pub scene: String,
     pub decoder: String,
     pub all: Psnr,
+    /// `None` when the scene's saturated figures are withheld (too few registered).
     pub saturated: Option<Psnr>,
+    /// The smallest output over the whole image (the scored pixels' is in `all`).
+    pub min_output: f64,
 }
 
 /// The scene folders under `dir`: those holding an `exposures.json`, in name order.
@@ -99,8 +90,13 @@ pub fn scene_dirs(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(dirs)
 }
 
-/// Merges, registers and gain-matches the scene in `dir` (steps 1-3 of the module docs).
-pub fn prepare_scene(dir: &Path, register: &RegisterOptions) -> Result<BenchScene> {
+fn scene_name(dir: &Path) -> String {
+    dir.file_name().map_or_else(|| dir.display().to_string(), |n| n.to_string_lossy().into_owned())
+}
+
+/// Merges the scene in `dir` and prepares it for scoring through `psf` (steps 1-2 of the
+/// module docs).
+pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<BenchScene> {
     let list_path = dir.join("exposures.json");
     let doe = read_exposures(&list_path, true)?;
     let [(capture_path, _)] = doe.frames.as_slice() else {
@@ -112,12 +108,12 @@ pub fn prepare_scene(dir: &Path, register: &RegisterOptions) -> Result<BenchScen
     let bracket = read_exposures(&list_path, false)?;
     let frames = bracket.frames.iter().map(|(p, _)| read_capture(p)).collect::<Result<Vec<_>>>()?;
     let times: Vec<f64> = bracket.frames.iter().map(|f| f.1).collect();
-    let opts = MergeOptions {
-        saturation: SATURATION,
+    let merge_opts = MergeOptions {
+        saturation: opts.saturation,
         reference_exposure: bracket.reference_exposure,
         ..MergeOptions::default()
     };
-    let merged = merge(&frames, &times, None, None, &opts)?;
+    let merged = merge(&frames, &times, None, None, &merge_opts)?;
     let capture = read_capture(capture_path)?.values;
     if capture.dim() != merged.radiance.dim() || capture.dim().2 != 3 {
         return Err(Error::format(
@@ -129,62 +125,41 @@ pub fn prepare_scene(dir: &Path, register: &RegisterOptions) -> Result<BenchScen
             ),
         ));
     }
-    let clipped = merged.radiance.mapv(|v| v.min(1.0));
-    let registration = register_local(&luminance(&clipped), &luminance(&capture), register)?;
-    let (mut reference, mask) = registration.warp(&merged.radiance);
-    let mut ratios = Vec::new();
-    Zip::indexed(&mask).for_each(|(i, j), &inside| {
-        let exposed =
-            (0..3).all(|c| (0.05..=0.9).contains(&capture[[i, j, c]]) && reference[[i, j, c]] > 0.0);
-        if inside && exposed {
-            ratios.extend((0..3).map(|c| capture[[i, j, c]] / reference[[i, j, c]]));
-        }
-    });
-    if ratios.len() < 300 {
-        return Err(Error::Data(format!(
-            "{}: only {} well-exposed samples (0.05..0.9 of full scale) to match the reference's gain; \
-             300 needed",
-            capture_path.display(),
-            ratios.len()
-        )));
-    }
-    ratios.sort_by(f64::total_cmp);
-    let gain = ratios[ratios.len() / 2];
-    reference.mapv_inplace(|v| v * gain);
-    let saturated = Array2::from_shape_fn(mask.dim(), |(i, j)| {
-        mask[[i, j]] && (0..3).any(|c| capture[[i, j, c]] >= SATURATION)
-    });
-    let name =
-        dir.file_name().map_or_else(|| dir.display().to_string(), |n| n.to_string_lossy().into_owned());
+    let scoring = prepare(&merged.radiance, &capture, Some(psf), opts)
+        .map_err(|e| Error::Data(format!("{}: {e}", capture_path.display())))?;
+    let clip = scoring.footing.clipping_level;
+    let name = scene_name(dir);
     let report = SceneReport {
         name: name.clone(),
-        capture: capture_path.display().to_string(),
+        dir: dir.display().to_string(),
+        capture: Some(capture_path.display().to_string()),
         bracket_frames: frames.len(),
         merge_warnings: merged.report.warnings.clone(),
-        registration,
-        gain,
-        gain_samples: ratios.len(),
-        pixels: mask.iter().filter(|v| **v).count(),
-        saturated_pixels: saturated.iter().filter(|v| **v).count(),
+        footing: Some(scoring.footing.clone()),
+        error: None,
     };
-    Ok(BenchScene { name, capture, reference, mask, saturated, report })
+    Ok(BenchScene { name, capture: capture.mapv(|v| v / clip), scoring, report })
 }
 
-/// PSNR of `image` (a reconstruction, or the capture itself) against the scene's reference.
+/// Scores `image` (a reconstruction, or the capture itself) on the scene's footing.
 pub fn score_image(scene: &BenchScene, decoder: &str, image: &Array3<f64>) -> Result<Score> {
-    let all = psnr(&scene.reference, image, Some(&scene.mask))?;
-    let saturated = if scene.report.saturated_pixels > 0 {
-        Some(psnr(&scene.reference, image, Some(&scene.saturated))?)
-    } else {
-        None
-    };
-    Ok(Score { scene: scene.name.clone(), decoder: decoder.into(), all, saturated })
+    let s = scene.scoring.score(decoder, image)?;
+    let min_output = image.iter().copied().fold(f64::INFINITY, f64::min);
+    Ok(Score {
+        scene: scene.name.clone(),
+        decoder: decoder.into(),
+        all: s.all,
+        saturated: s.saturated,
+        min_output,
+    })
 }
 
-/// Reconstructs the scene's capture with `net` and scores it; returns the reconstruction too.
+/// Reconstructs the scene's capture with `net` (negatives kept) and scores it; returns the
+/// reconstruction too.
 pub fn score_decoder(scene: &BenchScene, decoder: &str, net: &UNet) -> Result<(Score, Array3<f32>)> {
     let x = scene.capture.mapv(|v| v as f32);
-    let (y, _) = reconstruct(net, &x, &ReconstructOptions::default())?;
+    let opts = ReconstructOptions { negatives: Negatives::Keep, ..ReconstructOptions::default() };
+    let (y, _) = reconstruct(net, &x, &opts)?;
     Ok((score_image(scene, decoder, &y.mapv(f64::from))?, y))
 }
 
@@ -193,11 +168,11 @@ pub fn score_decoder(scene: &BenchScene, decoder: &str, net: &UNet) -> Result<(S
 pub const PICTURE_EV: f64 = -2.0;
 
 /// Writes `images` of `scene` as tone-mapped PNGs (sRGB of clip(y 2^[`PICTURE_EV`], 0, 1))
-/// into `dir`, each named by its key, with the registered reference (black where the
-/// registration does not cover) as `reference.png`.
-fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(&str, &Array3<f32>)]) -> Result<()> {
-    let mut reference = scene.reference.mapv(|v| v as f32);
-    Zip::from(reference.lanes_mut(ndarray::Axis(2))).and(&scene.mask).for_each(|mut px, &inside| {
+/// into `dir`, each named by its key, with the registered reference (black where it is not
+/// scored) as `reference.png`.
+fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(String, &Array3<f32>)]) -> Result<()> {
+    let mut reference = scene.scoring.reference.mapv(|v| v as f32);
+    Zip::from(reference.lanes_mut(ndarray::Axis(2))).and(&scene.scoring.mask).for_each(|mut px, &inside| {
         if !inside {
             px.fill(0.0);
         }
@@ -211,25 +186,40 @@ fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(&str, &Array3<f32>)
             ("tone_map".into(), format!("sRGB of clip(y * 2^{PICTURE_EV}, 0, 1)")),
         ],
     };
-    for (name, image) in std::iter::once(("reference", &reference)).chain(images.iter().copied()) {
+    for (name, image) in std::iter::once(("reference".to_string(), &reference)).chain(images.iter().cloned())
+    {
         let path = dir.join(format!("{name}.png"));
         crate::io::png::write_png_image_u8(&path, &crate::report::tone::tone_map(image, PICTURE_EV), &meta)?;
     }
     Ok(())
 }
 
-/// Settings of [`run`].
+/// The fine-tuning part of a benchmark.
 #[derive(Debug, Clone)]
-pub struct BenchConfig {
-    /// The paper's data release: `captures/<scene>/`, `measured_psf.npz`, the two decoders.
-    pub data: PathBuf,
-    /// The fine-tuning of the simulated-PSF decoder on the measured PSF.
-    pub finetune: FinetuneConfig,
-    /// Score the decoder being fine-tuned on the real scenes every this many steps.
+pub struct FinetuneBench {
+    /// The decoder to start from (a file or `built-in:NAME`).
+    pub init: PathBuf,
+    pub config: FinetuneConfig,
+    /// Score the decoder being fine-tuned on the scenes every this many steps.
     pub evaluate_every: usize,
     /// HDR images to fine-tune on (a folder of EXR / Radiance .hdr); `None`: procedural scenes.
     pub train_data: Option<PathBuf>,
-    pub register: RegisterOptions,
+}
+
+/// Settings of [`run`].
+#[derive(Debug, Clone)]
+pub struct BenchConfig {
+    /// Scene folders (each with an `exposures.json`).
+    pub scenes: Vec<PathBuf>,
+    /// Decoders to score: files or `built-in:NAME`.
+    pub decoders: Vec<PathBuf>,
+    /// The measured PSF (`.npz` or `.npy`, at [`SENSOR_PITCH`]): registration and fine-tuning.
+    pub psf: PathBuf,
+    /// The array of a `.npz` PSF (the paper's: `psf_val`).
+    pub psf_key: Option<String>,
+    pub scoring: ScoringOptions,
+    /// Fine-tune a decoder on the PSF and score it too.
+    pub finetune: Option<FinetuneBench>,
 }
 
 /// The decoder being fine-tuned, scored on the real scenes at one step.
@@ -241,56 +231,181 @@ pub struct CurvePoint {
     pub scores: Vec<Score>,
 }
 
-/// What `doefab bench decoder` reports.
+/// The fine-tuning run of a benchmark.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct BenchReport {
-    pub data: String,
-    pub units: &'static str,
-    pub saturation: f64,
-    pub scenes: Vec<SceneReport>,
-    /// The capture as it is, the starting decoder, the fine-tuned one and the paper's
-    /// measured-PSF decoder, per scene.
-    pub scores: Vec<Score>,
-    /// The fine-tuned decoder's scores along the run (step 0 = the starting decoder).
-    pub curve: Vec<CurvePoint>,
+pub struct FinetuneReport {
+    pub init: String,
     pub steps: usize,
     pub seconds_per_step: f64,
     pub training_data: String,
+    /// The fine-tuned decoder's scores along the run (step 0 = the starting decoder).
+    pub curve: Vec<CurvePoint>,
     /// The training curve on simulated data (loss, validation PSNR).
     pub history: Vec<HistoryEntry>,
 }
 
-/// Names of the decoders in the report.
-pub const START: &str = "paper, simulated PSF (start of the fine-tuning)";
-pub const TUNED: &str = "fine-tuned here";
-pub const PAPER: &str = "paper, measured PSF";
+/// What `doefab bench decoder` reports.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BenchReport {
+    pub psf: String,
+    pub units: &'static str,
+    pub negatives: &'static str,
+    pub saturation: f64,
+    pub min_coverage: f64,
+    /// Every scene, scored or refused (with the reason).
+    pub scenes: Vec<SceneReport>,
+    /// The decoders in order: the capture as it is, the given decoders, the fine-tuned one.
+    pub decoders: Vec<String>,
+    /// Decoder x scene, scene-major, for the scenes scored.
+    pub scores: Vec<Score>,
+    pub finetune: Option<FinetuneReport>,
+}
+
+/// Name of the capture scored as it is.
 pub const CAPTURE: &str = "capture as it is";
 
-/// Runs the benchmark: prepares every scene, fine-tunes the paper's simulated-PSF decoder on
-/// the measured PSF (scoring it on the scenes every `evaluate_every` steps) and scores the
-/// capture, the start, the result and the paper's measured-PSF decoder. Writes into `out`:
-/// `finetuned/` (the decoder and its training record), `report.json`,
-/// `psnr_vs_steps.png` (PSNR-gamma on the real scenes along the run against the paper's
-/// decoder) and per scene `<scene>/*.png`, the registered reference, the capture and the
-/// three reconstructions tone-mapped at [`PICTURE_EV`]. `progress` is told what is happening and each unit of work done.
-pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -> Result<BenchReport> {
-    if cfg.evaluate_every == 0 {
-        return Err(Error::param("evaluate_every", "must be at least 1 step"));
+/// A file-name stem for a decoder's picture: its file stem or built-in name, made unique.
+fn picture_name(decoder: &Path, taken: &mut Vec<String>) -> String {
+    let text = decoder.to_string_lossy();
+    let base = match text.strip_prefix("built-in:") {
+        Some(n) => n.to_string(),
+        None => decoder.file_stem().map_or_else(|| "decoder".into(), |s| s.to_string_lossy().into_owned()),
+    };
+    let clean: String = base
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' })
+        .collect();
+    let mut name = clean.clone();
+    let mut k = 2;
+    while taken.contains(&name) || ["reference", "capture", "finetuned"].contains(&name.as_str()) {
+        name = format!("{clean}-{k}");
+        k += 1;
     }
-    let dirs = scene_dirs(&cfg.data.join("captures"))?;
-    let mut scenes = Vec::new();
-    for d in &dirs {
-        progress(&format!("merging and registering {}", d.display()), 0);
-        scenes.push(prepare_scene(d, &cfg.register)?);
-        progress("", 1);
+    taken.push(name.clone());
+    name
+}
+
+/// Runs the benchmark: prepares every scene (a scene that fails is reported with its reason),
+/// scores the capture and every decoder on each scene, and with `finetune` fine-tunes its
+/// initial decoder on the PSF, scoring it along the run. Writes into `out`: `report.json`,
+/// `decoders.png` (decoder x scene chart), per scene `<scene>/*.png` (the registered
+/// reference, the capture and each reconstruction tone-mapped at [`PICTURE_EV`]) and, with
+/// fine-tuning, `finetuned/` (decoder, training record) and `psnr_vs_steps.png`. `progress`
+/// is told what is happening and each unit of work done. Refuses when no scene can be scored.
+pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -> Result<BenchReport> {
+    if cfg.scenes.is_empty() {
+        return Err(Error::param("scenes", "no scene folder given"));
+    }
+    if let Some(f) = &cfg.finetune {
+        if f.evaluate_every == 0 {
+            return Err(Error::param("evaluate_every", "must be at least 1 step"));
+        }
     }
     let device = super::device(false)?;
-    let start_path = cfg.data.join("decoder_simulated_psf.safetensors");
-    let paper_path = cfg.data.join("decoder_measured_psf.safetensors");
-    let psf_path = cfg.data.join("measured_psf.npz");
-    let start = DecoderWeights::read(&start_path)?;
-    let psf = read_psf(&psf_path, Some("psf_val"), SENSOR_PITCH)?;
-    let source: Box<dyn SceneSource> = match &cfg.train_data {
+    let nets = cfg
+        .decoders
+        .iter()
+        .map(|p| Ok(UNet::from_weights(&DecoderWeights::read(p)?, &device)))
+        .collect::<Result<Vec<_>>>()?;
+    let psf = read_psf(&cfg.psf, cfg.psf_key.as_deref(), SENSOR_PITCH)?;
+    let mut scenes = Vec::new();
+    let mut reports = Vec::new();
+    for d in &cfg.scenes {
+        progress(&format!("merging and registering {}", d.display()), 0);
+        match prepare_scene(d, &psf, &cfg.scoring) {
+            Ok(s) => {
+                reports.push(s.report.clone());
+                scenes.push(s);
+            }
+            Err(e) => reports.push(SceneReport {
+                name: scene_name(d),
+                dir: d.display().to_string(),
+                capture: None,
+                bracket_frames: 0,
+                merge_warnings: Vec::new(),
+                footing: None,
+                error: Some(e.to_string()),
+            }),
+        }
+        progress("", 1);
+    }
+    if scenes.is_empty() {
+        let why: Vec<String> =
+            reports.iter().map(|r| format!("{}: {}", r.name, r.error.as_deref().unwrap_or("?"))).collect();
+        return Err(Error::Data(format!("no scene could be scored: {}", why.join("; "))));
+    }
+    let mut names = vec![CAPTURE.to_string()];
+    names.extend(cfg.decoders.iter().map(|p| p.display().to_string()));
+    let mut taken = Vec::new();
+    let stems: Vec<String> = cfg.decoders.iter().map(|p| picture_name(p, &mut taken)).collect();
+    // Scores and pictures per scene, in decoder order.
+    let mut scores: Vec<Vec<Score>> = Vec::new();
+    let mut images: Vec<Vec<(String, Array3<f32>)>> = Vec::new();
+    for s in &scenes {
+        progress(&format!("scoring the decoders on {}", s.name), 0);
+        let mut sc = vec![score_image(s, CAPTURE, &s.capture)?];
+        let mut im = vec![("capture".to_string(), s.capture.mapv(|v| v as f32))];
+        for ((net, name), stem) in nets.iter().zip(&names[1..]).zip(&stems) {
+            let (score, y) = score_decoder(s, name, net)?;
+            sc.push(score);
+            im.push((stem.clone(), y));
+        }
+        scores.push(sc);
+        images.push(im);
+        progress("", 1);
+    }
+    let finetune = match &cfg.finetune {
+        Some(f) => {
+            let (report, last) = run_finetune(f, cfg, &psf, &scenes, &device, out, progress)?;
+            let name = format!("fine-tuned here ({} steps from {})", report.steps, report.init);
+            names.push(name.clone());
+            for (k, y) in last.into_iter().enumerate() {
+                let point = report.curve.last().map(|p| p.scores[k].clone());
+                scores[k].extend(point.map(|sc| Score { decoder: name.clone(), ..sc }));
+                images[k].push(("finetuned".into(), y));
+            }
+            Some(report)
+        }
+        None => None,
+    };
+    for (s, im) in scenes.iter().zip(&images) {
+        let refs: Vec<(String, &Array3<f32>)> = im.iter().map(|(n, y)| (n.clone(), y)).collect();
+        write_pictures(&out.join(&s.name), s, &refs)?;
+    }
+    let report = BenchReport {
+        psf: cfg.psf.display().to_string(),
+        units: "PSNR in dB; images in units of the capture's clipping level; seconds",
+        negatives:
+            "reconstructions scored as the network writes them: negative outputs count as they are in \
+                    PSNR-L and as 0 in PSNR-gamma",
+        saturation: cfg.scoring.saturation,
+        min_coverage: cfg.scoring.min_coverage,
+        scenes: reports,
+        decoders: names,
+        scores: scores.into_iter().flatten().collect(),
+        finetune,
+    };
+    crate::io::atomic::write_json(&out.join("report.json"), &report)?;
+    crate::report::decoder_charts::write_decoder_scene_chart(&out.join("decoders.png"), &report)?;
+    if report.finetune.is_some() {
+        crate::report::decoder_charts::write_bench_chart(&out.join("psnr_vs_steps.png"), &report)?;
+    }
+    Ok(report)
+}
+
+/// Fine-tunes `f.init` on `psf`, scoring it on `scenes` every `f.evaluate_every` steps and at
+/// the end; writes `finetuned/`. Returns the run's report and the last reconstructions.
+fn run_finetune(
+    f: &FinetuneBench,
+    cfg: &BenchConfig,
+    psf: &Psf,
+    scenes: &[BenchScene],
+    device: &burn::tensor::Device,
+    out: &Path,
+    progress: &mut dyn FnMut(&str, u64),
+) -> Result<(FinetuneReport, Vec<Array3<f32>>)> {
+    let start = DecoderWeights::read(&f.init)?;
+    let source: Box<dyn SceneSource> = match &f.train_data {
         Some(dir) => Box::new(super::dataset::HdrScenes::new(
             &dir.display().to_string(),
             super::dataset::read_dir(dir)?,
@@ -300,81 +415,54 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
             generate: super::scenes::procedural_scene,
         }),
     };
-    let desc = format!("{} (sha256 {})", start_path.display(), crate::io::file_sha256(&start_path)?);
-    let tuned_dir = out.join("finetuned");
+    let init = f.init.display().to_string();
+    let desc = format!("{init} (sha256 {})", super::weights::decoder_sha256(&f.init)?);
     let mut trainer = Trainer::new(
-        UNet::from_weights(&start, &device),
-        &psf,
-        &crate::io::file_sha256(&psf_path)?,
+        UNet::from_weights(&start, device),
+        psf,
+        &crate::io::file_sha256(&cfg.psf)?,
         source.as_ref(),
         None,
-        cfg.finetune.clone(),
+        f.config.clone(),
         &desc,
     )?;
-    let score_all = |name: &str, net: &UNet| -> Result<Vec<(Score, Array3<f32>)>> {
-        scenes.iter().map(|s| score_decoder(s, name, net)).collect()
-    };
+    let name = "fine-tuned here";
     let mut curve = Vec::new();
-    let (mut first, mut last) = (Vec::new(), Vec::new());
+    let mut last = Vec::new();
     let mut seconds = 0.0;
-    let steps = cfg.finetune.steps;
-    while trainer.step() <= steps {
-        if trainer.step() % cfg.evaluate_every == 0 || trainer.step() == steps {
+    let steps = f.config.steps;
+    loop {
+        if trainer.step() % f.evaluate_every == 0 || trainer.step() == steps {
             progress(&format!("scoring step {} on the real scenes", trainer.step()), 0);
-            let net = UNet::from_weights(&trainer.decoder()?, &device);
-            let (scores, images): (Vec<Score>, Vec<Array3<f32>>) =
-                score_all(TUNED, &net)?.into_iter().unzip();
-            curve.push(CurvePoint { step: trainer.step(), seconds, scores });
-            if trainer.step() == 0 {
-                first = images.clone();
-            }
-            last = images;
+            let net = UNet::from_weights(&trainer.decoder()?, device);
+            let (sc, im): (Vec<Score>, Vec<Array3<f32>>) = scenes
+                .iter()
+                .map(|s| score_decoder(s, name, &net))
+                .collect::<Result<Vec<_>>>()?
+                .into_iter()
+                .unzip();
+            curve.push(CurvePoint { step: trainer.step(), seconds, scores: sc });
+            last = im;
         }
-        if trainer.step() == steps {
+        if trainer.step() >= steps {
             break;
         }
         let clock = std::time::Instant::now();
         let loss = trainer.train_step()?;
-        if trainer.step() % cfg.finetune.checkpoint_every == 0 || trainer.step() == steps {
+        if trainer.step() % f.config.checkpoint_every == 0 || trainer.step() == steps {
             trainer.evaluate()?;
         }
         seconds += clock.elapsed().as_secs_f64();
         progress(&format!("fine-tuning: loss {loss:.5}"), 1);
     }
-    trainer.write_outputs(&tuned_dir)?;
-    progress("scoring the paper's decoders", 0);
-    let paper = UNet::from_weights(&DecoderWeights::read(&paper_path)?, &device);
-    let mut scores = Vec::new();
-    for (k, s) in scenes.iter().enumerate() {
-        scores.push(score_image(s, CAPTURE, &s.capture)?);
-        let at = |step: usize| curve.iter().find(|p| p.step == step).map(|p| p.scores[k].clone());
-        scores.extend(at(0).map(|sc| Score { decoder: START.into(), ..sc }));
-        scores.extend(at(steps));
-        let (score, paper_image) = score_decoder(s, PAPER, &paper)?;
-        scores.push(score);
-        let capture = s.capture.mapv(|v| v as f32);
-        let pictures = [
-            ("capture", &capture),
-            ("start", &first[k]),
-            ("finetuned", &last[k]),
-            ("paper_measured_psf", &paper_image),
-        ];
-        write_pictures(&out.join(&s.name), s, &pictures)?;
-        progress("", 1);
-    }
-    let report = BenchReport {
-        data: cfg.data.display().to_string(),
-        units: "PSNR in dB; images in units of the capture's clipping level; seconds",
-        saturation: SATURATION,
-        scenes: scenes.iter().map(|s| s.report.clone()).collect(),
-        scores,
-        curve,
+    trainer.write_outputs(&out.join("finetuned"))?;
+    let report = FinetuneReport {
+        init,
         steps,
         seconds_per_step: seconds / steps.max(1) as f64,
         training_data: source.describe(),
+        curve,
         history: trainer.history().to_vec(),
     };
-    crate::io::atomic::write_json(&out.join("report.json"), &report)?;
-    crate::report::decoder_charts::write_bench_chart(&out.join("psnr_vs_steps.png"), &report)?;
-    Ok(report)
+    Ok((report, last))
 }

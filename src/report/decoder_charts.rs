@@ -1,36 +1,149 @@
-//! The decoder benchmark's chart: PSNR-gamma on the real scenes along the fine-tuning, against
-//! the paper's measured-PSF decoder and the capture as it is (horizontal lines), over all
-//! registered pixels (left) and the saturated ones (right), as a PNG.
+//! The decoder benchmark's charts (`doefab bench decoder`):
+//!
+//! * [`write_decoder_scene_chart`]: decoder x scene, grouped bars of PSNR-L and PSNR-gamma over
+//!   all scored pixels, PSNR-gamma over the saturated ones and the smallest output, one group
+//!   per scored scene (labelled with its coverage), one colour per decoder; refused scenes are
+//!   listed under the chart with their reason.
+//! * [`write_bench_chart`]: PSNR-gamma of the decoder being fine-tuned along the run, against
+//!   the other decoders of each scene (horizontal lines), over all scored pixels and the
+//!   saturated ones.
 
 use std::path::Path;
 
 use plotters::prelude::*;
 
-use crate::decoder::bench::{BenchReport, CAPTURE, PAPER};
+use crate::decoder::bench::{BenchReport, Score};
 use crate::error::{Error, Result};
 use crate::report::{write_png_chart, FONT};
 
-/// Draws `report`'s curve into `path` (PNG, 1200 x 500).
+const COLORS: [RGBColor; 8] = [
+    RGBColor(127, 127, 127),
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(148, 103, 189),
+    RGBColor(255, 127, 14),
+    RGBColor(23, 190, 207),
+    RGBColor(188, 189, 34),
+];
+
+/// One panel's quantity.
+type Metric = (&'static str, &'static str, fn(&Score) -> Option<f64>);
+
+/// Draws `report`'s decoder x scene scores into `path` (PNG, 1400 x 900).
+pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()> {
+    let scenes: Vec<(String, f64)> = report
+        .scenes
+        .iter()
+        .filter_map(|s| s.footing.as_ref().map(|f| (s.name.clone(), f.coverage)))
+        .collect();
+    if scenes.is_empty() || report.scores.is_empty() {
+        return Err(Error::Data("no scored scene to chart".into()));
+    }
+    let refused: Vec<String> = report
+        .scenes
+        .iter()
+        .filter_map(|s| s.error.as_ref().map(|e| format!("{} refused: {}", s.name, e)))
+        .collect();
+    let metrics: [Metric; 4] = [
+        ("PSNR-L, all scored pixels", "dB", |s| Some(s.all.linear_db)),
+        ("PSNR-gamma, all scored pixels", "dB", |s| Some(s.all.gamma_db)),
+        ("PSNR-gamma, saturated pixels of the capture", "dB", |s| s.saturated.as_ref().map(|p| p.gamma_db)),
+        ("smallest output (whole image)", "capture clipping level", |s| Some(s.min_output)),
+    ];
+    let nd = report.decoders.len();
+    write_png_chart(path, 1400, 900, |root| {
+        let e = |e: &dyn std::fmt::Display| e.to_string();
+        let footer = 18 * refused.len().min(4) as u32;
+        let (main, foot) = root.split_vertically(900 - footer);
+        for (k, line) in refused.iter().take(4).enumerate() {
+            let text: String = line.chars().take(190).collect();
+            foot.draw(&Text::new(text, (10, 18 * k as i32 + 2), (FONT, 13))).map_err(|x| e(&x))?;
+        }
+        for (panel, (title, unit, value)) in main.split_evenly((2, 2)).iter().zip(metrics) {
+            let values: Vec<f64> = report.scores.iter().filter_map(value).collect();
+            let (lo, hi) =
+                values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+            if !lo.is_finite() {
+                continue;
+            }
+            // Bars start from the axis floor: a little under the smallest value (dB), or 0.
+            let floor = if unit == "dB" { (lo - 3.0).floor() } else { lo.min(0.0) * 1.1 };
+            let top = hi + 0.1 * (hi - floor).max(1e-3);
+            let mut chart = ChartBuilder::on(panel)
+                .caption(title, (FONT, 17))
+                .margin(10)
+                .x_label_area_size(30)
+                .y_label_area_size(60)
+                .build_cartesian_2d(0.0..scenes.len() as f64, floor..top)
+                .map_err(|x| e(&x))?;
+            let names = scenes.clone();
+            chart
+                .configure_mesh()
+                .disable_x_mesh()
+                .x_labels(scenes.len() * 2 + 1)
+                .x_label_formatter(&move |x| {
+                    let k = x.floor() as usize;
+                    if (x - k as f64 - 0.5).abs() < 1e-6 && k < names.len() {
+                        format!("{} ({:.0} % scored)", names[k].0, 100.0 * names[k].1)
+                    } else {
+                        String::new()
+                    }
+                })
+                .y_desc(unit)
+                .label_style((FONT, 12))
+                .draw()
+                .map_err(|x| e(&x))?;
+            let width = 0.8 / nd as f64;
+            for (d, decoder) in report.decoders.iter().enumerate() {
+                let color = COLORS[d % COLORS.len()];
+                let bars: Vec<Rectangle<(f64, f64)>> = scenes
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(k, (scene, _))| {
+                        let s = report.scores.iter().find(|s| &s.scene == scene && &s.decoder == decoder)?;
+                        let v = value(s)?;
+                        let x0 = k as f64 + 0.1 + d as f64 * width;
+                        Some(Rectangle::new([(x0, floor), (x0 + width * 0.9, v)], color.filled()))
+                    })
+                    .collect();
+                let short: String = decoder.chars().take(60).collect();
+                chart
+                    .draw_series(bars)
+                    .map_err(|x| e(&x))?
+                    .label(short)
+                    .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled()));
+            }
+            crate::report::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;
+        }
+        Ok(())
+    })
+}
+
+/// Draws the fine-tuning curve of `report` into `path` (PNG, 1200 x 500).
 pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
-    if report.curve.is_empty() {
+    let Some(run) = &report.finetune else {
+        return Err(Error::Data("no fine-tuning run to chart".into()));
+    };
+    if run.curve.is_empty() {
         return Err(Error::Data("no fine-tuning points to chart".into()));
     }
-    let last = report.curve.iter().map(|p| p.step).max().unwrap_or(0).max(1) as f64;
-    let colors =
-        [RGBColor(31, 119, 180), RGBColor(214, 39, 40), RGBColor(44, 160, 44), RGBColor(148, 103, 189)];
+    let last = run.curve.iter().map(|p| p.step).max().unwrap_or(0).max(1) as f64;
+    let scenes: Vec<&str> =
+        report.scenes.iter().filter(|s| s.footing.is_some()).map(|s| s.name.as_str()).collect();
+    let others: Vec<&String> = report.decoders.iter().filter(|d| !d.starts_with("fine-tuned here")).collect();
     write_png_chart(path, 1200, 500, |root| {
         let e = |e: &dyn std::fmt::Display| e.to_string();
         let panels = root.split_evenly((1, 2));
         for (panel, saturated) in panels.iter().zip([false, true]) {
-            // PSNR-gamma of a score over the panel's pixel set.
-            let value = |s: &crate::decoder::bench::Score| {
+            let value = |s: &Score| {
                 if saturated {
                     s.saturated.as_ref().map(|p| p.gamma_db)
                 } else {
                     Some(s.all.gamma_db)
                 }
             };
-            let all: Vec<f64> = report
+            let all: Vec<f64> = run
                 .curve
                 .iter()
                 .flat_map(|p| p.scores.iter())
@@ -42,7 +155,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
             if !lo.is_finite() {
                 continue;
             }
-            let title = if saturated { "saturated pixels of the capture" } else { "all registered pixels" };
+            let title = if saturated { "saturated pixels of the capture" } else { "all scored pixels" };
             let mut chart = ChartBuilder::on(panel)
                 .caption(format!("PSNR-gamma, {title}"), (FONT, 18))
                 .margin(12)
@@ -57,9 +170,9 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                 .label_style((FONT, 13))
                 .draw()
                 .map_err(|x| e(&x))?;
-            for (k, scene) in report.scenes.iter().enumerate() {
-                let color = colors[k % colors.len()];
-                let line: Vec<(f64, f64)> = report
+            for (k, scene) in scenes.iter().enumerate() {
+                let color = COLORS[(k + 1) % COLORS.len()];
+                let line: Vec<(f64, f64)> = run
                     .curve
                     .iter()
                     .filter_map(|p| value(p.scores.get(k)?).map(|v| (p.step as f64, v)))
@@ -67,30 +180,31 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                 chart
                     .draw_series(LineSeries::new(line.iter().copied(), color.stroke_width(2)))
                     .map_err(|x| e(&x))?
-                    .label(format!("{}: fine-tuned here", scene.name))
+                    .label(format!("{scene}: fine-tuned here"))
                     .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
                 chart
                     .draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled())))
                     .map_err(|x| e(&x))?;
-                for (decoder, style) in
-                    [(PAPER, color.stroke_width(1)), (CAPTURE, color.mix(0.4).stroke_width(1))]
-                {
+                for (d, decoder) in others.iter().enumerate() {
                     let Some(v) = report
                         .scores
                         .iter()
-                        .find(|s| s.scene == scene.name && s.decoder == decoder)
+                        .find(|s| s.scene == *scene && &s.decoder == *decoder)
                         .and_then(value)
                     else {
                         continue;
                     };
+                    // One thin line per other decoder, fainter for later ones.
+                    let style = color.mix(1.0 - 0.6 * d as f64 / others.len().max(1) as f64).stroke_width(1);
+                    let short: String = decoder.chars().take(50).collect();
                     chart
                         .draw_series(LineSeries::new([(0.0, v), (last, v)], style))
                         .map_err(|x| e(&x))?
-                        .label(format!("{}: {decoder}", scene.name))
+                        .label(format!("{scene}: {short}"))
                         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], style));
                 }
             }
-            crate::report::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 12)?;
+            crate::report::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;
         }
         Ok(())
     })
