@@ -172,7 +172,7 @@ enum Command {
         #[arg(long, default_value_t = 319)]
         crop: usize,
         /// What goes to the crop centre.
-        #[arg(long, value_enum, default_value_t = doefab::calibration::psf_extract::Centre::Centroid)]
+        #[arg(long, value_enum, default_value_t = doefab::calibration::psf_extract::Centre::Axis)]
         centre: doefab::calibration::psf_extract::Centre,
         /// Pixel pitch of the captures.
         #[arg(long, value_parser = clap_length, default_value = "4.29um")]
@@ -607,7 +607,7 @@ enum LevelArg {
 /// An exposure bracket on the command line.
 #[derive(Args, Clone)]
 struct BracketArgs {
-    /// Capture files (8/16-bit PNG or TIFF), with --times; or none, with --exposures.
+    /// Capture files (8/16-bit PNG or TIFF) with --times; or one exposure list (.json).
     files: Vec<PathBuf>,
     /// Exposure list (JSON: {"frames": [{"file", "exposure_s", "doe"}], "reference_exposure_s"}).
     #[arg(long, conflicts_with = "times")]
@@ -630,6 +630,14 @@ struct BracketArgs {
     /// Use the listed exposure times as they are (default: estimate them from the pixels).
     #[arg(long)]
     listed_times: bool,
+    /// Express the radiance at this exposure (value 1 = full scale at it), e.g. the capture's
+    /// "1/60"; default: the list's reference_exposure_s, else 1 s.
+    #[arg(long)]
+    reference_exposure: Option<String>,
+    /// Black level, fraction of full scale (one, or one per channel, comma-separated); default:
+    /// the dark frames, else estimated from the shortest frame.
+    #[arg(long, value_delimiter = ',', conflicts_with = "dark")]
+    black_level: Vec<f64>,
 }
 
 /// Camera response choice on the command line.
@@ -1265,16 +1273,13 @@ fn merge_bracket(
     response: ResponseArg,
 ) -> Result<doefab::calibration::hdr_merge::Merged> {
     use doefab::calibration::{capture, hdr_merge, response as dm};
-    let list = match &b.exposures {
-        Some(json) => {
-            if !b.files.is_empty() {
-                bail!("give capture files with --times or an exposure list with --exposures, not both");
-            }
-            capture::read_exposures(json, b.doe_frames)?
-        }
-        None if b.files.is_empty() => bail!("no captures: give FILES with --times, or --exposures LIST"),
-        None => capture::exposures_from_times(&b.files, &b.times)?,
-    };
+    let list = capture::resolve_bracket(&capture::BracketSpec {
+        files: b.files.clone(),
+        times: b.times.clone(),
+        exposures: b.exposures.clone(),
+        doe_frames: b.doe_frames,
+        reference_exposure: b.reference_exposure.clone(),
+    })?;
     let pb = progress(cli, list.frames.len() as u64 + b.dark.len() as u64 + 1);
     pb.set_message("reading the bracket");
     let mut frames = Vec::new();
@@ -1301,6 +1306,11 @@ fn merge_bracket(
         saturation: b.saturation,
         estimate_times: !b.listed_times,
         reference_exposure: list.reference_exposure,
+        black_level: if b.black_level.is_empty() {
+            hdr_merge::BlackLevel::Auto
+        } else {
+            hdr_merge::BlackLevel::Fixed(b.black_level.clone())
+        },
     };
     let merged = hdr_merge::merge(&frames, &times, dark.as_ref(), curve.as_ref(), &opts)?;
     pb.finish_and_clear();

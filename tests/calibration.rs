@@ -110,10 +110,16 @@ use doefab::rng::Lcg;
 
 /// A DOE-like analytic PSF, 319 x 319 x 3: a core at (159, 159), shifted copies, a wide halo.
 fn analytic_psf() -> Array3<f64> {
+    analytic_psf_at(159.0, 159.0)
+}
+
+/// [`analytic_psf`] with its axis (the core's centre, about which the halo is symmetric) at
+/// `(row, col)`; its centroid lies (-1.3, +1.6) px from the axis.
+fn analytic_psf_at(row: f64, col: f64) -> Array3<f64> {
     let copies =
         [(0.0, 0.0, 1.0, 1.2), (-40.0, 25.0, 0.05, 2.0), (35.0, 30.0, 0.02, 2.5), (10.0, -60.0, 0.01, 3.0)];
     Array3::from_shape_fn((319, 319, 3), |(i, j, c)| {
-        let (y, x) = (i as f64 - 159.0, j as f64 - 159.0);
+        let (y, x) = (i as f64 - row, j as f64 - col);
         let s = 1.0 + 0.15 * c as f64;
         let mut v = 1e-4 * (-(x * x + y * y) / (2.0 * 60.0f64.powi(2))).exp();
         for (dy, dx, a, sig) in copies {
@@ -231,7 +237,8 @@ fn a_known_psf_is_recovered_from_its_synthetic_bracket() {
             assert!(e < limit, "{name} channel {c}: relative L2 {e}");
         }
         // Centroid centring puts every channel's centroid near the crop centre.
-        let (psf, _) = calibrate_psf(&merged, &PsfOptions::default()).unwrap();
+        let centroid = PsfOptions { centre: Centre::Centroid, ..Default::default() };
+        let (psf, _) = calibrate_psf(&merged, &centroid).unwrap();
         let sum_centroid: Vec<f64> =
             (0..2).map(|k| (0..3).map(|c| psf.centroid(c)[k]).sum::<f64>() / 3.0 / 4.29e-6).collect();
         assert!(sum_centroid.iter().all(|v| v.abs() < 0.25), "{name}: centroid {sum_centroid:?} px");
@@ -548,6 +555,22 @@ fn calibrate_psf_and_merge_run_end_to_end() {
     let r = doefab(&["merge", "-o", &hdr, "--times", "1,2", &files[0]]);
     assert_eq!(r.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&r.stderr).contains("2 exposure times for 1 files"));
+    // The exposure list as the only file is read as the list; --reference-exposure sets t_ref.
+    let r = doefab(&["merge", &j, "-o", &hdr, "--reference-exposure", "1/4", "--json"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let m: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
+    assert_eq!(m["frames"].as_array().unwrap().len(), 11);
+    assert_eq!(m["reference_exposure_s"], 0.25);
+    // Files without times, and a list among files, are refused with what is expected.
+    let mut args = vec!["merge", "-o", &hdr];
+    args.extend(files.iter().map(|s| s.as_str()));
+    let r = doefab(&args);
+    assert_eq!(r.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains("0 exposure times for 11 files") && err.contains("--times"), "{err}");
+    let r = doefab(&["merge", "-o", &hdr, &j, &files[0]]);
+    assert_eq!(r.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("is an exposure list"));
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -966,4 +989,206 @@ fn a_known_shift_and_gain_are_recovered_once_and_every_image_is_scored_on_one_pi
     // An unrelated capture is refused rather than scored.
     let other = procedural_scene(7, 320, 320).mapv(|v| (v as f64 * 0.3).min(1.0));
     assert!(prepare(&reference, &other, Some(&psf), &opts).is_err());
+}
+
+// ---------------------------------------------------------------------------------------------
+// calibrate-psf without dark frames: black level, exposure times, hot pixels, the axis
+
+use doefab::calibration::hdr_merge::BlackLevel;
+use doefab::calibration::psf_extract::simulate_pinhole_bracket;
+use doefab::optics::psf::Channel;
+use doefab::optics::Psf;
+
+/// `a` (H, W, C) as a PSF at the sensor pitch (each channel normalised to sum 1).
+fn as_psf(a: &Array3<f64>) -> Psf {
+    let channels = (0..a.dim().2)
+        .map(|c| Channel {
+            name: ["R", "G", "B"][c].to_string(),
+            wavelength: None,
+            grid: Grid::new(a.index_axis(ndarray::Axis(2), c).to_owned(), [4.29e-6; 2], Unit::Dimensionless)
+                .unwrap(),
+            captured: None,
+        })
+        .collect();
+    Psf::new(channels, "truth").unwrap()
+}
+
+fn measured_truth() -> Psf {
+    doefab::optics::Psf::read_npz(&shared("measured_psf.npz"), Some("psf_val"), 4.29e-6, None).unwrap()
+}
+
+/// `simulate_pinhole_bracket` (12 frames one stop apart, read noise 0.002, the black level
+/// `black`, 40 px around the PSF) as captures, without dark frames.
+fn bracket_of(truth: &Psf, black: f64) -> (Vec<Capture>, Vec<f64>) {
+    let (values, times, _) = simulate_pinhole_bracket(truth, 40, 12, 0.002, black, 3);
+    let frames = values
+        .into_iter()
+        .enumerate()
+        .map(|(k, v)| Capture { path: PathBuf::from(format!("pinhole{k:02}.png")), values: v, bits: 8 })
+        .collect();
+    (frames, times)
+}
+
+/// Without dark frames and without trusting the listed times, the black level is estimated from
+/// the shortest frame and subtracted before the times are estimated: the paper's measured PSF
+/// and the analytic one come back within 2 % relative L2 per channel at black levels of 0, 1 %
+/// and 3 % of full scale, the estimated times within 2.5 % of the true ones, no hot pixel on
+/// the clean bracket. Left in (black level 0 forced) a 3 % black level spoils the PSF.
+/// Measured: see the README.
+#[test]
+fn the_psf_comes_back_at_black_levels_of_0_1_and_3_percent_without_dark_frames() {
+    // The paper's file is a whole-pixel crop at its brightest pixel (Centre::Peak); the analytic
+    // PSF's axis is on a pixel, so the default (the axis) puts it where the truth has it.
+    for (name, truth, centre) in
+        [("measured", measured_truth(), Centre::Peak), ("analytic", as_psf(&analytic_psf()), Centre::Axis)]
+    {
+        for black in [0.0, 0.01, 0.03] {
+            let (frames, times) = bracket_of(&truth, black);
+            let merged = merge(&frames, &times, None, None, &MergeOptions::default()).unwrap();
+            for (c, b) in merged.report.black_level.iter().enumerate() {
+                assert!((b - black).abs() < 5e-4, "{name} {black}: channel {c} black level {b}");
+            }
+            for f in &merged.report.frames {
+                let r = f.exposure_used / f.exposure_listed;
+                assert!((r - 1.0).abs() < 0.025, "{name} {black}: {} time off by {r}", f.file);
+            }
+            let opts = PsfOptions { centre, ..Default::default() };
+            let (psf, report) = calibrate_psf(&merged, &opts).unwrap();
+            let e = psf.relative_l2(&truth).unwrap();
+            let listed = MergeOptions { estimate_times: false, ..Default::default() };
+            let (psf_l, _) =
+                calibrate_psf(&merge(&frames, &times, None, None, &listed).unwrap(), &opts).unwrap();
+            let el = psf_l.relative_l2(&truth).unwrap();
+            println!(
+                "{name} black {black}: rel L2 {e:.4?} (listed times {el:.4?}), hot {}",
+                report.hot_pixels
+            );
+            assert!(e.iter().all(|&e| e < 0.02), "{name} black {black}: relative L2 {e:?}");
+            assert_eq!(report.hot_pixels, 0, "{name} black {black}: {:?}", report.hot_pixel_positions);
+        }
+    }
+    let (frames, times) = bracket_of(&measured_truth(), 0.03);
+    let zero = MergeOptions { black_level: BlackLevel::Fixed(vec![0.0]), ..Default::default() };
+    let merged = merge(&frames, &times, None, None, &zero).unwrap();
+    let kept = calibrate_psf(&merged, &PsfOptions { centre: Centre::Peak, ..Default::default() });
+    if let Ok((psf, _)) = kept {
+        let e = psf.relative_l2(&measured_truth()).unwrap();
+        assert!(e.iter().any(|&e| e > 0.05), "a black level left in: {e:?}");
+    }
+}
+
+/// Hot pixels planted in a bracket without dark frames: two stuck at 0.4 (one 20 px from the
+/// core, inside the crop), one stuck at full scale, and a warm one whose value grows with the
+/// exposure like light (0.5 of full scale in the longest frame). All five are found in every
+/// channel and nothing else is, and the PSF still comes back within 2 %.
+#[test]
+fn planted_hot_pixels_are_all_found_and_nothing_else() {
+    let truth = as_psf(&analytic_psf());
+    let (mut frames, times) = bracket_of(&truth, 0.01);
+    let stuck = [((219, 185), 0.4), ((30, 350), 0.4), ((370, 40), 1.0)];
+    let warm = (100, 300);
+    for (f, &t) in frames.iter_mut().zip(&times) {
+        for c in 0..3 {
+            for &((i, j), v) in &stuck {
+                f.values[[i, j, c]] = v;
+            }
+            f.values[[warm.0, warm.1, c]] = ((0.01 + 0.5 * t) * 255.0).round() / 255.0;
+        }
+    }
+    let merged = merge(&frames, &times, None, None, &MergeOptions::default()).unwrap();
+    let (psf, report) = calibrate_psf(&merged, &PsfOptions::default()).unwrap();
+    let mut want: Vec<[usize; 3]> =
+        stuck.iter().map(|s| s.0).chain([warm]).flat_map(|(i, j)| (0..3).map(move |c| [i, j, c])).collect();
+    want.sort_unstable();
+    assert_eq!(report.hot_pixel_positions, want);
+    assert_eq!(report.hot_pixels, 12);
+    let e = psf.relative_l2(&truth).unwrap();
+    assert!(e.iter().all(|&e| e < 0.02), "relative L2 {e:?}");
+}
+
+/// The default centring puts the optical axis, the sub-pixel maximum of the brightest copy, at
+/// the crop centre: a multi-peak PSF with its axis at (159.3, 158.6) of its array (its centroid
+/// 2 px away) comes back with the axis at pixel (159, 159) within 0.25 px, measured on the
+/// output as the 9 x 9 intensity centroid around the centre against that of the PSF drawn with
+/// its axis on the centre. Centroid centring misses it by more than 1 px.
+#[test]
+fn the_default_centring_puts_the_axis_at_the_crop_centre() {
+    let (ay, ax) = (159.3, 158.6);
+    let truth = as_psf(&analytic_psf_at(ay, ax));
+    let (frames, times) = bracket_of(&truth, 0.01);
+    let merged = merge(&frames, &times, None, None, &MergeOptions::default()).unwrap();
+    let core = |a: &Array3<f64>| {
+        let (mut s, mut si, mut sj) = (0.0, 0.0, 0.0);
+        for i in 155..=163 {
+            for j in 155..=163 {
+                let v: f64 = (0..3).map(|c| a[[i, j, c]]).sum();
+                s += v;
+                si += v * i as f64;
+                sj += v * j as f64;
+            }
+        }
+        [si / s, sj / s]
+    };
+    let reference = core(&normalised(&analytic_psf()));
+    let error = |centre: Centre| {
+        let (psf, report) = calibrate_psf(&merged, &PsfOptions { centre, ..Default::default() }).unwrap();
+        let a = psf.to_array4();
+        let got = core(&Array3::from_shape_fn((319, 319, 3), |(i, j, c)| a[[i, j, 0, c]] as f64));
+        (((got[0] - reference[0]).powi(2) + (got[1] - reference[1]).powi(2)).sqrt(), report)
+    };
+    let (e, report) = error(Centre::Axis);
+    println!("axis centring error {e:.3} px, axis found at {:?}", report.axis_px);
+    assert!(e < 0.25, "axis centring: {e} px");
+    let axis = report.axis_px;
+    assert!((axis[0] - (ay + 40.0)).abs() < 0.25 && (axis[1] - (ax + 40.0)).abs() < 0.25, "{axis:?}");
+    let (e, _) = error(Centre::Centroid);
+    println!("centroid centring error {e:.3} px");
+    assert!(e > 1.0, "centroid centring: {e} px");
+    assert_eq!(PsfOptions::default().centre, Centre::Axis);
+}
+
+/// A bracket of a known radiance (a procedural scene, full scale per second), 8-bit with a
+/// black level of 1 % and read noise, merged without dark frames at the reference exposure
+/// t_ref = 1/4 s: value 1 is full scale at t_ref, so the merge is E t_ref (median ratio within
+/// 0.5 %), and the PNG's metadata states t_ref.
+#[test]
+fn the_merge_is_at_the_reference_exposure_and_says_so() {
+    let scene = procedural_scene(7, 160, 160).mapv(|v| v as f64);
+    let times = [1.0 / 64.0, 1.0 / 16.0, 0.25, 1.0, 4.0];
+    let mut rng = Lcg(5);
+    let frames: Vec<Capture> = times
+        .iter()
+        .enumerate()
+        .map(|(k, &t)| Capture {
+            path: PathBuf::from(format!("scene{k}.png")),
+            values: scene
+                .mapv(|e| ((0.01 + e * t + 0.002 * rng.normal()).clamp(0.0, 1.0) * 255.0).round() / 255.0),
+            bits: 8,
+        })
+        .collect();
+    let t_ref = 0.25;
+    let opts = MergeOptions { reference_exposure: Some(t_ref), ..Default::default() };
+    let m = merge(&frames, &times, None, None, &opts).unwrap();
+    let mut ratio: Vec<f64> = m
+        .radiance
+        .iter()
+        .zip(&scene)
+        .filter(|(_, &e)| e * times[4] > 0.1 && e * times[0] < 0.9)
+        .map(|(r, &e)| r / (e * t_ref))
+        .collect();
+    ratio.sort_by(f64::total_cmp);
+    let level = ratio[ratio.len() / 2];
+    println!("merge level at t_ref: {level:.5} over {} samples", ratio.len());
+    assert!(ratio.len() > 10_000 && (level - 1.0).abs() < 0.005, "level {level}");
+    assert_eq!(m.report.reference_exposure_s, Some(t_ref));
+    assert!(m.report.unit.contains("t_ref = 0.25 s"), "{}", m.report.unit);
+    let dir = common::tempdir();
+    let png = dir.path().join("m.png");
+    doefab::calibration::hdr_merge::write_tone_mapped(&png, &m, 0.0, None).unwrap();
+    let decoder = png::Decoder::new(std::fs::File::open(&png).unwrap()).read_info().unwrap();
+    let text: Vec<(String, String)> =
+        decoder.info().uncompressed_latin1_text.iter().map(|t| (t.keyword.clone(), t.text.clone())).collect();
+    let get = |k: &str| text.iter().find(|t| t.0 == k).map(|t| t.1.clone());
+    assert_eq!(get("reference_exposure_s").as_deref(), Some("0.25"), "{text:?}");
+    assert!(get("black_level").unwrap().contains("estimated"), "{text:?}");
 }

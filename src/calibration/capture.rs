@@ -166,12 +166,96 @@ pub fn read_exposures(path: &Path, with_doe: bool) -> Result<ExposureList> {
     Ok(ExposureList { frames, reference_exposure: list.reference_exposure_s })
 }
 
+/// How a bracket is named on the command line: capture files with their times, or an
+/// exposure list (given with `--exposures`, or as the only file when it is a `.json` file).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct BracketSpec {
+    pub files: Vec<PathBuf>,
+    pub times: Vec<String>,
+    pub exposures: Option<PathBuf>,
+    /// Take the frames marked `"doe": true` from the exposure list.
+    pub doe_frames: bool,
+    /// The exposure the radiance is expressed at ("1/60", "250ms"); overrides the list's
+    /// `reference_exposure_s`.
+    pub reference_exposure: Option<String>,
+}
+
+/// The exposure list a [`BracketSpec`] names. A single `.json` file among the files is read as
+/// the exposure list; files without times, times without files, or both files and a list are
+/// refused with what was given and what is expected.
+pub fn resolve_bracket(spec: &BracketSpec) -> Result<ExposureList> {
+    let is_json = |p: &Path| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    let json_file = match spec.files.as_slice() {
+        [one] if is_json(one) && spec.times.is_empty() => Some(one.clone()),
+        _ => None,
+    };
+    let mut list = match (spec.exposures.clone(), json_file) {
+        (Some(_), Some(_)) => {
+            return Err(Error::param(
+                "bracket",
+                "an exposure list was given twice (as a file and with --exposures); give one",
+            ))
+        }
+        (Some(json), None) | (None, Some(json)) => {
+            if !spec.files.is_empty() && spec.exposures.is_some() {
+                return Err(Error::param(
+                    "bracket",
+                    format!(
+                        "{} capture files and the exposure list {}: give the files with --times, or \
+                         the list alone",
+                        spec.files.len(),
+                        json.display()
+                    ),
+                ));
+            }
+            if !spec.times.is_empty() {
+                return Err(Error::param(
+                    "times",
+                    format!(
+                        "the exposure list {} gives the times; --times is not used with it",
+                        json.display()
+                    ),
+                ));
+            }
+            read_exposures(&json, spec.doe_frames)?
+        }
+        (None, None) => {
+            if let Some(j) = spec.files.iter().find(|p| is_json(p)) {
+                return Err(Error::param(
+                    "bracket",
+                    format!(
+                        "{} is an exposure list; give it alone (or with --exposures), not among capture \
+                         files",
+                        j.display()
+                    ),
+                ));
+            }
+            if spec.files.is_empty() {
+                return Err(Error::param(
+                    "bracket",
+                    "no captures: give FILES with --times, or an exposure list (LIST.json or --exposures)",
+                ));
+            }
+            exposures_from_times(&spec.files, &spec.times)?
+        }
+    };
+    if let Some(t) = &spec.reference_exposure {
+        list.reference_exposure = Some(parse_time(t)?);
+    }
+    Ok(list)
+}
+
 /// Pairs files with times given on the command line ("1/60", "0.5", "2s", "250ms").
 pub fn exposures_from_times(files: &[PathBuf], times: &[String]) -> Result<ExposureList> {
     if files.len() != times.len() {
         return Err(Error::param(
             "times",
-            format!("{} exposure times for {} files", times.len(), files.len()),
+            format!(
+                "{} exposure times for {} files: expected one time per file (--times 1/60,1/30,...), or \
+                 an exposure list (LIST.json or --exposures)",
+                times.len(),
+                files.len()
+            ),
         ));
     }
     let frames =

@@ -7,10 +7,21 @@
 //! `E = sum_k w(z_k) (v_k - d) / t_k  /  sum_k w(z_k)`
 //!
 //! with `z_k` the frame's raw value (fraction of full scale), `v_k` its linear value (`z_k`
-//! itself for linear captures, `exp(g(z_k))` through a recovered response), `d` the mean dark
-//! frame and `t_k` the exposure time. The hat weight `w(z) = min(z - lo, hi - z)` is zero at and
+//! itself for linear captures, `exp(g(z_k))` through a recovered response), `d` the black
+//! level and `t_k` the exposure time. The hat weight `w(z) = min(z - lo, hi - z)` is zero at and
 //! below the noise floor `lo` and at and above the saturation level `hi`, so neither clipped nor
 //! noise-dominated values contribute.
+//!
+//! *Black level* `d` ([`BlackLevel`]): the mean dark frame when dark frames are given, else, for
+//! linear captures, one level per channel estimated from the histogram of the shortest frame
+//! (most of whose samples see no light): the mode `m` of the counts, refined to a fraction of a
+//! count by the vertex of the parabola through the logarithms of the three bins `m - 1, m, m + 1`
+//! (exact for a Gaussian peak; the three-point Gaussian fit of Willert & Gharib, "Digital
+//! particle image velocimetry", Exp. Fluids 10, 1991). A mode at count 0 (the sensor clips at
+//! black) gives `d = 0`. The estimate is refused, with a warning, and `d = 0` used, when fewer
+//! than 10 % of the frame's samples lie in those three bins (no dark region) or the mode is
+//! above 20 % of full scale. A black level left in the values biases every time ratio towards 1
+//! (`(d + E t_s) / (d + E t_l)`) and adds `d / t_k` to the radiance.
 //!
 //! A pixel that no frame sees between `lo` and `hi` has no trustworthy value: where every frame
 //! is saturated it takes the shortest frame's value over time (a lower bound); where every
@@ -22,6 +33,11 @@
 //! neighbouring frames (sorted by time) is the median ratio of their linear values over pixels
 //! well exposed in both (`0.1 <= z < hi`); the times are chained from the frame with the most
 //! well-exposed pixels, which keeps its listed time.
+//!
+//! A sample seen well exposed (`z - d >= 0.1`, `z < hi`) by two or more frames whose values over
+//! time differ by more than a factor [`INCONSISTENT_RATIO`] does not follow the exposure: a
+//! stuck or hot pixel (its value does not scale with time), or motion. Such samples are counted,
+//! located and listed ([`Merged::inconsistent_samples`]); the 8-bit noise at `z = 0.1` is 2 %.
 //!
 //! Each frame's agreement with the merge is reported as the RMS and median of
 //! `(v_k / t_k - E) / E` over the pixels it sees well exposed: for 8-bit captures the
@@ -40,6 +56,20 @@ use crate::io::heightmap::Metadata;
 use crate::io::png::write_png_image_u8;
 use crate::report::tone::tone_map;
 
+/// Values over time of one sample that differ by more than this factor between well-exposed
+/// frames mark it as not following the exposure (see the module docs).
+pub const INCONSISTENT_RATIO: f64 = 2.0;
+
+/// Where the black level (the value at zero light) comes from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum BlackLevel {
+    /// The mean dark frame when dark frames are given; otherwise, for linear captures, estimated
+    /// per channel from the shortest frame (see the module docs); with a response curve, none.
+    Auto,
+    /// Given: one level for every channel or one per channel, fraction of full scale.
+    Fixed(Vec<f64>),
+}
+
 /// Thresholds of the merge.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MergeOptions {
@@ -52,11 +82,18 @@ pub struct MergeOptions {
     /// Express the radiance at this exposure (s): value 1 = full scale at this time. `None`:
     /// full scale per second.
     pub reference_exposure: Option<f64>,
+    pub black_level: BlackLevel,
 }
 
 impl Default for MergeOptions {
     fn default() -> Self {
-        MergeOptions { noise_floor: 0.02, saturation: 0.98, estimate_times: true, reference_exposure: None }
+        MergeOptions {
+            noise_floor: 0.02,
+            saturation: 0.98,
+            estimate_times: true,
+            reference_exposure: None,
+            black_level: BlackLevel::Auto,
+        }
     }
 }
 
@@ -108,6 +145,14 @@ pub struct MergeReport {
     pub shape: [usize; 3],
     /// What a radiance value of 1 means.
     pub unit: String,
+    /// The exposure `t_ref` (s) at which value 1 is full scale; `None`: full scale in 1 s.
+    pub reference_exposure_s: Option<f64>,
+    /// Bit depth of the frames.
+    pub bits: u8,
+    /// Per channel: the black level subtracted (fraction of full scale; the mean of the dark
+    /// frame when one is given) and where it came from.
+    pub black_level: Vec<f64>,
+    pub black_level_source: String,
     pub noise_floor: f64,
     pub saturation: f64,
     pub frames: Vec<FrameReport>,
@@ -115,6 +160,8 @@ pub struct MergeReport {
     pub saturated_everywhere: PixelSet,
     /// Samples in the noise floor in every frame.
     pub dark_everywhere: PixelSet,
+    /// Samples whose well-exposed frames disagree by more than [`INCONSISTENT_RATIO`].
+    pub inconsistent: PixelSet,
     pub warnings: Vec<String>,
 }
 
@@ -125,6 +172,10 @@ pub struct Merged {
     pub radiance: Array3<f64>,
     pub report: MergeReport,
     pub response: Option<Response>,
+    /// `[row, col, channel]` of every sample saturated in every frame, row-major.
+    pub saturated_samples: Vec<[usize; 3]>,
+    /// `[row, col, channel]` of every sample that does not follow the exposure, row-major.
+    pub inconsistent_samples: Vec<[usize; 3]>,
 }
 
 /// Checks that the frames agree in shape and bit depth and that the dark frame matches.
@@ -179,8 +230,126 @@ pub fn mean_dark(darks: &[Capture]) -> Result<Array3<f64>> {
     Ok(sum / darks.len() as f64)
 }
 
-/// Merges `frames` taken with exposure `times` (seconds); `dark` is subtracted from every
-/// frame's linear values; `response` linearizes non-linear 8-bit captures.
+/// The black level of each channel of `frame` (fraction of full scale) from the histogram of
+/// its counts: the mode refined by a three-point Gaussian fit (see the module docs). Returns
+/// `None` for a channel, with the reason in `warnings`, where the frame has no dark region.
+pub fn estimate_black_level(frame: &Capture, warnings: &mut Vec<String>) -> Vec<Option<f64>> {
+    let full = frame.full_scale();
+    let (_, _, nc) = frame.values.dim();
+    (0..nc)
+        .map(|c| {
+            let mut hist = vec![0usize; full as usize + 1];
+            let plane = frame.values.index_axis(ndarray::Axis(2), c);
+            for &z in plane.iter() {
+                hist[((z.clamp(0.0, 1.0) * full).round()) as usize] += 1;
+            }
+            let n = plane.len().max(1);
+            // The lowest count among the most frequent ones.
+            let m = (0..hist.len()).fold(0, |best, k| if hist[k] > hist[best] { k } else { best });
+            let side = |k: Option<usize>| k.and_then(|k| hist.get(k)).copied().unwrap_or(0);
+            let peak = hist[m] + side(m.checked_sub(1)) + side(Some(m + 1));
+            let name = frame.path.display();
+            if (peak as f64) < 0.1 * n as f64 || m as f64 > 0.2 * full {
+                warnings.push(format!(
+                    "{name}, channel {c}: no dark region to measure the black level in (the most frequent \
+                     value, {m} counts, holds {:.1} % of the samples with its two neighbours; needed: at \
+                     least 10 % at or below 20 % of full scale); black level 0 used: give dark frames",
+                    100.0 * peak as f64 / n as f64
+                ));
+                return None;
+            }
+            if m == 0 {
+                return Some(0.0);
+            }
+            let (a, b, d) = (hist[m - 1], hist[m], hist[m + 1]);
+            let offset = if a > 0 && d > 0 {
+                let (la, lb, ld) = ((a as f64).ln(), (b as f64).ln(), (d as f64).ln());
+                let curv = la - 2.0 * lb + ld;
+                if curv < 0.0 {
+                    (0.5 * (la - ld) / curv).clamp(-0.5, 0.5)
+                } else {
+                    0.0
+                }
+            } else {
+                warnings.push(format!(
+                    "{name}, channel {c}: the dark samples all read {m} counts; the black level is known \
+                     to half a count only"
+                ));
+                0.0
+            };
+            Some((m as f64 + offset) / full)
+        })
+        .collect()
+}
+
+/// The black level as an `(H, W, C)` array (the mean dark frame, or one level per channel) with
+/// its per-channel means and where it came from (see [`BlackLevel`]).
+fn black_level(
+    frames: &[Capture],
+    times: &[f64],
+    dark: Option<&Array3<f64>>,
+    response: Option<&Response>,
+    level: &BlackLevel,
+    warnings: &mut Vec<String>,
+) -> Result<(Array3<f64>, Vec<f64>, String)> {
+    let shape = frames[0].values.dim();
+    let nc = shape.2;
+    let per_channel = |v: &[f64]| Array3::from_shape_fn(shape, |(_, _, c)| v[c]);
+    match (level, dark, response) {
+        (BlackLevel::Fixed(_), Some(_), _) => Err(Error::param(
+            "black_level",
+            "a black level was given together with dark frames; give one or the other",
+        )),
+        (BlackLevel::Fixed(_), None, Some(_)) => Err(Error::param(
+            "black_level",
+            "a recovered response curve maps raw values to exposure including the black level; do \
+             not give one",
+        )),
+        (BlackLevel::Fixed(v), None, None) => {
+            let v = match v.len() {
+                1 => vec![v[0]; nc],
+                k if k == nc => v.clone(),
+                k => {
+                    return Err(Error::param(
+                        "black_level",
+                        format!("{k} levels given for {nc} channels; expected 1 or {nc}"),
+                    ))
+                }
+            };
+            if let Some(bad) = v.iter().find(|x| !(x.is_finite() && (0.0..0.5).contains(*x))) {
+                return Err(Error::param(
+                    "black_level",
+                    format!("{bad} is not a fraction of full scale in [0, 0.5)"),
+                ));
+            }
+            Ok((per_channel(&v), v, "given".into()))
+        }
+        (BlackLevel::Auto, Some(d), _) => {
+            let means = (0..nc).map(|c| d.index_axis(ndarray::Axis(2), c).mean().unwrap_or(0.0)).collect();
+            Ok((d.clone(), means, "dark frames".into()))
+        }
+        (BlackLevel::Auto, None, Some(_)) => Ok((
+            Array3::zeros(shape),
+            vec![0.0; nc],
+            "none: the recovered response curve maps raw values to exposure".into(),
+        )),
+        (BlackLevel::Auto, None, None) => {
+            let k = (0..frames.len()).fold(0, |best, k| if times[k] < times[best] { k } else { best });
+            let est = estimate_black_level(&frames[k], warnings);
+            let v: Vec<f64> = est.iter().map(|e| e.unwrap_or(0.0)).collect();
+            let source = if est.iter().all(Option::is_some) {
+                format!("estimated from the histogram of the shortest frame, {}", frames[k].path.display())
+            } else {
+                format!("not measurable in the shortest frame, {}: 0 used", frames[k].path.display())
+            };
+            Ok((per_channel(&v), v, source))
+        }
+    }
+}
+
+/// Merges `frames` taken with exposure `times` (seconds); the black level (`dark`, the mean dark
+/// frame, or as `opts.black_level` says) is subtracted from every frame's linear values;
+/// `response` linearizes non-linear 8-bit captures.
 pub fn merge(
     frames: &[Capture],
     times: &[f64],
@@ -200,42 +369,55 @@ pub fn merge(
     if let Some(r) = response {
         r.check(frames)?;
     }
-    // Linear values with the dark frame removed.
+    let mut warnings = Vec::new();
+    let (black, black_means, black_source) =
+        black_level(frames, times, dark, response, &opts.black_level, &mut warnings)?;
+    // Linear values with the black level removed.
     let linear: Vec<Array3<f64>> = frames
         .iter()
         .map(|f| {
-            let mut v = match response {
+            let v = match response {
                 Some(r) => r.linearize(&f.values),
                 None => f.values.clone(),
             };
-            if let Some(d) = dark {
-                v -= d;
-            }
-            v
+            v - &black
         })
         .collect();
-    let mut warnings = Vec::new();
     let used = if opts.estimate_times && frames.len() > 1 {
-        estimate_times(frames, times, &linear, hi, &mut warnings)
+        estimate_times(frames, times, &linear, &black, hi, &mut warnings)
     } else {
         times.to_vec()
     };
 
-    // The noise floor is measured above the dark level, saturation on the raw value.
-    let dark_at = |i: usize, j: usize, c: usize| dark.map_or(0.0, |d| d[[i, j, c]]);
+    // The noise floor is measured above the black level, saturation on the raw value.
+    let dark_at = |i: usize, j: usize, c: usize| black[[i, j, c]];
     let weight = |z: f64, d: f64| if z - d > lo && z < hi { (z - d - lo).min(hi - z) } else { 0.0 };
     let mut radiance = Array3::<f64>::zeros(shape);
     let mut saturated_everywhere = PixelSet::default();
     let mut dark_everywhere = PixelSet::default();
+    let mut inconsistent = PixelSet::default();
+    let (mut saturated_samples, mut inconsistent_samples) = (Vec::new(), Vec::new());
     let (mut order, n) = ((0..frames.len()).collect::<Vec<_>>(), frames.len());
     order.sort_by(|&a, &b| used[a].total_cmp(&used[b]));
     for ((i, j, c), e) in radiance.indexed_iter_mut() {
         let (mut num, mut den) = (0.0, 0.0);
         let d = dark_at(i, j, c);
+        let (mut lowest, mut highest, mut well) = (f64::INFINITY, 0.0f64, 0);
         for k in 0..n {
-            let w = weight(frames[k].values[[i, j, c]], d);
-            num += w * linear[k][[i, j, c]] / used[k];
+            let z = frames[k].values[[i, j, c]];
+            let w = weight(z, d);
+            let rate = linear[k][[i, j, c]] / used[k];
+            num += w * rate;
             den += w;
+            if z - d >= 0.1 && z < hi {
+                lowest = lowest.min(rate);
+                highest = highest.max(rate);
+                well += 1;
+            }
+        }
+        if well >= 2 && highest > INCONSISTENT_RATIO * lowest {
+            inconsistent.add(i, j, c);
+            inconsistent_samples.push([i, j, c]);
         }
         if den > 0.0 {
             *e = num / den;
@@ -251,6 +433,7 @@ pub fn merge(
             let k = order[0];
             *e = linear[k][[i, j, c]] / used[k];
             saturated_everywhere.add(i, j, c);
+            saturated_samples.push([i, j, c]);
         }
     }
 
@@ -296,10 +479,26 @@ pub fn merge(
             saturated_everywhere.first.map_or(0, |f| f[2]),
         ));
     }
+    if inconsistent.count > 0 {
+        warnings.push(format!(
+            "{} samples do not follow the exposure (their well-exposed frames differ by more than a \
+             factor {INCONSISTENT_RATIO} in value over time; first at row {}, col {}, channel {}): stuck \
+             or hot pixels, or motion",
+            inconsistent.count,
+            inconsistent.first.map_or(0, |f| f[0]),
+            inconsistent.first.map_or(0, |f| f[1]),
+            inconsistent.first.map_or(0, |f| f[2]),
+        ));
+    }
+    if let Some(t) = opts.reference_exposure {
+        if !(t.is_finite() && t > 0.0) {
+            return Err(Error::param("reference_exposure", format!("{t} s; expected seconds > 0")));
+        }
+    }
     let unit = match opts.reference_exposure {
         Some(t) => {
             radiance *= t;
-            format!("fraction of full scale at the reference exposure of {t} s")
+            format!("value 1 = full scale at the reference exposure t_ref = {t} s")
         }
         None => "fraction of full scale per second of exposure".to_string(),
     };
@@ -313,14 +512,21 @@ pub fn merge(
         report: MergeReport {
             shape: [shape.0, shape.1, shape.2],
             unit,
+            reference_exposure_s: opts.reference_exposure,
+            bits: frames[0].bits,
+            black_level: black_means,
+            black_level_source: black_source,
             noise_floor: lo,
             saturation: hi,
             frames: reports,
             saturated_everywhere,
             dark_everywhere,
+            inconsistent,
             warnings,
         },
         response: response.cloned(),
+        saturated_samples,
+        inconsistent_samples,
     })
 }
 
@@ -329,16 +535,21 @@ fn estimate_times(
     frames: &[Capture],
     times: &[f64],
     linear: &[Array3<f64>],
+    black: &Array3<f64>,
     hi: f64,
     warnings: &mut Vec<String>,
 ) -> Vec<f64> {
     const MIN_SAMPLES: usize = 50;
-    let well = |z: f64| (0.1..hi).contains(&z);
+    let well_raw = |z: f64, d: f64| z - d >= 0.1 && z < hi;
     let mut order: Vec<usize> = (0..frames.len()).collect();
     order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
     // Anchor: the frame with the most well-exposed samples keeps its listed time.
     let anchor_pos = (0..order.len())
-        .max_by_key(|&p| frames[order[p]].values.iter().filter(|&&z| well(z)).count())
+        .max_by_key(|&p| {
+            Zip::from(&frames[order[p]].values)
+                .and(black)
+                .fold(0usize, |n, &z, &d| n + well_raw(z, d) as usize)
+        })
         .unwrap_or(0);
     // ratio[p] = t(order[p]) / t(order[p + 1]).
     let ratios: Vec<f64> = order
@@ -349,8 +560,9 @@ fn estimate_times(
                 .and(&frames[l].values)
                 .and(&linear[s])
                 .and(&linear[l])
-                .fold(Vec::new(), |mut acc, &zs, &zl, &vs, &vl| {
-                    if well(zs) && well(zl) && vl > 0.0 {
+                .and(black)
+                .fold(Vec::new(), |mut acc, &zs, &zl, &vs, &vl, &d| {
+                    if well_raw(zs, d) && well_raw(zl, d) && vl > 0.0 {
                         acc.push(vs / vl);
                     }
                     acc
@@ -396,6 +608,21 @@ fn estimate_times(
 fn metadata(merged: &Merged, pitch: Option<f64>) -> Metadata {
     Metadata { pitch: pitch.map(|p| [p, p]), unit: None, text: Vec::new() }
         .with("radiance_unit", merged.report.unit.clone())
+        .with(
+            "reference_exposure_s",
+            merged
+                .report
+                .reference_exposure_s
+                .map_or("none (value 1 = full scale in 1 s)".into(), |t| format!("{t}")),
+        )
+        .with(
+            "black_level",
+            format!(
+                "{} ({})",
+                merged.report.black_level.iter().map(|v| format!("{v}")).collect::<Vec<_>>().join(", "),
+                merged.report.black_level_source
+            ),
+        )
         .with("merge", "Debevec-Malik weighted mean of value/time, hat weights")
         .with("noise_floor", format!("{}", merged.report.noise_floor))
         .with("saturation", format!("{}", merged.report.saturation))
