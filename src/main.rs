@@ -551,12 +551,12 @@ enum Command {
         /// Continue the run in the output folder's checkpoint.
         #[arg(long)]
         resume: bool,
-        #[arg(long, default_value_t = 1000)]
+        #[arg(long, default_value_t = 120)]
         steps: usize,
-        #[arg(long, default_value_t = 8)]
+        #[arg(long, default_value_t = 4)]
         batch: usize,
         /// Crop side, pixels (a multiple of 16).
-        #[arg(long, default_value_t = 320)]
+        #[arg(long, default_value_t = 256)]
         crop: usize,
         /// Adam step size (default 1e-4; on --resume, replaces the saved one when given).
         #[arg(long)]
@@ -579,14 +579,14 @@ enum Command {
         /// Shot noise of the simulated captures: variance per unit signal (full scale = 1).
         #[arg(long, default_value_t = 0.0)]
         shot_noise: f64,
-        /// Bit depth of the simulated captures (0 = not quantised).
-        #[arg(long, default_value_t = 0)]
+        /// Bit depth of the simulated captures (0 = not quantised; 8 as the paper's captures).
+        #[arg(long, default_value_t = 8)]
         bits: u32,
         /// Validate and checkpoint every this many steps.
-        #[arg(long, default_value_t = 100)]
+        #[arg(long, default_value_t = 20)]
         checkpoint_every: usize,
         /// Validation set size.
-        #[arg(long, default_value_t = 8)]
+        #[arg(long, default_value_t = 16)]
         validation: usize,
         #[arg(long, default_value_t = 1)]
         seed: u64,
