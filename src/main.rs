@@ -545,6 +545,9 @@ enum Command {
         validation_data: Option<PathBuf>,
         #[arg(long, default_value_t = 5)]
         holdout_every: usize,
+        /// Leave out equirectangular panoramas narrower than this (pixels).
+        #[arg(long, default_value_t = 1024)]
+        min_panorama_width: usize,
         /// Output folder: checkpoint, decoder, training curve.
         #[arg(short, long)]
         output: PathBuf,
@@ -1636,6 +1639,7 @@ fn finetune(cli: &Cli) -> Result<()> {
         data,
         validation_data,
         holdout_every,
+        min_panorama_width,
         output,
         resume,
         steps,
@@ -1665,6 +1669,7 @@ fn finetune(cli: &Cli) -> Result<()> {
         data: data.clone(),
         validation_data: validation_data.clone(),
         holdout_every: *holdout_every,
+        min_panorama_width: *min_panorama_width,
         output: output.clone(),
         resume: *resume,
         lr: *lr,

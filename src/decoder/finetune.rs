@@ -813,6 +813,8 @@ pub struct FinetuneJob {
     /// Validation images (`None`: held out from `data` by name, 1 in `holdout_every`).
     pub validation_data: Option<PathBuf>,
     pub holdout_every: usize,
+    /// Panoramas narrower than this are not used (see [`crate::decoder::dataset`]).
+    pub min_panorama_width: usize,
     pub output: PathBuf,
     /// Continue the checkpoint in `output` (to `cfg.steps`, at `lr` when given).
     pub resume: bool,
@@ -846,7 +848,12 @@ pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Resul
     let procedural =
         GeneratedScenes { name: "procedural HDR scenes", generate: crate::decoder::scenes::procedural_scene };
     let real = match &job.data {
-        Some(dir) => Some(training_and_validation(dir, job.validation_data.as_deref(), job.holdout_every)?),
+        Some(dir) => Some(training_and_validation(
+            dir,
+            job.validation_data.as_deref(),
+            job.holdout_every,
+            job.min_panorama_width,
+        )?),
         None => None,
     };
     let (source, validation): (&dyn SceneSource, Option<&dyn SceneSource>) = match &real {
