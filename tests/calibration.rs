@@ -337,6 +337,25 @@ fn a_known_affine_warp_is_recovered() {
     assert!(registered.linear_db > plain.linear_db + 10.0, "{} vs {}", registered.linear_db, plain.linear_db);
     assert!(e.all.pixels == s.footing.pixels_scored);
     assert!(s.footing.pixels_scored < 320 * 320);
+    // Colour balance: a tint of (1.1, 1, 0.9) moves each channel's share by that factor over
+    // the mean share, computed here from the same pixels.
+    let tinted =
+        ndarray::Array3::from_shape_fn(capture.dim(), |(i, j, c)| capture[[i, j, c]] * [1.1, 1.0, 0.9][c]);
+    let t = s.score("tinted", &tinted).unwrap();
+    let mut sums = [0.0f64; 3];
+    for ((i, j), &m) in s.mask.indexed_iter() {
+        if m && !s.saturated[[i, j]] {
+            (0..3).for_each(|c| sums[c] += tinted[[i, j, c]]);
+        }
+    }
+    let mean = sums.iter().sum::<f64>() / 3.0;
+    for c in 0..3 {
+        assert!((t.channel_balance[c] - sums[c] / mean).abs() < 1e-9);
+        let moved = t.channel_balance[c] / e.channel_balance[c];
+        let expect =
+            [1.1, 1.0, 0.9][c] * 3.0 / (0..3).map(|k| [1.1, 1.0, 0.9][k] * e.channel_balance[k]).sum::<f64>();
+        assert!((moved - expect).abs() < 1e-9, "channel {c}: {moved} vs {expect}");
+    }
     // Unrelated images are refused rather than registered.
     let other = procedural_scene(99, 320, 320).mapv(|v| v as f64);
     assert!(register_affine(&luminance(&img), &luminance(&other), &RegisterOptions::default()).is_err());

@@ -264,6 +264,10 @@ pub struct Score {
     pub all: Psnr,
     /// `None` when the saturated figures are withheld ([`Footing::saturated_withheld`]).
     pub saturated: Option<Psnr>,
+    /// Colour balance: each channel's mean over the scored pixels not saturated in the
+    /// capture, divided by the mean of the three (1, 1, 1 for a grey balance). A decoder that
+    /// casts a colour moves these against the capture's and its start's.
+    pub channel_balance: Vec<f64>,
 }
 
 /// The capture's clipping level (see the module docs): 1, or the maximum where samples pile up
@@ -457,7 +461,18 @@ impl Scoring {
             None => Some(psnr(&self.reference, image, Some(&self.saturated))?),
             Some(_) => None,
         };
-        Ok(Score { name: name.into(), all, saturated })
+        let channels = image.dim().2;
+        let mut sums = vec![0.0; channels];
+        for ((i, j), &scored) in self.mask.indexed_iter() {
+            if scored && !self.saturated[[i, j]] {
+                for (c, s) in sums.iter_mut().enumerate() {
+                    *s += image[[i, j, c]];
+                }
+            }
+        }
+        let mean = sums.iter().sum::<f64>() / channels as f64;
+        let channel_balance = sums.iter().map(|s| if mean != 0.0 { s / mean } else { f64::NAN }).collect();
+        Ok(Score { name: name.into(), all, saturated, channel_balance })
     }
 }
 
