@@ -757,3 +757,28 @@ fn a_run_that_only_gets_worse_writes_its_start_back() {
     assert_eq!(record["best_step"], 0);
     assert_eq!(record["stopped_early"], true);
 }
+
+/// The penalty on negative outputs pulls them toward zero, which the paper's loss alone (it
+/// sees `max(y_hat, 0)`) does not: from the same start and batch, three steps with it leave
+/// less negative output than three without.
+#[test]
+fn the_negative_penalty_lifts_negative_outputs() {
+    let dev = device(false).unwrap();
+    let x = [rgb(1, 32, 32), rgb(2, 32, 32)];
+    let t = [rgb(3, 32, 32), rgb(4, 32, 32)];
+    let batch = |a: &[Array3<f32>; 2]| to_tensor(&[&a[0], &a[1]], &dev);
+    let negative = |mu: f64| {
+        let mut net = UNet::from_weights(&random_weights(3), &dev);
+        let mut adam =
+            Adam::new(&net, &FinetuneConfig { lr: 1e-3, negative_penalty: mu, ..FinetuneConfig::default() });
+        for _ in 0..3 {
+            adam.step(&mut net, batch(&x), batch(&t)).unwrap();
+        }
+        let y = doefab::decoder::infer(&net, &x[0]).unwrap();
+        y.iter().map(|&v| (v.min(0.0) as f64).powi(2)).sum::<f64>() / y.len() as f64
+    };
+    let (without, with) = (negative(0.0), negative(100.0));
+    eprintln!("mean min(y, 0)^2: {without:.3e} without the penalty, {with:.3e} with it");
+    assert!(without > 0.0, "the random start should have negative outputs");
+    assert!(with < 0.5 * without, "{with} vs {without}");
+}

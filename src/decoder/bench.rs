@@ -74,6 +74,9 @@ pub struct Score {
     pub saturated: Option<Psnr>,
     /// The smallest output over the whole image (the scored pixels' is in `all`).
     pub min_output: f64,
+    /// Channel means over the scored, unsaturated pixels over their mean (see
+    /// [`crate::calibration::evaluate::Score::channel_balance`]).
+    pub channel_balance: Vec<f64>,
 }
 
 /// The scene folders under `dir`: those holding an `exposures.json`, in name order.
@@ -151,6 +154,7 @@ pub fn score_image(scene: &BenchScene, decoder: &str, image: &Array3<f64>) -> Re
         all: s.all,
         saturated: s.saturated,
         min_output,
+        channel_balance: s.channel_balance,
     })
 }
 

@@ -146,6 +146,11 @@ pub struct FinetuneConfig {
     /// Stop after this many validations without a new best (0 = never stop early).
     #[serde(default)]
     pub patience: usize,
+    /// Weight `mu` of a penalty on negative outputs added to the training loss,
+    /// `mu mean(min(y_hat, 0)^2)`: the paper's loss sees `max(y_hat, 0)` only, so nothing holds
+    /// dark outputs above zero (0 = the paper's loss alone). Validation keeps the paper's loss.
+    #[serde(default)]
+    pub negative_penalty: f64,
 }
 
 fn one() -> f64 {
@@ -173,6 +178,7 @@ impl Default for FinetuneConfig {
             freeze_encoder: false,
             lr_decay: 1.0,
             patience: 0,
+            negative_penalty: 0.0,
         }
     }
 }
@@ -197,6 +203,9 @@ impl FinetuneConfig {
         }
         if !(self.pull >= 0.0 && self.pull.is_finite()) {
             return bad("pull", format!("{} must be finite and >= 0", self.pull));
+        }
+        if !(self.negative_penalty >= 0.0 && self.negative_penalty.is_finite()) {
+            return bad("negative_penalty", format!("{} must be finite and >= 0", self.negative_penalty));
         }
         if !(self.lr_decay > 0.0 && self.lr_decay <= 1.0) {
             return bad("lr_decay", format!("{} must lie in (0, 1]", self.lr_decay));
@@ -266,6 +275,8 @@ pub struct Adam {
     pub t: usize,
     /// Which of the network's tensors are updated.
     updates: Vec<bool>,
+    /// Weight of the penalty on negative outputs (see [`FinetuneConfig::negative_penalty`]).
+    pub negative_penalty: f64,
     /// First and second moments per checkpoint entry (`None` for frozen or not yet updated).
     m: Vec<Option<Tensor<1>>>,
     v: Vec<Option<Tensor<1>>>,
@@ -282,6 +293,7 @@ impl Adam {
             epsilon: cfg.epsilon,
             t: 0,
             updates: net.names().iter().map(|n| cfg.updates(n)).collect(),
+            negative_penalty: cfg.negative_penalty,
             m: vec![None; n],
             v: vec![None; n],
         }
@@ -306,7 +318,12 @@ impl Adam {
             .collect();
         let mut tracked = net.clone();
         tracked.set_params(leaves.clone());
-        let loss = gamma_loss(tracked.forward(x.autodiff())?, target.autodiff());
+        let y_hat = tracked.forward(x.autodiff())?;
+        let mut loss = gamma_loss(y_hat.clone(), target.autodiff());
+        if self.negative_penalty > 0.0 {
+            let neg = y_hat.clamp_max(0.0);
+            loss = loss + (neg.clone() * neg).mean() * self.negative_penalty as f32;
+        }
         let value = tensor_values(loss.clone().inner())?[0] as f64;
         if !value.is_finite() {
             return Err(Error::Data(format!("training loss is {value}")));
