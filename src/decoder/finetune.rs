@@ -402,6 +402,28 @@ impl<'a> Trainer<'a> {
         cfg: FinetuneConfig,
         init: &str,
     ) -> Result<Trainer<'a>> {
+        let mut t = Trainer::prepared(net, psf, psf_sha256, source, validation, cfg, init)?;
+        let v0 = t.validation_loss()?;
+        t.check_validation(v0)?;
+        t.history.push(HistoryEntry {
+            step: 0,
+            loss: None,
+            val_loss: Some(v0),
+            val_psnr: Some(psnr_of_loss(v0)),
+        });
+        Ok(t)
+    }
+
+    /// The run's state before any validation: network, optimiser and the validation set.
+    fn prepared(
+        net: UNet,
+        psf: &Psf,
+        psf_sha256: &str,
+        source: &'a dyn SceneSource,
+        validation: Option<&dyn SceneSource>,
+        cfg: FinetuneConfig,
+        init: &str,
+    ) -> Result<Trainer<'a>> {
         cfg.check()?;
         if psf.channels.len() != 3 {
             return Err(Error::param(
@@ -434,14 +456,6 @@ impl<'a> Trainer<'a> {
         };
         t.validation =
             t.simulate_batch(val_source, &mut Lcg(t.cfg.seed ^ 0x5eed_0000_7a11_da7e), t.cfg.validation)?;
-        let v0 = t.validation_loss()?;
-        t.check_validation(v0)?;
-        t.history.push(HistoryEntry {
-            step: 0,
-            loss: None,
-            val_loss: Some(v0),
-            val_psnr: Some(psnr_of_loss(v0)),
-        });
         Ok(t)
     }
 
@@ -508,7 +522,7 @@ impl<'a> Trainer<'a> {
         if let Some(lr) = lr {
             cfg.lr = lr;
         }
-        let mut t = Trainer::new(net, psf, psf_sha256, source, validation, cfg, &init)?;
+        let mut t = Trainer::prepared(net, psf, psf_sha256, source, validation, cfg, &init)?;
         let mut take = |key: String| {
             let mt = moments
                 .remove(&key)
