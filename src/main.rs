@@ -513,6 +513,10 @@ enum Command {
         /// receptive field, so tiles then match one pass).
         #[arg(long, default_value_t = 128)]
         overlap: usize,
+        /// Mirrored context around the capture, pixels (removes the network's negative blobs
+        /// at dark borders; 0 = the paper's demo).
+        #[arg(long, default_value_t = doefab::decoder::reconstruct::BORDER)]
+        border: usize,
         /// Write negative outputs as they are instead of max(y, 0).
         #[arg(long)]
         keep_negative: bool,
@@ -579,6 +583,11 @@ enum Command {
         /// Weight of a penalty on negative outputs, mean(min(y, 0)^2), in the training loss.
         #[arg(long, default_value_t = 0.0)]
         negative_penalty: f64,
+        /// Weight of the fine-tuned weights in the decoder written, w0 + blend (w - w0)
+        /// (WiSE-FT; 1 = the best validated weights as they are; 0.5 measured best on the
+        /// paper's real captures).
+        #[arg(long, default_value_t = 0.5)]
+        blend: f64,
         /// Read noise of the simulated captures, fraction of full scale (default: as measured
         /// on the paper's captures; the paper trained with 0.02).
         #[arg(long, default_value_t = 0.001)]
@@ -1200,11 +1209,23 @@ fn run(cli: &Cli) -> Result<()> {
             warn(&info.warnings);
             print_result(cli, &info, || print!("{}", info.summary()))
         }
-        Command::Reconstruct { capture, decoder, output, png, ev, tile, overlap, keep_negative, gpu } => {
+        Command::Reconstruct {
+            capture,
+            decoder,
+            output,
+            png,
+            ev,
+            tile,
+            overlap,
+            border,
+            keep_negative,
+            gpu,
+        } => {
             use doefab::decoder::reconstruct::{reconstruct_file, Negatives, ReconstructOptions};
             let opts = ReconstructOptions {
                 tile: *tile,
                 overlap: *overlap,
+                border: *border,
                 negatives: if *keep_negative { Negatives::Keep } else { Negatives::Clamp },
             };
             let png = png.clone().unwrap_or_else(|| output.with_extension("png"));
@@ -1656,6 +1677,7 @@ fn finetune(cli: &Cli) -> Result<()> {
         freeze_encoder,
         patience,
         negative_penalty,
+        blend,
         read_noise,
         shot_noise,
         bits,
@@ -1688,6 +1710,7 @@ fn finetune(cli: &Cli) -> Result<()> {
             freeze_encoder: *freeze_encoder,
             patience: *patience,
             negative_penalty: *negative_penalty,
+            blend: *blend,
             noise_sigma: *read_noise,
             shot_noise: *shot_noise,
             bits: (*bits > 0).then_some(*bits),
@@ -1715,12 +1738,14 @@ fn finetune(cli: &Cli) -> Result<()> {
     let outcome = outcome?;
     print_result(cli, &outcome, || {
         println!(
-            "{} steps{}; validation PSNR {} at the start, best {:.2} dB at step {} -> {}",
+            "{} steps{}; validation PSNR {} at the start, best {:.2} dB at step {}, written (blend {}) {:.2} dB -> {}",
             outcome.steps,
             if outcome.stopped_early { " (stopped early)" } else { "" },
             outcome.start_validation_psnr.map_or("n/a".into(), |p| format!("{p:.2} dB")),
             outcome.best_validation_psnr,
             outcome.best_step,
+            outcome.blend,
+            outcome.written_validation_psnr,
             outcome.decoder.display()
         )
     })

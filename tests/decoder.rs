@@ -75,6 +75,42 @@ fn the_full_frame_reproduces_the_negative_blob() {
     assert_eq!(y.iter().filter(|&&v| v < -1.0).count(), 76, "values below -1 (parity.json)");
 }
 
+/// The smallest raw output within `band` pixels of the border.
+fn border_min(y: &Array3<f32>, band: usize) -> f32 {
+    let (h, w, _) = y.dim();
+    y.indexed_iter()
+        .filter(|((i, j, _), _)| *i < band || *j < band || *i >= h - band || *j >= w - band)
+        .fold(f32::INFINITY, |m, (_, &v)| m.min(v))
+}
+
+#[test]
+fn mirrored_border_context_removes_the_border_blobs() {
+    let dir = data_dir();
+    let dev = device(false).unwrap();
+    for which in ["simulated", "measured"] {
+        let net = UNet::from_weights(
+            &DecoderWeights::read(&dir.join(format!("decoder_{which}_psf.safetensors"))).unwrap(),
+            &dev,
+        );
+        for scene in ["Fruit", "Kitchen"] {
+            let x = read_capture(&dir.join(format!("captures/{scene}/wPSF_0_stop.png"))).unwrap();
+            let upstream =
+                ReconstructOptions { border: 0, negatives: Negatives::Keep, ..ReconstructOptions::default() };
+            let (y0, _) = reconstruct(&net, &x, &upstream).unwrap();
+            let opts = ReconstructOptions { negatives: Negatives::Keep, ..ReconstructOptions::default() };
+            let (y, report) = reconstruct(&net, &x, &opts).unwrap();
+            let (b0, b) = (border_min(&y0, 32), border_min(&y, 32));
+            eprintln!(
+                "{which}-PSF decoder, {scene}: border minimum {b0:.2} without context, {b:.4} with {} px",
+                opts.border
+            );
+            assert!(b0 < -50.0, "the upstream output has its blob: {b0}");
+            assert!(b > -0.05, "no blob with the mirrored context: {b}");
+            assert_eq!(report.padded_rows, 704);
+        }
+    }
+}
+
 #[test]
 fn decoder_files_round_trip_with_their_metadata() {
     let dir = data_dir();
@@ -185,9 +221,9 @@ fn rgb(seed: u64, h: usize, w: usize) -> Array3<f32> {
 fn identity_decoder_reconstructs_odd_sizes_exactly_through_padding_and_tiles() {
     let net = UNet::from_weights(&linear_weights(1.0), &device(false).unwrap());
     let x = rgb(5, 53, 290);
-    let opts = ReconstructOptions { tile: 64, overlap: 16, negatives: Negatives::Keep };
+    let opts = ReconstructOptions { tile: 64, overlap: 16, border: 32, negatives: Negatives::Keep };
     let (y, report) = reconstruct(&net, &x, &opts).unwrap();
-    assert_eq!((report.padded_rows, report.padded_cols), (64, 304));
+    assert_eq!((report.padded_rows, report.padded_cols), (128, 368), "32 px mirrored, then to 16");
     assert!(report.tiles > 1, "tiled: {report:?}");
     assert_eq!(y, x, "y = x exactly");
     assert!(!report.warnings.is_empty(), "an overlap below the receptive field is reported");
@@ -283,7 +319,7 @@ fn reconstruct_command_writes_exr_png_and_reports_negatives() {
         .map(|(x, y)| (x > 0) as usize + (y > 0) as usize)
         .sum::<usize>();
     assert_eq!(report["values_below_zero"], positive);
-    assert_eq!(report["padded_rows"], 32);
+    assert_eq!(report["padded_rows"], 96, "23 rows, 32 mirrored on each side, to 16");
     let exr = image::open(&out).unwrap().to_rgb32f();
     assert_eq!(exr.dimensions(), (40, 23));
     assert_eq!(exr.get_pixel(10, 5)[0], -(60.0f32 / 255.0), "kept negative");
@@ -756,6 +792,54 @@ fn a_run_that_only_gets_worse_writes_its_start_back() {
         serde_json::from_slice(&std::fs::read(t.path().join("training.json")).unwrap()).unwrap();
     assert_eq!(record["best_step"], 0);
     assert_eq!(record["stopped_early"], true);
+}
+
+/// The decoder written with `blend` b is `w0 + b (w_best - w0)` (WiSE-FT) and validates no
+/// worse than its start; blend 1 writes the best validated weights as they are.
+#[test]
+fn the_written_decoder_blends_the_best_weights_with_the_start() {
+    let dev = device(false).unwrap();
+    let images = test_scenes();
+    let init = random_weights(4);
+    let run_with = |blend: f64| {
+        let t = common::tempdir();
+        let cfg = FinetuneConfig { lr: 1e-3, blend, ..tiny_config(4) };
+        let mut run =
+            Trainer::new(UNet::from_weights(&init, &dev), &small_psf(), "ab", &images, None, cfg, "random")
+                .unwrap();
+        run.run(t.path(), &mut |_| {}).unwrap();
+        let written = run.write_outputs(t.path()).unwrap();
+        let start_val = run.history()[0].val_loss.unwrap();
+        (DecoderWeights::read(&t.path().join("decoder.safetensors")).unwrap(), written, run.best(), start_val)
+    };
+    let (best, w1, (best_step, best_val), start_val) = run_with(1.0);
+    let (half, w5, _, _) = run_with(0.5);
+    eprintln!(
+        "validation: start {start_val:.5}, best {best_val:.5} (step {best_step}), blend 0.5 {:.5}",
+        w5.validation_loss
+    );
+    assert!(best_step > 0, "a step should validate better than the random start");
+    assert_eq!((w1.blend, w1.validation_loss), (1.0, best_val));
+    assert_eq!(best.metadata["blend"], "1");
+    assert_eq!(half.metadata["blend"], "0.5");
+    assert!(w5.validation_loss <= start_val, "{} vs the start's {start_val}", w5.validation_loss);
+    for (((name, w0), (_, wb)), (_, wh)) in init.tensors.iter().zip(&best.tensors).zip(&half.tensors) {
+        for ((a, b), h) in w0.values.iter().zip(&wb.values).zip(&wh.values) {
+            let expect = a + 0.5 * (b - a);
+            assert!((h - expect).abs() <= 1e-6 * (1.0 + expect.abs()), "{name}: {h} vs {expect}");
+        }
+    }
+    assert_ne!(half.tensors, best.tensors);
+    let bad = Trainer::new(
+        UNet::from_weights(&init, &dev),
+        &small_psf(),
+        "ab",
+        &images,
+        None,
+        FinetuneConfig { blend: 1.5, ..tiny_config(1) },
+        "random",
+    );
+    assert!(bad.err().unwrap().to_string().contains("blend"));
 }
 
 /// The penalty on negative outputs pulls them toward zero, which the paper's loss alone (it

@@ -151,6 +151,13 @@ pub struct FinetuneConfig {
     /// dark outputs above zero (0 = the paper's loss alone). Validation keeps the paper's loss.
     #[serde(default)]
     pub negative_penalty: f64,
+    /// Weight-space blend of the decoder written: `w = w0 + blend (w_best - w0)` between the
+    /// start weights `w0` and the best validated ones (WiSE-FT, Wortsman et al. 2022, Eq. 1;
+    /// 1 = the best validated weights as they are). Simulated validation favours the fine-tuned
+    /// end; real captures, which the simulation does not fully model, are scored best in
+    /// between (README, fine-tuning table).
+    #[serde(default = "one")]
+    pub blend: f64,
 }
 
 fn one() -> f64 {
@@ -179,6 +186,7 @@ impl Default for FinetuneConfig {
             lr_decay: 1.0,
             patience: 0,
             negative_penalty: 0.0,
+            blend: 1.0,
         }
     }
 }
@@ -206,6 +214,9 @@ impl FinetuneConfig {
         }
         if !(self.negative_penalty >= 0.0 && self.negative_penalty.is_finite()) {
             return bad("negative_penalty", format!("{} must be finite and >= 0", self.negative_penalty));
+        }
+        if !(self.blend > 0.0 && self.blend <= 1.0) {
+            return bad("blend", format!("{} must lie in (0, 1]", self.blend));
         }
         if !(self.lr_decay > 0.0 && self.lr_decay <= 1.0) {
             return bad("lr_decay", format!("{} must lie in (0, 1]", self.lr_decay));
@@ -604,11 +615,15 @@ impl<'a> Trainer<'a> {
 
     /// The loss over the validation set (evaluated in chunks of the batch size).
     pub fn validation_loss(&self) -> Result<f64> {
+        self.validation_loss_of(&self.net)
+    }
+
+    fn validation_loss_of(&self, net: &UNet) -> Result<f64> {
         let mut sum_sq = 0.0;
         let mut count = 0usize;
         for chunk in self.validation.chunks(self.cfg.batch) {
-            let (x, t) = self.tensors(chunk, self.net.device());
-            let l = tensor_values(gamma_loss(self.net.forward(x)?, t))?[0] as f64;
+            let (x, t) = self.tensors(chunk, net.device());
+            let l = tensor_values(gamma_loss(net.forward(x)?, t))?[0] as f64;
             let n = chunk.len();
             sum_sq += l * l * n as f64;
             count += n;
@@ -697,14 +712,38 @@ impl<'a> Trainer<'a> {
         (self.best_step, self.best_val)
     }
 
-    /// The best validated decoder (see [`Trainer::decoder`]), as `write_outputs` writes it.
-    pub fn best_decoder(&self) -> Result<DecoderWeights> {
+    /// The decoder `write_outputs` writes (see [`Trainer::decoder`]): the best validated
+    /// weights blended with the start's by `blend` (see [`FinetuneConfig::blend`]), and its
+    /// validation loss. Should the blend validate worse than the start (it lies between the
+    /// start and the best, so it seldom can), the best validated weights are written instead,
+    /// so the decoder written never validates below its start.
+    pub fn written_decoder(&self) -> Result<(DecoderWeights, Written)> {
         let mut net = self.net.clone();
         net.set_params(self.best.clone());
+        let mut val = self.best_val;
+        let mut blend = 1.0;
+        if self.cfg.blend < 1.0 && self.best_step > 0 {
+            let b = self.cfg.blend as f32;
+            let mut blended = net.clone();
+            blended.set_params(
+                self.start
+                    .iter()
+                    .zip(&self.best)
+                    .map(|(w0, w)| w0.clone() + (w.clone() - w0.clone()) * b)
+                    .collect(),
+            );
+            let v = self.validation_loss_of(&blended)?;
+            let start_val = self.history.iter().find(|h| h.step == 0).and_then(|h| h.val_loss);
+            if start_val.is_none_or(|s| v <= s) {
+                (net, val, blend) = (blended, v, self.cfg.blend);
+            }
+        }
         let mut w = self.decoder_of(&net)?;
         w.metadata.insert("best_step".into(), self.best_step.to_string());
         w.metadata.insert("best_validation_loss".into(), format!("{:e}", self.best_val));
-        Ok(w)
+        w.metadata.insert("blend".into(), blend.to_string());
+        w.metadata.insert("validation_loss".into(), format!("{val:e}"));
+        Ok((w, Written { blend, validation_loss: val }))
     }
 
     /// The current decoder with its training record in the metadata.
@@ -800,11 +839,13 @@ impl<'a> Trainer<'a> {
         self.cfg.patience > 0 && self.stale >= self.cfg.patience
     }
 
-    /// Writes the final outputs into `out`: [`DECODER`] (the best validated decoder, which is
-    /// the start decoder itself when no step validated better, with its training record),
-    /// `training.json` (configuration and curve) and `training_curve.png`.
-    pub fn write_outputs(&self, out: &Path) -> Result<()> {
-        self.best_decoder()?.write(&out.join(DECODER))?;
+    /// Writes the final outputs into `out`: [`DECODER`] (the blended best validated decoder,
+    /// see [`Trainer::written_decoder`]; the start decoder itself when no step validated
+    /// better, with its training record), `training.json` (configuration and curve) and
+    /// `training_curve.png`.
+    pub fn write_outputs(&self, out: &Path) -> Result<Written> {
+        let (decoder, written) = self.written_decoder()?;
+        decoder.write(&out.join(DECODER))?;
         let record = serde_json::json!({
             "config": self.cfg,
             "steps": self.step,
@@ -812,6 +853,8 @@ impl<'a> Trainer<'a> {
             "best_step": self.best_step,
             "best_validation_loss": self.best_val,
             "best_validation_psnr": psnr_of_loss(self.best_val),
+            "blend": written.blend,
+            "written_validation_psnr": psnr_of_loss(written.validation_loss),
             "psf_sha256": self.psf_sha256,
             "init": self.init,
             "data": self.source.describe(),
@@ -820,8 +863,17 @@ impl<'a> Trainer<'a> {
             "history": self.history,
         });
         crate::io::atomic::write_json(&out.join("training.json"), &record)?;
-        crate::report::training_chart::write_training_chart(&out.join("training_curve.png"), &self.history)
+        crate::report::training_chart::write_training_chart(&out.join("training_curve.png"), &self.history)?;
+        Ok(written)
     }
+}
+
+/// The decoder a run wrote: its blend with the start (1 = the best validated weights) and its
+/// validation loss.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Written {
+    pub blend: f64,
+    pub validation_loss: f64,
 }
 
 /// File name of the fine-tuned decoder inside the output folder.
@@ -865,6 +917,9 @@ pub struct FinetuneOutcome {
     pub best_step: usize,
     pub start_validation_psnr: Option<f64>,
     pub best_validation_psnr: f64,
+    /// The written decoder's blend (see [`FinetuneConfig::blend`]) and validation PSNR.
+    pub blend: f64,
+    pub written_validation_psnr: f64,
     pub data: String,
     pub validation_data: String,
     pub history: Vec<HistoryEntry>,
@@ -894,7 +949,10 @@ pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Resul
     let device = crate::decoder::device(job.gpu)?;
     let mut trainer = if job.resume {
         let ckpt = job.output.join(CHECKPOINT);
-        Trainer::resume(&ckpt, &psf, &psf_sha, source, validation, job.cfg.steps, job.lr, &device)?
+        let mut t =
+            Trainer::resume(&ckpt, &psf, &psf_sha, source, validation, job.cfg.steps, job.lr, &device)?;
+        t.cfg.blend = job.cfg.blend;
+        t
     } else {
         let init = job.init.clone().unwrap_or_else(crate::decoder::default_init);
         let weights = DecoderWeights::read(&init)?;
@@ -910,7 +968,7 @@ pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Resul
             false => e,
         });
     }
-    trainer.write_outputs(&job.output)?;
+    let written = trainer.write_outputs(&job.output)?;
     let (best_step, best_val) = trainer.best();
     Ok(FinetuneOutcome {
         output: job.output.clone(),
@@ -920,6 +978,8 @@ pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Resul
         best_step,
         start_validation_psnr: trainer.history().iter().find(|h| h.step == 0).and_then(|h| h.val_psnr),
         best_validation_psnr: psnr_of_loss(best_val),
+        blend: written.blend,
+        written_validation_psnr: psnr_of_loss(written.validation_loss),
         data: source.describe(),
         validation_data: trainer.validation_data.clone(),
         history: trainer.history().to_vec(),

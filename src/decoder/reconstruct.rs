@@ -2,10 +2,14 @@
 //!
 //! * Input: an RGB PNG or TIFF of linear sensor values, 8 or 16 bits per sample, read as
 //!   `x = value / (2^bits - 1)` (the paper's `PNG / 255`; 1 = the clipping level).
-//! * Sizes: the U-Net needs H and W that are multiples of 16. Other sizes are padded at the
-//!   bottom and right by repeating the last row and column (edge replication: zero padding
-//!   would add black border cells, which is where the paper's network makes its large negative
-//!   blobs), and the output is cropped back.
+//! * Border context: the network's 3x3 convolutions pad with zeros (TF 'SAME'), so at the image
+//!   border it sees black cells, and near dark borders it makes large negative blobs (the
+//!   paper's decoders: -684 and -293 at the right border of the shared Fruit and Kitchen frames).
+//!   The capture is therefore mirrored (`x[-i] = x[i]`, no edge repeat) by
+//!   [`ReconstructOptions::border`] pixels on every side, and further at the bottom and right up
+//!   to multiples of 16 (the U-Net's size multiple); the output is cropped back. With 32 px the
+//!   raw output within 32 px of the border of both frames stays above -0.02 for the paper's two
+//!   decoders (tested); `border = 0` gives the upstream demo's output.
 //! * Tiling: an image larger than the tile is cut into tiles whose cores are written and whose
 //!   overlap (context on every side) is discarded. Tile and core origins are multiples of 16,
 //!   so pooling cells line up with the full image's. The network's receptive field reaches at
@@ -14,7 +18,7 @@
 //!   equals untiled up to float rounding (the gemm blocking differs with the tile size).
 //! * Negative outputs: the network has no output activation. DECODER.md documents large
 //!   negative blobs in near-black areas at the image border (down to -293 on the shared
-//!   Kitchen frame). [`Negatives::Clamp`] (the default) applies the upstream demo's
+//!   Kitchen frame; the border context above removes them). [`Negatives::Clamp`] (the default) applies the upstream demo's
 //!   `max(y, 0)`; [`Negatives::Keep`] writes the raw output. Either way the counts of values
 //!   below 0 and below -1 and the minimum are reported.
 //!
@@ -37,6 +41,9 @@ use crate::report::tone::tone_map;
 /// rounded up to a multiple of 16.
 pub const RECEPTIVE_RADIUS: usize = 128;
 
+/// Default mirrored context around the capture, pixels (see the module docs).
+pub const BORDER: usize = 32;
+
 /// What to do with negative network outputs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -54,12 +61,19 @@ pub struct ReconstructOptions {
     pub tile: usize,
     /// Context kept on each side of a tile's core (a multiple of 16).
     pub overlap: usize,
+    /// Mirrored context added on every side of the capture before the network, pixels.
+    pub border: usize,
     pub negatives: Negatives,
 }
 
 impl Default for ReconstructOptions {
     fn default() -> Self {
-        ReconstructOptions { tile: 1024, overlap: RECEPTIVE_RADIUS, negatives: Negatives::Clamp }
+        ReconstructOptions {
+            tile: 1024,
+            overlap: RECEPTIVE_RADIUS,
+            border: BORDER,
+            negatives: Negatives::Clamp,
+        }
     }
 }
 
@@ -68,7 +82,7 @@ impl Default for ReconstructOptions {
 pub struct ReconstructReport {
     pub rows: usize,
     pub cols: usize,
-    /// Size after padding to multiples of 16.
+    /// Size fed to the network: the border context added, then padded to multiples of 16.
     pub padded_rows: usize,
     pub padded_cols: usize,
     /// Network passes (1 when the image fits in one tile).
@@ -123,11 +137,31 @@ pub fn read_capture(path: &Path) -> Result<Array3<f32>> {
     }
 }
 
-/// Pads `x` at the bottom and right by edge replication to multiples of 16.
-fn pad_to_multiple(x: &Array3<f32>) -> Array3<f32> {
+/// Index `i` (counted from `-border`) of a mirrored axis of length `n`: `x[-i] = x[i]` and
+/// `x[n - 1 + i] = x[n - 1 - i]`, repeated with period `2 (n - 1)` for a context wider than
+/// the axis.
+fn mirror(i: usize, border: usize, n: usize) -> usize {
+    if n == 1 {
+        return 0;
+    }
+    let period = 2 * (n - 1);
+    let r = (i + period * border.div_ceil(period) - border) % period;
+    if r < n {
+        r
+    } else {
+        period - r
+    }
+}
+
+/// `x` mirrored by `border` pixels on every side and further at the bottom and right up to
+/// multiples of 16.
+fn pad_mirrored(x: &Array3<f32>, border: usize) -> Array3<f32> {
     let (h, w, c) = x.dim();
-    let (ph, pw) = (h.next_multiple_of(SIZE_MULTIPLE), w.next_multiple_of(SIZE_MULTIPLE));
-    Array3::from_shape_fn((ph, pw, c), |(i, j, k)| x[[i.min(h - 1), j.min(w - 1), k]])
+    let (ph, pw) =
+        ((h + 2 * border).next_multiple_of(SIZE_MULTIPLE), (w + 2 * border).next_multiple_of(SIZE_MULTIPLE));
+    let rows: Vec<usize> = (0..ph).map(|i| mirror(i, border, h)).collect();
+    let cols: Vec<usize> = (0..pw).map(|j| mirror(j, border, w)).collect();
+    Array3::from_shape_fn((ph, pw, c), |(i, j, k)| x[[rows[i], cols[j], k]])
 }
 
 /// Tile windows along one axis of length `n`: `(window_start, window_end, core_start,
@@ -193,10 +227,11 @@ pub fn reconstruct(
             opts.overlap
         ));
     }
-    let padded = pad_to_multiple(x);
+    let padded = pad_mirrored(x, opts.border);
     let (ph, pw, _) = padded.dim();
     let (y, tiles) = infer_tiled(net, &padded, opts.tile, opts.overlap)?;
-    let mut y = y.slice(s![..h, ..w, ..]).to_owned();
+    let b = opts.border;
+    let mut y = y.slice(s![b..b + h, b..b + w, ..]).to_owned();
     let values_below_zero = y.iter().filter(|&&v| v < 0.0).count();
     let values_below_minus_one = y.iter().filter(|&&v| v < -1.0).count();
     let min_raw = y.iter().copied().fold(f32::INFINITY, f32::min);
@@ -280,6 +315,24 @@ pub fn reconstruct_file(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn mirrored_padding_reflects_without_repeating_the_edge() {
+        let x = Array3::from_shape_fn((3, 5, 1), |(i, j, _)| (10 * i + j) as f32);
+        let p = pad_mirrored(&x, 2);
+        assert_eq!(p.dim(), (16, 16, 1));
+        let row: Vec<f32> = (0..9).map(|j| p[[2, j, 0]]).collect();
+        assert_eq!(row, [2.0, 1.0, 0.0, 1.0, 2.0, 3.0, 4.0, 3.0, 2.0]);
+        let col: Vec<f32> = (0..16).map(|i| p[[i, 2, 0]]).collect();
+        // Rows -2..14 of a 3-row axis: period 4.
+        assert_eq!(
+            col,
+            [20.0, 10.0, 0.0, 10.0, 20.0, 10.0, 0.0, 10.0, 20.0, 10.0, 0.0, 10.0, 20.0, 10.0, 0.0, 10.0]
+        );
+        assert_eq!(pad_mirrored(&x, 0).slice(s![..3, ..5, ..]), x);
+        let one = Array3::from_elem((1, 1, 1), 7.0f32);
+        assert!(pad_mirrored(&one, 40).iter().all(|&v| v == 7.0));
+    }
 
     #[test]
     fn windows_cover_the_axis_with_aligned_cores() {
