@@ -552,6 +552,10 @@ enum Command {
         /// Leave out equirectangular panoramas narrower than this (pixels).
         #[arg(long, default_value_t = 1024)]
         min_panorama_width: usize,
+        /// Largest white-balance gain of the training views' colour jitter: each channel's gain
+        /// is log-uniform in [1/G, G] (2 spans the casts of unbalanced sensor RGB).
+        #[arg(long, default_value_t = doefab::decoder::dataset::WHITE_BALANCE)]
+        white_balance: f64,
         /// Output folder: checkpoint, decoder, training curve.
         #[arg(short, long)]
         output: PathBuf,
@@ -1666,6 +1670,7 @@ fn finetune(cli: &Cli) -> Result<()> {
         validation_data,
         holdout_every,
         min_panorama_width,
+        white_balance,
         output,
         resume,
         steps,
@@ -1698,6 +1703,7 @@ fn finetune(cli: &Cli) -> Result<()> {
         validation_data: validation_data.clone(),
         holdout_every: *holdout_every,
         min_panorama_width: *min_panorama_width,
+        white_balance: *white_balance,
         output: output.clone(),
         resume: *resume,
         lr: *lr,

@@ -23,8 +23,12 @@
 //! * *Augmentation* (the paper's: crops, rescaling, flips, hue and saturation): a rotation of
 //!   the chroma about the grey axis by an angle in +-15 degrees, a saturation factor in
 //!   `[0.7, 1.3]` about the luminance `L = 0.2126 R + 0.7152 G + 0.0722 B`, and a white-balance
-//!   gain per channel in `[0.85, 1.18]` (log-symmetric, so no colour is favoured on average);
-//!   negative values made by the rotation are clipped to 0. Flips are applied by the trainer.
+//!   gain per channel, log-uniform in `[1/g, g]` (so no colour is favoured on average) with `g`
+//!   = [`HdrScenes::white_balance`], by default [`WHITE_BALANCE`] = 2: a capture is the
+//!   sensor's unbalanced RGB, whose channel means differ threefold in the paper's Kitchen
+//!   (1.55 : 0.93 : 0.52), so the training views must span such casts (with `g` = 1.18 the ratio
+//!   of two channels never passes 1.4). Negative values made by the rotation are clipped to 0.
+//!   Flips are applied by the trainer.
 
 use std::path::{Path, PathBuf};
 
@@ -187,12 +191,17 @@ pub fn training_and_validation(
     Ok((train, val))
 }
 
+/// Default largest white-balance gain of the colour jitter (see the module docs).
+pub const WHITE_BALANCE: f64 = 2.0;
+
 /// Random views of real HDR images (see the module docs).
 pub struct HdrScenes {
     name: String,
     images: Vec<HdrImage>,
     /// Whether to jitter colour (hue, saturation, white balance).
     pub colour_jitter: bool,
+    /// Largest white-balance gain `g`: each channel's gain is log-uniform in `[1/g, g]`.
+    pub white_balance: f64,
 }
 
 impl HdrScenes {
@@ -201,7 +210,7 @@ impl HdrScenes {
         if images.is_empty() {
             return Err(Error::Data(format!("{name}: no images")));
         }
-        Ok(HdrScenes { name: name.into(), images, colour_jitter: true })
+        Ok(HdrScenes { name: name.into(), images, colour_jitter: true, white_balance: WHITE_BALANCE })
     }
 
     /// The images' names.
@@ -213,8 +222,12 @@ impl HdrScenes {
 impl SceneSource for HdrScenes {
     fn describe(&self) -> String {
         let panoramas = self.images.iter().filter(|i| i.is_panorama()).count();
+        let jitter = match self.colour_jitter {
+            true => format!("; colour jitter, white-balance gains in [1/{0}, {0}]", self.white_balance),
+            false => String::new(),
+        };
         format!(
-            "{} ({} real HDR images: {} photographs, {} panoramas as perspective views)",
+            "{} ({} real HDR images: {} photographs, {} panoramas as perspective views{jitter})",
             self.name,
             self.images.len(),
             self.images.len() - panoramas,
@@ -234,7 +247,7 @@ impl SceneSource for HdrScenes {
             photo_crop(&img.pixels, rng, rows, cols)
         };
         if self.colour_jitter {
-            jitter_colour(&mut out, rng);
+            jitter_colour(&mut out, rng, self.white_balance);
         }
         if out.iter().all(|&v| v == 0.0) {
             return Err(Error::Data(format!("{}: a black view was drawn", img.name)));
@@ -328,10 +341,10 @@ pub fn perspective_view(
 }
 
 /// Hue rotation, saturation and white-balance jitter (see the module docs).
-fn jitter_colour(img: &mut Array3<f32>, rng: &mut Lcg) {
+fn jitter_colour(img: &mut Array3<f32>, rng: &mut Lcg, white_balance: f64) {
     let angle = (rng.uniform() * 2.0 - 1.0) * 15f64.to_radians();
     let sat = 0.7 + 0.6 * rng.uniform();
-    let gains: Vec<f64> = (0..3).map(|_| ((rng.uniform() * 2.0 - 1.0) * 1.18f64.ln()).exp()).collect();
+    let gains: Vec<f64> = (0..3).map(|_| ((rng.uniform() * 2.0 - 1.0) * white_balance.ln()).exp()).collect();
     // Rotation about the grey axis (1, 1, 1)/sqrt(3) by `angle` (Rodrigues' formula).
     let (s, c) = angle.sin_cos();
     let (a, b) = ((1.0 - c) / 3.0, s / 3f64.sqrt());
@@ -396,7 +409,7 @@ mod tests {
         for _ in 0..400 {
             let mut img = Array3::from_elem((2, 2, 3), 1.0f32);
             img[[0, 0, 0]] = 5.0;
-            jitter_colour(&mut img, &mut rng);
+            jitter_colour(&mut img, &mut rng, 1.18);
             assert!(img.iter().all(|&v| v >= 0.0 && v.is_finite()));
             for c in 0..3 {
                 sums[c] += img[[1, 1, c]] as f64;
@@ -406,5 +419,26 @@ mod tests {
         for s in sums {
             assert!((s / mean - 1.0).abs() < 0.03, "{sums:?}");
         }
+    }
+
+    /// The largest red/blue ratio a grey pixel reaches over many draws: near `g^2` (times the
+    /// hue rotation's small share), so `g` = 2 spans the threefold casts of real sensor RGB
+    /// where 1.18 does not.
+    #[test]
+    fn white_balance_gains_span_the_casts_of_sensor_rgb() {
+        let widest = |g: f64| {
+            let mut rng = Lcg(8);
+            (0..2000)
+                .map(|_| {
+                    let mut img = Array3::from_elem((1, 1, 3), 1.0f32);
+                    jitter_colour(&mut img, &mut rng, g);
+                    (img[[0, 0, 0]] / img[[0, 0, 2]]) as f64
+                })
+                .fold(0.0, f64::max)
+        };
+        let (narrow, wide) = (widest(1.18), widest(WHITE_BALANCE));
+        eprintln!("largest R/B of a grey pixel: {narrow:.2} (g 1.18), {wide:.2} (g 2)");
+        assert!(narrow < 1.6, "{narrow}");
+        assert!(wide > 3.0 && wide < 4.5, "{wide}");
     }
 }

@@ -898,6 +898,9 @@ pub struct FinetuneJob {
     pub holdout_every: usize,
     /// Panoramas narrower than this are not used (see [`crate::decoder::dataset`]).
     pub min_panorama_width: usize,
+    /// Largest white-balance gain of the training views' colour jitter
+    /// ([`crate::decoder::dataset::HdrScenes::white_balance`]).
+    pub white_balance: f64,
     pub output: PathBuf,
     /// Continue the checkpoint in `output` (to `cfg.steps`, at `lr` when given).
     pub resume: bool,
@@ -933,13 +936,20 @@ pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Resul
     let psf_sha = crate::io::file_sha256(&job.psf)?;
     let procedural =
         GeneratedScenes { name: "procedural HDR scenes", generate: crate::decoder::scenes::procedural_scene };
+    if !(job.white_balance >= 1.0 && job.white_balance.is_finite()) {
+        return Err(Error::param("white_balance", format!("{} must be finite and >= 1", job.white_balance)));
+    }
     let real = match &job.data {
-        Some(dir) => Some(training_and_validation(
-            dir,
-            job.validation_data.as_deref(),
-            job.holdout_every,
-            job.min_panorama_width,
-        )?),
+        Some(dir) => {
+            let (mut t, v) = training_and_validation(
+                dir,
+                job.validation_data.as_deref(),
+                job.holdout_every,
+                job.min_panorama_width,
+            )?;
+            t.white_balance = job.white_balance;
+            Some((t, v))
+        }
         None => None,
     };
     let (source, validation): (&dyn SceneSource, Option<&dyn SceneSource>) = match &real {
