@@ -1,8 +1,8 @@
 //! The `doefab` command line end to end: the fabrication chain, the single steps, bad input.
 
-mod common;
+use crate::common;
 
-use common::{fails, ok};
+use crate::common::{fails, ok};
 
 use std::path::{Path, PathBuf};
 

@@ -1,7 +1,7 @@
 //! Optics stage: analytic truths (Airy pattern, grating orders), energy conservation,
 //! agreement between the propagation methods, validity guards, the shared measured PSF.
 
-mod common;
+use crate::common;
 
 use doefab::fabrication::quantize::order_efficiency;
 use doefab::grid::{Grid, Unit};

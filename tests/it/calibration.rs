@@ -1,9 +1,9 @@
 //! Calibration stage: HDR merge of the paper's real brackets, Debevec-Malik response recovery,
 //! PSF calibration from synthetic pinhole brackets of a known PSF, PSNR and registration.
 
-mod common;
+use crate::common;
 
-use common::doefab;
+use crate::common::doefab;
 
 use std::path::PathBuf;
 

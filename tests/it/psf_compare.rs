@@ -1,9 +1,9 @@
 //! `doefab psf-compare` end to end: the files `doefab psf` writes read back through both
 //! formats, the paper's measured PSF against a simulated one, bad input.
 
-mod common;
+use crate::common;
 
-use common::{fails, ok};
+use crate::common::{fails, ok};
 
 use std::path::{Path, PathBuf};
 

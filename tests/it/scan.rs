@@ -13,7 +13,7 @@
 //! (itself within a count) is then within three counts: Sa..Sz are held to 3 counts, Ssk and Sku
 //! to 6 counts / Sq relative.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

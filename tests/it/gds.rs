@@ -3,7 +3,7 @@
 //! 8190-vertex limit, have no holes and do not overlap, and the alignment crosses are the
 //! same on every layer.
 
-mod common;
+use crate::common;
 
 use doefab::rng::Lcg;
 use std::collections::BTreeMap;

@@ -3,7 +3,7 @@
 //! format, and bad input: cut files, wrong magic, wrong shapes, missing pitch or unit,
 //! implausible units, ragged text.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

@@ -4,7 +4,7 @@
 //! The shared data set sits beside the checkout (`../shared`), or where `DOEFAB_SHARED` points;
 //! tests that need it say so and return when it is absent.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -1,9 +1,9 @@
 //! `doefab compare` through its files: a simulated scan of the built-in design compared with
 //! it, the part in the design frame read back and handed to `doefab psf`, and the refusals.
 
-mod common;
+use crate::common;
 
-use common::doefab;
+use crate::common::doefab;
 
 use std::path::Path;
 

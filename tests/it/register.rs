@@ -1,8 +1,8 @@
 //! `doefab simulate-scan` through its files, and registration of what it wrote to the design.
 
-mod common;
+use crate::common;
 
-use common::doefab;
+use crate::common::doefab;
 
 use doefab::design::PAPER_PITCH;
 use doefab::fabrication::chain::{load_design, DesignSource};

@@ -3,7 +3,7 @@
 //! positive volume, with its volume, bounds and face count; the header is read byte for byte.
 //! Volumes are compared with the analytic value in the file's unit.
 
-mod common;
+use crate::common;
 
 use doefab::rng::Lcg;
 use std::path::{Path, PathBuf};

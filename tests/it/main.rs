@@ -1,0 +1,20 @@
+//! The integration tests: one binary of topic modules (as ripgrep's), so the library and
+//! its decoder framework are linked once. `tests/fuzz_regressions.rs` stays apart: it installs
+//! a counting global allocator.
+
+mod common;
+
+mod calibration;
+mod cli;
+mod compare;
+mod decoder;
+mod gds;
+mod io;
+mod level;
+mod optics;
+mod optics_plan;
+mod psf_compare;
+mod register;
+mod scan;
+mod scan_bad;
+mod stl;
