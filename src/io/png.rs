@@ -74,7 +74,13 @@ pub fn decode_png(path: &Path, bytes: &[u8]) -> Result<RawMap> {
                 ),
             ));
         }
-        let mut buf = vec![0u8; reader.output_buffer_size()];
+        let size = reader.output_buffer_size().ok_or_else(|| {
+            Error::format(
+                path,
+                format!("byte offset 16: IHDR says {w} x {h}, too large an image for this machine"),
+            )
+        })?;
+        let mut buf = vec![0u8; size];
         let frame = reader.next_frame(&mut buf).map_err(|e| fail("cannot read the image data", e))?;
         reader.finish().map_err(|e| fail("cannot read the chunks after the image data", e))?;
         let line = frame.line_size;
@@ -150,7 +156,7 @@ fn encode(
         let mut enc = png::Encoder::new(&mut out, w32, h32);
         enc.set_color(color);
         enc.set_depth(depth);
-        enc.set_compression(png::Compression::Default);
+        enc.set_compression(png::Compression::Balanced);
         for (k, v) in meta.key_values(path)? {
             let latin1 = |s: &str| s.chars().all(|c| (c as u32) < 256);
             if k.is_empty() || k.len() > 79 || !latin1(&k) {
@@ -250,7 +256,7 @@ mod tests {
         let meta = Metadata::default().with("ev", "-2");
         let bytes = encode_png_image_u8(Path::new("p.png"), &rgb, &meta).unwrap();
         let mut reader = png::Decoder::new(Cursor::new(bytes)).read_info().unwrap();
-        let mut buf = vec![0; reader.output_buffer_size()];
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
         let frame = reader.next_frame(&mut buf).unwrap();
         assert_eq!((frame.width, frame.height, frame.color_type), (3, 2, png::ColorType::Rgb));
         assert_eq!(&buf[..frame.buffer_size()], rgb.as_slice().unwrap());

@@ -665,7 +665,8 @@ fn merge_writes_a_tone_mapped_png_of_its_exr() {
     let clipped = report["tone_map"]["clipped_fraction"].as_f64().unwrap();
     assert!(clipped > 0.0 && clipped * 21_600.0 <= white as f64, "{clipped}");
 
-    let decoder = png::Decoder::new(std::fs::File::open(&png).unwrap()).read_info().unwrap();
+    let decoder =
+        png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&png).unwrap())).read_info().unwrap();
     let text: Vec<(String, String)> =
         decoder.info().uncompressed_latin1_text.iter().map(|t| (t.keyword.clone(), t.text.clone())).collect();
     let get = |k: &str| text.iter().find(|t| t.0 == k).map(|t| t.1.as_str());
@@ -1213,7 +1214,8 @@ fn the_merge_is_at_the_reference_exposure_and_says_so() {
     let dir = common::tempdir();
     let png = dir.path().join("m.png");
     doefab::calibration::hdr_merge::write_tone_mapped(&png, &m, 0.0, None).unwrap();
-    let decoder = png::Decoder::new(std::fs::File::open(&png).unwrap()).read_info().unwrap();
+    let decoder =
+        png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&png).unwrap())).read_info().unwrap();
     let text: Vec<(String, String)> =
         decoder.info().uncompressed_latin1_text.iter().map(|t| (t.keyword.clone(), t.text.clone())).collect();
     let get = |k: &str| text.iter().find(|t| t.0 == k).map(|t| t.1.clone());
