@@ -562,7 +562,8 @@ enum Command {
         /// Continue the run in the output folder's checkpoint.
         #[arg(long)]
         resume: bool,
-        #[arg(long, default_value_t = 120)]
+        /// Total steps (80: on the paper's real captures, longer runs drift in colour; README).
+        #[arg(long, default_value_t = 80)]
         steps: usize,
         #[arg(long, default_value_t = 4)]
         batch: usize,
