@@ -77,3 +77,62 @@ fn simulate_scan_writes_gsf_and_refuses_other_formats() {
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains(".x3p or .gsf"));
     assert!(!png.exists());
 }
+
+/// An oracle independent of the `Pose` code under test: the design is a closed-form surface
+/// (a sum of Gaussian bumps), and the scan is that same formula evaluated at rotated and
+/// shifted positions, `h(R(-theta) (x_s - t))` with `R` written out by hand here, so no
+/// resampling and no library transform builds the truth. Registration must return `t` and
+/// `theta` (shift to 0.02 px, rotation to 0.01 degree) and a depth scale of 1.
+#[test]
+fn registration_recovers_a_closed_form_shift_and_rotation() {
+    use doefab::rng::Lcg;
+    use doefab::{Grid, Unit};
+    let pitch = 4.29e-6;
+    let n = 256;
+    let mut g = Lcg(21);
+    // (x, y, sigma, amplitude), metres, inside the central 70 %.
+    let bumps: Vec<[f64; 4]> = (0..40)
+        .map(|_| {
+            let r = 0.35 * n as f64 * pitch;
+            [
+                (2.0 * g.uniform() - 1.0) * r,
+                (2.0 * g.uniform() - 1.0) * r,
+                (3.0 + 6.0 * g.uniform()) * pitch,
+                (0.2 + g.uniform()) * 1e-6,
+            ]
+        })
+        .collect();
+    let h = |x: f64, y: f64| -> f64 {
+        bumps
+            .iter()
+            .map(|b| b[3] * (-((x - b[0]).powi(2) + (y - b[1]).powi(2)) / (2.0 * b[2] * b[2])).exp())
+            .sum()
+    };
+    // Grid convention: x along columns, y along rows, metres from the grid's centre.
+    let centred = |i: usize| (i as f64 - (n as f64 - 1.0) / 2.0) * pitch;
+    let design = Grid::new(
+        ndarray::Array2::from_shape_fn((n, n), |(i, j)| h(centred(j), centred(i))),
+        [pitch; 2],
+        Unit::Metre,
+    )
+    .unwrap();
+    let (t, theta) = ([2.37 * pitch, -1.61 * pitch], 0.8f64.to_radians());
+    let (s, c) = theta.sin_cos();
+    let scan = Grid::new(
+        ndarray::Array2::from_shape_fn((n, n), |(i, j)| {
+            let (u, v) = (centred(j) - t[0], centred(i) - t[1]);
+            h(c * u + s * v, -s * u + c * v)
+        }),
+        [pitch; 2],
+        Unit::Metre,
+    )
+    .unwrap();
+    let r = register(&design, &scan, &RegisterOptions::default()).unwrap();
+    let e = [(r.pose.shift[0] - t[0]) / pitch, (r.pose.shift[1] - t[1]) / pitch];
+    let rot = (r.pose.rotation - theta).to_degrees();
+    eprintln!("shift error {e:?} px, rotation error {rot:.2e} deg, depth scale {}", r.depth_scale);
+    assert!(!r.pose.mirror && !r.complement, "{r:?}");
+    assert!(e[0].abs() <= 0.02 && e[1].abs() <= 0.02, "shift error {e:?} px; {r:?}");
+    assert!(rot.abs() <= 0.01, "rotation error {rot} deg");
+    assert!((r.depth_scale - 1.0).abs() < 0.005 && (r.pose.scale - 1.0).abs() < 1e-3, "{r:?}");
+}
