@@ -21,6 +21,7 @@
 //! * [`demo`]: every stage on the built-in design (`doefab demo`), no input needed.
 //! * [`report`]: charts and false-colour maps (plotters, embedded font), tone mapping.
 //! * [`rng`]: the seeded generator behind every stochastic step.
+//! * [`linalg`]: dense linear solves (nalgebra LU) for the least-squares fits.
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
 //! * [`error`]: the library's error type.
 
@@ -32,6 +33,7 @@ pub mod error;
 pub mod fabrication;
 pub mod grid;
 pub mod io;
+pub mod linalg;
 pub mod material;
 pub mod metrology;
 pub mod optics;

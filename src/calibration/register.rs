@@ -33,7 +33,7 @@ use ndarray::{Array2, Array3};
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::metrology::level::solve;
+use crate::linalg::solve;
 use crate::rng::Lcg;
 use rayon::prelude::*;
 

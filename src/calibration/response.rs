@@ -10,7 +10,7 @@
 //! with the hat weight `w(z) = min(z, 255 - z)` and `g''(z) = g(z-1) - 2 g(z) + g(z+1)`. The
 //! curve is fixed by `g(128) = ln(128/255)`, so that a linear camera gives `exp(g(z)) = z/255`
 //! (the scale of linear captures). The normal equations of this sparse least-squares problem
-//! (`256 + N` unknowns) are solved by Gaussian elimination with partial pivoting.
+//! (`256 + N` unknowns) are solved by LU with partial pivoting (`crate::linalg`).
 //!
 //! Validity: the samples must span the curve. The sample pixels are picked from the middle
 //! frame at evenly spaced values, `N >= 2 * 256 / (P - 1)` of them for `P` frames (the paper
@@ -27,7 +27,7 @@ use super::capture::Capture;
 use crate::error::{Error, Result};
 use crate::io::csv::write_csv;
 use crate::io::heightmap::Metadata;
-use crate::metrology::level::solve;
+use crate::linalg::solve;
 
 /// The recovered `g(z) = ln f^-1(z)` per channel, 256 values each.
 #[derive(Debug, Clone, PartialEq, Serialize)]

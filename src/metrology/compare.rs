@@ -501,7 +501,7 @@ fn fit_at_blur(window: &Grid, pts: &[([f64; 2], f64, [f64; 2])], sigma: f64) -> 
             }
         }
     }
-    let x = crate::metrology::level::solve(a.to_vec(), r.to_vec(), 4)?;
+    let x = crate::linalg::solve(a.to_vec(), r.to_vec(), 4)?;
     let x = [x[0] / hu, x[1], x[2] / xu, x[3] / xu];
     // The residuals summed directly (z.z - x.F^T z would cancel catastrophically).
     let (mut sse, mut n) = (0.0, 0usize);

@@ -116,42 +116,7 @@ fn lstsq(points: &[(usize, usize, f64)], m: usize, basis: impl Fn(f64, f64, &mut
             a[r * m + c] = a[c * m + r];
         }
     }
-    solve(a, b, m)
-}
-
-/// Solves the `m x m` system `a x = b` (row-major `a`) by Gaussian elimination with partial
-/// pivoting; refuses pivots below 1e-12 of the largest diagonal entry.
-pub(crate) fn solve(mut a: Vec<f64>, mut b: Vec<f64>, m: usize) -> Result<Vec<f64>> {
-    let scale = (0..m).map(|k| a[k * m + k]).fold(0.0f64, f64::max);
-    // Gaussian elimination with partial pivoting.
-    for col in 0..m {
-        let piv =
-            (col..m).max_by(|&x, &y| a[x * m + col].abs().total_cmp(&a[y * m + col].abs())).unwrap_or(col);
-        if a[piv * m + col].abs() <= 1e-12 * scale {
-            return Err(Error::Data(
-                "the fit is singular: the points do not determine the surface (too few or collinear)".into(),
-            ));
-        }
-        if piv != col {
-            for k in 0..m {
-                a.swap(piv * m + k, col * m + k);
-            }
-            b.swap(piv, col);
-        }
-        for r in col + 1..m {
-            let fct = a[r * m + col] / a[col * m + col];
-            for k in col..m {
-                a[r * m + k] -= fct * a[col * m + k];
-            }
-            b[r] -= fct * b[col];
-        }
-    }
-    let mut x = vec![0.0; m];
-    for r in (0..m).rev() {
-        let s: f64 = (r + 1..m).map(|k| a[r * m + k] * x[k]).sum();
-        x[r] = (b[r] - s) / a[r * m + r];
-    }
-    Ok(x)
+    crate::linalg::solve(a, b, m)
 }
 
 /// Fits the least-squares plane to the valid samples (within `region` when given).
@@ -191,7 +156,7 @@ pub fn fit_plane(g: &Grid, region: Option<&Array2<bool>>) -> Result<Plane> {
     if n < 3.0 {
         return Err(Error::Data(format!("{n} points cannot fix 3 fit coefficients")));
     }
-    let c = solve(vec![n, sx, sy, sx, sxx, sxy, sy, sxy, syy], vec![sz, sxz, syz], 3)?;
+    let c = crate::linalg::solve(vec![n, sx, sy, sx, sxx, sxy, sy, sxy, syy], vec![sz, sxz, syz], 3)?;
     Ok(Plane { a: c[0] - c[1] * jc - c[2] * ic, bx: c[1], by: c[2] })
 }
 

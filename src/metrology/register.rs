@@ -379,10 +379,10 @@ fn level_img(img: &mut Img, w: &[f64]) {
     }
 }
 
-/// Solves the `n x n` system `a x = r` ([`crate::metrology::level::solve`]); `None` where it
+/// Solves the `n x n` system `a x = r` ([`crate::linalg::solve`]); `None` where it
 /// is singular or the solution is not finite.
 fn solve(a: &mut [f64], r: &mut [f64], n: usize) -> Option<Vec<f64>> {
-    let x = crate::metrology::level::solve(a.to_vec(), r.to_vec(), n).ok()?;
+    let x = crate::linalg::solve(a.to_vec(), r.to_vec(), n).ok()?;
     x.iter().all(|v| v.is_finite()).then_some(x)
 }
 
