@@ -7,8 +7,8 @@
 //! `bx`, `by` are heights per pixel and `a` is the plane's height at sample (0, 0) - the form
 //! Gwyddion reports. The polynomial of order k is `sum c_pq u^p v^q` over `p + q <= k`, with
 //! `u = (j - jc) / hj`, `v = (i - ic) / hi` the indices centred and scaled to [-1, 1] (for a
-//! well-conditioned normal matrix). Fits solve the normal equations by Gaussian elimination with
-//! partial pivoting; a singular system (too few or collinear points) is refused.
+//! well-conditioned normal matrix). Fits solve the normal equations by LU with partial pivoting
+//! ([`crate::linalg::solve`]); a singular system (too few or collinear points) is refused.
 //!
 //! **Facet levelling** (the scheme of Gwyddion's "Facet Level", `modules/process/facet-level.c`
 //! with `libprocess/level.c`): on every 2 x 2 cell of valid samples the gradient `g = (gx, gy)`
