@@ -32,6 +32,11 @@ pub enum Error {
     /// A size limit would be exceeded.
     #[error("{0}")]
     Limit(String),
+    /// Options given together that cannot all be honoured (a value refused before any work
+    /// starts, two options that exclude each other, two outputs naming the same file); the
+    /// message names the options as the command line spells them.
+    #[error("{0}")]
+    Options(String),
 }
 
 impl Error {

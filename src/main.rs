@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -698,6 +698,34 @@ struct ReadArgs {
     z_scale: Option<f64>,
 }
 
+impl BracketArgs {
+    /// The bracket as the library takes it.
+    fn options(&self) -> doefab::pipeline::merge::BracketOptions {
+        doefab::pipeline::merge::BracketOptions {
+            files: self.files.clone(),
+            times: self.times.clone(),
+            exposures: self.exposures.clone(),
+            doe_frames: self.doe_frames,
+            dark: self.dark.clone(),
+            noise_floor: self.noise_floor,
+            saturation: self.saturation,
+            listed_times: self.listed_times,
+            reference_exposure: self.reference_exposure.clone(),
+            black_level: self.black_level.clone(),
+        }
+    }
+}
+
+impl ResponseArg {
+    /// The response model as the library takes it.
+    fn model(self) -> doefab::pipeline::merge::ResponseModel {
+        match self {
+            ResponseArg::Linear => doefab::pipeline::merge::ResponseModel::Linear,
+            ResponseArg::Debevec => doefab::pipeline::merge::ResponseModel::Debevec,
+        }
+    }
+}
+
 impl ReadArgs {
     fn options(&self) -> Result<ReadOptions> {
         Ok(ReadOptions {
@@ -755,6 +783,15 @@ fn progress(cli: &Cli, steps: u64) -> ProgressBar {
     pb
 }
 
+/// Shows a library progress callback `(message, done, total)` on a progress bar.
+fn report_to(pb: &ProgressBar) -> impl FnMut(&str, u64, u64) + '_ {
+    move |message, done, total| {
+        pb.set_length(total);
+        pb.set_position(done);
+        pb.set_message(message.to_string());
+    }
+}
+
 fn print_result<T: serde::Serialize>(cli: &Cli, value: &T, human: impl FnOnce()) -> Result<()> {
     if cli.json {
         println!("{}", serde_json::to_string_pretty(value)?);
@@ -785,45 +822,25 @@ fn run(cli: &Cli) -> Result<()> {
             allow_invalid,
             read,
         } => {
-            use doefab::optics::{output as psf_out, plan, spectrum, Method, Options};
-            let loaded = chain::load_design(&DesignSource::parse(design.as_deref(), read.options()?))?;
-            let mut system = psf_out::system_for(&loaded.heights);
-            system.material = doefab::material::Material::by_name(material)?;
-            if let Some(p) = system_file {
-                system = doefab::optics::system::OpticalSystem::read_toml(p, &system)?;
+            use doefab::pipeline::psf;
+            let job = psf::prepare(&psf::PsfOptions {
+                design: DesignSource::parse(design.as_deref(), read.options()?),
+                method: method.clone(),
+                subsample: *subsample,
+                tolerance: *tolerance,
+                response: response.clone(),
+                system: system_file.clone(),
+                material: material.clone(),
+                allow_invalid: *allow_invalid,
+            })?;
+            if *explain {
+                if let Some(text) = job.explain() {
+                    eprint!("{text}");
+                }
             }
-            let report = if let Some(method) = method {
-                if response.is_some() {
-                    bail!("--response needs the automatic plan: leave out --method");
-                }
-                system.subsample = *subsample;
-                let opts = Options { allow_invalid: *allow_invalid, ..Default::default() };
-                psf_out::simulate_and_write(
-                    &loaded.heights,
-                    &system,
-                    Method::from_name(method)?,
-                    &opts,
-                    output,
-                )?
-            } else {
-                let bands = match response {
-                    Some(p) => spectrum::read_response_csv(p)?,
-                    None => Vec::new(),
-                };
-                let plan = plan::plan(&system, &loaded.heights, &bands, *tolerance)?;
-                if *explain {
-                    eprint!("{}", plan.explain());
-                }
-                let pb = progress(cli, 1);
-                pb.set_message(format!(
-                    "PSF by {} ({} wavelengths)",
-                    plan.method,
-                    plan.system.wavelengths.len()
-                ));
-                let r = psf_out::plan_and_write(&loaded.heights, &plan, &bands, output)?;
-                pb.finish_and_clear();
-                r
-            };
+            let pb = progress(cli, 1);
+            let report = job.run(output, &mut report_to(&pb))?;
+            pb.finish_and_clear();
             warn(&report.warnings);
             print_result(cli, &report, || {
                 for c in &report.channels {
@@ -841,50 +858,30 @@ fn run(cli: &Cli) -> Result<()> {
             })
         }
         Command::Merge { bracket, output, response, png, ev, response_out } => {
-            use doefab::calibration::hdr_merge as hm;
-            if response_out.is_some() && *response != ResponseArg::Debevec {
-                bail!(
-                    "--response-out saves the curve that --response debevec recovers; a linear merge \
-                     (the default --response linear) has none"
-                );
-            }
-            if !ev.is_finite() {
-                bail!("--ev must be a finite number of stops, got {ev}");
-            }
-            let png = png.clone().unwrap_or_else(|| output.with_extension("png"));
-            if png == *output || response_out.as_ref().is_some_and(|r| r == output || *r == png) {
-                bail!(
-                    "the EXR ({}), the PNG ({}) and --response-out must be different files",
-                    output.display(),
-                    png.display()
-                );
-            }
-            let merged = merge_bracket(cli, bracket, *response)?;
-            hm::write_merged(output, &merged, None)?;
-            let tone = hm::write_tone_mapped(&png, &merged, *ev, None)?;
-            if let (Some(path), Some(curve)) = (response_out, &merged.response) {
-                curve.write_csv(path)?;
-            }
-            warn(&merged.report.warnings);
-            warn(&tone.warnings);
-            #[derive(serde::Serialize)]
-            struct MergeOutputs<'a> {
-                #[serde(flatten)]
-                report: &'a hm::MergeReport,
-                tone_map: &'a hm::ToneMapReport,
-                response_csv: Option<String>,
-            }
-            let response_csv = response_out.as_ref().map(|p| p.display().to_string());
-            let out = MergeOutputs { report: &merged.report, tone_map: &tone, response_csv };
+            use doefab::pipeline::merge::{merge, MergeOptions};
+            let opts = MergeOptions {
+                bracket: bracket.options(),
+                response: response.model(),
+                output: output.clone(),
+                png: png.clone(),
+                ev: *ev,
+                response_out: response_out.clone(),
+            };
+            let pb = progress(cli, 0);
+            let out = merge(&opts, &mut report_to(&pb))?;
+            pb.finish_and_clear();
+            warn(&out.response_warnings);
+            warn(&out.report.warnings);
+            warn(&out.tone_map.warnings);
             print_result(cli, &out, || {
-                print_merge(&merged.report, output);
+                print_merge(&out.report, output);
                 println!(
                     "  tone-mapped at EV {} ({:.1} % white) -> {}",
-                    tone.ev,
-                    100.0 * tone.clipped_fraction,
-                    png.display()
+                    out.tone_map.ev,
+                    100.0 * out.tone_map.clipped_fraction,
+                    out.png.display()
                 );
-                if let (Some(path), Some(curve)) = (response_out, &merged.response) {
+                if let (Some(path), Some(curve)) = (response_out, &out.response) {
                     let ranges: Vec<String> =
                         curve.observed.iter().map(|[a, b]| format!("{a}..{b}")).collect();
                     println!(
@@ -896,17 +893,21 @@ fn run(cli: &Cli) -> Result<()> {
             })
         }
         Command::CalibratePsf { bracket, output, crop, centre, capture_pitch, sensor_pitch } => {
-            use doefab::calibration::psf_extract as pe;
-            let merged = merge_bracket(cli, bracket, ResponseArg::Linear)?;
-            let opts = pe::PsfOptions {
-                crop: *crop,
-                centre: *centre,
-                capture_pitch: *capture_pitch,
-                sensor_pitch: *sensor_pitch,
-                ..Default::default()
+            use doefab::pipeline::calibrate_psf::{calibrate_psf, CalibrateOptions};
+            let opts = CalibrateOptions {
+                bracket: bracket.options(),
+                psf: doefab::calibration::psf_extract::PsfOptions {
+                    crop: *crop,
+                    centre: *centre,
+                    capture_pitch: *capture_pitch,
+                    sensor_pitch: *sensor_pitch,
+                    ..Default::default()
+                },
+                output: output.clone(),
             };
-            let (psf, mut report) = pe::calibrate_psf(&merged, &opts)?;
-            pe::write_calibration(&psf, &merged, &mut report, output)?;
+            let pb = progress(cli, 0);
+            let report = calibrate_psf(&opts, &mut report_to(&pb))?;
+            pb.finish_and_clear();
             warn(&report.warnings);
             print_result(cli, &report, || print_calibration(&report, output))
         }
@@ -957,14 +958,17 @@ fn run(cli: &Cli) -> Result<()> {
             })
         }
         Command::PsfCompare { a, b, output, pitch, key, radius } => {
-            use doefab::optics::compare::{compare, read_psf, CompareOptions};
-            let opts = CompareOptions { pitch: *pitch, key: key.clone(), radius: *radius };
-            let pa = read_psf(a, &opts)?;
-            let pb = read_psf(b, &opts)?;
-            let r = compare(&pa, &pb, &a.display().to_string(), &b.display().to_string(), &opts)?;
-            if let Some(out) = output {
-                doefab::io::atomic::write_json(out, &r)?;
-            }
+            use doefab::pipeline::psf_compare::{psf_compare, PsfCompareOptions};
+            let r = psf_compare(&PsfCompareOptions {
+                a: a.clone(),
+                b: b.clone(),
+                compare: doefab::optics::compare::CompareOptions {
+                    pitch: *pitch,
+                    key: key.clone(),
+                    radius: *radius,
+                },
+                output: output.clone(),
+            })?;
             warn(&r.warnings);
             print_result(cli, &r, || {
                 if r.window != "same size" {
@@ -993,15 +997,8 @@ fn run(cli: &Cli) -> Result<()> {
         Command::Bench { what: BenchCommand::Decoder { .. } } => bench_decoder(cli),
         Command::Bench { what: BenchCommand::Psf { output } } => {
             let pb = progress(cli, doefab::optics::bench::RUNS as u64);
-            let points = doefab::optics::bench::run_bench(|p| {
-                pb.set_message(format!("{} {} s={}", p.method, p.precision, p.subsample));
-                pb.inc(1);
-            })?;
+            let points = doefab::pipeline::bench::bench_psf(output, &mut report_to(&pb))?;
             pb.finish_and_clear();
-            let mut stage = doefab::io::atomic::StagedDir::new(output)?;
-            doefab::report::psf_charts::write_psf_charts(|n| stage.stage_path(n), &points)?;
-            doefab::io::atomic::write_json(&stage.stage_path("bench_psf.json"), &points)?;
-            stage.commit()?;
             print_result(cli, &points, || {
                 for p in &points {
                     println!(
@@ -1300,57 +1297,6 @@ fn run(cli: &Cli) -> Result<()> {
     }
 }
 
-/// Reads a bracket (files with times, or an exposure list) and its dark frames, and merges it.
-fn merge_bracket(
-    cli: &Cli,
-    b: &BracketArgs,
-    response: ResponseArg,
-) -> Result<doefab::calibration::hdr_merge::Merged> {
-    use doefab::calibration::{capture, hdr_merge, response as dm};
-    let list = capture::resolve_bracket(&capture::BracketSpec {
-        files: b.files.clone(),
-        times: b.times.clone(),
-        exposures: b.exposures.clone(),
-        doe_frames: b.doe_frames,
-        reference_exposure: b.reference_exposure.clone(),
-    })?;
-    let pb = progress(cli, list.frames.len() as u64 + b.dark.len() as u64 + 1);
-    pb.set_message("reading the bracket");
-    let mut frames = Vec::new();
-    for (path, _) in &list.frames {
-        frames.push(capture::read_capture(path)?);
-        pb.inc(1);
-    }
-    let times: Vec<f64> = list.frames.iter().map(|f| f.1).collect();
-    let darks = b.dark.iter().map(|p| capture::read_capture(p)).collect::<doefab::Result<Vec<_>>>()?;
-    pb.inc(b.dark.len() as u64);
-    let dark = (!darks.is_empty()).then(|| hdr_merge::mean_dark(&darks)).transpose()?;
-    let curve = match response {
-        ResponseArg::Linear => None,
-        ResponseArg::Debevec => {
-            pb.set_message("recovering the response");
-            let r = dm::recover_response(&frames, &times, 0, 50.0)?;
-            warn(&r.warnings);
-            Some(r)
-        }
-    };
-    pb.set_message("merging");
-    let opts = hdr_merge::MergeOptions {
-        noise_floor: b.noise_floor,
-        saturation: b.saturation,
-        estimate_times: !b.listed_times,
-        reference_exposure: list.reference_exposure,
-        black_level: if b.black_level.is_empty() {
-            hdr_merge::BlackLevel::Auto
-        } else {
-            hdr_merge::BlackLevel::Fixed(b.black_level.clone())
-        },
-    };
-    let merged = hdr_merge::merge(&frames, &times, dark.as_ref(), curve.as_ref(), &opts)?;
-    pb.finish_and_clear();
-    Ok(merged)
-}
-
 /// How a scene was registered and what is scored (`evaluate`, `bench decoder`).
 fn print_footing(f: &doefab::calibration::evaluate::Footing) {
     if let Some(r) = &f.registration {
@@ -1622,11 +1568,7 @@ fn fab(
 
 fn demo(cli: &Cli, output: &Path) -> Result<()> {
     let pb = progress(cli, 0);
-    let report = doefab::demo::run(output, &mut |message: &str, done, total| {
-        pb.set_length(total);
-        pb.set_position(done);
-        pb.set_message(message.to_string());
-    })?;
+    let report = doefab::demo::run(output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     for r in &report.fabrication {
         warn(&r.warnings);
@@ -1760,10 +1702,7 @@ fn finetune(cli: &Cli) -> Result<()> {
 
 /// `doefab bench decoder`: see [`doefab::decoder::bench`].
 fn bench_decoder(cli: &Cli) -> Result<()> {
-    use doefab::calibration::evaluate::ScoringOptions;
-    use doefab::calibration::register::{Model, RegisterOptions};
-    use doefab::decoder::bench::{run, scene_dirs, BenchConfig, FinetuneBench};
-    use doefab::decoder::finetune::FinetuneConfig;
+    use doefab::pipeline::bench::{bench_decoder, DecoderBenchOptions};
     let Command::Bench {
         what:
             BenchCommand::Decoder {
@@ -1787,58 +1726,28 @@ fn bench_decoder(cli: &Cli) -> Result<()> {
     else {
         unreachable!("called for bench decoder only")
     };
-    let scenes = if scenes.is_empty() { scene_dirs(&data.join("captures"))? } else { scenes.clone() };
-    let decoders = if decoders.is_empty() {
-        vec![PathBuf::from("built-in:paper-simulated-psf"), PathBuf::from("built-in:paper-measured-psf")]
-    } else {
-        decoders.clone()
-    };
-    let evaluate_every = evaluate_every.unwrap_or((*steps / 5).max(1));
-    let finetune = (*steps > 0).then(|| FinetuneBench {
-        init: init.clone(),
-        config: FinetuneConfig {
-            steps: *steps,
-            batch: *batch,
-            crop: *crop,
-            lr: *lr,
-            seed: *seed,
-            checkpoint_every: evaluate_every,
-            validation: 4,
-            ..FinetuneConfig::default()
-        },
-        evaluate_every,
-        train_data: train_data.clone(),
-    });
-    let cfg = BenchConfig {
+    let opts = DecoderBenchOptions {
+        data: data.clone(),
         scenes: scenes.clone(),
-        decoders,
-        psf: psf.clone().unwrap_or_else(|| data.join("measured_psf.npz")),
-        psf_key: Some("psf_val".into()),
-        scoring: ScoringOptions {
-            register: RegisterOptions { tile: *tile, model: Model::Local, ..RegisterOptions::default() },
-            min_coverage: *min_coverage,
-            ..ScoringOptions::default()
-        },
-        finetune,
+        decoders: decoders.clone(),
+        psf: psf.clone(),
+        min_coverage: *min_coverage,
+        steps: *steps,
+        init: init.clone(),
+        batch: *batch,
+        crop: *crop,
+        lr: *lr,
+        seed: *seed,
+        evaluate_every: *evaluate_every,
+        train_data: train_data.clone(),
+        tile: *tile,
     };
-    let pb = progress(cli, *steps as u64 + 2 * scenes.len() as u64);
-    let report = run(&cfg, output, &mut |msg, done| {
-        if !msg.is_empty() {
-            pb.set_message(msg.to_string());
-        }
-        pb.inc(done);
-    })?;
+    let pb = progress(cli, 0);
+    let outcome = bench_decoder(&opts, output, &mut report_to(&pb))?;
     pb.finish_and_clear();
-    for s in report.scenes.iter().filter(|s| !s.merge_warnings.is_empty()) {
-        let n = s.merge_warnings.len();
-        eprintln!("warning: {}: the merge of its bracket gave {n} warnings (in report.json)", s.name);
-    }
-    for s in &report.scenes {
-        if let Some(e) = &s.error {
-            eprintln!("warning: scene {} not scored: {e}", s.name);
-        }
-    }
-    print_result(cli, &report, || {
+    warn(&outcome.warnings);
+    let report = &outcome.report;
+    print_result(cli, &outcome, || {
         println!(
             "{:<16} {:<52} {:>8} {:>15} {:>15} {:>9} {:>10}",
             "scene", "decoder", "PSNR-L", "gamma all", "gamma sat.", "scored", "min out"

@@ -1,0 +1,145 @@
+//! `doefab bench psf` and `doefab bench decoder`: the benchmarks with their defaults and
+//! outputs.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::calibration::evaluate::ScoringOptions;
+use crate::calibration::register::{Model, RegisterOptions};
+use crate::decoder::bench::{self, scene_dirs, BenchConfig, BenchReport, FinetuneBench};
+use crate::decoder::finetune::FinetuneConfig;
+use crate::error::Result;
+use crate::io::atomic::{self, StagedDir};
+use crate::optics::bench::{run_bench, BenchPoint, RUNS};
+use crate::report::psf_charts::write_psf_charts;
+
+/// Runs the PSF methods' benchmark ([`crate::optics::bench`]) and writes its charts (PNG,
+/// SVG) and `bench_psf.json` into the folder `output`, all or nothing. Progress: one step per
+/// configuration run.
+pub fn bench_psf(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<Vec<BenchPoint>> {
+    let mut done = 0;
+    let points = run_bench(|p| {
+        done += 1;
+        progress(&format!("{} {} s={}", p.method, p.precision, p.subsample), done, RUNS as u64);
+    })?;
+    let mut stage = StagedDir::new(output)?;
+    write_psf_charts(|n| stage.stage_path(n), &points)?;
+    atomic::write_json(&stage.stage_path("bench_psf.json"), &points)?;
+    stage.commit()?;
+    Ok(points)
+}
+
+/// The decoders' benchmark as the command line states it, before defaults.
+#[derive(Debug, Clone)]
+pub struct DecoderBenchOptions {
+    /// The paper's data release: the default scenes (`captures/<scene>/`) and
+    /// `measured_psf.npz`.
+    pub data: PathBuf,
+    /// Scene folders; empty: every folder under `<data>/captures`.
+    pub scenes: Vec<PathBuf>,
+    /// Decoders to score; empty: the paper's two built-in decoders.
+    pub decoders: Vec<PathBuf>,
+    /// The measured PSF; `None`: `<data>/measured_psf.npz` (array `psf_val`).
+    pub psf: Option<PathBuf>,
+    /// Smallest fraction of a scene that must be registered.
+    pub min_coverage: f64,
+    /// Fine-tuning steps of `init` on the PSF (0: no fine-tuning).
+    pub steps: usize,
+    /// The decoder to fine-tune.
+    pub init: PathBuf,
+    /// Batch size of the fine-tuning.
+    pub batch: usize,
+    /// Training crop side, pixels (a multiple of 16).
+    pub crop: usize,
+    /// Adam step size.
+    pub lr: f64,
+    pub seed: u64,
+    /// Score the decoder being fine-tuned every this many steps; `None`: a fifth of the run.
+    pub evaluate_every: Option<usize>,
+    /// HDR images to fine-tune on; `None`: procedural scenes.
+    pub train_data: Option<PathBuf>,
+    /// Tile side of the registration, pixels.
+    pub tile: usize,
+}
+
+/// The benchmark's report (serialised as it is) and the warnings about its scenes.
+#[derive(Debug, Serialize)]
+#[serde(transparent)]
+pub struct DecoderBenchOutcome {
+    pub report: BenchReport,
+    /// Scenes whose bracket merged with warnings, and scenes refused.
+    #[serde(skip)]
+    pub warnings: Vec<String>,
+}
+
+/// The benchmark's settings with the defaults filled in (lists the scene folders under
+/// `<data>/captures` when no scene is given).
+pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
+    let scenes = if o.scenes.is_empty() { scene_dirs(&o.data.join("captures"))? } else { o.scenes.clone() };
+    let decoders = if o.decoders.is_empty() {
+        vec![PathBuf::from("built-in:paper-simulated-psf"), PathBuf::from("built-in:paper-measured-psf")]
+    } else {
+        o.decoders.clone()
+    };
+    let evaluate_every = o.evaluate_every.unwrap_or((o.steps / 5).max(1));
+    let finetune = (o.steps > 0).then(|| FinetuneBench {
+        init: o.init.clone(),
+        config: FinetuneConfig {
+            steps: o.steps,
+            batch: o.batch,
+            crop: o.crop,
+            lr: o.lr,
+            seed: o.seed,
+            checkpoint_every: evaluate_every,
+            validation: 4,
+            ..FinetuneConfig::default()
+        },
+        evaluate_every,
+        train_data: o.train_data.clone(),
+    });
+    Ok(BenchConfig {
+        scenes,
+        decoders,
+        psf: o.psf.clone().unwrap_or_else(|| o.data.join("measured_psf.npz")),
+        psf_key: Some("psf_val".into()),
+        scoring: ScoringOptions {
+            register: RegisterOptions { tile: o.tile, model: Model::Local, ..RegisterOptions::default() },
+            min_coverage: o.min_coverage,
+            ..ScoringOptions::default()
+        },
+        finetune,
+    })
+}
+
+/// Runs the decoders' benchmark ([`crate::decoder::bench::run`]) with the defaults filled in,
+/// writing into the folder `output`. Progress: the fine-tuning steps and two steps a scene.
+pub fn bench_decoder(
+    o: &DecoderBenchOptions,
+    output: &Path,
+    progress: &mut dyn FnMut(&str, u64, u64),
+) -> Result<DecoderBenchOutcome> {
+    let cfg = decoder_bench_config(o)?;
+    let total = o.steps as u64 + 2 * cfg.scenes.len() as u64;
+    let mut done = 0;
+    let mut message = String::new();
+    progress("", 0, total);
+    let report = bench::run(&cfg, output, &mut |msg, n| {
+        if !msg.is_empty() {
+            message = msg.to_string();
+        }
+        done += n;
+        progress(&message, done, total);
+    })?;
+    let mut warnings = Vec::new();
+    for s in report.scenes.iter().filter(|s| !s.merge_warnings.is_empty()) {
+        let n = s.merge_warnings.len();
+        warnings.push(format!("{}: the merge of its bracket gave {n} warnings (in report.json)", s.name));
+    }
+    for s in &report.scenes {
+        if let Some(e) = &s.error {
+            warnings.push(format!("scene {} not scored: {e}", s.name));
+        }
+    }
+    Ok(DecoderBenchOutcome { report, warnings })
+}

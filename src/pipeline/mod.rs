@@ -1,0 +1,20 @@
+//! The commands that take more than one library call, each a function from typed options to a
+//! typed, serialisable result: the orchestration the command line runs, usable without it.
+//!
+//! Progress goes through a callback `(message, done, total)`, as in [`crate::demo::run`];
+//! warnings come back in the results, for the caller to show.
+//!
+//! * [`merge`]: an exposure bracket and its dark frames -> HDR merge (`doefab merge`), with
+//!   the tone-mapped picture and the recovered response.
+//! * [`calibrate_psf`]: a pinhole bracket -> the measured PSF (`doefab calibrate-psf`).
+//! * [`psf`]: the simulated PSF of a design by the automatic plan or a forced method
+//!   (`doefab psf`).
+//! * [`psf_compare`]: two PSF files compared (`doefab psf-compare`).
+//! * [`bench`]: the PSF methods' benchmark and the decoders' benchmark on real captures
+//!   (`doefab bench psf`, `doefab bench decoder`).
+
+pub mod bench;
+pub mod calibrate_psf;
+pub mod merge;
+pub mod psf;
+pub mod psf_compare;

@@ -1,0 +1,106 @@
+//! `doefab psf`: the RGB PSF of a design in the paper's camera, by the automatic plan
+//! ([`crate::optics::plan`], optionally over a sensor's spectral response) or by a forced
+//! method at the DOE's pitch; EXR, NPY, log-scale PNG and a JSON summary.
+//!
+//! In two steps, [`prepare`] then [`PsfJob::run`], so that the plan can be shown before the
+//! simulation runs.
+
+use std::path::{Path, PathBuf};
+
+use crate::error::{Error, Result};
+use crate::fabrication::chain::{self, DesignSource};
+use crate::grid::Grid;
+use crate::material::Material;
+use crate::optics::output::{self, PsfReport};
+use crate::optics::plan::{self, Plan};
+use crate::optics::spectrum::{self, Band};
+use crate::optics::system::OpticalSystem;
+use crate::optics::{Method, Options};
+
+/// The design, the optical system and how to simulate.
+#[derive(Debug, Clone)]
+pub struct PsfOptions {
+    /// The height map (file or built-in).
+    pub design: DesignSource,
+    /// Force a method by name (`matrix_dft`, `fresnel`, `angular_spectrum`,
+    /// `rayleigh_sommerfeld`) at the DOE's pitch; `None`: the automatic plan.
+    pub method: Option<String>,
+    /// Sub-samples per pixel and axis, with a forced method.
+    pub subsample: usize,
+    /// The plan's tolerance: relative L2 error per channel.
+    pub tolerance: f64,
+    /// Sensor spectral response CSV (plan only).
+    pub response: Option<PathBuf>,
+    /// Optical system TOML; unset fields keep the paper's values.
+    pub system: Option<PathBuf>,
+    /// Material of the DOE, by name.
+    pub material: String,
+    /// Run a forced method even where its validity conditions fail (recorded as warnings).
+    pub allow_invalid: bool,
+}
+
+/// A loaded design with its optical system and the way it will be simulated.
+#[derive(Debug, Clone)]
+pub struct PsfJob {
+    heights: Grid,
+    how: How,
+}
+
+#[derive(Debug, Clone)]
+enum How {
+    Method { system: OpticalSystem, method: Method, options: Options },
+    Plan { plan: Box<Plan>, bands: Vec<Band> },
+}
+
+/// Loads the design and the optical system and, without a forced method, plans the
+/// simulation. A spectral response with a forced method is refused ([`Error::Options`]).
+pub fn prepare(opts: &PsfOptions) -> Result<PsfJob> {
+    let loaded = chain::load_design(&opts.design)?;
+    let mut system = output::system_for(&loaded.heights);
+    system.material = Material::by_name(&opts.material)?;
+    if let Some(p) = &opts.system {
+        system = OpticalSystem::read_toml(p, &system)?;
+    }
+    let how = if let Some(method) = &opts.method {
+        if opts.response.is_some() {
+            return Err(Error::Options("--response needs the automatic plan: leave out --method".into()));
+        }
+        system.subsample = opts.subsample;
+        let options = Options { allow_invalid: opts.allow_invalid, ..Default::default() };
+        How::Method { system, method: Method::from_name(method)?, options }
+    } else {
+        let bands = match &opts.response {
+            Some(p) => spectrum::read_response_csv(p)?,
+            None => Vec::new(),
+        };
+        let plan = plan::plan(&system, &loaded.heights, &bands, opts.tolerance)?;
+        How::Plan { plan: Box::new(plan), bands }
+    };
+    Ok(PsfJob { heights: loaded.heights, how })
+}
+
+impl PsfJob {
+    /// The plan's choices and the condition that bounds each; `None` with a forced method.
+    pub fn explain(&self) -> Option<String> {
+        match &self.how {
+            How::Plan { plan, .. } => Some(plan.explain()),
+            How::Method { .. } => None,
+        }
+    }
+
+    /// Simulates and writes the outputs into the folder `output`; the report carries the
+    /// warnings. Progress: one step, the planned simulation (none with a forced method).
+    pub fn run(&self, output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<PsfReport> {
+        match &self.how {
+            How::Method { system, method, options } => {
+                output::simulate_and_write(&self.heights, system, *method, options, output)
+            }
+            How::Plan { plan, bands } => {
+                let message =
+                    format!("PSF by {} ({} wavelengths)", plan.method, plan.system.wavelengths.len());
+                progress(&message, 0, 1);
+                output::plan_and_write(&self.heights, plan, bands, output)
+            }
+        }
+    }
+}
