@@ -1,0 +1,138 @@
+//! The command line's grammar: the commands, and the arguments several commands share (each
+//! command's own arguments are in its stage's module).
+
+use anyhow::Result;
+use clap::{Args, Parser, Subcommand};
+
+use doefab::io::heightmap::ReadOptions;
+use doefab::units::{clap_length, length_unit};
+
+use super::calibration::{CalibratePsfArgs, EvaluateArgs, MergeArgs};
+use super::decoder::{BenchDecoderArgs, FinetuneArgs, ReconstructArgs};
+use super::demo::DemoArgs;
+use super::fabrication::{FabArgs, GdsArgs, MaskArgs, QuantizeArgs, StlArgs, WrapArgs};
+use super::metrology::{CompareArgs, ScanInfoArgs, SimulateScanArgs};
+use super::optics::{BenchPsfArgs, PsfArgs, PsfCompareArgs};
+
+#[derive(Parser)]
+#[command(name = "doefab", version, about = "From a learned DOE design to a fabricated part", long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+    /// No progress bars and no summaries; errors and warnings still go to stderr.
+    #[arg(long, short, global = true)]
+    pub quiet: bool,
+    /// Print the result as JSON on stdout.
+    #[arg(long, global = true)]
+    pub json: bool,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Simulate the RGB PSF of a height map in the paper's camera: EXR, NPY (H, W, 1, 3),
+    /// log-scale PNG and a JSON summary.
+    Psf(PsfArgs),
+    /// Merge an exposure bracket of linear (or, with --response debevec, non-linear 8-bit)
+    /// captures into an HDR radiance image (OpenEXR, channels R, G, B).
+    Merge(MergeArgs),
+    /// The measured PSF from a pinhole bracket: merge, dark and background, hot pixels,
+    /// centring, crop, normalisation. Writes psf.exr, psf.npy (H, W, 1, C), psf_log.png,
+    /// merged.exr and psf.json.
+    CalibratePsf(CalibratePsfArgs),
+    /// PSNR of reconstructions against a reference HDR image, linear and gamma (sqrt), over the
+    /// registered pixels and the saturated ones: the reference is registered onto the capture
+    /// once (through the PSF) and every reconstruction is scored on the same pixels.
+    Evaluate(EvaluateArgs),
+    /// Compare two PSFs (design, as-fabricated, measured): each one's peaks, encircled energy
+    /// and centroid per channel, and the relative L2 after centroid alignment.
+    PsfCompare(PsfCompareArgs),
+    /// Benchmarks with charts.
+    Bench {
+        #[command(subcommand)]
+        what: BenchCommand,
+    },
+    /// Run every stage on the built-in example design (no input needed).
+    Demo(DemoArgs),
+    /// The whole fabrication chain for a recipe: wrap, quantize, masks, GDSII, STL, report.
+    Fab(FabArgs),
+    /// Wrap heights modulo p * 2 pi at the design wavelength (optionally as the replica master).
+    Wrap(WrapArgs),
+    /// Quantize wrapped heights to N levels and predict the diffraction efficiency.
+    Quantize(QuantizeArgs),
+    /// Grayscale lithography mask (PNG or TIFF by extension) with a JSON sidecar.
+    Mask(MaskArgs),
+    /// Multi-level binary mask set (log2 N layers) as one GDSII file, with layer previews.
+    Gds(GdsArgs),
+    /// Watertight binary STL of a level map or of wrapped heights.
+    Stl(StlArgs),
+    /// A synthetic fabricated scan of a design (.x3p or .gsf): lateral blur, depth scale,
+    /// offset, tilt, placement (rotation, shift, scale, mirror), complement, noise, missing points.
+    SimulateScan(SimulateScanArgs),
+    /// Compare a scan of the fabricated part with its design: registration, difference map,
+    /// RMS/PV error, level step heights, fabrication model (depth scale, offset, blur),
+    /// efficiency loss, design vs as-fabricated PSF; JSON, maps, profiles, histogram and the
+    /// part in the design frame (surface.exr, readable by `doefab psf`). Exit status 3 when the
+    /// scan cannot be registered to the design (no match, ambiguous or featureless).
+    Compare(CompareArgs),
+    /// What a profilometer scan holds: size, pitch, units, valid fraction, warnings, ISO 25178
+    /// height parameters (raw and after removing the least-squares plane).
+    ScanInfo(ScanInfoArgs),
+    /// Reconstruct the linear HDR image of a capture through the DOE with a decoder: EXR plus a
+    /// tone-mapped PNG.
+    Reconstruct(ReconstructArgs),
+    /// Fine-tune a decoder for a fixed PSF (the measured PSF of a fabricated part).
+    Finetune(FinetuneArgs),
+}
+
+#[derive(Subcommand)]
+// Parsed once per run: the size of the larger variant costs nothing.
+#[allow(clippy::large_enum_variant)]
+pub enum BenchCommand {
+    /// Error against run time of every PSF method, precision and sub-sampling on a small
+    /// scene, and error against pupil sampling with the guard's refusals: PNG + SVG + JSON.
+    Psf(BenchPsfArgs),
+    /// Decoders on real captures: each scene's reference is registered onto its capture once
+    /// (through the measured PSF), and the capture and every decoder are scored on the same
+    /// pixels (PSNR-L, PSNR-gamma over all and saturated pixels, coverage, smallest output);
+    /// optionally a decoder is fine-tuned on the PSF first. JSON report, decoder x scene chart.
+    Decoder(BenchDecoderArgs),
+}
+
+/// How to read a height map that does not say everything about itself.
+#[derive(Args, Clone, Default)]
+pub struct ReadArgs {
+    /// Sample pitch, e.g. "4.29um" (required when the file carries none).
+    #[arg(long, value_parser = clap_length)]
+    pitch: Option<f64>,
+    /// Unit of the stored heights, e.g. "um" or "nm" (required when the file carries none).
+    #[arg(long)]
+    unit: Option<String>,
+    /// Height per count for integer images (16-bit PNG/TIFF), e.g. "0.1nm".
+    #[arg(long, value_parser = clap_length)]
+    z_scale: Option<f64>,
+}
+
+impl ReadArgs {
+    pub fn options(&self) -> Result<ReadOptions> {
+        Ok(ReadOptions {
+            pitch: self.pitch.map(|p| [p, p]),
+            unit: self.unit.as_deref().map(length_unit).transpose()?,
+            z_scale: self.z_scale,
+            ..Default::default()
+        })
+    }
+}
+
+/// Design wavelength, material, multi-order factor.
+#[derive(Args, Clone)]
+pub struct OpticsArgs {
+    /// Design wavelength.
+    #[arg(long, value_parser = clap_length, default_value = "530nm")]
+    pub wavelength: f64,
+    /// Material of the part (pdms, fused_silica).
+    #[arg(long, default_value = "pdms")]
+    pub material: String,
+    /// Multi-order factor p (wrap modulo p * 2 pi).
+    #[arg(long, default_value_t = 1)]
+    pub order: u32,
+}

@@ -1,0 +1,409 @@
+//! The decoder commands: `reconstruct`, `finetune`, `bench decoder`.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+use indicatif::ProgressStyle;
+
+use doefab::units::clap_length;
+
+use super::args::Cli;
+use crate::{print_result, progress, report_to, warn};
+
+/// Arguments of `doefab reconstruct`.
+#[derive(Args)]
+pub struct ReconstructArgs {
+    /// The capture: RGB PNG or TIFF, 8 or 16 bits, linear sensor values.
+    pub capture: PathBuf,
+    /// Decoder file (.safetensors), e.g. the paper's decoder_measured_psf.safetensors.
+    #[arg(long)]
+    pub decoder: PathBuf,
+    /// Output EXR (linear, 1 = the capture's clipping level).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Tone-mapped PNG (default: the output with the extension .png).
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// Exposure of the tone-mapped PNG, stops.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    pub ev: f64,
+    /// Largest tile fed to the network, pixels (a multiple of 16).
+    #[arg(long, default_value_t = 1024)]
+    pub tile: usize,
+    /// Context kept around each tile's core, pixels (a multiple of 16; 128 covers the
+    /// receptive field, so tiles then match one pass).
+    #[arg(long, default_value_t = 128)]
+    pub overlap: usize,
+    /// Mirrored context around the capture, pixels (removes the network's negative blobs
+    /// at dark borders; 0 = the paper's demo).
+    #[arg(long, default_value_t = doefab::decoder::reconstruct::BORDER)]
+    pub border: usize,
+    /// Write negative outputs as they are instead of max(y, 0).
+    #[arg(long)]
+    pub keep_negative: bool,
+    /// Run on the GPU (builds with the `cuda` feature).
+    #[arg(long)]
+    pub gpu: bool,
+}
+
+/// Arguments of `doefab finetune`.
+#[derive(Args)]
+pub struct FinetuneArgs {
+    /// PSF (.npz or .npy, (H, W, 1, 3) as the paper's).
+    #[arg(long)]
+    pub psf: PathBuf,
+    /// Array name inside a .npz holding several (e.g. psf_val).
+    #[arg(long)]
+    pub psf_key: Option<String>,
+    /// PSF pixel pitch (the sensor's).
+    #[arg(long, value_parser = clap_length, default_value = "4.29um")]
+    pub pitch: f64,
+    /// Initial decoder: a file, or built-in:paper-simulated-psf (the default) /
+    /// built-in:paper-measured-psf, the paper's decoders compiled in.
+    #[arg(long)]
+    pub init: Option<PathBuf>,
+    /// Folder of real HDR images (.exr, .hdr, searched recursively; 2:1 images are taken as
+    /// equirectangular panoramas); without it, seeded procedural HDR scenes.
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Folder of validation HDR images; without it, 1 in --holdout-every of --data's images,
+    /// chosen by name, validate and are never trained on.
+    #[arg(long)]
+    pub validation_data: Option<PathBuf>,
+    #[arg(long, default_value_t = 5)]
+    pub holdout_every: usize,
+    /// Leave out equirectangular panoramas narrower than this (pixels).
+    #[arg(long, default_value_t = 1024)]
+    pub min_panorama_width: usize,
+    /// Largest white-balance gain of the training views' colour jitter: each channel's gain
+    /// is log-uniform in [1/G, G] (2 spans the casts of unbalanced sensor RGB).
+    #[arg(long, default_value_t = doefab::decoder::dataset::WHITE_BALANCE)]
+    pub white_balance: f64,
+    /// Output folder: checkpoint, decoder, training curve.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Continue the run in the output folder's checkpoint.
+    #[arg(long)]
+    pub resume: bool,
+    /// Total steps (80: on the paper's real captures, longer runs drift in colour; README).
+    #[arg(long, default_value_t = 80)]
+    pub steps: usize,
+    #[arg(long, default_value_t = 4)]
+    pub batch: usize,
+    /// Crop side, pixels (a multiple of 16).
+    #[arg(long, default_value_t = 256)]
+    pub crop: usize,
+    /// Adam step size (default 1e-4; on --resume, replaces the saved one when given).
+    #[arg(long)]
+    pub lr: Option<f64>,
+    /// Step-size decay: lr * lr_decay^(step / 1000).
+    #[arg(long, default_value_t = 1.0)]
+    pub lr_decay: f64,
+    /// L2-SP pull toward the start weights (0 = none).
+    #[arg(long, default_value_t = 0.0)]
+    pub pull: f64,
+    /// Keep the encoder at its start weights.
+    #[arg(long)]
+    pub freeze_encoder: bool,
+    /// Stop after this many validations without a new best (0 = never).
+    #[arg(long, default_value_t = 0)]
+    pub patience: usize,
+    /// Weight of a penalty on negative outputs, mean(min(y, 0)^2), in the training loss.
+    #[arg(long, default_value_t = 0.0)]
+    pub negative_penalty: f64,
+    /// Weight of the fine-tuned weights in the decoder written, w0 + blend (w - w0)
+    /// (WiSE-FT; 1 = the best validated weights as they are; 0.5 measured best on the
+    /// paper's real captures).
+    #[arg(long, default_value_t = 0.5)]
+    pub blend: f64,
+    /// Read noise of the simulated captures, fraction of full scale (default: as measured
+    /// on the paper's captures; the paper trained with 0.02).
+    #[arg(long, default_value_t = 0.001)]
+    pub read_noise: f64,
+    /// Shot noise of the simulated captures: variance per unit signal (full scale = 1;
+    /// default as measured on the paper's captures).
+    #[arg(long, default_value_t = 8e-5)]
+    pub shot_noise: f64,
+    /// Bit depth of the simulated captures (0 = not quantised; 8 as the paper's captures).
+    #[arg(long, default_value_t = 8)]
+    pub bits: u32,
+    /// Validate and checkpoint every this many steps.
+    #[arg(long, default_value_t = 20)]
+    pub checkpoint_every: usize,
+    /// Validation set size.
+    #[arg(long, default_value_t = 16)]
+    pub validation: usize,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Run on the GPU (builds with the `cuda` feature).
+    #[arg(long)]
+    pub gpu: bool,
+}
+
+/// Arguments of `doefab bench decoder`.
+#[derive(Args)]
+pub struct BenchDecoderArgs {
+    /// The paper's data release: the default scenes (captures/<scene>/) and measured_psf.npz.
+    #[arg(long, default_value = "../shared/data/deepoptics-hdr")]
+    pub data: PathBuf,
+    /// A scene folder (exposures.json with one "doe" capture and a bracket); repeat for more
+    /// (default: every folder under <data>/captures).
+    #[arg(long = "scene")]
+    pub scenes: Vec<PathBuf>,
+    /// A decoder to score: a .safetensors file or built-in:paper-simulated-psf /
+    /// built-in:paper-measured-psf; repeat for more (default: the paper's two).
+    #[arg(long = "decoder")]
+    pub decoders: Vec<PathBuf>,
+    /// The measured PSF (default <data>/measured_psf.npz, array psf_val).
+    #[arg(long)]
+    pub psf: Option<PathBuf>,
+    /// Smallest fraction of a scene that must be registered; below it the scene is refused.
+    #[arg(long, default_value_t = 0.3)]
+    pub min_coverage: f64,
+    /// Fine-tuning steps of --init on the PSF (0: no fine-tuning).
+    #[arg(long, default_value_t = 50)]
+    pub steps: usize,
+    /// The decoder to fine-tune.
+    #[arg(long, default_value = "built-in:paper-simulated-psf")]
+    pub init: PathBuf,
+    /// Batch size of the fine-tuning.
+    #[arg(long, default_value_t = 2)]
+    pub batch: usize,
+    /// Training crop side, pixels (a multiple of 16).
+    #[arg(long, default_value_t = 128)]
+    pub crop: usize,
+    /// Adam step size.
+    #[arg(long, default_value_t = 1e-4)]
+    pub lr: f64,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Score the decoder being fine-tuned on the real scenes every this many steps
+    /// (default: a fifth of the run).
+    #[arg(long)]
+    pub evaluate_every: Option<usize>,
+    /// HDR images to fine-tune on (a folder of EXR / Radiance .hdr; default: procedural
+    /// scenes). Not the benchmark's own scenes, or the scores measure memory.
+    #[arg(long)]
+    pub train_data: Option<PathBuf>,
+    /// Tile side of the registration, pixels.
+    #[arg(long, default_value_t = 48)]
+    pub tile: usize,
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+/// `doefab reconstruct`.
+pub fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
+    let ReconstructArgs { capture, decoder, output, png, ev, tile, overlap, border, keep_negative, gpu } = a;
+    use doefab::decoder::reconstruct::{reconstruct_file, Negatives, ReconstructOptions};
+    let opts = ReconstructOptions {
+        tile: *tile,
+        overlap: *overlap,
+        border: *border,
+        negatives: if *keep_negative { Negatives::Keep } else { Negatives::Clamp },
+    };
+    let png = png.clone().unwrap_or_else(|| output.with_extension("png"));
+    let device = doefab::decoder::device(*gpu)?;
+    let report = reconstruct_file(capture, decoder, output, &png, *ev, &opts, &device)?;
+    warn(&report.report.warnings);
+    print_result(cli, &report, || {
+        let r = &report.report;
+        println!(
+            "{} x {} in {} pass(es); raw minimum {:.3}, {} values < 0 and {} < -1 ({}) -> {}, {}",
+            r.cols,
+            r.rows,
+            r.tiles,
+            r.min_raw,
+            r.values_below_zero,
+            r.values_below_minus_one,
+            if *keep_negative { "kept" } else { "clamped to 0" },
+            output.display(),
+            png.display()
+        )
+    })
+}
+
+/// `doefab finetune`.
+pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
+    use doefab::decoder::finetune::{run_job, FinetuneConfig, FinetuneJob};
+    let FinetuneArgs {
+        psf,
+        psf_key,
+        pitch,
+        init,
+        data,
+        validation_data,
+        holdout_every,
+        min_panorama_width,
+        white_balance,
+        output,
+        resume,
+        steps,
+        batch,
+        crop,
+        lr,
+        lr_decay,
+        pull,
+        freeze_encoder,
+        patience,
+        negative_penalty,
+        blend,
+        read_noise,
+        shot_noise,
+        bits,
+        checkpoint_every,
+        validation,
+        seed,
+        gpu,
+    } = a;
+    let job = FinetuneJob {
+        psf: psf.clone(),
+        psf_key: psf_key.clone(),
+        pitch: *pitch,
+        init: init.clone(),
+        data: data.clone(),
+        validation_data: validation_data.clone(),
+        holdout_every: *holdout_every,
+        min_panorama_width: *min_panorama_width,
+        white_balance: *white_balance,
+        output: output.clone(),
+        resume: *resume,
+        lr: *lr,
+        cfg: FinetuneConfig {
+            steps: *steps,
+            batch: *batch,
+            crop: *crop,
+            lr_decay: *lr_decay,
+            pull: *pull,
+            freeze_encoder: *freeze_encoder,
+            patience: *patience,
+            negative_penalty: *negative_penalty,
+            blend: *blend,
+            noise_sigma: *read_noise,
+            shot_noise: *shot_noise,
+            bits: (*bits > 0).then_some(*bits),
+            checkpoint_every: *checkpoint_every,
+            validation: *validation,
+            seed: *seed,
+            ..FinetuneConfig::default()
+        },
+        gpu: *gpu,
+    };
+    let pb = progress(cli, *steps as u64);
+    if let Ok(style) =
+        ProgressStyle::with_template("{bar:30} {pos}/{len} {elapsed_precise} eta {eta_precise} {msg}")
+    {
+        pb.set_style(style);
+    }
+    let mut last_psnr = None;
+    let outcome = run_job(&job, &mut |r| {
+        last_psnr = r.val_psnr.or(last_psnr);
+        let val = last_psnr.map_or(String::new(), |p: f64| format!(", validation {p:.2} dB"));
+        pb.set_message(format!("loss {:.5}{val}", r.loss));
+        pb.set_position(r.step as u64);
+    });
+    pb.finish_and_clear();
+    let outcome = outcome?;
+    print_result(cli, &outcome, || {
+        println!(
+            "{} steps{}; validation PSNR {} at the start, best {:.2} dB at step {}, written (blend {}) {:.2} dB -> {}",
+            outcome.steps,
+            if outcome.stopped_early { " (stopped early)" } else { "" },
+            outcome.start_validation_psnr.map_or("n/a".into(), |p| format!("{p:.2} dB")),
+            outcome.best_validation_psnr,
+            outcome.best_step,
+            outcome.blend,
+            outcome.written_validation_psnr,
+            outcome.decoder.display()
+        )
+    })
+}
+
+/// `doefab bench decoder`: see [`doefab::pipeline::bench`].
+pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
+    use doefab::pipeline::bench::{bench_decoder, DecoderBenchOptions};
+    let BenchDecoderArgs {
+        data,
+        scenes,
+        decoders,
+        psf,
+        min_coverage,
+        steps,
+        init,
+        batch,
+        crop,
+        lr,
+        seed,
+        evaluate_every,
+        train_data,
+        tile,
+        output,
+    } = a;
+    let opts = DecoderBenchOptions {
+        data: data.clone(),
+        scenes: scenes.clone(),
+        decoders: decoders.clone(),
+        psf: psf.clone(),
+        min_coverage: *min_coverage,
+        steps: *steps,
+        init: init.clone(),
+        batch: *batch,
+        crop: *crop,
+        lr: *lr,
+        seed: *seed,
+        evaluate_every: *evaluate_every,
+        train_data: train_data.clone(),
+        tile: *tile,
+    };
+    let pb = progress(cli, 0);
+    let outcome = bench_decoder(&opts, output, &mut report_to(&pb))?;
+    pb.finish_and_clear();
+    warn(&outcome.warnings);
+    let report = &outcome.report;
+    print_result(cli, &outcome, || {
+        println!(
+            "{:<16} {:<52} {:>8} {:>15} {:>15} {:>9} {:>10}",
+            "scene", "decoder", "PSNR-L", "gamma all", "gamma sat.", "scored", "min out"
+        );
+        for r in &report.scenes {
+            let Some(f) = &r.footing else {
+                println!("{:<16} refused: {}", r.name, r.error.as_deref().unwrap_or(""));
+                continue;
+            };
+            for sc in report.scores.iter().filter(|sc| sc.scene == r.name) {
+                let sat = sc.saturated.as_ref().map_or("withheld".into(), |p| format!("{:.2}", p.gamma_db));
+                let name: String = sc.decoder.chars().take(52).collect();
+                println!(
+                    "{:<16} {:<52} {:>8.2} {:>15.2} {:>15} {:>8.1}% {:>10.3}",
+                    r.name,
+                    name,
+                    sc.all.linear_db,
+                    sc.all.gamma_db,
+                    sat,
+                    100.0 * f.coverage,
+                    sc.min_output
+                );
+            }
+            println!(
+                "{:<16} {} pixels scored, {} of the capture's {} saturated pixels; gain {:.3}, residual {}",
+                "",
+                f.pixels_scored,
+                f.saturated_scored,
+                f.saturated_in_capture,
+                f.gain,
+                f.local_registration
+                    .as_ref()
+                    .map_or("n/a".into(), |l| format!("{:.2} px", l.residual_rms_px))
+            );
+        }
+        if let Some(run) = &report.finetune {
+            println!(
+                "fine-tuning: {} steps from {} on {}, {:.2} s a step",
+                run.steps, run.init, run.training_data, run.seconds_per_step
+            );
+        }
+        println!("-> {}", output.display());
+    })
+}

@@ -1,0 +1,341 @@
+//! The fabrication commands: `fab`, `wrap`, `quantize`, `mask`, `gds`, `stl`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use clap::Args;
+
+use doefab::fabrication::chain::{self, ChainParams, DesignSource, FabOptions};
+use doefab::fabrication::mask::Polarity;
+use doefab::fabrication::quantize::QuantizeMethod;
+use doefab::fabrication::recipe::Recipe;
+use doefab::fabrication::stl::{StlOptions, StlUnit, SurfaceChoice};
+use doefab::fabrication::ReplicaMode;
+use doefab::units::clap_length;
+
+use super::args::{Cli, OpticsArgs, ReadArgs};
+use crate::{print_result, progress, warn};
+
+/// Mesher choice on the command line.
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum SurfaceArg {
+    Auto,
+    Terraces,
+    Heightfield,
+}
+
+/// Arguments of `doefab fab`.
+#[derive(Args)]
+pub struct FabArgs {
+    /// Height map file, or built-in:paper / built-in:fresnel (default built-in:paper).
+    pub design: Option<String>,
+    /// Process recipe (TOML), e.g. masks/laser-writer-grayscale.toml, or a bundled one:
+    /// built-in:laser-writer-grayscale, built-in:binary-3mask-8level, built-in:two-photon-stl.
+    #[arg(long, short)]
+    pub recipe: PathBuf,
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Override the recipe's level count.
+    #[arg(long)]
+    pub levels: Option<usize>,
+    #[command(flatten)]
+    pub read: ReadArgs,
+    /// Fill NaN and non-measured heights from their neighbours instead of refusing them.
+    #[arg(long)]
+    pub fill: bool,
+    /// Write outputs above the size limit.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// Arguments of `doefab wrap`.
+#[derive(Args)]
+pub struct WrapArgs {
+    pub design: String,
+    /// Output height map (.exr, with pitch and units in its header).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub read: ReadArgs,
+    #[command(flatten)]
+    pub optics: OpticsArgs,
+    /// Write the master whose cast equals the design (complemented and mirrored).
+    #[arg(long, value_enum, default_value_t = ReplicaMode::Design)]
+    pub replica: ReplicaMode,
+    #[arg(long)]
+    pub fill: bool,
+}
+
+/// Arguments of `doefab quantize`.
+#[derive(Args)]
+pub struct QuantizeArgs {
+    /// Wrapped height map (.exr from `doefab wrap`).
+    pub heights: PathBuf,
+    /// Output level map (.exr).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Number of levels (2..=256, or 65536 for 16-bit writers).
+    #[arg(long, short = 'n')]
+    pub levels: usize,
+    #[arg(long, value_enum, default_value_t = QuantizeMethod::Round)]
+    pub method: QuantizeMethod,
+    #[command(flatten)]
+    pub optics: OpticsArgs,
+    /// Writer's minimum feature, for the terrace-width warning.
+    #[arg(long, value_parser = clap_length, default_value = "1 um")]
+    pub min_feature: f64,
+}
+
+/// Arguments of `doefab mask`.
+#[derive(Args)]
+pub struct MaskArgs {
+    /// Level map (.exr from `doefab quantize`).
+    pub levels: PathBuf,
+    /// Resist contrast curve (CSV: dose,depth_nm).
+    #[arg(long)]
+    pub curve: PathBuf,
+    /// Output image (.png, .tif or .tiff).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    #[arg(long, value_parser = clap_length, default_value = "1 um")]
+    pub writer_pitch: f64,
+    #[arg(long, default_value_t = 16)]
+    pub bits: u8,
+    #[arg(long, value_enum, default_value_t = Polarity::Positive)]
+    pub polarity: Polarity,
+    #[arg(long)]
+    pub mirror: bool,
+    #[arg(long, value_parser = clap_length, default_value = "500 um")]
+    pub border: f64,
+    #[arg(long, default_value = "")]
+    pub label: String,
+    #[arg(long)]
+    pub no_marks: bool,
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// Arguments of `doefab gds`.
+#[derive(Args)]
+pub struct GdsArgs {
+    /// Level map (.exr from `doefab quantize`), N a power of two.
+    pub levels: PathBuf,
+    /// Output GDSII file.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Mask writer address grid the levels are resampled onto.
+    #[arg(long, value_parser = clap_length, default_value = "1 um")]
+    pub writer_pitch: f64,
+    #[arg(long)]
+    pub mirror: bool,
+}
+
+/// Arguments of `doefab stl`.
+#[derive(Args)]
+pub struct StlArgs {
+    /// Level map (.exr from `doefab quantize`) or heights (.exr from `doefab wrap`).
+    pub input: PathBuf,
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Length unit written into the STL: mm or um.
+    #[arg(long, default_value = "mm")]
+    pub unit: String,
+    /// Thickness of the flat base below the lowest point.
+    #[arg(long, value_parser = clap_length, default_value = "0.5 mm")]
+    pub base: f64,
+    /// Largest height error of the simplified mesh of a continuous surface.
+    #[arg(long, value_parser = clap_length, default_value = "2 nm")]
+    pub max_error: f64,
+    /// Terraces (exact, for quantized maps), heightfield, or auto.
+    #[arg(long, value_enum, default_value_t = SurfaceArg::Auto)]
+    pub surface: SurfaceArg,
+}
+
+/// `doefab fab`.
+pub fn fab(cli: &Cli, a: &FabArgs) -> Result<()> {
+    let FabArgs { design, recipe, output, levels, read, fill, force } = a;
+    let mut recipe = Recipe::read(recipe)?;
+    if let Some(n) = levels {
+        recipe.level_count = *n;
+    }
+    let source = DesignSource::parse(design.as_deref(), read.options()?);
+    run_recipe(cli, &source, &recipe, output, *fill, *force)
+}
+
+/// `doefab wrap`.
+pub fn wrap(cli: &Cli, a: &WrapArgs) -> Result<()> {
+    let WrapArgs { design, output, read, optics, replica, fill } = a;
+    let source = DesignSource::parse(Some(design), read.options()?);
+    let loaded = chain::load_design(&source)?;
+    let params = chain_params(optics, 65536, QuantizeMethod::Round, *replica, 1e-6, *fill);
+    let report = chain::write_wrapped(&loaded, &params, output)?;
+    warn(&report.warnings);
+    print_result(cli, &report, || {
+        println!(
+            "wrapped {} samples (at most {} periods of {:.4} um); max height {:.4} um -> {}",
+            report.wrap.wrapped_samples,
+            report.wrap.max_wraps,
+            report.wrap.period * 1e6,
+            report.wrap.max_height * 1e6,
+            output.display()
+        )
+    })
+}
+
+/// `doefab quantize`.
+pub fn quantize(cli: &Cli, a: &QuantizeArgs) -> Result<()> {
+    let QuantizeArgs { heights, output, levels, method, optics, min_feature } = a;
+    let params = chain_params(optics, *levels, *method, ReplicaMode::Design, *min_feature, false);
+    let report = chain::quantize_file(heights, &params, output)?;
+    warn(&report.warnings);
+    print_result(cli, &report, || {
+        println!(
+            "{} levels ({:?}), rms error {:.2} nm -> {}",
+            levels,
+            method,
+            report.rms_error * 1e9,
+            output.display()
+        );
+        print_efficiency(&report.efficiency);
+    })
+}
+
+/// `doefab mask`.
+pub fn mask(cli: &Cli, a: &MaskArgs) -> Result<()> {
+    let MaskArgs {
+        levels,
+        curve,
+        output,
+        writer_pitch,
+        bits,
+        polarity,
+        mirror,
+        border,
+        label,
+        no_marks,
+        force,
+    } = a;
+    let opts = doefab::fabrication::mask::MaskOptions {
+        writer_pitch: *writer_pitch,
+        bits: *bits,
+        polarity: *polarity,
+        mirror: *mirror,
+        border: *border,
+        marks: !no_marks,
+        label: label.clone(),
+        force: *force,
+        ..Default::default()
+    };
+    let meta = chain::mask_file(levels, curve, &opts, output)?;
+    print_result(cli, &meta, || {
+        println!("{} x {} px, {}-bit -> {}", meta.size_px[0], meta.size_px[1], meta.bits, output.display())
+    })
+}
+
+/// `doefab gds`.
+pub fn gds(cli: &Cli, a: &GdsArgs) -> Result<()> {
+    let GdsArgs { levels, output, writer_pitch, mirror } = a;
+    let report = chain::gds_file(levels, *writer_pitch, *mirror, output)?;
+    print_result(cli, &report, || {
+        println!(
+            "{} masks, {} polygons, {} vertices -> {}",
+            report.masks.len(),
+            report.polygons,
+            report.vertices,
+            output.display()
+        );
+        for m in &report.masks {
+            println!("  layer {}: etch {:.1} nm, {} polygons", m.layer, m.etch_depth * 1e9, m.polygons);
+        }
+    })
+}
+
+/// `doefab stl`.
+pub fn stl(cli: &Cli, a: &StlArgs) -> Result<()> {
+    let StlArgs { input, output, unit, base, max_error, surface } = a;
+    let opts = StlOptions {
+        unit: StlUnit::parse(unit)?,
+        base_thickness: *base,
+        max_error: *max_error,
+        surface: match surface {
+            SurfaceArg::Auto => SurfaceChoice::Auto,
+            SurfaceArg::Terraces => SurfaceChoice::Terraces,
+            SurfaceArg::Heightfield => SurfaceChoice::Heightfield,
+        },
+    };
+    let report = chain::stl_file(input, &opts, output)?;
+    print_result(cli, &report, || {
+        println!(
+            "{:?}: {} triangles ({:.2}% of naive), max height error {:.2} nm -> {}",
+            report.surface,
+            report.triangles,
+            report.triangle_ratio * 100.0,
+            report.max_height_error * 1e9,
+            output.display()
+        )
+    })
+}
+
+/// Runs a recipe's fabrication chain with a progress bar over its steps and prints the report.
+fn run_recipe(
+    cli: &Cli,
+    source: &DesignSource,
+    recipe: &Recipe,
+    output: &Path,
+    fill: bool,
+    force: bool,
+) -> Result<()> {
+    let pb = progress(cli, chain::step_count(recipe) as u64);
+    let opts = FabOptions { fill, force };
+    let report = chain::run_recipe(source, recipe, output, &opts, &mut |step: &str| {
+        pb.set_message(step.to_string());
+        pb.inc(1);
+    })
+    .with_context(|| format!("recipe {}", recipe.path.display()))?;
+    pb.finish_and_clear();
+    warn(&report.warnings);
+    print_result(cli, &report, || {
+        println!("{} on {}: {}", recipe.name, report.provenance.design, output.display());
+        print_efficiency(&report.efficiency);
+        for a in &report.artifacts {
+            println!("  {:<16} {}", a.kind, a.path.display());
+        }
+    })
+}
+
+/// The fabrication chain's parameters from the optics arguments and the command's own.
+pub fn chain_params(
+    optics: &OpticsArgs,
+    level_count: usize,
+    quantization: QuantizeMethod,
+    replica_mode: ReplicaMode,
+    min_feature: f64,
+    fill: bool,
+) -> ChainParams {
+    ChainParams {
+        wavelength: optics.wavelength,
+        material: optics.material.clone(),
+        order: optics.order,
+        level_count,
+        quantization,
+        replica_mode,
+        min_feature,
+        fill,
+    }
+}
+
+/// The predicted diffraction efficiency per wavelength (nm).
+fn print_efficiency(rows: &[doefab::fabrication::quantize::EfficiencyRow]) {
+    println!("  wavelength  n        detuning  eta(order)  eta(continuous)");
+    for r in rows {
+        println!(
+            "  {:6.1} nm  {:.5}  {:.4}    {:.4}      {:.4}",
+            r.wavelength * 1e9,
+            r.index,
+            r.detuning,
+            r.efficiency,
+            r.continuous_efficiency
+        );
+    }
+}

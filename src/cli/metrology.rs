@@ -1,0 +1,364 @@
+//! The metrology commands: `simulate-scan`, `compare`, `scan-info`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use clap::Args;
+
+use doefab::fabrication::chain::{self, ChainParams, DesignSource};
+use doefab::fabrication::quantize::QuantizeMethod;
+use doefab::fabrication::recipe::Recipe;
+use doefab::fabrication::ReplicaMode;
+use doefab::units::{clap_length, length_unit};
+
+use super::args::{Cli, OpticsArgs, ReadArgs};
+use super::fabrication::chain_params;
+use crate::{print_result, progress, warn};
+
+/// Levelling choice on the command line (`scan-info --level`).
+#[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
+pub enum LevelArg {
+    Plane,
+    Facet,
+    Substrate,
+}
+
+/// Arguments of `doefab simulate-scan`.
+#[derive(Args)]
+pub struct SimulateScanArgs {
+    /// Height map file, or built-in:paper / built-in:fresnel.
+    pub design: String,
+    /// Output scan (.x3p or .gsf).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Gaussian lateral blur (standard deviation), e.g. "2um".
+    #[arg(long, value_parser = clap_length, default_value = "0nm")]
+    pub blur: f64,
+    #[arg(long, default_value_t = 1.0)]
+    pub depth_scale: f64,
+    /// Height offset, e.g. "100nm".
+    #[arg(long, value_parser = clap_length, default_value = "0nm")]
+    pub offset: f64,
+    /// Plane slopes "SX[,SY]" (dz/dx, dz/dy), e.g. "1e-4".
+    #[arg(long, default_value = "0", allow_hyphen_values = true)]
+    pub tilt: String,
+    /// Counter-clockwise rotation of the part, e.g. "0.3deg".
+    #[arg(long, default_value = "0deg", allow_hyphen_values = true)]
+    pub rotate: String,
+    /// Shift of the part "X,Y", e.g. "3.2um,-1.7um".
+    #[arg(long, default_value = "0um,0um", allow_hyphen_values = true)]
+    pub shift: String,
+    /// Lateral scale of the part.
+    #[arg(long, default_value_t = 1.0)]
+    pub scale: f64,
+    /// The part is mirrored (x -> -x), as a replica is.
+    #[arg(long)]
+    pub mirror: bool,
+    /// The part is the height complement of the design (a cast).
+    #[arg(long)]
+    pub complement: bool,
+    /// White Gaussian noise (standard deviation), e.g. "20nm".
+    #[arg(long, value_parser = clap_length, default_value = "0nm")]
+    pub noise: f64,
+    /// Fraction of non-measured points, e.g. "5%".
+    #[arg(long, default_value = "0")]
+    pub missing: String,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Scan pitch (default: the design's).
+    #[arg(long, value_parser = clap_length)]
+    pub scan_pitch: Option<f64>,
+    /// Scan size "N" or "COLSxROWS" (default: the design's extent).
+    #[arg(long)]
+    pub size: Option<String>,
+    #[command(flatten)]
+    pub read: ReadArgs,
+}
+
+/// Arguments of `doefab compare`.
+#[derive(Args)]
+pub struct CompareArgs {
+    /// Scan file (.x3p, .gsf, .sdf, .sur, .dat, .xyz, .txt/.csv/.asc, .png, .tif, .npy).
+    pub scan: PathBuf,
+    /// Height map file, or built-in:paper / built-in:fresnel.
+    #[arg(long)]
+    pub design: String,
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Process recipe: compare with the design wrapped and quantized as it makes it.
+    #[arg(long)]
+    pub recipe: Option<PathBuf>,
+    /// Level count (overrides the recipe's; without a recipe, wraps and quantizes the
+    /// design at --wavelength / --material / --order).
+    #[arg(long)]
+    pub levels: Option<usize>,
+    /// Clear-aperture diameter (default: 5 mm for built-in:paper, else the largest circle
+    /// in the design grid).
+    #[arg(long, value_parser = clap_length)]
+    pub aperture: Option<f64>,
+    /// PSF method for the design vs as-fabricated comparison, or "none".
+    #[arg(long, default_value = "matrix_dft")]
+    pub psf_method: String,
+    /// Compute the PSFs even where the method's validity conditions fail (as warnings).
+    #[arg(long)]
+    pub allow_invalid: bool,
+    /// Scan sample pitch, e.g. "1um" (for scan files that carry none).
+    #[arg(long, value_parser = clap_length)]
+    pub scan_pitch: Option<f64>,
+    /// Unit of the scan's stored heights, e.g. "nm" (for scan files that state none).
+    #[arg(long)]
+    pub scan_z_unit: Option<String>,
+    /// Height per count of an integer scan image without a scale, e.g. "0.1nm".
+    #[arg(long, value_parser = clap_length)]
+    pub scan_z_scale: Option<f64>,
+    #[command(flatten)]
+    pub read: ReadArgs,
+    #[command(flatten)]
+    pub optics: OpticsArgs,
+}
+
+/// Arguments of `doefab scan-info`.
+#[derive(Args)]
+pub struct ScanInfoArgs {
+    /// Scan file (.x3p, .gsf, .sdf, .sur, .dat, .xyz, .txt/.csv/.asc, .png, .tif, .npy).
+    pub file: PathBuf,
+    /// Sample pitch, e.g. "1um" (for files that carry none).
+    #[arg(long, value_parser = clap_length)]
+    pub pitch: Option<f64>,
+    /// Unit of the stored heights, e.g. "nm" (for files that state none).
+    #[arg(long, visible_alias = "unit")]
+    pub z_unit: Option<String>,
+    /// Height per count for integer images without a scale, e.g. "0.1nm".
+    #[arg(long, value_parser = clap_length)]
+    pub z_scale: Option<f64>,
+    /// Levelling before the "levelled" statistics: least-squares plane, facet levelling, or
+    /// a plane through the substrate (outside `--aperture`, else the lowest level).
+    #[arg(long, value_enum, default_value_t = LevelArg::Plane)]
+    pub level: LevelArg,
+    /// Diameter of the part's aperture, centred on the scan, for `--level substrate`.
+    #[arg(long, value_parser = clap_length)]
+    pub aperture: Option<f64>,
+}
+
+/// `doefab simulate-scan`.
+pub fn simulate_scan(cli: &Cli, a: &SimulateScanArgs) -> Result<()> {
+    let SimulateScanArgs {
+        design,
+        output,
+        blur,
+        depth_scale,
+        offset,
+        tilt,
+        rotate,
+        shift,
+        scale,
+        mirror,
+        complement,
+        noise,
+        missing,
+        seed,
+        scan_pitch,
+        size,
+        read,
+    } = a;
+    use doefab::metrology::simulate as sim;
+    let loaded = chain::load_design(&DesignSource::parse(Some(design), read.options()?))?;
+    let params = sim::SimulateParams {
+        blur: *blur,
+        depth_scale: *depth_scale,
+        offset: *offset,
+        tilt: sim::parse_slopes(tilt)?,
+        pose: doefab::metrology::register::Pose {
+            mirror: *mirror,
+            rotation: doefab::units::parse_angle(rotate)?,
+            scale: *scale,
+            shift: sim::parse_length_pair(shift)?,
+        },
+        complement: *complement,
+        noise: *noise,
+        missing: doefab::units::parse_fraction(missing)?,
+        seed: *seed,
+        pitch: scan_pitch.map(|p| [p, p]),
+        size: size.as_deref().map(sim::parse_size).transpose()?,
+    };
+    let scan = sim::simulate_scan(&loaded.heights, &params)?;
+    sim::write_scan(output, &scan)?;
+    let (rows, cols) = scan.dim();
+    print_result(cli, &params, || {
+        println!(
+            "{} x {} scan of {} ({:.1}% measured) -> {}",
+            cols,
+            rows,
+            loaded.name,
+            100.0 * scan.valid_count() as f64 / (rows * cols) as f64,
+            output.display()
+        )
+    })
+}
+
+/// `doefab compare`.
+pub fn compare(cli: &Cli, a: &CompareArgs) -> Result<()> {
+    let CompareArgs {
+        scan,
+        design,
+        output,
+        recipe,
+        levels,
+        aperture,
+        psf_method,
+        allow_invalid,
+        scan_pitch,
+        scan_z_unit,
+        scan_z_scale,
+        read,
+        optics,
+    } = a;
+    let scan_opts = doefab::io::scan::ScanOptions {
+        pitch: scan_pitch.map(|p| [p, p]),
+        z_unit: scan_z_unit.as_deref().map(length_unit).transpose()?,
+        z_scale: *scan_z_scale,
+        ..Default::default()
+    };
+    let source = DesignSource::parse(Some(design), read.options()?);
+    let chain = match (recipe, levels) {
+        (Some(r), _) => {
+            let r = Recipe::read(r)?;
+            let n = levels.unwrap_or(r.level_count);
+            Some(ChainParams { level_count: n, ..ChainParams::of_recipe(&r, false) })
+        }
+        (None, Some(n)) => {
+            Some(chain_params(optics, *n, QuantizeMethod::Round, ReplicaMode::Design, 1e-6, false))
+        }
+        (None, None) => None,
+    };
+    let psf = (psf_method != "none").then(|| doefab::optics::Method::from_name(psf_method)).transpose()?;
+    let psf =
+        psf.map(|m| (m, doefab::optics::Options { allow_invalid: *allow_invalid, ..Default::default() }));
+    let report = compare_scan(cli, scan, &scan_opts, &source, chain.as_ref(), *aperture, psf, output)?;
+    warn_comparison(&report);
+    print_result(cli, &report, || print_comparison(&report, output))
+}
+
+/// `doefab scan-info`.
+pub fn scan_info(cli: &Cli, a: &ScanInfoArgs) -> Result<()> {
+    let ScanInfoArgs { file, pitch, z_unit, z_scale, level, aperture } = a;
+    let opts = doefab::io::scan::ScanOptions {
+        pitch: pitch.map(|p| [p, p]),
+        z_unit: z_unit.as_deref().map(length_unit).transpose()?,
+        z_scale: *z_scale,
+        ..Default::default()
+    };
+    use doefab::metrology::level::LevelMethod;
+    let method = match level {
+        LevelArg::Plane => LevelMethod::Plane,
+        LevelArg::Facet => LevelMethod::Facet,
+        LevelArg::Substrate => LevelMethod::Substrate { aperture: *aperture },
+    };
+    if aperture.is_some() && *level != LevelArg::Substrate {
+        anyhow::bail!("--aperture applies to --level substrate only");
+    }
+    let info = doefab::metrology::info::scan_info(file, &opts, method)?;
+    warn(&info.warnings);
+    print_result(cli, &info, || print!("{}", info.summary()))
+}
+
+#[allow(clippy::too_many_arguments)]
+/// Runs the scan comparison with a progress bar over its steps.
+fn compare_scan(
+    cli: &Cli,
+    scan_path: &Path,
+    scan_opts: &doefab::io::scan::ScanOptions,
+    source: &DesignSource,
+    chain: Option<&ChainParams>,
+    aperture: Option<f64>,
+    psf: Option<(doefab::optics::Method, doefab::optics::Options)>,
+    output: &Path,
+) -> Result<doefab::metrology::compare::CompareReport> {
+    let pb = progress(cli, 4);
+    let report = doefab::metrology::compare::compare_scan_file(
+        scan_path,
+        scan_opts,
+        source,
+        chain,
+        aperture,
+        psf.as_ref().map(|(m, o)| (*m, o)),
+        output,
+        &mut |s: &str| {
+            pb.inc(1);
+            pb.set_message(s.to_string());
+        },
+    )?;
+    pb.finish_and_clear();
+    Ok(report)
+}
+
+/// Prints the warnings of a scan comparison: the scan reader's, the comparison's, the PSFs'.
+pub fn warn_comparison(r: &doefab::metrology::compare::CompareReport) {
+    warn(&r.scan_warnings);
+    warn(&r.comparison.warnings);
+    if let Some(p) = &r.psf {
+        warn(&p.warnings);
+    }
+}
+
+/// A scan comparison: registration, error over the aperture (nm), fabrication model, levels, efficiency, PSFs.
+pub fn print_comparison(r: &doefab::metrology::compare::CompareReport, output: &Path) {
+    let c = &r.comparison;
+    let g = &c.registration;
+    println!(
+        "registered: shift ({:.3}, {:.3}) um, rotation {:.4} deg, scale {:.5}, mirror {}, complement {}, \
+         correlation {:.4}",
+        g.pose.shift[0] * 1e6,
+        g.pose.shift[1] * 1e6,
+        g.pose.rotation.to_degrees(),
+        g.pose.scale,
+        g.pose.mirror,
+        g.complement,
+        g.correlation
+    );
+    println!(
+        "error over the {:.3} mm aperture: RMS {:.2} nm, PV {:.2} nm, mean {:.2} nm ({:.1}% measured)",
+        c.aperture * 1e3,
+        c.rms_error * 1e9,
+        c.pv_error * 1e9,
+        c.mean_error * 1e9,
+        c.measured_fraction * 100.0
+    );
+    let m = &c.model;
+    println!(
+        "fabrication model: depth scale {:.4}, offset {:.2} nm, blur {:.3} +- {:.3} um, residual {:.2} nm RMS",
+        m.depth_scale,
+        m.offset * 1e9,
+        m.blur * 1e6,
+        m.blur_sigma * 1e6,
+        m.rms_residual * 1e9
+    );
+    if let Some(l) = &c.levels {
+        println!(
+            "{} levels: mean step {:.2} nm (nominal {:.2} nm), spread {:.2} nm",
+            l.count,
+            l.mean_step * 1e9,
+            l.step * 1e9,
+            l.step_std * 1e9
+        );
+    }
+    for e in &c.efficiency {
+        println!(
+            "  {:5.1} nm: efficiency {:.4} -> {:.4} (loss {:.4})",
+            e.wavelength * 1e9,
+            e.design,
+            e.fabricated,
+            e.loss
+        );
+    }
+    if let Some(p) = &r.psf {
+        for ch in &p.channels {
+            println!(
+                "  PSF {}: Strehl vs design {:.4}, relative L2 {:.4}",
+                ch.name, ch.strehl_vs_design, ch.relative_l2
+            );
+        }
+    }
+    println!("wrote {}", output.display());
+}

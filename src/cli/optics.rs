@@ -1,0 +1,196 @@
+//! The optics commands: `psf`, `psf-compare`, `bench psf`.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+
+use doefab::fabrication::chain::DesignSource;
+use doefab::units::clap_length;
+
+use super::args::{Cli, ReadArgs};
+use crate::{print_result, progress, report_to, warn};
+
+/// Arguments of `doefab psf`.
+#[derive(Args)]
+pub struct PsfArgs {
+    /// Height map file, or built-in:paper / built-in:fresnel (default built-in:paper).
+    pub design: Option<String>,
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Force a method (matrix_dft, fresnel, angular_spectrum or rayleigh_sommerfeld) at the
+    /// DOE's pitch with --subsample; without it the automatic plan chooses everything.
+    #[arg(long)]
+    pub method: Option<String>,
+    /// Sub-samples per pixel and axis (pixel integration), with --method.
+    #[arg(long, default_value_t = 1)]
+    pub subsample: usize,
+    /// The plan's tolerance: relative L2 error per channel.
+    #[arg(long, default_value_t = doefab::optics::plan::DEFAULT_TOLERANCE)]
+    pub tolerance: f64,
+    /// Print the plan's choices and the condition that bounds each.
+    #[arg(long)]
+    pub explain: bool,
+    /// Sensor spectral response CSV (wavelength_nm,r,g,b): one channel per response column,
+    /// integrated over its band (plan only).
+    #[arg(long)]
+    pub response: Option<PathBuf>,
+    /// Optical system TOML (fields of the system, lengths with units: aperture = "5 mm");
+    /// unset fields keep the paper's values. The plan chooses pupil_pitch and subsample.
+    #[arg(long)]
+    pub system: Option<PathBuf>,
+    /// Material of the DOE (pdms, fused_silica, noa61, pmma, ip_dip).
+    #[arg(long, default_value = "pdms")]
+    pub material: String,
+    /// Run even where the method's validity conditions fail (recorded as warnings).
+    #[arg(long)]
+    pub allow_invalid: bool,
+    #[command(flatten)]
+    pub read: ReadArgs,
+}
+
+/// Arguments of `doefab psf-compare`.
+#[derive(Args)]
+pub struct PsfCompareArgs {
+    /// Reference PSF: .npy (with psf.json beside it), .exr as `psf` writes, or .npz.
+    pub a: PathBuf,
+    /// PSF compared against it (moved onto its centroid).
+    pub b: PathBuf,
+    /// Write the comparison as JSON to this file.
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Pixel pitch for a file that states none ("4.29 um").
+    #[arg(long, value_parser = clap_length)]
+    pub pitch: Option<f64>,
+    /// Array to read from a .npz archive holding several (the paper's: psf_val).
+    #[arg(long)]
+    pub key: Option<String>,
+    /// Radius of the encircled energy and the peak search ("5 um"); default the Airy
+    /// radius at the paper's F/7, or two pixels without a wavelength.
+    #[arg(long, value_parser = clap_length)]
+    pub radius: Option<f64>,
+}
+
+/// Arguments of `doefab bench psf`.
+#[derive(Args)]
+pub struct BenchPsfArgs {
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+/// `doefab psf`.
+pub fn psf(cli: &Cli, a: &PsfArgs) -> Result<()> {
+    let PsfArgs {
+        design,
+        output,
+        method,
+        subsample,
+        tolerance,
+        explain,
+        response,
+        system: system_file,
+        material,
+        allow_invalid,
+        read,
+    } = a;
+    use doefab::pipeline::psf;
+    let job = psf::prepare(&psf::PsfOptions {
+        design: DesignSource::parse(design.as_deref(), read.options()?),
+        method: method.clone(),
+        subsample: *subsample,
+        tolerance: *tolerance,
+        response: response.clone(),
+        system: system_file.clone(),
+        material: material.clone(),
+        allow_invalid: *allow_invalid,
+    })?;
+    if *explain {
+        if let Some(text) = job.explain() {
+            eprint!("{text}");
+        }
+    }
+    let pb = progress(cli, 1);
+    let report = job.run(output, &mut report_to(&pb))?;
+    pb.finish_and_clear();
+    warn(&report.warnings);
+    print_result(cli, &report, || {
+        for c in &report.channels {
+            println!(
+                "{}: peak {:.3e} at ({:.2}, {:.2}) um, Strehl {:.3}, captured {:.4}",
+                c.summary.name,
+                c.summary.peak,
+                c.summary.peak_position[0] * 1e6,
+                c.summary.peak_position[1] * 1e6,
+                c.strehl.unwrap_or(f64::NAN),
+                c.summary.captured.unwrap_or(f64::NAN)
+            );
+        }
+        println!("wrote {}", output.display());
+    })
+}
+
+/// `doefab psf-compare`.
+pub fn psf_compare(cli: &Cli, a: &PsfCompareArgs) -> Result<()> {
+    let PsfCompareArgs { a, b, output, pitch, key, radius } = a;
+    use doefab::pipeline::psf_compare::{psf_compare, PsfCompareOptions};
+    let r = psf_compare(&PsfCompareOptions {
+        a: a.clone(),
+        b: b.clone(),
+        compare: doefab::optics::compare::CompareOptions { pitch: *pitch, key: key.clone(), radius: *radius },
+        output: output.clone(),
+    })?;
+    warn(&r.warnings);
+    print_result(cli, &r, || {
+        if r.window != "same size" {
+            println!("{}", r.window);
+        }
+        for c in &r.channels {
+            let um = |p: [f64; 2]| format!("({:.2}, {:.2}) um", p[0] * 1e6, p[1] * 1e6);
+            println!(
+                "{}: L2 {:.3e}, aligned {:.3e} (B's centroid {} from A's); peak A {:.3e} at {}, \
+                         B {:.3e} at {}; EE({:.2} um) A {:.4}, B {:.4}",
+                c.name,
+                c.relative_l2,
+                c.relative_l2_aligned,
+                um(c.centroid_offset),
+                c.a.summary.peak,
+                um(c.a.summary.peak_position),
+                c.b.summary.peak,
+                um(c.b.summary.peak_position),
+                c.radius * 1e6,
+                c.a.encircled_energy,
+                c.b.encircled_energy
+            );
+        }
+    })
+}
+
+/// `doefab bench psf`.
+pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
+    let BenchPsfArgs { output } = a;
+    let pb = progress(cli, doefab::optics::bench::RUNS as u64);
+    let points = doefab::pipeline::bench::bench_psf(output, &mut report_to(&pb))?;
+    pb.finish_and_clear();
+    print_result(cli, &points, || {
+        for p in &points {
+            println!(
+                "{:<17} {} s={} pupil {:.2} um  {:.4} s  L2 {:.2e}{}{}",
+                p.method,
+                p.precision,
+                p.subsample,
+                p.pupil_pitch * 1e6,
+                p.seconds,
+                p.error,
+                if p.pareto { "  [Pareto]" } else { "" },
+                if p.violations.is_empty() {
+                    String::new()
+                } else {
+                    format!("  refused: {}", p.violations.join("; "))
+                }
+            );
+        }
+        println!("wrote {}", output.display());
+    })
+}
