@@ -14,10 +14,11 @@ use std::time::Instant;
 
 use doefab::design::{paper_example, ExampleParams, PAPER_APERTURE, PAPER_PITCH};
 use doefab::io::scan::{decode_scan_raw, scan_from_raw, ScanOptions};
-use doefab::metrology::compare::{compare, psf_comparison, CompareOptions};
+use doefab::metrology::compare::{compare, CompareOptions};
 use doefab::metrology::level::level_plane;
 use doefab::metrology::register::register;
 use doefab::metrology::simulate::{simulate_scan, SimulateParams};
+use doefab::pipeline::compare::psf_comparison;
 
 fn main() -> doefab::Result<()> {
     let design = paper_example(&ExampleParams::default())?;

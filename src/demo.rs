@@ -9,7 +9,7 @@
 //! 3. *Metrology*: `metrology/scan.x3p`, a synthetic scan of the part the 8-level recipe makes
 //!    (a cast: mirrored, complemented, 5 % too shallow, blurred by 2 um, tilted, noisy, 10 %
 //!    missing), compared with the design into `metrology/compare/`
-//!    ([`crate::metrology::compare::compare_scan_file`]).
+//!    ([`crate::pipeline::compare::compare_scan_file`]).
 //! 4. *Calibration*: `calibration/bracket/`, a synthetic 8-bit pinhole bracket of the simulated
 //!    PSF, calibrated back into `calibration/psf/` as `calibrate-psf --crop 319 --centre peak`
 //!    does; reports the relative L2 of the result against the simulated PSF ([`window_at_peak`]).
@@ -30,9 +30,9 @@ use crate::decoder::reconstruct::ReconstructFileReport;
 use crate::error::{Error, Result};
 use crate::fabrication::chain::{self, ChainParams, DesignSource, FabOptions, FabReport, LoadedDesign};
 use crate::fabrication::recipe::Recipe;
-use crate::metrology::compare::CompareReport;
 use crate::optics::output::PsfReport;
 use crate::optics::psf::Psf;
+use crate::pipeline::compare::CompareReport;
 
 /// The bundled recipes (`masks/NAME.toml`) the demo runs, in order.
 pub const RECIPES: [&str; 3] = ["laser-writer-grayscale", "binary-3mask-8level", "two-photon-stl"];
@@ -196,7 +196,7 @@ fn scan_and_compare(
 ) -> Result<CompareReport> {
     use crate::metrology::simulate::{simulate_scan, write_scan, SimulateParams};
     p.show("simulated scan of the 8-level part");
-    let (part, _, _) = crate::metrology::compare::reference_surface(design, Some(params))?;
+    let (part, _, _) = crate::pipeline::compare::reference_surface(design, Some(params))?;
     let sp = SimulateParams::typical_cast();
     if let Some(dir) = scan.parent() {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
@@ -204,7 +204,7 @@ fn scan_and_compare(
     write_scan(scan, &simulate_scan(&part, &sp)?)?;
     p.step("scan written");
     let psf_opts = crate::optics::Options { allow_invalid: true, ..Default::default() };
-    let report = crate::metrology::compare::compare_scan_file(
+    let report = crate::pipeline::compare::compare_scan_file(
         scan,
         &crate::io::scan::ScanOptions::default(),
         source,

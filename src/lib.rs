@@ -19,7 +19,7 @@
 //! * [`decoder`]: the paper's U-Net decoder: weights, measurement model, reconstruction of
 //!   captures, fine-tuning for a fabricated part's PSF.
 //! * [`pipeline`]: the commands that take more than one library call (merge, calibrate-psf,
-//!   psf, psf-compare, the benchmarks), from typed options to typed results.
+//!   psf, psf-compare, compare, the benchmarks), from typed options to typed results.
 //! * [`demo`]: every stage on the built-in design (`doefab demo`), no input needed.
 //! * [`report`]: charts and false-colour maps (plotters, embedded font), tone mapping.
 //! * [`rng`]: the seeded generator behind every stochastic step.

@@ -274,9 +274,9 @@ fn compare_scan(
     aperture: Option<f64>,
     psf: Option<(doefab::optics::Method, doefab::optics::Options)>,
     output: &Path,
-) -> Result<doefab::metrology::compare::CompareReport> {
+) -> Result<doefab::pipeline::compare::CompareReport> {
     let pb = progress(cli, 4);
-    let report = doefab::metrology::compare::compare_scan_file(
+    let report = doefab::pipeline::compare::compare_scan_file(
         scan_path,
         scan_opts,
         source,
@@ -294,7 +294,7 @@ fn compare_scan(
 }
 
 /// Prints the warnings of a scan comparison: the scan reader's, the comparison's, the PSFs'.
-pub fn warn_comparison(r: &doefab::metrology::compare::CompareReport) {
+pub fn warn_comparison(r: &doefab::pipeline::compare::CompareReport) {
     warn(&r.scan_warnings);
     warn(&r.comparison.warnings);
     if let Some(p) = &r.psf {
@@ -303,7 +303,7 @@ pub fn warn_comparison(r: &doefab::metrology::compare::CompareReport) {
 }
 
 /// A scan comparison: registration, error over the aperture (nm), fabrication model, levels, efficiency, PSFs.
-pub fn print_comparison(r: &doefab::metrology::compare::CompareReport, output: &Path) {
+pub fn print_comparison(r: &doefab::pipeline::compare::CompareReport, output: &Path) {
     let c = &r.comparison;
     let g = &c.registration;
     println!(

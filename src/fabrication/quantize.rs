@@ -155,6 +155,17 @@ pub fn order_efficiency(level_count: usize, a: f64, m: i64) -> f64 {
     sinc(m / n).powi(2) * bracket * bracket
 }
 
+/// Diffraction efficiency of order `m` of the unquantized (continuous) blazed profile at
+/// detuning `a`: `sinc^2(a - m)`, `sinc x = sin(pi x)/(pi x)`.
+pub fn continuous_efficiency(a: f64, m: i64) -> f64 {
+    let x = a - m as f64;
+    if x == 0.0 {
+        1.0
+    } else {
+        ((std::f64::consts::PI * x).sin() / (std::f64::consts::PI * x)).powi(2)
+    }
+}
+
 /// Detuning of a wavelength relative to the design: `a = p lambda0 (n(lambda) - 1) / (lambda (n0 - 1))`.
 pub fn detuning(order: u32, design_wavelength: f64, design_index: f64, wavelength: f64, index: f64) -> f64 {
     order as f64 * design_wavelength * (index - 1.0) / (wavelength * (design_index - 1.0))
@@ -190,20 +201,13 @@ pub fn efficiency_table(
             let n = spec.material.index(l)?;
             let a = detuning(spec.order, spec.wavelength, n0, l, n);
             let m = spec.order as i64;
-            let sinc2 = |x: f64| {
-                if x == 0.0 {
-                    1.0
-                } else {
-                    ((std::f64::consts::PI * x).sin() / (std::f64::consts::PI * x)).powi(2)
-                }
-            };
             Ok(EfficiencyRow {
                 wavelength: l,
                 index: n,
                 detuning: a,
                 order: m,
                 efficiency: order_efficiency(level_count, a, m),
-                continuous_efficiency: sinc2(a - m as f64),
+                continuous_efficiency: continuous_efficiency(a, m),
             })
         })
         .collect()

@@ -1,8 +1,9 @@
 //! Comparison of a fabricated part's scan with its design: the scan registered
 //! ([`crate::metrology::register`]) and resampled onto the design grid, the difference map with
 //! its RMS and PV over the clear aperture, the mean and spread of every quantization level, a
-//! fitted fabrication model, the diffraction-efficiency loss its depth error predicts, and the
-//! design PSF against the as-fabricated PSF.
+//! fitted fabrication model and the diffraction-efficiency loss its depth error predicts (the
+//! design PSF against the as-fabricated PSF, and the outputs of `doefab compare`, are
+//! [`crate::pipeline::compare`]'s).
 //!
 //! # The as-fabricated surface in the design frame
 //! Registration gives `z(x_s) = a h(x_d) + b + c . x_s` (see [`crate::metrology::register`]).
@@ -35,7 +36,7 @@ use ndarray::Array2;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::fabrication::quantize::{detuning, order_efficiency};
+use crate::fabrication::quantize::{continuous_efficiency, detuning, order_efficiency};
 use crate::fabrication::wrap::WrapSpec;
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::material::PAPER_WAVELENGTHS;
@@ -612,7 +613,7 @@ fn fit_model(design: &Grid, scan: &Grid, reg: &Registration, opts: &CompareOptio
 fn efficiency(levels: Option<usize>, a: f64, m: i64) -> f64 {
     match levels {
         Some(n) => order_efficiency(n, a, m),
-        None => crate::optics::system::sinc(a - m as f64).powi(2),
+        None => continuous_efficiency(a, m),
     }
 }
 
@@ -634,239 +635,6 @@ pub fn efficiency_loss(
             Ok(EfficiencyLoss { wavelength: l, detuning: a, design, fabricated, loss: design - fabricated })
         })
         .collect()
-}
-
-/// Design PSF against the as-fabricated PSF, per channel.
-#[derive(Debug, Clone, Serialize)]
-pub struct PsfChannelComparison {
-    pub name: String,
-    /// Metres.
-    pub wavelength: Option<f64>,
-    /// Peak of the as-fabricated PSF over the design PSF's peak, each in absolute terms (pixel
-    /// value times captured power): the Strehl ratio with the design's PSF as the reference.
-    pub strehl_vs_design: f64,
-    /// `||psf_fab - psf_design|| / ||psf_design||` (each normalised to sum 1 over the crop).
-    pub relative_l2: f64,
-}
-
-/// [`psf_comparison`]'s result.
-#[derive(Debug, Clone, Serialize)]
-pub struct PsfComparison {
-    pub method: String,
-    pub channels: Vec<PsfChannelComparison>,
-    /// Non-measured samples of the surface filled (Laplace) before propagation.
-    pub filled_samples: usize,
-    /// Validity conditions either run violated.
-    pub warnings: Vec<String>,
-}
-
-/// The PSFs of `design` and of the as-fabricated `surface` (non-measured samples filled by
-/// [`crate::metrology::fill::fill_missing`]) in `system` by `method`, compared channel by channel.
-pub fn psf_comparison(
-    design: &Grid,
-    surface: &Grid,
-    system: &crate::optics::system::OpticalSystem,
-    method: crate::optics::Method,
-    opts: &crate::optics::Options,
-) -> Result<PsfComparison> {
-    use crate::optics::propagate::simulate;
-    let (filled, filled_samples) = crate::metrology::fill::fill_missing(surface)?;
-    let a = simulate(system, design, method, opts)?;
-    let b = simulate(system, &filled, method, opts)?;
-    let strehl = b.strehl(&a)?;
-    let l2 = b.relative_l2(&a)?;
-    let channels = a
-        .channels
-        .iter()
-        .enumerate()
-        .map(|(c, ch)| PsfChannelComparison {
-            name: ch.name.clone(),
-            wavelength: ch.wavelength,
-            strehl_vs_design: strehl[c],
-            relative_l2: l2[c],
-        })
-        .collect();
-    let mut warnings = a.warnings.clone();
-    warnings.extend(b.warnings.iter().filter(|w| !a.warnings.contains(w)).cloned());
-    Ok(PsfComparison { method: method.name().into(), channels, filled_samples, warnings })
-}
-
-/// The reference surface a part is compared with: the design itself, or, given the chain's
-/// parameters (a recipe or a level count), the design wrapped and quantized as the recipe makes
-/// it (design side, not the master), with its level spec. Also returns the optics of the
-/// efficiency prediction.
-pub fn reference_surface(
-    design: &crate::fabrication::chain::LoadedDesign,
-    chain: Option<&crate::fabrication::chain::ChainParams>,
-) -> Result<(Grid, Option<LevelSpec>, WrapSpec)> {
-    match chain {
-        None => Ok((design.heights.clone(), None, WrapSpec::default())),
-        Some(p) => {
-            let p = crate::fabrication::chain::ChainParams {
-                replica_mode: crate::fabrication::ReplicaMode::Design,
-                ..p.clone()
-            };
-            let prep = crate::fabrication::chain::prepare(design, &p)?;
-            let q = prep.quantized;
-            let spec = LevelSpec { count: q.level_count, step: q.period / q.level_count as f64 };
-            Ok((q.heights, Some(spec), p.wrap_spec()?))
-        }
-    }
-}
-
-/// What `doefab compare` reports and writes as `compare.json`.
-#[derive(Debug, Clone, Serialize)]
-pub struct CompareReport {
-    pub scan: String,
-    pub design: String,
-    pub design_sha256: String,
-    pub units: String,
-    /// Problems the scan reader reported.
-    pub scan_warnings: Vec<String>,
-    #[serde(flatten)]
-    pub comparison: Comparison,
-    pub psf: Option<PsfComparison>,
-    /// Files written, relative to the output folder.
-    pub files: Vec<String>,
-}
-
-/// `surface.json`: how `surface.exr` was made.
-#[derive(Serialize)]
-struct SurfaceMeta<'a> {
-    units: &'static str,
-    pitch: [f64; 2],
-    scan: &'a str,
-    design: &'a str,
-    registration: &'a Registration,
-    height_reference: &'static str,
-    measured_fraction: f64,
-    filled_samples: usize,
-}
-
-/// Compares a scan with a reference surface, computes the PSF comparison (unless `psf` is
-/// `None`; skipped with a warning where the method's validity guard refuses the part's surface
-/// and the options do not force it) and writes the outputs into `out` at once: `compare.json`, `surface.exr` (the part
-/// on the design grid, non-measured samples filled, readable by `doefab psf`) with
-/// `surface.json`, false-colour maps `design.png`, `scan.png`, `difference.png`,
-/// `profiles.png` and `histogram.png`. `step` is called before each stage.
-#[allow(clippy::too_many_arguments)]
-pub fn compare_and_write(
-    scan_path: &std::path::Path,
-    scan: &crate::io::scan::Scan,
-    design: &crate::fabrication::chain::LoadedDesign,
-    reference: &Grid,
-    opts: &CompareOptions,
-    psf: Option<(crate::optics::Method, &crate::optics::Options)>,
-    out: &std::path::Path,
-    step: &mut dyn FnMut(&str),
-) -> Result<CompareReport> {
-    use crate::report::metrology_charts::{height_histogram, height_map, profiles, Palette};
-    step("register and compare");
-    let mut c = compare(reference, &scan.grid, opts)?;
-    let (filled, filled_samples) = crate::metrology::fill::fill_missing(&c.surface)?;
-    let psf = match psf {
-        Some((method, o)) => {
-            step("design and as-fabricated PSFs");
-            let mut system = crate::optics::output::system_for(reference);
-            system.material = opts.optics.material.clone();
-            system.aperture = c.aperture;
-            match psf_comparison(reference, &filled, &system, method, o) {
-                Ok(p) => Some(p),
-                Err(Error::Validity(m)) => {
-                    c.warnings.push(format!("the PSF comparison was skipped: {m}"));
-                    None
-                }
-                Err(e) => return Err(e),
-            }
-        }
-        None => None,
-    };
-    step("write");
-    let mut stage = crate::io::atomic::StagedDir::new(out)?;
-    let scan_name = scan_path.display().to_string();
-    let meta = SurfaceMeta {
-        units: "lengths and heights in metres, angles in radians",
-        pitch: reference.pitch(),
-        scan: &scan_name,
-        design: &design.name,
-        registration: &c.registration,
-        height_reference:
-            "sign(a) (z - b - tilt . x): the scan's plane and offset removed, depth errors kept",
-        measured_fraction: c.measured_fraction,
-        filled_samples,
-    };
-    let json = serde_json::to_string(&meta).map_err(|e| Error::Data(e.to_string()))?;
-    let exr_meta = crate::io::heightmap::Metadata::heights(reference.pitch())
-        .with("quantity", "height")
-        .with("surface", json);
-    crate::io::exr::write_exr(
-        &stage.stage_path("surface.exr"),
-        &[("height", &filled.values().mapv(|v| v as f32))],
-        &exr_meta,
-    )?;
-    crate::io::atomic::write_json(&stage.stage_path("surface.json"), &meta)?;
-    height_map(&stage.stage_path("design.png"), reference, "design", Palette::Sequential)?;
-    height_map(&stage.stage_path("scan.png"), &c.surface, "part (registered scan)", Palette::Sequential)?;
-    height_map(&stage.stage_path("difference.png"), &c.difference, "part - design", Palette::Diverging)?;
-    profiles(&stage.stage_path("profiles.png"), reference, &c.surface)?;
-    let heights: Vec<f64> = c
-        .surface
-        .values()
-        .indexed_iter()
-        .filter(|((i, j), _)| c.difference.is_valid(*i, *j))
-        .map(|(_, v)| *v)
-        .collect();
-    let (dl, ml): (Vec<f64>, Vec<f64>) = c
-        .levels
-        .as_ref()
-        .map_or((vec![], vec![]), |l| l.levels.iter().map(|s| (s.design_height, s.mean)).unzip());
-    height_histogram(&stage.stage_path("histogram.png"), &heights, &dl, &ml)?;
-    let files = ["compare.json", "surface.exr", "surface.json", "design.png", "scan.png", "difference.png"]
-        .iter()
-        .chain(&["profiles.png", "histogram.png"])
-        .map(|s| s.to_string())
-        .collect();
-    let report = CompareReport {
-        scan: scan_name,
-        design: design.name.clone(),
-        design_sha256: design.sha256.clone(),
-        units: "lengths and heights in metres, angles in radians".into(),
-        scan_warnings: scan.warnings.clone(),
-        comparison: c,
-        psf,
-        files,
-    };
-    crate::io::atomic::write_json(&stage.stage_path("compare.json"), &report)?;
-    stage.commit()?;
-    Ok(report)
-}
-
-/// `doefab compare` from files: reads the scan at `scan_path`, loads the design, makes its
-/// reference surface ([`reference_surface`] with `chain`, the design itself without) and runs
-/// [`compare_and_write`] into `out`. The clear aperture is `aperture` (metres), else the
-/// paper's 5 mm for `built-in:paper`, else the largest circle the design grid holds. The scan
-/// reader's warnings are in the report's `scan_warnings`. `step` is called before each stage
-/// (four with a PSF comparison, three without).
-#[allow(clippy::too_many_arguments)]
-pub fn compare_scan_file(
-    scan_path: &std::path::Path,
-    scan_opts: &crate::io::scan::ScanOptions,
-    source: &crate::fabrication::chain::DesignSource,
-    chain: Option<&crate::fabrication::chain::ChainParams>,
-    aperture: Option<f64>,
-    psf: Option<(crate::optics::Method, &crate::optics::Options)>,
-    out: &std::path::Path,
-    step: &mut dyn FnMut(&str),
-) -> Result<CompareReport> {
-    use crate::fabrication::chain::{load_design, DesignSource};
-    step("read");
-    let scan = crate::io::scan::read_scan(scan_path, scan_opts)?;
-    let design = load_design(source)?;
-    let (reference, levels, optics) = reference_surface(&design, chain)?;
-    let paper = matches!(source, DesignSource::BuiltIn(n) if n == "paper");
-    let aperture = aperture.or(paper.then_some(crate::design::PAPER_APERTURE));
-    let opts = CompareOptions { aperture, levels, optics, ..Default::default() };
-    compare_and_write(scan_path, &scan, &design, &reference, &opts, psf, out, step)
 }
 
 #[cfg(test)]
@@ -1010,7 +778,8 @@ mod tests {
             assert!((green.detuning - 1.0).abs() < 1e-12 && green.loss > 0.0, "{green:?}");
         }
         let cont = efficiency_loss(&spec, None, 0.9).unwrap();
-        let s = crate::optics::system::sinc(0.9 - 1.0);
+        let x = std::f64::consts::PI * (0.9 - 1.0);
+        let s = x.sin() / x;
         assert!((cont[1].fabricated - s * s).abs() < 1e-12 && cont[1].design == 1.0);
     }
 
@@ -1047,56 +816,6 @@ mod tests {
         match compare(&paper(200), &other, &CompareOptions::default()) {
             Err(Error::Registration(m)) => assert!(m.contains("does not match"), "{m}"),
             other => panic!("expected a registration error, got {other:?}"),
-        }
-    }
-
-    /// Piston does not change a PSF; a small random height error lowers the peak by Marechal's
-    /// `exp(-sigma_phi^2)`.
-    #[test]
-    fn psf_comparison_is_piston_invariant_and_follows_marechal() {
-        use crate::optics::{Method, OpticalSystem, Options};
-        let n = 256;
-        let design = Grid::new(Array2::zeros((n, n)), [PAPER_PITCH; 2], Unit::Metre).unwrap();
-        let system = OpticalSystem {
-            aperture: 0.95 * n as f64 * PAPER_PITCH,
-            pupil_window: n as f64 * PAPER_PITCH,
-            crop: 33,
-            ..Default::default()
-        };
-        let opts = Options { allow_invalid: true, ..Default::default() };
-        let piston = design.map_values(Array2::from_elem((n, n), 0.3e-6), Unit::Metre).unwrap();
-        let p = psf_comparison(&design, &piston, &system, Method::MatrixDft, &opts).unwrap();
-        for c in &p.channels {
-            assert!((c.strehl_vs_design - 1.0).abs() < 1e-9 && c.relative_l2 < 1e-9, "{c:?}");
-        }
-        // White noise blurred by 2 samples, 15 nm RMS inside the aperture.
-        let mut rng = crate::rng::Lcg(4);
-        let w = Grid::new(Array2::from_shape_fn((n, n), |_| rng.normal()), [PAPER_PITCH; 2], Unit::Metre)
-            .unwrap();
-        let w = gaussian_blur(&w, 2.0 * PAPER_PITCH).unwrap();
-        let r2 = (0.5 * system.aperture).powi(2);
-        let inside = |i: usize, j: usize| {
-            let c = (n as f64 - 1.0) * 0.5;
-            ((i as f64 - c).powi(2) + (j as f64 - c).powi(2)) * PAPER_PITCH * PAPER_PITCH <= r2
-        };
-        let (mut m, mut s2, mut k) = (0.0, 0.0, 0.0);
-        for ((i, j), v) in w.values().indexed_iter() {
-            if inside(i, j) {
-                m += v;
-                s2 += v * v;
-                k += 1.0;
-            }
-        }
-        let rms = (s2 / k - (m / k).powi(2)).sqrt();
-        let bumpy = w.map_values(w.values().mapv(|v| 15e-9 * v / rms), Unit::Metre).unwrap();
-        let p = psf_comparison(&design, &bumpy, &system, Method::MatrixDft, &opts).unwrap();
-        for c in &p.channels {
-            let l = c.wavelength.unwrap();
-            let sigma_phi =
-                2.0 * std::f64::consts::PI / l * (system.material.index(l).unwrap() - 1.0) * 15e-9;
-            let want = (-sigma_phi * sigma_phi).exp();
-            assert!((c.strehl_vs_design / want - 1.0).abs() < 0.01, "{c:?} vs {want}");
-            assert!(c.relative_l2 > 0.0);
         }
     }
 

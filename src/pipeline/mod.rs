@@ -10,11 +10,14 @@
 //! * [`psf`]: the simulated PSF of a design by the automatic plan or a forced method
 //!   (`doefab psf`).
 //! * [`psf_compare`]: two PSF files compared (`doefab psf-compare`).
+//! * [`compare`]: a part's scan against its design through the fabrication chain, metrology and
+//!   optics (`doefab compare`).
 //! * [`bench`]: the PSF methods' benchmark and the decoders' benchmark on real captures
 //!   (`doefab bench psf`, `doefab bench decoder`).
 
 pub mod bench;
 pub mod calibrate_psf;
+pub mod compare;
 pub mod merge;
 pub mod psf;
 pub mod psf_compare;
