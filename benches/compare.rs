@@ -88,7 +88,7 @@ fn main() -> doefab::Result<()> {
         c.efficiency[2].loss
     );
     let t = Instant::now();
-    let (filled, _) = doefab::metrology::fill::fill_missing(&c.surface)?;
+    let (filled, _) = doefab::grid::fill::fill_missing(&c.surface)?;
     let t_fill = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let system = doefab::optics::output::system_for(&design);

@@ -11,9 +11,11 @@
 //! Guarantees (checked by [`Grid::new`]): both pitches are finite and positive, the shape is
 //! at least 1 x 1, the mask (if any) has the shape of the values.
 //!
-//! Geometric operations (resample, crop, pad, mirror, rotate) live here so that every stage
-//! treats sampling the same way. Sample `(i, j)` sits at
+//! Geometric operations (resample, crop, pad, mirror, rotate) and the filling of non-measured
+//! samples ([`fill`]) live here so that every stage treats sampling the same way. Sample `(i, j)` sits at
 //! `x = origin_x + j * pitch_x`, `y = origin_y + i * pitch_y`.
+
+pub mod fill;
 
 use ndarray::{s, Array2};
 use serde::{Deserialize, Serialize};

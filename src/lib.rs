@@ -5,13 +5,13 @@
 //! Module map, in the order data flows:
 //!
 //! * [`grid`]: the shared physical data model, a sampled grid with pitch, origin, unit and
-//!   validity mask; resampling, crop, pad, mirror, rotate.
+//!   validity mask; resampling, crop, pad, mirror, rotate; filling of non-measured samples.
 //! * [`units`]: "550nm", "4.29 um" <-> metres at the edges.
 //! * [`material`]: refractive index n(lambda) of the DOE materials.
 //! * [`design`]: the built-in example designs (grating-like DOE, Fresnel lens).
 //! * [`io`]: file formats and atomic writing.
 //! * [`fabrication`]: wrap -> quantize -> grayscale masks, multi-level GDSII mask set, STL.
-//! * [`metrology`]: profilometer scans (read by [`io::scan`]): levelling, outliers, filling,
+//! * [`metrology`]: profilometer scans (read by [`io::scan`]): levelling, outliers,
 //!   ISO 25178 height parameters.
 //! * [`optics`]: the optical system and the DOE's PSF by several propagation methods.
 //! * [`calibration`]: exposure brackets -> HDR merge (Debevec-Malik) -> measured PSF

@@ -17,8 +17,9 @@ use crate::fabrication::recipe::{Output, Recipe};
 use crate::fabrication::stl::{
     level_heights, surface_mesh, surface_stl, write_stl_part, StlOptions, StlReport, SurfaceChoice,
 };
-use crate::fabrication::wrap::{check_finite, fill_missing, to_master, wrap, WrapReport, WrapSpec};
+use crate::fabrication::wrap::{check_finite, to_master, wrap, WrapReport, WrapSpec};
 use crate::fabrication::{Provenance, ReplicaMode};
+use crate::grid::fill::fill_missing;
 use crate::grid::{Grid, Unit};
 use crate::io::atomic::{write_json, StagedDir};
 use crate::io::exr::write_exr;

@@ -15,10 +15,6 @@ use crate::error::{Error, Result};
 use crate::grid::{Grid, Unit};
 use crate::material::Material;
 
-/// The Laplace fill of non-measured heights lives with the metrology stage; fabrication uses it
-/// through this path.
-pub use crate::metrology::fill::fill_missing;
-
 /// Design wavelength, material and multi-order factor of the wrap.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct WrapSpec {
@@ -207,7 +203,7 @@ mod tests {
         let g = grid(v);
         let e = wrap(&g, &WrapSpec::default()).unwrap_err().to_string();
         assert!(e.contains("2 height values") && e.contains("row 2, column 3"), "{e}");
-        let (f, n) = fill_missing(&g).unwrap();
+        let (f, n) = crate::grid::fill::fill_missing(&g).unwrap();
         assert_eq!(n, 2);
         // A linear field is harmonic: the Laplace fill restores it.
         assert!((f.values()[[2, 3]] - 5e-8).abs() < 1e-12);

@@ -1,6 +1,6 @@
 //! Outlier detection: spikes and dropouts of a scan, returned as a mask (`true` = outlier) to
 //! be removed from the validity mask ([`without_outliers`]) and, if wanted, filled
-//! ([`crate::metrology::fill::fill_missing`]).
+//! ([`crate::grid::fill::fill_missing`]).
 //!
 //! * [`nsigma_outliers`]: residuals from a least-squares polynomial of order k (1 = plane) fitted
 //!   on the valid samples; a sample is an outlier where `|residual| > n * sigma`, sigma the

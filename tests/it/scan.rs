@@ -338,7 +338,7 @@ fn scan_info_command_prints_the_statistics() {
 
 #[test]
 fn median_outliers_and_laplace_fill_restore_s1_from_s3() {
-    use doefab::metrology::fill::fill_missing;
+    use doefab::grid::fill::fill_missing;
     use doefab::metrology::outliers::{median_outliers, without_outliers};
     let s3 = read(&local("s3_spikes_missing_nan.x3pio.x3p"), &ScanOptions::default()).grid;
     // 3 x 3 median residuals: 5 um at the spikes, one step height (1 um or 0.5 um) at the

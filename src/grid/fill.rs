@@ -1,5 +1,5 @@
-//! Filling non-measured points: the membrane (Laplace) fill shared by the metrology and
-//! fabrication stages.
+//! Filling non-measured points: the membrane (Laplace) fill, below the stages that use it
+//! (fabrication's `--fill`, metrology's comparison, the PSF of a scanned part).
 
 use crate::error::{Error, Result};
 use crate::grid::Grid;
