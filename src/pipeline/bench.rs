@@ -54,6 +54,7 @@ pub struct DecoderBenchOptions {
     pub crop: usize,
     /// Adam step size.
     pub lr: f64,
+    /// Seed of the fine-tuning's random choices.
     pub seed: u64,
     /// Score the decoder being fine-tuned every this many steps; `None`: a fifth of the run.
     pub evaluate_every: Option<usize>,
@@ -67,6 +68,7 @@ pub struct DecoderBenchOptions {
 #[derive(Debug, Serialize)]
 #[serde(transparent)]
 pub struct DecoderBenchOutcome {
+    /// What [`crate::decoder::bench::run`] reports.
     pub report: BenchReport,
     /// Scenes whose bracket merged with warnings, and scenes refused.
     #[serde(skip)]

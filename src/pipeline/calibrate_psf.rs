@@ -12,6 +12,7 @@ use crate::pipeline::merge::{merge_bracket, BracketOptions, ResponseModel};
 pub struct CalibrateOptions {
     /// The pinhole bracket, merged as linear captures.
     pub bracket: BracketOptions,
+    /// Crop, centring and pitches of the extraction.
     pub psf: PsfOptions,
     /// Output folder: psf.exr, psf.npy, psf_log.png, merged.exr, psf.json.
     pub output: PathBuf,

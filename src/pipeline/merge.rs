@@ -49,6 +49,7 @@ pub enum ResponseModel {
 /// `merged.report.warnings`).
 #[derive(Debug)]
 pub struct MergedBracket {
+    /// The radiance, its report and the response used.
     pub merged: Merged,
     /// Warnings of the response recovery, empty for a linear merge.
     pub response_warnings: Vec<String>,
@@ -109,7 +110,9 @@ pub fn merge_bracket(
 /// What `doefab merge` writes and how.
 #[derive(Debug, Clone)]
 pub struct MergeOptions {
+    /// The bracket and how to merge it.
     pub bracket: BracketOptions,
+    /// Linear captures, or the response recovered from the bracket.
     pub response: ResponseModel,
     /// The OpenEXR radiance image (channels R, G, B).
     pub output: PathBuf,
@@ -124,8 +127,10 @@ pub struct MergeOptions {
 /// The merge's report, the tone mapping's and the response curve's file.
 #[derive(Debug, Serialize)]
 pub struct MergeOutcome {
+    /// The merge's report (frames, exposures, warnings), flattened into the outcome.
     #[serde(flatten)]
     pub report: MergeReport,
+    /// The tone-mapped PNG's report.
     pub tone_map: ToneMapReport,
     /// The response curve's CSV file, where one was asked for.
     pub response_csv: Option<String>,

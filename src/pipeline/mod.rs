@@ -12,7 +12,7 @@
 //! * [`psf_compare`]: two PSF files compared (`doefab psf-compare`).
 //! * [`compare`]: a part's scan against its design through the fabrication chain, metrology and
 //!   optics (`doefab compare`).
-//! * [`bench`]: the PSF methods' benchmark and the decoders' benchmark on real captures
+//! * [`bench`](mod@bench): the PSF methods' benchmark and the decoders' benchmark on real captures
 //!   (`doefab bench psf`, `doefab bench decoder`).
 
 pub mod bench;

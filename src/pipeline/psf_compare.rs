@@ -10,8 +10,11 @@ use crate::optics::compare::{compare, read_psf, CompareOptions, Comparison};
 /// The two PSFs and how to read and measure them.
 #[derive(Debug, Clone)]
 pub struct PsfCompareOptions {
+    /// The reference PSF file.
     pub a: PathBuf,
+    /// The PSF file compared against it (moved onto its centroid).
     pub b: PathBuf,
+    /// Pitch, array key and encircled-energy radius.
     pub compare: CompareOptions,
     /// Where to save the comparison as JSON.
     pub output: Option<PathBuf>,
