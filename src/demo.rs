@@ -222,7 +222,7 @@ fn scan_and_compare(
 /// back into `out/psf`, and compared with the simulated PSF.
 fn calibrate(psf_dir: &Path, out: &Path, p: &mut Progress) -> Result<CalibrationStage> {
     use crate::calibration::{capture, hdr_merge};
-    let simulated = pe::read_psf_npy(&psf_dir.join("psf.npy"), SENSOR_PITCH)?;
+    let simulated = Psf::read(&psf_dir.join("psf.npy"), None, Some(SENSOR_PITCH))?;
     p.show("synthetic pinhole bracket of the simulated PSF");
     let (frames, times, dark) = pe::simulate_pinhole_bracket(&simulated, 60, 12, 0.002, 0.03, 1);
     let bracket = out.join("bracket");
@@ -290,7 +290,7 @@ pub fn window_at_peak(psf: &Psf, size: usize) -> Result<Psf> {
 /// PSF (`out/capture.png` -> `out/reconstruction.exr` and `.png`).
 fn fine_tune(init: &Path, psf_path: &Path, out: &Path, p: &mut Progress) -> Result<DecoderStage> {
     use crate::decoder::{finetune as ft, reconstruct as rc, scenes, simulate};
-    let psf = ft::read_psf(psf_path, None, SENSOR_PITCH)?;
+    let psf = Psf::read(psf_path, None, Some(SENSOR_PITCH))?;
     let psf_sha = crate::io::file_sha256(psf_path)?;
     let source = ft::GeneratedScenes { name: "procedural HDR scenes", generate: scenes::procedural_scene };
     let cfg = ft::FinetuneConfig {
@@ -316,7 +316,7 @@ fn fine_tune(init: &Path, psf_path: &Path, out: &Path, p: &mut Progress) -> Resu
     p.show("reconstructing a simulated capture");
     let (kh, kw) = psf.dim();
     let size = 256;
-    let conv = simulate::Convolver::new(&psf, (size + kh - 1, size + kw - 1))?;
+    let conv = crate::optics::convolve::Convolver::new(&psf, (size + kh - 1, size + kw - 1))?;
     let scene = scenes::procedural_scene(7, size + kh - 1, size + kw - 1);
     let m =
         simulate::measure(&scene, &conv, &simulate::MeasurementModel::default(), &mut crate::rng::Lcg(7))?;

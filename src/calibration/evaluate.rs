@@ -58,9 +58,9 @@ use serde::Serialize;
 use super::register::{
     luminance, register_affine, register_local, warp, LocalRegistration, Model, RegisterOptions, Registration,
 };
-use crate::decoder::simulate::Convolver;
 use crate::error::{Error, Result};
 use crate::io::exr::read_exr;
+use crate::optics::convolve::Convolver;
 use crate::optics::psf::Psf;
 
 /// PSNR figures over one set of samples.
@@ -524,14 +524,7 @@ pub fn evaluate_files(files: &EvaluateFiles) -> Result<Evaluation> {
     let reference = read_image(&files.reference)?;
     let capture = super::capture::read_capture(&files.capture)?.values;
     let psf = match &files.psf {
-        Some(p) => {
-            let opts = crate::optics::compare::CompareOptions {
-                pitch: Some(files.capture_pitch),
-                key: files.psf_key.clone(),
-                radius: None,
-            };
-            Some(crate::optics::compare::read_psf(p, &opts)?)
-        }
+        Some(p) => Some(Psf::read(p, files.psf_key.as_deref(), Some(files.capture_pitch))?),
         None => None,
     };
     let images = files

@@ -621,25 +621,3 @@ pub fn simulate_pinhole_bracket(
     let dark_frame = Array3::from_shape_fn((h, w, nc), |_| quant(dark + noise * rng.normal()));
     (values, times, dark_frame)
 }
-
-/// Reads a PSF written as `.npy` in the paper's layout `(H, W, 1, C)` (as `psf.npy` from
-/// `doefab psf` or `calibrate-psf`), at pixel `pitch` (metres).
-pub fn read_psf_npy(path: &Path, pitch: f64) -> Result<Psf> {
-    let (header, array) = crate::io::npy::read_npy_nd(path)?;
-    let [h, w, 1, nc] = header.shape[..] else {
-        return Err(Error::format(path, format!("shape {:?} is not (H, W, 1, C)", header.shape)));
-    };
-    let channels = (0..nc)
-        .map(|c| {
-            let values = Array2::from_shape_fn((h, w), |(i, j)| array[[i, j, 0, c]]);
-            let origin = [-(w as f64 - 1.0) * 0.5 * pitch, -(h as f64 - 1.0) * 0.5 * pitch];
-            Ok(Channel {
-                name: if nc == 3 { ["R", "G", "B"][c].to_string() } else { format!("C{c}") },
-                wavelength: None,
-                grid: Grid::new(values, [pitch; 2], Unit::Dimensionless)?.with_origin(origin),
-                captured: None,
-            })
-        })
-        .collect::<Result<Vec<_>>>()?;
-    Psf::new(channels, "file").map_err(|e| Error::format(path, e.to_string()))
-}

@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array3, Zip};
 use serde::Serialize;
 
-use super::finetune::{read_psf, FinetuneConfig, GeneratedScenes, HistoryEntry, SceneSource, Trainer};
+use super::finetune::{FinetuneConfig, GeneratedScenes, HistoryEntry, SceneSource, Trainer};
 use super::reconstruct::{reconstruct, Negatives, ReconstructOptions};
 use super::unet::UNet;
 use super::weights::DecoderWeights;
@@ -311,7 +311,7 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
         .iter()
         .map(|p| Ok(UNet::from_weights(&DecoderWeights::read(p)?, &device)))
         .collect::<Result<Vec<_>>>()?;
-    let psf = read_psf(&cfg.psf, cfg.psf_key.as_deref(), SENSOR_PITCH)?;
+    let psf = Psf::read(&cfg.psf, cfg.psf_key.as_deref(), Some(SENSOR_PITCH))?;
     let mut scenes = Vec::new();
     let mut reports = Vec::new();
     for d in &cfg.scenes {
@@ -390,9 +390,9 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
         finetune,
     };
     crate::io::atomic::write_json(&out.join("report.json"), &report)?;
-    crate::report::decoder_charts::write_decoder_scene_chart(&out.join("decoders.png"), &report)?;
+    crate::decoder::charts::write_decoder_scene_chart(&out.join("decoders.png"), &report)?;
     if report.finetune.is_some() {
-        crate::report::decoder_charts::write_bench_chart(&out.join("psnr_vs_steps.png"), &report)?;
+        crate::decoder::charts::write_bench_chart(&out.join("psnr_vs_steps.png"), &report)?;
     }
     Ok(report)
 }

@@ -24,17 +24,18 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use burn::tensor::{Tensor, TensorData};
-use ndarray::{s, Array3};
+use ndarray::Array3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::decoder::simulate::{measure, Convolver, Measurement, MeasurementModel};
+use crate::decoder::simulate::{measure, Measurement, MeasurementModel};
 use crate::decoder::unet::{is_trainable, tensor_values, UNet};
 use crate::decoder::weights::{encode_safetensors, read_safetensors, DecoderWeights, NamedTensor};
 use crate::decoder::{to_tensor, weights};
 use crate::error::{Error, Result};
 use crate::io::atomic::write_bytes;
-use crate::optics::psf::{Channel, Psf};
+use crate::optics::convolve::Convolver;
+use crate::optics::psf::Psf;
 use crate::rng::Lcg;
 
 /// Where training scenes come from: linear HDR `(rows, cols, 3)` arrays, drawn with `rng`.
@@ -67,41 +68,6 @@ where
             return Err(Error::Data(format!("{} (seed {seed}) made the value {v}", self.name)));
         }
         Ok(scene)
-    }
-}
-
-/// Reads a PSF for training: NumPy `.npz` (array `key`, or its only array) or `.npy`, of shape
-/// `(H, W)`, `(H, W, C)` or `(H, W, 1, C)` (the paper's layout), at pixel `pitch` (metres).
-pub fn read_psf(path: &Path, key: Option<&str>, pitch: f64) -> Result<Psf> {
-    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-    match ext.as_str() {
-        "npz" => Psf::read_npz(path, key, pitch, None),
-        "npy" => {
-            let (h, a) = crate::io::npy::read_npy_nd(path)?;
-            let (rows, cols, nc) = match h.shape[..] {
-                [r, c] => (r, c, 1),
-                [r, c, k] | [r, c, 1, k] => (r, c, k),
-                _ => return Err(Error::format(path, format!("shape {:?} is not a PSF", h.shape))),
-            };
-            let a =
-                a.into_shape_with_order((rows, cols, nc)).map_err(|e| Error::format(path, e.to_string()))?;
-            let channels = (0..nc)
-                .map(|c| {
-                    Ok(Channel {
-                        name: if nc == 3 { ["R", "G", "B"][c].into() } else { format!("C{c}") },
-                        wavelength: None,
-                        grid: crate::grid::Grid::new(
-                            a.slice(s![.., .., c]).to_owned(),
-                            [pitch, pitch],
-                            crate::grid::Unit::Dimensionless,
-                        )?,
-                        captured: None,
-                    })
-                })
-                .collect::<Result<Vec<_>>>()?;
-            Psf::new(channels, "file").map_err(|e| Error::format(path, e.to_string()))
-        }
-        _ => Err(Error::format(path, "a PSF for fine-tuning must be .npz or .npy (H, W, 1, 3)")),
     }
 }
 
@@ -863,7 +829,7 @@ impl<'a> Trainer<'a> {
             "history": self.history,
         });
         crate::io::atomic::write_json(&out.join("training.json"), &record)?;
-        crate::report::training_chart::write_training_chart(&out.join("training_curve.png"), &self.history)?;
+        crate::decoder::training_chart::write_training_chart(&out.join("training_curve.png"), &self.history)?;
         Ok(written)
     }
 }
@@ -932,7 +898,7 @@ pub struct FinetuneOutcome {
 /// step. A run that stops on an error leaves the last good checkpoint and says so.
 pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Result<FinetuneOutcome> {
     use crate::decoder::dataset::training_and_validation;
-    let psf = read_psf(&job.psf, job.psf_key.as_deref(), job.pitch)?;
+    let psf = Psf::read(&job.psf, job.psf_key.as_deref(), Some(job.pitch))?;
     let psf_sha = crate::io::file_sha256(&job.psf)?;
     let procedural =
         GeneratedScenes { name: "procedural HDR scenes", generate: crate::decoder::scenes::procedural_scene };

@@ -1,11 +1,7 @@
 //! Comparing two PSFs (design vs as-fabricated vs measured): each one's summary numbers and
 //! the relative L2 difference after centroid alignment.
 //!
-//! Reading ([`read_psf`]): a `.npy` of shape `(H, W, 1, C)` as `doefab psf` writes it, with the
-//! pitch, channel names and wavelengths from the JSON summary beside it (`psf.json` beside
-//! `psf.npy`); the `psf.exr` it writes (pitch and channel order from the header); or a NumPy
-//! `.npz` archive such as the paper's measured PSF. A pitch the file does not state comes
-//! from the caller; without either the file is refused.
+//! The PSFs are read by [`Psf::read`].
 //!
 //! Comparing ([`compare`]): both PSFs must share channel count and pitch. Windows of
 //! different sizes are cropped to the common centred size (`(n - m) / 2` samples off the
@@ -25,8 +21,6 @@
 //! paper's 4.29 um pixels at F/7) carries a large share there: its sub-pixel alignment is not
 //! defined by the samples, and the warning says so.
 
-use std::path::Path;
-
 use ndarray::Array2;
 use rustfft::num_complex::Complex64;
 use rustfft::FftPlanner;
@@ -36,8 +30,6 @@ use super::output::PEAKS;
 use super::psf::{ChannelSummary, Peak, Psf};
 use super::system::OpticalSystem;
 use crate::error::{Error, Result};
-use crate::io::exr::{decode_exr, exr_channel_names};
-use crate::io::npy::read_npy_nd;
 
 /// Frequency (cycles per pixel) above which a channel's content counts as near the sampling
 /// limit, where the Fourier shift's band-limited interpolation is unreliable.
@@ -50,7 +42,7 @@ pub const WARN_LEVEL: f64 = 1e-3;
 const SHIFT_EPS: f64 = 1e-9;
 
 /// Relative difference of pitches treated as equal.
-const PITCH_TOLERANCE: f64 = 1e-6;
+use super::psf::PITCH_TOLERANCE;
 
 /// How the two PSFs are read and measured.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -115,125 +107,6 @@ pub struct Comparison {
     pub normalisation: String,
     pub channels: Vec<ChannelComparison>,
     pub warnings: Vec<String>,
-}
-
-/// Reads a PSF from `.npy` (with its `.json` summary beside it), `.exr` or `.npz`; see the
-/// module docs.
-pub fn read_psf(path: &Path, opts: &CompareOptions) -> Result<Psf> {
-    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    match ext.as_deref() {
-        Some("npz") => {
-            let pitch = resolve_pitch(path, None, opts.pitch)?;
-            Psf::read_npz(path, opts.key.as_deref(), pitch[0], None)
-        }
-        Some("npy") => read_npy_psf(path, opts),
-        Some("exr") => read_exr_psf(path, opts),
-        _ => Err(Error::format(path, "a PSF is read from .npy, .npz or .exr (by extension)")),
-    }
-}
-
-/// The pitch to use: the file's, `given` only when the file states none (they must agree
-/// when both are known).
-fn resolve_pitch(path: &Path, file: Option<[f64; 2]>, given: Option<f64>) -> Result<[f64; 2]> {
-    match (file, given) {
-        (Some(p), Some(g)) if p.iter().any(|&q| ((q - g) / g).abs() > PITCH_TOLERANCE) => Err(Error::format(
-            path,
-            format!("states pitch [{:e}, {:e}] m, but --pitch is {g:e} m", p[0], p[1]),
-        )),
-        (Some(p), _) => Ok(p),
-        (None, Some(g)) if g.is_finite() && g > 0.0 => Ok([g, g]),
-        (None, Some(g)) => Err(Error::param("pitch", format!("must be a positive length, got {g} m"))),
-        (None, None) => Err(Error::format(
-            path,
-            "states no pixel pitch (no metadata with 'sensor_pitch' or 'pitch_x'/'pitch_y'): give --pitch",
-        )),
-    }
-}
-
-/// Pitch, channel names and wavelengths from the `psf.json` that `doefab psf` writes beside
-/// its `psf.npy` (`None` when there is none).
-type SideMetadata = Option<([f64; 2], Vec<(String, Option<f64>)>)>;
-
-fn read_side_json(npy: &Path) -> Result<SideMetadata> {
-    let json = npy.with_extension("json");
-    if !json.exists() {
-        return Ok(None);
-    }
-    let text = std::fs::read_to_string(&json).map_err(|e| Error::io(&json, e))?;
-    let v: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| Error::format(&json, format!("not JSON: {e}")))?;
-    let pitch = v
-        .pointer("/system/sensor_pitch")
-        .and_then(serde_json::Value::as_f64)
-        .filter(|p| p.is_finite() && *p > 0.0)
-        .ok_or_else(|| Error::format(&json, "field 'system.sensor_pitch' (metres, positive) is missing"))?;
-    let channels = v
-        .get("channels")
-        .and_then(serde_json::Value::as_array)
-        .ok_or_else(|| Error::format(&json, "field 'channels' (an array) is missing"))?
-        .iter()
-        .enumerate()
-        .map(|(i, c)| {
-            let name = c.get("name").and_then(serde_json::Value::as_str).ok_or_else(|| {
-                Error::format(&json, format!("field 'channels[{i}].name' (text) is missing"))
-            })?;
-            Ok((name.to_string(), c.get("wavelength").and_then(serde_json::Value::as_f64)))
-        })
-        .collect::<Result<Vec<_>>>()?;
-    Ok(Some(([pitch, pitch], channels)))
-}
-
-fn read_npy_psf(path: &Path, opts: &CompareOptions) -> Result<Psf> {
-    let side = read_side_json(path)?;
-    let pitch = resolve_pitch(path, side.as_ref().map(|s| s.0), opts.pitch)?;
-    let (h, arr) = read_npy_nd(path)?;
-    let mut psf = Psf::from_array(path, &h.shape, arr, pitch, None)?;
-    if let Some((_, names)) = side {
-        if names.len() != psf.channels.len() {
-            return Err(Error::format(
-                path.with_extension("json"),
-                format!("lists {} channels, {} holds {}", names.len(), path.display(), psf.channels.len()),
-            ));
-        }
-        for (c, (name, wavelength)) in psf.channels.iter_mut().zip(names) {
-            c.name = name;
-            c.wavelength = wavelength;
-        }
-    }
-    Ok(psf)
-}
-
-fn read_exr_psf(path: &Path, opts: &CompareOptions) -> Result<Psf> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let header_names = exr_channel_names(path, &bytes)?;
-    let first = decode_exr(path, &bytes, header_names.first().map(String::as_str))?;
-    let text = |key: &str| first.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v.clone());
-    // Our writer records the channel order (the format sorts channels by name).
-    let names: Vec<String> = match text("channel_names") {
-        Some(list) => list.split(',').map(str::to_string).collect(),
-        None => header_names,
-    };
-    let wavelengths: Vec<Option<f64>> = match text("wavelengths_m") {
-        Some(list) if list.split(',').count() == names.len() => {
-            list.split(',').map(|w| w.trim().parse::<f64>().ok()).collect()
-        }
-        _ => vec![None; names.len()],
-    };
-    let pitch = resolve_pitch(path, first.pitch, opts.pitch)?;
-    let mut channels = Vec::new();
-    for (name, wavelength) in names.iter().zip(wavelengths) {
-        let raw = decode_exr(path, &bytes, Some(name))?;
-        channels.push(super::psf::Channel {
-            name: name.clone(),
-            wavelength,
-            grid: crate::grid::Grid::new(raw.values, pitch, crate::grid::Unit::Dimensionless)?,
-            captured: None,
-        });
-    }
-    Psf::new(channels, "file").map_err(|e| match e {
-        Error::Data(m) => Error::format(path, m),
-        other => other,
-    })
 }
 
 /// The numbers of channel `c` of `psf` with search/encircled radius `radius`.
@@ -523,9 +396,5 @@ mod tests {
         let other = Psf::new(vec![Channel { grid: g, ..a.channels[0].clone() }], "test").unwrap();
         let e = compare(&a, &other, "x", "y", &CompareOptions::default()).unwrap_err().to_string();
         assert!(e.contains("pitch"), "{e}");
-        let e = resolve_pitch(Path::new("m.npz"), None, None).unwrap_err().to_string();
-        assert!(e.contains("m.npz") && e.contains("--pitch"), "{e}");
-        let e = resolve_pitch(Path::new("p.exr"), Some([4.29e-6; 2]), Some(5e-6)).unwrap_err().to_string();
-        assert!(e.contains("p.exr") && e.contains("--pitch"), "{e}");
     }
 }

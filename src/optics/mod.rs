@@ -6,6 +6,8 @@
 //! * [`psf`]: the PSF type (one grid per channel), its measures, the `.npz` reader.
 //! * [`propagate`]: the propagation methods, one file each, with their validity checks.
 //! * [`bench`]: speed against accuracy of the methods on a small scene.
+//! * [`convolve`]: images convolved with a PSF (FFT, linear), `y = h * x`.
+//! * [`charts`]: the speed-against-accuracy and stability charts of [`bench`].
 //! * [`compare`]: two PSFs compared (summary numbers, L2 after centroid alignment).
 //! * [`output`]: the PSF written as EXR, NPY, log-scale PNG and a JSON summary.
 //! * [`plan`]: the automatic plan (method, sampling, precision, spectral samples for a
@@ -14,7 +16,9 @@
 //! * [`fft`]: planned square 2-D FFTs (rustfft stays inside this stage).
 
 pub mod bench;
+pub mod charts;
 pub mod compare;
+pub mod convolve;
 pub mod fft;
 pub mod output;
 pub mod plan;

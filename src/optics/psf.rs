@@ -18,7 +18,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::grid::{Grid, Unit};
-use crate::io::npy::decode_npy;
+use crate::io::exr::{decode_exr, exr_channel_names};
+use crate::io::npy::{decode_npy, read_npy_nd};
 
 /// One channel of a PSF.
 #[derive(Debug, Clone, PartialEq)]
@@ -341,9 +342,186 @@ impl Psf {
     }
 }
 
+/// Pitches of two PSFs (or a file's and a caller's) agree within this relative difference.
+pub const PITCH_TOLERANCE: f64 = 1e-6;
+
+impl Psf {
+    /// Reads a PSF file, the one reader of every command: a `.npy` of shape `(H, W)`,
+    /// `(H, W, C)` or `(H, W, 1, C)` (the paper's layout, as `doefab psf` and `calibrate-psf`
+    /// write it) with the pitch and channel names from the JSON summary beside it (`psf.json`
+    /// beside `psf.npy`: `system.sensor_pitch` or `sensor_pitch`, `channels[].name`); the
+    /// `psf.exr` that `doefab psf` writes (pitch and channel order from its header); or a
+    /// NumPy `.npz` archive such as the paper's measured PSF (array `key`, or its only one).
+    /// `pitch` (metres) is used where the file states none, and must agree (to 1e-6) where
+    /// it does; with neither the file is refused.
+    pub fn read(path: &Path, key: Option<&str>, pitch: Option<f64>) -> Result<Psf> {
+        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+        match ext.as_deref() {
+            Some("npz") => {
+                let pitch = resolve_pitch(path, None, pitch)?;
+                Psf::read_npz(path, key, pitch[0], None)
+            }
+            Some("npy") => read_npy_psf(path, pitch),
+            Some("exr") => read_exr_psf(path, pitch),
+            _ => Err(Error::format(path, "a PSF is read from .npy, .npz or .exr (by extension)")),
+        }
+    }
+}
+
+/// The pitch to use: the file's, `given` only when the file states none (they must agree
+/// when both are known).
+fn resolve_pitch(path: &Path, file: Option<[f64; 2]>, given: Option<f64>) -> Result<[f64; 2]> {
+    match (file, given) {
+        (Some(p), Some(g)) if p.iter().any(|&q| ((q - g) / g).abs() > PITCH_TOLERANCE) => Err(Error::format(
+            path,
+            format!("states pitch [{:e}, {:e}] m, but --pitch is {g:e} m", p[0], p[1]),
+        )),
+        (Some(p), _) => Ok(p),
+        (None, Some(g)) if g.is_finite() && g > 0.0 => Ok([g, g]),
+        (None, Some(g)) => Err(Error::param("pitch", format!("must be a positive length, got {g} m"))),
+        (None, None) => Err(Error::format(
+            path,
+            "states no pixel pitch (no metadata with 'sensor_pitch' or 'pitch_x'/'pitch_y'): give --pitch",
+        )),
+    }
+}
+
+/// Pitch, channel names and wavelengths from the `psf.json` that `doefab psf` writes beside
+/// its `psf.npy` (`None` when there is none).
+type SideMetadata = Option<([f64; 2], Vec<(String, Option<f64>)>)>;
+
+fn read_side_json(npy: &Path) -> Result<SideMetadata> {
+    let json = npy.with_extension("json");
+    if !json.exists() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&json).map_err(|e| Error::io(&json, e))?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| Error::format(&json, format!("not JSON: {e}")))?;
+    // `doefab psf` nests the pitch in its system; `calibrate-psf` states it at the top.
+    let pitch = v
+        .pointer("/system/sensor_pitch")
+        .or_else(|| v.get("sensor_pitch"))
+        .and_then(serde_json::Value::as_f64)
+        .filter(|p| p.is_finite() && *p > 0.0)
+        .ok_or_else(|| {
+            Error::format(
+                &json,
+                "field 'system.sensor_pitch' or 'sensor_pitch' (metres, positive) is missing",
+            )
+        })?;
+    let channels = v
+        .get("channels")
+        .and_then(serde_json::Value::as_array)
+        .ok_or_else(|| Error::format(&json, "field 'channels' (an array) is missing"))?
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let name = c.get("name").and_then(serde_json::Value::as_str).ok_or_else(|| {
+                Error::format(&json, format!("field 'channels[{i}].name' (text) is missing"))
+            })?;
+            Ok((name.to_string(), c.get("wavelength").and_then(serde_json::Value::as_f64)))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(Some(([pitch, pitch], channels)))
+}
+
+fn read_npy_psf(path: &Path, given: Option<f64>) -> Result<Psf> {
+    let side = read_side_json(path)?;
+    let pitch = resolve_pitch(path, side.as_ref().map(|s| s.0), given)?;
+    let (h, arr) = read_npy_nd(path)?;
+    let mut psf = Psf::from_array(path, &h.shape, arr, pitch, None)?;
+    if let Some((_, names)) = side {
+        if names.len() != psf.channels.len() {
+            return Err(Error::format(
+                path.with_extension("json"),
+                format!("lists {} channels, {} holds {}", names.len(), path.display(), psf.channels.len()),
+            ));
+        }
+        for (c, (name, wavelength)) in psf.channels.iter_mut().zip(names) {
+            c.name = name;
+            c.wavelength = wavelength;
+        }
+    }
+    Ok(psf)
+}
+
+fn read_exr_psf(path: &Path, given: Option<f64>) -> Result<Psf> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let header_names = exr_channel_names(path, &bytes)?;
+    let first = decode_exr(path, &bytes, header_names.first().map(String::as_str))?;
+    let text = |key: &str| first.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v.clone());
+    // Our writer records the channel order (the format sorts channels by name).
+    let names: Vec<String> = match text("channel_names") {
+        Some(list) => list.split(',').map(str::to_string).collect(),
+        None => header_names,
+    };
+    let wavelengths: Vec<Option<f64>> = match text("wavelengths_m") {
+        Some(list) if list.split(',').count() == names.len() => {
+            list.split(',').map(|w| w.trim().parse::<f64>().ok()).collect()
+        }
+        _ => vec![None; names.len()],
+    };
+    let pitch = resolve_pitch(path, first.pitch, given)?;
+    let mut channels = Vec::new();
+    for (name, wavelength) in names.iter().zip(wavelengths) {
+        let raw = decode_exr(path, &bytes, Some(name))?;
+        channels.push(Channel {
+            name: name.clone(),
+            wavelength,
+            grid: Grid::new(raw.values, pitch, Unit::Dimensionless)?,
+            captured: None,
+        });
+    }
+    Psf::new(channels, "file").map_err(|e| match e {
+        Error::Data(m) => Error::format(path, m),
+        other => other,
+    })
+}
+
 /// `||a - b|| / ||b||` over all samples.
 pub fn relative_l2(a: &Array2<f64>, b: &Array2<f64>) -> f64 {
     let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum();
     let den: f64 = b.iter().map(|y| y * y).sum();
     (num / den).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_pitch_comes_from_the_file_or_the_caller_and_must_agree() {
+        let e = resolve_pitch(Path::new("m.npz"), None, None).unwrap_err().to_string();
+        assert!(e.contains("m.npz") && e.contains("--pitch"), "{e}");
+        let e = resolve_pitch(Path::new("p.exr"), Some([4.29e-6; 2]), Some(5e-6)).unwrap_err().to_string();
+        assert!(e.contains("p.exr") && e.contains("--pitch"), "{e}");
+        assert_eq!(resolve_pitch(Path::new("p.exr"), Some([4.29e-6; 2]), None).unwrap(), [4.29e-6; 2]);
+        assert_eq!(resolve_pitch(Path::new("m.npz"), None, Some(5e-6)).unwrap(), [5e-6; 2]);
+    }
+
+    #[test]
+    fn the_summary_beside_a_npy_gives_its_pitch_in_either_layout() {
+        let dir = std::env::temp_dir().join(format!("doefab-psf-side-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let npy = dir.join("psf.npy");
+        let json = dir.join("psf.json");
+        // `doefab psf` nests the pitch in its system; `calibrate-psf` states it at the top.
+        for (text, pitch) in [
+            (
+                r#"{"system": {"sensor_pitch": 4.29e-6}, "channels": [{"name": "R", "wavelength": 6.35e-7}]}"#,
+                4.29e-6,
+            ),
+            (r#"{"sensor_pitch": 5e-6, "channels": [{"name": "G"}]}"#, 5e-6),
+        ] {
+            std::fs::write(&json, text).unwrap();
+            let (p, names) = read_side_json(&npy).unwrap().unwrap();
+            assert_eq!(p, [pitch; 2]);
+            assert_eq!(names.len(), 1);
+        }
+        std::fs::write(&json, r#"{"channels": []}"#).unwrap();
+        let e = read_side_json(&npy).unwrap_err().to_string();
+        assert!(e.contains("psf.json") && e.contains("sensor_pitch"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

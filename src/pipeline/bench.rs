@@ -12,7 +12,7 @@ use crate::decoder::finetune::FinetuneConfig;
 use crate::error::Result;
 use crate::io::atomic::{self, StagedDir};
 use crate::optics::bench::{run_bench, BenchPoint, RUNS};
-use crate::report::psf_charts::write_psf_charts;
+use crate::optics::charts::write_psf_charts;
 
 /// Runs the PSF methods' benchmark ([`crate::optics::bench`]) and writes its charts (PNG,
 /// SVG) and `bench_psf.json` into the folder `output`, all or nothing. Progress: one step per

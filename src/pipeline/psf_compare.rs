@@ -5,7 +5,8 @@ use std::path::{Path, PathBuf};
 
 use crate::error::Result;
 use crate::io::atomic;
-use crate::optics::compare::{compare, read_psf, CompareOptions, Comparison};
+use crate::optics::compare::{compare, CompareOptions, Comparison};
+use crate::optics::psf::Psf;
 
 /// The two PSFs and how to read and measure them.
 #[derive(Debug, Clone)]
@@ -24,8 +25,9 @@ pub struct PsfCompareOptions {
 /// the comparison carries the warnings.
 pub fn psf_compare(opts: &PsfCompareOptions) -> Result<Comparison> {
     let name = |p: &Path| p.display().to_string();
-    let pa = read_psf(&opts.a, &opts.compare)?;
-    let pb = read_psf(&opts.b, &opts.compare)?;
+    let (key, pitch) = (opts.compare.key.as_deref(), opts.compare.pitch);
+    let pa = Psf::read(&opts.a, key, pitch)?;
+    let pb = Psf::read(&opts.b, key, pitch)?;
     let r = compare(&pa, &pb, &name(&opts.a), &name(&opts.b), &opts.compare)?;
     if let Some(out) = &opts.output {
         atomic::write_json(out, &r)?;

@@ -6,11 +6,8 @@
 //! embedded in the binary (`assets/fonts/`, Bitstream Vera licence), so charts look the same
 //! on every machine and need no system fonts.
 
-pub mod decoder_charts;
 pub mod metrology_charts;
-pub mod psf_charts;
 pub mod tone;
-pub mod training_chart;
 
 use std::path::Path;
 

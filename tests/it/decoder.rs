@@ -713,10 +713,11 @@ fn bench_decoder_scores_every_decoder_on_one_pixel_set_and_carries_on_past_a_bad
 /// so the test tells the orientation apart.
 #[test]
 fn the_measured_psf_decoder_wins_on_captures_simulated_with_the_measured_psf() {
-    use doefab::decoder::finetune::{read_psf, GeneratedScenes};
+    use doefab::decoder::finetune::GeneratedScenes;
+    use doefab::optics::Psf;
     let data = data_dir();
     let dev = device(false).unwrap();
-    let psf = read_psf(&data.join("measured_psf.npz"), Some("psf_val"), 4.29e-6).unwrap();
+    let psf = Psf::read(&data.join("measured_psf.npz"), Some("psf_val"), Some(4.29e-6)).unwrap();
     let mut rotated = psf.clone();
     for c in &mut rotated.channels {
         c.grid.values_mut().invert_axis(ndarray::Axis(0));

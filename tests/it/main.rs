@@ -10,6 +10,7 @@ mod compare;
 mod decoder;
 mod gds;
 mod io;
+mod layering;
 mod level;
 mod optics;
 mod optics_plan;
