@@ -1,14 +1,15 @@
 #!/bin/sh
-# Fills corpus/TARGET/ with seed inputs: small files written by make_seeds.py plus the
+# Fills seeds/TARGET/ with seed inputs: small files written by make_seeds.py plus the
 # third-party reference files (profilometry/ of this repository and, when present beside the
-# checkout or at $SHARED, shared/data/surfaces/). Run from the fuzz/ directory.
+# checkout or at $SHARED, shared/data/surfaces/). Run from the fuzz/ directory. The seeds are
+# not kept: corpus/TARGET/ is the kept corpus, grown from them and minimised (README.md).
 set -e
-python3 make_seeds.py corpus
+python3 make_seeds.py seeds
 S=${SHARED:-../../shared}/data/surfaces
 add() { # TARGET FILE...
     t=$1; shift
-    mkdir -p "corpus/$t"
-    for f in "$@"; do [ -f "$f" ] && cp "$f" "corpus/$t/$(echo "$f" | tr / _)"; done
+    mkdir -p "seeds/$t"
+    for f in "$@"; do [ -f "$f" ] && cp "$f" "seeds/$t/$(echo "$f" | tr / _)"; done
     return 0
 }
 add x3p ../profilometry/*.x3p $S/surfalize/*.x3p $S/surfacetopography/*.x3p
