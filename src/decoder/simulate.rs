@@ -106,23 +106,8 @@ pub fn measure(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::grid::{Grid, Unit};
-    use crate::optics::psf::{Channel, Psf};
+    use crate::optics::convolve::psf_of;
     use ndarray::Array2;
-
-    fn psf_of(kernels: &[Array2<f64>]) -> Psf {
-        let channels = kernels
-            .iter()
-            .enumerate()
-            .map(|(c, k)| Channel {
-                name: format!("C{c}"),
-                wavelength: None,
-                grid: Grid::new(k.clone(), [4.29e-6, 4.29e-6], Unit::Dimensionless).unwrap(),
-                captured: None,
-            })
-            .collect();
-        Psf::new(channels, "test").unwrap()
-    }
 
     #[test]
     fn exposure_saturates_the_chosen_fraction() {

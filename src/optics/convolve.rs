@@ -139,26 +139,27 @@ pub fn convolve_direct(scene: &Array2<f64>, psf: &Array2<f64>) -> Array2<f64> {
     })
 }
 
+/// A PSF of the given kernels, one channel each, at the paper's 4.29 um pitch (for tests).
+#[cfg(test)]
+pub(crate) fn psf_of(kernels: &[Array2<f64>]) -> Psf {
+    use crate::grid::{Grid, Unit};
+    let channels = kernels
+        .iter()
+        .enumerate()
+        .map(|(c, k)| crate::optics::psf::Channel {
+            name: format!("C{c}"),
+            wavelength: None,
+            grid: Grid::new(k.clone(), [4.29e-6, 4.29e-6], Unit::Dimensionless).unwrap(),
+            captured: None,
+        })
+        .collect();
+    Psf::new(channels, "test").unwrap()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::grid::{Grid, Unit};
-    use crate::optics::psf::Channel;
     use crate::rng::Lcg;
-
-    fn psf_of(kernels: &[Array2<f64>]) -> Psf {
-        let channels = kernels
-            .iter()
-            .enumerate()
-            .map(|(c, k)| Channel {
-                name: format!("C{c}"),
-                wavelength: None,
-                grid: Grid::new(k.clone(), [4.29e-6, 4.29e-6], Unit::Dimensionless).unwrap(),
-                captured: None,
-            })
-            .collect();
-        Psf::new(channels, "test").unwrap()
-    }
 
     #[test]
     fn fft_convolution_equals_direct_summation() {
