@@ -129,6 +129,10 @@ pub struct GdsArgs {
     pub writer_pitch: f64,
     #[arg(long)]
     pub mirror: bool,
+    /// Most vertices per polygon, 4..=8190 (the default, 4094, is read by every GDSII reader
+    /// without a warning).
+    #[arg(long, default_value_t = doefab::fabrication::gds::SIGNED_LENGTH_MAX_VERTICES)]
+    pub max_vertices: usize,
 }
 
 /// Arguments of `doefab stl`.
@@ -235,8 +239,8 @@ pub fn mask(cli: &Cli, a: &MaskArgs) -> Result<()> {
 
 /// `doefab gds`.
 pub fn gds(cli: &Cli, a: &GdsArgs) -> Result<()> {
-    let GdsArgs { levels, output, writer_pitch, mirror } = a;
-    let report = chain::gds_file(levels, *writer_pitch, *mirror, output)?;
+    let GdsArgs { levels, output, writer_pitch, mirror, max_vertices } = a;
+    let report = chain::gds_file(levels, *writer_pitch, *mirror, *max_vertices, output)?;
     print_result(cli, &report, || {
         println!(
             "{} masks, {} polygons, {} vertices -> {}",

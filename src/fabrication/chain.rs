@@ -435,6 +435,8 @@ pub struct GdsJob<'a> {
     /// Mask writer address grid, metres.
     pub address_grid: f64,
     pub mirror: bool,
+    /// Most vertices per polygon ([`MaskSetOptions::max_vertices`]).
+    pub max_vertices: usize,
     pub provenance: &'a Provenance,
 }
 
@@ -447,12 +449,12 @@ pub fn write_gds_set(
     stem: &str,
     place: &mut dyn FnMut(&str) -> PathBuf,
 ) -> Result<(MaskSetReport, Vec<(String, &'static str)>)> {
-    let GdsJob { levels, level_count, period, address_grid, mirror, provenance } = *job;
+    let GdsJob { levels, level_count, period, address_grid, mirror, max_vertices, provenance } = *job;
     let ext = levels.extent();
     let (nc, nr) = ((ext[0] / address_grid).round() as usize, (ext[1] / address_grid).round() as usize);
     let on_grid = levels.resample_to(nr, nc, [address_grid; 2], crate::grid::Interpolation::Nearest)?;
     let on_grid = if mirror { on_grid.mirror(true, false) } else { on_grid };
-    let opts = MaskSetOptions::default();
+    let opts = MaskSetOptions { max_vertices, ..MaskSetOptions::default() };
     let gds_name = format!("{stem}.gds");
     let gds_path = place(&gds_name);
     let report = write_mask_set(&on_grid, level_count, period, &opts, &gds_path)?;
@@ -486,7 +488,13 @@ pub fn write_gds_set(
 }
 
 /// `doefab gds`: the mask set of a level map written by `doefab quantize`.
-pub fn gds_file(levels: &Path, address_grid: f64, mirror: bool, output: &Path) -> Result<MaskSetReport> {
+pub fn gds_file(
+    levels: &Path,
+    address_grid: f64,
+    mirror: bool,
+    max_vertices: usize,
+    output: &Path,
+) -> Result<MaskSetReport> {
     let lm = read_level_map(levels)?;
     let dir = output.parent().map(Path::to_path_buf).unwrap_or_default();
     let stem =
@@ -497,6 +505,7 @@ pub fn gds_file(levels: &Path, address_grid: f64, mirror: bool, output: &Path) -
         period: lm.period,
         address_grid,
         mirror,
+        max_vertices,
         provenance: &lm.provenance,
     };
     let (report, _) = write_gds_set(&job, &stem, &mut |name| dir.join(name))?;
@@ -641,6 +650,7 @@ pub fn run_recipe(
             period: prep.wrap.period,
             address_grid: recipe.address_grid,
             mirror: recipe.mask_mirror,
+            max_vertices: recipe.gds_max_vertices,
             provenance: &prep.provenance,
         };
         let (report, written) = write_gds_set(&job, "mask_set", &mut |name| stage.stage_path(name))?;

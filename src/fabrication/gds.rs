@@ -28,7 +28,9 @@
 //! limit of current readers such as KLayout.) Readers that take the length as a signed
 //! 16-bit number stop at 32767 bytes, i.e. 4095 pairs or 4094 vertices
 //! ([`SIGNED_LENGTH_MAX_VERTICES`]); KLayout reads longer records correctly but warns about
-//! them. Set [`MaskSetOptions::max_vertices`] accordingly for such a tool chain.
+//! each ("Record length larger than 0x8000"). The default limit is therefore 4094, which
+//! every reader takes without a word; [`MaskSetOptions::max_vertices`] (a recipe's
+//! `gds.max_vertices`, `doefab gds --max-vertices`) sets any limit in 4..=8190.
 //!
 //! Alignment crosses (two bars of `cross_width` by `cross_arm`) sit outside the four corners
 //! of the design extent, `cross_margin` away from it in x and y, identical on every layer so
@@ -275,7 +277,7 @@ fn gds_short(name: &str, v: u16) -> Result<i16> {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct MaskSetOptions {
-    /// Most vertices per polygon, 4..=8190.
+    /// Most vertices per polygon, 4..=8190 (default 4094, see the module docs).
     pub max_vertices: usize,
     /// Length of each bar of the alignment crosses (tip to tip), metres.
     pub cross_arm: f64,
@@ -288,7 +290,7 @@ pub struct MaskSetOptions {
 impl Default for MaskSetOptions {
     fn default() -> Self {
         MaskSetOptions {
-            max_vertices: MAX_BOUNDARY_VERTICES,
+            max_vertices: SIGNED_LENGTH_MAX_VERTICES,
             cross_arm: 200e-6,
             cross_width: 20e-6,
             cross_margin: 100e-6,

@@ -6,6 +6,7 @@
 //! ([`BUNDLED`](super::bundled::BUNDLED)): `built-in:NAME` names one of them wherever a recipe or curve path is taken,
 //! so an installed binary needs no source tree beside it.
 
+use crate::fabrication::gds::{MAX_BOUNDARY_VERTICES, SIGNED_LENGTH_MAX_VERTICES};
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -47,6 +48,8 @@ struct RecipeFile {
     mask: MaskFile,
     #[serde(default)]
     stl: StlFile,
+    #[serde(default)]
+    gds: GdsFile,
     outputs: Vec<Output>,
 }
 
@@ -95,6 +98,12 @@ struct StlFile {
     max_error: Option<String>,
 }
 
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct GdsFile {
+    max_vertices: Option<usize>,
+}
+
 /// A parsed, validated recipe (SI units).
 #[derive(Debug, Clone, Serialize)]
 pub struct Recipe {
@@ -122,6 +131,9 @@ pub struct Recipe {
     pub stl_unit: StlUnit,
     pub stl_base_thickness: f64,
     pub stl_max_error: f64,
+    /// Most vertices per GDSII polygon, 4..=8190 (default 4094: every reader takes it without
+    /// a warning; see [`crate::fabrication::gds`]).
+    pub gds_max_vertices: usize,
     pub outputs: Vec<Output>,
 }
 
@@ -201,6 +213,16 @@ impl Recipe {
                 Some(b) => positive("stl.max_error", len("stl.max_error", b)?)?,
                 None => 5e-9,
             },
+            gds_max_vertices: match f.gds.max_vertices {
+                Some(n) if (4..=MAX_BOUNDARY_VERTICES).contains(&n) => n,
+                Some(n) => {
+                    return Err(Error::format(
+                        path,
+                        format!("field 'gds.max_vertices': {n} is outside 4..={MAX_BOUNDARY_VERTICES}"),
+                    ))
+                }
+                None => SIGNED_LENGTH_MAX_VERTICES,
+            },
             outputs: f.outputs,
         })
     }
@@ -215,6 +237,21 @@ mod tests {
         let p = dir.join("r.toml");
         std::fs::write(&p, text).unwrap();
         p
+    }
+
+    #[test]
+    fn the_gds_vertex_limit_defaults_to_what_every_reader_takes_and_is_checked() {
+        let d = tempfile::tempdir().unwrap();
+        let r = Recipe::read(&write(d.path(), GOOD)).unwrap();
+        assert_eq!(r.gds_max_vertices, SIGNED_LENGTH_MAX_VERTICES);
+        let r = Recipe::read(&write(d.path(), &format!("{GOOD}\n[gds]\nmax_vertices = 100\n"))).unwrap();
+        assert_eq!(r.gds_max_vertices, 100);
+        for bad in [3, MAX_BOUNDARY_VERTICES + 1] {
+            let e = Recipe::read(&write(d.path(), &format!("{GOOD}\n[gds]\nmax_vertices = {bad}\n")))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("r.toml") && e.contains("gds.max_vertices"), "{e}");
+        }
     }
 
     const GOOD: &str = r#"

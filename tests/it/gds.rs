@@ -1,6 +1,6 @@
 //! The GDSII mask set read back by an independent reader (KLayout's Python module): the
 //! levels decoded from the layers equal the level map pixel for pixel, polygons respect the
-//! 8190-vertex limit, have no holes and do not overlap, and the alignment crosses are the
+//! vertex limit (by default 4094, which KLayout reads without a warning), have no holes and do not overlap, and the alignment crosses are the
 //! same on every layer.
 
 use crate::common;
@@ -10,6 +10,7 @@ use std::collections::BTreeMap;
 
 use doefab::fabrication::gds::{
     layer_masks, write_layer_previews, write_mask_set, MaskSetOptions, MaskSetReport, MAX_BOUNDARY_VERTICES,
+    SIGNED_LENGTH_MAX_VERTICES,
 };
 use doefab::{Error, Grid, Unit};
 use ndarray::Array2;
@@ -258,12 +259,21 @@ fn serpentine_beyond_the_vertex_limit_is_split_and_still_exact() {
     let levels = Grid::new(values, [2e-6, 2e-6], Unit::Level).unwrap();
     let dir = common::tempdir();
     let path = dir.path().join("serpentine.gds");
+    // The default limit, 4094 vertices, keeps every XY record within 32 KiB: KLayout reads
+    // the file without a word.
     let rep = write_mask_set(&levels, 2, 600e-9, &MaskSetOptions::default(), &path).unwrap();
     assert!(rep.vertices > MAX_BOUNDARY_VERTICES, "{} vertices", rep.vertices);
-    assert!(rep.polygons >= 2);
-    // KLayout reads the long XY records (> 32 KiB), warning that it reads their length as
-    // unsigned, which the format defines it to be.
+    assert!(rep.polygons >= 3, "{} polygons", rep.polygons);
     let warnings = check_against_klayout(&levels, 2, &rep, &path);
+    assert!(warnings.is_empty(), "{warnings:?}");
+    let (layers, _) = klayout_check(&path, rows, cols, &rep);
+    assert!(layers[&1].max_points <= SIGNED_LENGTH_MAX_VERTICES, "{}", layers[&1].max_points);
+    // At the format's own limit (8190) the file is still exact, and KLayout reads the long
+    // records (> 32 KiB) but warns that it takes their length as unsigned.
+    let opts = MaskSetOptions { max_vertices: MAX_BOUNDARY_VERTICES, ..Default::default() };
+    let rep = write_mask_set(&levels, 2, 600e-9, &opts, &path).unwrap();
+    let warnings = check_against_klayout(&levels, 2, &rep, &path);
+    assert!(warnings.iter().any(|w| w.contains("Record length larger than 0x8000")), "{warnings:?}");
     assert!(
         warnings.iter().all(|w| w.contains("In file") || w.contains("Record length larger than 0x8000")),
         "{warnings:?}"
