@@ -502,10 +502,9 @@ mod tests {
 
     #[test]
     fn the_summary_beside_a_npy_gives_its_pitch_in_either_layout() {
-        let dir = std::env::temp_dir().join(format!("doefab-psf-side-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let npy = dir.join("psf.npy");
-        let json = dir.join("psf.json");
+        let dir = tempfile::tempdir().unwrap();
+        let npy = dir.path().join("psf.npy");
+        let json = dir.path().join("psf.json");
         // `doefab psf` nests the pitch in its system; `calibrate-psf` states it at the top.
         for (text, pitch) in [
             (
@@ -522,6 +521,5 @@ mod tests {
         std::fs::write(&json, r#"{"channels": []}"#).unwrap();
         let e = read_side_json(&npy).unwrap_err().to_string();
         assert!(e.contains("psf.json") && e.contains("sensor_pitch"), "{e}");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
