@@ -358,3 +358,62 @@ fn median_outliers_and_laplace_fill_restore_s1_from_s3() {
     }
     check("S3 filled", &height_params(&filled).unwrap(), &S1_RAW, Tol::Rel(1e-6));
 }
+
+/// An 8-bit 4 x 1 PNG of counts 0, 85, 170, 255 with a `pCAL` chunk (x0, x1, p0, p1, unit "m"),
+/// and a `Software` text when `software` is given.
+fn pcal_png(x0: i32, x1: i32, p0: f64, p1: f64, software: Option<&str>) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, 4, 1);
+    enc.set_color(png::ColorType::Grayscale);
+    enc.set_depth(png::BitDepth::Eight);
+    if let Some(s) = software {
+        enc.add_text_chunk("Software".to_string(), s.to_string()).unwrap();
+    }
+    let mut w = enc.write_header().unwrap();
+    let mut d = b"Z\0".to_vec();
+    d.extend_from_slice(&x0.to_be_bytes());
+    d.extend_from_slice(&x1.to_be_bytes());
+    d.extend_from_slice(&[0, 2]);
+    d.extend_from_slice(format!("m\0{p0:e}\0{p1:e}").as_bytes());
+    w.write_chunk(png::chunk::ChunkType(*b"pCAL"), &d).unwrap();
+    w.write_image_data(&[0, 85, 170, 255]).unwrap();
+    w.finish().unwrap();
+    out
+}
+
+/// The PNG specification's pCAL (11.3.3.2): X = x0 + stored (x1 - x0) / (2^bits - 1), then
+/// z = p0 + p1 X / (x1 - x0); x0 and x1 span the whole i32 range without overflow; a Gwyddion
+/// file is read in Gwyddion's form only with the x0 = 0, x1 = 2^bits - 1 it writes.
+#[test]
+fn png_pcal_follows_the_specification_for_any_x0_x1() {
+    let dir = common::tempdir();
+    let opts = ScanOptions { pitch: Some([1e-6; 2]), allow_implausible: true, ..Default::default() };
+    let heights = |x0: i32, x1: i32, p0: f64, p1: f64, software: Option<&str>| {
+        let path = dir.path().join("p.png");
+        std::fs::write(&path, pcal_png(x0, x1, p0, p1, software)).unwrap();
+        read_scan(&path, &opts).map(|s| s.grid.values().iter().copied().collect::<Vec<f64>>())
+    };
+    let close = |got: &[f64], want: &[f64]| {
+        got.iter().zip(want).all(|(g, w)| (g - w).abs() <= 1e-12 * w.abs().max(1e-9))
+    };
+    // x0 = -100, x1 = 155: X = stored - 100, z = 1e-6 + 1e-9 (stored - 100).
+    let z = heights(-100, 155, 1e-6, 255e-9, None).unwrap();
+    let want: Vec<f64> = [0.0, 85.0, 170.0, 255.0].iter().map(|s| 1e-6 + 1e-9 * (s - 100.0)).collect();
+    assert!(close(&z, &want), "{z:?} vs {want:?}");
+    // The whole i32 range (a fuzz finding: x1 - x0 overflowed i32).
+    let z = heights(i32::MIN, i32::MAX, 0.0, 1e-6, None).unwrap();
+    let span = f64::from(i32::MAX) - f64::from(i32::MIN);
+    let want: Vec<f64> = [0.0, 85.0, 170.0, 255.0]
+        .iter()
+        .map(|s| 1e-6 * (f64::from(i32::MIN) + s * span / 255.0) / span)
+        .collect();
+    assert!(close(&z, &want), "{z:?} vs {want:?}");
+    let e = heights(7, 7, 0.0, 1e-6, None).unwrap_err().to_string();
+    assert!(e.contains("p.png") && e.contains("pCAL x0 = x1"), "{e}");
+    // Gwyddion's form: z = p0 + p1 stored, and only with the x0, x1 Gwyddion writes.
+    let z = heights(0, 255, 1e-6, 1e-9, Some("Gwyddion")).unwrap();
+    let want: Vec<f64> = [0.0, 85.0, 170.0, 255.0].iter().map(|s| 1e-6 + 1e-9 * s).collect();
+    assert!(close(&z, &want), "{z:?} vs {want:?}");
+    let e = heights(i32::MIN, i32::MAX, 0.0, 1e-9, Some("Gwyddion")).unwrap_err().to_string();
+    assert!(e.contains("p.png") && e.contains("x0 = -2147483648, x1 = 2147483647"), "{e}");
+}

@@ -121,18 +121,31 @@ pub fn decode(path: &Path, bytes: &[u8], explicit_scale: bool) -> Result<ScanRaw
             let gwyddion = get("Software").as_deref() == Some("Gwyddion")
                 || raw.metadata.iter().any(|(k, _)| k.starts_with("Gwy::"));
             let (p0, p1) = (c.params[0], c.params[1]);
-            let span = (c.x1 - c.x0) as f64;
-            let per_count = if gwyddion {
-                p1
-            } else if span != 0.0 {
-                p1 / span
-            } else {
+            let full = ((1u64 << bits) - 1) as f64;
+            // x0 and x1 are i32: their difference is taken in f64, where it cannot overflow.
+            let (x0, x1) = (f64::from(c.x0), f64::from(c.x1));
+            if x1 == x0 {
                 return Err(Error::format(path, format!("byte offset {}: pCAL x0 = x1", c.offset)));
+            }
+            // z = z0 + per_count * stored count.
+            let (z0, per_count) = if gwyddion {
+                if (x0, x1) != (0.0, full) {
+                    return Err(Error::format(
+                        path,
+                        format!(
+                            "byte offset {}: pCAL x0 = {}, x1 = {} in a file written by Gwyddion, which writes 0 and {full} for {bits}-bit samples",
+                            c.offset, c.x0, c.x1
+                        ),
+                    ));
+                }
+                (p0, p1)
+            } else {
+                // The specification: X = x0 + stored (x1 - x0) / (2^bits - 1), z = p0 + p1 X / (x1 - x0).
+                (p0 + p1 * x0 / (x1 - x0), p1 / full)
             };
             if gwyddion {
                 let zmax = get("Gwy::ZMax").and_then(|v| v.parse::<f64>().ok());
                 if let Some(zmax) = zmax {
-                    let full = ((1u64 << bits) - 1) as f64;
                     let predicted = (p0 + full * p1) * s;
                     if (predicted - zmax).abs() > 1e-6 * (full * p1 * s).abs() {
                         warnings.push(format!(
@@ -141,13 +154,13 @@ pub fn decode(path: &Path, bytes: &[u8], explicit_scale: bool) -> Result<ScanRaw
                     }
                 }
             }
-            raw.values.mapv_inplace(|x| (p0 + per_count * (x - c.x0 as f64)) * s);
+            raw.values.mapv_inplace(|x| (z0 + per_count * x) * s);
             raw.kind = SampleKind::Float;
             raw.unit = Some(1.0);
             raw.metadata.push((
                 "pCAL".to_string(),
                 format!(
-                    "{}: z = {p0:e} + {per_count:e} * count [{}] ({})",
+                    "{}: z = {z0:e} + {per_count:e} * count [{}] ({})",
                     c.name,
                     c.unit,
                     if gwyddion { "Gwyddion's form" } else { "PNG specification's form" }
