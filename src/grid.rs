@@ -15,6 +15,7 @@
 //! samples ([`fill`]) live here so that every stage treats sampling the same way. Sample `(i, j)` sits at
 //! `x = origin_x + j * pitch_x`, `y = origin_y + i * pitch_y`.
 
+pub mod blur;
 pub mod fill;
 
 use ndarray::{s, Array2};

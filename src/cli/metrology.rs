@@ -31,6 +31,10 @@ pub struct SimulateScanArgs {
     /// Output scan (.x3p or .gsf).
     #[arg(short, long)]
     pub output: PathBuf,
+    /// The process's height response before the blur, commanded:made pairs, e.g.
+    /// "0nm:0nm,600nm:660nm,1.2um:1.2um" (piecewise linear, extended linearly).
+    #[arg(long)]
+    pub response: Option<String>,
     /// Gaussian lateral blur (standard deviation), e.g. "2um".
     #[arg(long, value_parser = clap_length, default_value = "0nm")]
     pub blur: f64,
@@ -145,6 +149,7 @@ pub struct ScanInfoArgs {
 pub fn simulate_scan(cli: &Cli, a: &SimulateScanArgs) -> Result<()> {
     let SimulateScanArgs {
         design,
+        response,
         output,
         blur,
         depth_scale,
@@ -165,6 +170,7 @@ pub fn simulate_scan(cli: &Cli, a: &SimulateScanArgs) -> Result<()> {
     use doefab::metrology::simulate as sim;
     let loaded = chain::load_design(&DesignSource::parse(Some(design), read.options()?))?;
     let params = sim::SimulateParams {
+        response: response.as_deref().map(doefab::fabrication::precompensate::Response::parse).transpose()?,
         blur: *blur,
         depth_scale: *depth_scale,
         offset: *offset,

@@ -112,6 +112,10 @@ pub struct MaskMeta {
     pub marks_px: Vec<[f64; 2]>,
     pub label: String,
     pub provenance: Provenance,
+    /// What `doefab precompensate` corrected, from which scan, and what it predicts (absent in
+    /// a plain `fab` mask).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub precompensation: Option<serde_json::Value>,
 }
 
 /// A rendered grayscale mask.
@@ -122,7 +126,8 @@ pub struct GrayscaleMask {
     pub meta: MaskMeta,
 }
 
-/// Renders the mask of a level map (`Unit::Level`, values `0..level_count`).
+/// Renders the mask of a level map (`Unit::Level`, values `0..level_count`), level `l` at the
+/// height `l period / level_count`.
 pub fn render(
     levels: &Grid,
     level_count: usize,
@@ -131,6 +136,27 @@ pub fn render(
     opts: &MaskOptions,
     provenance: &Provenance,
 ) -> Result<GrayscaleMask> {
+    let step = period / level_count as f64;
+    let heights: Vec<f64> = (0..level_count).map(|l| l as f64 * step).collect();
+    render_levels(levels, &heights, period, curve, opts, provenance)
+}
+
+/// Renders the mask of a level map whose level `l` is written at the height `heights[l]`
+/// (metres, increasing): the positive resist develops `max(heights) - heights[l]`, the negative
+/// keeps `heights[l]`. [`render`] is the case `heights[l] = l period / N`; pre-compensation
+/// ([`crate::fabrication::precompensate`]) gives corrected tables.
+pub fn render_levels(
+    levels: &Grid,
+    heights: &[f64],
+    period: f64,
+    curve: &ContrastCurve,
+    opts: &MaskOptions,
+    provenance: &Provenance,
+) -> Result<GrayscaleMask> {
+    let level_count = heights.len();
+    if level_count < 2 || !heights.iter().all(|h| h.is_finite()) || heights.windows(2).any(|w| w[1] <= w[0]) {
+        return Err(Error::param("levels", "the level heights must be finite and increase strictly"));
+    }
     if levels.unit() != Unit::Level {
         return Err(Error::param("levels", "expected a quantized level map"));
     }
@@ -165,17 +191,17 @@ pub fn render(
         )));
     }
     // Level -> gray table through the inverted contrast curve.
-    let step = period / level_count as f64;
+    let top = heights[level_count - 1];
     let table: Vec<LevelDose> = (0..level_count)
         .map(|l| {
             let target = match opts.polarity {
-                Polarity::Positive => (level_count - 1 - l) as f64 * step,
-                Polarity::Negative => l as f64 * step,
+                Polarity::Positive => top - heights[l],
+                Polarity::Negative => heights[l],
             };
             let dose = curve.dose_for(target)?;
             Ok(LevelDose {
                 level: l,
-                height_m: l as f64 * step,
+                height_m: heights[l],
                 curve_depth_m: target,
                 dose,
                 gray: (dose * full_scale as f64).round() as u32,
@@ -266,6 +292,7 @@ pub fn render(
         marks_px,
         label: opts.label.clone(),
         provenance: provenance.clone(),
+        precompensation: None,
     };
     Ok(GrayscaleMask { gray, meta })
 }

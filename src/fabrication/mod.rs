@@ -16,6 +16,7 @@ pub mod contrast;
 pub mod gds;
 pub mod marks;
 pub mod mask;
+pub mod precompensate;
 pub mod quantize;
 pub mod recipe;
 pub mod stl;

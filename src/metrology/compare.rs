@@ -33,7 +33,7 @@
 //! ([`order_efficiency`]; `sinc^2(k a - m)` for a continuous profile).
 
 use ndarray::Array2;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::fabrication::quantize::{continuous_efficiency, detuning, order_efficiency};
@@ -85,7 +85,7 @@ impl Default for CompareOptions {
 }
 
 /// Mean and spread of the part's height over one level's terraces.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LevelStat {
     pub level: usize,
     /// Design height `l step`, metres.
@@ -95,10 +95,22 @@ pub struct LevelStat {
     /// Mean and standard deviation of the as-fabricated height, metres.
     pub mean: f64,
     pub std: f64,
+    /// The level's height fitted with the part's blur over the terrace interiors of the
+    /// aperture, metres (see [`LevelReport`]); `None` where the fit is singular.
+    #[serde(default)]
+    pub fitted_height: Option<f64>,
+    /// Measured terrace-interior samples of this level inside the aperture (the fit's support).
+    #[serde(default)]
+    pub aperture_samples: usize,
 }
 
-/// The per-level statistics.
-#[derive(Debug, Clone, Serialize)]
+/// The per-level statistics. The means over terrace interiors are biased wherever the blur
+/// reaches into the interiors (narrow terraces, and the level next to a phase wrap most of
+/// all, whose neighbour is a full period higher); `fitted_height` is not: the surface over the
+/// aperture's terrace interiors is fitted as `s(x) = sum_l h_l (G_sigma * chi_l)(x)`, with
+/// `chi_l` the indicator of level `l` and `sigma` the fitted blur, by linear least squares in
+/// the `h_l` (without blur, the fit is the interior mean).
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LevelReport {
     pub count: usize,
     /// Nominal step, metres.
@@ -114,7 +126,7 @@ pub struct LevelReport {
 }
 
 /// The fitted fabrication model (see the module docs).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FabModel {
     /// `|k|`.
     pub depth_scale: f64,
@@ -136,7 +148,7 @@ pub struct FabModel {
 }
 
 /// Predicted efficiency of the design order at one wavelength.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct EfficiencyLoss {
     /// Metres.
     pub wavelength: f64,
@@ -292,7 +304,7 @@ pub fn compare(design: &Grid, scan: &Grid, opts: &CompareOptions) -> Result<Comp
             model.blur_search_max * 1e6
         ));
     }
-    let levels = opts.levels.map(|l| level_stats(design, &surface, &inside, l)).transpose()?;
+    let levels = opts.levels.map(|l| level_stats(design, &surface, &inside, l, model.blur)).transpose()?;
     if let Some(l) = &levels {
         if l.design_off_level > 0.05 {
             warnings.push(format!(
@@ -408,7 +420,13 @@ fn design_frame(
     Ok((surface, inside, n_cov as f64 / n_ap.max(1) as f64))
 }
 
-fn level_stats(design: &Grid, surface: &Grid, inside: &Array2<bool>, spec: LevelSpec) -> Result<LevelReport> {
+fn level_stats(
+    design: &Grid,
+    surface: &Grid,
+    inside: &Array2<bool>,
+    spec: LevelSpec,
+    blur: f64,
+) -> Result<LevelReport> {
     if spec.count < 2 || !(spec.step.is_finite() && spec.step > 0.0) {
         return Err(Error::param(
             "levels",
@@ -441,6 +459,7 @@ fn level_stats(design: &Grid, surface: &Grid, inside: &Array2<bool>, spec: Level
             }
         }
     }
+    let (fitted, area) = fit_level_heights(design, surface, inside, &level, spec.count, blur)?;
     let levels: Vec<LevelStat> = acc
         .iter()
         .enumerate()
@@ -453,6 +472,8 @@ fn level_stats(design: &Grid, surface: &Grid, inside: &Array2<bool>, spec: Level
                 samples: n,
                 mean,
                 std: var.max(0.0).sqrt(),
+                fitted_height: fitted.as_ref().map(|h| h[l]),
+                aperture_samples: area[l],
             }
         })
         .collect();
@@ -473,6 +494,71 @@ fn level_stats(design: &Grid, surface: &Grid, inside: &Array2<bool>, spec: Level
         step_std,
         design_off_level: off,
     })
+}
+
+/// Most levels whose heights are fitted with the blur.
+pub const MAX_FITTED_LEVELS: usize = 256;
+
+/// The level heights of [`LevelReport`]'s blurred-indicator fit (`None` where singular: a
+/// level with no measured sample in the aperture), and each level's measured samples there.
+fn fit_level_heights(
+    design: &Grid,
+    surface: &Grid,
+    inside: &Array2<bool>,
+    level: &Array2<usize>,
+    count: usize,
+    blur: f64,
+) -> Result<(Option<Vec<f64>>, Vec<usize>)> {
+    // Terrace interiors, as for the means: a sample next to a level change also carries the
+    // resampling of the scan onto the design grid, which no blur of the design models.
+    let (nr, nc) = level.dim();
+    let used = |i: usize, j: usize| {
+        let l = level[[i, j]];
+        i > 0
+            && j > 0
+            && i + 1 < nr
+            && j + 1 < nc
+            && [(i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1)].iter().all(|&(a, b)| level[[a, b]] == l)
+            && inside[[i, j]]
+            && surface.is_valid(i, j)
+    };
+    let mut area = vec![0usize; count];
+    for ((i, j), &l) in level.indexed_iter() {
+        if used(i, j) {
+            area[l] += 1;
+        }
+    }
+    // One blurred map per level: a fit for the few levels of a multi-level part, not for the
+    // 65,536 "levels" of a continuous 16-bit surface.
+    if area.contains(&0) || count > MAX_FITTED_LEVELS {
+        return Ok((None, area));
+    }
+    // The blurred indicators over the whole design grid (the blur reaches across the aperture's
+    // edge as it does on the part).
+    let chi = (0..count)
+        .map(|l| {
+            let v = level.mapv(|k| if k == l { 1.0 } else { 0.0 });
+            Ok(gaussian_blur(&design.map_values(v, Unit::Metre)?, blur)?.into_values())
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let (mut a, mut r) = (vec![0.0; count * count], vec![0.0; count]);
+    let scale = 1e-6;
+    for ((i, j), &z) in surface.values().indexed_iter() {
+        if !used(i, j) {
+            continue;
+        }
+        let f: Vec<f64> = chi.iter().map(|c| c[[i, j]]).collect();
+        for p in 0..count {
+            r[p] += f[p] * z / scale;
+            for q in 0..count {
+                a[p * count + q] += f[p] * f[q];
+            }
+        }
+    }
+    match crate::linalg::solve(a, r, count) {
+        Ok(h) => Ok((Some(h.iter().map(|v| v * scale).collect()), area)),
+        Err(_) => Ok((None, area)),
+    }
 }
 
 /// Residual sum of squares of the linear fit `z = k h + b + c . x` at one blur, and `(k, b)`.

@@ -97,6 +97,8 @@ pub fn reference_surface(
 #[derive(Debug, Clone, Serialize)]
 pub struct CompareReport {
     pub scan: String,
+    /// SHA-256 of the scan file.
+    pub scan_sha256: String,
     pub design: String,
     pub design_sha256: String,
     pub units: String,
@@ -206,6 +208,7 @@ pub fn compare_and_write(
         .map(|s| s.to_string())
         .collect();
     let report = CompareReport {
+        scan_sha256: crate::io::file_sha256(scan_path)?,
         scan: scan_name,
         design: design.name.clone(),
         design_sha256: design.sha256.clone(),

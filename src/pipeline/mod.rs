@@ -19,5 +19,6 @@ pub mod bench;
 pub mod calibrate_psf;
 pub mod compare;
 pub mod merge;
+pub mod precompensate;
 pub mod psf;
 pub mod psf_compare;

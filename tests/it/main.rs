@@ -14,6 +14,7 @@ mod layering;
 mod level;
 mod optics;
 mod optics_plan;
+mod precompensate;
 mod psf_compare;
 mod register;
 mod scan;

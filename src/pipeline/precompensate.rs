@@ -1,0 +1,549 @@
+//! `doefab precompensate`: the next mask set, corrected for the process that a scan of the last
+//! part measured ([`crate::fabrication::precompensate`] holds the physics).
+//!
+//! The model comes from `doefab compare` (run here on a scan, or read from its `compare.json`):
+//! the depth scale, the lateral blur and the mean height of every design level on the part.
+//! Through the levels it is a monotone response `R` (commanded level height -> made height);
+//! without them (a continuous design, or `--no-levels`) `R(c) = k c`. The reference the part
+//! was compared with is the design wrapped and quantized as the recipe makes it, in the design
+//! frame; the corrected surface is commanded in that frame and written as the recipe writes the
+//! plain one: a master is the complement of the commanded surface, mirrored, and a grayscale
+//! mask maps each commanded height to a dose through the resist's contrast curve.
+//!
+//! Refused, with the figure: a model from a registration whose part correlates with the design
+//! below 0.9 inside the aperture, a depth scale outside 0.5..1.5 (a wrong unit or a wrong
+//! design, not a process error), a compare.json made against another design, a per-level
+//! response that is not monotone, a correction that needs heights beyond what the writer makes
+//! (the contrast curve's range), and a recipe asking for a binary mask set (its level heights
+//! are etch depths, which a mask cannot correct).
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::fabrication::chain::{self, write_mask, ChainParams, DesignSource, LoadedDesign};
+use crate::fabrication::contrast::ContrastCurve;
+use crate::fabrication::mask::{render_levels, MaskOptions};
+use crate::fabrication::precompensate::{
+    precompensate, rms_without_piston, DeblurReport, PrecompensateOptions, Precompensated, ProcessModel,
+    Response,
+};
+use crate::fabrication::recipe::{Output, Recipe};
+use crate::fabrication::stl::{surface_mesh, write_stl_part, StlOptions, SurfaceChoice};
+use crate::fabrication::{Provenance, ReplicaMode};
+use crate::grid::{Grid, Unit};
+use crate::io::atomic::{write_json, StagedDir};
+use crate::io::heightmap::Metadata;
+use crate::io::scan::ScanOptions;
+use crate::metrology::compare::{
+    compare, efficiency_loss, CompareOptions, Comparison, EfficiencyLoss, FabModel, LevelReport,
+};
+use crate::metrology::simulate::{simulate_scan, SimulateParams};
+use crate::pipeline::compare::reference_surface;
+
+/// Lowest correlation of part and design (inside the aperture) a model is taken from.
+pub const MIN_CORRELATION: f64 = 0.9;
+/// Depth scales outside this range are refused.
+pub const DEPTH_SCALE_RANGE: [f64; 2] = [0.5, 1.5];
+/// A level enters the response only with at least this many terrace samples.
+pub const MIN_LEVEL_SAMPLES: usize = 16;
+
+/// What the model is taken from.
+#[derive(Debug, Clone)]
+pub enum ModelSource {
+    /// A scan of the part, compared here.
+    Scan { path: PathBuf, options: ScanOptions },
+    /// The `compare.json` that `doefab compare` wrote.
+    CompareJson(PathBuf),
+}
+
+/// Which corrections to make.
+#[derive(Debug, Clone, Serialize)]
+pub struct Corrections {
+    /// Per-level heights through the measured level means (else the depth scale alone).
+    pub levels: bool,
+    /// Constrained deconvolution of the blur.
+    pub deblur: bool,
+    /// FISTA iterations.
+    pub iterations: usize,
+    /// Highest commanded height, metres (default: the contrast curve's range, else two periods).
+    pub max_height: Option<f64>,
+}
+
+impl Default for Corrections {
+    fn default() -> Self {
+        Corrections { levels: true, deblur: true, iterations: 100, max_height: None }
+    }
+}
+
+/// The measurement a model is built from (the fields of `compare.json` it needs).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Measured {
+    pub scan: String,
+    pub scan_sha256: String,
+    pub design_sha256: String,
+    pub interior_correlation: f64,
+    /// RMS of part - design over the aperture, metres.
+    pub rms_error: f64,
+    pub model: FabModel,
+    pub levels: Option<LevelReport>,
+}
+
+impl Measured {
+    fn of_comparison(c: &Comparison, scan: String, scan_sha256: String, design_sha256: String) -> Measured {
+        Measured {
+            scan,
+            scan_sha256,
+            design_sha256,
+            interior_correlation: c.interior_correlation,
+            rms_error: c.rms_error,
+            model: c.model.clone(),
+            levels: c.levels.clone(),
+        }
+    }
+
+    /// Reads `compare.json`; errors name the file and the field.
+    pub fn read(path: &Path) -> Result<Measured> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        serde_json::from_str(&text)
+            .map_err(|e| Error::format(path, format!("not a compare.json written by `doefab compare`: {e}")))
+    }
+}
+
+/// The process model of a measurement, after the stability checks (module docs); warnings
+/// name what is left uncorrected.
+pub fn process_model(
+    m: &Measured,
+    c: &Corrections,
+    warnings: &mut Vec<String>,
+) -> Result<(ProcessModel, String)> {
+    if m.interior_correlation.is_nan() || m.interior_correlation < MIN_CORRELATION {
+        return Err(Error::Registration(format!(
+            "{}: the part correlates with the design by {:.3} inside the aperture, below {MIN_CORRELATION}: a model \
+             fitted from such a registration would correct the wrong thing",
+            m.scan, m.interior_correlation
+        )));
+    }
+    let k = m.model.depth_scale;
+    if !(DEPTH_SCALE_RANGE[0]..=DEPTH_SCALE_RANGE[1]).contains(&k) {
+        return Err(Error::Validity(format!(
+            "{}: the fitted depth scale {k:.3} is outside {}..{}: that is a wrong height unit, scan or design, \
+             not a process error to pre-compensate",
+            m.scan, DEPTH_SCALE_RANGE[0], DEPTH_SCALE_RANGE[1]
+        )));
+    }
+    // The heights fitted with the blur; a comparison without them (an older compare.json, or
+    // more levels than are fitted) gives the means over terrace interiors.
+    let stats = m.levels.iter().flat_map(|l| l.levels.iter());
+    let fitted: Vec<(f64, f64)> = stats
+        .clone()
+        .filter(|s| s.aperture_samples >= MIN_LEVEL_SAMPLES)
+        .filter_map(|s| s.fitted_height.map(|h| (s.design_height, h)))
+        .collect();
+    let levels: Vec<(f64, f64)> = if fitted.len() >= 2 {
+        fitted
+    } else {
+        stats.filter(|s| s.samples >= MIN_LEVEL_SAMPLES).map(|s| (s.design_height, s.mean)).collect()
+    };
+    let (response, kind) = if c.levels && levels.len() >= 2 {
+        let (commanded, made) = levels.iter().copied().unzip();
+        let r = Response::new(commanded, made).map_err(|e| {
+            Error::Validity(format!(
+                "{}: the per-level heights of the part: {e}; pass --no-levels to correct the depth scale alone",
+                m.scan
+            ))
+        })?;
+        (r, format!("per-level heights ({} levels measured)", levels.len()))
+    } else {
+        if c.levels && m.levels.is_some() {
+            warnings.push(format!(
+                "fewer than 2 levels have {MIN_LEVEL_SAMPLES} terrace samples: only the depth scale is corrected"
+            ));
+        }
+        (Response::linear(k, 0.0)?, format!("depth scale {k:.4}"))
+    };
+    let blur = if !c.deblur {
+        0.0
+    } else if !m.model.blur_resolved {
+        warnings.push(format!(
+            "the blur is not resolved ({:.2} +- {:.2} um): it is not deconvolved",
+            m.model.blur * 1e6,
+            m.model.blur_sigma * 1e6
+        ));
+        0.0
+    } else {
+        m.model.blur
+    };
+    Ok((ProcessModel { response, blur }, kind))
+}
+
+/// The least-squares depth scale of `part` against `target` (means removed).
+fn fitted_scale(part: &Grid, target: &Grid) -> f64 {
+    let n = target.values().len().max(1) as f64;
+    let (mt, mp) = (target.values().sum() / n, part.values().sum() / n);
+    let (mut sxy, mut sxx) = (0.0, 0.0);
+    for (t, p) in target.values().iter().zip(part.values()) {
+        sxy += (t - mt) * (p - mp);
+        sxx += (t - mt) * (t - mt);
+    }
+    sxy / sxx
+}
+
+/// What the model predicts of the part, before (the plain mask) and after pre-compensation.
+#[derive(Debug, Clone, Serialize)]
+pub struct Prediction {
+    /// RMS of part - design, piston removed, metres.
+    pub rms_before: f64,
+    pub rms_after: f64,
+    /// Least-squares depth scale of the part against the design.
+    pub depth_scale_before: f64,
+    pub depth_scale_after: f64,
+    /// Design-order efficiency per wavelength at those depth scales (Swanson).
+    pub efficiency_before: Vec<EfficiencyLoss>,
+    pub efficiency_after: Vec<EfficiencyLoss>,
+}
+
+fn predict(
+    target: &Grid,
+    model: &ProcessModel,
+    p: &Precompensated,
+    params: &ChainParams,
+) -> Result<Prediction> {
+    let spec = params.wrap_spec()?;
+    let plain = model.apply(target)?;
+    let (kb, ka) = (fitted_scale(&plain, target), fitted_scale(&p.predicted, target));
+    let n = (params.level_count <= 256).then_some(params.level_count);
+    Ok(Prediction {
+        rms_before: rms_without_piston(&plain, target),
+        rms_after: p.rms_after,
+        depth_scale_before: kb,
+        depth_scale_after: ka,
+        efficiency_before: efficiency_loss(&spec, n, kb)?,
+        efficiency_after: efficiency_loss(&spec, n, ka)?,
+    })
+}
+
+/// A job of `doefab precompensate`.
+#[derive(Debug, Clone)]
+pub struct PrecompensateJob {
+    pub design: DesignSource,
+    pub recipe: Recipe,
+    pub model: ModelSource,
+    pub corrections: Corrections,
+    /// Clear aperture for the comparison, metres (as `doefab compare`).
+    pub aperture: Option<f64>,
+    /// Write masks above the size limit.
+    pub force: bool,
+}
+
+/// What `doefab precompensate` reports and writes as `precompensate.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct PrecompensateReport {
+    pub units: String,
+    pub design: String,
+    pub design_sha256: String,
+    pub recipe: String,
+    pub measured: Measured,
+    /// What was corrected, in words.
+    pub corrected: Vec<String>,
+    pub process_model: ProcessModel,
+    /// Commanded height of each design level, metres (design frame).
+    pub level_commands: Vec<f64>,
+    /// Piston added to the target, metres.
+    pub piston: f64,
+    pub max_height: f64,
+    pub deblur: Option<DeblurReport>,
+    pub predicted: Prediction,
+    pub warnings: Vec<String>,
+    /// Files written, relative to the output folder.
+    pub files: Vec<String>,
+}
+
+/// The written surface of a commanded one: itself, or for a master its complement mirrored.
+fn written_surface(commanded: &Grid, mode: ReplicaMode) -> Result<Grid> {
+    match mode {
+        ReplicaMode::Design => Ok(commanded.clone()),
+        ReplicaMode::Master => {
+            let (lo, hi) = commanded.min_max().ok_or_else(|| Error::Data("empty surface".into()))?;
+            let v = commanded.values().mapv(|c| hi + lo - c);
+            Ok(commanded.map_values(v, Unit::Metre)?.mirror(true, false))
+        }
+    }
+}
+
+/// Most levels a pre-compensated grayscale mask lists: a deconvolved surface takes this many
+/// equal steps between its lowest and highest heights.
+pub const MAX_MASK_LEVELS: usize = 1024;
+
+/// A level map and its heights for a written surface: its distinct heights when they are few
+/// (a level table corrected level by level), else [`MAX_MASK_LEVELS`] equal steps.
+fn surface_levels(w: &Grid) -> Result<(Grid, Vec<f64>)> {
+    let mut distinct: Vec<f64> = w.values().iter().copied().collect();
+    distinct.sort_by(f64::total_cmp);
+    distinct.dedup();
+    let (levels, heights) = if distinct.len() <= MAX_MASK_LEVELS {
+        let lv = w.values().mapv(|h| distinct.partition_point(|&d| d < h) as f64);
+        (lv, distinct)
+    } else {
+        let (lo, hi) = (distinct[0], distinct[distinct.len() - 1]);
+        let step = (hi - lo) / (MAX_MASK_LEVELS - 1) as f64;
+        let lv = w.values().mapv(|h| ((h - lo) / step).round().clamp(0.0, (MAX_MASK_LEVELS - 1) as f64));
+        (lv, (0..MAX_MASK_LEVELS).map(|l| lo + l as f64 * step).collect())
+    };
+    Ok((w.map_values(levels, Unit::Level)?, heights))
+}
+
+/// `doefab precompensate`: the model (a scan compared here, or `compare.json`), the corrected
+/// commanded surface, and the recipe's outputs into `out` (see the module docs): the grayscale
+/// mask(s) with a sidecar that says what was corrected, from which scan and what is predicted,
+/// the STL of the written surface, `commanded.exr` (the design-frame commanded surface, for
+/// `doefab simulate-scan`) and `precompensate.json`. `step` is called before each stage.
+pub fn run(job: &PrecompensateJob, out: &Path, step: &mut dyn FnMut(&str)) -> Result<PrecompensateReport> {
+    if job.recipe.outputs.contains(&Output::Gds) {
+        return Err(Error::param(
+            "recipe",
+            format!(
+                "{}: asks for a multi-level binary mask set (gds), whose level heights are set by etch depths that \
+                 no mask can correct; pre-compensation writes grayscale masks and STL: drop \"gds\" from its outputs",
+                job.recipe.path.display()
+            ),
+        ));
+    }
+    step("load the design");
+    let design = chain::load_design(&job.design)?;
+    let params = ChainParams::of_recipe(&job.recipe, false);
+    let (target, levels, optics) = reference_surface(&design, Some(&params))?;
+    let measured = match &job.model {
+        ModelSource::Scan { path, options } => {
+            step("register and compare the scan");
+            let scan = crate::io::scan::read_scan(path, options)?;
+            let paper = matches!(&job.design, DesignSource::BuiltIn(n) if n == "paper");
+            let aperture = job.aperture.or(paper.then_some(crate::design::PAPER_APERTURE));
+            let opts = CompareOptions { aperture, levels, optics, ..Default::default() };
+            let c = compare(&target, &scan.grid, &opts)?;
+            Measured::of_comparison(
+                &c,
+                path.display().to_string(),
+                crate::io::file_sha256(path)?,
+                design.sha256.clone(),
+            )
+        }
+        ModelSource::CompareJson(path) => {
+            let m = Measured::read(path)?;
+            if m.design_sha256 != design.sha256 {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "design_sha256 {} is not that of {} ({}): the comparison was made against another design",
+                        m.design_sha256, design.name, design.sha256
+                    ),
+                ));
+            }
+            m
+        }
+    };
+    let curve = match &job.recipe.contrast_curve {
+        Some(p) => Some(ContrastCurve::read_csv(p)?),
+        None => None,
+    };
+    step("pre-compensate");
+    let written = precompensate_design(&design, &params, &measured, &job.corrections, curve.as_ref())?;
+    step("write");
+    write_outputs(job, &design, &params, curve.as_ref(), measured, written, out)
+}
+
+/// The pre-compensated commanded surface of `design` as `params` makes it, from `measured`.
+#[derive(Debug, Clone)]
+pub struct Written {
+    pub target: Grid,
+    pub model: ProcessModel,
+    pub result: Precompensated,
+    pub prediction: Prediction,
+    pub corrected: Vec<String>,
+    pub max_height: f64,
+    pub warnings: Vec<String>,
+}
+
+/// The correction itself, without files: model, checks, commanded surface and prediction.
+pub fn precompensate_design(
+    design: &LoadedDesign,
+    params: &ChainParams,
+    measured: &Measured,
+    corrections: &Corrections,
+    curve: Option<&ContrastCurve>,
+) -> Result<Written> {
+    let (target, levels, _) = reference_surface(design, Some(params))?;
+    let mut warnings = Vec::new();
+    let (model, kind) = process_model(measured, corrections, &mut warnings)?;
+    let period = params.wrap_spec()?.period()?;
+    let max_height =
+        corrections.max_height.unwrap_or_else(|| curve.map_or(2.0 * period, |c| c.depth_range()[1]));
+    let opts =
+        PrecompensateOptions { deblur: model.blur > 0.0, max_height, iterations: corrections.iterations };
+    let result = precompensate(&target, levels.map(|l| (l.count, l.step)), &model, &opts)?;
+    warnings.extend(result.warnings.iter().cloned());
+    let mut corrected = vec![kind];
+    if let Some(d) = &result.deblur {
+        corrected.push(format!(
+            "blur {:.2} um deconvolved ({} iterations): residual {:.1} -> {:.1} nm RMS, {:.1}% of samples at the \
+             reachable range's bounds",
+            model.blur * 1e6,
+            d.iterations,
+            d.residual_before * 1e9,
+            d.residual_after * 1e9,
+            d.at_bounds * 100.0
+        ));
+    }
+    let prediction = predict(&target, &model, &result, params)?;
+    Ok(Written { target, model, result, prediction, corrected, max_height, warnings })
+}
+
+fn write_outputs(
+    job: &PrecompensateJob,
+    design: &LoadedDesign,
+    params: &ChainParams,
+    curve: Option<&ContrastCurve>,
+    measured: Measured,
+    w: Written,
+    out: &Path,
+) -> Result<PrecompensateReport> {
+    let recipe = &job.recipe;
+    let mut stage = StagedDir::new(out)?;
+    let mut files = Vec::new();
+    let mut warnings = w.warnings.clone();
+    let written = written_surface(&w.result.commanded, recipe.replica_mode)?;
+    let period = params.wrap_spec()?.period()?;
+    let provenance = Provenance {
+        design: design.name.clone(),
+        design_sha256: design.sha256.clone(),
+        replica_mode: recipe.replica_mode,
+        wavelength_m: params.wavelength,
+        material: params.material.clone(),
+        order: params.order,
+        period_m: period,
+        level_count: params.level_count,
+        quantization: format!("{:?}", params.quantization),
+        doefab_version: env!("CARGO_PKG_VERSION").into(),
+    };
+    let mut report = PrecompensateReport {
+        units: "lengths and heights in metres, efficiency as a fraction of incident power".into(),
+        design: design.name.clone(),
+        design_sha256: design.sha256.clone(),
+        recipe: recipe.name.clone(),
+        measured,
+        corrected: w.corrected,
+        process_model: w.model,
+        level_commands: w.result.level_commands.clone(),
+        piston: w.result.piston,
+        max_height: w.max_height,
+        deblur: w.result.deblur.clone(),
+        predicted: w.prediction,
+        warnings: Vec::new(),
+        files: Vec::new(),
+    };
+    let grayscale: Vec<&str> = recipe
+        .outputs
+        .iter()
+        .filter_map(|o| match o {
+            Output::GrayscalePng => Some("png"),
+            Output::GrayscaleTiff => Some("tif"),
+            _ => None,
+        })
+        .collect();
+    if !grayscale.is_empty() {
+        let curve = curve.ok_or_else(|| Error::format(&recipe.path, "no contrast_curve"))?;
+        let (levels, heights) = surface_levels(&written)?;
+        let mopts = MaskOptions {
+            writer_pitch: recipe.address_grid,
+            bits: recipe.mask_bits,
+            polarity: recipe.polarity,
+            mirror: recipe.mask_mirror,
+            border: recipe.mask_border,
+            marks: true,
+            label: recipe.mask_label.clone(),
+            force: job.force,
+            ..Default::default()
+        };
+        let mut mask = render_levels(&levels, &heights, period, curve, &mopts, &provenance)?;
+        mask.meta.precompensation = Some(serde_json::json!({
+            "scan": report.measured.scan,
+            "scan_sha256": report.measured.scan_sha256,
+            "corrected": report.corrected,
+            "process_model": report.process_model,
+            "level_commands_m": report.level_commands,
+            "predicted": report.predicted,
+        }));
+        for ext in grayscale {
+            let name = format!("grayscale_mask.{ext}");
+            write_mask(&mask, &stage.stage_path(&name))?;
+            stage.stage_path("grayscale_mask.json");
+            files.push(name);
+        }
+        files.push("grayscale_mask.json".into());
+    }
+    if recipe.outputs.contains(&Output::Stl) {
+        let opts = StlOptions {
+            unit: recipe.stl_unit,
+            base_thickness: recipe.stl_base_thickness,
+            max_error: recipe.stl_max_error,
+            surface: SurfaceChoice::Auto,
+        };
+        let base = written.min_max().map_or(0.0, |(lo, _)| lo);
+        let lifted = written.map_values(written.values().mapv(|h| h - base), Unit::Metre)?;
+        let mesh = surface_mesh(&lifted, &opts)?;
+        let part = match recipe.replica_mode {
+            ReplicaMode::Design => "design",
+            ReplicaMode::Master => "master",
+        };
+        write_stl_part(&mesh, opts.unit, Some(part), &stage.stage_path("surface.stl"))?;
+        files.push("surface.stl".into());
+    }
+    let meta = Metadata::heights(w.result.commanded.pitch())
+        .with("quantity", "height")
+        .with("content", "pre-compensated commanded surface, design frame (doefab precompensate)")
+        .with("provenance", serde_json::to_string(&provenance).map_err(|e| Error::Data(e.to_string()))?);
+    crate::io::exr::write_exr(
+        &stage.stage_path("commanded.exr"),
+        &[("height", &w.result.commanded.values().mapv(|v| v as f32))],
+        &meta,
+    )?;
+    files.push("commanded.exr".into());
+    files.push("precompensate.json".into());
+    warnings.dedup();
+    report.warnings = warnings;
+    report.files = files;
+    write_json(&stage.stage_path("precompensate.json"), &report)?;
+    stage.commit()?;
+    Ok(report)
+}
+
+/// One pass of the closed loop in simulation, on the design-frame reference `target`: the part
+/// made through `process` from the plain target and its scan compared, the pre-compensated
+/// surface commanded from that comparison, and the part made from it scanned and compared again
+/// against the target.
+#[derive(Debug, Clone)]
+pub struct LoopResult {
+    pub before: Comparison,
+    pub after: Comparison,
+    pub written: Written,
+}
+
+/// Runs the loop of [`LoopResult`]: `process` is the known truth the scans are simulated
+/// through (its pose, noise and missing samples included); the same `compare_opts` serve both
+/// comparisons.
+pub fn simulate_loop(
+    design: &LoadedDesign,
+    params: &ChainParams,
+    process: &SimulateParams,
+    compare_opts: &CompareOptions,
+    corrections: &Corrections,
+    curve: Option<&ContrastCurve>,
+) -> Result<LoopResult> {
+    let (target, _, _) = reference_surface(design, Some(params))?;
+    let before = compare(&target, &simulate_scan(&target, process)?, compare_opts)?;
+    let measured = Measured::of_comparison(&before, "simulated".into(), String::new(), design.sha256.clone());
+    let written = precompensate_design(design, params, &measured, corrections, curve)?;
+    let after = compare(&target, &simulate_scan(&written.result.commanded, process)?, compare_opts)?;
+    Ok(LoopResult { before, after, written })
+}
