@@ -43,6 +43,7 @@ fn run(cli: &Cli) -> Result<()> {
         Command::Bench { what: BenchCommand::Decoder(a) } => decoder::bench_decoder(cli, a),
         Command::Demo(a) => demo::demo(cli, a),
         Command::Fab(a) => fabrication::fab(cli, a),
+        Command::Precompensate(a) => fabrication::precompensate(cli, a),
         Command::Wrap(a) => fabrication::wrap(cli, a),
         Command::Quantize(a) => fabrication::quantize(cli, a),
         Command::Mask(a) => fabrication::mask(cli, a),

@@ -10,7 +10,7 @@ use doefab::units::{clap_length, length_unit};
 use super::calibration::{CalibratePsfArgs, EvaluateArgs, MergeArgs};
 use super::decoder::{BenchDecoderArgs, FinetuneArgs, ReconstructArgs};
 use super::demo::DemoArgs;
-use super::fabrication::{FabArgs, GdsArgs, MaskArgs, QuantizeArgs, StlArgs, WrapArgs};
+use super::fabrication::{FabArgs, GdsArgs, MaskArgs, PrecompensateArgs, QuantizeArgs, StlArgs, WrapArgs};
 use super::metrology::{CompareArgs, ScanInfoArgs, SimulateScanArgs};
 use super::optics::{BenchPsfArgs, PsfArgs, PsfCompareArgs};
 
@@ -55,6 +55,10 @@ pub enum Command {
     Demo(DemoArgs),
     /// The whole fabrication chain for a recipe: wrap, quantize, masks, GDSII, STL, report.
     Fab(FabArgs),
+    /// The next mask set pre-compensated for the process that a scan of the last part measured
+    /// (depth scale, per-level heights, lateral blur): the recipe's grayscale masks and STL with
+    /// a sidecar naming the corrections, the scan's SHA-256 and the predicted result.
+    Precompensate(PrecompensateArgs),
     /// Wrap heights modulo p * 2 pi at the design wavelength (optionally as the replica master).
     Wrap(WrapArgs),
     /// Quantize wrapped heights to N levels and predict the diffraction efficiency.

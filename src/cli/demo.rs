@@ -28,6 +28,7 @@ pub fn demo(cli: &Cli, a: &DemoArgs) -> Result<()> {
     }
     warn(&report.psf.warnings);
     warn_comparison(&report.metrology);
+    warn(&report.fabrication_loop.precompensate.warnings);
     warn(&report.calibration.report.warnings);
     // Through a JSON value, whose maps sort their keys: one order at every depth.
     print_result(cli, &serde_json::to_value(&report)?, || print_demo(&report))
@@ -44,6 +45,16 @@ fn print_demo(r: &doefab::demo::DemoReport) {
     }
     println!("simulated scan: {}", dirs.scan.display());
     print_comparison(&r.metrology, &dirs.compare);
+    let l = &r.fabrication_loop;
+    println!("fabrication loop: {} ({})", dirs.fabrication_loop.display(), l.process);
+    for (name, side) in [("plain mask", &l.before), ("pre-compensated", &l.after)] {
+        println!(
+            "  {name:<16} RMS {:.1} nm, depth scale {:.4}, PSF relative L2 {:.4?}",
+            side.rms_error * 1e9,
+            side.depth_scale,
+            side.psf_relative_l2
+        );
+    }
     let c = &r.calibration;
     println!("calibration: {} (bracket in {})", c.psf.display(), c.bracket.display());
     println!("  calibrated vs simulated PSF, relative L2 per channel: {:.4?}", c.relative_l2_to_simulated);

@@ -343,3 +343,120 @@ fn print_efficiency(rows: &[doefab::fabrication::quantize::EfficiencyRow]) {
         );
     }
 }
+
+/// Arguments of `doefab precompensate`.
+#[derive(Args)]
+pub struct PrecompensateArgs {
+    /// Height map file, or built-in:paper / built-in:fresnel (default built-in:paper).
+    pub design: Option<String>,
+    /// Process recipe (TOML) of the next mask, as for `doefab fab`.
+    #[arg(long, short)]
+    pub recipe: PathBuf,
+    /// Scan of the last part: compared with the design here.
+    #[arg(long, conflicts_with = "model", required_unless_present = "model")]
+    pub scan: Option<PathBuf>,
+    /// The compare.json that `doefab compare` wrote for the last part.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Correct the depth scale alone, not each level's height.
+    #[arg(long)]
+    pub no_levels: bool,
+    /// Leave the blur uncorrected.
+    #[arg(long)]
+    pub no_deblur: bool,
+    /// Iterations of the blur deconvolution.
+    #[arg(long, default_value_t = 100)]
+    pub iterations: usize,
+    /// Highest height the process can be commanded to make (default: the contrast curve's
+    /// range, else two periods).
+    #[arg(long, value_parser = clap_length)]
+    pub max_height: Option<f64>,
+    /// Clear-aperture diameter of the comparison (default: 5 mm for built-in:paper).
+    #[arg(long, value_parser = clap_length)]
+    pub aperture: Option<f64>,
+    /// Scan sample pitch, e.g. "1um" (for scan files that carry none).
+    #[arg(long, value_parser = clap_length)]
+    pub scan_pitch: Option<f64>,
+    /// Unit of the scan's stored heights, e.g. "nm" (for scan files that state none).
+    #[arg(long)]
+    pub scan_z_unit: Option<String>,
+    #[command(flatten)]
+    pub read: ReadArgs,
+    /// Write masks above the size limit.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// `doefab precompensate`.
+pub fn precompensate(cli: &Cli, a: &PrecompensateArgs) -> Result<()> {
+    use doefab::pipeline::precompensate::{self as pc, Corrections, ModelSource, PrecompensateJob};
+    let model = match (&a.scan, &a.model) {
+        (Some(path), _) => ModelSource::Scan {
+            path: path.clone(),
+            options: doefab::io::scan::ScanOptions {
+                pitch: a.scan_pitch.map(|p| [p, p]),
+                z_unit: a.scan_z_unit.as_deref().map(doefab::units::length_unit).transpose()?,
+                ..Default::default()
+            },
+        },
+        (None, Some(path)) => ModelSource::CompareJson(path.clone()),
+        (None, None) => anyhow::bail!("pass --scan or --model"),
+    };
+    let job = PrecompensateJob {
+        design: DesignSource::parse(a.design.as_deref(), a.read.options()?),
+        recipe: Recipe::read(&a.recipe)?,
+        model,
+        corrections: Corrections {
+            levels: !a.no_levels,
+            deblur: !a.no_deblur,
+            iterations: a.iterations,
+            max_height: a.max_height,
+        },
+        aperture: a.aperture,
+        force: a.force,
+    };
+    let pb = progress(cli, 4);
+    let report = pc::run(&job, &a.output, &mut |s: &str| {
+        pb.inc(1);
+        pb.set_message(s.to_string());
+    })?;
+    pb.finish_and_clear();
+    warn(&report.warnings);
+    print_result(cli, &report, || {
+        let m = &report.measured;
+        println!(
+            "measured on {}: RMS {:.1} nm, depth scale {:.4}, blur {:.2} um{}",
+            m.scan,
+            m.rms_error * 1e9,
+            m.model.depth_scale,
+            m.model.blur * 1e6,
+            if m.model.blur_resolved { "" } else { " (not resolved)" }
+        );
+        for c in &report.corrected {
+            println!("corrected: {c}");
+        }
+        let p = &report.predicted;
+        println!(
+            "predicted: RMS {:.1} -> {:.1} nm, depth scale {:.4} -> {:.4}",
+            p.rms_before * 1e9,
+            p.rms_after * 1e9,
+            p.depth_scale_before,
+            p.depth_scale_after
+        );
+        for (b, e) in p.efficiency_before.iter().zip(&p.efficiency_after) {
+            println!(
+                "  {:.0} nm: design-order efficiency {:.4} (design {:.4}, plain mask {:.4})",
+                e.wavelength * 1e9,
+                e.fabricated,
+                e.design,
+                b.fabricated
+            );
+        }
+        for f in &report.files {
+            println!("  {}", a.output.join(f).display());
+        }
+    })
+}

@@ -31,9 +31,12 @@
 //!    blur spans more than a few samples (the report gives the residual before and after). A
 //!    blur at or below one sample pitch is not attempted: the sampled design cannot show it.
 //!
-//! The piston `p` places the target inside the reachable range: without deconvolution the
-//! lowest level stays at command 0; with it, the spare range is split evenly above and below
-//! so that the overshoots have room.
+//! The piston `p` keeps the lowest level at command 0. The response is known only over the
+//! commands the scanned part was made with; the deconvolution's made heights stay within them
+//! plus [`DEBLUR_HEADROOM`] of their span above (where the response is extrapolated, its last
+//! segment continued): centring the target in the writer's whole range instead gave overshoots
+//! room but moved every command where the response was never measured, and on a bowed resist
+//! the part came out worse than the plain mask's.
 
 use serde::{Deserialize, Serialize};
 
@@ -142,6 +145,10 @@ impl ProcessModel {
     }
 }
 
+/// Fraction of the commanded span by which the deconvolution may command above the highest
+/// level (module docs).
+pub const DEBLUR_HEADROOM: f64 = 0.1;
+
 /// Options of [`precompensate`].
 #[derive(Debug, Clone, Serialize)]
 pub struct PrecompensateOptions {
@@ -166,7 +173,7 @@ pub struct DeblurReport {
     /// RMS of `G u - (t + p)`, metres: with `u = t + p` (no deconvolution) and at the end.
     pub residual_before: f64,
     pub residual_after: f64,
-    /// Fraction of samples whose made height sits on a bound of the reachable range.
+    /// Fraction of samples held at a bound of the reachable range where the target is not.
     pub at_bounds: f64,
 }
 
@@ -247,10 +254,12 @@ pub fn precompensate(
             pitch * 1e6
         ));
     }
-    let piston = if deblur { lo - tmin + 0.5 * ((hi - lo) - span) } else { lo - tmin };
+    let piston = lo - tmin;
     let wanted = target.map_values(target.values().mapv(|t| t + piston), Unit::Metre)?;
     let (made, deblur_report) = if deblur {
-        let (u, rep) = deconvolve(&wanted, model.blur, [lo, hi], opts.iterations)?;
+        let top = r.commanded_for(tmax + piston);
+        let ceiling = r.made((top * (1.0 + DEBLUR_HEADROOM)).min(opts.max_height));
+        let (u, rep) = deconvolve(&wanted, model.blur, [lo, ceiling.max(tmax + piston)], opts.iterations)?;
         (u, Some(rep))
     } else {
         (wanted.clone(), None)
@@ -296,8 +305,12 @@ fn deconvolve(b: &Grid, sigma: f64, bounds: [f64; 2], iterations: usize) -> Resu
         t = t_next;
     }
     let residual_after = residual(&x)?;
-    let tol = 1e-12 * (bounds[1] - bounds[0]);
-    let at = x.values().iter().filter(|v| **v <= bounds[0] + tol || **v >= bounds[1] - tol).count();
+    // Held at a bound where the target is not: where the bounds stopped the deconvolution.
+    let tol = 1e-9 * (bounds[1] - bounds[0]);
+    let held = |v: f64, t: f64| {
+        (v <= bounds[0] + tol && t > bounds[0] + tol) || (v >= bounds[1] - tol && t < bounds[1] - tol)
+    };
+    let at = x.values().iter().zip(b.values()).filter(|(v, t)| held(**v, **t)).count();
     let n = x.values().len().max(1) as f64;
     Ok((x, DeblurReport { iterations, residual_before, residual_after, at_bounds: at as f64 / n }))
 }
@@ -355,9 +368,10 @@ mod tests {
         assert!(e.contains("cannot make the target") && e.contains("1750.0 nm"), "{e}");
     }
 
-    /// With a blur of 2 samples the deconvolution lowers the residual against the plain
-    /// target, stays within the bounds, and the commands stay monotone in the made height;
-    /// a blur below one pitch is left alone with a warning.
+    /// With a blur of 2 samples on terraces of 4 the deconvolution lowers the residual against
+    /// the plain target (113 -> 106 nm: at the wraps the bounds hold it), keeps the made heights
+    /// within the lowest level and 10 % above the highest, and makes nothing worse; a blur below
+    /// one pitch is left alone with a warning.
     #[test]
     fn deconvolution_lowers_the_blur_residual_within_bounds() {
         let t = staircase(96);
@@ -365,11 +379,10 @@ mod tests {
         let opts = PrecompensateOptions { max_height: 1.6e-6, iterations: 150, ..Default::default() };
         let p = precompensate(&t, None, &model, &opts).unwrap();
         let d = p.deblur.as_ref().unwrap();
-        // (Measured: 127 -> 101 nm; the bounds keep the wrap's jump from being sharpened more.)
-        assert!(d.residual_after < 0.85 * d.residual_before, "{d:?}");
-        assert!(p.rms_after < 0.85 * p.rms_before, "{} vs {}", p.rms_after, p.rms_before);
+        assert!(d.residual_after < 0.95 * d.residual_before, "{d:?}");
+        assert!(p.rms_after < p.rms_before, "{} vs {}", p.rms_after, p.rms_before);
         let (lo, hi) = p.commanded.min_max().unwrap();
-        assert!(lo >= -1e-18 && hi <= 1.6e-6 + 1e-18, "{lo} {hi}");
+        assert!(lo >= -1e-18 && hi <= 1.1 * 1050e-9 + 1e-15, "{lo} {hi}");
         let small = ProcessModel { blur: 3e-6, ..model };
         let p = precompensate(&t, None, &small, &opts).unwrap();
         assert!(p.deblur.is_none() && p.warnings[0].contains("at or below"), "{:?}", p.warnings);

@@ -46,6 +46,9 @@ use crate::pipeline::compare::reference_surface;
 pub const MIN_CORRELATION: f64 = 0.9;
 /// Depth scales outside this range are refused.
 pub const DEPTH_SCALE_RANGE: [f64; 2] = [0.5, 1.5];
+/// Up to this many levels the response goes through every measured level height (each level
+/// its own dose or etch); above it, through a weighted cubic ([`smooth_response`]).
+pub const MAX_PER_LEVEL: usize = 16;
 /// A level enters the response only with at least this many terrace samples.
 pub const MIN_LEVEL_SAMPLES: usize = 16;
 
@@ -136,25 +139,34 @@ pub fn process_model(
     // The heights fitted with the blur; a comparison without them (an older compare.json, or
     // more levels than are fitted) gives the means over terrace interiors.
     let stats = m.levels.iter().flat_map(|l| l.levels.iter());
-    let fitted: Vec<(f64, f64)> = stats
+    let fitted: Vec<(f64, f64, f64)> = stats
         .clone()
         .filter(|s| s.aperture_samples >= MIN_LEVEL_SAMPLES)
-        .filter_map(|s| s.fitted_height.map(|h| (s.design_height, h)))
+        .filter_map(|s| s.fitted_height.map(|h| (s.design_height, h, s.aperture_samples as f64)))
         .collect();
-    let levels: Vec<(f64, f64)> = if fitted.len() >= 2 {
+    let levels: Vec<(f64, f64, f64)> = if fitted.len() >= 2 {
         fitted
     } else {
-        stats.filter(|s| s.samples >= MIN_LEVEL_SAMPLES).map(|s| (s.design_height, s.mean)).collect()
+        stats
+            .filter(|s| s.samples >= MIN_LEVEL_SAMPLES)
+            .map(|s| (s.design_height, s.mean, s.samples as f64))
+            .collect()
     };
     let (response, kind) = if c.levels && levels.len() >= 2 {
-        let (commanded, made) = levels.iter().copied().unzip();
-        let r = Response::new(commanded, made).map_err(|e| {
+        let smooth = levels.len() > MAX_PER_LEVEL;
+        let r = if smooth {
+            smooth_response(&levels)
+        } else {
+            Response::new(levels.iter().map(|p| p.0).collect(), levels.iter().map(|p| p.1).collect())
+        };
+        let r = r.map_err(|e| {
             Error::Validity(format!(
                 "{}: the per-level heights of the part: {e}; pass --no-levels to correct the depth scale alone",
                 m.scan
             ))
         })?;
-        (r, format!("per-level heights ({} levels measured)", levels.len()))
+        let how = if smooth { "a weighted cubic through" } else { "each of" };
+        (r, format!("per-level heights ({how} {} levels measured)", levels.len()))
     } else {
         if c.levels && m.levels.is_some() {
             warnings.push(format!(
@@ -176,6 +188,52 @@ pub fn process_model(
         m.model.blur
     };
     Ok((ProcessModel { response, blur }, kind))
+}
+
+/// The response of many levels: a cubic `m(c)` fitted to the level heights by least squares
+/// weighted by their sample counts, twice refitted without the levels more than 3 weighted RMS
+/// residuals off (the extreme levels beside a phase wrap, with few samples, are the usual
+/// ones), then sampled at the measured commands. Refused when it does not rise over them.
+pub fn smooth_response(points: &[(f64, f64, f64)]) -> Result<Response> {
+    let unit = 1e-6;
+    let mut keep = vec![true; points.len()];
+    let mut coef = vec![0.0; 4];
+    for _ in 0..3 {
+        let (mut a, mut r) = (vec![0.0; 16], vec![0.0; 4]);
+        for (&(c, m, w), _) in points.iter().zip(&keep).filter(|(_, k)| **k) {
+            let x = c / unit;
+            let f = [1.0, x, x * x, x * x * x];
+            for p in 0..4 {
+                r[p] += w * f[p] * m / unit;
+                for q in 0..4 {
+                    a[p * 4 + q] += w * f[p] * f[q];
+                }
+            }
+        }
+        coef = crate::linalg::solve(a, r, 4)?;
+        let eval = |c: f64| {
+            let x = c / unit;
+            unit * (coef[0] + x * (coef[1] + x * (coef[2] + x * coef[3])))
+        };
+        let (mut sw, mut swr) = (0.0, 0.0);
+        for (&(c, m, w), _) in points.iter().zip(&keep).filter(|(_, k)| **k) {
+            sw += w;
+            swr += w * (m - eval(c)).powi(2);
+        }
+        let rms = (swr / sw).sqrt();
+        for (k, &(c, m, _)) in keep.iter_mut().zip(points) {
+            *k = (m - eval(c)).abs() <= 3.0 * rms;
+        }
+    }
+    let commanded: Vec<f64> = points.iter().map(|p| p.0).collect();
+    let made = commanded
+        .iter()
+        .map(|&c| {
+            let x = c / unit;
+            unit * (coef[0] + x * (coef[1] + x * (coef[2] + x * coef[3])))
+        })
+        .collect();
+    Response::new(commanded, made)
 }
 
 /// The least-squares depth scale of `part` against `target` (means removed).
@@ -546,4 +604,63 @@ pub fn simulate_loop(
     let written = precompensate_design(design, params, &measured, corrections, curve)?;
     let after = compare(&target, &simulate_scan(&written.result.commanded, process)?, compare_opts)?;
     Ok(LoopResult { before, after, written })
+}
+
+/// One point of [`blur_sweep`]: the loop at one blur width.
+#[derive(Debug, Clone, Serialize)]
+pub struct SweepPoint {
+    /// Blur of the simulated process, in design samples (standard deviation / pitch).
+    pub blur_samples: f64,
+    /// RMS of part - design over the aperture before and after pre-compensation, metres.
+    pub rms_before: f64,
+    pub rms_after: f64,
+    /// PSF relative L2 against the design's, mean over the channels, before and after.
+    pub psf_before: f64,
+    pub psf_after: f64,
+    /// The blur was deconvolved (else at or below the pitch, or not resolved).
+    pub deconvolved: bool,
+}
+
+/// The loop of [`simulate_loop`] at each blur width (in design samples) on top of `process`:
+/// where pre-compensation of the blur stops paying.
+pub fn blur_sweep(
+    design: &LoadedDesign,
+    params: &ChainParams,
+    process: &SimulateParams,
+    compare_opts: &CompareOptions,
+    widths: &[f64],
+    step: &mut dyn FnMut(&str),
+) -> Result<Vec<SweepPoint>> {
+    use crate::optics::{Method, Options};
+    let pitch = design.heights.pitch()[0];
+    let psf_opts = Options { allow_invalid: true, ..Default::default() };
+    widths
+        .iter()
+        .map(|&w| {
+            step(&format!("pre-compensation at a blur of {w} samples"));
+            let p = SimulateParams { blur: w * pitch, ..process.clone() };
+            let r = simulate_loop(design, params, &p, compare_opts, &Corrections::default(), None)?;
+            let target = &r.written.target;
+            let mut system = crate::optics::output::system_for(target);
+            system.aperture = r.before.aperture;
+            let psf = |c: &Comparison| -> Result<f64> {
+                let p = crate::pipeline::compare::psf_comparison(
+                    target,
+                    &c.surface,
+                    &system,
+                    Method::MatrixDft,
+                    &psf_opts,
+                )?;
+                Ok(p.channels.iter().map(|c| c.relative_l2).sum::<f64>() / p.channels.len().max(1) as f64)
+            };
+            Ok(SweepPoint {
+                blur_samples: w,
+                rms_before: r.before.rms_error,
+                rms_after: r.after.rms_error,
+                psf_before: psf(&r.before)?,
+                psf_after: psf(&r.after)?,
+                deconvolved: r.written.result.deblur.is_some(),
+            })
+        })
+        .collect()
 }

