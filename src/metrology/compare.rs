@@ -43,6 +43,11 @@ use crate::material::PAPER_WAVELENGTHS;
 use crate::metrology::register::{register, RegisterOptions, Registration, Sampler};
 use crate::metrology::simulate::gaussian_blur;
 
+/// Reads a JSON `null` (how serde_json writes NaN and infinities) back as NaN.
+fn null_as_nan<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
 /// The quantization of the design: `count` levels of `step` metres (level `l` at `l step`).
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct LevelSpec {
@@ -93,7 +98,9 @@ pub struct LevelStat {
     /// Samples (terrace interiors: the sample and its four neighbours on this level, measured).
     pub samples: usize,
     /// Mean and standard deviation of the as-fabricated height, metres.
+    #[serde(deserialize_with = "null_as_nan")]
     pub mean: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub std: f64,
     /// The level's height fitted with the part's blur over the terrace interiors of the
     /// aperture, metres (see [`LevelReport`]); `None` where the fit is singular.
@@ -119,9 +126,12 @@ pub struct LevelReport {
     /// Differences of consecutive level means (both with samples), metres.
     pub step_heights: Vec<f64>,
     /// Mean and standard deviation of `step_heights`, metres.
+    #[serde(deserialize_with = "null_as_nan")]
     pub mean_step: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub step_std: f64,
     /// Largest distance of a design height from its level, in steps (0 for a quantized design).
+    #[serde(deserialize_with = "null_as_nan")]
     pub design_off_level: f64,
 }
 
@@ -129,21 +139,27 @@ pub struct LevelReport {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FabModel {
     /// `|k|`.
+    #[serde(deserialize_with = "null_as_nan")]
     pub depth_scale: f64,
     /// `k < 0`: the scan shows the complement.
     pub complement: bool,
     /// `b`, metres.
+    #[serde(deserialize_with = "null_as_nan")]
     pub offset: f64,
     /// `sigma`, metres, and its standard error.
+    #[serde(deserialize_with = "null_as_nan")]
     pub blur: f64,
+    #[serde(deserialize_with = "null_as_nan")]
     pub blur_sigma: f64,
     /// The blur is significant (standard error below a quarter of it).
     pub blur_resolved: bool,
     /// RMS of the model's residual, metres.
+    #[serde(deserialize_with = "null_as_nan")]
     pub rms_residual: f64,
     /// Scan samples in the fit.
     pub points: usize,
     /// Upper end of the blur search, metres.
+    #[serde(deserialize_with = "null_as_nan")]
     pub blur_search_max: f64,
 }
 

@@ -56,7 +56,7 @@ pub fn precompensation_gain(path: &Path, points: &[GainPoint]) -> Result<()> {
                 .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], colour.stroke_width(2)));
             ch.draw_series(data.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map_err(err)?;
         }
-        draw_legend(&mut ch, SeriesLabelPosition::UpperRight, 13)
+        draw_legend(&mut ch, SeriesLabelPosition::UpperLeft, 13)
     }
     write_png_chart(path, 900, 560, |root| draw(root, &rms, &psf, x1, y1))?;
     write_svg_chart(&path.with_extension("svg"), 900, 560, |root| draw(root, &rms, &psf, x1, y1))

@@ -157,3 +157,179 @@ fn a_blur_is_deconvolved_as_far_as_the_bounds_allow() {
     assert!(o.r.written.warnings.iter().any(|w| w.contains("at or below")), "{:?}", o.r.written.warnings);
     assert!(o.gain > 0.98, "{} -> {}", o.r.before.rms_error, o.r.after.rms_error);
 }
+
+/// The loop through the command line and its files: a design file, the scan of its plain
+/// grayscale master's part, `doefab precompensate --scan`, the commanded surface it wrote
+/// made through the same process and scanned, `doefab compare` of both scans. `--model` with
+/// the compare.json of the first scan gives the same commands.
+#[test]
+fn the_command_closes_the_loop_through_its_files() {
+    use crate::common::{ok, tempdir};
+    use doefab::fabrication::recipe::Recipe;
+    use doefab::io::heightmap::Metadata;
+    use doefab::metrology::simulate::{simulate_scan, write_scan};
+    let dir = tempdir();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let d = design();
+    let meta = Metadata::heights(d.heights.pitch()).with("quantity", "height");
+    doefab::io::exr::write_exr(
+        dir.path().join("design.exr").as_path(),
+        &[("height", &d.heights.values().mapv(|v| v as f32))],
+        &meta,
+    )
+    .unwrap();
+    let recipe = Recipe::read(std::path::Path::new("built-in:laser-writer-grayscale")).unwrap();
+    let params = ChainParams::of_recipe(&recipe, false);
+    let loaded = doefab::fabrication::chain::load_design(&doefab::fabrication::chain::DesignSource::File(
+        dir.path().join("design.exr"),
+        Default::default(),
+    ))
+    .unwrap();
+    let (target, _, _) = doefab::pipeline::compare::reference_surface(&loaded, Some(&params)).unwrap();
+    let truth = process(SimulateParams { depth_scale: 0.88, ..Default::default() });
+    write_scan(dir.path().join("before.x3p").as_path(), &simulate_scan(&target, &truth).unwrap()).unwrap();
+    let recipe_arg = "built-in:laser-writer-grayscale";
+    let out = ok(&[
+        "precompensate",
+        &path("design.exr"),
+        "--recipe",
+        recipe_arg,
+        "--scan",
+        &path("before.x3p"),
+        "-o",
+        &path("pc"),
+        "--json",
+    ]);
+    let report: serde_json::Value = serde_json::from_str(&out).unwrap();
+    for f in [
+        "grayscale_mask.png",
+        "grayscale_mask.tif",
+        "grayscale_mask.json",
+        "commanded.exr",
+        "precompensate.json",
+    ] {
+        assert!(dir.path().join("pc").join(f).is_file(), "{f} missing");
+    }
+    // The sidecar names the scan by its hash, what was corrected and the prediction; its level
+    // table is monotone.
+    let sidecar: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("pc/grayscale_mask.json")).unwrap())
+            .unwrap();
+    let pc = &sidecar["precompensation"];
+    assert_eq!(pc["scan_sha256"], doefab::io::file_sha256(&dir.path().join("before.x3p")).unwrap());
+    assert!(pc["corrected"][0].as_str().unwrap().starts_with("per-level heights"), "{pc}");
+    let levels = sidecar["levels"].as_array().unwrap();
+    let h: Vec<f64> = levels.iter().map(|l| l["height_m"].as_f64().unwrap()).collect();
+    let g: Vec<f64> = levels.iter().map(|l| l["gray"].as_f64().unwrap()).collect();
+    assert!(h.windows(2).all(|w| w[1] > w[0]), "{h:?}");
+    // Positive resist, master: the top of the master is the least exposed.
+    assert!(g.windows(2).all(|w| w[1] <= w[0]), "{g:?}");
+    let predicted = &report["predicted"];
+    assert!(
+        predicted["rms_after"].as_f64().unwrap() < 0.5 * predicted["rms_before"].as_f64().unwrap(),
+        "{predicted}"
+    );
+    // The part of the commanded surface, through the same process.
+    let commanded =
+        doefab::io::heightmap::read_heightmap(&dir.path().join("pc/commanded.exr"), &Default::default())
+            .unwrap();
+    write_scan(dir.path().join("after.x3p").as_path(), &simulate_scan(&commanded, &truth).unwrap()).unwrap();
+    let rms = |scan: &str, out: &str| -> (f64, serde_json::Value) {
+        let o = ok(&[
+            "compare",
+            &path(scan),
+            "--design",
+            &path("design.exr"),
+            "--recipe",
+            recipe_arg,
+            "--psf-method",
+            "none",
+            "-o",
+            &path(out),
+            "--json",
+        ]);
+        let v: serde_json::Value = serde_json::from_str(&o).unwrap();
+        (v["rms_error"].as_f64().unwrap(), v)
+    };
+    let (before, _) = rms("before.x3p", "cmp_before");
+    let (after, _) = rms("after.x3p", "cmp_after");
+    assert!(after * 2.0 < before, "RMS {before} -> {after}");
+    // The same correction from compare.json.
+    let out = ok(&[
+        "precompensate",
+        &path("design.exr"),
+        "--recipe",
+        recipe_arg,
+        "--model",
+        &path("cmp_before/compare.json"),
+        "-o",
+        &path("pc_model"),
+        "--json",
+    ]);
+    let from_model: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(from_model["level_commands"], report["level_commands"]);
+}
+
+/// Refusals, each naming the figure: a recipe with a binary mask set, a model from another
+/// design, a poor registration, an implausible depth scale, a file that is not a compare.json.
+#[test]
+fn the_command_refuses_what_it_cannot_correct() {
+    use crate::common::{fails, tempdir};
+    use doefab::pipeline::precompensate::{process_model, Measured};
+    let dir = tempdir();
+    let e = fails(&[
+        "precompensate",
+        "--recipe",
+        "built-in:binary-3mask-8level",
+        "--model",
+        "nowhere.json",
+        "-o",
+        dir.path().join("o").to_str().unwrap(),
+    ]);
+    assert!(e.contains("binary mask set (gds)") && e.contains("etch depths"), "{e}");
+    // A compare.json of the built-in design, through the library's own comparison.
+    let c = run(SimulateParams { depth_scale: 0.9, ..Default::default() });
+    let m = Measured {
+        scan: "s.x3p".into(),
+        scan_sha256: "ab".into(),
+        design_sha256: "not-the-design".into(),
+        interior_correlation: c.r.before.interior_correlation,
+        rms_error: c.r.before.rms_error,
+        model: c.r.before.model.clone(),
+        levels: c.r.before.levels.clone(),
+    };
+    let json = dir.path().join("compare.json");
+    std::fs::write(&json, serde_json::to_string(&m).unwrap()).unwrap();
+    let e = fails(&[
+        "precompensate",
+        "--recipe",
+        "built-in:laser-writer-grayscale",
+        "--model",
+        json.to_str().unwrap(),
+        "-o",
+        dir.path().join("o").to_str().unwrap(),
+    ]);
+    assert!(e.contains("compare.json") && e.contains("design_sha256 not-the-design"), "{e}");
+    let mut w = vec![];
+    let poor = Measured { interior_correlation: 0.62, ..m.clone() };
+    let e = process_model(&poor, &Corrections::default(), &mut w).unwrap_err().to_string();
+    assert!(e.contains("0.620") && e.contains("below 0.9"), "{e}");
+    let mut flat = m.clone();
+    flat.model.depth_scale = 0.31;
+    let e = process_model(&flat, &Corrections { levels: false, ..Default::default() }, &mut w)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("0.310") && e.contains("0.5..1.5"), "{e}");
+    std::fs::write(&json, "{\"scan\": 3}").unwrap();
+    let e = fails(&[
+        "precompensate",
+        "--recipe",
+        "built-in:laser-writer-grayscale",
+        "--model",
+        json.to_str().unwrap(),
+        "-o",
+        dir.path().join("o").to_str().unwrap(),
+    ]);
+    assert!(e.contains("compare.json") && e.contains("not a compare.json"), "{e}");
+    assert!(!dir.path().join("o").exists());
+}
