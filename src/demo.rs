@@ -155,9 +155,13 @@ pub fn run(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<De
     let mut fabrication = Vec::new();
     for (name, recipe) in &recipes {
         let out = output.join(name);
-        let report = chain::run_recipe(&source, recipe, &out, &FabOptions::default(), &mut |step: &str| {
-            p.step(&format!("{name}: {step}"))
-        })?;
+        let report = chain::run_recipe(
+            &source,
+            recipe,
+            &out,
+            &FabOptions { intermediates: true, ..Default::default() },
+            &mut |step: &str| p.step(&format!("{name}: {step}")),
+        )?;
         fabrication.push(report);
         folders.fabrication.push((name.clone(), out));
     }

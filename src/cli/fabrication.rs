@@ -47,6 +47,10 @@ pub struct FabArgs {
     /// Write outputs above the size limit.
     #[arg(long)]
     pub force: bool,
+    /// Also write the intermediate maps: surface.exr (wrapped heights), levels.exr (the level
+    /// map that `mask`, `gds` and `stl` take) and levels_preview.png.
+    #[arg(long)]
+    pub intermediates: bool,
 }
 
 /// Arguments of `doefab wrap`.
@@ -158,13 +162,14 @@ pub struct StlArgs {
 
 /// `doefab fab`.
 pub fn fab(cli: &Cli, a: &FabArgs) -> Result<()> {
-    let FabArgs { design, recipe, output, levels, read, fill, force } = a;
+    let FabArgs { design, recipe, output, levels, read, fill, force, intermediates } = a;
     let mut recipe = Recipe::read(recipe)?;
     if let Some(n) = levels {
         recipe.level_count = *n;
     }
     let source = DesignSource::parse(design.as_deref(), read.options()?);
-    run_recipe(cli, &source, &recipe, output, *fill, *force)
+    let opts = FabOptions { fill: *fill, force: *force, intermediates: *intermediates };
+    run_recipe(cli, &source, &recipe, output, &opts)
 }
 
 /// `doefab wrap`.
@@ -287,12 +292,10 @@ fn run_recipe(
     source: &DesignSource,
     recipe: &Recipe,
     output: &Path,
-    fill: bool,
-    force: bool,
+    opts: &FabOptions,
 ) -> Result<()> {
     let pb = progress(cli, chain::step_count(recipe) as u64);
-    let opts = FabOptions { fill, force };
-    let report = chain::run_recipe(source, recipe, output, &opts, &mut |step: &str| {
+    let report = chain::run_recipe(source, recipe, output, opts, &mut |step: &str| {
         pb.set_message(step.to_string());
         pb.inc(1);
     })

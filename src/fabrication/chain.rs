@@ -531,6 +531,9 @@ pub fn stl_file(input: &Path, opts: &StlOptions, output: &Path) -> Result<StlRep
 pub struct FabOptions {
     pub fill: bool,
     pub force: bool,
+    /// Also write the intermediate maps: the wrapped surface (`surface.exr`), the level map
+    /// (`levels.exr`, what `doefab mask`, `gds` and `stl` take) and its preview.
+    pub intermediates: bool,
 }
 
 /// Everything `doefab fab` did, written as `report.json` (and summarised in `report.md`).
@@ -580,23 +583,25 @@ pub fn run_recipe(
     progress("wrapped and quantized");
     let mut stage = StagedDir::new(out_dir)?;
     let mut artifacts = Vec::new();
-    write_height_map(&stage.stage_path("surface.exr"), &prep.surface, &prep.provenance)?;
-    artifacts.push(artifact(&stage.final_path("surface.exr"), "wrapped_surface"));
-    write_level_map(&stage.stage_path("levels.exr"), &prep.quantized, &prep.provenance)?;
-    artifacts.push(artifact(&stage.final_path("levels.exr"), "level_map"));
-    write_png_u8(
-        &stage.stage_path("levels_preview.png"),
-        &level_preview(&prep.quantized),
-        &Metadata {
-            pitch: Some(prep.quantized.levels.pitch()),
-            unit: None,
-            text: vec![
-                ("content".into(), "level map preview: gray = level * 255 / (N - 1)".into()),
-                ("provenance".into(), provenance_json(&prep.provenance)?),
-            ],
-        },
-    )?;
-    artifacts.push(artifact(&stage.final_path("levels_preview.png"), "level_preview"));
+    if opts.intermediates {
+        write_height_map(&stage.stage_path("surface.exr"), &prep.surface, &prep.provenance)?;
+        artifacts.push(artifact(&stage.final_path("surface.exr"), "wrapped_surface"));
+        write_level_map(&stage.stage_path("levels.exr"), &prep.quantized, &prep.provenance)?;
+        artifacts.push(artifact(&stage.final_path("levels.exr"), "level_map"));
+        write_png_u8(
+            &stage.stage_path("levels_preview.png"),
+            &level_preview(&prep.quantized),
+            &Metadata {
+                pitch: Some(prep.quantized.levels.pitch()),
+                unit: None,
+                text: vec![
+                    ("content".into(), "level map preview: gray = level * 255 / (N - 1)".into()),
+                    ("provenance".into(), provenance_json(&prep.provenance)?),
+                ],
+            },
+        )?;
+        artifacts.push(artifact(&stage.final_path("levels_preview.png"), "level_preview"));
+    }
 
     let mut mask_meta = None;
     let grayscale: Vec<&str> = recipe

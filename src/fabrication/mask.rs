@@ -83,6 +83,34 @@ pub struct LevelDose {
     pub gray: u32,
 }
 
+/// Most rows of a sidecar's level table: a 16-bit mask's 65,536 levels would make a file of
+/// 11 MB that states one rule.
+pub const MAX_LISTED_LEVELS: usize = 257;
+
+/// The rows of `table` a sidecar lists (see [`MaskMeta::levels_listed`]).
+fn listed(table: Vec<LevelDose>) -> Vec<LevelDose> {
+    let n = table.len();
+    if n <= MAX_LISTED_LEVELS {
+        return table;
+    }
+    let m = MAX_LISTED_LEVELS - 1;
+    (0..=m).map(|k| table[k * (n - 1) / m].clone()).collect()
+}
+
+fn listed_rule(n: usize) -> String {
+    if n <= MAX_LISTED_LEVELS {
+        format!("all {n} levels")
+    } else {
+        format!(
+            "{MAX_LISTED_LEVELS} of {n} levels, level k (n - 1) / {} for k = 0..={}; every level maps the same way: \
+             its height to the curve's depth by the polarity, to a dose through the inverted contrast curve, \
+             gray = round(dose * full_scale)",
+            MAX_LISTED_LEVELS - 1,
+            MAX_LISTED_LEVELS - 1
+        )
+    }
+}
+
 /// The sidecar metadata of a grayscale mask (written as JSON next to the image).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MaskMeta {
@@ -106,6 +134,10 @@ pub struct MaskMeta {
     pub level_count: usize,
     /// Depth of one full period (p * h_2pi), metres.
     pub period_m: f64,
+    /// Which levels `levels` lists: every level up to [`MAX_LISTED_LEVELS`]; above, evenly
+    /// spaced ones including the first and the last, each row exact.
+    #[serde(default)]
+    pub levels_listed: String,
     pub levels: Vec<LevelDose>,
     pub contrast_curve: String,
     /// Cross centres, pixels `[x, y]`.
@@ -209,8 +241,23 @@ pub fn render_levels(
         })
         .collect::<Result<_>>()?;
 
-    let on_writer = levels.resample_to(ph, pw, [opts.writer_pitch; 2], Interpolation::Nearest)?;
-    let on_writer = if opts.mirror { on_writer.mirror(true, false) } else { on_writer };
+    // A design already on the writer grid is taken as it is.
+    let same =
+        levels.dim() == (ph, pw) && levels.pitch().iter().all(|p| (p - opts.writer_pitch).abs() <= 1e-12 * p);
+    let resampled;
+    let on_writer = if same {
+        levels
+    } else {
+        resampled = levels.resample_to(ph, pw, [opts.writer_pitch; 2], Interpolation::Nearest)?;
+        &resampled
+    };
+    let mirrored;
+    let on_writer = if opts.mirror {
+        mirrored = on_writer.mirror(true, false);
+        &mirrored
+    } else {
+        on_writer
+    };
     let mut gray = Array2::<u16>::zeros((h, w));
     for ((i, j), &l) in on_writer.values().indexed_iter() {
         let l = l as usize;
@@ -287,7 +334,8 @@ pub fn render_levels(
         mirrored: opts.mirror,
         level_count,
         period_m: period,
-        levels: table,
+        levels_listed: listed_rule(level_count),
+        levels: listed(table),
         contrast_curve: curve.source.display().to_string(),
         marks_px,
         label: opts.label.clone(),

@@ -248,59 +248,58 @@ pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_featur
     let v = heights.values();
     let [px, py] = heights.pitch();
     let wrapd = |d: f64| d - (d / period).round() * period;
-    let mut min_period = f64::INFINITY;
-    let mut below = 0usize;
-    let mut steps = 0usize;
-    let mut counted = 0usize;
-    for i in 0..nr {
-        for j in 0..nc {
-            if !heights.is_valid(i, j) {
-                continue;
-            }
-            // One-sided differences at the border, central inside.
-            let diff =
-                |a: Option<(usize, usize)>, b: Option<(usize, usize)>, step: f64| -> Option<(f64, f64)> {
-                    let (a, b) = (a?, b?);
-                    if !heights.is_valid(a.0, a.1) || !heights.is_valid(b.0, b.1) {
-                        return None;
-                    }
-                    let raw = v[[b.0, b.1]] - v[[a.0, a.1]];
-                    Some((wrapd(raw), step))
-                };
-            let left = (j > 0).then(|| (i, j - 1));
-            let right = (j + 1 < nc).then_some((i, j + 1));
-            let up = (i > 0).then(|| (i - 1, j));
-            let down = (i + 1 < nr).then_some((i + 1, j));
-            let gx = diff(left, Some((i, j)), px)
-                .into_iter()
-                .chain(diff(Some((i, j)), right, px))
-                .collect::<Vec<_>>();
-            let gy = diff(up, Some((i, j)), py)
-                .into_iter()
-                .chain(diff(Some((i, j)), down, py))
-                .collect::<Vec<_>>();
-            counted += 1;
-            if gx.iter().chain(&gy).any(|(d, _)| d.abs() > UNDERSAMPLED_STEP * period) {
-                steps += 1;
-                continue;
-            }
-            let mean = |g: &[(f64, f64)]| {
-                if g.is_empty() {
-                    0.0
-                } else {
-                    g.iter().map(|(d, s)| d / s).sum::<f64>() / g.len() as f64
-                }
+    let limit = UNDERSAMPLED_STEP * period;
+    // Per row: smallest zone period, samples below the feature, steps, samples counted. The
+    // minimum and the counts do not depend on how rows are split among threads.
+    use rayon::prelude::*;
+    let rows: Vec<(f64, usize, usize, usize)> = (0..nr)
+        .into_par_iter()
+        .map(|i| {
+            let (mut min_period, mut below, mut steps, mut counted) = (f64::INFINITY, 0, 0, 0);
+            // The wrapped difference from sample `a` to `b` when both are valid.
+            let diff = |a: (usize, usize), b: (usize, usize)| -> Option<f64> {
+                (heights.is_valid(a.0, a.1) && heights.is_valid(b.0, b.1)).then(|| wrapd(v[b] - v[a]))
             };
-            let grad = mean(&gx).hypot(mean(&gy));
-            if grad > 0.0 {
-                let lam = period / grad;
-                min_period = min_period.min(lam);
-                if lam / steps_per_zone <= min_feature {
-                    below += 1;
+            for j in 0..nc {
+                if !heights.is_valid(i, j) {
+                    continue;
+                }
+                // One-sided differences at the border, central inside.
+                let gx = [
+                    (j > 0).then(|| diff((i, j - 1), (i, j))).flatten(),
+                    (j + 1 < nc).then(|| diff((i, j), (i, j + 1))).flatten(),
+                ];
+                let gy = [
+                    (i > 0).then(|| diff((i - 1, j), (i, j))).flatten(),
+                    (i + 1 < nr).then(|| diff((i, j), (i + 1, j))).flatten(),
+                ];
+                counted += 1;
+                if gx.iter().chain(&gy).flatten().any(|d| d.abs() > limit) {
+                    steps += 1;
+                    continue;
+                }
+                let mean = |g: &[Option<f64>; 2], step: f64| {
+                    let n = g.iter().flatten().count();
+                    if n == 0 {
+                        0.0
+                    } else {
+                        g.iter().flatten().sum::<f64>() / (n as f64 * step)
+                    }
+                };
+                let grad = mean(&gx, px).hypot(mean(&gy, py));
+                if grad > 0.0 {
+                    let lam = period / grad;
+                    min_period = min_period.min(lam);
+                    if lam / steps_per_zone <= min_feature {
+                        below += 1;
+                    }
                 }
             }
-        }
-    }
+            (min_period, below, steps, counted)
+        })
+        .collect();
+    let (min_period, below, steps, counted) =
+        rows.iter().fold((f64::INFINITY, 0, 0, 0), |a, r| (a.0.min(r.0), a.1 + r.1, a.2 + r.2, a.3 + r.3));
     FeatureReport {
         min_zone_period: min_period,
         min_terrace_width: min_period / steps_per_zone,

@@ -156,7 +156,7 @@ fn encode(
         let mut enc = png::Encoder::new(&mut out, w32, h32);
         enc.set_color(color);
         enc.set_depth(depth);
-        enc.set_compression(png::Compression::Balanced);
+        enc.set_compression(png::Compression::Fast);
         for (k, v) in meta.key_values(path)? {
             let latin1 = |s: &str| s.chars().all(|c| (c as u32) < 256);
             if k.is_empty() || k.len() > 79 || !latin1(&k) {

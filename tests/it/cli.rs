@@ -57,6 +57,7 @@ fn fab_writes_every_artifact_and_is_byte_identical_when_repeated() {
             &masks("binary-3mask-8level.toml"),
             "-o",
             o.to_str().unwrap(),
+            "--intermediates",
             "--quiet",
         ]);
     }
@@ -93,6 +94,33 @@ fn fab_writes_every_artifact_and_is_byte_identical_when_repeated() {
     assert!((eta - 0.9496).abs() < 1e-3, "8-level efficiency at 530 nm: {eta}");
     // The input is never modified.
     assert_eq!(doefab::io::file_sha256(&design).unwrap(), report["provenance"]["design_sha256"]);
+    // Without --intermediates the maps are not written, the rest is the same.
+    let o3 = d.path().join("o3");
+    let design_s = design.to_str().unwrap();
+    let recipe = masks("binary-3mask-8level.toml");
+    ok(&[
+        "fab",
+        design_s,
+        "--pitch",
+        "4.29um",
+        "--unit",
+        "m",
+        "--recipe",
+        &recipe,
+        "-o",
+        o3.to_str().unwrap(),
+        "-q",
+    ]);
+    let c = read_dir_sorted(&o3);
+    let without: Vec<_> = c.iter().map(|(n, _)| n.as_str()).collect();
+    for gone in ["levels.exr", "surface.exr", "levels_preview.png"] {
+        assert!(!without.contains(&gone), "{gone} written without --intermediates");
+    }
+    for (name, bytes) in &c {
+        if !name.ends_with(".json") && !name.ends_with(".md") {
+            assert!(a.iter().any(|(n, b)| n == name && b == bytes), "{name} differs without --intermediates");
+        }
+    }
 }
 
 #[test]
