@@ -25,6 +25,7 @@ use crate::error::{Error, Result};
 use crate::fabrication::chain::{self, write_mask, ChainParams, DesignSource, LoadedDesign};
 use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::mask::{render_levels, MaskOptions};
+use crate::fabrication::quantize::feature_check;
 use crate::fabrication::precompensate::{
     precompensate, rms_without_piston, DeblurReport, PrecompensateOptions, Precompensated, ProcessModel,
     Response,
@@ -452,6 +453,21 @@ pub fn precompensate_design(
             d.residual_after * 1e9,
             d.at_bounds * 100.0
         ));
+    }
+    // What the writer cannot make: features the deconvolution adds below its minimum.
+    if result.deblur.is_some() {
+        let check = |g: &Grid| feature_check(g, period, params.level_count, params.min_feature).fraction_below;
+        let (plain, corrected) = (check(&target), check(&result.commanded));
+        if corrected > plain {
+            warnings.push(format!(
+                "the deconvolution puts {:.2}% of the samples on terraces narrower than the writer's minimum feature \
+                 of {:.2} um (local zone period / level count, as fab checks; the plain mask: {:.2}%): there the \
+                 correction asks for detail the writer may not resolve",
+                corrected * 100.0,
+                params.min_feature * 1e6,
+                plain * 100.0
+            ));
+        }
     }
     let prediction = predict(&target, &model, &result, params)?;
     Ok(Written { target, model, result, prediction, corrected, max_height, warnings })
