@@ -97,44 +97,21 @@ pub struct ReconstructReport {
     pub warnings: Vec<String>,
 }
 
-/// Reads an RGB capture (8- or 16-bit PNG or TIFF, linear) as `value / (2^bits - 1)`.
+/// Reads an RGB capture (8- or 16-bit PNG or TIFF, linear) as `count / (2^bits - 1)` in `f32`,
+/// through the one capture reader, [`crate::calibration::capture::read_capture`]; the decoder
+/// takes three channels.
 pub fn read_capture(path: &Path) -> Result<Array3<f32>> {
-    let img = image::ImageReader::open(path)
-        .map_err(|e| Error::io(path, e))?
-        .with_guessed_format()
-        .map_err(|e| Error::io(path, e))?
-        .decode()
-        .map_err(|e| {
-            Error::format(
-                path,
-                format!("cannot decode the capture (it must be an RGB PNG or TIFF with 8 or 16 bits per sample): {e}"),
-            )
-        })?;
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    match img {
-        image::DynamicImage::ImageRgb8(b) => Ok(Array3::from_shape_vec(
-            (h, w, 3),
-            b.into_raw().into_iter().map(|v| v as f32 / 255.0).collect(),
-        )
-        .expect("RGB buffer")),
-        image::DynamicImage::ImageRgb16(b) => Ok(Array3::from_shape_vec(
-            (h, w, 3),
-            b.into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
-        )
-        .expect("RGB buffer")),
-        other => {
-            let c = other.color();
-            Err(Error::format(
-                path,
-                format!(
-                    "is {c:?} ({} channels, {} bits per sample); a capture must be RGB with 8 or 16 bits \
-                     per sample (linear sensor values)",
-                    c.channel_count(),
-                    c.bits_per_pixel() / c.channel_count() as u16
-                ),
-            ))
-        }
+    let c = crate::calibration::capture::read_capture(path)?;
+    let channels = c.values.dim().2;
+    if channels != 3 {
+        return Err(Error::format(
+            path,
+            format!("has {channels} channel(s); the decoder takes RGB captures (linear sensor values)"),
+        ));
     }
+    // Back to the counts, exact, then divided in f32.
+    let full = c.full_scale();
+    Ok(c.values.mapv(|v| (v * full).round() as f32 / full as f32))
 }
 
 /// Index `i` (counted from `-border`) of a mirrored axis of length `n`: `x[-i] = x[i]` and

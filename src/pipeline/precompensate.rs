@@ -25,11 +25,11 @@ use crate::error::{Error, Result};
 use crate::fabrication::chain::{self, write_mask, ChainParams, DesignSource, LoadedDesign};
 use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::mask::{render_levels, MaskOptions};
-use crate::fabrication::quantize::feature_check;
 use crate::fabrication::precompensate::{
     precompensate, rms_without_piston, DeblurReport, PrecompensateOptions, Precompensated, ProcessModel,
     Response,
 };
+use crate::fabrication::quantize::feature_check;
 use crate::fabrication::recipe::{Output, Recipe};
 use crate::fabrication::stl::{surface_mesh, write_stl_part, StlOptions, SurfaceChoice};
 use crate::fabrication::{Provenance, ReplicaMode};
@@ -456,7 +456,8 @@ pub fn precompensate_design(
     }
     // What the writer cannot make: features the deconvolution adds below its minimum.
     if result.deblur.is_some() {
-        let check = |g: &Grid| feature_check(g, period, params.level_count, params.min_feature).fraction_below;
+        let check =
+            |g: &Grid| feature_check(g, period, params.level_count, params.min_feature).fraction_below;
         let (plain, corrected) = (check(&target), check(&result.commanded));
         if corrected > plain {
             warnings.push(format!(
