@@ -4,6 +4,13 @@
 //! the same process, the literal order (resample the heights first, wrap and quantize all
 //! 31 Mpx). Prints seconds, the ratio, and the peak resident memory.
 //!
+//! Then the command's whole path on a design already at the writer grid (the same DOE sampled
+//! at 1 um, 5603^2, written as an f64 .npy): `fab` with the grayscale recipe at 65,536 levels
+//! and a 16-bit PNG only (read, hash, checks, wrap, master, quantize, mask, PNG, sidecar,
+//! report), against OpenCV's wrap + quantize + imwrite of the same file timed inside
+//! `benches/fab_opencv.py` in the same run, when a Python with `cv2` is found
+//! (`$DOEFAB_PYTHON`, `.venv/bin/python`, `python3`; `pip install opencv-python-headless`).
+//!
 //! Run with `cargo bench --bench fab`.
 
 use std::path::Path;
@@ -67,5 +74,63 @@ fn main() -> Result<()> {
         );
     }
     println!("peak resident memory {:.0} MiB", peak_rss_mib());
+    writer_grid(&design, dir.path())
+}
+
+/// `fab` on a design at the writer grid against OpenCV (module docs).
+fn writer_grid(design: &Grid, dir: &Path) -> Result<()> {
+    use doefab::fabrication::chain::{run_recipe, DesignSource, FabOptions};
+    use doefab::fabrication::recipe::{Output, Recipe};
+    use doefab::io::heightmap::ReadOptions;
+    let fine = design.resample([1e-6, 1e-6], Interpolation::Nearest)?;
+    let npy = dir.join("design_1um.npy");
+    doefab::io::npy::write_npy_f64(&npy, fine.values())?;
+    let mut recipe = Recipe::read(Path::new("built-in:laser-writer-grayscale"))?;
+    recipe.level_count = LEVELS;
+    recipe.outputs = vec![Output::GrayscalePng];
+    let read = ReadOptions { pitch: Some([1e-6; 2]), unit: Some(1.0), ..Default::default() };
+    let source = DesignSource::File(npy.clone(), read);
+    let period = WrapSpec::default().period()?;
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let script = root.join("benches/fab_opencv.py");
+    let python = [
+        std::env::var("DOEFAB_PYTHON").ok(),
+        Some(root.join(".venv/bin/python").display().to_string()),
+        Some("python3".into()),
+    ]
+    .into_iter()
+    .flatten()
+    .find(|p| {
+        std::process::Command::new(p).args(["-c", "import cv2"]).output().is_ok_and(|o| o.status.success())
+    });
+    for run in 0..3 {
+        let t = Instant::now();
+        run_recipe(&source, &recipe, &dir.join("fab"), &FabOptions::default(), &mut |_| {})?;
+        let ours = t.elapsed().as_secs_f64();
+        let cv = python.as_ref().and_then(|py| {
+            let out = std::process::Command::new(py)
+                .arg(&script)
+                .arg(&npy)
+                .arg(dir.join("opencv.png"))
+                .arg(format!("{period:e}"))
+                .arg(LEVELS.to_string())
+                .output()
+                .ok()?;
+            let text = String::from_utf8_lossy(&out.stdout).into_owned();
+            text.trim().strip_prefix("opencv ")?.parse::<f64>().ok()
+        });
+        let n = fine.dim().0;
+        match cv {
+            Some(cv) => println!(
+                "run {run}: fab on the {n} x {n} design at the writer grid {ours:.2} s; OpenCV wrap + quantize + \
+                 imwrite {cv:.2} s; ratio fab / OpenCV {:.2}",
+                ours / cv
+            ),
+            None => println!("run {run}: fab on the {n} x {n} design at the writer grid {ours:.2} s"),
+        }
+    }
+    if python.is_none() {
+        println!("notice: no Python with cv2 found; the OpenCV comparison is skipped");
+    }
     Ok(())
 }
