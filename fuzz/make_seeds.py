@@ -94,6 +94,30 @@ def metropro():
     return bytes(h) + struct.pack(">%di" % len(phase), *phase)
 
 
+def opd(elem):
+    """Wyko OPD: 01 00, a directory of 24-byte entries (name, type, size, flags), the data in
+    order; the array column by column, each from the last row up (src/io/scan/opd.rs)."""
+    wavelength, mult = 632.8, 4096
+    unit = wavelength * 1e-9 / mult
+    if elem == 4:
+        cols = [[(3.0e38 if (i, j) == MISSING else Z[i][j] / unit) for i in reversed(range(ROWS))] for j in range(COLS)]
+        data = b"".join(struct.pack("<%df" % ROWS, *c) for c in cols)
+    else:
+        cols = [[(32767 if (i, j) == MISSING else round(Z[i][j] / unit)) for i in reversed(range(ROWS))] for j in range(COLS)]
+        data = b"".join(struct.pack("<%dh" % ROWS, *c) for c in cols)
+    entries = [
+        (b"RAW_DATA", 3, struct.pack("<3H", COLS, ROWS, elem) + data),
+        (b"Wavelength", 7, struct.pack("<f", wavelength)),
+        (b"Mult", 6, struct.pack("<h", mult)),
+        (b"Pixel_size", 7, struct.pack("<f", 1e-3)),
+        (b"Aspect", 7, struct.pack("<f", 1.0)),
+        (b"Title", 5, b"seed\0\0\0\0"),
+    ]
+    head = b"\x01\x00" + struct.pack("<16sHIH", b"Directory", 1, 24 * (len(entries) + 1), 0xFFFF)
+    head += b"".join(struct.pack("<16sHIH", n, t, len(d), 0) for n, t, d in entries)
+    return head + b"".join(d for _, _, d in entries)
+
+
 def npy(descr, shape, fmt, vals):
     head = "{'descr': '%s', 'fortran_order': False, 'shape': %s, }" % (descr, shape)
     head += " " * (63 - (len(head) + 10) % 64) + "\n"
@@ -130,6 +154,8 @@ def main():
     put(out, "sur", "int16.sur", sur(16))
     put(out, "sur", "int32.sur", sur(32))
     put(out, "metropro", "format2.dat", metropro())
+    put(out, "opd", "f32.opd", opd(4))
+    put(out, "opd", "i16.opd", opd(2))
     put(out, "exr", "float_z.exr", exr())
     v = flat()
     put(out, "npy", "f8_2d.npy", npy("<f8", "(%d, %d)" % (ROWS, COLS), "<%dd" % len(v), v))

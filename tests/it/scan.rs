@@ -417,3 +417,26 @@ fn png_pcal_follows_the_specification_for_any_x0_x1() {
     let e = heights(i32::MIN, i32::MAX, 0.0, 1e-9, Some("Gwyddion")).unwrap_err().to_string();
     assert!(e.contains("p.png") && e.contains("x0 = -2147483648, x1 = 2147483647"), "{e}");
 }
+
+/// The real Wyko / Bruker Vision file of the shared set (`instruments/wyko.opd`, GPL-3.0, read
+/// from there): size, x pitch, the non-measured points and the statistics after the
+/// least-squares plane, against the values Gwyddion 2.62 and SurfaceTopography 1.27.1 computed
+/// (`instruments/README.md`; six printed digits, so 1e-5 relative).
+#[test]
+fn wyko_opd_reproduces_two_programs_statistics() {
+    let path = shared().join("instruments/wyko.opd");
+    let s = read(&path, &ScanOptions::default());
+    assert_eq!(s.format, ScanFormat::Opd);
+    assert_eq!(s.grid.dim(), (480, 736));
+    assert!((s.grid.pitch()[0] - 1.634e-6).abs() < 5e-10, "{:?}", s.grid.pitch());
+    assert_eq!(s.grid.dim().0 * s.grid.dim().1 - s.grid.valid_count(), 809);
+    let (lev, _) = level_plane(&s.grid, None).unwrap();
+    let p = height_params(&lev).unwrap();
+    let close = |got: f64, want: f64, tol: f64| (got - want).abs() <= tol * want.abs();
+    for (name, got, want) in [("Sa", p.sa, 1.59376e-06), ("Sq", p.sq, 1.92653e-06), ("Sz", p.sz, 1.88444e-05)]
+    {
+        assert!(close(got, want, 1e-5), "{name}: {got} vs {want}");
+    }
+    assert!((p.ssk - 0.148677).abs() < 1e-5 && (p.sku - 2.50654).abs() < 1e-5, "{} {}", p.ssk, p.sku);
+    assert!(s.metadata.iter().any(|(k, v)| k == "ObjectiveLabel" && v == "5 X"), "{:?}", s.metadata);
+}

@@ -7,6 +7,7 @@
 //! | `.gsf` | Gwyddion Simple Field | [`gsf`] |
 //! | `.sdf` | ISO 25178-71 / SDF, ASCII (`aBCR`, `aISO`) or binary (`bBCR`, `bISO`) | [`sdf`] |
 //! | `.sur` | Digital Surf (MountainsMap) | [`sur`] |
+//! | `.opd` | Wyko / Bruker Vision binary | [`opd`] |
 //! | `.dat` | Zygo MetroPro binary (recognised by its magic number; else a text matrix) | [`zygo`] |
 //! | `.xyz` | three text columns x y z on a regular grid | [`xyz`] |
 //! | `.txt`, `.csv`, `.asc` | text matrix ([`crate::io::csv`]; also the SPIP header of Gwyddion's `.asc`: `x-length`, `y-length` in nm, `Bit2nm`) | |
@@ -26,6 +27,7 @@
 //! making sense (truncation, a bad field).
 
 pub mod gsf;
+pub mod opd;
 pub mod png_scale;
 pub mod sdf;
 pub mod sur;
@@ -79,6 +81,7 @@ pub enum ScanFormat {
     SdfBinary,
     Sur,
     MetroPro,
+    Opd,
     Xyz,
     Matrix,
     Png,
@@ -96,6 +99,7 @@ impl ScanFormat {
             ScanFormat::SdfBinary => "ISO 25178-71 SDF (binary)",
             ScanFormat::Sur => "Digital Surf SUR",
             ScanFormat::MetroPro => "Zygo MetroPro DAT",
+            ScanFormat::Opd => "Wyko / Bruker Vision OPD",
             ScanFormat::Xyz => "XYZ point list",
             ScanFormat::Matrix => "text matrix",
             ScanFormat::Png => "PNG",
@@ -149,6 +153,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
             }
         }
         "sur" => ScanFormat::Sur,
+        "opd" => ScanFormat::Opd,
         "dat" if zygo::has_magic(head) => ScanFormat::MetroPro,
         "xyz" => ScanFormat::Xyz,
         "txt" | "csv" | "asc" | "dat" => ScanFormat::Matrix,
@@ -159,7 +164,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
             return Err(Error::format(
                 path,
                 format!(
-                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .dat, .xyz, \
+                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .opd, .dat, .xyz, \
                      .txt/.csv/.asc, .png, .tif/.tiff or .npy)"
                 ),
             ))
@@ -186,6 +191,7 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
         ScanFormat::SdfAscii | ScanFormat::SdfBinary => sdf::decode(path, bytes),
         ScanFormat::Sur => sur::decode(path, bytes),
         ScanFormat::MetroPro => zygo::decode(path, bytes),
+        ScanFormat::Opd => opd::decode(path, bytes),
         ScanFormat::Xyz => xyz::parse(path, text()?, opts.z_unit),
         ScanFormat::Matrix => {
             let mut raw = crate::io::csv::parse_csv(path, text()?)?;
