@@ -440,3 +440,20 @@ fn wyko_opd_reproduces_two_programs_statistics() {
     assert!((p.ssk - 0.148677).abs() < 1e-5 && (p.sku - 2.50654).abs() < 1e-5, "{} {}", p.ssk, p.sku);
     assert!(s.metadata.iter().any(|(k, v)| k == "ObjectiveLabel" && v == "5 X"), "{:?}", s.metadata);
 }
+
+/// The real Digital Surf file of the shared set (`instruments/digitalsurf.sur`): the statistics
+/// after the least-squares plane against Gwyddion's and SurfaceTopography's (1e-5 relative).
+#[test]
+fn digital_surf_instrument_file_reproduces_two_programs_statistics() {
+    let s = read(&shared().join("instruments/digitalsurf.sur"), &ScanOptions::default());
+    assert_eq!(s.grid.dim(), (512, 512));
+    assert!((s.grid.pitch()[0] - 19.57e-9).abs() < 5e-12, "{:?}", s.grid.pitch());
+    assert_eq!(s.grid.valid_count(), 512 * 512);
+    let (lev, _) = level_plane(&s.grid, None).unwrap();
+    let p = height_params(&lev).unwrap();
+    let close = |got: f64, want: f64| (got - want).abs() <= 1e-5 * want.abs();
+    for (name, got, want) in [("Sa", p.sa, 4.3248e-08), ("Sq", p.sq, 5.57426e-08), ("Sz", p.sz, 2.41356e-07)] {
+        assert!(close(got, want), "{name}: {got} vs {want}");
+    }
+    assert!((p.ssk - 1.40475).abs() < 1e-5 && (p.sku - 3.54574).abs() < 1e-5, "{} {}", p.ssk, p.sku);
+}
