@@ -118,6 +118,18 @@ def opd(elem):
     return head + b"".join(d for _, _, d in entries)
 
 
+def plu():
+    """Sensofar PLu: a 500-byte header (date text, pitch in um at 404 and 408, type 3 at 428),
+    rows and columns, f32 heights in um row by row, 1000001 = not measured (src/io/scan/plu.rs)."""
+    h = bytearray(500)
+    h[:24] = b"Mon Apr 19 11:40:13 2021"
+    struct.pack_into("<II", h, 388, ROWS, COLS)
+    struct.pack_into("<ff", h, 404, 1.0, 1.0)
+    struct.pack_into("<I", h, 428, 3)
+    v = [1000001.0 if (k // COLS, k % COLS) == MISSING else x * 1e6 for k, x in enumerate(flat())]
+    return bytes(h) + struct.pack("<II", ROWS, COLS) + struct.pack("<%df" % len(v), *v)
+
+
 def npy(descr, shape, fmt, vals):
     head = "{'descr': '%s', 'fortran_order': False, 'shape': %s, }" % (descr, shape)
     head += " " * (63 - (len(head) + 10) % 64) + "\n"
@@ -156,6 +168,7 @@ def main():
     put(out, "metropro", "format2.dat", metropro())
     put(out, "opd", "f32.opd", opd(4))
     put(out, "opd", "i16.opd", opd(2))
+    put(out, "plu", "topography.plu", plu())
     put(out, "exr", "float_z.exr", exr())
     v = flat()
     put(out, "npy", "f8_2d.npy", npy("<f8", "(%d, %d)" % (ROWS, COLS), "<%dd" % len(v), v))

@@ -18,5 +18,6 @@ add sdf_binary $S/sdfio/s1_tilt_pedestal.bin.sdf
 add sdf_ascii $S/gwyddion/s1_tilt_pedestal.sdf
 add sur ../profilometry/*.sur
 add opd $S/instruments/wyko.opd
+add plu $S/instruments/sensofar.plu
 add png_pcal ../profilometry/*.png
 add tiff ../profilometry/*.tiff

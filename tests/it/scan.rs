@@ -452,8 +452,30 @@ fn digital_surf_instrument_file_reproduces_two_programs_statistics() {
     let (lev, _) = level_plane(&s.grid, None).unwrap();
     let p = height_params(&lev).unwrap();
     let close = |got: f64, want: f64| (got - want).abs() <= 1e-5 * want.abs();
-    for (name, got, want) in [("Sa", p.sa, 4.3248e-08), ("Sq", p.sq, 5.57426e-08), ("Sz", p.sz, 2.41356e-07)] {
+    for (name, got, want) in [("Sa", p.sa, 4.3248e-08), ("Sq", p.sq, 5.57426e-08), ("Sz", p.sz, 2.41356e-07)]
+    {
         assert!(close(got, want), "{name}: {got} vs {want}");
     }
     assert!((p.ssk - 1.40475).abs() < 1e-5 && (p.sku - 3.54574).abs() < 1e-5, "{} {}", p.ssk, p.sku);
+}
+
+/// The real Sensofar file of the shared set (`instruments/sensofar.plu`, a later revision of the
+/// 2000 layout with an intensity image after the heights): size, pitch and the statistics after
+/// the least-squares plane against Gwyddion's and SurfaceTopography's (1e-5 relative).
+#[test]
+fn sensofar_plu_reproduces_two_programs_statistics() {
+    let s = read(&shared().join("instruments/sensofar.plu"), &ScanOptions::default());
+    assert_eq!(s.format, ScanFormat::Plu);
+    assert_eq!(s.grid.dim(), (576, 768));
+    assert!(s.grid.pitch().iter().all(|p| (p - 0.332e-6).abs() < 1e-12), "{:?}", s.grid.pitch());
+    assert_eq!(s.grid.valid_count(), 576 * 768);
+    let (lev, _) = level_plane(&s.grid, None).unwrap();
+    let p = height_params(&lev).unwrap();
+    let close = |got: f64, want: f64| (got - want).abs() <= 1e-5 * want.abs();
+    for (name, got, want) in [("Sa", p.sa, 4.48391e-06), ("Sq", p.sq, 5.16969e-06), ("Sz", p.sz, 2.3656e-05)]
+    {
+        assert!(close(got, want), "{name}: {got} vs {want}");
+    }
+    assert!((p.ssk + 0.227113).abs() < 1e-5 && (p.sku - 1.86818).abs() < 1e-5, "{} {}", p.ssk, p.sku);
+    assert!(s.metadata.iter().any(|(k, v)| k == "date" && v.starts_with("Mon Apr 19")), "{:?}", s.metadata);
 }

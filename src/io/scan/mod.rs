@@ -8,6 +8,7 @@
 //! | `.sdf` | ISO 25178-71 / SDF, ASCII (`aBCR`, `aISO`) or binary (`bBCR`, `bISO`) | [`sdf`] |
 //! | `.sur` | Digital Surf (MountainsMap) | [`sur`] |
 //! | `.opd` | Wyko / Bruker Vision binary | [`opd`] |
+//! | `.plu` | Sensofar PLu binary (2000 and later revisions) | [`plu`] |
 //! | `.dat` | Zygo MetroPro binary (recognised by its magic number; else a text matrix) | [`zygo`] |
 //! | `.xyz` | three text columns x y z on a regular grid | [`xyz`] |
 //! | `.txt`, `.csv`, `.asc` | text matrix ([`crate::io::csv`]; also the SPIP header of Gwyddion's `.asc`: `x-length`, `y-length` in nm, `Bit2nm`) | |
@@ -28,6 +29,7 @@
 
 pub mod gsf;
 pub mod opd;
+pub mod plu;
 pub mod png_scale;
 pub mod sdf;
 pub mod sur;
@@ -82,6 +84,7 @@ pub enum ScanFormat {
     Sur,
     MetroPro,
     Opd,
+    Plu,
     Xyz,
     Matrix,
     Png,
@@ -100,6 +103,7 @@ impl ScanFormat {
             ScanFormat::Sur => "Digital Surf SUR",
             ScanFormat::MetroPro => "Zygo MetroPro DAT",
             ScanFormat::Opd => "Wyko / Bruker Vision OPD",
+            ScanFormat::Plu => "Sensofar PLu",
             ScanFormat::Xyz => "XYZ point list",
             ScanFormat::Matrix => "text matrix",
             ScanFormat::Png => "PNG",
@@ -154,6 +158,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
         }
         "sur" => ScanFormat::Sur,
         "opd" => ScanFormat::Opd,
+        "plu" => ScanFormat::Plu,
         "dat" if zygo::has_magic(head) => ScanFormat::MetroPro,
         "xyz" => ScanFormat::Xyz,
         "txt" | "csv" | "asc" | "dat" => ScanFormat::Matrix,
@@ -164,7 +169,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
             return Err(Error::format(
                 path,
                 format!(
-                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .opd, .dat, .xyz, \
+                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .opd, .plu, .dat, .xyz, \
                      .txt/.csv/.asc, .png, .tif/.tiff or .npy)"
                 ),
             ))
@@ -192,6 +197,7 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
         ScanFormat::Sur => sur::decode(path, bytes),
         ScanFormat::MetroPro => zygo::decode(path, bytes),
         ScanFormat::Opd => opd::decode(path, bytes),
+        ScanFormat::Plu => plu::decode(path, bytes),
         ScanFormat::Xyz => xyz::parse(path, text()?, opts.z_unit),
         ScanFormat::Matrix => {
             let mut raw = crate::io::csv::parse_csv(path, text()?)?;
