@@ -258,6 +258,31 @@ pub fn heightmap_from_raw(path: &Path, raw: RawMap, opts: &ReadOptions) -> Resul
     Grid::from_values_nan_invalid(values, pitch, Unit::Metre)
 }
 
+/// Refuses a height grid whose peak-to-valley lies outside a DOE's relief
+/// ([`MIN_PLAUSIBLE_PV`]..[`MAX_PLAUSIBLE_PV`]), naming the figure: what a comparison with a
+/// design asks of a scan that was read on its own stated unit.
+pub fn check_relief(path: &Path, grid: &Grid) -> Result<()> {
+    let Some((lo, hi)) = grid.min_max() else { return Ok(()) };
+    let pv = hi - lo;
+    if pv == 0.0 || (MIN_PLAUSIBLE_PV..=MAX_PLAUSIBLE_PV).contains(&pv) {
+        return Ok(());
+    }
+    Err(Error::Data(format!(
+        "{}: the heights span {} peak-to-valley, beyond a DOE's relief ({MIN_PLAUSIBLE_PV:e}..{MAX_PLAUSIBLE_PV:e} m): \
+         not a scan of this part, or a wrong height unit in the file",
+        path.display(),
+        format_length(pv)
+    )))
+}
+
+/// The plausibility check of [`heightmap_from_raw`] alone (module docs): the error it would
+/// return for an implausible relief.
+pub fn check_plausibility(path: &Path, raw: &RawMap, opts: &ReadOptions) -> Result<()> {
+    let file = path.display().to_string();
+    let k = resolve_scale(&file, raw, opts)?;
+    check_plausible(&file, raw, k)
+}
+
 fn same(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-6 * a.abs().max(b.abs())
 }

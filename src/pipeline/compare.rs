@@ -242,6 +242,7 @@ pub fn compare_scan_file(
 ) -> Result<CompareReport> {
     step("read");
     let scan = scan::read_scan(scan_path, scan_opts)?;
+    crate::io::heightmap::check_relief(scan_path, &scan.grid)?;
     let design = chain::load_design(source)?;
     let (reference, levels, optics) = reference_surface(&design, chain)?;
     let paper = matches!(source, DesignSource::BuiltIn(n) if n == "paper");

@@ -377,6 +377,7 @@ pub fn run(job: &PrecompensateJob, out: &Path, step: &mut dyn FnMut(&str)) -> Re
         ModelSource::Scan { path, options } => {
             step("register and compare the scan");
             let scan = crate::io::scan::read_scan(path, options)?;
+            crate::io::heightmap::check_relief(path, &scan.grid)?;
             let paper = matches!(&job.design, DesignSource::BuiltIn(n) if n == "paper");
             let aperture = job.aperture.or(paper.then_some(crate::design::PAPER_APERTURE));
             let opts = CompareOptions { aperture, levels, optics, ..Default::default() };

@@ -3,6 +3,8 @@
 //! crate parses itself, the byte offset; never a panic), all-NaN scans, missing pitch or height
 //! unit, x/y pitch mismatch, implausible heights, a MetroPro file built byte by byte.
 
+use crate::common;
+
 use std::path::{Path, PathBuf};
 
 use doefab::io::scan::zygo::{self, MetroProFields, INVALID_PHASE};
@@ -212,16 +214,44 @@ fn different_x_and_y_pitches_are_supported() {
     }
 }
 
+/// A file's own stated unit is trusted: heights written as nanometre numbers into a file whose
+/// unit is metres (a 150 m relief) read with a warning naming the unit that would fit, and
+/// only a comparison with a design refuses them, naming the figure. A unit the caller states
+/// (`--z-unit`) is still refused when implausible.
 #[test]
-fn implausible_heights_for_the_unit_are_refused() {
-    // Heights written as nanometre numbers into a file whose unit is metres.
-    let v = Array2::from_shape_fn((4, 4), |(i, j)| (i * 4 + j) as f64 * 100.0);
-    let e = decode("nm.x3p", &doefab::io::scan::x3p::encode(&v, [1e-6; 2]).unwrap(), &ScanOptions::default())
+fn implausible_heights_of_a_stated_unit_warn_and_compare_refuses() {
+    let v = Array2::from_shape_fn((4, 4), |(i, j)| (i * 4 + j) as f64 * 10.0);
+    let bytes = doefab::io::scan::x3p::encode(&v, [1e-6; 2]).unwrap();
+    let s = decode("nm.x3p", &bytes, &ScanOptions::default()).unwrap();
+    assert!(
+        s.warnings.iter().any(|w| w.contains("implausible") && w.contains("nm") && w.contains("kept")),
+        "{:?}",
+        s.warnings
+    );
+    let e = doefab::io::heightmap::check_relief(Path::new("nm.x3p"), &s.grid).unwrap_err().to_string();
+    assert!(e.contains("nm.x3p") && e.contains("150 m") && e.contains("beyond a DOE's relief"), "{e}");
+    // Through the command: scan-info reads it, compare refuses it.
+    let dir = common::tempdir();
+    let path = dir.path().join("nm.x3p");
+    std::fs::write(&path, &bytes).unwrap();
+    let out = common::doefab(&["scan-info", path.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("implausible"));
+    let e = common::fails(&[
+        "compare",
+        path.to_str().unwrap(),
+        "--design",
+        "built-in:paper",
+        "-o",
+        dir.path().join("c").to_str().unwrap(),
+    ]);
+    assert!(e.contains("beyond a DOE's relief"), "{e}");
+    // A unit the caller states is checked as before.
+    let xyz = "0 0 0\n1 0 100\n0 1 200\n1 1 300\n";
+    let e = decode("a.xyz", xyz.as_bytes(), &ScanOptions { z_unit: Some(1.0), ..Default::default() })
         .unwrap_err()
         .to_string();
-    assert!(e.contains("nm.x3p") && e.contains("implausible") && e.contains("nm"), "{e}");
-    let o = ScanOptions { allow_implausible: true, ..Default::default() };
-    assert!(decode("nm.x3p", &doefab::io::scan::x3p::encode(&v, [1e-6; 2]).unwrap(), &o).is_ok());
+    assert!(e.contains("implausible"), "{e}");
 }
 
 #[test]

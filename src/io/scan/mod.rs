@@ -21,7 +21,9 @@
 //! unit and plausibility are then resolved exactly as for design maps
 //! ([`crate::io::heightmap::heightmap_from_raw`]): the file's statement or the caller's, never a
 //! guess; a conflict between the two is refused; a missing one is refused with the option to
-//! pass; a peak-to-valley height outside 1e-11..1e-3 m is refused with the unit that would fit.
+//! pass; a peak-to-valley height outside 1e-11..1e-3 m is refused with the unit that would fit
+//! when the caller stated the unit, and a warning when the file did (the file is trusted; a
+//! comparison with a design refuses it, [`crate::io::heightmap::check_relief`]).
 //! NaN values become invalid samples of the grid's validity mask (set to 0, never data).
 //!
 //! Errors name the file and, for binary formats, the byte offset where the content stopped
@@ -274,7 +276,20 @@ pub fn scan_from_raw(path: &Path, sr: ScanRaw, opts: &ScanOptions) -> Result<Sca
         )));
     }
     let metadata = raw.metadata.clone();
-    let mut grid = heightmap_from_raw(path, raw, &opts.read_options())?;
+    // A file that states its own height unit is trusted: an implausible relief is a warning
+    // here (a 7 mm part is a part), and only a comparison with a DOE design refuses it.
+    let stated = raw.unit.is_some() && opts.z_unit.is_none() && opts.z_scale.is_none();
+    let mut read = opts.read_options();
+    if stated && !read.allow_implausible {
+        match crate::io::heightmap::check_plausibility(path, &raw, &read) {
+            Err(Error::Parameter { name, reason }) if name == "unit" => {
+                warnings.push(format!("{reason} (kept: the file states its unit)"));
+                read.allow_implausible = true;
+            }
+            other => other?,
+        }
+    }
+    let mut grid = heightmap_from_raw(path, raw, &read)?;
     if let Some(o) = origin {
         if o.iter().all(|v| v.is_finite()) {
             grid = grid.with_origin(o);
