@@ -331,24 +331,24 @@ fn written_surface(commanded: &Grid, mode: ReplicaMode) -> Result<Grid> {
     }
 }
 
-/// Most levels a pre-compensated grayscale mask lists: a deconvolved surface takes this many
-/// equal steps between its lowest and highest heights.
+/// Most levels a pre-compensated grayscale mask takes: a deconvolved surface takes this many
+/// equal steps between its lowest and highest heights (or the mask's gray values, if fewer).
 pub const MAX_MASK_LEVELS: usize = 1024;
 
 /// A level map and its heights for a written surface: its distinct heights when they are few
-/// (a level table corrected level by level), else [`MAX_MASK_LEVELS`] equal steps.
-fn surface_levels(w: &Grid) -> Result<(Grid, Vec<f64>)> {
+/// (a level table corrected level by level), else `max_levels` equal steps.
+fn surface_levels(w: &Grid, max_levels: usize) -> Result<(Grid, Vec<f64>)> {
     let mut distinct: Vec<f64> = w.values().iter().copied().collect();
     distinct.sort_by(f64::total_cmp);
     distinct.dedup();
-    let (levels, heights) = if distinct.len() <= MAX_MASK_LEVELS {
+    let (levels, heights) = if distinct.len() <= max_levels {
         let lv = w.values().mapv(|h| distinct.partition_point(|&d| d < h) as f64);
         (lv, distinct)
     } else {
         let (lo, hi) = (distinct[0], distinct[distinct.len() - 1]);
-        let step = (hi - lo) / (MAX_MASK_LEVELS - 1) as f64;
-        let lv = w.values().mapv(|h| ((h - lo) / step).round().clamp(0.0, (MAX_MASK_LEVELS - 1) as f64));
-        (lv, (0..MAX_MASK_LEVELS).map(|l| lo + l as f64 * step).collect())
+        let step = (hi - lo) / (max_levels - 1) as f64;
+        let lv = w.values().mapv(|h| ((h - lo) / step).round().clamp(0.0, (max_levels - 1) as f64));
+        (lv, (0..max_levels).map(|l| lo + l as f64 * step).collect())
     };
     Ok((w.map_values(levels, Unit::Level)?, heights))
 }
@@ -529,7 +529,8 @@ fn write_outputs(
         .collect();
     if !grayscale.is_empty() {
         let curve = curve.ok_or_else(|| Error::format(&recipe.path, "no contrast_curve"))?;
-        let (levels, heights) = surface_levels(&written)?;
+        let grays = (1usize << recipe.mask_bits.min(16)).max(2);
+        let (levels, heights) = surface_levels(&written, MAX_MASK_LEVELS.min(grays))?;
         let mopts = MaskOptions {
             writer_pitch: recipe.address_grid,
             bits: recipe.mask_bits,
@@ -681,4 +682,36 @@ pub fn blur_sweep(
             })
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A few distinct heights are kept exactly; a continuous surface takes `max_levels` equal
+    /// steps (an 8-bit mask's 256), each sample within half a step of its level's height.
+    #[test]
+    fn surface_levels_are_exact_when_few_and_equal_steps_when_many() {
+        let few = Grid::new(
+            ndarray::Array2::from_shape_fn((4, 5), |(i, j)| ((i + j) % 3) as f64 * 1e-7),
+            [1e-6; 2],
+            Unit::Metre,
+        )
+        .unwrap();
+        let (lv, h) = surface_levels(&few, 256).unwrap();
+        assert_eq!(h, vec![0.0, 1e-7, 2e-7]);
+        assert!(lv.values().iter().zip(few.values()).all(|(l, v)| h[*l as usize] == *v));
+        let many = Grid::new(
+            ndarray::Array2::from_shape_fn((40, 50), |(i, j)| (i * 50 + j) as f64 * 1e-9),
+            [1e-6; 2],
+            Unit::Metre,
+        )
+        .unwrap();
+        let (lv, h) = surface_levels(&many, 256).unwrap();
+        assert_eq!(h.len(), 256);
+        let step = h[1] - h[0];
+        for (l, v) in lv.values().iter().zip(many.values()) {
+            assert!((h[*l as usize] - v).abs() <= 0.5 * step * (1.0 + 1e-9), "{l} {v}");
+        }
+    }
 }
