@@ -15,7 +15,7 @@ use crate::fabrication::quantize::{
 };
 use crate::fabrication::recipe::{Output, Recipe};
 use crate::fabrication::stl::{
-    level_heights, surface_mesh, surface_stl, write_stl_part, StlOptions, StlReport, SurfaceChoice,
+    level_heights, surface_mesh, surface_stl, write_stl_part, StlOptions, StlReport,
 };
 use crate::fabrication::wrap::{check_finite, to_master, wrap, WrapReport, WrapSpec};
 use crate::fabrication::{Provenance, ReplicaMode};
@@ -125,6 +125,23 @@ impl ChainParams {
         }
     }
 
+    /// What every output made with these parameters from `design` says of its origin.
+    pub fn provenance(&self, design: &LoadedDesign) -> Result<Provenance> {
+        let spec = self.wrap_spec()?;
+        Ok(Provenance {
+            design: design.name.clone(),
+            design_sha256: design.sha256.clone(),
+            replica_mode: self.replica_mode,
+            wavelength_m: self.wavelength,
+            material: spec.material.name.clone(),
+            order: self.order,
+            period_m: spec.period()?,
+            level_count: self.level_count,
+            quantization: format!("{:?}", self.quantization),
+            doefab_version: env!("CARGO_PKG_VERSION").into(),
+        })
+    }
+
     pub fn wrap_spec(&self) -> Result<WrapSpec> {
         Ok(WrapSpec {
             wavelength: self.wavelength,
@@ -200,18 +217,7 @@ pub fn prepare(design: &LoadedDesign, p: &ChainParams) -> Result<Prepared> {
     if filled_samples > 0 {
         warnings.push(format!("{filled_samples} non-finite or non-measured samples were filled (Laplace)"));
     }
-    let provenance = Provenance {
-        design: design.name.clone(),
-        design_sha256: design.sha256.clone(),
-        replica_mode: p.replica_mode,
-        wavelength_m: p.wavelength,
-        material: spec.material.name.clone(),
-        order: p.order,
-        period_m: period,
-        level_count: p.level_count,
-        quantization: format!("{:?}", p.quantization),
-        doefab_version: env!("CARGO_PKG_VERSION").into(),
-    };
+    let provenance = p.provenance(design)?;
     Ok(Prepared {
         surface,
         wrap: wrap_report,
@@ -604,30 +610,12 @@ pub fn run_recipe(
     }
 
     let mut mask_meta = None;
-    let grayscale: Vec<&str> = recipe
-        .outputs
-        .iter()
-        .filter_map(|o| match o {
-            Output::GrayscalePng => Some("png"),
-            Output::GrayscaleTiff => Some("tif"),
-            _ => None,
-        })
-        .collect();
+    let grayscale = recipe.grayscale_extensions();
     if !grayscale.is_empty() {
         let curve_path =
             recipe.contrast_curve.as_ref().ok_or_else(|| Error::format(&recipe.path, "no contrast_curve"))?;
         let curve = ContrastCurve::read_csv(curve_path)?;
-        let mopts = MaskOptions {
-            writer_pitch: recipe.address_grid,
-            bits: recipe.mask_bits,
-            polarity: recipe.polarity,
-            mirror: recipe.mask_mirror,
-            border: recipe.mask_border,
-            marks: true,
-            label: recipe.mask_label.clone(),
-            force: opts.force,
-            ..Default::default()
-        };
+        let mopts = recipe.mask_options(opts.force);
         let mask = crate::fabrication::mask::render(
             &prep.quantized.levels,
             recipe.level_count,
@@ -668,17 +656,9 @@ pub fn run_recipe(
 
     let mut stl = None;
     if recipe.outputs.contains(&Output::Stl) {
-        let opts = StlOptions {
-            unit: recipe.stl_unit,
-            base_thickness: recipe.stl_base_thickness,
-            max_error: recipe.stl_max_error,
-            surface: SurfaceChoice::Auto,
-        };
+        let opts = recipe.stl_options();
         let mesh = surface_mesh(&prep.quantized.heights, &opts)?;
-        let part = match recipe.replica_mode {
-            ReplicaMode::Design => "design",
-            ReplicaMode::Master => "master",
-        };
+        let part = recipe.replica_mode.part_name();
         let report = write_stl_part(&mesh, opts.unit, Some(part), &stage.stage_path("surface.stl"))?;
         artifacts.push(artifact(&stage.final_path("surface.stl"), "stl"));
         if report.triangle_ratio > 1.0 {

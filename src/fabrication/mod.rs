@@ -36,6 +36,16 @@ pub enum ReplicaMode {
     Master,
 }
 
+impl ReplicaMode {
+    /// The part the outputs show, as written into an STL header.
+    pub fn part_name(self) -> &'static str {
+        match self {
+            ReplicaMode::Design => "design",
+            ReplicaMode::Master => "master",
+        }
+    }
+}
+
 /// Where an output came from; written into every output's metadata.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq, Default)]
 pub struct Provenance {

@@ -138,6 +138,43 @@ pub struct Recipe {
 }
 
 impl Recipe {
+    /// The grayscale mask files the recipe asks for, by extension (`png`, `tif`).
+    pub fn grayscale_extensions(&self) -> Vec<&'static str> {
+        self.outputs
+            .iter()
+            .filter_map(|o| match o {
+                Output::GrayscalePng => Some("png"),
+                Output::GrayscaleTiff => Some("tif"),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// The grayscale mask's options: the recipe's writer and mask settings, alignment marks on.
+    pub fn mask_options(&self, force: bool) -> crate::fabrication::mask::MaskOptions {
+        crate::fabrication::mask::MaskOptions {
+            writer_pitch: self.address_grid,
+            bits: self.mask_bits,
+            polarity: self.polarity,
+            mirror: self.mask_mirror,
+            border: self.mask_border,
+            marks: true,
+            label: self.mask_label.clone(),
+            force,
+            ..Default::default()
+        }
+    }
+
+    /// The STL options of the recipe (the mesher chosen by the surface).
+    pub fn stl_options(&self) -> crate::fabrication::stl::StlOptions {
+        crate::fabrication::stl::StlOptions {
+            unit: self.stl_unit,
+            base_thickness: self.stl_base_thickness,
+            max_error: self.stl_max_error,
+            surface: crate::fabrication::stl::SurfaceChoice::Auto,
+        }
+    }
+
     /// Reads and validates a recipe (a file, or `built-in:NAME` for a bundled one);
     /// errors name the file and the field.
     pub fn read(path: &Path) -> Result<Recipe> {

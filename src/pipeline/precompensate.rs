@@ -24,15 +24,15 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::fabrication::chain::{self, write_mask, ChainParams, DesignSource, LoadedDesign};
 use crate::fabrication::contrast::ContrastCurve;
-use crate::fabrication::mask::{render_levels, MaskOptions};
+use crate::fabrication::mask::render_levels;
 use crate::fabrication::precompensate::{
     precompensate, rms_without_piston, DeblurReport, PrecompensateOptions, Precompensated, ProcessModel,
     Response,
 };
 use crate::fabrication::quantize::feature_check;
 use crate::fabrication::recipe::{Output, Recipe};
-use crate::fabrication::stl::{surface_mesh, write_stl_part, StlOptions, SurfaceChoice};
-use crate::fabrication::{Provenance, ReplicaMode};
+use crate::fabrication::stl::{surface_mesh, write_stl_part};
+use crate::fabrication::ReplicaMode;
 use crate::grid::{Grid, Unit};
 use crate::io::atomic::{write_json, StagedDir};
 use crate::io::heightmap::Metadata;
@@ -490,18 +490,7 @@ fn write_outputs(
     let mut warnings = w.warnings.clone();
     let written = written_surface(&w.result.commanded, recipe.replica_mode)?;
     let period = params.wrap_spec()?.period()?;
-    let provenance = Provenance {
-        design: design.name.clone(),
-        design_sha256: design.sha256.clone(),
-        replica_mode: recipe.replica_mode,
-        wavelength_m: params.wavelength,
-        material: params.material.clone(),
-        order: params.order,
-        period_m: period,
-        level_count: params.level_count,
-        quantization: format!("{:?}", params.quantization),
-        doefab_version: env!("CARGO_PKG_VERSION").into(),
-    };
+    let provenance = params.provenance(design)?;
     let mut report = PrecompensateReport {
         units: "lengths and heights in metres, efficiency as a fraction of incident power".into(),
         design: design.name.clone(),
@@ -518,30 +507,12 @@ fn write_outputs(
         warnings: Vec::new(),
         files: Vec::new(),
     };
-    let grayscale: Vec<&str> = recipe
-        .outputs
-        .iter()
-        .filter_map(|o| match o {
-            Output::GrayscalePng => Some("png"),
-            Output::GrayscaleTiff => Some("tif"),
-            _ => None,
-        })
-        .collect();
+    let grayscale = recipe.grayscale_extensions();
     if !grayscale.is_empty() {
         let curve = curve.ok_or_else(|| Error::format(&recipe.path, "no contrast_curve"))?;
         let grays = (1usize << recipe.mask_bits.min(16)).max(2);
         let (levels, heights) = surface_levels(&written, MAX_MASK_LEVELS.min(grays))?;
-        let mopts = MaskOptions {
-            writer_pitch: recipe.address_grid,
-            bits: recipe.mask_bits,
-            polarity: recipe.polarity,
-            mirror: recipe.mask_mirror,
-            border: recipe.mask_border,
-            marks: true,
-            label: recipe.mask_label.clone(),
-            force: job.force,
-            ..Default::default()
-        };
+        let mopts = recipe.mask_options(job.force);
         let mut mask = render_levels(&levels, &heights, period, curve, &mopts, &provenance)?;
         mask.meta.precompensation = Some(serde_json::json!({
             "scan": report.measured.scan,
@@ -560,19 +531,11 @@ fn write_outputs(
         files.push("grayscale_mask.json".into());
     }
     if recipe.outputs.contains(&Output::Stl) {
-        let opts = StlOptions {
-            unit: recipe.stl_unit,
-            base_thickness: recipe.stl_base_thickness,
-            max_error: recipe.stl_max_error,
-            surface: SurfaceChoice::Auto,
-        };
+        let opts = recipe.stl_options();
         let base = written.min_max().map_or(0.0, |(lo, _)| lo);
         let lifted = written.map_values(written.values().mapv(|h| h - base), Unit::Metre)?;
         let mesh = surface_mesh(&lifted, &opts)?;
-        let part = match recipe.replica_mode {
-            ReplicaMode::Design => "design",
-            ReplicaMode::Master => "master",
-        };
+        let part = recipe.replica_mode.part_name();
         write_stl_part(&mesh, opts.unit, Some(part), &stage.stage_path("surface.stl"))?;
         files.push("surface.stl".into());
     }
