@@ -277,15 +277,19 @@ fn the_command_refuses_what_it_cannot_correct() {
     use crate::common::{fails, tempdir};
     use doefab::pipeline::precompensate::{process_model, Measured};
     let dir = tempdir();
-    let e = fails(&[
-        "precompensate",
-        "--recipe",
-        "built-in:binary-3mask-8level",
-        "--model",
-        "nowhere.json",
-        "-o",
-        dir.path().join("o").to_str().unwrap(),
-    ]);
+    let out = dir.path().join("o");
+    let refused = |recipe: &str, model: &std::path::Path| {
+        fails(&[
+            "precompensate",
+            "--recipe",
+            recipe,
+            "--model",
+            model.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
+    };
+    let e = refused("built-in:binary-3mask-8level", std::path::Path::new("nowhere.json"));
     assert!(e.contains("binary mask set (gds)") && e.contains("etch depths"), "{e}");
     // A compare.json of the built-in design, through the library's own comparison.
     let c = run(SimulateParams { depth_scale: 0.9, ..Default::default() });
@@ -300,15 +304,7 @@ fn the_command_refuses_what_it_cannot_correct() {
     };
     let json = dir.path().join("compare.json");
     std::fs::write(&json, serde_json::to_string(&m).unwrap()).unwrap();
-    let e = fails(&[
-        "precompensate",
-        "--recipe",
-        "built-in:laser-writer-grayscale",
-        "--model",
-        json.to_str().unwrap(),
-        "-o",
-        dir.path().join("o").to_str().unwrap(),
-    ]);
+    let e = refused("built-in:laser-writer-grayscale", &json);
     assert!(e.contains("compare.json") && e.contains("design_sha256 not-the-design"), "{e}");
     let mut w = vec![];
     let poor = Measured { interior_correlation: 0.62, ..m.clone() };
@@ -321,15 +317,7 @@ fn the_command_refuses_what_it_cannot_correct() {
         .to_string();
     assert!(e.contains("0.310") && e.contains("0.5..1.5"), "{e}");
     std::fs::write(&json, "{\"scan\": 3}").unwrap();
-    let e = fails(&[
-        "precompensate",
-        "--recipe",
-        "built-in:laser-writer-grayscale",
-        "--model",
-        json.to_str().unwrap(),
-        "-o",
-        dir.path().join("o").to_str().unwrap(),
-    ]);
+    let e = refused("built-in:laser-writer-grayscale", &json);
     assert!(e.contains("compare.json") && e.contains("not a compare.json"), "{e}");
-    assert!(!dir.path().join("o").exists());
+    assert!(!out.exists());
 }
