@@ -269,10 +269,13 @@ pub const SWEEP_BLURS: [f64; 6] = [0.5, 1.0, 1.5, 2.0, 3.0, 4.0];
 /// One side of the loop: the part of the plain or of the pre-compensated mask against the design.
 #[derive(Debug, Clone, Serialize)]
 pub struct LoopSide {
+    /// The simulated scan of the part.
     pub scan: PathBuf,
     /// RMS of part - design over the aperture, metres.
     pub rms_error: f64,
+    /// The fitted depth scale of the part.
     pub depth_scale: f64,
+    /// Design-order efficiency per wavelength at that depth scale.
     pub efficiency: Vec<crate::metrology::compare::EfficiencyLoss>,
     /// PSF relative L2 against the design's, per channel.
     pub psf_relative_l2: Vec<f64>,
@@ -281,10 +284,14 @@ pub struct LoopSide {
 /// The fabrication loop stage (module docs).
 #[derive(Debug, Clone, Serialize)]
 pub struct LoopStage {
+    /// The simulated process, in words ([`LOOP_PROCESS`]).
     pub process: String,
+    /// What `precompensate` wrote and predicted.
     pub precompensate: crate::pipeline::precompensate::PrecompensateReport,
+    /// The plain mask's part and the pre-compensated mask's part against the design.
     pub before: LoopSide,
     pub after: LoopSide,
+    /// The loop at each blur of [`SWEEP_BLURS`] on the 320-sample design.
     pub sweep: Vec<crate::pipeline::precompensate::SweepPoint>,
 }
 

@@ -48,7 +48,9 @@ use crate::grid::{Grid, Unit};
 /// points and extended linearly beyond the first and last (metres).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Response {
+    /// Commanded heights, metres, increasing.
     pub commanded: Vec<f64>,
+    /// The heights they make, metres, increasing.
     pub made: Vec<f64>,
 }
 
@@ -169,6 +171,7 @@ impl Default for PrecompensateOptions {
 /// What the deconvolution did.
 #[derive(Debug, Clone, Serialize)]
 pub struct DeblurReport {
+    /// FISTA iterations run.
     pub iterations: usize,
     /// RMS of `G u - (t + p)`, metres: with `u = t + p` (no deconvolution) and at the end.
     pub residual_before: f64,

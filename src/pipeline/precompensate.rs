@@ -84,13 +84,19 @@ impl Default for Corrections {
 /// The measurement a model is built from (the fields of `compare.json` it needs).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Measured {
+    /// The scan file, as named to `compare`.
     pub scan: String,
+    /// SHA-256 of the scan file (empty for a simulated scan).
     pub scan_sha256: String,
+    /// SHA-256 of the design the scan was compared with (its parameters for a built-in one).
     pub design_sha256: String,
+    /// Correlation of part and design inside the aperture ([`Comparison::interior_correlation`]).
     pub interior_correlation: f64,
     /// RMS of part - design over the aperture, metres.
     pub rms_error: f64,
+    /// The fitted fabrication model (depth scale, offset, blur).
     pub model: FabModel,
+    /// The per-level statistics, with the design's quantization.
     pub levels: Option<LevelReport>,
 }
 
@@ -286,8 +292,11 @@ fn predict(
 /// A job of `doefab precompensate`.
 #[derive(Debug, Clone)]
 pub struct PrecompensateJob {
+    /// The design the part was made from.
     pub design: DesignSource,
+    /// The recipe of the next mask (the same process the part went through).
     pub recipe: Recipe,
+    /// Where the process model comes from.
     pub model: ModelSource,
     pub corrections: Corrections,
     /// Clear aperture for the comparison, metres (as `doefab compare`).
@@ -299,21 +308,29 @@ pub struct PrecompensateJob {
 /// What `doefab precompensate` reports and writes as `precompensate.json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct PrecompensateReport {
+    /// The units of every figure.
     pub units: String,
     pub design: String,
     pub design_sha256: String,
+    /// The recipe's name.
     pub recipe: String,
+    /// What the model was taken from.
     pub measured: Measured,
     /// What was corrected, in words.
     pub corrected: Vec<String>,
+    /// The process the correction inverts.
     pub process_model: ProcessModel,
     /// Commanded height of each design level, metres (design frame).
     pub level_commands: Vec<f64>,
     /// Piston added to the target, metres.
     pub piston: f64,
+    /// Highest commanded height allowed, metres.
     pub max_height: f64,
+    /// What the deconvolution did, when it ran.
     pub deblur: Option<DeblurReport>,
+    /// The model's prediction for the plain and the corrected mask.
     pub predicted: Prediction,
+    /// What is left uncorrected or named as beyond the writer.
     pub warnings: Vec<String>,
     /// Files written, relative to the output folder.
     pub files: Vec<String>,
@@ -416,11 +433,16 @@ pub fn run(job: &PrecompensateJob, out: &Path, step: &mut dyn FnMut(&str)) -> Re
 /// The pre-compensated commanded surface of `design` as `params` makes it, from `measured`.
 #[derive(Debug, Clone)]
 pub struct Written {
+    /// The design wrapped and quantized as the recipe makes it (design frame, metres).
     pub target: Grid,
+    /// The process model inverted.
     pub model: ProcessModel,
+    /// The commanded surface and the deconvolution's report.
     pub result: Precompensated,
     pub prediction: Prediction,
+    /// What was corrected, in words.
     pub corrected: Vec<String>,
+    /// Highest commanded height allowed, metres.
     pub max_height: f64,
     pub warnings: Vec<String>,
 }
@@ -564,8 +586,11 @@ fn write_outputs(
 /// against the target.
 #[derive(Debug, Clone)]
 pub struct LoopResult {
+    /// The plain mask's part against the target.
     pub before: Comparison,
+    /// The pre-compensated mask's part against the target.
     pub after: Comparison,
+    /// The correction made from `before`.
     pub written: Written,
 }
 
