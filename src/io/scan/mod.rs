@@ -284,10 +284,11 @@ pub fn scan_from_raw(path: &Path, sr: ScanRaw, opts: &ScanOptions) -> Result<Sca
         match crate::io::heightmap::check_plausibility(path, &raw, &read) {
             Err(Error::Parameter { name, reason }) if name == "unit" => {
                 warnings.push(format!("{reason} (kept: the file states its unit)"));
-                read.allow_implausible = true;
             }
             other => other?,
         }
+        // Checked once, here.
+        read.allow_implausible = true;
     }
     let mut grid = heightmap_from_raw(path, raw, &read)?;
     if let Some(o) = origin {
