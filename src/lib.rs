@@ -10,7 +10,8 @@
 //! * [`material`]: refractive index n(lambda) of the DOE materials.
 //! * [`design`]: the built-in example designs (grating-like DOE, Fresnel lens).
 //! * [`io`]: file formats and atomic writing.
-//! * [`fabrication`]: wrap -> quantize -> grayscale masks, multi-level GDSII mask set, STL.
+//! * [`fabrication`]: wrap -> quantize -> grayscale masks, multi-level GDSII mask set, STL;
+//!   the surface to command so that a measured process makes the design (pre-compensation).
 //! * [`metrology`]: profilometer scans (read by [`io::scan`]): levelling, outliers,
 //!   ISO 25178 height parameters.
 //! * [`optics`]: the optical system and the DOE's PSF by several propagation methods.
@@ -19,7 +20,8 @@
 //! * [`decoder`]: the paper's U-Net decoder: weights, measurement model, reconstruction of
 //!   captures, fine-tuning for a fabricated part's PSF.
 //! * [`pipeline`]: the commands that take more than one library call (merge, calibrate-psf,
-//!   psf, psf-compare, compare, the benchmarks), from typed options to typed results.
+//!   psf, psf-compare, compare, precompensate, the benchmarks), from typed options to typed
+//!   results.
 //! * [`demo`]: every stage on the built-in design (`doefab demo`), no input needed.
 //! * [`report`]: charts and false-colour maps (plotters, embedded font), tone mapping.
 //! * [`rng`]: the seeded generator behind every stochastic step.

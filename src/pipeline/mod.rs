@@ -12,6 +12,8 @@
 //! * [`psf_compare`]: two PSF files compared (`doefab psf-compare`).
 //! * [`compare`]: a part's scan against its design through the fabrication chain, metrology and
 //!   optics (`doefab compare`).
+//! * [`precompensate`]: the next mask set corrected for the process a scan of the last part
+//!   measured (`doefab precompensate`), and the loop closed in simulation.
 //! * [`bench`](mod@bench): the PSF methods' benchmark and the decoders' benchmark on real captures
 //!   (`doefab bench psf`, `doefab bench decoder`).
 

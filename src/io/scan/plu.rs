@@ -5,9 +5,9 @@
 //!
 //! | offset | type | field |
 //! |---|---|---|
-//! | 0 | char[128] | date, as text |
+//! | 0 | 128 chars | date, as text |
 //! | 128 | u32 | date, seconds since 1970 |
-//! | 132 | char[256] | user comment |
+//! | 132 | 256 chars | user comment |
 //! | 388, 392 | u32 | rows, columns of the calibration |
 //! | 404, 408 | f32 | x and y pitch, micrometres per pixel |
 //! | 428 | u32 | measurement type: 0 image, 1 profile, 2 multi-profile, 3 topography, 4 coordinates, 5 thickness, 6 custom |
@@ -16,7 +16,7 @@
 //! | 464 | u32 | numerical aperture code |
 //! | 490 | u8 | format version (0: 2000, 255: 2006; later revisions write others) |
 //! | 500 | u32, u32 | rows, columns of the data |
-//! | 508 | f32[rows x columns] | heights in micrometres, row by row; 1000001 = not measured |
+//! | 508 | rows x columns f32 | heights in micrometres, row by row; 1000001 = not measured |
 //!
 //! Later revisions append more (an intensity image) after the heights, which is left unread.
 //! This is the layout Gwyddion's `sensofar` module reads; the reader is checked against
