@@ -189,8 +189,10 @@ pub struct Precompensated {
     pub level_commands: Vec<f64>,
     /// The piston added to the target.
     pub piston: f64,
-    /// The model's prediction of the part made from `commanded`.
+    /// The model's prediction of the part made from `commanded`, and from the target itself
+    /// (the plain mask).
     pub predicted: Grid,
+    pub plain: Grid,
     /// RMS of the predicted part minus the target, piston removed: for the plain target
     /// commanded as it is, and for `commanded`.
     pub rms_before: f64,
@@ -281,6 +283,7 @@ pub fn precompensate(
         level_commands,
         piston,
         predicted,
+        plain,
         deblur: deblur_report,
         warnings,
     })

@@ -26,8 +26,7 @@ use crate::fabrication::chain::{self, write_mask, ChainParams, DesignSource, Loa
 use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::mask::render_levels;
 use crate::fabrication::precompensate::{
-    precompensate, rms_without_piston, DeblurReport, PrecompensateOptions, Precompensated, ProcessModel,
-    Response,
+    precompensate, DeblurReport, PrecompensateOptions, Precompensated, ProcessModel, Response,
 };
 use crate::fabrication::quantize::feature_check;
 use crate::fabrication::recipe::{Output, Recipe};
@@ -38,7 +37,7 @@ use crate::io::atomic::{write_json, StagedDir};
 use crate::io::heightmap::Metadata;
 use crate::io::scan::ScanOptions;
 use crate::metrology::compare::{
-    compare, efficiency_loss, CompareOptions, Comparison, EfficiencyLoss, FabModel, LevelReport,
+    compare, efficiency_loss, CompareOptions, Comparison, EfficiencyLoss, FabModel, LevelReport, LevelSpec,
 };
 use crate::metrology::simulate::{simulate_scan, SimulateParams};
 use crate::pipeline::compare::reference_surface;
@@ -202,10 +201,15 @@ pub fn process_model(
 /// residuals off (the extreme levels beside a phase wrap, with few samples, are the usual
 /// ones), then sampled at the measured commands. Refused when it does not rise over them.
 pub fn smooth_response(points: &[(f64, f64, f64)]) -> Result<Response> {
+    // Heights in micrometres inside the fit, for a well-conditioned system.
     let unit = 1e-6;
+    let cubic = |coef: &[f64], c: f64| {
+        let x = c / unit;
+        unit * (coef[0] + x * (coef[1] + x * (coef[2] + x * coef[3])))
+    };
     let mut keep = vec![true; points.len()];
-    let mut coef = vec![0.0; 4];
-    for _ in 0..3 {
+    let mut coef = Vec::new();
+    for pass in 0..3 {
         let (mut a, mut r) = (vec![0.0; 16], vec![0.0; 4]);
         for (&(c, m, w), _) in points.iter().zip(&keep).filter(|(_, k)| **k) {
             let x = c / unit;
@@ -218,28 +222,21 @@ pub fn smooth_response(points: &[(f64, f64, f64)]) -> Result<Response> {
             }
         }
         coef = crate::linalg::solve(a, r, 4)?;
-        let eval = |c: f64| {
-            let x = c / unit;
-            unit * (coef[0] + x * (coef[1] + x * (coef[2] + x * coef[3])))
-        };
+        if pass == 2 {
+            break;
+        }
         let (mut sw, mut swr) = (0.0, 0.0);
         for (&(c, m, w), _) in points.iter().zip(&keep).filter(|(_, k)| **k) {
             sw += w;
-            swr += w * (m - eval(c)).powi(2);
+            swr += w * (m - cubic(&coef, c)).powi(2);
         }
         let rms = (swr / sw).sqrt();
         for (k, &(c, m, _)) in keep.iter_mut().zip(points) {
-            *k = (m - eval(c)).abs() <= 3.0 * rms;
+            *k = (m - cubic(&coef, c)).abs() <= 3.0 * rms;
         }
     }
     let commanded: Vec<f64> = points.iter().map(|p| p.0).collect();
-    let made = commanded
-        .iter()
-        .map(|&c| {
-            let x = c / unit;
-            unit * (coef[0] + x * (coef[1] + x * (coef[2] + x * coef[3])))
-        })
-        .collect();
+    let made = commanded.iter().map(|&c| cubic(&coef, c)).collect();
     Response::new(commanded, made)
 }
 
@@ -269,18 +266,12 @@ pub struct Prediction {
     pub efficiency_after: Vec<EfficiencyLoss>,
 }
 
-fn predict(
-    target: &Grid,
-    model: &ProcessModel,
-    p: &Precompensated,
-    params: &ChainParams,
-) -> Result<Prediction> {
+fn predict(target: &Grid, p: &Precompensated, params: &ChainParams) -> Result<Prediction> {
     let spec = params.wrap_spec()?;
-    let plain = model.apply(target)?;
-    let (kb, ka) = (fitted_scale(&plain, target), fitted_scale(&p.predicted, target));
+    let (kb, ka) = (fitted_scale(&p.plain, target), fitted_scale(&p.predicted, target));
     let n = (params.level_count <= 256).then_some(params.level_count);
     Ok(Prediction {
-        rms_before: rms_without_piston(&plain, target),
+        rms_before: p.rms_before,
         rms_after: p.rms_after,
         depth_scale_before: kb,
         depth_scale_after: ka,
@@ -425,7 +416,7 @@ pub fn run(job: &PrecompensateJob, out: &Path, step: &mut dyn FnMut(&str)) -> Re
         None => None,
     };
     step("pre-compensate");
-    let written = precompensate_design(&design, &params, &measured, &job.corrections, curve.as_ref())?;
+    let written = precompensate_design(target, levels, &params, &measured, &job.corrections, curve.as_ref())?;
     step("write");
     write_outputs(job, &design, &params, curve.as_ref(), measured, written, out)
 }
@@ -447,15 +438,16 @@ pub struct Written {
     pub warnings: Vec<String>,
 }
 
-/// The correction itself, without files: model, checks, commanded surface and prediction.
+/// The correction itself, without files: model, checks, commanded surface and prediction, for
+/// the `target` [`reference_surface`] makes of the design with `params` (and its `levels`).
 pub fn precompensate_design(
-    design: &LoadedDesign,
+    target: Grid,
+    levels: Option<LevelSpec>,
     params: &ChainParams,
     measured: &Measured,
     corrections: &Corrections,
     curve: Option<&ContrastCurve>,
 ) -> Result<Written> {
-    let (target, levels, _) = reference_surface(design, Some(params))?;
     let mut warnings = Vec::new();
     let (model, kind) = process_model(measured, corrections, &mut warnings)?;
     let period = params.wrap_spec()?.period()?;
@@ -493,7 +485,7 @@ pub fn precompensate_design(
             ));
         }
     }
-    let prediction = predict(&target, &model, &result, params)?;
+    let prediction = predict(&target, &result, params)?;
     Ok(Written { target, model, result, prediction, corrected, max_height, warnings })
 }
 
@@ -605,11 +597,12 @@ pub fn simulate_loop(
     corrections: &Corrections,
     curve: Option<&ContrastCurve>,
 ) -> Result<LoopResult> {
-    let (target, _, _) = reference_surface(design, Some(params))?;
+    let (target, levels, _) = reference_surface(design, Some(params))?;
     let before = compare(&target, &simulate_scan(&target, process)?, compare_opts)?;
     let measured = Measured::of_comparison(&before, "simulated".into(), String::new(), design.sha256.clone());
-    let written = precompensate_design(design, params, &measured, corrections, curve)?;
-    let after = compare(&target, &simulate_scan(&written.result.commanded, process)?, compare_opts)?;
+    let written = precompensate_design(target, levels, params, &measured, corrections, curve)?;
+    let target = &written.target;
+    let after = compare(target, &simulate_scan(&written.result.commanded, process)?, compare_opts)?;
     Ok(LoopResult { before, after, written })
 }
 

@@ -97,18 +97,18 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         offset += size;
     }
     let find = |name: &str| entries.iter().find(|e| e.name == name);
-    // A number entry (short, long, float or double) as f64.
-    let number = |name: &str| -> Result<Option<f64>> {
-        let Some(e) = find(name) else { return Ok(None) };
-        let what = format!("entry '{name}'");
-        Ok(Some(match e.kind {
+    // A number entry (short, long, float or double) as f64; by name, `None` when absent.
+    let value = |e: &Entry| -> Result<f64> {
+        let what = format!("entry '{}'", e.name);
+        Ok(match e.kind {
             T_SHORT => i16::from_le_bytes([bytes[e.offset], bytes[e.offset + 1]]) as f64,
             T_LONG => b.i32le(e.offset, &what)? as f64,
             T_FLOAT => b.f32le(e.offset, &what)? as f64,
             T_DOUBLE => b.f64le(e.offset, &what)?,
             k => return Err(b.bad(e.offset, format!("{what} is of type {k}, not a number"))),
-        }))
+        })
     };
+    let number = |name: &str| find(name).map(value).transpose();
     let wavelength = number("Wavelength")?.ok_or_else(|| b.bad(2, "the entry 'Wavelength' is missing"))?;
     if !(wavelength.is_finite() && wavelength > 0.0 && wavelength < 1e5) {
         return Err(b.bad(find("Wavelength").map_or(2, |e| e.offset), format!("Wavelength {wavelength} nm")));
@@ -181,7 +181,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     for e in &entries {
         let text = match e.kind {
             T_TEXT => Some(crate::io::scan::decode_text(&bytes[e.offset..e.offset + e.size])),
-            T_SHORT | T_LONG | T_FLOAT | T_DOUBLE => number(&e.name)?.map(|v| format!("{v}")),
+            T_SHORT | T_LONG | T_FLOAT | T_DOUBLE => Some(format!("{}", value(e)?)),
             _ => None,
         };
         if let Some(t) = text.filter(|t| !t.is_empty()) {
