@@ -44,22 +44,17 @@ fn read_dir_sorted(dir: &Path) -> Vec<(String, Vec<u8>)> {
 fn fab_writes_every_artifact_and_is_byte_identical_when_repeated() {
     let d = common::tempdir();
     let design = small_design(d.path());
+    let recipe = masks("binary-3mask-8level.toml");
+    let fab = |o: &Path, extra: &[&str]| {
+        let mut args =
+            vec!["fab", design.to_str().unwrap(), "--pitch", "4.29um", "--unit", "m", "--recipe", &recipe];
+        args.extend(["-o", o.to_str().unwrap(), "--quiet"]);
+        args.extend(extra);
+        ok(&args);
+    };
     let (o1, o2) = (d.path().join("o1"), d.path().join("o2"));
     for o in [&o1, &o2] {
-        ok(&[
-            "fab",
-            design.to_str().unwrap(),
-            "--pitch",
-            "4.29um",
-            "--unit",
-            "m",
-            "--recipe",
-            &masks("binary-3mask-8level.toml"),
-            "-o",
-            o.to_str().unwrap(),
-            "--intermediates",
-            "--quiet",
-        ]);
+        fab(o, &["--intermediates"]);
     }
     let a = read_dir_sorted(&o1);
     let b = read_dir_sorted(&o2);
@@ -96,21 +91,7 @@ fn fab_writes_every_artifact_and_is_byte_identical_when_repeated() {
     assert_eq!(doefab::io::file_sha256(&design).unwrap(), report["provenance"]["design_sha256"]);
     // Without --intermediates the maps are not written, the rest is the same.
     let o3 = d.path().join("o3");
-    let design_s = design.to_str().unwrap();
-    let recipe = masks("binary-3mask-8level.toml");
-    ok(&[
-        "fab",
-        design_s,
-        "--pitch",
-        "4.29um",
-        "--unit",
-        "m",
-        "--recipe",
-        &recipe,
-        "-o",
-        o3.to_str().unwrap(),
-        "-q",
-    ]);
+    fab(&o3, &[]);
     let c = read_dir_sorted(&o3);
     let without: Vec<_> = c.iter().map(|(n, _)| n.as_str()).collect();
     for gone in ["levels.exr", "surface.exr", "levels_preview.png"] {
