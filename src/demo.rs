@@ -11,7 +11,7 @@
 //!    missing), compared with the design into `metrology/compare/`
 //!    ([`crate::pipeline::compare::compare_scan_file`]).
 //! 4. *The fabrication loop*: `precompensate/`, closed in simulation on the grayscale master
-//!    (see [`LOOP_PROCESS`]): the plain mask's part scanned (`scan_before.x3p`), the next mask
+//!    (see [`loop_process`]): the plain mask's part scanned (`scan_before.x3p`), the next mask
 //!    pre-compensated from that scan alone (`mask/`, [`crate::pipeline::precompensate::run`]),
 //!    its part scanned through the same process (`scan_after.x3p`), both compared with the
 //!    design (`difference_before.png`, `difference_after.png`, `loop.json`), and the gain
@@ -234,14 +234,16 @@ fn scan_and_compare(
     Ok(report)
 }
 
+/// How much the demo's resist response bows: `c + LOOP_BOW c (P - c) / P` over the period `P`.
+pub const LOOP_BOW: f64 = 0.25;
+
 /// The process of the demo's fabrication loop, the truth the correction never sees: a resist
-/// whose response bows (`c + 0.25 c (P - c) / P` over the period `P`), a part 8 % too shallow,
-/// a lateral blur of 1.5 design samples, scanned with a small pose error, 10 nm of noise and
-/// 5 % of samples missing.
+/// whose response bows ([`LOOP_BOW`]), a part 8 % too shallow, a lateral blur of 1.5 design
+/// samples, scanned with a small pose error, 10 nm of noise and 5 % of samples missing.
 pub fn loop_process(period: f64, pitch: f64) -> Result<crate::metrology::simulate::SimulateParams> {
     use crate::fabrication::precompensate::Response;
     let c: Vec<f64> = (0..=8).map(|k| k as f64 * period / 8.0).collect();
-    let m = c.iter().map(|c| c + 0.25 * c * (period - c) / period).collect();
+    let m = c.iter().map(|c| c + LOOP_BOW * c * (period - c) / period).collect();
     Ok(crate::metrology::simulate::SimulateParams {
         response: Some(Response::new(c, m)?),
         depth_scale: 0.92,
@@ -258,10 +260,20 @@ pub fn loop_process(period: f64, pitch: f64) -> Result<crate::metrology::simulat
     })
 }
 
-/// [`loop_process`]'s description, for the report.
-pub const LOOP_PROCESS: &str =
-    "bowed response (c + 0.25 c (P - c) / P), depth scale 0.92, blur 1.5 samples, \
-     0.1 deg and (1.3, -0.8) um pose error, 10 nm noise, 5% missing";
+/// [`loop_process`] in words, from its parameters.
+fn describe_process(p: &crate::metrology::simulate::SimulateParams, pitch: f64) -> String {
+    format!(
+        "bowed response (c + {LOOP_BOW} c (P - c) / P), depth scale {:.3}, blur {:.2} samples, {:.2} deg and \
+         ({:.2}, {:.2}) um pose error, {:.1} nm noise, {:.1}% missing",
+        p.depth_scale,
+        p.blur / pitch,
+        p.pose.rotation.to_degrees(),
+        p.pose.shift[0] * 1e6,
+        p.pose.shift[1] * 1e6,
+        p.noise * 1e9,
+        p.missing * 100.0
+    )
+}
 
 /// Blur widths (design samples) of the loop's gain chart.
 pub const SWEEP_BLURS: [f64; 6] = [0.5, 1.0, 1.5, 2.0, 3.0, 4.0];
@@ -284,7 +296,7 @@ pub struct LoopSide {
 /// The fabrication loop stage (module docs).
 #[derive(Debug, Clone, Serialize)]
 pub struct LoopStage {
-    /// The simulated process, in words ([`LOOP_PROCESS`]).
+    /// The simulated process, in words.
     pub process: String,
     /// What `precompensate` wrote and predicted.
     pub precompensate: crate::pipeline::precompensate::PrecompensateReport,
@@ -389,7 +401,8 @@ fn close_the_loop(
         })
         .collect();
     crate::report::fabrication_charts::precompensation_gain(&out.join("gain.png"), &points)?;
-    let stage = LoopStage { process: LOOP_PROCESS.into(), precompensate: report, before, after, sweep };
+    let process = describe_process(&process, design.heights.pitch()[0]);
+    let stage = LoopStage { process, precompensate: report, before, after, sweep };
     crate::io::atomic::write_json(&out.join("loop.json"), &stage)?;
     Ok(stage)
 }
