@@ -12,8 +12,8 @@ use std::time::Instant;
 use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
 use doefab::io::scan::{decode_scan_raw, scan_from_raw, ScanOptions};
 use doefab::metrology::level::level_plane;
-use doefab::metrology::register::{register, RegisterOptions};
-use doefab::metrology::simulate::{simulate_scan, SimulateParams};
+use doefab::metrology::scan_registration::{register, RegisterOptions};
+use doefab::metrology::synthetic_scan::{simulate_scan, SimulateParams};
 
 fn main() -> doefab::Result<()> {
     let design = paper_example(&ExampleParams::default())?;

@@ -98,7 +98,7 @@ pub struct CalibrationStage {
     pub psf: PathBuf,
     /// Per channel, `||c - s|| / ||s||` ([`Psf::relative_l2`]) of the calibrated PSF `c`
     /// against the simulated PSF's window of the same size around its peak, `s`
-    /// ([`window_at_peak`]), each summing to 1. Not [`crate::optics::compare::compare`]: that
+    /// ([`window_at_peak`]), each summing to 1. Not [`crate::optics::psf_compare::compare`]: that
     /// one crops to the centred common window and aligns the centroids first.
     pub relative_l2_to_simulated: Vec<f64>,
     pub report: PsfCalibration,
@@ -211,7 +211,7 @@ fn scan_and_compare(
     out: &Path,
     p: &mut Progress,
 ) -> Result<CompareReport> {
-    use crate::metrology::simulate::{simulate_scan, write_scan, SimulateParams};
+    use crate::metrology::synthetic_scan::{simulate_scan, write_scan, SimulateParams};
     p.show("simulated scan of the 8-level part");
     let (part, _, _) = crate::pipeline::compare::reference_surface(design, Some(params))?;
     let sp = SimulateParams::typical_cast();
@@ -240,15 +240,15 @@ pub const LOOP_BOW: f64 = 0.25;
 /// The process of the demo's fabrication loop, the truth the correction never sees: a resist
 /// whose response bows ([`LOOP_BOW`]), a part 8 % too shallow, a lateral blur of 1.5 design
 /// samples, scanned with a small pose error, 10 nm of noise and 5 % of samples missing.
-pub fn loop_process(period: f64, pitch: f64) -> Result<crate::metrology::simulate::SimulateParams> {
+pub fn loop_process(period: f64, pitch: f64) -> Result<crate::metrology::synthetic_scan::SimulateParams> {
     use crate::fabrication::precompensate::Response;
     let c: Vec<f64> = (0..=8).map(|k| k as f64 * period / 8.0).collect();
     let m = c.iter().map(|c| c + LOOP_BOW * c * (period - c) / period).collect();
-    Ok(crate::metrology::simulate::SimulateParams {
+    Ok(crate::metrology::synthetic_scan::SimulateParams {
         response: Some(Response::new(c, m)?),
         depth_scale: 0.92,
         blur: 1.5 * pitch,
-        pose: crate::metrology::register::Pose {
+        pose: crate::metrology::scan_registration::Pose {
             mirror: false,
             rotation: 0.1f64.to_radians(),
             scale: 1.0,
@@ -261,7 +261,7 @@ pub fn loop_process(period: f64, pitch: f64) -> Result<crate::metrology::simulat
 }
 
 /// [`loop_process`] in words, from its parameters.
-fn describe_process(p: &crate::metrology::simulate::SimulateParams, pitch: f64) -> String {
+fn describe_process(p: &crate::metrology::synthetic_scan::SimulateParams, pitch: f64) -> String {
     format!(
         "bowed response (c + {LOOP_BOW} c (P - c) / P), depth scale {:.3}, blur {:.2} samples, {:.2} deg and \
          ({:.2}, {:.2}) um pose error, {:.1} nm noise, {:.1}% missing",
@@ -288,7 +288,7 @@ pub struct LoopSide {
     /// The fitted depth scale of the part.
     pub depth_scale: f64,
     /// Design-order efficiency per wavelength at that depth scale.
-    pub efficiency: Vec<crate::metrology::compare::EfficiencyLoss>,
+    pub efficiency: Vec<crate::metrology::scan_compare::EfficiencyLoss>,
     /// PSF relative L2 against the design's, per channel.
     pub psf_relative_l2: Vec<f64>,
 }
@@ -315,8 +315,8 @@ fn close_the_loop(
     out: &Path,
     p: &mut Progress,
 ) -> Result<LoopStage> {
-    use crate::metrology::compare::{compare, CompareOptions, Comparison};
-    use crate::metrology::simulate::{simulate_scan, write_scan};
+    use crate::metrology::scan_compare::{compare, CompareOptions, Comparison};
+    use crate::metrology::synthetic_scan::{simulate_scan, write_scan};
     use crate::pipeline::precompensate::{self as pc, blur_sweep, ModelSource, PrecompensateJob};
     use crate::report::metrology_charts::{height_map, Palette};
     let params = ChainParams::of_recipe(recipe, false);
@@ -479,7 +479,7 @@ pub fn window_at_peak(psf: &Psf, size: usize) -> Result<Psf> {
 /// procedural scenes into `out/finetune`, then reconstructs a capture simulated through that
 /// PSF (`out/capture.png` -> `out/reconstruction.exr` and `.png`).
 fn fine_tune(init: &Path, psf_path: &Path, out: &Path, p: &mut Progress) -> Result<DecoderStage> {
-    use crate::decoder::{finetune as ft, reconstruct as rc, scenes, simulate};
+    use crate::decoder::{finetune as ft, measurement, reconstruct as rc, scenes};
     let psf = Psf::read(psf_path, None, Some(SENSOR_PITCH))?;
     let psf_sha = crate::io::file_sha256(psf_path)?;
     let source = ft::GeneratedScenes { name: "procedural HDR scenes", generate: scenes::procedural_scene };
@@ -508,8 +508,12 @@ fn fine_tune(init: &Path, psf_path: &Path, out: &Path, p: &mut Progress) -> Resu
     let size = 256;
     let conv = crate::optics::convolve::Convolver::new(&psf, (size + kh - 1, size + kw - 1))?;
     let scene = scenes::procedural_scene(7, size + kh - 1, size + kw - 1);
-    let m =
-        simulate::measure(&scene, &conv, &simulate::MeasurementModel::default(), &mut crate::rng::Lcg(7))?;
+    let m = measurement::measure(
+        &scene,
+        &conv,
+        &measurement::MeasurementModel::default(),
+        &mut crate::rng::Lcg(7),
+    )?;
     let capture = out.join("capture.png");
     crate::calibration::capture::write_capture(&capture, &m.capture.mapv(f64::from), 8)?;
     let decoder = ft_dir.join(ft::DECODER);

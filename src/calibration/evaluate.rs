@@ -27,8 +27,8 @@
 //!    past its border by its edge values, `g` the gain below, 1 = the capture's clipping
 //!    level). Without a PSF, `h` is the identity. The prediction carries the PSF's copies of
 //!    bright lights and the clipping that the capture shows, so tiles near lamps match.
-//! 2. The prediction is registered onto the capture ([`super::register::register_local`], or
-//!    one affine map [`super::register::register_affine`]), both compressed by a square root.
+//! 2. The prediction is registered onto the capture ([`super::capture_registration::register_local`], or
+//!    one affine map [`super::capture_registration::register_affine`]), both compressed by a square root.
 //! 3. The gain `g` (the DOE and its mount absorb light; the bracket's times drift) is the
 //!    median of `capture / (h * x)` over the samples of covered pixels whose capture is well
 //!    exposed (0.05..0.9 of the clipping level in every channel) — where the capture *is*
@@ -55,7 +55,7 @@ use std::path::Path;
 use ndarray::{s, Array2, Array3, Axis, Zip};
 use serde::Serialize;
 
-use super::register::{
+use super::capture_registration::{
     luminance, register_affine, register_local, warp, LocalRegistration, Model, RegisterOptions, Registration,
 };
 use crate::error::{Error, Result};

@@ -13,12 +13,12 @@
 //! * [`psf_extract`]: `calibrate-psf`, the measured PSF from a merged pinhole bracket.
 //! * [`evaluate`]: PSNR (linear and gamma) of a reconstruction against a reference, over all
 //!   pixels and over those saturated in the capture.
-//! * [`register`]: the affine map between two views of one scene (tile matching with outlier
+//! * [`capture_registration`]: the affine map between two views of one scene (tile matching with outlier
 //!   rejection, then least squares).
 
 pub mod capture;
+pub mod capture_registration;
 pub mod evaluate;
 pub mod hdr_merge;
 pub mod psf_extract;
-pub mod register;
 pub mod response;

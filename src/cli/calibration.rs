@@ -247,7 +247,7 @@ pub fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
         min_coverage,
         min_saturated,
     } = a;
-    use doefab::calibration::{evaluate as ev, register as rg};
+    use doefab::calibration::{capture_registration as rg, evaluate as ev};
     let files = ev::EvaluateFiles {
         reference: reference.clone(),
         capture: capture.clone(),
@@ -323,7 +323,10 @@ fn print_score(s: &doefab::calibration::evaluate::Score) {
 }
 
 /// How a scene was registered locally; `excluded`: pixels left out of the scoring.
-fn print_local_registration(r: &doefab::calibration::register::LocalRegistration, excluded: usize) {
+fn print_local_registration(
+    r: &doefab::calibration::capture_registration::LocalRegistration,
+    excluded: usize,
+) {
     let [lo, hi] = r.displacement_range_px;
     println!(
         "registered locally: {} of {} tiles on a {} px grid, leave-one-out residual {:.2} px RMS, \

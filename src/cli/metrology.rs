@@ -167,7 +167,7 @@ pub fn simulate_scan(cli: &Cli, a: &SimulateScanArgs) -> Result<()> {
         size,
         read,
     } = a;
-    use doefab::metrology::simulate as sim;
+    use doefab::metrology::synthetic_scan as sim;
     let loaded = chain::load_design(&DesignSource::parse(Some(design), read.options()?))?;
     let params = sim::SimulateParams {
         response: response.as_deref().map(doefab::fabrication::precompensate::Response::parse).transpose()?,
@@ -175,7 +175,7 @@ pub fn simulate_scan(cli: &Cli, a: &SimulateScanArgs) -> Result<()> {
         depth_scale: *depth_scale,
         offset: *offset,
         tilt: sim::parse_slopes(tilt)?,
-        pose: doefab::metrology::register::Pose {
+        pose: doefab::metrology::scan_registration::Pose {
             mirror: *mirror,
             rotation: doefab::units::parse_angle(rotate)?,
             scale: *scale,

@@ -138,7 +138,11 @@ pub fn psf_compare(cli: &Cli, a: &PsfCompareArgs) -> Result<()> {
     let r = psf_compare(&PsfCompareOptions {
         a: a.clone(),
         b: b.clone(),
-        compare: doefab::optics::compare::CompareOptions { pitch: *pitch, key: key.clone(), radius: *radius },
+        compare: doefab::optics::psf_compare::CompareOptions {
+            pitch: *pitch,
+            key: key.clone(),
+            radius: *radius,
+        },
         output: output.clone(),
     })?;
     warn(&r.warnings);
@@ -170,7 +174,7 @@ pub fn psf_compare(cli: &Cli, a: &PsfCompareArgs) -> Result<()> {
 /// `doefab bench psf`.
 pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
     let BenchPsfArgs { output } = a;
-    let pb = progress(cli, doefab::optics::bench::RUNS as u64);
+    let pb = progress(cli, doefab::optics::psf_bench::RUNS as u64);
     let points = doefab::pipeline::bench::bench_psf(output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &points, || {

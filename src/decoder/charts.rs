@@ -12,7 +12,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use crate::decoder::bench::{BenchReport, Score};
+use crate::decoder::capture_bench::{BenchReport, Score};
 use crate::error::{Error, Result};
 use crate::report::{write_png_chart, FONT};
 

@@ -2,7 +2,7 @@
 //! the measured PSF of the fabricated DOE (Metzler et al. 2020, Sec. 5).
 //!
 //! Each step draws `batch` scenes of `crop + PSF margins` from a [`SceneSource`], flips each at
-//! random (left-right, up-down), simulates its capture with [`simulate::measure`] and takes one
+//! random (left-right, up-down), simulates its capture with [`measurement::measure`](super::measurement::measure) and takes one
 //! Adam step on the paper's gamma-corrected L2 loss over the batch:
 //!
 //! `L = sqrt(mean((sqrt(max(y_hat, 0) + 1/255) - sqrt(x + 1/255))^2))`.
@@ -28,7 +28,7 @@ use ndarray::Array3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::decoder::simulate::{measure, Measurement, MeasurementModel};
+use crate::decoder::measurement::{measure, Measurement, MeasurementModel};
 use crate::decoder::unet::{is_trainable, tensor_values, UNet};
 use crate::decoder::weights::{encode_safetensors, read_safetensors, DecoderWeights, NamedTensor};
 use crate::decoder::{to_tensor, weights};

@@ -17,6 +17,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use safetensors::{Dtype, SafeTensors};
 use serde_json::{json, Map, Value};
 
 use crate::error::{Error, Result};
@@ -174,67 +175,38 @@ pub const BUILT_IN: &[(&str, &[u8])] = &[
     ("paper-measured-psf", include_bytes!("../../assets/deepoptics-hdr/decoder_measured_psf.safetensors")),
 ];
 
-/// Decodes safetensors bytes (see [`read_safetensors`]); `path` names the source in errors.
+/// Decodes safetensors bytes (see [`read_safetensors`]) with the format's reference crate
+/// (`safetensors`, whose `read_metadata` checks the header, each tensor's offsets against its
+/// shape and dtype, and that the tensors cover the data block exactly); `path` names the
+/// source in errors.
 pub fn decode_safetensors(
     path: &Path,
     bytes: &[u8],
 ) -> Result<(BTreeMap<String, NamedTensor>, BTreeMap<String, String>)> {
     let bad = |what: String| Error::format(path, format!("safetensors: {what}"));
-    let Some(len) = bytes.get(..8) else {
-        return Err(bad(format!("{} bytes, too short for a header", bytes.len())));
-    };
-    let n = u64::from_le_bytes(len.try_into().expect("8 bytes")) as usize;
-    let data_start = 8usize.checked_add(n).filter(|&e| e <= bytes.len());
-    let Some(data_start) = data_start else {
-        return Err(bad(format!("header length {n} runs past the end of the file ({} bytes)", bytes.len())));
-    };
-    let header: Map<String, Value> = serde_json::from_slice(&bytes[8..data_start])
-        .map_err(|e| bad(format!("header is not a JSON object: {e}")))?;
-    let data = &bytes[data_start..];
+    let (header_len, header) = SafeTensors::read_metadata(bytes).map_err(|e| bad(e.to_string()))?;
+    let data = &bytes[8 + header_len..];
+    let metadata: BTreeMap<String, String> =
+        header.metadata().clone().unwrap_or_default().into_iter().collect();
     let mut tensors = BTreeMap::new();
-    let mut metadata = BTreeMap::new();
-    for (name, entry) in header {
-        if name == "__metadata__" {
-            let obj = entry.as_object().ok_or_else(|| bad("__metadata__ is not an object".into()))?;
-            for (k, v) in obj {
-                let v = v.as_str().ok_or_else(|| bad(format!("metadata '{k}' is not a string")))?;
-                metadata.insert(k.clone(), v.to_string());
-            }
-            continue;
+    for (name, info) in header.tensors() {
+        if info.dtype != Dtype::F32 {
+            return Err(bad(format!("tensor '{name}' has dtype {}, expected F32", info.dtype)));
         }
-        let dtype = entry.get("dtype").and_then(Value::as_str).unwrap_or("?");
-        if dtype != "F32" {
-            return Err(bad(format!("tensor '{name}' has dtype {dtype}, expected F32")));
-        }
-        let shape: Option<Vec<usize>> = entry
-            .get("shape")
-            .and_then(Value::as_array)
-            .and_then(|a| a.iter().map(|d| d.as_u64().map(|d| d as usize)).collect());
-        let offsets: Option<Vec<usize>> = entry
-            .get("data_offsets")
-            .and_then(Value::as_array)
-            .and_then(|a| a.iter().map(|d| d.as_u64().map(|d| d as usize)).collect());
-        let (Some(shape), Some(offsets)) = (shape, offsets) else {
-            return Err(bad(format!("tensor '{name}' lacks a shape or data_offsets")));
-        };
-        let count: usize = shape.iter().product();
-        let [begin, end] = offsets[..] else {
-            return Err(bad(format!("tensor '{name}' has data_offsets {offsets:?}")));
-        };
-        if begin > end || end > data.len() || end - begin != 4 * count {
-            return Err(bad(format!(
-                "tensor '{name}' of shape {shape:?} has data_offsets [{begin}, {end}] in a data block of {} bytes",
-                data.len()
-            )));
-        }
+        let (begin, end) = info.data_offsets;
         let values =
             data[begin..end].chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
-        tensors.insert(name, NamedTensor { shape, values });
+        tensors.insert(name, NamedTensor { shape: info.shape.clone(), values });
     }
     Ok((tensors, metadata))
 }
 
 /// Encodes tensors and metadata as safetensors bytes (names sorted, header padded to 8 bytes).
+///
+/// Written here rather than by `safetensors::serialize`, which takes the metadata as a
+/// `HashMap` and writes it in that map's random order: twenty writes of the same six-key
+/// metadata gave twenty different files (safetensors 0.8.0). Sorted keys keep equal content
+/// equal bytes; the reference crate reads these files back in the tests.
 pub fn encode_safetensors(tensors: &[(&str, &NamedTensor)], metadata: &BTreeMap<String, String>) -> Vec<u8> {
     let mut sorted: Vec<&(&str, &NamedTensor)> = tensors.iter().collect();
     sorted.sort_by_key(|(n, _)| *n);
@@ -291,6 +263,23 @@ mod tests {
         assert_eq!(back["a"], t);
         assert_eq!(m, meta);
         let err = decode_safetensors(Path::new("x"), &bytes[..bytes.len() - 4]).unwrap_err().to_string();
-        assert!(err.contains("tensor 'a'") && err.contains("data_offsets"), "{err}");
+        assert!(
+            err.contains("x") && err.contains("safetensors") && err.contains("not fully covered"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn equal_content_gives_equal_bytes_with_metadata_sorted() {
+        let t = NamedTensor { shape: vec![1], values: vec![0.5] };
+        let meta: BTreeMap<String, String> =
+            (0..6).rev().map(|i| (format!("key{i}"), format!("v{i}"))).collect();
+        let first = encode_safetensors(&[("b", &t), ("a", &t)], &meta);
+        for _ in 0..5 {
+            assert_eq!(encode_safetensors(&[("a", &t), ("b", &t)], &meta.clone()), first);
+        }
+        let text = String::from_utf8_lossy(&first);
+        let at = |k: &str| text.find(k).unwrap();
+        assert!(at("key0") < at("key1") && at("key4") < at("key5") && at("\"a\"") < at("\"b\""), "{text}");
     }
 }

@@ -8,7 +8,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::optics::bench::BenchPoint;
+use crate::optics::psf_bench::BenchPoint;
 use crate::report::{write_png_chart, write_svg_chart, FONT};
 
 const SERIES: [(&str, &str, RGBColor); 4] = [

@@ -5,25 +5,25 @@
 //!   and the DOE's transmission on a pupil grid.
 //! * [`psf`]: the PSF type (one grid per channel), its measures, the `.npz` reader.
 //! * [`propagate`]: the propagation methods, one file each, with their validity checks.
-//! * [`bench`]: speed against accuracy of the methods on a small scene.
+//! * [`psf_bench`]: speed against accuracy of the methods on a small scene.
 //! * [`convolve`]: images convolved with a PSF (FFT, linear), `y = h * x`.
-//! * [`charts`]: the speed-against-accuracy and stability charts of [`bench`].
-//! * [`compare`]: two PSFs compared (summary numbers, L2 after centroid alignment).
+//! * [`charts`]: the speed-against-accuracy and stability charts of [`psf_bench`].
+//! * [`psf_compare`]: two PSFs compared (summary numbers, L2 after centroid alignment).
 //! * [`output`]: the PSF written as EXR, NPY, log-scale PNG and a JSON summary.
 //! * [`plan`]: the automatic plan (method, sampling, precision, spectral samples for a
 //!   tolerance).
 //! * [`spectrum`]: spectral bands weighted by a sensor response.
 //! * [`fft`]: planned square 2-D FFTs (rustfft stays inside this stage).
 
-pub mod bench;
 pub mod charts;
-pub mod compare;
 pub mod convolve;
 pub mod fft;
 pub mod output;
 pub mod plan;
 pub mod propagate;
 pub mod psf;
+pub mod psf_bench;
+pub mod psf_compare;
 pub mod spectrum;
 pub mod system;
 

@@ -390,7 +390,7 @@ struct SystemFile {
 }
 
 impl OpticalSystem {
-    /// Reads a system TOML file over `base` (see [`SystemFile`]'s fields: those of
+    /// Reads a system TOML file over `base` (the fields are those of
     /// [`OpticalSystem`], lengths with units, `material` a name as [`Material::by_name`]) and
     /// validates the result. Errors name the file and the field.
     pub fn read_toml(path: &std::path::Path, base: &OpticalSystem) -> Result<OpticalSystem> {

@@ -5,16 +5,16 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use crate::calibration::capture_registration::{Model, RegisterOptions};
 use crate::calibration::evaluate::ScoringOptions;
-use crate::calibration::register::{Model, RegisterOptions};
-use crate::decoder::bench::{self, scene_dirs, BenchConfig, BenchReport, FinetuneBench};
+use crate::decoder::capture_bench::{self, scene_dirs, BenchConfig, BenchReport, FinetuneBench};
 use crate::decoder::finetune::FinetuneConfig;
 use crate::error::Result;
 use crate::io::atomic::{self, StagedDir};
-use crate::optics::bench::{run_bench, BenchPoint, RUNS};
 use crate::optics::charts::write_psf_charts;
+use crate::optics::psf_bench::{run_bench, BenchPoint, RUNS};
 
-/// Runs the PSF methods' benchmark ([`crate::optics::bench`]) and writes its charts (PNG,
+/// Runs the PSF methods' benchmark ([`crate::optics::psf_bench`]) and writes its charts (PNG,
 /// SVG) and `bench_psf.json` into the folder `output`, all or nothing. Progress: one step per
 /// configuration run.
 pub fn bench_psf(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<Vec<BenchPoint>> {
@@ -68,7 +68,7 @@ pub struct DecoderBenchOptions {
 #[derive(Debug, Serialize)]
 #[serde(transparent)]
 pub struct DecoderBenchOutcome {
-    /// What [`crate::decoder::bench::run`] reports.
+    /// What [`crate::decoder::capture_bench::run`] reports.
     pub report: BenchReport,
     /// Scenes whose bracket merged with warnings, and scenes refused.
     #[serde(skip)]
@@ -114,7 +114,7 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
     })
 }
 
-/// Runs the decoders' benchmark ([`crate::decoder::bench::run`]) with the defaults filled in,
+/// Runs the decoders' benchmark ([`crate::decoder::capture_bench::run`]) with the defaults filled in,
 /// writing into the folder `output`. Progress: the fine-tuning steps and two steps a scene.
 pub fn bench_decoder(
     o: &DecoderBenchOptions,
@@ -126,7 +126,7 @@ pub fn bench_decoder(
     let mut done = 0;
     let mut message = String::new();
     progress("", 0, total);
-    let report = bench::run(&cfg, output, &mut |msg, n| {
+    let report = capture_bench::run(&cfg, output, &mut |msg, n| {
         if !msg.is_empty() {
             message = msg.to_string();
         }

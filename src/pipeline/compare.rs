@@ -1,6 +1,6 @@
 //! `doefab compare`: a fabricated part's scan against its design, through the stages: the
 //! reference surface made by the fabrication chain ([`reference_surface`]), the comparison of
-//! [`crate::metrology::compare`], and the design PSF against the as-fabricated PSF
+//! [`crate::metrology::scan_compare`], and the design PSF against the as-fabricated PSF
 //! ([`psf_comparison`], by [`crate::optics`]); the outputs written all at once.
 
 use std::path::Path;
@@ -14,8 +14,8 @@ use crate::fabrication::ReplicaMode;
 use crate::grid::fill::fill_missing;
 use crate::grid::Grid;
 use crate::io::scan::{self, Scan, ScanOptions};
-use crate::metrology::compare::{compare, CompareOptions, Comparison, LevelSpec};
-use crate::metrology::register::Registration;
+use crate::metrology::scan_compare::{compare, CompareOptions, Comparison, LevelSpec};
+use crate::metrology::scan_registration::Registration;
 use crate::optics::system::OpticalSystem;
 use crate::optics::{Method, Options};
 
@@ -258,7 +258,7 @@ mod tests {
     use super::*;
     use crate::design::PAPER_PITCH;
     use crate::grid::Unit;
-    use crate::metrology::simulate::gaussian_blur;
+    use crate::metrology::synthetic_scan::gaussian_blur;
 
     /// Piston does not change a PSF; a small random height error lowers the peak by Marechal's
     /// `exp(-sigma_phi^2)`.

@@ -36,10 +36,10 @@ use crate::grid::{Grid, Unit};
 use crate::io::atomic::{write_json, StagedDir};
 use crate::io::heightmap::Metadata;
 use crate::io::scan::ScanOptions;
-use crate::metrology::compare::{
+use crate::metrology::scan_compare::{
     compare, efficiency_loss, CompareOptions, Comparison, EfficiencyLoss, FabModel, LevelReport, LevelSpec,
 };
-use crate::metrology::simulate::{simulate_scan, SimulateParams};
+use crate::metrology::synthetic_scan::{simulate_scan, SimulateParams};
 use crate::pipeline::compare::reference_surface;
 
 /// Lowest correlation of part and design (inside the aperture) a model is taken from.

@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 
 use crate::error::Result;
 use crate::io::atomic;
-use crate::optics::compare::{compare, CompareOptions, Comparison};
 use crate::optics::psf::Psf;
+use crate::optics::psf_compare::{compare, CompareOptions, Comparison};
 
 /// The two PSFs and how to read and measure them.
 #[derive(Debug, Clone)]

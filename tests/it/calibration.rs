@@ -248,8 +248,8 @@ fn a_known_psf_is_recovered_from_its_synthetic_bracket() {
 // ---------------------------------------------------------------------------------------------
 // evaluate: PSNR and affine registration
 
+use doefab::calibration::capture_registration::{luminance, register_affine, Model, RegisterOptions};
 use doefab::calibration::evaluate::{prepare, psnr, ScoringOptions};
-use doefab::calibration::register::{luminance, register_affine, Model, RegisterOptions};
 use doefab::grid::{Grid, Interpolation, Unit};
 
 /// PSNR against a value computed by hand: a 4 x 4 x 3 reference of ones with one sample off
@@ -382,7 +382,7 @@ fn speckle(seed: u64, n: usize) -> Array3<f64> {
 /// away from the layer edge (a tile and a half), and the PSNR over the pixels it covers is high.
 #[test]
 fn a_two_layer_parallax_is_followed_by_the_local_field_and_refused_by_the_affine_fit() {
-    use doefab::calibration::register::register_local;
+    use doefab::calibration::capture_registration::register_local;
     let n = 480;
     let (bg, fg) = (speckle(21, n), speckle(22, n));
     let inside_fg = |y: f64, x: f64| (130.0..330.0).contains(&y) && (40.0..440.0).contains(&x);

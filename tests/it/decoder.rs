@@ -162,7 +162,7 @@ fn missing_and_misshaped_tensors_are_named() {
     // A file that is not safetensors at all.
     std::fs::write(&path, b"\x0a\x00\x00\x00\x00\x00\x00\x00{not json}").unwrap();
     let err = DecoderWeights::read(&path).unwrap_err().to_string();
-    assert!(err.contains("header is not a JSON object"), "{err}");
+    assert!(err.contains("invalid JSON in header"), "{err}");
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -19,10 +19,10 @@ const TOL: f64 = 1e-3;
 
 // The bench's small F/7 scene: 0.5 mm aperture, g = 3.5 mm, 3 um pixels, 40 x 40 crop, the DOE
 // at 5 um, 635 and 450 nm.
-use doefab::optics::bench::{scene, N, PITCH};
+use doefab::optics::psf_bench::{scene, N, PITCH};
 
 fn heights(phase: impl Fn(f64, f64) -> f64) -> Grid {
-    doefab::optics::bench::heights(phase).unwrap()
+    doefab::optics::psf_bench::heights(phase).unwrap()
 }
 
 /// The midpoint rule at 16 and 32 sub-samples, Richardson-extrapolated, f64; with bands, each

@@ -24,7 +24,7 @@ use crate::error::{Error, Result};
 use crate::fabrication::precompensate::Response;
 pub use crate::grid::blur::gaussian_blur;
 use crate::grid::{Grid, Unit};
-use crate::metrology::register::{Pose, Sampler};
+use crate::metrology::scan_registration::{Pose, Sampler};
 use crate::rng::Lcg;
 
 /// What goes wrong between design and scan; see the module docs.
@@ -168,7 +168,7 @@ pub fn parse_length_pair(text: &str) -> Result<[f64; 2]> {
     }
 }
 
-/// Parses plane slopes "SX[,SY]" (dimensionless; one value is a slope along x only).
+/// Parses plane slopes "SX\[,SY\]" (dimensionless; one value is a slope along x only).
 pub fn parse_slopes(text: &str) -> Result<[f64; 2]> {
     let v: Vec<f64> = text
         .split(',')

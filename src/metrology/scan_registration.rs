@@ -503,7 +503,7 @@ pub fn register(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Re
             }
             blur2 = s2;
             p.lin[4] = 0.0;
-            crate::metrology::simulate::gaussian_blur(design, s2.sqrt())?
+            crate::metrology::synthetic_scan::gaussian_blur(design, s2.sqrt())?
         } else if g == 1 {
             design.clone()
         } else {
@@ -1113,7 +1113,7 @@ fn refine(ctx: &Ctx, pts: &[[f64; 3]], p: &mut Params, radius_px: f64) -> Result
 mod tests {
     use super::*;
     use crate::design::{paper_example, ExampleParams, PAPER_PITCH};
-    use crate::metrology::simulate::{simulate_scan, SimulateParams};
+    use crate::metrology::synthetic_scan::{simulate_scan, SimulateParams};
 
     /// The built-in design at its real pitch and grating period, cropped to `n` samples.
     fn paper(n: usize) -> Grid {
@@ -1237,7 +1237,7 @@ mod tests {
         let mut rng = crate::rng::Lcg(11);
         let v = ndarray::Array2::from_shape_fn((200, 200), |_| 0.3e-6 * rng.normal());
         let other = Grid::new(v, [PAPER_PITCH, PAPER_PITCH], crate::grid::Unit::Metre).unwrap();
-        let other = crate::metrology::simulate::gaussian_blur(&other, 3.0 * PAPER_PITCH).unwrap();
+        let other = crate::metrology::synthetic_scan::gaussian_blur(&other, 3.0 * PAPER_PITCH).unwrap();
         let s = simulate_scan(&other, &SimulateParams { noise: 5e-9, ..Default::default() }).unwrap();
         match register(&paper(200), &s, &RegisterOptions::default()) {
             Err(Error::Validity(m)) => assert!(m.contains("does not match"), "{m}"),

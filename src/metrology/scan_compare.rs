@@ -1,12 +1,12 @@
 //! Comparison of a fabricated part's scan with its design: the scan registered
-//! ([`crate::metrology::register`]) and resampled onto the design grid, the difference map with
+//! ([`crate::metrology::scan_registration`]) and resampled onto the design grid, the difference map with
 //! its RMS and PV over the clear aperture, the mean and spread of every quantization level, a
 //! fitted fabrication model and the diffraction-efficiency loss its depth error predicts (the
 //! design PSF against the as-fabricated PSF, and the outputs of `doefab compare`, are
 //! [`crate::pipeline::compare`]'s).
 //!
 //! # The as-fabricated surface in the design frame
-//! Registration gives `z(x_s) = a h(x_d) + b + c . x_s` (see [`crate::metrology::register`]).
+//! Registration gives `z(x_s) = a h(x_d) + b + c . x_s` (see [`crate::metrology::scan_registration`]).
 //! For every design sample `x_d`, the scan is read at `x_s = pose.design_to_scan(x_d)` with
 //! [`Grid::sample_index`] (Keys bicubic where its 16 taps are measured, else bilinear where its 4
 //! taps are, else the nearest sample if it is measured; otherwise the design sample is
@@ -40,8 +40,8 @@ use crate::fabrication::quantize::{continuous_efficiency, detuning, order_effici
 use crate::fabrication::wrap::WrapSpec;
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::material::PAPER_WAVELENGTHS;
-use crate::metrology::register::{register, RegisterOptions, Registration, Sampler};
-use crate::metrology::simulate::gaussian_blur;
+use crate::metrology::scan_registration::{register, RegisterOptions, Registration, Sampler};
+use crate::metrology::synthetic_scan::gaussian_blur;
 
 /// Reads a JSON `null` (how serde_json writes NaN and infinities) back as NaN.
 fn null_as_nan<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f64, D::Error> {
@@ -787,8 +787,8 @@ pub fn efficiency_loss(
 mod tests {
     use super::*;
     use crate::design::{paper_example, ExampleParams, PAPER_PITCH};
-    use crate::metrology::register::Pose;
-    use crate::metrology::simulate::{simulate_scan, SimulateParams};
+    use crate::metrology::scan_registration::Pose;
+    use crate::metrology::synthetic_scan::{simulate_scan, SimulateParams};
 
     /// The built-in design at its real pitch and grating period, `n` samples, aperture 0.9 n.
     fn paper(n: usize) -> Grid {
