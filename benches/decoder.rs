@@ -18,6 +18,7 @@ use doefab::decoder::finetune::{Adam, FinetuneConfig};
 use doefab::decoder::unet::UNet;
 use doefab::decoder::weights::{tensor_specs, DecoderWeights, NamedTensor};
 use doefab::decoder::{device, infer, to_tensor};
+use doefab::image::Image;
 use doefab::rng::Lcg;
 use ndarray::Array3;
 
@@ -43,8 +44,8 @@ fn weights() -> DecoderWeights {
     DecoderWeights { tensors, metadata: Default::default() }
 }
 
-fn image(g: &mut Lcg, n: usize, hi: f64) -> Array3<f32> {
-    Array3::from_shape_fn((n, n, 3), |_| (g.uniform() * hi) as f32)
+fn image(g: &mut Lcg, n: usize, hi: f64) -> Image<f32> {
+    Image::new(Array3::from_shape_fn((n, n, 3), |_| (g.uniform() * hi) as f32))
 }
 
 /// CPU time of this process (user + system, all threads), seconds, from `/proc/self/stat`
@@ -85,10 +86,10 @@ fn train_step_time(w: &DecoderWeights, batch: usize, side: usize, runs: usize) -
     let mut net = UNet::from_weights(w, &dev);
     let mut adam = Adam::new(&net, &FinetuneConfig::default());
     let mut g = Lcg(2);
-    let xs: Vec<Array3<f32>> = (0..batch).map(|_| image(&mut g, side, 1.0)).collect();
-    let ts: Vec<Array3<f32>> = (0..batch).map(|_| image(&mut g, side, 4.0)).collect();
-    let xr: Vec<&Array3<f32>> = xs.iter().collect();
-    let tr: Vec<&Array3<f32>> = ts.iter().collect();
+    let xs: Vec<Image<f32>> = (0..batch).map(|_| image(&mut g, side, 1.0)).collect();
+    let ts: Vec<Image<f32>> = (0..batch).map(|_| image(&mut g, side, 4.0)).collect();
+    let xr: Vec<&Image<f32>> = xs.iter().collect();
+    let tr: Vec<&Image<f32>> = ts.iter().collect();
     time(runs, || {
         adam.step(&mut net, to_tensor(&xr, &dev), to_tensor(&tr, &dev)).expect("finite loss");
     })

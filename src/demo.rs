@@ -515,7 +515,7 @@ fn fine_tune(init: &Path, psf_path: &Path, out: &Path, p: &mut Progress) -> Resu
         &mut crate::rng::Lcg(7),
     )?;
     let capture = out.join("capture.png");
-    crate::calibration::capture::write_capture(&capture, &m.capture.mapv(f64::from), 8)?;
+    crate::calibration::capture::write_capture(&capture, &m.capture.to_f64(), 8)?;
     let decoder = ft_dir.join(ft::DECODER);
     let reconstruction = rc::reconstruct_file(
         &capture,

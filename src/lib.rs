@@ -6,6 +6,8 @@
 //!
 //! * [`grid`]: the shared physical data model, a sampled grid with pitch, origin, unit and
 //!   validity mask; resampling, crop, pad, mirror, rotate; filling of non-measured samples.
+//! * [`image`]: multi-channel images (`(H, W, C)`, linear), the data model of calibration and
+//!   the decoder.
 //! * [`units`]: "550nm", "4.29 um" <-> metres at the edges.
 //! * [`material`]: refractive index n(lambda) of the DOE materials.
 //! * [`design`]: the built-in example designs (grating-like DOE, Fresnel lens).
@@ -36,6 +38,7 @@ pub mod design;
 pub mod error;
 pub mod fabrication;
 pub mod grid;
+pub mod image;
 pub mod io;
 pub mod linalg;
 pub mod material;

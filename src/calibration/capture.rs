@@ -18,14 +18,15 @@ use ndarray::Array3;
 use serde::Deserialize;
 
 use crate::error::{Error, Result};
+use crate::image::Image;
 use crate::io::atomic::write_bytes;
 
 /// One capture: linear values in `[0, 1]` with its bit depth.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Capture {
     pub path: PathBuf,
-    /// `(H, W, C)`, counts divided by the full-scale count.
-    pub values: Array3<f64>,
+    /// Counts divided by the full-scale count.
+    pub image: Image,
     /// 8 or 16.
     pub bits: u8,
 }
@@ -75,13 +76,13 @@ pub fn read_capture(path: &Path) -> Result<Capture> {
     };
     let values = Array3::from_shape_vec((h, w, channels), samples)
         .map_err(|e| Error::format(path, format!("the image data does not fill {w} x {h}: {e}")))?;
-    Ok(Capture { path: path.to_path_buf(), values, bits })
+    Ok(Capture { path: path.to_path_buf(), image: Image::new(values), bits })
 }
 
-/// Writes `values` (`(H, W, 1 or 3)`, clipped to `[0, 1]`, rounded to counts) as an 8- or
+/// Writes `image` (1 or 3 channels, clipped to `[0, 1]`, rounded to counts) as an 8- or
 /// 16-bit PNG capture, atomically.
-pub fn write_capture(path: &Path, values: &Array3<f64>, bits: u8) -> Result<()> {
-    let (h, w, c) = values.dim();
+pub fn write_capture(path: &Path, image: &Image, bits: u8) -> Result<()> {
+    let (h, w, c) = image.dim();
     let full = match bits {
         8 => 255.0,
         16 => 65535.0,
@@ -94,7 +95,7 @@ pub fn write_capture(path: &Path, values: &Array3<f64>, bits: u8) -> Result<()> 
         (3, 16) => image::ExtendedColorType::Rgb16,
         _ => return Err(Error::param("channels", format!("a capture has 1 or 3 channels, not {c}"))),
     };
-    let counts = values.iter().map(|v| (v.clamp(0.0, 1.0) * full).round());
+    let counts = image.values.iter().map(|v| (v.clamp(0.0, 1.0) * full).round());
     let data: Vec<u8> = if bits == 8 {
         counts.map(|v| v as u8).collect()
     } else {
@@ -308,14 +309,14 @@ mod tests {
     #[test]
     fn captures_round_trip_at_8_and_16_bits() {
         let dir = tempfile::tempdir().unwrap();
-        let v = Array3::from_shape_fn((5, 7, 3), |(i, j, c)| (i * 21 + j * 3 + c) as f64 / 120.0);
+        let v = Image::new(Array3::from_shape_fn((5, 7, 3), |(i, j, c)| (i * 21 + j * 3 + c) as f64 / 120.0));
         for bits in [8u8, 16] {
             let p = dir.path().join(format!("c{bits}.png"));
             write_capture(&p, &v, bits).unwrap();
             let c = read_capture(&p).unwrap();
             assert_eq!(c.bits, bits);
             let step = 0.5 / c.full_scale() + 1e-12;
-            assert!(c.values.iter().zip(&v).all(|(a, b)| (a - b).abs() <= step));
+            assert!(c.image.values.iter().zip(&v.values).all(|(a, b)| (a - b).abs() <= step));
         }
     }
 }

@@ -33,6 +33,7 @@ use ndarray::{Array2, Array3};
 use serde::Serialize;
 
 use crate::error::{Error, Result};
+use crate::image::Image;
 use crate::linalg::solve;
 use crate::rng::Lcg;
 use rayon::prelude::*;
@@ -109,12 +110,9 @@ pub struct Registration {
     pub residual_rms_px: f64,
 }
 
-/// The square root of the channel mean of an `(H, W, C)` image (negative values as 0).
-pub fn luminance(img: &Array3<f64>) -> Array2<f64> {
-    let (h, w, c) = img.dim();
-    Array2::from_shape_fn((h, w), |(i, j)| {
-        ((0..c).map(|k| img[[i, j, k]]).sum::<f64>() / c as f64).max(0.0).sqrt()
-    })
+/// The square root of the channel mean of an image (negative values as 0).
+pub fn luminance(img: &Image) -> Array2<f64> {
+    img.channel_mean().mapv(|v| v.max(0.0).sqrt())
 }
 
 fn bin(img: &Array2<f64>, f: usize) -> Array2<f64> {
@@ -215,8 +213,8 @@ pub fn register_affine(
     let a0 = first.affine;
     let inv = a0.inverse().ok_or_else(|| Error::Data("the affine fit is singular".into()))?;
     let (h, w) = reference.dim();
-    let (back, _) = warp(&target.clone().insert_axis(ndarray::Axis(2)), &inv, h, w)?;
-    let back = back.index_axis_move(ndarray::Axis(2), 0);
+    let (back, _) = warp(&Image::new(target.clone().insert_axis(ndarray::Axis(2))), &inv, h, w)?;
+    let back = back.values.index_axis_move(ndarray::Axis(2), 0);
     let fine = match_and_fit(reference, &back, &RegisterOptions { max_shift: 4, ..opts.clone() })?;
     // q = A0 (C p + d) + b0.
     let (c, d) = (fine.affine.a, fine.affine.b);
@@ -389,12 +387,8 @@ fn fit_affine(pairs: &[&Match]) -> Result<Affine> {
 
 /// The reference resampled onto the target's pixels (`rows x cols`) through `affine`
 /// (bilinear), with the mask of target pixels whose source lies inside the reference.
-pub fn warp(
-    reference: &Array3<f64>,
-    affine: &Affine,
-    rows: usize,
-    cols: usize,
-) -> Result<(Array3<f64>, Array2<bool>)> {
+pub fn warp(reference: &Image, affine: &Affine, rows: usize, cols: usize) -> Result<(Image, Array2<bool>)> {
+    let reference = &reference.values;
     let inv = affine.inverse().ok_or_else(|| Error::Data("the affine map is singular".into()))?;
     let nc = reference.dim().2;
     let mut out = Array3::<f64>::zeros((rows, cols, nc));
@@ -410,7 +404,7 @@ pub fn warp(
             }
         }
     }
-    Ok((out, inside))
+    Ok((Image::new(out), inside))
 }
 
 /// Bilinear sample of every channel at `(y, x)`, `None` outside the image.
@@ -720,7 +714,8 @@ impl LocalRegistration {
 
     /// The reference resampled onto the target's pixels through the field (bilinear), with the
     /// mask of pixels the field covers and whose source lies inside the reference.
-    pub fn warp(&self, reference: &Array3<f64>) -> (Array3<f64>, Array2<bool>) {
+    pub fn warp(&self, reference: &Image) -> (Image, Array2<bool>) {
+        let reference = &reference.values;
         let (h, w, nc) = reference.dim();
         let mut out = Array3::<f64>::zeros((h, w, nc));
         let mut inside = Array2::from_elem((h, w), false);
@@ -736,6 +731,6 @@ impl LocalRegistration {
                 }
             }
         }
-        (out, inside)
+        (Image::new(out), inside)
     }
 }

@@ -59,6 +59,7 @@ use super::capture_registration::{
     luminance, register_affine, register_local, warp, LocalRegistration, Model, RegisterOptions, Registration,
 };
 use crate::error::{Error, Result};
+use crate::image::Image;
 use crate::io::exr::read_exr;
 use crate::optics::convolve::Convolver;
 use crate::optics::psf::Psf;
@@ -78,7 +79,8 @@ pub struct Psnr {
 }
 
 /// PSNR of `recon` against `reference` over the pixels where `mask` is true (all when `None`).
-pub fn psnr(reference: &Array3<f64>, recon: &Array3<f64>, mask: Option<&Array2<bool>>) -> Result<Psnr> {
+pub fn psnr(reference: &Image, recon: &Image, mask: Option<&Array2<bool>>) -> Result<Psnr> {
+    let (reference, recon) = (&reference.values, &recon.values);
     if reference.dim() != recon.dim() {
         return Err(Error::Data(format!(
             "the reference is {:?} and the reconstruction {:?} (rows, cols, channels)",
@@ -130,8 +132,8 @@ pub fn psnr(reference: &Array3<f64>, recon: &Array3<f64>, mask: Option<&Array2<b
     })
 }
 
-/// Reads an RGB (or single-channel) OpenEXR image as `(H, W, C)`.
-pub fn read_rgb_exr(path: &Path) -> Result<Array3<f64>> {
+/// Reads an RGB (or single-channel) OpenEXR image.
+pub fn read_rgb_exr(path: &Path) -> Result<Image> {
     let planes = match read_exr(path, Some("R")) {
         Ok(r) => vec![r.values, read_exr(path, Some("G"))?.values, read_exr(path, Some("B"))?.values],
         Err(Error::Parameter { .. }) => vec![
@@ -144,16 +146,16 @@ pub fn read_rgb_exr(path: &Path) -> Result<Array3<f64>> {
         Err(e) => return Err(e),
     };
     let (h, w) = planes[0].dim();
-    Ok(Array3::from_shape_fn((h, w, planes.len()), |(i, j, c)| planes[c][[i, j]]))
+    Ok(Image::new(Array3::from_shape_fn((h, w, planes.len()), |(i, j, c)| planes[c][[i, j]])))
 }
 
-/// Reads a linear image as `(H, W, C)`, by extension: OpenEXR (R, G, B or one channel),
+/// Reads a linear image, by extension (the one image reader of calibration and the decoder): OpenEXR (R, G, B or one channel),
 /// NumPy `.npy` of shape `(H, W)`, `(H, W, C)`, `(1, H, W, C)` or `(H, W, 1, C)` with `C` 1 or 3,
 /// or an 8/16-bit PNG/TIFF capture (counts / full scale). Non-finite values are refused.
-pub fn read_image(path: &Path) -> Result<Array3<f64>> {
+pub fn read_image(path: &Path) -> Result<Image> {
     let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
     let img = match ext.as_deref() {
-        Some("exr") => read_rgb_exr(path)?,
+        Some("exr") => read_rgb_exr(path)?.values,
         Some("npy") => {
             let (header, a) = crate::io::npy::read_npy_nd(path)?;
             let (h, w, c) = match header.shape[..] {
@@ -174,7 +176,7 @@ pub fn read_image(path: &Path) -> Result<Array3<f64>> {
             };
             a.into_shape_with_order((h, w, c)).map_err(|e| Error::format(path, e.to_string()))?
         }
-        Some("png" | "tif" | "tiff") => super::capture::read_capture(path)?.values,
+        Some("png" | "tif" | "tiff") => super::capture::read_capture(path)?.image.values,
         _ => {
             return Err(Error::format(
                 path,
@@ -190,7 +192,7 @@ pub fn read_image(path: &Path) -> Result<Array3<f64>> {
     if bad > 0 {
         return Err(Error::format(path, format!("holds {bad} non-finite values (NaN or infinite)")));
     }
-    Ok(img)
+    Ok(Image::new(img))
 }
 
 /// Settings of [`prepare`].
@@ -249,7 +251,7 @@ pub struct Footing {
 #[derive(Debug, Clone)]
 pub struct Scoring {
     /// The registered reference, scaled by the gain (0 where not covered).
-    pub reference: Array3<f64>,
+    pub reference: Image,
     /// Pixels scored.
     pub mask: Array2<bool>,
     /// Scored pixels saturated in the capture.
@@ -288,7 +290,8 @@ fn clipping_level(capture: &Array3<f64>, saturation: f64, warnings: &mut Vec<Str
 
 /// `h * x` per channel, the same size as `x`, with `x` extended past its border by its edge
 /// values (light from just outside the frame lands inside it) and `h` normalised to sum 1.
-pub fn convolve_psf(x: &Array3<f64>, psf: &Psf) -> Result<Array3<f64>> {
+pub fn convolve_psf(x: &Image, psf: &Psf) -> Result<Image> {
+    let x = &x.values;
     let (h, w, nc) = x.dim();
     if psf.channels.len() != nc {
         return Err(Error::Data(format!("the PSF has {} channels and the images {nc}", psf.channels.len())));
@@ -302,18 +305,19 @@ pub fn convolve_psf(x: &Array3<f64>, psf: &Psf) -> Result<Array3<f64>> {
         let (i, j) = (i.saturating_sub(top).min(h - 1), j.saturating_sub(left).min(w - 1));
         x[[i, j, c]] as f32
     });
-    let full = Convolver::new(&psf, (ph, pw))?.convolve(&padded)?;
-    Ok(full.slice(s![top..top + h, left..left + w, ..]).to_owned())
+    let full = Convolver::new(&psf, (ph, pw))?.convolve(&Image::new(padded))?;
+    Ok(Image::new(full.values.slice(s![top..top + h, left..left + w, ..]).to_owned()))
 }
 
 /// Registers `reference` (linear HDR, any scale) onto `capture` (values / full scale) through
 /// the measurement model with `psf`, and fixes the gain and the pixels scored (module docs).
 pub fn prepare(
-    reference: &Array3<f64>,
-    capture: &Array3<f64>,
+    reference: &Image,
+    capture: &Image,
     psf: Option<&Psf>,
     opts: &ScoringOptions,
 ) -> Result<Scoring> {
+    let (reference_image, reference, capture) = (reference, &reference.values, &capture.values);
     let (h, w, nc) = capture.dim();
     if reference.dim() != capture.dim() {
         return Err(Error::Data(format!(
@@ -336,29 +340,30 @@ pub fn prepare(
     }
     let mut warnings = Vec::new();
     let clip = clipping_level(capture, opts.saturation, &mut warnings);
-    let capture = capture.mapv(|v| v / clip);
+    let capture = Image::new(capture.mapv(|v| v / clip));
     let predicted = match psf {
-        Some(p) => convolve_psf(reference, p)?,
-        None => reference.clone(),
+        Some(p) => convolve_psf(reference_image, p)?,
+        None => reference_image.clone(),
     };
     let cap_lum = luminance(&capture);
+    let capture = &capture.values;
     // The floor is applied below, to the pixels scored.
     let register = RegisterOptions { min_coverage: 0.0, ..opts.register.clone() };
     let mut gain = 1.0;
     let mut passes = 0;
     let (mask, registration, local_registration, gain_samples) = loop {
         passes += 1;
-        let source = luminance(&predicted.mapv(|v| (gain * v).clamp(0.0, 1.0)));
+        let source = luminance(&Image::new(predicted.values.mapv(|v| (gain * v).clamp(0.0, 1.0))));
         let (warped, mask, reg, local) = match opts.register.model {
             Model::Affine => {
                 let reg = register_affine(&source, &cap_lum, &register)?;
                 let (warped, inside) = warp(&predicted, &reg.affine, h, w)?;
-                (warped, inside, Some(reg), None)
+                (warped.values, inside, Some(reg), None)
             }
             Model::Local => {
                 let reg = register_local(&source, &cap_lum, &register)?;
                 let (warped, inside) = reg.warp(&predicted);
-                (warped, inside, None, Some(reg))
+                (warped.values, inside, None, Some(reg))
             }
         };
         let mut ratios = Vec::new();
@@ -385,11 +390,11 @@ pub fn prepare(
         }
     };
     let (mut warped_reference, _) = match (&registration, &local_registration) {
-        (_, Some(l)) => l.warp(reference),
-        (Some(r), None) => warp(reference, &r.affine, h, w)?,
+        (_, Some(l)) => l.warp(reference_image),
+        (Some(r), None) => warp(reference_image, &r.affine, h, w)?,
         (None, None) => return Err(Error::Data("no registration was made".into())),
     };
-    Zip::from(warped_reference.lanes_mut(Axis(2))).and(&mask).for_each(|mut px, &inside| {
+    Zip::from(warped_reference.values.lanes_mut(Axis(2))).and(&mask).for_each(|mut px, &inside| {
         if inside {
             px.mapv_inplace(|v| v * gain);
         } else {
@@ -448,7 +453,7 @@ pub fn prepare(
 impl Scoring {
     /// Scores `image` (a reconstruction, or the capture itself, in units of the capture's
     /// clipping level) against the registered reference over the scene's pixel sets.
-    pub fn score(&self, name: &str, image: &Array3<f64>) -> Result<Score> {
+    pub fn score(&self, name: &str, image: &Image) -> Result<Score> {
         if image.dim() != self.reference.dim() {
             return Err(Error::Data(format!(
                 "{name}: is {:?} (rows, cols, channels); the capture is {:?}",
@@ -461,12 +466,12 @@ impl Scoring {
             None => Some(psnr(&self.reference, image, Some(&self.saturated))?),
             Some(_) => None,
         };
-        let channels = image.dim().2;
+        let channels = image.channels();
         let mut sums = vec![0.0; channels];
         for ((i, j), &scored) in self.mask.indexed_iter() {
             if scored && !self.saturated[[i, j]] {
                 for (c, s) in sums.iter_mut().enumerate() {
-                    *s += image[[i, j, c]];
+                    *s += image.values[[i, j, c]];
                 }
             }
         }
@@ -486,15 +491,15 @@ pub struct Evaluation {
 /// Registers `reference` onto `capture` once ([`prepare`]) and scores each named image on the
 /// same pixels (the capture itself first, as the baseline a decoder must beat).
 pub fn evaluate(
-    reference: &Array3<f64>,
-    capture: &Array3<f64>,
+    reference: &Image,
+    capture: &Image,
     psf: Option<&Psf>,
-    images: &[(String, Array3<f64>)],
+    images: &[(String, Image)],
     opts: &ScoringOptions,
 ) -> Result<Evaluation> {
     let scoring = prepare(reference, capture, psf, opts)?;
     let clip = scoring.footing.clipping_level;
-    let mut scores = vec![scoring.score("capture as it is", &capture.mapv(|v| v / clip))?];
+    let mut scores = vec![scoring.score("capture as it is", &Image::new(capture.values.mapv(|v| v / clip)))?];
     for (name, img) in images {
         scores.push(scoring.score(name, img)?);
     }
@@ -522,7 +527,7 @@ pub struct EvaluateFiles {
 /// Reads the files and runs [`evaluate`]; each image is named by its path.
 pub fn evaluate_files(files: &EvaluateFiles) -> Result<Evaluation> {
     let reference = read_image(&files.reference)?;
-    let capture = super::capture::read_capture(&files.capture)?.values;
+    let capture = super::capture::read_capture(&files.capture)?.image;
     let psf = match &files.psf {
         Some(p) => Some(Psf::read(p, files.psf_key.as_deref(), Some(files.capture_pitch))?),
         None => None,

@@ -51,6 +51,7 @@ use serde::Serialize;
 use super::capture::Capture;
 use super::response::Response;
 use crate::error::{Error, Result};
+use crate::image::Image;
 use crate::io::exr::write_exr;
 use crate::io::heightmap::Metadata;
 use crate::io::png::write_png_image_u8;
@@ -169,7 +170,7 @@ pub struct MergeReport {
 /// linearized through (`None`: linear captures).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Merged {
-    pub radiance: Array3<f64>,
+    pub radiance: Image,
     pub report: MergeReport,
     pub response: Option<Response>,
     /// `[row, col, channel]` of every sample saturated in every frame, row-major.
@@ -179,7 +180,7 @@ pub struct Merged {
 }
 
 /// Checks that the frames agree in shape and bit depth and that the dark frame matches.
-fn check_frames(frames: &[Capture], times: &[f64], dark: Option<&Array3<f64>>) -> Result<()> {
+fn check_frames(frames: &[Capture], times: &[f64], dark: Option<&Image>) -> Result<()> {
     let Some(first) = frames.first() else {
         return Err(Error::param("bracket", "needs at least one frame"));
     };
@@ -187,9 +188,9 @@ fn check_frames(frames: &[Capture], times: &[f64], dark: Option<&Array3<f64>>) -
         return Err(Error::param("times", format!("{} times for {} frames", times.len(), frames.len())));
     }
     for (f, &t) in frames.iter().zip(times) {
-        if f.values.dim() != first.values.dim() || f.bits != first.bits {
-            let (h, w, c) = f.values.dim();
-            let (h0, w0, c0) = first.values.dim();
+        if f.image.values.dim() != first.image.values.dim() || f.bits != first.bits {
+            let (h, w, c) = f.image.values.dim();
+            let (h0, w0, c0) = first.image.values.dim();
             return Err(Error::format(
                 &f.path,
                 format!(
@@ -209,10 +210,10 @@ fn check_frames(frames: &[Capture], times: &[f64], dark: Option<&Array3<f64>>) -
         }
     }
     if let Some(d) = dark {
-        if d.dim() != first.values.dim() {
+        if d.dim() != first.image.values.dim() {
             return Err(Error::param(
                 "dark",
-                format!("the dark frame is {:?}, the captures {:?}", d.dim(), first.values.dim()),
+                format!("the dark frame is {:?}, the captures {:?}", d.dim(), first.image.values.dim()),
             ));
         }
     }
@@ -220,14 +221,14 @@ fn check_frames(frames: &[Capture], times: &[f64], dark: Option<&Array3<f64>>) -
 }
 
 /// The mean of dark captures (same layout as the frames they correct).
-pub fn mean_dark(darks: &[Capture]) -> Result<Array3<f64>> {
+pub fn mean_dark(darks: &[Capture]) -> Result<Image> {
     let times = vec![1.0; darks.len()];
     check_frames(darks, &times, None)?;
-    let mut sum = Array3::<f64>::zeros(darks[0].values.dim());
+    let mut sum = Array3::<f64>::zeros(darks[0].image.values.dim());
     for d in darks {
-        sum += &d.values;
+        sum += &d.image.values;
     }
-    Ok(sum / darks.len() as f64)
+    Ok(Image::new(sum / darks.len() as f64))
 }
 
 /// The black level of each channel of `frame` (fraction of full scale) from the histogram of
@@ -235,11 +236,11 @@ pub fn mean_dark(darks: &[Capture]) -> Result<Array3<f64>> {
 /// `None` for a channel, with the reason in `warnings`, where the frame has no dark region.
 pub fn estimate_black_level(frame: &Capture, warnings: &mut Vec<String>) -> Vec<Option<f64>> {
     let full = frame.full_scale();
-    let (_, _, nc) = frame.values.dim();
+    let (_, _, nc) = frame.image.values.dim();
     (0..nc)
         .map(|c| {
             let mut hist = vec![0usize; full as usize + 1];
-            let plane = frame.values.index_axis(ndarray::Axis(2), c);
+            let plane = frame.image.values.index_axis(ndarray::Axis(2), c);
             for &z in plane.iter() {
                 hist[((z.clamp(0.0, 1.0) * full).round()) as usize] += 1;
             }
@@ -287,12 +288,12 @@ pub fn estimate_black_level(frame: &Capture, warnings: &mut Vec<String>) -> Vec<
 fn black_level(
     frames: &[Capture],
     times: &[f64],
-    dark: Option<&Array3<f64>>,
+    dark: Option<&Image>,
     response: Option<&Response>,
     level: &BlackLevel,
     warnings: &mut Vec<String>,
 ) -> Result<(Array3<f64>, Vec<f64>, String)> {
-    let shape = frames[0].values.dim();
+    let shape = frames[0].image.values.dim();
     let nc = shape.2;
     let per_channel = |v: &[f64]| Array3::from_shape_fn(shape, |(_, _, c)| v[c]);
     match (level, dark, response) {
@@ -325,8 +326,9 @@ fn black_level(
             Ok((per_channel(&v), v, "given".into()))
         }
         (BlackLevel::Auto, Some(d), _) => {
-            let means = (0..nc).map(|c| d.index_axis(ndarray::Axis(2), c).mean().unwrap_or(0.0)).collect();
-            Ok((d.clone(), means, "dark frames".into()))
+            let means =
+                (0..nc).map(|c| d.values.index_axis(ndarray::Axis(2), c).mean().unwrap_or(0.0)).collect();
+            Ok((d.values.clone(), means, "dark frames".into()))
         }
         (BlackLevel::Auto, None, Some(_)) => Ok((
             Array3::zeros(shape),
@@ -353,7 +355,7 @@ fn black_level(
 pub fn merge(
     frames: &[Capture],
     times: &[f64],
-    dark: Option<&Array3<f64>>,
+    dark: Option<&Image>,
     response: Option<&Response>,
     opts: &MergeOptions,
 ) -> Result<Merged> {
@@ -365,7 +367,7 @@ pub fn merge(
             format!("need 0 <= noise floor < saturation <= 1, got {lo} and {hi}"),
         ));
     }
-    let shape = frames[0].values.dim();
+    let shape = frames[0].image.values.dim();
     if let Some(r) = response {
         r.check(frames)?;
     }
@@ -377,8 +379,8 @@ pub fn merge(
         .iter()
         .map(|f| {
             let v = match response {
-                Some(r) => r.linearize(&f.values),
-                None => f.values.clone(),
+                Some(r) => r.linearize(&f.image).values,
+                None => f.image.values.clone(),
             };
             v - &black
         })
@@ -404,7 +406,7 @@ pub fn merge(
         let d = dark_at(i, j, c);
         let (mut lowest, mut highest, mut well) = (f64::INFINITY, 0.0f64, 0);
         for k in 0..n {
-            let z = frames[k].values[[i, j, c]];
+            let z = frames[k].image.values[[i, j, c]];
             let w = weight(z, d);
             let rate = linear[k][[i, j, c]] / used[k];
             num += w * rate;
@@ -426,7 +428,7 @@ pub fn merge(
         // No usable frame: the longest unsaturated frame's value over its time (one frame, so
         // that the dark frame's error is not multiplied by the frame count), or a lower bound
         // from the shortest frame.
-        if let Some(&k) = order.iter().rev().find(|&&k| frames[k].values[[i, j, c]] < hi) {
+        if let Some(&k) = order.iter().rev().find(|&&k| frames[k].image.values[[i, j, c]] < hi) {
             *e = linear[k][[i, j, c]] / used[k];
             dark_everywhere.add(i, j, c);
         } else {
@@ -442,7 +444,7 @@ pub fn merge(
         let nc = shape.2;
         let (mut sat, mut floor) = (vec![0; nc], vec![0; nc]);
         let mut dev = Vec::new();
-        for ((i, j, c), &z) in f.values.indexed_iter() {
+        for ((i, j, c), &z) in f.image.values.indexed_iter() {
             if z >= hi {
                 sat[c] += 1;
             } else if z - dark_at(i, j, c) <= lo {
@@ -508,7 +510,7 @@ pub fn merge(
         }
     });
     Ok(Merged {
-        radiance,
+        radiance: Image::new(radiance),
         report: MergeReport {
             shape: [shape.0, shape.1, shape.2],
             unit,
@@ -546,7 +548,7 @@ fn estimate_times(
     // Anchor: the frame with the most well-exposed samples keeps its listed time.
     let anchor_pos = (0..order.len())
         .max_by_key(|&p| {
-            Zip::from(&frames[order[p]].values)
+            Zip::from(&frames[order[p]].image.values)
                 .and(black)
                 .fold(0usize, |n, &z, &d| n + well_raw(z, d) as usize)
         })
@@ -556,8 +558,8 @@ fn estimate_times(
         .windows(2)
         .map(|w| {
             let (s, l) = (w[0], w[1]);
-            let mut r: Vec<f64> = Zip::from(&frames[s].values)
-                .and(&frames[l].values)
+            let mut r: Vec<f64> = Zip::from(&frames[s].image.values)
+                .and(&frames[l].image.values)
                 .and(&linear[s])
                 .and(&linear[l])
                 .and(black)
@@ -631,9 +633,9 @@ fn metadata(merged: &Merged, pitch: Option<f64>) -> Metadata {
 /// Writes merged radiance as an OpenEXR file (channels R, G, B, or Y for one channel; f32),
 /// with its unit and the pixel pitch when known.
 pub fn write_merged(path: &Path, merged: &Merged, pitch: Option<f64>) -> Result<()> {
-    let nc = merged.radiance.dim().2;
+    let nc = merged.radiance.channels();
     let planes: Vec<Array2<f32>> =
-        (0..nc).map(|c| merged.radiance.index_axis(ndarray::Axis(2), c).mapv(|v| v as f32)).collect();
+        (0..nc).map(|c| merged.radiance.values.index_axis(ndarray::Axis(2), c).mapv(|v| v as f32)).collect();
     let names: Vec<String> = if nc == 3 {
         ["R", "G", "B"].map(String::from).to_vec()
     } else {
@@ -666,18 +668,19 @@ pub fn write_tone_mapped(path: &Path, merged: &Merged, ev: f64, pitch: Option<f6
     if !ev.is_finite() {
         return Err(Error::param("ev", format!("must be a finite number of stops, got {ev}")));
     }
-    let radiance = merged.radiance.mapv(|v| v as f32);
+    let radiance = merged.radiance.to_f32();
     let gain = 2f64.powf(ev);
-    let n = radiance.len().max(1);
-    let clipped_fraction = radiance.iter().filter(|&&v| v as f64 * gain >= 1.0).count() as f64 / n as f64;
-    let mut values: Vec<f32> = radiance.iter().copied().collect();
+    let n = radiance.values.len().max(1);
+    let clipped_fraction =
+        radiance.values.iter().filter(|&&v| v as f64 * gain >= 1.0).count() as f64 / n as f64;
+    let mut values: Vec<f32> = radiance.values.iter().copied().collect();
     let p99 = if values.is_empty() {
         0.0
     } else {
         let k = (values.len() - 1) * 99 / 100;
         *values.select_nth_unstable_by(k, f32::total_cmp).1 as f64
     };
-    let max = radiance.iter().fold(0.0f64, |m, &v| m.max(v as f64));
+    let max = radiance.values.iter().fold(0.0f64, |m, &v| m.max(v as f64));
     let fit = |v: f64| (v > 0.0).then(|| -v.log2());
     let (ev_p99, ev_max) = (fit(p99), fit(max));
     let mut warnings = Vec::new();

@@ -69,6 +69,7 @@ use serde::Serialize;
 use super::hdr_merge::{write_merged, MergeReport, Merged};
 use crate::error::{Error, Result};
 use crate::grid::{Grid, Interpolation, Unit};
+use crate::image::Image;
 use crate::io::atomic::{write_json, StagedDir};
 use crate::optics::output::stage_psf_files;
 use crate::optics::psf::{Channel, ChannelSummary, Psf};
@@ -251,7 +252,7 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
     let mut warnings = merged.report.warnings.clone();
 
     // Background from the border strip.
-    let mut img = merged.radiance.clone();
+    let mut img = merged.radiance.values.clone();
     let (mut background, mut sigma) = (Vec::new(), Vec::new());
     for c in 0..nc {
         let mut strip: Vec<f64> = img
@@ -601,7 +602,7 @@ pub fn simulate_pinhole_bracket(
     noise: f64,
     dark: f64,
     seed: u64,
-) -> (Vec<Array3<f64>>, Vec<f64>, Array3<f64>) {
+) -> (Vec<Image>, Vec<f64>, Image) {
     let (ph, pw) = psf.dim();
     let nc = psf.channels.len();
     let (h, w) = (ph + 2 * margin, pw + 2 * margin);
@@ -616,8 +617,10 @@ pub fn simulate_pinhole_bracket(
     let mut rng = crate::rng::Lcg(seed);
     let quant = |v: f64| (v.clamp(0.0, 1.0) * 255.0).round() / 255.0;
     let times: Vec<f64> = (0..frames).map(|k| 2f64.powi(-(k as i32))).collect();
-    let values =
-        times.iter().map(|&t| radiance.mapv(|e| quant(dark + e * t + noise * rng.normal()))).collect();
-    let dark_frame = Array3::from_shape_fn((h, w, nc), |_| quant(dark + noise * rng.normal()));
+    let values = times
+        .iter()
+        .map(|&t| Image::new(radiance.mapv(|e| quant(dark + e * t + noise * rng.normal()))))
+        .collect();
+    let dark_frame = Image::new(Array3::from_shape_fn((h, w, nc), |_| quant(dark + noise * rng.normal())));
     (values, times, dark_frame)
 }

@@ -25,6 +25,7 @@ use serde::Serialize;
 
 use super::capture::Capture;
 use crate::error::{Error, Result};
+use crate::image::Image;
 use crate::io::csv::write_csv;
 use crate::io::heightmap::Metadata;
 use crate::linalg::solve;
@@ -49,11 +50,12 @@ fn w(z: usize) -> f64 {
 
 impl Response {
     /// `exp(g(z))` for every value (rounded to its 8-bit count).
-    pub fn linearize(&self, values: &Array3<f64>) -> Array3<f64> {
-        Array3::from_shape_fn(values.dim(), |(i, j, c)| {
+    pub fn linearize(&self, image: &Image) -> Image {
+        let values = &image.values;
+        Image::new(Array3::from_shape_fn(values.dim(), |(i, j, c)| {
             let z = (values[[i, j, c]] * 255.0).round().clamp(0.0, 255.0) as usize;
             self.log_exposure[c][z].exp()
-        })
+        }))
     }
 
     /// Writes the curve as CSV ([`crate::io::csv::write_csv`]): one row per value
@@ -98,13 +100,13 @@ impl Response {
     /// Refuses frames this curve cannot linearize (not 8-bit, other channel count).
     pub fn check(&self, frames: &[Capture]) -> Result<()> {
         for f in frames {
-            if f.bits != 8 || f.values.dim().2 != self.log_exposure.len() {
+            if f.bits != 8 || f.image.values.dim().2 != self.log_exposure.len() {
                 return Err(Error::format(
                     &f.path,
                     format!(
                         "is {}-bit with {} channels; the response curve is for 8-bit captures with {} channels",
                         f.bits,
-                        f.values.dim().2,
+                        f.image.values.dim().2,
                         self.log_exposure.len()
                     ),
                 ));
@@ -124,7 +126,7 @@ pub fn recover_response(frames: &[Capture], times: &[f64], samples: usize, lambd
             format!("response recovery needs 2 or more frames with times, got {p}"),
         ));
     }
-    let dim = frames[0].values.dim();
+    let dim = frames[0].image.values.dim();
     for f in frames {
         if f.bits != 8 {
             return Err(Error::format(
@@ -132,8 +134,11 @@ pub fn recover_response(frames: &[Capture], times: &[f64], samples: usize, lambd
                 format!("is {}-bit; response recovery is for 8-bit captures", f.bits),
             ));
         }
-        if f.values.dim() != dim {
-            return Err(Error::format(&f.path, format!("is {:?}, the first frame {dim:?}", f.values.dim())));
+        if f.image.values.dim() != dim {
+            return Err(Error::format(
+                &f.path,
+                format!("is {:?}, the first frame {dim:?}", f.image.values.dim()),
+            ));
         }
     }
     let (tmin, tmax) = times.iter().fold((f64::INFINITY, 0.0f64), |a, &t| (a.0.min(t), a.1.max(t)));
@@ -149,7 +154,7 @@ pub fn recover_response(frames: &[Capture], times: &[f64], samples: usize, lambd
     let n = if samples == 0 { (512 / (p - 1)).clamp(50, 300) } else { samples };
     let mut order: Vec<usize> = (0..p).collect();
     order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
-    let middle = &frames[order[p / 2]].values;
+    let middle = &frames[order[p / 2]].image.values;
     let count = |v: f64| (v * 255.0).round().clamp(0.0, 255.0) as usize;
     let mut curves = Vec::new();
     let mut observed = Vec::new();
@@ -182,7 +187,7 @@ pub fn recover_response(frames: &[Capture], times: &[f64], samples: usize, lambd
         let (mut zmin, mut zmax) = (255, 0);
         for (s, &(i, j)) in picks.iter().enumerate() {
             for k in 0..p {
-                let z = count(frames[k].values[[i, j, c]]);
+                let z = count(frames[k].image.values[[i, j, c]]);
                 let wz = w(z);
                 if wz > 0.0 {
                     zmin = zmin.min(z);

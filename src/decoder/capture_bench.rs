@@ -21,7 +21,7 @@
 
 use std::path::{Path, PathBuf};
 
-use ndarray::{Array3, Zip};
+use ndarray::Zip;
 use serde::Serialize;
 
 use super::finetune::{FinetuneConfig, GeneratedScenes, HistoryEntry, SceneSource, Trainer};
@@ -32,6 +32,7 @@ use crate::calibration::capture::{read_capture, read_exposures};
 use crate::calibration::evaluate::{prepare, Footing, Psnr, Scoring, ScoringOptions};
 use crate::calibration::hdr_merge::{merge, MergeOptions};
 use crate::error::{Error, Result};
+use crate::image::Image;
 use crate::optics::psf::Psf;
 
 /// Saturation level of the 8-bit captures, fraction of full scale.
@@ -44,8 +45,8 @@ pub const SENSOR_PITCH: f64 = 4.29e-6;
 #[derive(Debug, Clone)]
 pub struct BenchScene {
     pub name: String,
-    /// The capture through the DOE, `(H, W, 3)`, 1 = clipping level.
-    pub capture: Array3<f64>,
+    /// The capture through the DOE (RGB), 1 = clipping level.
+    pub capture: Image,
     pub scoring: Scoring,
     pub report: SceneReport,
 }
@@ -117,8 +118,8 @@ pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<Ben
         ..MergeOptions::default()
     };
     let merged = merge(&frames, &times, None, None, &merge_opts)?;
-    let capture = read_capture(capture_path)?.values;
-    if capture.dim() != merged.radiance.dim() || capture.dim().2 != 3 {
+    let capture = read_capture(capture_path)?.image;
+    if capture.dim() != merged.radiance.dim() || capture.channels() != 3 {
         return Err(Error::format(
             capture_path,
             format!(
@@ -141,13 +142,13 @@ pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<Ben
         footing: Some(scoring.footing.clone()),
         error: None,
     };
-    Ok(BenchScene { name, capture: capture.mapv(|v| v / clip), scoring, report })
+    Ok(BenchScene { name, capture: Image::new(capture.values.mapv(|v| v / clip)), scoring, report })
 }
 
 /// Scores `image` (a reconstruction, or the capture itself) on the scene's footing.
-pub fn score_image(scene: &BenchScene, decoder: &str, image: &Array3<f64>) -> Result<Score> {
+pub fn score_image(scene: &BenchScene, decoder: &str, image: &Image) -> Result<Score> {
     let s = scene.scoring.score(decoder, image)?;
-    let min_output = image.iter().copied().fold(f64::INFINITY, f64::min);
+    let min_output = image.values.iter().copied().fold(f64::INFINITY, f64::min);
     Ok(Score {
         scene: scene.name.clone(),
         decoder: decoder.into(),
@@ -160,11 +161,11 @@ pub fn score_image(scene: &BenchScene, decoder: &str, image: &Array3<f64>) -> Re
 
 /// Reconstructs the scene's capture with `net` (negatives kept) and scores it; returns the
 /// reconstruction too.
-pub fn score_decoder(scene: &BenchScene, decoder: &str, net: &UNet) -> Result<(Score, Array3<f32>)> {
-    let x = scene.capture.mapv(|v| v as f32);
+pub fn score_decoder(scene: &BenchScene, decoder: &str, net: &UNet) -> Result<(Score, Image<f32>)> {
+    let x = scene.capture.to_f32();
     let opts = ReconstructOptions { negatives: Negatives::Keep, ..ReconstructOptions::default() };
     let (y, _) = reconstruct(net, &x, &opts)?;
-    Ok((score_image(scene, decoder, &y.mapv(f64::from))?, y))
+    Ok((score_image(scene, decoder, &y.to_f64())?, y))
 }
 
 /// Exposure of the pictures `run` writes, stops: highlights a few times the clipping level
@@ -174,13 +175,15 @@ pub const PICTURE_EV: f64 = -2.0;
 /// Writes `images` of `scene` as tone-mapped PNGs (sRGB of clip(y 2^[`PICTURE_EV`], 0, 1))
 /// into `dir`, each named by its key, with the registered reference (black where it is not
 /// scored) as `reference.png`.
-fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(String, &Array3<f32>)]) -> Result<()> {
-    let mut reference = scene.scoring.reference.mapv(|v| v as f32);
-    Zip::from(reference.lanes_mut(ndarray::Axis(2))).and(&scene.scoring.mask).for_each(|mut px, &inside| {
-        if !inside {
-            px.fill(0.0);
-        }
-    });
+fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(String, &Image<f32>)]) -> Result<()> {
+    let mut reference = scene.scoring.reference.to_f32();
+    Zip::from(reference.values.lanes_mut(ndarray::Axis(2))).and(&scene.scoring.mask).for_each(
+        |mut px, &inside| {
+            if !inside {
+                px.fill(0.0);
+            }
+        },
+    );
     let meta = crate::io::heightmap::Metadata {
         pitch: None,
         unit: None,
@@ -344,11 +347,11 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
     let stems: Vec<String> = cfg.decoders.iter().map(|p| picture_name(p, &mut taken)).collect();
     // Scores and pictures per scene, in decoder order.
     let mut scores: Vec<Vec<Score>> = Vec::new();
-    let mut images: Vec<Vec<(String, Array3<f32>)>> = Vec::new();
+    let mut images: Vec<Vec<(String, Image<f32>)>> = Vec::new();
     for s in &scenes {
         progress(&format!("scoring the decoders on {}", s.name), 0);
         let mut sc = vec![score_image(s, CAPTURE, &s.capture)?];
-        let mut im = vec![("capture".to_string(), s.capture.mapv(|v| v as f32))];
+        let mut im = vec![("capture".to_string(), s.capture.to_f32())];
         for ((net, name), stem) in nets.iter().zip(&names[1..]).zip(&stems) {
             let (score, y) = score_decoder(s, name, net)?;
             sc.push(score);
@@ -373,7 +376,7 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
         None => None,
     };
     for (s, im) in scenes.iter().zip(&images) {
-        let refs: Vec<(String, &Array3<f32>)> = im.iter().map(|(n, y)| (n.clone(), y)).collect();
+        let refs: Vec<(String, &Image<f32>)> = im.iter().map(|(n, y)| (n.clone(), y)).collect();
         write_pictures(&out.join(&s.name), s, &refs)?;
     }
     let report = BenchReport {
@@ -407,7 +410,7 @@ fn run_finetune(
     device: &burn::tensor::Device,
     out: &Path,
     progress: &mut dyn FnMut(&str, u64),
-) -> Result<(FinetuneReport, Vec<Array3<f32>>)> {
+) -> Result<(FinetuneReport, Vec<Image<f32>>)> {
     let start = DecoderWeights::read(&f.init)?;
     let source: Box<dyn SceneSource> = match &f.train_data {
         Some(dir) => Box::new(super::dataset::HdrScenes::new(
@@ -439,7 +442,7 @@ fn run_finetune(
         if trainer.step() % f.evaluate_every == 0 || trainer.step() == steps {
             progress(&format!("scoring step {} on the real scenes", trainer.step()), 0);
             let net = UNet::from_weights(&trainer.decoder()?, device);
-            let (sc, im): (Vec<Score>, Vec<Array3<f32>>) = scenes
+            let (sc, im): (Vec<Score>, Vec<Image<f32>>) = scenes
                 .iter()
                 .map(|s| score_decoder(s, name, &net))
                 .collect::<Result<Vec<_>>>()?

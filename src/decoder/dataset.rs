@@ -37,6 +37,7 @@ use sha2::{Digest, Sha256};
 
 use super::finetune::SceneSource;
 use crate::error::{Error, Result};
+use crate::image::Image;
 use crate::rng::Lcg;
 
 /// Negative values summing to at most this fraction of an image's positive ones are taken as
@@ -49,8 +50,8 @@ pub const NEGATIVE_NOISE: f32 = 0.2;
 pub struct HdrImage {
     /// The path relative to the folder it was read from.
     pub name: String,
-    /// Linear RGB, `(H, W, 3)`, finite and non-negative.
-    pub pixels: Array3<f32>,
+    /// Linear RGB, finite and non-negative.
+    pub pixels: Image<f32>,
 }
 
 impl HdrImage {
@@ -126,7 +127,7 @@ fn read_image(root: &Path, path: &PathBuf) -> Result<HdrImage> {
     }
     pixels.mapv_inplace(|v| v.max(0.0));
     let name = path.strip_prefix(root).unwrap_or(path).to_string_lossy().replace('\\', "/");
-    Ok(HdrImage { name, pixels })
+    Ok(HdrImage { name, pixels: Image::new(pixels) })
 }
 
 /// Whether the image named `name` is held out for validation (see the module docs).
@@ -235,16 +236,16 @@ impl SceneSource for HdrScenes {
         )
     }
 
-    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Array3<f32>> {
+    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Image<f32>> {
         let k = ((rng.uniform() * self.images.len() as f64) as usize).min(self.images.len() - 1);
         let img = &self.images[k];
         let mut out = if img.is_panorama() {
             let yaw = rng.uniform() * std::f64::consts::TAU;
             let pitch = (rng.uniform() * 2.0 - 1.0) * 30f64.to_radians();
             let k = 1.0 + 0.4 * rng.uniform();
-            perspective_view(&img.pixels, yaw, pitch, k, rows, cols)
+            perspective_view(&img.pixels.values, yaw, pitch, k, rows, cols)
         } else {
-            photo_crop(&img.pixels, rng, rows, cols)
+            photo_crop(&img.pixels.values, rng, rows, cols)
         };
         if self.colour_jitter {
             jitter_colour(&mut out, rng, self.white_balance);
@@ -252,7 +253,7 @@ impl SceneSource for HdrScenes {
         if out.iter().all(|&v| v == 0.0) {
             return Err(Error::Data(format!("{}: a black view was drawn", img.name)));
         }
-        Ok(out)
+        Ok(Image::new(out))
     }
 }
 
@@ -398,7 +399,7 @@ mod tests {
         assert!((3..=14).contains(&count), "{count} of 40 held out at 1 in 5");
         // Adding images leaves the others where they were.
         assert!(names.iter().zip(&held).all(|(n, &b)| is_validation(n, 5) == b));
-        let one = vec![HdrImage { name: "a.exr".into(), pixels: Array3::ones((4, 4, 3)) }];
+        let one = vec![HdrImage { name: "a.exr".into(), pixels: Image::new(Array3::ones((4, 4, 3))) }];
         assert!(split(one, 5).is_err());
     }
 

@@ -24,7 +24,6 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use burn::tensor::{Tensor, TensorData};
-use ndarray::Array3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -33,17 +32,18 @@ use crate::decoder::unet::{is_trainable, tensor_values, UNet};
 use crate::decoder::weights::{encode_safetensors, read_safetensors, DecoderWeights, NamedTensor};
 use crate::decoder::{to_tensor, weights};
 use crate::error::{Error, Result};
+use crate::image::Image;
 use crate::io::atomic::write_bytes;
 use crate::optics::convolve::Convolver;
 use crate::optics::psf::Psf;
 use crate::rng::Lcg;
 
-/// Where training scenes come from: linear HDR `(rows, cols, 3)` arrays, drawn with `rng`.
+/// Where training scenes come from: linear HDR RGB images, drawn with `rng`.
 pub trait SceneSource: Sync {
     /// A short description for the decoder's metadata.
     fn describe(&self) -> String;
     /// One scene of exactly `rows x cols`.
-    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Array3<f32>>;
+    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Image<f32>>;
 }
 
 /// Scenes from a generator `f(seed, rows, cols)` (such as a procedural scene generator), each
@@ -55,16 +55,16 @@ pub struct GeneratedScenes<F> {
 
 impl<F> SceneSource for GeneratedScenes<F>
 where
-    F: Fn(u64, usize, usize) -> Array3<f32> + Sync,
+    F: Fn(u64, usize, usize) -> Image<f32> + Sync,
 {
     fn describe(&self) -> String {
         self.name.to_string()
     }
 
-    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Array3<f32>> {
+    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Image<f32>> {
         let seed = (rng.uniform() * (1u64 << 53) as f64) as u64;
         let scene = (self.generate)(seed, rows, cols);
-        if let Some(v) = scene.iter().find(|v| !v.is_finite() || **v < 0.0) {
+        if let Some(v) = scene.values.iter().find(|v| !v.is_finite() || **v < 0.0) {
             return Err(Error::Data(format!("{} (seed {seed}) made the value {v}", self.name)));
         }
         Ok(scene)
@@ -555,7 +555,7 @@ impl<'a> Trainer<'a> {
             .par_iter()
             .map(|&seed| {
                 let mut g = Lcg(seed);
-                let mut scene = source.scene(&mut g, rows, cols)?;
+                let mut scene = source.scene(&mut g, rows, cols)?.values;
                 if scene.dim() != (rows, cols, 3) {
                     return Err(Error::Data(format!(
                         "the scene source gave {:?}, not {rows} x {cols} x 3",
@@ -568,14 +568,14 @@ impl<'a> Trainer<'a> {
                 if g.uniform() < 0.5 {
                     scene.invert_axis(ndarray::Axis(0));
                 }
-                measure(&scene.as_standard_layout().to_owned(), &self.conv, &model, &mut g)
+                measure(&Image::new(scene.as_standard_layout().to_owned()), &self.conv, &model, &mut g)
             })
             .collect()
     }
 
     fn tensors(&self, batch: &[Measurement], device: &burn::tensor::Device) -> (Tensor<4>, Tensor<4>) {
-        let caps: Vec<&Array3<f32>> = batch.iter().map(|m| &m.capture).collect();
-        let tgts: Vec<&Array3<f32>> = batch.iter().map(|m| &m.target).collect();
+        let caps: Vec<&Image<f32>> = batch.iter().map(|m| &m.capture).collect();
+        let tgts: Vec<&Image<f32>> = batch.iter().map(|m| &m.target).collect();
         (to_tensor(&caps, device), to_tensor(&tgts, device))
     }
 

@@ -12,9 +12,10 @@
 //! `h * x` is [`Convolver`]'s linear convolution (`crate::optics::convolve`), over the crop
 //! plus the PSF's margins, so light from outside the crop lands in it as in a real capture.
 
-use ndarray::{s, Array3};
+use ndarray::s;
 
 use crate::error::{Error, Result};
+use crate::image::Image;
 use crate::optics::convolve::Convolver;
 use crate::rng::Lcg;
 
@@ -52,9 +53,9 @@ impl Default for MeasurementModel {
 #[derive(Debug, Clone)]
 pub struct Measurement {
     /// The clipped, exposure-scaled target HDR (crop size).
-    pub target: Array3<f32>,
+    pub target: Image<f32>,
     /// The simulated capture `y` (crop size).
-    pub capture: Array3<f32>,
+    pub capture: Image<f32>,
     /// The exposure factor applied to the scene.
     pub exposure: f64,
     /// Fraction of noise-free sensor values `h * x >= 1` in the crop.
@@ -64,7 +65,7 @@ pub struct Measurement {
 /// Simulates one capture of `scene`, which holds the crop plus the convolver's margins (see
 /// the module docs). Refuses a scene too dark to expose (its brightest values are zero).
 pub fn measure(
-    scene: &Array3<f32>,
+    scene: &Image<f32>,
     conv: &Convolver,
     model: &MeasurementModel,
     rng: &mut Lcg,
@@ -72,7 +73,7 @@ pub fn measure(
     let (t, l, b, r) = conv.margins();
     let (h, w, _) = scene.dim();
     let (ch, cw) = (h - t - b, w - l - r);
-    let crop = |a: &Array3<f64>| a.slice(s![t..t + ch, l..l + cw, ..]).to_owned();
+    let crop = |a: &Image| a.values.slice(s![t..t + ch, l..l + cw, ..]).to_owned();
     // Exposure: the (1 - f) quantile of the unscaled sensor values is set to 1.
     let f = model.saturation.0 + (model.saturation.1 - model.saturation.0) * rng.uniform();
     let blurred = crop(&conv.convolve(scene)?);
@@ -88,7 +89,7 @@ pub fn measure(
     }
     let exposure = 1.0 / q;
     let (lo, hi) = model.target_range;
-    let scaled = scene.mapv(|x| ((x as f64 * exposure) as f32).clamp(lo, hi));
+    let scaled = Image::new(scene.values.mapv(|x| ((x as f64 * exposure) as f32).clamp(lo, hi)));
     let sensor = crop(&conv.convolve(&scaled)?);
     let saturated_fraction = sensor.iter().filter(|&&y| y >= 1.0).count() as f64 / sensor.len() as f64;
     let (slo, shi) = model.sensor_range;
@@ -99,15 +100,15 @@ pub fn measure(
         let v = levels.map_or(v, |l| (v * l).round() / l);
         (v as f32).clamp(slo, shi)
     });
-    let target = scaled.slice(s![t..t + ch, l..l + cw, ..]).to_owned();
-    Ok(Measurement { target, capture, exposure, saturated_fraction })
+    let target = Image::new(scaled.values.slice(s![t..t + ch, l..l + cw, ..]).to_owned());
+    Ok(Measurement { target, capture: Image::new(capture), exposure, saturated_fraction })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::optics::convolve::psf_of;
-    use ndarray::Array2;
+    use ndarray::{Array2, Array3};
 
     #[test]
     fn exposure_saturates_the_chosen_fraction() {
@@ -118,16 +119,16 @@ mod tests {
         let conv = Convolver::new(&psf, (72, 72)).unwrap();
         let mut g = Lcg(3);
         // A log-normal scene: dynamic range of a few hundred, nothing clipped at 64 after scaling.
-        let scene = Array3::from_shape_fn((72, 72, 3), |_| (1.2 * g.normal()).exp() as f32);
+        let scene = Image::new(Array3::from_shape_fn((72, 72, 3), |_| (1.2 * g.normal()).exp() as f32));
         let model = MeasurementModel::default();
         for seed in 0..5 {
             let m = measure(&scene, &conv, &model, &mut Lcg(seed)).unwrap();
             assert_eq!(m.capture.dim(), (64, 64, 3));
             assert!((0.0099..=0.0201).contains(&m.saturated_fraction), "{}", m.saturated_fraction);
-            assert!(m.capture.iter().all(|&y| (1e-5..=1.0).contains(&y)));
-            assert!(m.target.iter().all(|&x| (1e-5..=64.0).contains(&x)));
+            assert!(m.capture.values.iter().all(|&y| (1e-5..=1.0).contains(&y)));
+            assert!(m.target.values.iter().all(|&x| (1e-5..=64.0).contains(&x)));
         }
         // A black scene cannot be exposed.
-        assert!(measure(&Array3::zeros((72, 72, 3)), &conv, &model, &mut Lcg(1)).is_err());
+        assert!(measure(&Image::new(Array3::zeros((72, 72, 3))), &conv, &model, &mut Lcg(1)).is_err());
     }
 }

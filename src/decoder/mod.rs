@@ -21,9 +21,10 @@ pub mod unet;
 pub mod weights;
 
 use burn::tensor::{Device, Tensor, TensorData};
-use ndarray::{Array3, Array4};
+use ndarray::Array4;
 
 use crate::error::Result;
+use crate::image::Image;
 use unet::{tensor_values, UNet};
 
 /// The device the decoder runs on: burn's Flex CPU backend, or with `gpu` the first CUDA GPU,
@@ -45,14 +46,14 @@ pub fn default_init() -> std::path::PathBuf {
     std::path::PathBuf::from("built-in:paper-simulated-psf")
 }
 
-/// A batch of `(H, W, 3)` images as an NCHW tensor on `device`.
-pub fn to_tensor(images: &[&Array3<f32>], device: &Device) -> Tensor<4> {
+/// A batch of images of one size as an NCHW tensor on `device`.
+pub fn to_tensor(images: &[&Image<f32>], device: &Device) -> Tensor<4> {
     let (h, w, c) = images[0].dim();
     let mut data: Vec<f32> = Vec::with_capacity(images.len() * h * w * c);
     for img in images {
         assert_eq!(img.dim(), (h, w, c), "a batch of one size");
         for ch in 0..c {
-            data.extend(img.index_axis(ndarray::Axis(2), ch).iter());
+            data.extend(img.values.index_axis(ndarray::Axis(2), ch).iter());
         }
     }
     Tensor::from_data(TensorData::new(data, [images.len(), c, h, w]), device)
@@ -66,8 +67,8 @@ pub fn from_tensor(t: Tensor<4>) -> Result<Array4<f32>> {
     Ok(nchw.permuted_axes([0, 2, 3, 1]).as_standard_layout().to_owned())
 }
 
-/// The network's output for one `(H, W, 3)` image (H, W multiples of 16), no clamping.
-pub fn infer(net: &UNet, x: &Array3<f32>) -> Result<Array3<f32>> {
+/// The network's output for one RGB image (H, W multiples of 16), no clamping.
+pub fn infer(net: &UNet, x: &Image<f32>) -> Result<Image<f32>> {
     let y = from_tensor(net.forward(to_tensor(&[x], net.device()))?)?;
-    Ok(y.index_axis_move(ndarray::Axis(0), 0))
+    Ok(Image::new(y.index_axis_move(ndarray::Axis(0), 0)))
 }

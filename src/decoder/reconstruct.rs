@@ -35,6 +35,7 @@ use serde::Serialize;
 use crate::decoder::infer;
 use crate::decoder::unet::{UNet, SIZE_MULTIPLE};
 use crate::error::{Error, Result};
+use crate::image::Image;
 use crate::report::tone::tone_map;
 
 /// An upper bound of the U-Net's receptive-field radius, pixels (see the module docs),
@@ -100,9 +101,9 @@ pub struct ReconstructReport {
 /// Reads an RGB capture (8- or 16-bit PNG or TIFF, linear) as `count / (2^bits - 1)` in `f32`,
 /// through the one capture reader, [`crate::calibration::capture::read_capture`]; the decoder
 /// takes three channels.
-pub fn read_capture(path: &Path) -> Result<Array3<f32>> {
+pub fn read_capture(path: &Path) -> Result<Image<f32>> {
     let c = crate::calibration::capture::read_capture(path)?;
-    let channels = c.values.dim().2;
+    let channels = c.image.channels();
     if channels != 3 {
         return Err(Error::format(
             path,
@@ -111,7 +112,7 @@ pub fn read_capture(path: &Path) -> Result<Array3<f32>> {
     }
     // Back to the counts, exact, then divided in f32.
     let full = c.full_scale();
-    Ok(c.values.mapv(|v| (v * full).round() as f32 / full as f32))
+    Ok(Image::new(c.image.values.mapv(|v| (v * full).round() as f32 / full as f32)))
 }
 
 /// Index `i` (counted from `-border`) of a mirrored axis of length `n`: `x[-i] = x[i]` and
@@ -160,7 +161,7 @@ fn windows(n: usize, tile: usize, overlap: usize) -> Vec<(usize, usize, usize, u
 
 /// The network's raw output for an image whose sides are multiples of 16, tiled when larger
 /// than `tile`. Returns the output and the number of passes.
-pub fn infer_tiled(net: &UNet, x: &Array3<f32>, tile: usize, overlap: usize) -> Result<(Array3<f32>, usize)> {
+pub fn infer_tiled(net: &UNet, x: &Image<f32>, tile: usize, overlap: usize) -> Result<(Image<f32>, usize)> {
     let (h, w, _) = x.dim();
     if !tile.is_multiple_of(SIZE_MULTIPLE) || !overlap.is_multiple_of(SIZE_MULTIPLE) || tile <= 2 * overlap {
         return Err(Error::param(
@@ -173,25 +174,26 @@ pub fn infer_tiled(net: &UNet, x: &Array3<f32>, tile: usize, overlap: usize) -> 
         return Ok((infer(net, x)?, 1));
     }
     let mut out = Array3::zeros(x.dim());
+    let x = &x.values;
     for &(r0, r1, cr0, cr1) in &rows {
         for &(c0, c1, cc0, cc1) in &cols {
-            let y = infer(net, &x.slice(s![r0..r1, c0..c1, ..]).to_owned())?;
-            out.slice_mut(s![cr0..cr1, cc0..cc1, ..]).assign(&y.slice(s![
+            let y = infer(net, &Image::new(x.slice(s![r0..r1, c0..c1, ..]).to_owned()))?;
+            out.slice_mut(s![cr0..cr1, cc0..cc1, ..]).assign(&y.values.slice(s![
                 cr0 - r0..cr1 - r0,
                 cc0 - c0..cc1 - c0,
                 ..
             ]));
         }
     }
-    Ok((out, rows.len() * cols.len()))
+    Ok((Image::new(out), rows.len() * cols.len()))
 }
 
-/// Reconstructs the HDR image of capture `x` (`(H, W, 3)`, 1 = clipping level).
+/// Reconstructs the HDR image of capture `x` (RGB, 1 = clipping level).
 pub fn reconstruct(
     net: &UNet,
-    x: &Array3<f32>,
+    x: &Image<f32>,
     opts: &ReconstructOptions,
-) -> Result<(Array3<f32>, ReconstructReport)> {
+) -> Result<(Image<f32>, ReconstructReport)> {
     let (h, w, c) = x.dim();
     if c != 3 || h == 0 || w == 0 {
         return Err(Error::param("capture", format!("is {h} x {w} x {c}; an RGB image is needed")));
@@ -204,11 +206,11 @@ pub fn reconstruct(
             opts.overlap
         ));
     }
-    let padded = pad_mirrored(x, opts.border);
+    let padded = Image::new(pad_mirrored(&x.values, opts.border));
     let (ph, pw, _) = padded.dim();
     let (y, tiles) = infer_tiled(net, &padded, opts.tile, opts.overlap)?;
     let b = opts.border;
-    let mut y = y.slice(s![b..b + h, b..b + w, ..]).to_owned();
+    let mut y = y.values.slice(s![b..b + h, b..b + w, ..]).to_owned();
     let values_below_zero = y.iter().filter(|&&v| v < 0.0).count();
     let values_below_minus_one = y.iter().filter(|&&v| v < -1.0).count();
     let min_raw = y.iter().copied().fold(f32::INFINITY, f32::min);
@@ -232,7 +234,7 @@ pub fn reconstruct(
         max,
         warnings,
     };
-    Ok((y, report))
+    Ok((Image::new(y), report))
 }
 
 /// A reconstruction written to disk (the command's JSON report).
@@ -272,7 +274,8 @@ pub fn reconstruct_file(
         ("decoder_sha256".to_string(), decoder_sha256.clone()),
         ("negatives".to_string(), format!("{:?}", opts.negatives).to_lowercase()),
     ];
-    let channels: Vec<ndarray::Array2<f32>> = (0..3).map(|c| y.slice(s![.., .., c]).to_owned()).collect();
+    let channels: Vec<ndarray::Array2<f32>> =
+        (0..3).map(|c| y.values.slice(s![.., .., c]).to_owned()).collect();
     let meta = crate::io::heightmap::Metadata { pitch: None, unit: None, text };
     crate::io::exr::write_exr(exr, &[("R", &channels[0]), ("G", &channels[1]), ("B", &channels[2])], &meta)?;
     let png_meta = meta.with("tone_map", format!("sRGB of clip(y * 2^{ev}, 0, 1)"));

@@ -19,15 +19,16 @@
 
 use ndarray::{Array2, Array3};
 
+use crate::image::Image;
 use crate::rng::Lcg;
 
-/// A seeded procedural HDR scene, `(height, width, 3)` linear radiance in `[1e-5, 64]`.
-pub fn procedural_scene(seed: u64, height: usize, width: usize) -> Array3<f32> {
+/// A seeded procedural HDR scene, `height x width` RGB, linear radiance in `[1e-5, 64]`.
+pub fn procedural_scene(seed: u64, height: usize, width: usize) -> Image<f32> {
     let mut rng = Lcg(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0x5DEE_CE66_D1CE_5EED);
     let (h, w) = (height, width);
     let mut img = Array3::<f64>::zeros((h, w, 3));
     if h == 0 || w == 0 {
-        return img.mapv(|v| v as f32);
+        return Image::new(img).to_f32();
     }
     let size = h.min(w) as f64;
     let mut uni = |a: f64, b: f64| a + (b - a) * rng.uniform();
@@ -132,7 +133,7 @@ pub fn procedural_scene(seed: u64, height: usize, width: usize) -> Array3<f32> {
             }
         }
     }
-    img.mapv(|v| v.clamp(1e-5, 64.0) as f32)
+    Image::new(img.mapv(|v| v.clamp(1e-5, 64.0))).to_f32()
 }
 
 /// Three octaves of value noise in `[0, 1]` with the coarsest lattice cell `cell` pixels.
@@ -163,8 +164,8 @@ mod tests {
     use super::*;
 
     /// The scale that saturates `fraction` of the samples (the paper's exposure rule).
-    fn exposure_for(scene: &Array3<f32>, fraction: f64) -> f64 {
-        let mut v: Vec<f32> = scene.iter().copied().collect();
+    fn exposure_for(scene: &Image<f32>, fraction: f64) -> f64 {
+        let mut v: Vec<f32> = scene.values.iter().copied().collect();
         v.sort_by(f32::total_cmp);
         1.0 / v[((1.0 - fraction) * v.len() as f64) as usize] as f64
     }
@@ -175,7 +176,7 @@ mod tests {
         assert_eq!(a.dim(), (96, 128, 3));
         assert_eq!(a, procedural_scene(7, 96, 128));
         assert_ne!(a, procedural_scene(8, 96, 128));
-        assert!(a.iter().all(|&v| (1e-5..=64.0).contains(&v)));
+        assert!(a.values.iter().all(|&v| (1e-5..=64.0).contains(&v)));
         assert_eq!(procedural_scene(1, 0, 5).dim(), (0, 5, 3));
     }
 
@@ -184,6 +185,7 @@ mod tests {
         for seed in 0..8 {
             let s = procedural_scene(seed, 160, 160);
             let k = exposure_for(&s, 0.015);
+            let s = s.values;
             let n = s.len() as f64;
             let saturated = s.iter().filter(|&&v| v as f64 * k > 1.0).count() as f64 / n;
             assert!((0.01..=0.02).contains(&saturated), "seed {seed}: {saturated}");

@@ -15,6 +15,7 @@ use rustfft::num_complex::Complex64;
 use rustfft::{Fft, FftPlanner};
 
 use crate::error::{Error, Result};
+use crate::image::Image;
 use crate::optics::fft::good_size;
 use crate::optics::psf::Psf;
 
@@ -89,7 +90,8 @@ impl Convolver {
     }
 
     /// `h * x` per channel, the same size as the scene (zero outside it).
-    pub fn convolve(&self, scene: &Array3<f32>) -> Result<Array3<f64>> {
+    pub fn convolve(&self, scene: &Image<f32>) -> Result<Image> {
+        let scene = &scene.values;
         let (h, w, nc) = scene.dim();
         if (h, w) != self.scene || nc != self.spectra.len() {
             return Err(Error::param(
@@ -118,7 +120,7 @@ impl Convolver {
                 }
             }
         }
-        Ok(out)
+        Ok(Image::new(out))
     }
 }
 
@@ -164,7 +166,7 @@ mod tests {
     #[test]
     fn fft_convolution_equals_direct_summation() {
         let mut g = Lcg(7);
-        let scene = Array3::from_shape_fn((13, 18, 3), |_| g.uniform() as f32 * 10.0);
+        let scene = Image::new(Array3::from_shape_fn((13, 18, 3), |_| g.uniform() as f32 * 10.0));
         // Odd and even kernel sizes; per PSF a dense, a one-tap and a sparse channel.
         for (kh, kw) in [(5, 4), (3, 7), (6, 6)] {
             let kernels = [
@@ -174,7 +176,8 @@ mod tests {
             ];
             let psf = psf_of(&kernels);
             let conv = Convolver::new(&psf, (13, 18)).unwrap();
-            let fast = conv.convolve(&scene).unwrap();
+            let fast = conv.convolve(&scene).unwrap().values;
+            let scene = &scene.values;
             for c in 0..3 {
                 let x = scene.slice(s![.., .., c]).mapv(f64::from);
                 let direct = convolve_direct(&x, psf.channels[c].grid.values());
@@ -191,6 +194,6 @@ mod tests {
             &psf_of(&[Array2::ones((3, 3)), Array2::ones((3, 3)), Array2::ones((3, 3))]),
             (13, 18),
         );
-        assert!(conv.unwrap().convolve(&Array3::zeros((12, 18, 3))).is_err());
+        assert!(conv.unwrap().convolve(&Image::new(Array3::zeros((12, 18, 3)))).is_err());
     }
 }

@@ -11,6 +11,7 @@ use doefab::calibration::capture::{read_capture, read_exposures, Capture};
 use doefab::calibration::hdr_merge::{merge, MergeOptions};
 use doefab::calibration::response::recover_response;
 use doefab::decoder::scenes::procedural_scene;
+use doefab::image::Image;
 use ndarray::Array3;
 
 /// `deepoptics-hdr/<rel>` of the shared data set (the test fails when it is missing).
@@ -48,7 +49,7 @@ fn real_brackets_merge_into_an_hdr_every_frame_agrees_with() {
         let k = list.frames.iter().position(|f| f.1 == list.reference_exposure.unwrap()).unwrap();
         let scale = m.report.frames[k].exposure_used / times[k];
         let (mut dev, mut n) = (Vec::new(), 0);
-        for (z, e) in frames[k].values.iter().zip(&m.radiance) {
+        for (z, e) in frames[k].image.values.iter().zip(&m.radiance) {
             if (0.2..0.9).contains(z) {
                 dev.push((z / scale - e).abs() / e);
                 n += 1;
@@ -71,7 +72,7 @@ fn debevec_malik_recovers_a_known_gamma_curve() {
         .iter()
         .map(|&t| Capture {
             path: PathBuf::from(format!("t{t}.png")),
-            values: scene.mapv(|e| ((e * t * 0.5).min(1.0).powf(1.0 / 2.2) * 255.0).round() / 255.0),
+            image: (scene.mapv(|e| ((e * t * 0.5).min(1.0).powf(1.0 / 2.2) * 255.0).round() / 255.0)).into(),
             bits: 8,
         })
         .collect();
@@ -167,19 +168,25 @@ fn pinhole_bracket(
                     v[[i, j, c]] = 0.4;
                 }
             }
-            Capture { path: PathBuf::from(format!("frame{k}.png")), values: v, bits: 8 }
+            Capture { path: PathBuf::from(format!("frame{k}.png")), image: v.into(), bits: 8 }
         })
         .collect();
     let darks = (0..2)
         .map(|k| Capture {
             path: PathBuf::from(format!("dark{k}.png")),
-            values: Array3::from_shape_fn((h, w, nc), |(i, j, c)| {
+            image: (Array3::from_shape_fn((h, w, nc), |(i, j, c)| {
                 quant(pattern[[i, j, c]] + 0.002 * rng.normal())
-            }),
+            }))
+            .into(),
             bits: 8,
         })
         .collect();
     (frames, times, darks)
+}
+
+/// The image of an array (the tests build their scenes as arrays).
+fn im(a: &Array3<f64>) -> Image {
+    Image::new(a.clone())
 }
 
 fn relative_l2(a: &Array3<f64>, b: &Array3<f64>) -> f64 {
@@ -257,7 +264,7 @@ use doefab::grid::{Grid, Interpolation, Unit};
 /// error of that sample is sqrt(1.1) - 1 = 0.048809, PSNR_gamma = 10 log10(48 / 0.048809^2).
 #[test]
 fn psnr_matches_the_hand_computed_value() {
-    let x = Array3::from_elem((4, 4, 3), 1.0);
+    let x = Image::new(Array3::from_elem((4, 4, 3), 1.0));
     let mut y = x.clone();
     y[[2, 1, 0]] = 1.1;
     let p = psnr(&x, &y, None).unwrap();
@@ -280,7 +287,7 @@ fn psnr_matches_the_hand_computed_value() {
     assert!((q.linear_db - 10.0 * (48.0f64 / 2.25).log10()).abs() < 1e-9, "{q:?}");
     assert!((q.gamma_db - 10.0 * 48.0f64.log10()).abs() < 1e-9, "{q:?}");
     assert_eq!((q.min_output, q.negative_fraction), (-0.5, 1.0 / 48.0));
-    assert!(psnr(&x, &Array3::zeros((4, 5, 3)), None).is_err());
+    assert!(psnr(&x, &Image::new(Array3::zeros((4, 5, 3))), None).is_err());
     n[[0, 0, 0]] = f64::NAN;
     assert!(psnr(&x, &n, None).unwrap_err().to_string().contains("non-finite"));
 }
@@ -313,7 +320,8 @@ fn a_known_affine_warp_is_recovered() {
     let a = [[s * t.cos(), -s * t.sin()], [s * t.sin(), s * t.cos()]];
     let b = [12.0, -7.0];
     let target = warped(&img, a, b);
-    let reg = register_affine(&luminance(&img), &luminance(&target), &RegisterOptions::default()).unwrap();
+    let reg = register_affine(&luminance(&im(&img)), &luminance(&im(&target)), &RegisterOptions::default())
+        .unwrap();
     for p in [[0.0, 0.0], [319.0, 0.0], [0.0, 319.0], [319.0, 319.0], [160.0, 160.0]] {
         let got = reg.affine.apply(p);
         let want = [a[0][0] * p[0] + a[0][1] * p[1] + b[0], a[1][0] * p[0] + a[1][1] * p[1] + b[1]];
@@ -324,16 +332,16 @@ fn a_known_affine_warp_is_recovered() {
     assert!(reg.residual_rms_px < 0.2 && reg.tiles_used >= 6, "{reg:?}");
     // Scored as a capture at half the reference's exposure: the gain comes back, and the
     // reference registered onto the capture matches it far better than the unregistered one.
-    let capture = target.mapv(|v| (0.5 * v).min(1.0));
+    let capture = Image::new(target.mapv(|v| (0.5 * v).min(1.0)));
     let affine = ScoringOptions {
         register: RegisterOptions { model: Model::Affine, ..RegisterOptions::default() },
         ..ScoringOptions::default()
     };
-    let s = prepare(&img, &capture, None, &affine).unwrap();
+    let s = prepare(&im(&img), &im(&capture), None, &affine).unwrap();
     assert!((s.footing.gain - 0.5).abs() < 0.01, "{:?}", s.footing.gain);
     let e = s.score("capture", &capture).unwrap();
-    let registered = psnr(&s.reference.mapv(|v| v.min(1.0)), &capture, Some(&s.mask)).unwrap();
-    let plain = psnr(&img.mapv(|v| (0.5 * v).min(1.0)), &capture, Some(&s.mask)).unwrap();
+    let registered = psnr(&Image::new(s.reference.mapv(|v| v.min(1.0))), &capture, Some(&s.mask)).unwrap();
+    let plain = psnr(&Image::new(img.mapv(|v| (0.5 * v).min(1.0))), &capture, Some(&s.mask)).unwrap();
     assert!(registered.linear_db > plain.linear_db + 10.0, "{} vs {}", registered.linear_db, plain.linear_db);
     assert!(e.all.pixels == s.footing.pixels_scored);
     assert!(s.footing.pixels_scored < 320 * 320);
@@ -341,7 +349,7 @@ fn a_known_affine_warp_is_recovered() {
     // the mean share, computed here from the same pixels.
     let tinted =
         ndarray::Array3::from_shape_fn(capture.dim(), |(i, j, c)| capture[[i, j, c]] * [1.1, 1.0, 0.9][c]);
-    let t = s.score("tinted", &tinted).unwrap();
+    let t = s.score("tinted", &im(&tinted)).unwrap();
     let mut sums = [0.0f64; 3];
     for ((i, j), &m) in s.mask.indexed_iter() {
         if m && !s.saturated[[i, j]] {
@@ -358,7 +366,9 @@ fn a_known_affine_warp_is_recovered() {
     }
     // Unrelated images are refused rather than registered.
     let other = procedural_scene(99, 320, 320).mapv(|v| v as f64);
-    assert!(register_affine(&luminance(&img), &luminance(&other), &RegisterOptions::default()).is_err());
+    assert!(
+        register_affine(&luminance(&im(&img)), &luminance(&im(&other)), &RegisterOptions::default()).is_err()
+    );
 }
 
 /// White noise blurred by a 7 x 7 box twice: texture that matches at one offset only, in every
@@ -419,7 +429,7 @@ fn a_two_layer_parallax_is_followed_by_the_local_field_and_refused_by_the_affine
         let (p, _) = source([j as f64, i as f64]);
         grids[c].sample_index(p[1], p[0], Interpolation::Bilinear).unwrap_or(0.0)
     });
-    let (lr, lt) = (luminance(&reference), luminance(&target));
+    let (lr, lt) = (luminance(&im(&reference)), luminance(&im(&target)));
     let affine = register_affine(&lr, &lt, &RegisterOptions::default());
     assert!(affine.is_err(), "{affine:?}");
     let reg = register_local(&lr, &lt, &RegisterOptions::default()).unwrap();
@@ -448,8 +458,8 @@ fn a_two_layer_parallax_is_followed_by_the_local_field_and_refused_by_the_affine
         }
     }
     assert!(checked[0] > 200 && checked[1] > 100, "{checked:?} points checked (background, foreground)");
-    let s = prepare(&reference, &target, None, &ScoringOptions::default()).unwrap();
-    let e = s.score("target", &target).unwrap();
+    let s = prepare(&im(&reference), &im(&target), None, &ScoringOptions::default()).unwrap();
+    let e = s.score("target", &im(&target)).unwrap();
     assert!(s.footing.local_registration.is_some() && e.all.linear_db > 30.0, "{:?}", e.all);
 }
 
@@ -470,7 +480,7 @@ fn bad_brackets_are_refused_with_the_reason() {
     let opts = MergeOptions::default();
     // Mismatched sizes: the error names the odd file and both sizes.
     let mut odd = frames.clone();
-    odd[3].values = odd[3].values.slice(ndarray::s![..179, .., ..]).to_owned();
+    odd[3].image.values = odd[3].image.values.slice(ndarray::s![..179, .., ..]).to_owned();
     let e = merge(&odd, &times, None, None, &opts).unwrap_err().to_string();
     assert!(e.contains("frame3.png") && e.contains("170 x 179") && e.contains("170 x 180"), "{e}");
     // Mixed bit depths.
@@ -517,7 +527,7 @@ fn calibrate_psf_and_merge_run_end_to_end() {
     let mut list = Vec::new();
     for (f, t) in frames.iter().zip(&times) {
         let name = f.path.file_name().unwrap().to_string_lossy().into_owned();
-        write_capture(&dir.path().join(&name), &f.values, 8).unwrap();
+        write_capture(&dir.path().join(&name), &Image::new(f.image.values.clone()), 8).unwrap();
         list.push(serde_json::json!({ "file": name, "exposure_s": t }));
     }
     let json = dir.path().join("exposures.json");
@@ -525,7 +535,7 @@ fn calibrate_psf_and_merge_run_end_to_end() {
     let mut dark_args = Vec::new();
     for d in &darks {
         let p = dir.path().join(d.path.file_name().unwrap());
-        write_capture(&p, &d.values, 8).unwrap();
+        write_capture(&p, &Image::new(d.image.values.clone()), 8).unwrap();
         dark_args.push(p.to_string_lossy().into_owned());
     }
     let out = dir.path().join("psf");
@@ -615,7 +625,7 @@ fn write_scene_bracket(
     let mut files = Vec::new();
     for (k, &t) in times.iter().enumerate() {
         let p = dir.join(format!("scene{k}.png"));
-        write_capture(&p, &scene.mapv(|e| camera(e * t)), 8).unwrap();
+        write_capture(&p, &Image::new(scene.mapv(|e| camera(e * t))), 8).unwrap();
         files.push(p.to_string_lossy().into_owned());
     }
     (files, times.iter().map(|t| format!("{t}")).collect::<Vec<_>>().join(","))
@@ -964,7 +974,7 @@ fn a_known_shift_and_gain_are_recovered_once_and_every_image_is_scored_on_one_pi
         .to_vec();
     let psf = Psf::new(channels, "test").unwrap();
     let opts = ScoringOptions::default();
-    let s = prepare(&reference, &capture, Some(&psf), &opts).unwrap();
+    let s = prepare(&im(&reference), &im(&capture), Some(&psf), &opts).unwrap();
     let f = &s.footing;
     assert!((f.gain / gain - 1.0).abs() < 0.02, "gain {}", f.gain);
     assert!(f.coverage > 0.7, "{}", f.coverage);
@@ -989,7 +999,7 @@ fn a_known_shift_and_gain_are_recovered_once_and_every_image_is_scored_on_one_pi
     assert!(checked > 400 && rms < 0.1, "{checked} points, {rms} px RMS");
     let images =
         [("truth", truth.clone()), ("truth 0.9", truth.mapv(|v| 0.9 * v)), ("capture", capture.clone())];
-    let scores: Vec<_> = images.iter().map(|(n, y)| s.score(n, y).unwrap()).collect();
+    let scores: Vec<_> = images.iter().map(|(n, y)| s.score(n, &im(y)).unwrap()).collect();
     for sc in &scores {
         assert_eq!(sc.all.pixels, f.pixels_scored);
         assert_eq!(sc.saturated.as_ref().unwrap().pixels, f.saturated_scored);
@@ -1007,17 +1017,17 @@ fn a_known_shift_and_gain_are_recovered_once_and_every_image_is_scored_on_one_pi
     );
     // 12-bit values in a 16-bit file: the clipping level is found and the footing is the same.
     let low = capture.mapv(|v| (v * 4095.0).round() / 65535.0);
-    let t = prepare(&reference, &low, Some(&psf), &opts).unwrap();
+    let t = prepare(&im(&reference), &im(&low), Some(&psf), &opts).unwrap();
     assert!((t.footing.clipping_level - 4095.0 / 65535.0).abs() < 1e-12 && !t.footing.warnings.is_empty());
     assert_eq!(t.footing.saturated_in_capture, f.saturated_in_capture);
     assert!((t.footing.gain / f.gain - 1.0).abs() < 0.01 && (t.footing.coverage - f.coverage).abs() < 0.02);
     // Below the floor: refused with the figure.
     let strict = ScoringOptions { min_coverage: 0.99, ..ScoringOptions::default() };
-    let err = prepare(&reference, &capture, Some(&psf), &strict).unwrap_err().to_string();
+    let err = prepare(&im(&reference), &im(&capture), Some(&psf), &strict).unwrap_err().to_string();
     assert!(err.contains("floor is 99 %") && err.contains(&format!("{:.1} %", 100.0 * f.coverage)), "{err}");
     // An unrelated capture is refused rather than scored.
     let other = procedural_scene(7, 320, 320).mapv(|v| (v as f64 * 0.3).min(1.0));
-    assert!(prepare(&reference, &other, Some(&psf), &opts).is_err());
+    assert!(prepare(&im(&reference), &im(&other), Some(&psf), &opts).is_err());
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1053,7 +1063,7 @@ fn bracket_of(truth: &Psf, black: f64) -> (Vec<Capture>, Vec<f64>) {
     let frames = values
         .into_iter()
         .enumerate()
-        .map(|(k, v)| Capture { path: PathBuf::from(format!("pinhole{k:02}.png")), values: v, bits: 8 })
+        .map(|(k, v)| Capture { path: PathBuf::from(format!("pinhole{k:02}.png")), image: v, bits: 8 })
         .collect();
     (frames, times)
 }
@@ -1119,9 +1129,9 @@ fn planted_hot_pixels_are_all_found_and_nothing_else() {
     for (f, &t) in frames.iter_mut().zip(&times) {
         for c in 0..3 {
             for &((i, j), v) in &stuck {
-                f.values[[i, j, c]] = v;
+                f.image.values[[i, j, c]] = v;
             }
-            f.values[[warm.0, warm.1, c]] = ((0.01 + 0.5 * t) * 255.0).round() / 255.0;
+            f.image.values[[warm.0, warm.1, c]] = ((0.01 + 0.5 * t) * 255.0).round() / 255.0;
         }
     }
     let merged = merge(&frames, &times, None, None, &MergeOptions::default()).unwrap();
@@ -1190,8 +1200,9 @@ fn the_merge_is_at_the_reference_exposure_and_says_so() {
         .enumerate()
         .map(|(k, &t)| Capture {
             path: PathBuf::from(format!("scene{k}.png")),
-            values: scene
-                .mapv(|e| ((0.01 + e * t + 0.002 * rng.normal()).clamp(0.0, 1.0) * 255.0).round() / 255.0),
+            image: (scene
+                .mapv(|e| ((0.01 + e * t + 0.002 * rng.normal()).clamp(0.0, 1.0) * 255.0).round() / 255.0))
+            .into(),
             bits: 8,
         })
         .collect();

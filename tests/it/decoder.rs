@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 use doefab::decoder::unet::UNet;
 use doefab::decoder::weights::{encode_safetensors, DecoderWeights, NamedTensor};
 use doefab::decoder::{device, infer};
+use doefab::image::Image;
 use doefab::io::npy::read_npy_nd;
 use ndarray::Array3;
 
@@ -52,7 +53,7 @@ fn the_papers_decoders_reproduce_the_tensorflow_crops() {
         let w = DecoderWeights::read(&dir.join(format!("decoder_{which}_psf.safetensors"))).unwrap();
         assert_eq!(w.parameter_count(), 630_820);
         let net = UNet::from_weights(&w, &device(false).unwrap());
-        let y = infer(&net, &x).unwrap();
+        let y = infer(&net, &Image::new(x.clone())).unwrap();
         let reference = npy3(&dir.join(format!("parity/kitchen_crop_output_decoder_{which}_psf.npy")));
         assert_parity(&y, &reference, &format!("{which}-PSF crop"));
     }
@@ -67,7 +68,7 @@ fn the_full_frame_reproduces_the_negative_blob() {
     let crop = npy3(&dir.join("parity/kitchen_crop_input.npy"));
     assert_eq!(x.slice(ndarray::s![352..416, 240..304, ..]), crop, "PNG / 255 is the parity input");
     let w = DecoderWeights::read(&dir.join("decoder_measured_psf.safetensors")).unwrap();
-    let y = infer(&UNet::from_weights(&w, &device(false).unwrap()), &x).unwrap();
+    let y = infer(&UNet::from_weights(&w, &device(false).unwrap()), &Image::new(x.clone())).unwrap();
     let reference = npy3(&dir.join("parity/kitchen_full_output_decoder_measured_psf.npy"));
     assert_parity(&y, &reference, "measured-PSF full frame");
     let min = y.iter().cloned().fold(f32::INFINITY, f32::min);
@@ -222,14 +223,14 @@ fn identity_decoder_reconstructs_odd_sizes_exactly_through_padding_and_tiles() {
     let net = UNet::from_weights(&linear_weights(1.0), &device(false).unwrap());
     let x = rgb(5, 53, 290);
     let opts = ReconstructOptions { tile: 64, overlap: 16, border: 32, negatives: Negatives::Keep };
-    let (y, report) = reconstruct(&net, &x, &opts).unwrap();
+    let (y, report) = reconstruct(&net, &Image::new(x.clone()), &opts).unwrap();
     assert_eq!((report.padded_rows, report.padded_cols), (128, 368), "32 px mirrored, then to 16");
     assert!(report.tiles > 1, "tiled: {report:?}");
-    assert_eq!(y, x, "y = x exactly");
+    assert_eq!(y.values, x, "y = x exactly");
     assert!(!report.warnings.is_empty(), "an overlap below the receptive field is reported");
     // The negative decoder: max(y, 0) removes every value and the counts say so.
     let neg = UNet::from_weights(&linear_weights(-1.0), &device(false).unwrap());
-    let (y, report) = reconstruct(&neg, &x, &ReconstructOptions::default()).unwrap();
+    let (y, report) = reconstruct(&neg, &Image::new(x.clone()), &ReconstructOptions::default()).unwrap();
     assert!(y.iter().all(|&v| v == 0.0));
     assert_eq!(report.values_below_zero, x.iter().filter(|&&v| v > 0.0).count());
     assert_eq!(report.values_below_minus_one, 0);
@@ -240,20 +241,20 @@ fn identity_decoder_reconstructs_odd_sizes_exactly_through_padding_and_tiles() {
 fn tiles_with_an_overlap_over_the_receptive_field_match_one_pass() {
     let net = UNet::from_weights(&random_weights(11), &device(false).unwrap());
     let x = rgb(6, 384, 256);
-    let (whole, n) = infer_tiled(&net, &x, 1024, 128).unwrap();
+    let (whole, n) = infer_tiled(&net, &Image::new(x.clone()), 1024, 128).unwrap();
     assert_eq!(n, 1);
     let scale = whole.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-    let (tiled, n) = infer_tiled(&net, &x, 320, 128).unwrap();
+    let (tiled, n) = infer_tiled(&net, &Image::new(x.clone()), 320, 128).unwrap();
     assert_eq!(n, 6, "six row tiles of 320 with cores of 64");
     let max_d = whole.iter().zip(&tiled).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
     eprintln!("tiled vs one pass, overlap 128: max |d| = {max_d:.3e} (scale {scale:.3})");
     assert!(max_d <= 1e-5 * scale.max(1.0), "{max_d}");
     // An overlap of 32 px is inside the receptive field: the seams show.
-    let (short, _) = infer_tiled(&net, &x, 320, 32).unwrap();
+    let (short, _) = infer_tiled(&net, &Image::new(x.clone()), 320, 32).unwrap();
     let max_s = whole.iter().zip(&short).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
     eprintln!("overlap 32: max |d| = {max_s:.3e}");
     assert!(max_s > 100.0 * max_d.max(1e-7 * scale), "{max_s}");
-    assert!(infer_tiled(&net, &x, 320, 200).is_err(), "overlap not a multiple of 16");
+    assert!(infer_tiled(&net, &Image::new(x.clone()), 320, 200).is_err(), "overlap not a multiple of 16");
 }
 
 #[test]
@@ -386,7 +387,10 @@ fn hdr_images() -> Vec<(String, Array3<f32>)> {
 
 /// [`hdr_images`] as training scenes.
 fn test_scenes() -> HdrScenes {
-    let images = hdr_images().into_iter().map(|(name, pixels)| HdrImage { name, pixels }).collect();
+    let images = hdr_images()
+        .into_iter()
+        .map(|(name, pixels)| HdrImage { name, pixels: Image::new(pixels) })
+        .collect();
     HdrScenes::new("test images", images).unwrap()
 }
 
@@ -409,14 +413,15 @@ fn an_adam_step_lowers_the_loss_on_its_batch() {
     let mut adam = Adam::new(&net, &FinetuneConfig { lr: 1e-3, ..FinetuneConfig::default() });
     let x = [rgb(1, 32, 32), rgb(2, 32, 32)];
     let t = [rgb(3, 32, 32).mapv(|v| v * 2.0), rgb(4, 32, 32)];
-    let batch = |a: &[Array3<f32>; 2]| to_tensor(&[&a[0], &a[1]], &dev);
+    let batch =
+        |a: &[Array3<f32>; 2]| to_tensor(&[&Image::new(a[0].clone()), &Image::new(a[1].clone())], &dev);
     let l0 = adam.step(&mut net, batch(&x), batch(&t)).unwrap();
     let l1 = adam.step(&mut net, batch(&x), batch(&t)).unwrap();
     let l2 = adam.step(&mut net, batch(&x), batch(&t)).unwrap();
     eprintln!("loss {l0:.6} -> {l1:.6} -> {l2:.6}");
     assert!(l1 < l0 && l2 < l1, "{l0} {l1} {l2}");
     // The loss itself, against its formula evaluated here.
-    let y = doefab::decoder::infer(&net, &x[0]).unwrap();
+    let y = doefab::decoder::infer(&net, &Image::new(x[0].clone())).unwrap();
     let e = 1.0f64 / 255.0;
     let mse: f64 = y
         .iter()
@@ -425,8 +430,8 @@ fn an_adam_step_lowers_the_loss_on_its_batch() {
         .sum::<f64>()
         / y.len() as f64;
     let ours = doefab::decoder::unet::tensor_values(gamma_loss(
-        net.forward(to_tensor(&[&x[0]], &dev)).unwrap(),
-        to_tensor(&[&t[0]], &dev),
+        net.forward(to_tensor(&[&Image::new(x[0].clone())], &dev)).unwrap(),
+        to_tensor(&[&Image::new(t[0].clone())], &dev),
     ))
     .unwrap()[0] as f64;
     assert!((ours - mse.sqrt()).abs() < 1e-5 * mse.sqrt(), "{ours} vs {}", mse.sqrt());
@@ -497,7 +502,7 @@ fn generated_scenes_feed_a_run_and_bad_values_are_refused() {
         name: "log-normal texture",
         generate: |seed: u64, rows: usize, cols: usize| {
             let mut g = Lcg(seed);
-            Array3::from_shape_fn((rows, cols, 3), |_| (g.normal() - 1.0).exp() as f32)
+            Image::new(Array3::from_shape_fn((rows, cols, 3), |_| (g.normal() - 1.0).exp() as f32))
         },
     };
     let net = UNet::from_weights(&random_weights(5), &dev);
@@ -507,7 +512,7 @@ fn generated_scenes_feed_a_run_and_bad_values_are_refused() {
     assert_eq!(d.metadata["training_data"], "log-normal texture");
     let broken = GeneratedScenes {
         name: "broken",
-        generate: |_, r: usize, c: usize| Array3::from_elem((r, c, 3), f32::NAN),
+        generate: |_, r: usize, c: usize| Image::new(Array3::from_elem((r, c, 3), f32::NAN)),
     };
     let net = UNet::from_weights(&random_weights(5), &dev);
     let err = Trainer::new(net, &small_psf(), "ff", &broken, None, tiny_config(1), "random")
@@ -851,7 +856,8 @@ fn the_negative_penalty_lifts_negative_outputs() {
     let dev = device(false).unwrap();
     let x = [rgb(1, 32, 32), rgb(2, 32, 32)];
     let t = [rgb(3, 32, 32), rgb(4, 32, 32)];
-    let batch = |a: &[Array3<f32>; 2]| to_tensor(&[&a[0], &a[1]], &dev);
+    let batch =
+        |a: &[Array3<f32>; 2]| to_tensor(&[&Image::new(a[0].clone()), &Image::new(a[1].clone())], &dev);
     let negative = |mu: f64| {
         let mut net = UNet::from_weights(&random_weights(3), &dev);
         let mut adam =
@@ -859,7 +865,7 @@ fn the_negative_penalty_lifts_negative_outputs() {
         for _ in 0..3 {
             adam.step(&mut net, batch(&x), batch(&t)).unwrap();
         }
-        let y = doefab::decoder::infer(&net, &x[0]).unwrap();
+        let y = doefab::decoder::infer(&net, &Image::new(x[0].clone())).unwrap();
         y.iter().map(|&v| (v.min(0.0) as f64).powi(2)).sum::<f64>() / y.len() as f64
     };
     let (without, with) = (negative(0.0), negative(100.0));
