@@ -97,7 +97,16 @@ fn stability_chart<DB: DrawingBackend>(
         .configure_mesh()
         .x_desc("sub-samples per pixel s (FFT methods: pupil pitch = pixel pitch / s)")
         .y_desc("relative L2 vs converged reference")
-        .x_label_formatter(&|v| format!("{v:.0}"))
+        // Sub-sampling is a whole number: one label per integer, none between (a "{v:.0}"
+        // label at 1.5 and at 2 both read "2").
+        .x_labels(2 * s_max as usize + 1)
+        .x_label_formatter(&|v| {
+            if (v - v.round()).abs() < 1e-9 {
+                format!("{}", v.round())
+            } else {
+                String::new()
+            }
+        })
         .y_label_formatter(&|v| format!("{v:.0e}"))
         .label_style((FONT, 13))
         .draw()
@@ -180,6 +189,14 @@ mod tests {
         }
         let svg = std::fs::read_to_string(d.path().join("speed_accuracy.svg")).unwrap();
         assert!(svg.contains("Pareto front") && svg.contains("fresnel f64"));
+        // The stability chart's x axis labels each whole sub-sampling once.
+        let svg = std::fs::read_to_string(d.path().join("stability.svg")).unwrap();
+        let labels: Vec<&str> = svg
+            .split("</text>")
+            .filter_map(|t| t.rsplit('>').next().map(str::trim))
+            .filter(|t| t.len() == 1 && t.chars().all(|c| c.is_ascii_digit()))
+            .collect();
+        assert_eq!(labels, ["1", "2"], "{svg}");
         assert!(write_psf_charts(|n| d.path().join(n), &[]).is_err());
     }
 }
