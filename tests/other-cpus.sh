@@ -19,11 +19,12 @@ models=("$@")
 cargo build --release --quiet
 lib=$(cargo test --release --lib --no-run --message-format=json 2>/dev/null |
   sed -n 's/.*"executable":"\([^"]*\)".*/\1/p' | tail -1)
-bin=target/release/doefab
+bin=$PWD/target/release/doefab
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 
-# The commands, each writing under $1: the fabrication chain, a synthetic scan of the part, the
+# The commands, each writing under $1 (the same relative path on every CPU, since outputs
+# record the paths they were given): the fabrication chain, a synthetic scan of the part, the
 # comparison with the design, the pre-compensated next mask, the PSF by the automatic plan.
 stages() {
   local run=("${@:2}") out=$1
@@ -43,7 +44,8 @@ fn main() { print!("{}", is_x86_feature_detected!("avx2") && is_x86_feature_dete
 RS
 rustc -O -o "$work/features" "$work/features.rs"
 
-stages "$work/native" "$bin"
+in_dir() { mkdir -p "$1" && (cd "$1" && stages out "${@:2}"); }
+in_dir "$work/native" "$bin"
 status=0
 for model in "${models[@]}"; do
   run=(qemu-x86_64 -cpu "$model")
@@ -52,16 +54,16 @@ for model in "${models[@]}"; do
   else
     echo "$model: unit tests FAIL (log below)"; tail -30 "$work/$model-lib.log"; status=1
   fi
-  stages "$work/$model" "${run[@]}" "$bin" 2>/dev/null
+  in_dir "$work/$model" "${run[@]}" "$bin" 2>/dev/null
   avx2=$("${run[@]}" "$work/features")
   while read -r sum file; do
-    other=$(cd "$work/$model" && sha256sum "$file" | cut -d' ' -f1)
+    other=$(cd "$work/$model/out" && sha256sum "$file" | cut -d' ' -f1)
     if [ "$sum" = "$other" ]; then
       echo "$model (AVX2 and FMA: $avx2): $file same"
     else
       echo "$model (AVX2 and FMA: $avx2): $file DIFFERS"
       [ "$avx2" = false ] || status=1
     fi
-  done < <(digest "$work/native")
+  done < <(digest "$work/native/out")
 done
 exit $status
