@@ -1,4 +1,5 @@
-//! Sensor captures and exposure brackets.
+//! Sensor captures, exposure brackets, and the one reader of linear images ([`read_image`]:
+//! EXR, Radiance HDR, NumPy, and captures) that calibration and the decoder share.
 //!
 //! A capture is an 8- or 16-bit PNG or TIFF, RGB or grayscale, holding *linear* sensor values
 //! (value / full scale proportional to irradiance times exposure time, as the paper's captures
@@ -20,6 +21,7 @@ use serde::Deserialize;
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::io::atomic::write_bytes;
+use crate::io::exr::read_exr;
 
 /// One capture: linear values in `[0, 1]` with its bit depth.
 #[derive(Debug, Clone, PartialEq)]
@@ -106,6 +108,81 @@ pub fn write_capture(path: &Path, image: &Image, bits: u8) -> Result<()> {
         .write_image(&data, w as u32, h as u32, color)
         .map_err(|e| Error::format(path, format!("PNG encoding failed: {e}")))?;
     write_bytes(path, &bytes)
+}
+
+/// Reads an RGB (or single-channel) OpenEXR image.
+pub fn read_rgb_exr(path: &Path) -> Result<Image> {
+    let planes = match read_exr(path, Some("R")) {
+        Ok(r) => vec![r.values, read_exr(path, Some("G"))?.values, read_exr(path, Some("B"))?.values],
+        Err(Error::Parameter { .. }) => vec![
+            read_exr(path, None)
+                .map_err(|e| {
+                    Error::format(path, format!("expected channels R, G, B or a single channel: {e}"))
+                })?
+                .values,
+        ],
+        Err(e) => return Err(e),
+    };
+    let (h, w) = planes[0].dim();
+    Ok(Image::new(Array3::from_shape_fn((h, w, planes.len()), |(i, j, c)| planes[c][[i, j]])))
+}
+
+/// Reads a linear image, by extension (the one image reader of calibration and the decoder):
+/// OpenEXR (R, G, B or one channel), Radiance RGBE `.hdr`, OpenEXR (R, G, B or one channel),
+/// NumPy `.npy` of shape `(H, W)`, `(H, W, C)`, `(1, H, W, C)` or `(H, W, 1, C)` with `C` 1 or 3,
+/// or an 8/16-bit PNG/TIFF capture (counts / full scale). Non-finite values are refused.
+pub fn read_image(path: &Path) -> Result<Image> {
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    let img = match ext.as_deref() {
+        Some("exr") => read_rgb_exr(path)?.values,
+        Some("npy") => {
+            let (header, a) = crate::io::npy::read_npy_nd(path)?;
+            let (h, w, c) = match header.shape[..] {
+                [h, w] => (h, w, 1),
+                [h, w, c] if c == 1 || c == 3 => (h, w, c),
+                [1, h, w, c] if c == 1 || c == 3 => (h, w, c),
+                [h, w, 1, c] if c == 1 || c == 3 => (h, w, c),
+                _ => {
+                    return Err(Error::format(
+                        path,
+                        format!(
+                            "has shape {:?}; an image is (H, W), (H, W, C), (1, H, W, C) or (H, W, 1, C) \
+                             with C = 1 or 3",
+                            header.shape
+                        ),
+                    ))
+                }
+            };
+            a.into_shape_with_order((h, w, c)).map_err(|e| Error::format(path, e.to_string()))?
+        }
+        Some("png" | "tif" | "tiff") => read_capture(path)?.image.values,
+        Some("hdr") => read_radiance_hdr(path)?,
+        _ => {
+            return Err(Error::format(
+                path,
+                "an image is read from .exr, .hdr, .npy, .png, .tif or .tiff (by extension)",
+            ))
+        }
+    };
+    let (h, w, _) = img.dim();
+    if h == 0 || w == 0 {
+        return Err(Error::format(path, "is empty"));
+    }
+    let bad = img.iter().filter(|v| !v.is_finite()).count();
+    if bad > 0 {
+        return Err(Error::format(path, format!("holds {bad} non-finite values (NaN or infinite)")));
+    }
+    Ok(Image::new(img))
+}
+
+/// A Radiance RGBE (`.hdr`) image, decoded by the `image` crate to `f32` RGB.
+fn read_radiance_hdr(path: &Path) -> Result<Array3<f64>> {
+    let img = image::open(path)
+        .map_err(|e| Error::format(path, format!("cannot read as a Radiance HDR image: {e}")))?;
+    let rgb = img.to_rgb32f();
+    let (w, h) = (rgb.width() as usize, rgb.height() as usize);
+    Array3::from_shape_vec((h, w, 3), rgb.into_raw().into_iter().map(f64::from).collect())
+        .map_err(|e| Error::format(path, format!("the image data does not fill {w} x {h}: {e}")))
 }
 
 /// A bracket: capture files with their exposure times (seconds).
@@ -304,6 +381,23 @@ mod tests {
         for bad in ["", "-1", "0", "1/0", "fast"] {
             assert!(parse_time(bad).is_err(), "{bad}");
         }
+    }
+
+    /// A Radiance file written by the `image` crate's encoder, with values RGBE holds exactly
+    /// (a shared exponent per pixel, 8-bit mantissas), comes back as they were.
+    #[test]
+    fn radiance_hdr_images_are_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.hdr");
+        let px = [[0.5f32, 0.25, 1.0], [2.0, 1.0, 0.5], [8.0, 4.0, 6.0], [0.125, 0.0, 0.0625]];
+        let pixels: Vec<image::Rgb<f32>> = px.iter().map(|&c| image::Rgb(c)).collect();
+        let file = std::fs::File::create(&p).unwrap();
+        image::codecs::hdr::HdrEncoder::new(file).encode(&pixels, 2, 2).unwrap();
+        let img = read_image(&p).unwrap();
+        assert_eq!((img.height(), img.width(), img.channels()), (2, 2, 3));
+        let back: Vec<f64> = img.values.iter().copied().collect();
+        let want: Vec<f64> = px.iter().flatten().map(|&v| v as f64).collect();
+        assert_eq!(back, want);
     }
 
     #[test]

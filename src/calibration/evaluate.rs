@@ -50,8 +50,6 @@
 //! is then its maximum value, recognised by a pile-up of samples there (at least 0.01 % of them
 //! at exactly the maximum, which lies below `saturation`), and reported as a warning.
 
-use std::path::Path;
-
 use ndarray::{s, Array2, Array3, Axis, Zip};
 use serde::Serialize;
 
@@ -60,7 +58,6 @@ use super::capture_registration::{
 };
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::io::exr::read_exr;
 use crate::optics::convolve::Convolver;
 use crate::optics::psf::Psf;
 
@@ -130,69 +127,6 @@ pub fn psnr(reference: &Image, recon: &Image, mask: Option<&Array2<bool>>) -> Re
         min_output,
         negative_fraction: negative as f64 / n as f64,
     })
-}
-
-/// Reads an RGB (or single-channel) OpenEXR image.
-pub fn read_rgb_exr(path: &Path) -> Result<Image> {
-    let planes = match read_exr(path, Some("R")) {
-        Ok(r) => vec![r.values, read_exr(path, Some("G"))?.values, read_exr(path, Some("B"))?.values],
-        Err(Error::Parameter { .. }) => vec![
-            read_exr(path, None)
-                .map_err(|e| {
-                    Error::format(path, format!("expected channels R, G, B or a single channel: {e}"))
-                })?
-                .values,
-        ],
-        Err(e) => return Err(e),
-    };
-    let (h, w) = planes[0].dim();
-    Ok(Image::new(Array3::from_shape_fn((h, w, planes.len()), |(i, j, c)| planes[c][[i, j]])))
-}
-
-/// Reads a linear image, by extension (the one image reader of calibration and the decoder): OpenEXR (R, G, B or one channel),
-/// NumPy `.npy` of shape `(H, W)`, `(H, W, C)`, `(1, H, W, C)` or `(H, W, 1, C)` with `C` 1 or 3,
-/// or an 8/16-bit PNG/TIFF capture (counts / full scale). Non-finite values are refused.
-pub fn read_image(path: &Path) -> Result<Image> {
-    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    let img = match ext.as_deref() {
-        Some("exr") => read_rgb_exr(path)?.values,
-        Some("npy") => {
-            let (header, a) = crate::io::npy::read_npy_nd(path)?;
-            let (h, w, c) = match header.shape[..] {
-                [h, w] => (h, w, 1),
-                [h, w, c] if c == 1 || c == 3 => (h, w, c),
-                [1, h, w, c] if c == 1 || c == 3 => (h, w, c),
-                [h, w, 1, c] if c == 1 || c == 3 => (h, w, c),
-                _ => {
-                    return Err(Error::format(
-                        path,
-                        format!(
-                            "has shape {:?}; an image is (H, W), (H, W, C), (1, H, W, C) or (H, W, 1, C) \
-                             with C = 1 or 3",
-                            header.shape
-                        ),
-                    ))
-                }
-            };
-            a.into_shape_with_order((h, w, c)).map_err(|e| Error::format(path, e.to_string()))?
-        }
-        Some("png" | "tif" | "tiff") => super::capture::read_capture(path)?.image.values,
-        _ => {
-            return Err(Error::format(
-                path,
-                "an image is read from .exr, .npy, .png, .tif or .tiff (by extension)",
-            ))
-        }
-    };
-    let (h, w, _) = img.dim();
-    if h == 0 || w == 0 {
-        return Err(Error::format(path, "is empty"));
-    }
-    let bad = img.iter().filter(|v| !v.is_finite()).count();
-    if bad > 0 {
-        return Err(Error::format(path, format!("holds {bad} non-finite values (NaN or infinite)")));
-    }
-    Ok(Image::new(img))
 }
 
 /// Settings of [`prepare`].
@@ -509,7 +443,7 @@ pub fn evaluate(
 /// The files of one `doefab evaluate` run.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EvaluateFiles {
-    /// The reference HDR (see [`read_image`]), e.g. from `doefab merge`.
+    /// The reference HDR (see [`super::capture::read_image`]), e.g. from `doefab merge`.
     pub reference: std::path::PathBuf,
     /// The capture through the DOE that the reconstructions were made from (PNG/TIFF).
     pub capture: std::path::PathBuf,
@@ -519,14 +453,14 @@ pub struct EvaluateFiles {
     pub psf_key: Option<String>,
     /// The capture's pixel pitch, metres: a PSF file stating another pitch is refused.
     pub capture_pitch: f64,
-    /// The reconstructions to score (see [`read_image`]).
+    /// The reconstructions to score (see [`super::capture::read_image`]).
     pub images: Vec<std::path::PathBuf>,
     pub options: ScoringOptions,
 }
 
 /// Reads the files and runs [`evaluate`]; each image is named by its path.
 pub fn evaluate_files(files: &EvaluateFiles) -> Result<Evaluation> {
-    let reference = read_image(&files.reference)?;
+    let reference = super::capture::read_image(&files.reference)?;
     let capture = super::capture::read_capture(&files.capture)?.image;
     let psf = match &files.psf {
         Some(p) => Some(Psf::read(p, files.psf_key.as_deref(), Some(files.capture_pitch))?),
@@ -535,7 +469,7 @@ pub fn evaluate_files(files: &EvaluateFiles) -> Result<Evaluation> {
     let images = files
         .images
         .iter()
-        .map(|p| Ok((p.display().to_string(), read_image(p)?)))
+        .map(|p| Ok((p.display().to_string(), super::capture::read_image(p)?)))
         .collect::<Result<Vec<_>>>()?;
     evaluate(&reference, &capture, psf.as_ref(), &images, &files.options)
 }

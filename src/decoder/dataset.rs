@@ -84,19 +84,22 @@ pub fn read_dir(dir: &Path) -> Result<Vec<HdrImage>> {
     if paths.is_empty() {
         return Err(Error::format(dir, "holds no .exr or .hdr images (searched recursively)"));
     }
-    paths.iter().map(|p| read_image(dir, p)).collect()
+    paths.iter().map(|p| read_hdr_image(dir, p)).collect()
 }
 
-/// Reads one HDR image as linear RGB; refuses non-finite or negative radiance.
-fn read_image(root: &Path, path: &PathBuf) -> Result<HdrImage> {
-    let img =
-        image::open(path).map_err(|e| Error::format(path, format!("cannot read as an HDR image: {e}")))?;
-    let rgb = img.to_rgb32f();
-    let (w, h) = (rgb.width() as usize, rgb.height() as usize);
-    let mut pixels = Array3::from_shape_vec((h, w, 3), rgb.into_raw()).expect("RGB buffer");
-    if let Some(v) = pixels.iter().find(|v| !v.is_finite()) {
-        return Err(Error::format(path, format!("holds {v}; HDR radiance must be finite")));
+/// Reads one HDR image as linear RGB through the one image reader
+/// ([`crate::calibration::capture::read_image`], which refuses non-finite values); refuses a
+/// black or mostly negative one.
+fn read_hdr_image(root: &Path, path: &PathBuf) -> Result<HdrImage> {
+    let img = crate::calibration::capture::read_image(path)?;
+    if img.channels() != 3 {
+        return Err(Error::format(
+            path,
+            format!("has {} channel(s); an HDR training image is RGB", img.channels()),
+        ));
     }
+    // Exact: the files hold f16 or f32 samples (EXR) or RGBE decoded to f32 (Radiance).
+    let mut pixels = img.values.mapv(|v| v as f32);
     let max = pixels.iter().fold(0.0f32, |m, &v| m.max(v));
     if max <= 0.0 {
         return Err(Error::format(path, "is black everywhere: nothing to expose"));

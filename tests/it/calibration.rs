@@ -832,7 +832,7 @@ fn evaluate_registers_the_real_scenes_once_above_the_coverage_floor() {
             scores[1]["all"]["linear_db"].as_f64().unwrap() < scores[0]["all"]["linear_db"].as_f64().unwrap()
         );
         // The same reference as .npy.
-        let img = doefab::calibration::evaluate::read_image(std::path::Path::new(&hdr)).unwrap();
+        let img = doefab::calibration::capture::read_image(std::path::Path::new(&hdr)).unwrap();
         let npy = dir.path().join(format!("{scene}.npy"));
         doefab::io::npy::write_npy(&npy, &img.mapv(|v| v as f32)).unwrap();
         let npy = npy.to_string_lossy().into_owned();
@@ -861,7 +861,7 @@ fn evaluate_registers_the_real_scenes_once_above_the_coverage_floor() {
     std::fs::write(&txt, "not an image").unwrap();
     let r = doefab(&["evaluate", "--reference", txt.to_str().unwrap(), "--capture", &other, &hdr]);
     assert!(
-        String::from_utf8_lossy(&r.stderr).contains(".exr, .npy"),
+        String::from_utf8_lossy(&r.stderr).contains(".exr, .hdr, .npy"),
         "{}",
         String::from_utf8_lossy(&r.stderr)
     );
