@@ -94,6 +94,29 @@ pub fn parse_angle(text: &str) -> Result<f64> {
     Err(Error::param("angle", format!("'{text}' has no unit (expected deg, rad, mrad or urad)")))
 }
 
+/// Parses a duration "300s", "5min", "1.5 h" into seconds (a bare number is refused).
+pub fn parse_duration(text: &str) -> Result<f64> {
+    let t = text.trim();
+    for (suffix, scale) in [("min", 60.0), ("ms", 1e-3), ("s", 1.0), ("h", 3600.0)] {
+        if let Some(n) = t.strip_suffix(suffix) {
+            let v: f64 = n
+                .trim()
+                .parse()
+                .map_err(|_| Error::param("duration", format!("'{text}' is not a number")))?;
+            if !(v.is_finite() && v > 0.0) {
+                return Err(Error::param("duration", format!("'{text}' is not a positive time")));
+            }
+            return Ok(v * scale);
+        }
+    }
+    Err(Error::param("duration", format!("'{text}' has no unit (expected s, min or h, e.g. \"5min\")")))
+}
+
+/// clap value parser for durations (seconds).
+pub fn clap_duration(s: &str) -> std::result::Result<f64, String> {
+    parse_duration(s).map_err(|e| e.to_string())
+}
+
 /// Formats metres with an SI prefix chosen for readability: 4.29e-6 -> "4.29 um".
 pub fn format_length(metres: f64) -> String {
     let a = metres.abs();
@@ -143,6 +166,17 @@ mod tests {
         assert!(parse_length("4 parsec").unwrap_err().to_string().contains("not a length unit"));
         assert!(parse_length("abc um").is_err());
         assert!(parse_length("").is_err());
+    }
+
+    #[test]
+    fn durations() {
+        assert_eq!(parse_duration("5min").unwrap(), 300.0);
+        assert_eq!(parse_duration(" 90 s").unwrap(), 90.0);
+        assert_eq!(parse_duration("1.5h").unwrap(), 5400.0);
+        assert_eq!(parse_duration("250ms").unwrap(), 0.25);
+        for bad in ["5", "five min", "-1s", "0s", "inf s"] {
+            assert!(parse_duration(bad).is_err(), "{bad}");
+        }
     }
 
     #[test]

@@ -6,7 +6,7 @@ use anyhow::Result;
 use clap::Args;
 
 use doefab::fabrication::chain::DesignSource;
-use doefab::units::clap_length;
+use doefab::units::{clap_duration, clap_length};
 
 use super::args::{Cli, ReadArgs};
 use crate::{print_result, progress, report_to, warn};
@@ -75,9 +75,29 @@ pub struct PsfCompareArgs {
 /// Arguments of `doefab bench psf`.
 #[derive(Args)]
 pub struct BenchPsfArgs {
+    /// Height map file, or built-in:paper / built-in:fresnel (default built-in:paper, at the
+    /// paper's geometry).
+    pub design: Option<String>,
     /// Output folder.
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Optical system TOML (as for `psf`); unset fields keep the paper's values.
+    #[arg(long)]
+    pub system: Option<PathBuf>,
+    /// Material of the DOE (pdms, fused_silica, noa61, pmma, ip_dip).
+    #[arg(long, default_value = "pdms")]
+    pub material: String,
+    /// Wall-clock budget ("5min", "90s"): how far each method's series goes.
+    #[arg(long, default_value = "5min", value_parser = clap_duration)]
+    pub budget: f64,
+    /// Largest sub-sampling per pixel and axis swept (the reference runs at 2 and 4 more).
+    #[arg(long, default_value_t = 5)]
+    pub max_subsample: usize,
+    /// Tolerances at which the automatic plan is placed on the chart.
+    #[arg(long, value_delimiter = ',', default_values_t = [1e-2, 1e-3, 1e-4])]
+    pub tolerances: Vec<f64>,
+    #[command(flatten)]
+    pub read: ReadArgs,
 }
 
 /// `doefab psf`.
@@ -173,12 +193,28 @@ pub fn psf_compare(cli: &Cli, a: &PsfCompareArgs) -> Result<()> {
 
 /// `doefab bench psf`.
 pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
-    let BenchPsfArgs { output } = a;
-    let pb = progress(cli, doefab::optics::psf_bench::RUNS as u64);
-    let points = doefab::pipeline::bench::bench_psf(output, &mut report_to(&pb))?;
+    let BenchPsfArgs { design, output, system, material, budget, max_subsample, tolerances, read } = a;
+    use doefab::optics::psf_bench::{steps, BenchOptions};
+    use doefab::pipeline::bench::{bench_psf, PsfBenchOptions};
+    let opts = PsfBenchOptions {
+        design: DesignSource::parse(design.as_deref(), read.options()?),
+        system: system.clone(),
+        material: material.clone(),
+        bench: BenchOptions {
+            budget: *budget,
+            max_subsample: *max_subsample,
+            tolerances: tolerances.clone(),
+        },
+    };
+    let pb = progress(cli, steps(&opts.bench) as u64);
+    let r = bench_psf(&opts, output, &mut report_to(&pb))?;
     pb.finish_and_clear();
-    print_result(cli, &points, || {
-        for p in &points {
+    print_result(cli, &r, || {
+        println!(
+            "reference: matrix DFT f64, Gauss-Legendre s={} (against s={}: {:.1e}), {:.2} s",
+            r.reference.subsamples[1], r.reference.subsamples[0], r.reference.difference, r.reference.seconds
+        );
+        for p in &r.points {
             println!(
                 "{:<17} {} s={} pupil {:.2} um  {:.4} s  L2 {:.2e}{}{}",
                 p.method,
@@ -194,6 +230,25 @@ pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
                     format!("  refused: {}", p.violations.join("; "))
                 }
             );
+        }
+        for p in &r.plans {
+            println!(
+                "plan at {:.0e}: {} {} s={}  {:.4} s  L2 {:.2e} ({}){}",
+                p.tolerance,
+                p.method,
+                p.precision,
+                p.subsample,
+                p.seconds,
+                p.error,
+                if p.meets_tolerance { "meets it" } else { "MISSES it" },
+                match (&p.cheapest_adequate, p.time_ratio) {
+                    (Some(c), Some(t)) => format!("; {t:.2}x the time of the cheapest adequate run, {c}"),
+                    _ => "; no run of the sweep meets it".into(),
+                }
+            );
+        }
+        if !r.skipped.is_empty() {
+            println!("left out by the budget: {}", r.skipped.join(", "));
         }
         println!("wrote {}", output.display());
     })

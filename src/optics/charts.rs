@@ -8,7 +8,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::optics::psf_bench::BenchPoint;
+use crate::optics::psf_bench::{BenchPoint, BenchReport};
 use crate::report::{write_png_chart, write_svg_chart, FONT};
 
 const SERIES: [(&str, &str, RGBColor); 4] = [
@@ -32,18 +32,32 @@ fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
 
 fn speed_chart<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
-    points: &[BenchPoint],
+    report: &BenchReport,
 ) -> std::result::Result<(), String> {
     let e = |x: &dyn std::fmt::Display| x.to_string();
+    let points = &report.points;
     root.fill(&WHITE).map_err(|x| e(&x))?;
+    let caption = format!(
+        "PSF: error vs run time, {} DOE samples at {:.2} um, F/{:.1} (filled: valid, hollow: guard refuses)",
+        report.doe_samples,
+        report.doe_pitch * 1e6,
+        report.f_number
+    );
     let mut chart = ChartBuilder::on(root)
-        .caption("PSF: error vs run time (filled: valid, hollow: guard refuses)", (FONT, 20))
+        .caption(caption, (FONT, 18))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(70)
         .build_cartesian_2d(
-            log_range(points.iter().map(|p| p.seconds)).log_scale(),
-            log_range(points.iter().map(|p| p.error)).log_scale(),
+            log_range(points.iter().map(|p| p.seconds).chain(report.plans.iter().map(|p| p.seconds)))
+                .log_scale(),
+            log_range(
+                points
+                    .iter()
+                    .map(|p| p.error)
+                    .chain(report.plans.iter().flat_map(|p| [p.error, p.tolerance])),
+            )
+            .log_scale(),
         )
         .map_err(|x| e(&x))?;
     chart
@@ -75,6 +89,25 @@ fn speed_chart<DB: DrawingBackend>(
         .map_err(|x| e(&x))?
         .label("Pareto front (valid runs)")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
+    // The automatic plan at each tolerance: a triangle at its run, labelled with the tolerance.
+    // Tolerances whose plans chose the same configuration share one label at the first.
+    let mut labelled: Vec<(String, f64, f64, Vec<String>)> = Vec::new();
+    for p in &report.plans {
+        let key = format!("{} {} s={}", p.method, p.precision, p.subsample);
+        match labelled.iter_mut().find(|l| l.0 == key) {
+            Some(l) => l.3.push(format!("{:.0e}", p.tolerance)),
+            None => labelled.push((key, p.seconds, p.error, vec![format!("{:.0e}", p.tolerance)])),
+        }
+    }
+    chart
+        .draw_series(labelled.iter().map(|(_, seconds, error, tolerances)| {
+            EmptyElement::at((*seconds, error.max(1e-300)))
+                + TriangleMarker::new((0, 0), 7, BLACK.filled())
+                + Text::new(format!("plan at {}", tolerances.join(", ")), (8, -6), (FONT, 13))
+        }))
+        .map_err(|x| e(&x))?
+        .label("automatic plan at a tolerance")
+        .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, BLACK.filled()));
     crate::report::draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 13)?;
     Ok(())
 }
@@ -141,13 +174,14 @@ fn stability_chart<DB: DrawingBackend>(
 /// returns the names.
 pub fn write_psf_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    points: &[BenchPoint],
+    report: &BenchReport,
 ) -> Result<Vec<String>> {
+    let points = &report.points;
     if points.is_empty() {
         return Err(Error::Data("no benchmark runs to chart".into()));
     }
-    write_png_chart(&path_for("speed_accuracy.png"), 1000, 650, |r| speed_chart(r, points))?;
-    write_svg_chart(&path_for("speed_accuracy.svg"), 1000, 650, |r| speed_chart(r, points))?;
+    write_png_chart(&path_for("speed_accuracy.png"), 1000, 650, |r| speed_chart(r, report))?;
+    write_svg_chart(&path_for("speed_accuracy.svg"), 1000, 650, |r| speed_chart(r, report))?;
     write_png_chart(&path_for("stability.png"), 1000, 650, |r| stability_chart(r, points))?;
     write_svg_chart(&path_for("stability.svg"), 1000, 650, |r| stability_chart(r, points))?;
     Ok(["speed_accuracy.png", "speed_accuracy.svg", "stability.png", "stability.svg"]
@@ -181,14 +215,45 @@ mod tests {
             point("fresnel", 1, 0.05, 1e-1, false),
             point("fresnel", 2, 0.1, 1e-4, true),
         ];
+        let plan = crate::optics::psf_bench::PlanPoint {
+            tolerance: 1e-3,
+            method: "matrix_dft".into(),
+            precision: "f32".into(),
+            subsample: 2,
+            pupil_pitch: 3e-6,
+            estimated_error: 5e-4,
+            seconds: 0.015,
+            error: 2e-5,
+            meets_tolerance: true,
+            cheapest_adequate: Some("matrix_dft f64 s=2".into()),
+            time_ratio: Some(0.75),
+        };
+        let mut report = BenchReport {
+            units: String::new(),
+            doe_samples: 112,
+            doe_pitch: 5e-6,
+            aperture: 5e-4,
+            f_number: 7.0,
+            wavelengths: vec![635e-9],
+            crop: 40,
+            budget_seconds: 10.0,
+            reference: crate::optics::psf_bench::Reference {
+                subsamples: [7, 9],
+                difference: 1e-9,
+                seconds: 0.1,
+            },
+            points: pts,
+            plans: vec![plan],
+            skipped: vec![],
+        };
         let d = tempfile::tempdir().unwrap();
-        let names = write_psf_charts(|n| d.path().join(n), &pts).unwrap();
+        let names = write_psf_charts(|n| d.path().join(n), &report).unwrap();
         for n in &names {
             let len = std::fs::metadata(d.path().join(n)).unwrap().len();
             assert!(len > 1000, "{n}: {len} bytes");
         }
         let svg = std::fs::read_to_string(d.path().join("speed_accuracy.svg")).unwrap();
-        assert!(svg.contains("Pareto front") && svg.contains("fresnel f64"));
+        assert!(svg.contains("Pareto front") && svg.contains("fresnel f64") && svg.contains("plan at 1e-3"));
         // The stability chart's x axis labels each whole sub-sampling once.
         let svg = std::fs::read_to_string(d.path().join("stability.svg")).unwrap();
         let labels: Vec<&str> = svg
@@ -197,6 +262,7 @@ mod tests {
             .filter(|t| t.len() == 1 && t.chars().all(|c| c.is_ascii_digit()))
             .collect();
         assert_eq!(labels, ["1", "2"], "{svg}");
-        assert!(write_psf_charts(|n| d.path().join(n), &[]).is_err());
+        report.points.clear();
+        assert!(write_psf_charts(|n| d.path().join(n), &report).is_err());
     }
 }

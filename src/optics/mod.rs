@@ -5,7 +5,8 @@
 //!   and the DOE's transmission on a pupil grid.
 //! * [`psf`]: the PSF type (one grid per channel), its measures, the `.npz` reader.
 //! * [`propagate`]: the propagation methods, one file each, with their validity checks.
-//! * [`psf_bench`]: speed against accuracy of the methods on a small scene.
+//! * [`psf_bench`]: speed against accuracy of the methods on a design at its geometry, with
+//!   the automatic plan placed on the chart.
 //! * [`convolve`]: images convolved with a PSF (FFT, linear), `y = h * x`.
 //! * [`charts`]: the speed-against-accuracy and stability charts of [`psf_bench`].
 //! * [`psf_compare`]: two PSFs compared (summary numbers, L2 after centroid alignment).

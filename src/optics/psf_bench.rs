@@ -1,17 +1,24 @@
-//! Speed against accuracy of the PSF methods on a small scene (`doefab bench psf`).
+//! Speed against accuracy of the PSF methods on a design at its own geometry (`doefab bench
+//! psf`): by default the paper's DOE in the paper's camera (5 mm aperture on 1306^2 samples of
+//! 4.29 um, F/7, RGB, a 320^2 crop), or any height map and system file `psf` takes.
 //!
-//! The scene: F/7 at 635 and 450 nm (0.5 mm aperture, g = d_s = 3.5 mm, 3 um pixels, a 40 x 40
-//! crop) with a smooth, grating-like DOE phase sampled at 5 um. Each method (matrix DFT in f64
-//! and f32, two-step Fresnel, angular spectrum) runs at `s` = 1..=5 sub-samples per pixel and
-//! axis (Gauss-Legendre nodes for the matrix DFT; the transfer-function methods sample the
-//! pupil and the sensor uniformly at `pitch / s`, the midpoint rule, so `s` is also their
-//! pupil grid), forced past its validity guard so that the error where it
-//! refuses is seen; the guard's verdict is recorded with each run.
-//! The error is the worst channel's relative L2 against a converged reference: the matrix DFT
-//! with the midpoint rule at 16 and 32 sub-samples, Richardson-extrapolated
-//! (`(4 I_32 - I_16) / 3`, the rule's error being even in the spacing), as the plan's tests use.
-//! Times are the fastest of three wall-clock runs after a warm-up run of the same
-//! configuration.
+//! Each method (matrix DFT in f64 and f32, two-step Fresnel, angular spectrum) runs at `s` =
+//! 1, 2, ... sub-samples per pixel and axis (Gauss-Legendre nodes for the matrix DFT; the
+//! transfer-function methods sample the pupil and the sensor uniformly at `pitch / s`, the
+//! midpoint rule, so `s` is also their pupil grid), forced past its validity guard so that the
+//! error where it refuses is seen; the guard's verdict is recorded with each run. A time budget
+//! sets how far each series goes (see [`BenchOptions::budget`]).
+//!
+//! The error is the worst channel's relative L2 against a reference that is itself checked: the
+//! matrix DFT in f64 with Gauss-Legendre pixels at `s_max + 2` and `s_max + 4` sub-samples; the
+//! second is the reference, and the difference of the two (reported) bounds how far it is from
+//! converged, since Gauss-Legendre converges faster than geometrically on the band-limited
+//! intensity. Times are the fastest of up to three wall-clock runs after a warm-up run of the
+//! same configuration.
+//!
+//! The automatic plan ([`super::plan`]) is placed on the same chart for each tolerance: its
+//! run's time and error, whether it meets the tolerance, and its time over that of the cheapest
+//! valid run of the sweep that meets it.
 
 use std::time::Instant;
 
@@ -25,27 +32,95 @@ use crate::error::Result;
 use crate::grid::{Grid, Unit};
 use crate::material::Material;
 
-/// Samples across the bench scene's DOE grid.
+/// Samples across the small scene's DOE grid.
 pub const N: usize = 112;
-/// Pitch of the bench scene's DOE grid, metres.
+/// Pitch of the small scene's DOE grid, metres.
 pub const PITCH: f64 = 5e-6;
 
-/// Sub-samples per pixel and axis swept, 1 to this.
-const SUBSAMPLES: usize = 5;
-
-/// Method and precision pairs run.
+/// Method and precision pairs run, in order.
 const CONFIGS: [(Method, Precision); 4] = [
-    (Method::MatrixDft, Precision::F64),
     (Method::MatrixDft, Precision::F32),
+    (Method::MatrixDft, Precision::F64),
     (Method::Fresnel, Precision::F64),
     (Method::AngularSpectrum, Precision::F64),
 ];
 
-/// Configurations [`run_bench`] runs (for a progress bar).
-pub const RUNS: usize = CONFIGS.len() * SUBSAMPLES;
-
-/// Timed runs per configuration (the fastest counts), after one warm-up run.
+/// Timed runs per configuration at most (the fastest counts), after one warm-up run; fewer
+/// once a configuration has taken this many seconds.
 const REPEATS: usize = 3;
+const REPEAT_SECONDS: f64 = 2.0;
+
+/// What [`run_bench`] sweeps and how long it may take.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BenchOptions {
+    /// Wall-clock seconds for the whole run. The reference and the plans run first; what is
+    /// left is shared equally among the four series, and a series stops before a sub-sampling
+    /// that would end past its share, predicted from the one before (those are listed in
+    /// [`BenchReport::skipped`]; a series whose share is spent skips the rest).
+    pub budget: f64,
+    /// The largest sub-sampling of the sweep (the reference runs at two more and four more).
+    pub max_subsample: usize,
+    /// Tolerances at which the automatic plan is placed.
+    pub tolerances: Vec<f64>,
+}
+
+impl Default for BenchOptions {
+    fn default() -> BenchOptions {
+        BenchOptions { budget: 300.0, max_subsample: 5, tolerances: vec![1e-2, 1e-3, 1e-4] }
+    }
+}
+
+/// The reference and how far it is from converged.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Reference {
+    /// Gauss-Legendre sub-samples of the two runs; the second is the reference.
+    pub subsamples: [usize; 2],
+    /// Worst channel's relative L2 between the two runs.
+    pub difference: f64,
+    pub seconds: f64,
+}
+
+/// The automatic plan at one tolerance, run and scored like the sweep.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanPoint {
+    pub tolerance: f64,
+    pub method: String,
+    pub precision: String,
+    pub subsample: usize,
+    pub pupil_pitch: f64,
+    /// The plan's own error estimate.
+    pub estimated_error: f64,
+    pub seconds: f64,
+    /// Worst channel's relative L2 against the reference.
+    pub error: f64,
+    /// `error <= tolerance`.
+    pub meets_tolerance: bool,
+    /// The fastest valid run of the sweep whose error is within the tolerance, if any.
+    pub cheapest_adequate: Option<String>,
+    /// `seconds` over that run's.
+    pub time_ratio: Option<f64>,
+}
+
+/// Everything one `bench psf` run measured.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BenchReport {
+    /// Units of the numbers below.
+    pub units: String,
+    /// DOE samples per side, its pitch (m), the aperture (m), the F-number and the
+    /// wavelengths (m).
+    pub doe_samples: usize,
+    pub doe_pitch: f64,
+    pub aperture: f64,
+    pub f_number: f64,
+    pub wavelengths: Vec<f64>,
+    pub crop: usize,
+    pub budget_seconds: f64,
+    pub reference: Reference,
+    pub points: Vec<BenchPoint>,
+    pub plans: Vec<PlanPoint>,
+    /// Configurations the budget left out.
+    pub skipped: Vec<String>,
+}
 
 /// One timed run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -68,7 +143,8 @@ pub struct BenchPoint {
     pub pareto: bool,
 }
 
-/// The bench scene's system (see the module docs).
+/// A small scene for quick runs and tests: F/7 at 635 and 450 nm (0.5 mm aperture,
+/// g = d_s = 3.5 mm, 3 um pixels, a 40 x 40 crop), for the DOE of [`doe`].
 pub fn scene() -> OpticalSystem {
     OpticalSystem {
         aperture: 0.5e-3,
@@ -101,20 +177,6 @@ pub fn heights(phase: impl Fn(f64, f64) -> f64) -> Result<Grid> {
     Grid::new(v, [PITCH; 2], Unit::Metre)
 }
 
-/// The converged reference (see the module docs), one array per channel.
-pub fn reference(system: &OpticalSystem, doe: &Grid) -> Result<Vec<Array2<f64>>> {
-    let at = |s: usize| {
-        let sys = OpticalSystem { subsample: s, pixel_rule: PixelRule::Midpoint, ..system.clone() };
-        simulate(&sys, doe, Method::MatrixDft, &Options::default())
-    };
-    let (a, b) = (at(16)?, at(32)?);
-    Ok(a.channels
-        .iter()
-        .zip(&b.channels)
-        .map(|(a, b)| (4.0 * b.grid.values() - a.grid.values()) / 3.0)
-        .collect())
-}
-
 /// The indices of the points not dominated by another (one at most as slow and at most as
 /// wrong, and better in one of the two), in increasing time.
 pub fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
@@ -128,13 +190,116 @@ pub fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
     front
 }
 
-/// Runs every configuration (see the module docs), calling `tick` after each.
-pub fn run_bench(mut tick: impl FnMut(&BenchPoint)) -> Result<Vec<BenchPoint>> {
-    let (system, doe) = (scene(), doe()?);
-    let reference = reference(&system, &doe)?;
+/// How many times [`run_bench`] calls its `tick` (for a progress bar): the reference, each
+/// plan, each configuration of the sweep (run or skipped).
+pub fn steps(opts: &BenchOptions) -> usize {
+    1 + opts.tolerances.len() + CONFIGS.len() * opts.max_subsample
+}
+
+/// The fastest of up to [`REPEATS`] timed runs of `f` after a warm-up run, and its result.
+fn timed<T>(mut f: impl FnMut() -> Result<T>) -> Result<(T, f64)> {
+    let run = |f: &mut dyn FnMut() -> Result<T>| -> Result<(T, f64)> {
+        let t = Instant::now();
+        let out = f()?;
+        Ok((out, t.elapsed().as_secs_f64()))
+    };
+    let (_, warm) = run(&mut f)?;
+    let (out, mut best) = run(&mut f)?;
+    let mut spent = warm + best;
+    for _ in 1..REPEATS {
+        if spent > REPEAT_SECONDS {
+            break;
+        }
+        let t = run(&mut f)?.1;
+        spent += t;
+        best = best.min(t);
+    }
+    Ok((out, best))
+}
+
+/// Worst channel's relative L2 of `psf` against `reference`.
+fn worst_error(psf: &Psf, reference: &[Array2<f64>]) -> f64 {
+    psf.channels
+        .iter()
+        .zip(reference)
+        .map(|(c, r)| super::psf::relative_l2(c.grid.values(), r))
+        .fold(0.0, f64::max)
+}
+
+/// The matrix DFT in f64 with Gauss-Legendre pixels at `s` sub-samples.
+fn gauss_legendre_run(system: &OpticalSystem, doe: &Grid, s: usize) -> Result<Psf> {
+    let sys = OpticalSystem { subsample: s, pixel_rule: PixelRule::GaussLegendre, ..system.clone() };
+    simulate(&sys, doe, Method::MatrixDft, &Options::default())
+}
+
+/// Runs the benchmark on `doe` in `system` (see the module docs), calling `tick` with a
+/// description before each step ([`steps`] in all).
+pub fn run_bench(
+    system: &OpticalSystem,
+    doe: &Grid,
+    opts: &BenchOptions,
+    mut tick: impl FnMut(&str),
+) -> Result<BenchReport> {
+    if opts.max_subsample == 0 || opts.budget.is_nan() || opts.budget <= 0.0 {
+        return Err(crate::error::Error::param(
+            "bench",
+            format!("max_subsample {} and budget {} s must be positive", opts.max_subsample, opts.budget),
+        ));
+    }
+    let start = Instant::now();
+    let [sa, sb] = [opts.max_subsample + 2, opts.max_subsample + 4];
+    tick(&format!("reference: matrix DFT f64, Gauss-Legendre s = {sa} and {sb}"));
+    let first = gauss_legendre_run(system, doe, sa)?;
+    let t = Instant::now();
+    let second = gauss_legendre_run(system, doe, sb)?;
+    let reference_seconds = t.elapsed().as_secs_f64();
+    let reference: Vec<Array2<f64>> = second.channels.iter().map(|c| c.grid.values().clone()).collect();
+    let reference_check = Reference {
+        subsamples: [sa, sb],
+        difference: worst_error(&first, &reference),
+        seconds: reference_seconds,
+    };
+
+    let mut plans = Vec::new();
+    for &tolerance in &opts.tolerances {
+        tick(&format!("automatic plan at tolerance {tolerance:e}"));
+        let p = super::plan::plan(system, doe, &[], tolerance)?;
+        let (psf, seconds) = timed(|| super::plan::run(&p, doe, &[]))?;
+        let error = worst_error(&psf, &reference);
+        plans.push(PlanPoint {
+            tolerance,
+            method: p.method.name().into(),
+            precision: p.precision.name().into(),
+            subsample: p.system.subsample,
+            pupil_pitch: p.system.pupil_pitch,
+            estimated_error: p.estimate.total,
+            seconds,
+            error,
+            meets_tolerance: error <= tolerance,
+            cheapest_adequate: None,
+            time_ratio: None,
+        });
+    }
+
+    let share = (opts.budget - start.elapsed().as_secs_f64()).max(0.0) / CONFIGS.len() as f64;
     let mut points = Vec::new();
-    for (method, precision) in CONFIGS {
-        for s in 1..=SUBSAMPLES {
+    let mut skipped = Vec::new();
+    for (k, (method, precision)) in CONFIGS.into_iter().enumerate() {
+        let series_end = opts.budget - share * (CONFIGS.len() - 1 - k) as f64;
+        // Wall time of the series' last configuration (warm-up and repeats included).
+        let mut last_spent: Option<f64> = None;
+        for s in 1..=opts.max_subsample {
+            let name = format!("{} {} s={s}", method.name(), precision.name());
+            // The next run is predicted from the last one: the work grows at most as the
+            // number of samples, (s / (s - 1))^2.
+            let growth = if s > 1 { (s as f64 / (s - 1) as f64).powi(2) } else { 1.0 };
+            let predicted_end = start.elapsed().as_secs_f64() + last_spent.map_or(0.0, |t| t * growth);
+            if predicted_end > series_end {
+                tick(&format!("{name}: skipped (budget)"));
+                skipped.push(name);
+                continue;
+            }
+            tick(&name);
             // The FFT methods sample the sensor on their uniform grid: the midpoint rule.
             let (pixel_rule, rule) = if method == Method::MatrixDft {
                 (PixelRule::GaussLegendre, "gauss_legendre")
@@ -142,41 +307,26 @@ pub fn run_bench(mut tick: impl FnMut(&BenchPoint)) -> Result<Vec<BenchPoint>> {
                 (PixelRule::Midpoint, "midpoint")
             };
             let sys = OpticalSystem { subsample: s, pixel_rule, ..system.clone() };
-            let violations: Vec<String> = check(method, &sys, &doe)?
+            let violations: Vec<String> = check(method, &sys, doe)?
                 .iter()
                 .map(|v| format!("{} at {:.0} nm", v.condition, v.wavelength * 1e9))
                 .collect();
-            let opts = Options { allow_invalid: true, precision };
-            let timed = || -> Result<(Psf, f64)> {
-                let t = Instant::now();
-                let psf = simulate(&sys, &doe, method, &opts)?;
-                Ok((psf, t.elapsed().as_secs_f64()))
-            };
-            timed()?;
-            let (psf, mut seconds) = timed()?;
-            for _ in 1..REPEATS {
-                seconds = seconds.min(timed()?.1);
-            }
-            let error = psf
-                .channels
-                .iter()
-                .zip(&reference)
-                .map(|(c, r)| super::psf::relative_l2(c.grid.values(), r))
-                .fold(0.0, f64::max);
+            let run_opts = Options { allow_invalid: true, precision };
+            let began = Instant::now();
+            let (psf, seconds) = timed(|| simulate(&sys, doe, method, &run_opts))?;
+            last_spent = Some(began.elapsed().as_secs_f64());
             let pupil_pitch = if method == Method::MatrixDft { sys.pupil_pitch } else { sys.sample_pitch() };
-            let p = BenchPoint {
+            points.push(BenchPoint {
                 method: method.name().into(),
                 precision: precision.name().into(),
                 subsample: s,
                 pixel_rule: rule.into(),
                 pupil_pitch,
                 seconds,
-                error,
+                error: worst_error(&psf, &reference),
                 violations,
                 pareto: false,
-            };
-            tick(&p);
-            points.push(p);
+            });
         }
     }
     let valid: Vec<usize> = (0..points.len()).filter(|&i| points[i].violations.is_empty()).collect();
@@ -184,7 +334,31 @@ pub fn run_bench(mut tick: impl FnMut(&BenchPoint)) -> Result<Vec<BenchPoint>> {
     for k in pareto_front(&pairs) {
         points[valid[k]].pareto = true;
     }
-    Ok(points)
+    for plan in &mut plans {
+        let cheapest = valid
+            .iter()
+            .map(|&i| &points[i])
+            .filter(|p| p.error <= plan.tolerance)
+            .min_by(|a, b| a.seconds.total_cmp(&b.seconds));
+        if let Some(c) = cheapest {
+            plan.cheapest_adequate = Some(format!("{} {} s={}", c.method, c.precision, c.subsample));
+            plan.time_ratio = Some(plan.seconds / c.seconds);
+        }
+    }
+    Ok(BenchReport {
+        units: "lengths in m, times in s, errors as relative L2 (worst channel)".into(),
+        doe_samples: doe.values().nrows(),
+        doe_pitch: doe.pitch()[0],
+        aperture: system.aperture,
+        f_number: system.f_number(),
+        wavelengths: system.wavelengths.clone(),
+        crop: system.crop,
+        budget_seconds: opts.budget,
+        reference: reference_check,
+        points,
+        plans,
+        skipped,
+    })
 }
 
 #[cfg(test)]

@@ -10,24 +10,52 @@ use crate::calibration::evaluate::ScoringOptions;
 use crate::decoder::capture_bench::{self, scene_dirs, BenchConfig, BenchReport, FinetuneBench};
 use crate::decoder::finetune::FinetuneConfig;
 use crate::error::Result;
+use crate::fabrication::chain::{self, DesignSource};
 use crate::io::atomic::{self, StagedDir};
+use crate::material::Material;
 use crate::optics::charts::write_psf_charts;
-use crate::optics::psf_bench::{run_bench, BenchPoint, RUNS};
+use crate::optics::output::system_for;
+use crate::optics::psf_bench::{self, run_bench, steps, BenchOptions};
+use crate::optics::system::OpticalSystem;
 
-/// Runs the PSF methods' benchmark ([`crate::optics::psf_bench`]) and writes its charts (PNG,
-/// SVG) and `bench_psf.json` into the folder `output`, all or nothing. Progress: one step per
-/// configuration run.
-pub fn bench_psf(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<Vec<BenchPoint>> {
+/// `bench psf` as the command line states it.
+#[derive(Debug, Clone)]
+pub struct PsfBenchOptions {
+    /// The height map (file or built-in).
+    pub design: DesignSource,
+    /// Optical system TOML over the paper's values.
+    pub system: Option<PathBuf>,
+    /// Material of the DOE, by name.
+    pub material: String,
+    /// What to sweep and the time budget.
+    pub bench: BenchOptions,
+}
+
+/// Runs the PSF methods' benchmark ([`crate::optics::psf_bench`]) on a design in its system and
+/// writes its charts (PNG, SVG) and `bench_psf.json` into the folder `output`, all or nothing.
+/// Progress: one step per run or skipped configuration.
+pub fn bench_psf(
+    opts: &PsfBenchOptions,
+    output: &Path,
+    progress: &mut dyn FnMut(&str, u64, u64),
+) -> Result<psf_bench::BenchReport> {
+    let loaded = chain::load_design(&opts.design)?;
+    let mut system = system_for(&loaded.heights);
+    system.material = Material::by_name(&opts.material)?;
+    if let Some(p) = &opts.system {
+        system = OpticalSystem::read_toml(p, &system)?;
+    }
+    let total = steps(&opts.bench) as u64;
     let mut done = 0;
-    let points = run_bench(|p| {
+    let report = run_bench(&system, &loaded.heights, &opts.bench, |what| {
+        progress(what, done, total);
         done += 1;
-        progress(&format!("{} {} s={}", p.method, p.precision, p.subsample), done, RUNS as u64);
     })?;
     let mut stage = StagedDir::new(output)?;
-    write_psf_charts(|n| stage.stage_path(n), &points)?;
-    atomic::write_json(&stage.stage_path("bench_psf.json"), &points)?;
+    write_psf_charts(|n| stage.stage_path(n), &report)?;
+    atomic::write_json(&stage.stage_path("bench_psf.json"), &report)?;
     stage.commit()?;
-    Ok(points)
+    Ok(report)
 }
 
 /// The decoders' benchmark as the command line states it, before defaults.

@@ -284,3 +284,102 @@ fn peaks_find_the_central_spot_and_its_copies_with_their_energies() {
         assert!((peak.energy - e * (1.0 - (-8.0f64).exp())).abs() < 2e-3, "{peak:?} vs {e}");
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// `bench psf`: its reference, the plan on its chart, the budget
+
+use doefab::optics::psf_bench::{run_bench, BenchOptions};
+
+/// The bench's reference (Gauss-Legendre pixels at `s_max + 4`) agrees with the independent
+/// one above (midpoint rule, Richardson-extrapolated) to 1e-6, and its own convergence check
+/// says so; the plan meets every tolerance against it, and the Fresnel method's guard refuses
+/// the fine grids where its error stalls.
+#[test]
+fn bench_psf_reference_is_converged_and_the_plan_meets_its_tolerances() {
+    let (system, doe) = (scene(), doefab::optics::psf_bench::doe().unwrap());
+    let opts = BenchOptions { budget: 600.0, max_subsample: 4, tolerances: vec![1e-2, 1e-3, 1e-4] };
+    let mut ticks = 0;
+    let r = run_bench(&system, &doe, &opts, |_| ticks += 1).unwrap();
+    assert_eq!(ticks, doefab::optics::psf_bench::steps(&opts));
+    assert_eq!(r.reference.subsamples, [6, 8]);
+    assert!(r.reference.difference < 1e-6, "{:?}", r.reference);
+    // Against the independent reference: run the bench's reference configuration here.
+    let gl = OpticalSystem { subsample: 8, pixel_rule: PixelRule::GaussLegendre, ..system.clone() };
+    let ours = simulate(&gl, &doe, Method::MatrixDft, &Options::default()).unwrap();
+    for (c, want) in ours.channels.iter().zip(reference(&system, &doe, &[])) {
+        let e = doefab::optics::psf::relative_l2(c.grid.values(), &want);
+        assert!(e < 1e-6, "{}: {e:e}", c.name);
+    }
+    assert_eq!(r.points.len(), 4 * 4, "{:?}", r.skipped);
+    assert!(r.skipped.is_empty());
+    for p in &r.plans {
+        assert!(p.meets_tolerance, "{p:?}");
+        assert!(p.error <= p.tolerance && p.cheapest_adequate.is_some(), "{p:?}");
+    }
+    assert!(r.points.iter().any(|p| p.pareto));
+    let fresnel_fine = r.points.iter().find(|p| p.method == "fresnel" && p.subsample == 4).unwrap();
+    assert!(!fresnel_fine.violations.is_empty() && fresnel_fine.error > 1e-2, "{fresnel_fine:?}");
+}
+
+/// A budget already spent by the reference and the plans leaves the whole sweep out, listed.
+#[test]
+fn bench_psf_budget_leaves_configurations_out_by_name() {
+    let (system, doe) = (scene(), doefab::optics::psf_bench::doe().unwrap());
+    let opts = BenchOptions { budget: 1e-9, max_subsample: 2, tolerances: vec![1e-3] };
+    let r = run_bench(&system, &doe, &opts, |_| {}).unwrap();
+    assert!(r.points.is_empty());
+    assert_eq!(r.skipped.len(), 8);
+    assert!(r.skipped.contains(&"matrix_dft f32 s=1".to_string()), "{:?}", r.skipped);
+    assert_eq!(r.plans.len(), 1);
+    assert!(r.plans[0].cheapest_adequate.is_none() && r.plans[0].meets_tolerance);
+    let bad = BenchOptions { budget: 10.0, max_subsample: 0, tolerances: vec![] };
+    assert!(run_bench(&system, &doe, &bad, |_| {}).is_err());
+}
+
+/// `bench psf` on a design with a system file: the charts and the JSON, the plan on them; a
+/// budget without a unit is refused, naming the option, and nothing is written.
+#[test]
+fn bench_psf_command_charts_a_design_in_its_system() {
+    let dir = tempfile::tempdir().unwrap();
+    let sys = dir.path().join("system.toml");
+    std::fs::write(
+        &sys,
+        "aperture = \"0.5 mm\"\nfocal_length = \"3.5 mm\"\nlens_to_sensor = \"3.5 mm\"\ncrop = 33\nsensor_pitch = \"3 um\"\n",
+    )
+    .unwrap();
+    // The small scene's DOE (112^2 at 5 um) as a file in micrometres.
+    let doe = dir.path().join("doe.npy");
+    let heights = doefab::optics::psf_bench::doe().unwrap().values().mapv(|h| h * 1e6);
+    doefab::io::npy::write_npy_f64(&doe, &heights).unwrap();
+    let out = dir.path().join("bench");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
+        .args(["bench", "psf", "--json", "--budget", "2min", "--max-subsample", "2", "--pitch", "5um"])
+        .args(["--unit", "um", "--tolerances", "1e-2", "--system"])
+        .arg(&sys)
+        .arg(&doe)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!((r["aperture"].as_f64(), r["doe_samples"].as_u64()), (Some(0.5e-3), Some(112)));
+    assert_eq!(r["reference"]["subsamples"], serde_json::json!([4, 6]));
+    assert_eq!(r["plans"][0]["tolerance"], 1e-2);
+    assert_eq!(r["plans"][0]["meets_tolerance"], true);
+    let on_disk: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("bench_psf.json")).unwrap()).unwrap();
+    assert_eq!(on_disk["plans"], r["plans"]);
+    for f in ["speed_accuracy.png", "speed_accuracy.svg", "stability.png", "stability.svg"] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    let out2 = dir.path().join("bench2");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
+        .args(["bench", "psf", "--budget", "5", "-o"])
+        .arg(&out2)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success() && err.contains("--budget") && err.contains("no unit"), "{err}");
+    assert!(!out2.exists());
+}
