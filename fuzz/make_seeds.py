@@ -157,6 +157,31 @@ def exr():
     return head + struct.pack("<%dQ" % ROWS, *offsets) + b"".join(lines)
 
 
+def gwy():
+    """Gwyddion native: GWYP, a GwyContainer holding /0/data and /0/mask GwyDataFields
+    (src/io/scan/gwy.rs); the non-measured point is under the mask."""
+    def obj(name, comps):
+        body = b"".join(comps)
+        return name.encode() + b"\0" + struct.pack("<I", len(body)) + body
+
+    def comp(name, kind, value):
+        return name.encode() + b"\0" + kind + value
+
+    def unit(u):
+        return obj("GwySIUnit", [comp("unitstr", b"s", u.encode() + b"\0")])
+
+    def field(vals, z):
+        return obj("GwyDataField", [
+            comp("xres", b"i", struct.pack("<i", COLS)), comp("yres", b"i", struct.pack("<i", ROWS)),
+            comp("xreal", b"d", struct.pack("<d", 6e-6)), comp("yreal", b"d", struct.pack("<d", 5e-6)),
+            comp("si_unit_xy", b"o", unit("m")), comp("si_unit_z", b"o", unit(z)),
+            comp("data", b"D", struct.pack("<I", len(vals)) + struct.pack("<%dd" % len(vals), *vals))])
+    mask = [1.0 if (i, j) == MISSING else 0.0 for i in range(ROWS) for j in range(COLS)]
+    return b"GWYP" + obj("GwyContainer", [
+        comp("/0/data", b"o", field(flat(), "m")), comp("/0/data/title", b"s", b"seed\0"),
+        comp("/0/mask", b"o", field(mask, ""))])
+
+
 def main():
     out = sys.argv[1]
     put(out, "gsf", "seed.gsf", gsf())
@@ -169,6 +194,7 @@ def main():
     put(out, "opd", "f32.opd", opd(4))
     put(out, "opd", "i16.opd", opd(2))
     put(out, "plu", "topography.plu", plu())
+    put(out, "gwy", "masked.gwy", gwy())
     put(out, "exr", "float_z.exr", exr())
     v = flat()
     put(out, "npy", "f8_2d.npy", npy("<f8", "(%d, %d)" % (ROWS, COLS), "<%dd" % len(v), v))

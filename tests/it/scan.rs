@@ -479,3 +479,29 @@ fn sensofar_plu_reproduces_two_programs_statistics() {
     assert!((p.ssk + 0.227113).abs() < 1e-5 && (p.sku - 1.86818).abs() < 1e-5, "{} {}", p.ssk, p.sku);
     assert!(s.metadata.iter().any(|(k, v)| k == "date" && v.starts_with("Mon Apr 19")), "{:?}", s.metadata);
 }
+
+/// Gwyddion's own `.gwy` files of the shared set: S1 as written, S1 after Gwyddion's plane
+/// levelling, S3 with its mask (the one Gwyddion format that keeps the non-measured block
+/// apart), and S3 after Gwyddion's Laplace fill with the mask kept: each reproduces the
+/// statistics Gwyddion computed (README of the shared set), the mask exactly the block.
+#[test]
+fn gwyddion_native_files_reproduce_gwyddions_statistics() {
+    let dir = shared().join("gwyddion");
+    let none = ScanOptions::default();
+    let s1 = read(&dir.join("s1_tilt_pedestal.gwy"), &none);
+    assert_eq!(s1.format, ScanFormat::Gwy);
+    check_s1("s1_tilt_pedestal.gwy", &s1.grid, REL);
+    assert!(s1.warnings.is_empty(), "{:?}", s1.warnings);
+    assert!(s1.metadata.iter().any(|(k, v)| k == "/0/data/title" && !v.is_empty()), "{:?}", s1.metadata);
+    let levelled = read(&dir.join("s1_after_level.gwy"), &none);
+    check("s1_after_level.gwy", &height_params(&levelled.grid).unwrap(), &S1_PLANE, REL);
+    for name in ["s3_spikes_missing.gwy", "s3_after_laplace.gwy"] {
+        let s = read(&dir.join(name), &none);
+        check_s3(name, &s.grid, REL);
+        assert!(
+            s.warnings.iter().any(|w| w.contains("800 points under the channel's mask")),
+            "{:?}",
+            s.warnings
+        );
+    }
+}

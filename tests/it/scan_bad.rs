@@ -90,6 +90,10 @@ fn truncated_and_corrupted_binary_files_are_errors_with_offsets() {
     let mp = zygo::encode(&mp_fields(), &phase);
     check_cuts("cut.dat", &mp, true);
     check_corruption("bad.dat", &mp);
+    // Gwyddion's native format, from the shared set (read there, not copied).
+    let gwy = std::fs::read(common::shared_data("surfaces/gwyddion/s3_spikes_missing.gwy")).unwrap();
+    check_cuts("cut.gwy", &gwy, true);
+    check_corruption("bad.gwy", &gwy);
     // PNG goes through the png crate: the file is named, no offset promised.
     let png = std::fs::read(local("s3_spikes_missing.grey16.png")).unwrap();
     check_cuts("cut.png", &png, false);

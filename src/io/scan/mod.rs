@@ -7,6 +7,7 @@
 //! | `.gsf` | Gwyddion Simple Field | [`gsf`] |
 //! | `.sdf` | ISO 25178-71 / SDF, ASCII (`aBCR`, `aISO`) or binary (`bBCR`, `bISO`) | [`sdf`] |
 //! | `.sur` | Digital Surf (MountainsMap) | [`sur`] |
+//! | `.gwy` | Gwyddion native (first channel; its mask as non-measured points) | [`gwy`] |
 //! | `.opd` | Wyko / Bruker Vision binary | [`opd`] |
 //! | `.plu` | Sensofar PLu binary (2000 and later revisions) | [`plu`] |
 //! | `.dat` | Zygo MetroPro binary (recognised by its magic number; else a text matrix) | [`zygo`] |
@@ -30,6 +31,7 @@
 //! making sense (truncation, a bad field).
 
 pub mod gsf;
+pub mod gwy;
 pub mod opd;
 pub mod plu;
 pub mod png_scale;
@@ -84,6 +86,7 @@ pub enum ScanFormat {
     SdfAscii,
     SdfBinary,
     Sur,
+    Gwy,
     MetroPro,
     Opd,
     Plu,
@@ -103,6 +106,7 @@ impl ScanFormat {
             ScanFormat::SdfAscii => "ISO 25178-71 SDF (ASCII)",
             ScanFormat::SdfBinary => "ISO 25178-71 SDF (binary)",
             ScanFormat::Sur => "Digital Surf SUR",
+            ScanFormat::Gwy => "Gwyddion GWY",
             ScanFormat::MetroPro => "Zygo MetroPro DAT",
             ScanFormat::Opd => "Wyko / Bruker Vision OPD",
             ScanFormat::Plu => "Sensofar PLu",
@@ -159,6 +163,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
             }
         }
         "sur" => ScanFormat::Sur,
+        "gwy" => ScanFormat::Gwy,
         "opd" => ScanFormat::Opd,
         "plu" => ScanFormat::Plu,
         "dat" if zygo::has_magic(head) => ScanFormat::MetroPro,
@@ -171,7 +176,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
             return Err(Error::format(
                 path,
                 format!(
-                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .opd, .plu, .dat, .xyz, \
+                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .dat, .xyz, \
                      .txt/.csv/.asc, .png, .tif/.tiff or .npy)"
                 ),
             ))
@@ -197,6 +202,7 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
         ScanFormat::Gsf => gsf::decode(path, bytes),
         ScanFormat::SdfAscii | ScanFormat::SdfBinary => sdf::decode(path, bytes),
         ScanFormat::Sur => sur::decode(path, bytes),
+        ScanFormat::Gwy => gwy::decode(path, bytes),
         ScanFormat::MetroPro => zygo::decode(path, bytes),
         ScanFormat::Opd => opd::decode(path, bytes),
         ScanFormat::Plu => plu::decode(path, bytes),
@@ -421,7 +427,8 @@ mod tests {
         assert_eq!(detect_format(&p("a.sdf"), b"aISO").unwrap(), ScanFormat::SdfAscii);
         assert_eq!(detect_format(&p("a.dat"), b"\x88\x1b\x03\x6f....").unwrap(), ScanFormat::MetroPro);
         assert_eq!(detect_format(&p("a.dat"), b"1 2 3\n").unwrap(), ScanFormat::Matrix);
-        assert!(detect_format(&p("a.gwy"), b"").unwrap_err().to_string().contains("a.gwy"));
+        assert_eq!(detect_format(&p("a.gwy"), b"GWYP").unwrap(), ScanFormat::Gwy);
+        assert!(detect_format(&p("a.mnt"), b"").unwrap_err().to_string().contains("a.mnt"));
     }
 
     #[test]
