@@ -207,15 +207,22 @@ fn a_sensor_response_csv_gives_one_band_per_column() {
     }
 }
 
+/// A system TOML in `dir`: the aperture, the focal length (sensor in focus), a 33^2 crop of
+/// 3 um pixels.
+fn system_file(dir: &std::path::Path, aperture: &str, focal_length: &str) -> std::path::PathBuf {
+    let sys = dir.join("system.toml");
+    let text = format!(
+        "aperture = \"{aperture}\"\nfocal_length = \"{focal_length}\"\nlens_to_sensor = \"{focal_length}\"\n\
+         crop = 33\nsensor_pitch = \"3 um\"\n"
+    );
+    std::fs::write(&sys, text).unwrap();
+    sys
+}
+
 #[test]
 fn psf_command_with_a_system_file_and_a_sensor_response() {
     let dir = tempfile::tempdir().unwrap();
-    let sys = dir.path().join("system.toml");
-    std::fs::write(
-        &sys,
-        "aperture = \"1 mm\"\nfocal_length = \"7 mm\"\nlens_to_sensor = \"7 mm\"\ncrop = 33\nsensor_pitch = \"3 um\"\n",
-    )
-    .unwrap();
+    let sys = system_file(dir.path(), "1 mm", "7 mm");
     let csv = dir.path().join("sensor.csv");
     std::fs::write(&csv, "wavelength_nm,g,b\n430,0,1\n480,0.2,0.6\n530,1,0.1\n580,0.2,0\n").unwrap();
     let out = dir.path().join("psf");
@@ -341,28 +348,35 @@ fn bench_psf_budget_leaves_configurations_out_by_name() {
 #[test]
 fn bench_psf_command_charts_a_design_in_its_system() {
     let dir = tempfile::tempdir().unwrap();
-    let sys = dir.path().join("system.toml");
-    std::fs::write(
-        &sys,
-        "aperture = \"0.5 mm\"\nfocal_length = \"3.5 mm\"\nlens_to_sensor = \"3.5 mm\"\ncrop = 33\nsensor_pitch = \"3 um\"\n",
-    )
-    .unwrap();
+    let sys = system_file(dir.path(), "0.5 mm", "3.5 mm");
     // The small scene's DOE (112^2 at 5 um) as a file in micrometres.
     let doe = dir.path().join("doe.npy");
     let heights = doefab::optics::psf_bench::doe().unwrap().values().mapv(|h| h * 1e6);
     doefab::io::npy::write_npy_f64(&doe, &heights).unwrap();
     let out = dir.path().join("bench");
-    let run = std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
-        .args(["bench", "psf", "--json", "--budget", "2min", "--max-subsample", "2", "--pitch", "5um"])
-        .args(["--unit", "um", "--tolerances", "1e-2", "--system"])
-        .arg(&sys)
-        .arg(&doe)
-        .arg("-o")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let r: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let path = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let (sys, doe, out_arg) = (path(&sys), path(&doe), path(&out));
+    let stdout = crate::common::ok(&[
+        "bench",
+        "psf",
+        &doe,
+        "--json",
+        "--budget",
+        "2min",
+        "--max-subsample",
+        "2",
+        "--pitch",
+        "5um",
+        "--unit",
+        "um",
+        "--tolerances",
+        "1e-2",
+        "--system",
+        &sys,
+        "-o",
+        &out_arg,
+    ]);
+    let r: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert_eq!((r["aperture"].as_f64(), r["doe_samples"].as_u64()), (Some(0.5e-3), Some(112)));
     assert_eq!(r["reference"]["subsamples"], serde_json::json!([4, 6]));
     assert_eq!(r["plans"][0]["tolerance"], 1e-2);
@@ -374,12 +388,7 @@ fn bench_psf_command_charts_a_design_in_its_system() {
         assert!(out.join(f).is_file(), "{f}");
     }
     let out2 = dir.path().join("bench2");
-    let run = std::process::Command::new(env!("CARGO_BIN_EXE_doefab"))
-        .args(["bench", "psf", "--budget", "5", "-o"])
-        .arg(&out2)
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&run.stderr);
-    assert!(!run.status.success() && err.contains("--budget") && err.contains("no unit"), "{err}");
+    let err = crate::common::fails(&["bench", "psf", "--budget", "5", "-o", &path(&out2)]);
+    assert!(err.contains("--budget") && err.contains("no unit"), "{err}");
     assert!(!out2.exists());
 }
