@@ -21,7 +21,7 @@ use serde::Deserialize;
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::io::atomic::write_bytes;
-use crate::io::exr::read_exr;
+use crate::io::exr::decode_exr_channels;
 
 /// One capture: linear values in `[0, 1]` with its bit depth.
 #[derive(Debug, Clone, PartialEq)]
@@ -110,15 +110,17 @@ pub fn write_capture(path: &Path, image: &Image, bits: u8) -> Result<()> {
     write_bytes(path, &bytes)
 }
 
-/// Reads an RGB (or single-channel) OpenEXR image.
+/// Reads an RGB (or single-channel) OpenEXR image, the file read and decoded once.
 pub fn read_rgb_exr(path: &Path) -> Result<Image> {
-    let planes = match read_exr(path, Some("R")) {
-        Ok(r) => vec![r.values, read_exr(path, Some("G"))?.values, read_exr(path, Some("B"))?.values],
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let planes: Vec<_> = match decode_exr_channels(path, &bytes, &["R", "G", "B"]) {
+        Ok(rgb) => rgb.into_iter().map(|m| m.values).collect(),
         Err(Error::Parameter { .. }) => vec![
-            read_exr(path, None)
+            decode_exr_channels(path, &bytes, &[])
                 .map_err(|e| {
                     Error::format(path, format!("expected channels R, G, B or a single channel: {e}"))
                 })?
+                .swap_remove(0)
                 .values,
         ],
         Err(e) => return Err(e),

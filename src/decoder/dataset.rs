@@ -99,7 +99,7 @@ fn read_hdr_image(root: &Path, path: &PathBuf) -> Result<HdrImage> {
         ));
     }
     // Exact: the files hold f16 or f32 samples (EXR) or RGBE decoded to f32 (Radiance).
-    let mut pixels = img.values.mapv(|v| v as f32);
+    let mut pixels = img.to_f32().values;
     let max = pixels.iter().fold(0.0f32, |m, &v| m.max(v));
     if max <= 0.0 {
         return Err(Error::format(path, "is black everywhere: nothing to expose"));

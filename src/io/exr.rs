@@ -56,6 +56,13 @@ pub fn exr_channel_names(path: &Path, bytes: &[u8]) -> Result<Vec<String>> {
 
 /// Decodes the bytes of an OpenEXR file (see [`read_exr`]); `path` names it in errors.
 pub fn decode_exr(path: &Path, bytes: &[u8], channel: Option<&str>) -> Result<RawMap> {
+    let mut maps = decode_exr_channels(path, bytes, channel.as_slice())?;
+    Ok(maps.swap_remove(0))
+}
+
+/// Decodes the named channels of an OpenEXR file in one pass, in the order asked (none named:
+/// the file's only channel), each with the file's pitch, unit and attributes.
+pub fn decode_exr_channels(path: &Path, bytes: &[u8], channels: &[&str]) -> Result<Vec<RawMap>> {
     let headers = read_headers(path, bytes)?;
     // The decoder reserves every layer's samples from the header's data window: refuse a window
     // the file cannot hold. Deflate compresses at most 1032:1 (RFC 1951); the lossy DWA codecs
@@ -100,15 +107,9 @@ pub fn decode_exr(path: &Path, bytes: &[u8], channel: Option<&str>) -> Result<Ra
     }
     let layer = &layers[0];
     let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
-    let index = match channel {
-        Some(want) => names.iter().position(|n| n == want).ok_or_else(|| {
-            Error::param(
-                "channel",
-                format!("{} has no channel '{want}' (channels: {})", path.display(), names.join(", ")),
-            )
-        })?,
-        None if names.len() == 1 => 0,
-        None => {
+    let indices: Vec<usize> = match channels {
+        [] if names.len() == 1 => vec![0],
+        [] => {
             return Err(Error::param(
                 "channel",
                 format!(
@@ -119,26 +120,44 @@ pub fn decode_exr(path: &Path, bytes: &[u8], channel: Option<&str>) -> Result<Ra
                 ),
             ))
         }
+        wanted => wanted
+            .iter()
+            .map(|want| {
+                names.iter().position(|n| n == want).ok_or_else(|| {
+                    Error::param(
+                        "channel",
+                        format!(
+                            "{} has no channel '{want}' (channels: {})",
+                            path.display(),
+                            names.join(", ")
+                        ),
+                    )
+                })
+            })
+            .collect::<Result<_>>()?,
     };
     let (w, h) = (layer.size.0, layer.size.1);
-    let samples: Vec<f64> = match &layer.channel_data.list[index].sample_data {
-        FlatSamples::F32(v) => v.iter().map(|&x| x as f64).collect(),
-        FlatSamples::F16(v) => v.iter().map(|x| x.to_f64()).collect(),
-        FlatSamples::U32(_) => {
-            return Err(Error::format(
-                path,
-                format!(
-                    "channel '{}' holds u32 integers; a height map needs an f16 or f32 channel",
-                    names[index]
-                ),
-            ))
-        }
-    };
-    let values = Array2::from_shape_vec((h, w), samples).map_err(|e| {
-        Error::format(path, format!("channel '{}' does not fill {w} x {h}: {e}", names[index]))
-    })?;
     if w == 0 || h == 0 {
         return Err(Error::format(path, "the image is empty"));
+    }
+    let mut planes = Vec::with_capacity(indices.len());
+    for index in indices {
+        let samples: Vec<f64> = match &layer.channel_data.list[index].sample_data {
+            FlatSamples::F32(v) => v.iter().map(|&x| x as f64).collect(),
+            FlatSamples::F16(v) => v.iter().map(|x| x.to_f64()).collect(),
+            FlatSamples::U32(_) => {
+                return Err(Error::format(
+                    path,
+                    format!(
+                        "channel '{}' holds u32 integers; a height map needs an f16 or f32 channel",
+                        names[index]
+                    ),
+                ))
+            }
+        };
+        planes.push(Array2::from_shape_vec((h, w), samples).map_err(|e| {
+            Error::format(path, format!("channel '{}' does not fill {w} x {h}: {e}", names[index]))
+        })?);
     }
 
     // Attributes of the layer first, then those of the whole image; each list sorted by name.
@@ -199,8 +218,18 @@ pub fn decode_exr(path: &Path, bytes: &[u8], channel: Option<&str>) -> Result<Ra
             };
             (k.clone(), text)
         })
-        .collect();
-    Ok(RawMap { values, kind: SampleKind::Float, pitch, unit, metadata, scale_hint: None })
+        .collect::<Vec<_>>();
+    Ok(planes
+        .into_iter()
+        .map(|values| RawMap {
+            values,
+            kind: SampleKind::Float,
+            pitch,
+            unit,
+            metadata: metadata.clone(),
+            scale_hint: None,
+        })
+        .collect())
 }
 
 /// Writes f32 channels (all of one shape, row 0 at the top) with our attributes (pitch, unit,
@@ -363,6 +392,19 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("no channel 'Y'"));
+    }
+
+    #[test]
+    fn several_channels_in_one_pass_in_the_order_asked() {
+        let a = ramp(3, 4);
+        let b = a.mapv(|v| -v);
+        let bytes = encode_exr(Path::new("m.exr"), &[("Z", &a), ("mask", &b)], &Metadata::default()).unwrap();
+        let maps = decode_exr_channels(Path::new("m.exr"), &bytes, &["mask", "Z"]).unwrap();
+        assert_eq!(maps.len(), 2);
+        assert_eq!(maps[0].values, b.mapv(|v| v as f64));
+        assert_eq!(maps[1].values, a.mapv(|v| v as f64));
+        let e = decode_exr_channels(Path::new("m.exr"), &bytes, &["Z", "B"]).unwrap_err().to_string();
+        assert!(e.contains("no channel 'B'"), "{e}");
     }
 
     #[test]
