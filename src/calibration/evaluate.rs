@@ -251,7 +251,6 @@ pub fn prepare(
     psf: Option<&Psf>,
     opts: &ScoringOptions,
 ) -> Result<Scoring> {
-    let (reference_image, reference, capture) = (reference, &reference.values, &capture.values);
     let (h, w, nc) = capture.dim();
     if reference.dim() != capture.dim() {
         return Err(Error::Data(format!(
@@ -276,11 +275,10 @@ pub fn prepare(
     let clip = clipping_level(capture, opts.saturation, &mut warnings);
     let capture = Image::new(capture.mapv(|v| v / clip));
     let predicted = match psf {
-        Some(p) => convolve_psf(reference_image, p)?,
-        None => reference_image.clone(),
+        Some(p) => convolve_psf(reference, p)?,
+        None => reference.clone(),
     };
     let cap_lum = luminance(&capture);
-    let capture = &capture.values;
     // The floor is applied below, to the pixels scored.
     let register = RegisterOptions { min_coverage: 0.0, ..opts.register.clone() };
     let mut gain = 1.0;
@@ -324,8 +322,8 @@ pub fn prepare(
         }
     };
     let (mut warped_reference, _) = match (&registration, &local_registration) {
-        (_, Some(l)) => l.warp(reference_image),
-        (Some(r), None) => warp(reference_image, &r.affine, h, w)?,
+        (_, Some(l)) => l.warp(reference),
+        (Some(r), None) => warp(reference, &r.affine, h, w)?,
         (None, None) => return Err(Error::Data("no registration was made".into())),
     };
     Zip::from(warped_reference.values.lanes_mut(Axis(2))).and(&mask).for_each(|mut px, &inside| {
