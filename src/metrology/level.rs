@@ -121,6 +121,12 @@ fn lstsq(points: &[(usize, usize, f64)], m: usize, basis: impl Fn(f64, f64, &mut
 
 /// Fits the least-squares plane to the valid samples (within `region` when given).
 pub fn fit_plane(g: &Grid, region: Option<&Array2<bool>>) -> Result<Plane> {
+    fit_plane_rows(g, region, 1)
+}
+
+/// [`fit_plane`] over every `row_step`-th row only (a cheaper estimate from a subset of rows;
+/// the plane is still expressed in the grid's own indices).
+pub fn fit_plane_rows(g: &Grid, region: Option<&Array2<bool>>, row_step: usize) -> Result<Plane> {
     if let Some(r) = region {
         if r.dim() != g.dim() {
             return Err(Error::param("region", format!("mask is {:?}, surface is {:?}", r.dim(), g.dim())));
@@ -132,7 +138,7 @@ pub fn fit_plane(g: &Grid, region: Option<&Array2<bool>>) -> Result<Plane> {
     let (mut n, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     let (mut sz, mut sxz, mut syz) = (0.0, 0.0, 0.0);
     let mask = g.mask();
-    for (i, row) in g.values().outer_iter().enumerate() {
+    for (i, row) in g.values().outer_iter().enumerate().step_by(row_step.max(1)) {
         let y = i as f64 - ic;
         for (j, &z) in row.iter().enumerate() {
             if !(mask.is_none_or(|m| m[[i, j]]) && region.is_none_or(|r| r[[i, j]])) {

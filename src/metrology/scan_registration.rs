@@ -19,8 +19,9 @@
 //!    (steps of one coarse pixel at the design's half-width, within `max_rotation`) and both
 //!    mirror states, the design is turned into a template and cross-correlated with the scan by
 //!    FFT (`rustfft`, zero-padded to avoid wrap-around; the mirrored and plain templates share one
-//!    complex transform as real and imaginary parts). The largest `|c| / |T|` wins; its sign is
-//!    the height sign. The correlation peak is refined to 1/10 coarse pixel by the matrix-multiply
+//!    complex transform as real and imaginary parts; angles in parallel, in single precision, as
+//!    the sweep only ranks peaks). The largest `|c| / |T|` wins; its sign is the height sign, and
+//!    the winner's map is computed again in double precision. The correlation peak is refined to 1/10 coarse pixel by the matrix-multiply
 //!    upsampled DFT of Guizar-Sicairos, Thurman & Fienup, "Efficient subpixel image
 //!    registration algorithms", Opt. Lett. 33, 156 (2008), applied to the plain (not
 //!    phase-normalised) cross-power spectrum, and the angle by a parabola through the peaks of
@@ -34,16 +35,21 @@
 //!    `(t_x, t_y, theta, ln s, a, b, c_x, c_y)`, minimising the residual over the scan's valid
 //!    samples (their exact positions, no resampling of the scan), the design read by Keys cubic
 //!    convolution with its analytic gradient. It runs first on the design binned to half the
-//!    coarse pitch, then at the design's own pitch (scan samples taken with a stride when more
-//!    than `max_points`). Formal standard errors come from `sigma^2 (J^T J)^-1`.
+//!    coarse pitch, then at the design's own pitch (a quarter of `max_points` scan samples, taken
+//!    with a stride), then against the design blurred by the first-order blur estimate
+//!    (`max_points` samples). The point budget trades time for accuracy: `cargo bench --bench
+//!    register` charts one against the other. Formal standard errors come from
+//!    `sigma^2 (J^T J)^-1`.
 //! 5. *Confidence.* The correlation coefficient between the scan (fitted plane removed) and the
 //!    design at the registered positions; below `min_correlation` the scan is refused as not
 //!    matching the design.
 
+use std::borrow::Cow;
 use std::sync::Arc;
 
-use rustfft::num_complex::Complex64;
-use rustfft::{Fft, FftPlanner};
+use rayon::prelude::*;
+use rustfft::num_complex::{Complex, Complex32, Complex64};
+use rustfft::{Fft, FftNum, FftPlanner};
 use serde::Serialize;
 
 use crate::error::{Error, Result};
@@ -104,8 +110,9 @@ impl Pose {
 /// sample; a point more than half a sample outside the grid, or touching an invalid sample,
 /// has no value.
 #[derive(Debug, Clone)]
-pub struct Sampler {
-    v: Vec<f64>,
+pub struct Sampler<'a> {
+    /// The values, row-major: borrowed from the grid when it stores them so.
+    v: Cow<'a, [f64]>,
     /// Discrete Laplacian of the values (per square metre), when made by [`Sampler::with_laplacian`].
     lap: Option<Vec<f64>>,
     valid: Option<Vec<bool>>,
@@ -114,11 +121,13 @@ pub struct Sampler {
     pitch: [f64; 2],
 }
 
-impl Sampler {
-    pub fn new(g: &Grid) -> Sampler {
+impl<'a> Sampler<'a> {
+    pub fn new(g: &'a Grid) -> Sampler<'a> {
         let (rows, cols) = g.dim();
         Sampler {
-            v: g.values().iter().copied().collect(),
+            v: g.values()
+                .as_slice()
+                .map_or_else(|| Cow::Owned(g.values().iter().copied().collect()), Cow::Borrowed),
             lap: None,
             valid: g.mask().map(|m| m.iter().copied().collect()),
             rows,
@@ -129,23 +138,24 @@ impl Sampler {
 
     /// Also samples the 5-point Laplacian `d2h/dx2 + d2h/dy2` of the values (0 next to an
     /// invalid sample; edges repeat the edge sample).
-    pub fn with_laplacian(g: &Grid) -> Sampler {
+    pub fn with_laplacian(g: &'a Grid) -> Sampler<'a> {
         let mut s = Sampler::new(g);
         let (nr, nc) = (s.rows, s.cols);
         let (px2, py2) = (s.pitch[0] * s.pitch[0], s.pitch[1] * s.pitch[1]);
         let ok = |k: usize| s.valid.as_ref().is_none_or(|m| m[k]);
         let mut lap = vec![0.0; nr * nc];
-        for i in 0..nr {
-            for j in 0..nc {
+        let v = &s.v;
+        // Rows in parallel; each sample depends on its neighbours only.
+        lap.par_chunks_mut(nc).enumerate().for_each(|(i, row)| {
+            for (j, out) in row.iter_mut().enumerate() {
                 let k = i * nc + j;
                 let (u, d) = (i.saturating_sub(1) * nc + j, (i + 1).min(nr - 1) * nc + j);
                 let (l, r) = (i * nc + j.saturating_sub(1), i * nc + (j + 1).min(nc - 1));
                 if [k, u, d, l, r].iter().all(|&q| ok(q)) {
-                    let v = &s.v;
-                    lap[k] = (v[l] + v[r] - 2.0 * v[k]) / px2 + (v[u] + v[d] - 2.0 * v[k]) / py2;
+                    *out = (v[l] + v[r] - 2.0 * v[k]) / px2 + (v[u] + v[d] - 2.0 * v[k]) / py2;
                 }
             }
-        }
+        });
         s.lap = Some(lap);
         s
     }
@@ -275,7 +285,9 @@ pub struct Registration {
     pub mirror_ratio: f64,
     /// RMS of the residual, metres.
     pub rms_residual: f64,
-    /// Formal standard errors: shift `[x, y]` (metres), rotation (radians), scale, depth scale.
+    /// Formal standard errors `sigma^2 (J^T J)^-1` (white residuals assumed, so a lower bound
+    /// where the residual is dominated by model error): shift `[x, y]` (metres), rotation
+    /// (radians), scale, depth scale. NaN where the normal equations are singular.
     pub shift_sigma: [f64; 2],
     pub rotation_sigma: f64,
     pub scale_sigma: f64,
@@ -331,18 +343,32 @@ fn bin(g: &Grid, pitch: [f64; 2]) -> (Img, Vec<f64>) {
             ((x / pitch[0] + (cols as f64 - 1.0) * 0.5).round().max(0.0) as usize).min(cols - 1)
         })
         .collect();
-    let mask = g.mask();
-    for (i, row) in g.values().outer_iter().enumerate() {
-        let y = (i as f64 - (nr as f64 - 1.0) * 0.5) * p[1];
-        let bi = ((y / pitch[1] + (rows as f64 - 1.0) * 0.5).round().max(0.0) as usize).min(rows - 1);
-        for (j, &z) in row.iter().enumerate() {
-            if mask.is_none_or(|m| m[[i, j]]) {
-                let k = bi * cols + jmap[j];
-                sum[k] += z;
-                cnt[k] += 1.0;
+    // Cell row of each sample row: non-decreasing, so each cell row takes a contiguous run of
+    // sample rows. Cell rows are filled in parallel, each summing its samples in row-major
+    // order (the same order, and so the same sums, on any number of threads).
+    let imap: Vec<usize> = (0..nr)
+        .map(|i| {
+            let y = (i as f64 - (nr as f64 - 1.0) * 0.5) * p[1];
+            ((y / pitch[1] + (rows as f64 - 1.0) * 0.5).round().max(0.0) as usize).min(rows - 1)
+        })
+        .collect();
+    let values = g.values().as_standard_layout();
+    let vals = values.as_slice().unwrap_or(&[]);
+    let mask = g.mask().map(|m| m.as_standard_layout());
+    let mvals = mask.as_ref().and_then(|m| m.as_slice());
+    sum.par_chunks_mut(cols).zip(cnt.par_chunks_mut(cols)).enumerate().for_each(|(bi, (srow, crow))| {
+        let (i0, i1) = (imap.partition_point(|&b| b < bi), imap.partition_point(|&b| b <= bi));
+        for i in i0..i1 {
+            let row = &vals[i * nc..(i + 1) * nc];
+            let ok = mvals.map(|m| &m[i * nc..(i + 1) * nc]);
+            for (j, &z) in row.iter().enumerate() {
+                if ok.is_none_or(|m| m[j]) {
+                    srow[jmap[j]] += z;
+                    crow[jmap[j]] += 1.0;
+                }
             }
         }
-    }
+    });
     let v = sum.iter().zip(&cnt).map(|(s, c)| if *c > 0.0 { s / c } else { 0.0 }).collect();
     (Img { v, rows, cols, pitch }, cnt)
 }
@@ -387,19 +413,20 @@ fn solve(a: &mut [f64], r: &mut [f64], n: usize) -> Option<Vec<f64>> {
 }
 
 /// A 2-D complex FFT of fixed shape, planned once (rows, then columns through a transpose).
-struct Fft2 {
+#[derive(Clone)]
+struct Fft2<T: FftNum> {
     rows: usize,
     cols: usize,
-    fr: Arc<dyn Fft<f64>>,
-    fc: Arc<dyn Fft<f64>>,
-    ir: Arc<dyn Fft<f64>>,
-    ic: Arc<dyn Fft<f64>>,
-    scratch: Vec<Complex64>,
-    tmp: Vec<Complex64>,
+    fr: Arc<dyn Fft<T>>,
+    fc: Arc<dyn Fft<T>>,
+    ir: Arc<dyn Fft<T>>,
+    ic: Arc<dyn Fft<T>>,
+    scratch: Vec<Complex<T>>,
+    tmp: Vec<Complex<T>>,
 }
 
-impl Fft2 {
-    fn new(rows: usize, cols: usize) -> Fft2 {
+impl<T: FftNum> Fft2<T> {
+    fn new(rows: usize, cols: usize) -> Fft2<T> {
         let mut p = FftPlanner::new();
         let (fr, fc) = (p.plan_fft_forward(cols), p.plan_fft_forward(rows));
         let (ir, ic) = (p.plan_fft_inverse(cols), p.plan_fft_inverse(rows));
@@ -411,12 +438,12 @@ impl Fft2 {
             fc,
             ir,
             ic,
-            scratch: vec![Complex64::default(); n],
-            tmp: vec![Complex64::default(); rows * cols],
+            scratch: vec![Complex::new(T::zero(), T::zero()); n],
+            tmp: vec![Complex::new(T::zero(), T::zero()); rows * cols],
         }
     }
 
-    fn run(&mut self, buf: &mut [Complex64], inverse: bool) {
+    fn run(&mut self, buf: &mut [Complex<T>], inverse: bool) {
         let (r, c) = (self.rows, self.cols);
         let (row, col) = if inverse { (&self.ir, &self.ic) } else { (&self.fr, &self.fc) };
         row.process_with_scratch(buf, &mut self.scratch);
@@ -503,9 +530,9 @@ pub fn register(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Re
             }
             blur2 = s2;
             p.lin[4] = 0.0;
-            crate::metrology::synthetic_scan::gaussian_blur(design, s2.sqrt())?
+            Cow::Owned(crate::metrology::synthetic_scan::gaussian_blur(design, s2.sqrt())?)
         } else if g == 1 {
-            design.clone()
+            Cow::Borrowed(design)
         } else {
             let (img, w) = bin(design, [pd[0] * g as f64, pd[1] * g as f64]);
             let valid =
@@ -513,14 +540,21 @@ pub fn register(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Re
                     .map_err(|e| Error::Data(e.to_string()))?;
             let v = ndarray::Array2::from_shape_vec((img.rows, img.cols), img.v)
                 .map_err(|e| Error::Data(e.to_string()))?;
-            Grid::new(v, img.pitch, design.unit())?.with_mask(valid)?
+            Cow::Owned(Grid::new(v, img.pitch, design.unit())?.with_mask(valid)?)
+        };
+        // The last level (design blurred) takes the full point budget; the unblurred pass
+        // before it only supplies the blur's first-order estimate and a closer start, for which
+        // a quarter of the points does.
+        let limit = match g {
+            0 => opts.max_points,
+            1 => (opts.max_points / 4).max(20_000),
+            g => (opts.max_points / (g * g)).max(20_000),
         };
         let g = g.max(1);
-        let limit = if g == 1 { opts.max_points } else { (opts.max_points / (g * g)).max(20_000) };
         let pts = points(scan, limit);
         let sampler = Sampler::with_laplacian(&dg);
         let ctx = Ctx { sampler: &sampler, mirror: coarse.pose.mirror, pd, g: g as f64 };
-        fit = Some(refine(&ctx, &pts, &mut p, dr.max(dc) as f64 * 0.5)?);
+        fit = Some(refine(&ctx, &pts, &mut p, dr.max(dc) as f64 * 0.5, fit.is_none())?);
     }
     let fit = fit.ok_or_else(|| Error::Data("no refinement level ran".into()))?;
     let a = p.lin[0];
@@ -575,15 +609,21 @@ pub fn register(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Re
     Ok(reg)
 }
 
+/// Rows of the scan [`check_observable`] reads at most.
+const OBSERVABLE_ROWS: usize = 256;
+
 /// Refuses a flat design and a scan that is flat or white noise (step 1 of the module docs).
 fn check_observable(design: &Grid, scan: &Grid) -> Result<()> {
     let (lo, hi) = design.min_max().ok_or_else(|| Error::Data("the design has no valid sample".into()))?;
     if hi <= lo {
         return Err(Error::Validity("the design is flat: there is nothing to register against".into()));
     }
-    let plane = crate::metrology::level::fit_plane(scan, None)?;
+    // The statistics from at most OBSERVABLE_ROWS rows spread over the scan: half a million
+    // samples of a 2048^2 scan tell structure from white noise as well as four million.
+    let row_step = scan.dim().0.div_ceil(OBSERVABLE_ROWS).max(1);
+    let plane = crate::metrology::level::fit_plane_rows(scan, None, row_step)?;
     let (mut n, mut s, mut ss, mut nd, mut sd) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for (i, row) in scan.values().outer_iter().enumerate() {
+    for (i, row) in scan.values().outer_iter().enumerate().step_by(row_step) {
         let mut prev: Option<f64> = None;
         for (j, &z) in row.iter().enumerate() {
             if scan.is_valid(i, j) {
@@ -631,7 +671,7 @@ fn coarse_search(d: &Img, s: &Img, opts: &RegisterOptions) -> Result<Coarse> {
     let (tr, tc) = (d.rows, d.cols);
     let nr = fast_len(s.rows + tr);
     let nc = fast_len(s.cols + tc);
-    let mut fft = Fft2::new(nr, nc);
+    let mut fft = Fft2::<f64>::new(nr, nc);
     let mut sh = vec![Complex64::default(); nr * nc];
     for i in 0..s.rows {
         for j in 0..s.cols {
@@ -650,50 +690,69 @@ fn coarse_search(d: &Img, s: &Img, opts: &RegisterOptions) -> Result<Coarse> {
     let mirrors: &[bool] = if opts.try_mirror { &[false, true] } else { &[false] };
     let (ct_i, ct_j) = d.centre();
     let template = |theta: f64, mirror: bool| -> (Vec<f64>, f64) {
-        let pose = Pose { mirror, rotation: theta, ..Default::default() };
+        // Pose::scan_to_design with rotation theta, unit scale and no shift, written out so
+        // that the sine and cosine are taken once.
+        let (sn, cs) = theta.sin_cos();
+        let mx = if mirror { -1.0 } else { 1.0 };
         let mut t = vec![0.0; tr * tc];
         for i in 0..tr {
+            let y = (i as f64 - ct_i) * d.pitch[1];
             for j in 0..tc {
-                let u = [(j as f64 - ct_j) * d.pitch[0], (i as f64 - ct_i) * d.pitch[1]];
-                t[i * tc + j] = d.bilinear(pose.scan_to_design(u));
+                let x = (j as f64 - ct_j) * d.pitch[0];
+                t[i * tc + j] = d.bilinear([mx * (cs * x + sn * y), -sn * x + cs * y]);
             }
         }
         let n = t.iter().map(|v| v * v).sum::<f64>().sqrt();
         (t, n)
     };
     let lag = |k: usize, len: usize, n: usize| if k >= len { k as isize - n as isize } else { k as isize };
-    // peaks[m][a]: best |c| / (|S| |T|) and where, for mirror state m and angle a.
-    let mut peaks: Vec<Vec<Peak>> = vec![Vec::new(); mirrors.len()];
-    let mut buf = vec![Complex64::default(); nr * nc];
     let scale = 1.0 / (nr * nc) as f64;
-    for &theta in &angles {
-        let ts: Vec<(Vec<f64>, f64)> = mirrors.iter().map(|&m| template(theta, m)).collect();
-        buf.iter_mut().for_each(|c| *c = Complex64::default());
-        for i in 0..tr {
-            for j in 0..tc {
-                let re = ts[0].0[i * tc + j];
-                let im = ts.get(1).map_or(0.0, |t| t.0[i * tc + j]);
-                buf[i * nc + j] = Complex64::new(re, im);
-            }
-        }
-        fft.run(&mut buf, false);
-        for (b, sv) in buf.iter_mut().zip(&sh) {
-            *b = sv * b.conj();
-        }
-        fft.run(&mut buf, true);
-        for (m, t) in ts.iter().enumerate() {
-            let norm = scale / (s_norm * t.1.max(1e-300));
-            let mut best = Peak { value: 0.0 };
-            for c in buf.iter() {
-                // Real part: plain template; minus imaginary part: mirrored template.
-                let v = if m == 0 { c.re } else { -c.im } * norm;
-                if v.abs() > best.value.abs() {
-                    best = Peak { value: v };
+    // For each angle (in parallel, each with its own transform buffers) and mirror state: the
+    // best |c| / (|S| |T|). Every angle is computed alone, so threads do not change the result.
+    // The sweep in single precision (it only ranks peaks; the winner's map is redone in f64).
+    let fft32 = Fft2::<f32>::new(nr, nc);
+    let sh32: Vec<Complex32> = sh.iter().map(|c| Complex32::new(c.re as f32, c.im as f32)).collect();
+    let per_angle: Vec<Vec<Peak>> = angles
+        .par_iter()
+        .map_init(
+            || (fft32.clone(), vec![Complex32::default(); nr * nc]),
+            |(fft, buf), &theta| {
+                let ts: Vec<(Vec<f64>, f64)> = mirrors.iter().map(|&m| template(theta, m)).collect();
+                buf.iter_mut().for_each(|c| *c = Complex32::default());
+                for i in 0..tr {
+                    for j in 0..tc {
+                        let re = ts[0].0[i * tc + j];
+                        let im = ts.get(1).map_or(0.0, |t| t.0[i * tc + j]);
+                        buf[i * nc + j] = Complex32::new(re as f32, im as f32);
+                    }
                 }
-            }
-            peaks[m].push(best);
-        }
-    }
+                fft.run(buf, false);
+                for (b, sv) in buf.iter_mut().zip(&sh32) {
+                    *b = sv * b.conj();
+                }
+                fft.run(buf, true);
+                ts.iter()
+                    .enumerate()
+                    .map(|(m, t)| {
+                        let norm = scale / (s_norm * t.1.max(1e-300));
+                        let mut best = Peak { value: 0.0 };
+                        for c in buf.iter() {
+                            // Real part: plain template; minus imaginary part: mirrored template.
+                            let v = f64::from(if m == 0 { c.re } else { -c.im }) * norm;
+                            if v.abs() > best.value.abs() {
+                                best = Peak { value: v };
+                            }
+                        }
+                        best
+                    })
+                    .collect()
+            },
+        )
+        .collect();
+    // peaks[m][a]: mirror state m, angle a.
+    let peaks: Vec<Vec<Peak>> =
+        (0..mirrors.len()).map(|m| per_angle.iter().map(|ps| ps[m]).collect()).collect();
+    let mut buf = vec![Complex64::default(); nr * nc];
     let (mut bm, mut ba) = (0, 0);
     for (m, ps) in peaks.iter().enumerate() {
         for (a, p) in ps.iter().enumerate() {
@@ -891,7 +950,7 @@ impl Params {
 const NP: usize = 9;
 
 struct Ctx<'a> {
-    sampler: &'a Sampler,
+    sampler: &'a Sampler<'a>,
     mirror: bool,
     /// Design pitch (shift unit).
     pd: [f64; 2],
@@ -1044,8 +1103,10 @@ struct Fit {
     points: usize,
 }
 
-/// Levenberg-Marquardt on the eight parameters (step 4 of the module docs).
-fn refine(ctx: &Ctx, pts: &[[f64; 3]], p: &mut Params, radius_px: f64) -> Result<Fit> {
+/// Levenberg-Marquardt on the eight parameters (step 4 of the module docs); `linear_first`: an
+/// exact least-squares step of the linear parameters alone first (for a start whose heights are
+/// not yet fitted).
+fn refine(ctx: &Ctx, pts: &[[f64; 3]], p: &mut Params, radius_px: f64, linear_first: bool) -> Result<Fit> {
     // Plane slopes are fitted per metre (the normal equations are diagonally scaled).
     let half = [1.0, 1.0];
     // The linear parameters first, with the geometry fixed (exact least squares).
@@ -1056,7 +1117,7 @@ fn refine(ctx: &Ctx, pts: &[[f64; 3]], p: &mut Params, radius_px: f64) -> Result
         ));
     }
     let all: Vec<usize> = (0..NP).collect();
-    if let Some(d) = lm_step(&nm, 0.0, &[4, 5, 6, 7, 8]) {
+    if let Some(d) = lm_step(&nm, 0.0, &[4, 5, 6, 7, 8]).filter(|_| linear_first) {
         let mut v = p.vec();
         v.iter_mut().zip(&d).for_each(|(x, y)| *x += y);
         *p = Params::from_vec(&v);
@@ -1090,15 +1151,19 @@ fn refine(ctx: &Ctx, pts: &[[f64; 3]], p: &mut Params, radius_px: f64) -> Result
     let var_z = szz / n - (sz / n).powi(2);
     let var_h = shh / n - (sh / n).powi(2);
     let correlation = (cov_zh / (var_z * var_h).sqrt()).abs();
-    // Formal covariance sigma^2 (J^T J)^-1, column by column.
+    // Formal covariance sigma^2 (J^T J)^-1, column by column, solved on the diagonally scaled
+    // matrix D^-1 (J^T J) D^-1 (the parameters' units differ by orders of magnitude) and scaled
+    // back: (J^T J)^-1 = D^-1 (D^-1 J^T J D^-1)^-1 D^-1. NaN when the matrix is singular.
     let s2 = nm.sse / (n - NP as f64).max(1.0);
-    let mut sigma = [0.0; NP];
+    let d: Vec<f64> = (0..NP).map(|k| nm.a[k * NP + k].sqrt().max(1e-300)).collect();
+    let scaled: Vec<f64> = (0..NP * NP).map(|q| nm.a[q] / (d[q / NP] * d[q % NP])).collect();
+    let mut sigma = [f64::NAN; NP];
     for (k, sk) in sigma.iter_mut().enumerate() {
-        let mut a = nm.a.to_vec();
+        let mut a = scaled.clone();
         let mut e = vec![0.0; NP];
         e[k] = 1.0;
         if let Some(x) = solve(&mut a, &mut e, NP) {
-            *sk = (s2 * x[k]).max(0.0).sqrt();
+            *sk = (s2 * x[k]).max(0.0).sqrt() / d[k];
         }
     }
     Ok(Fit {
@@ -1156,6 +1221,11 @@ mod tests {
         let offset = if complement { 0.2e-6 + 0.95 * hmax } else { 0.2e-6 };
         assert!((r.offset - offset).abs() < 5e-9, "{} vs {offset}", r.offset);
         assert!((r.blur - 2e-6).abs() < 0.5e-6, "{r:?}");
+        // The formal standard errors exist (the normal equations are solved scaled) and are
+        // below the accuracy goals.
+        let sig = [r.shift_sigma[0], r.shift_sigma[1], r.rotation_sigma, r.scale_sigma, r.depth_scale_sigma];
+        assert!(sig.iter().all(|s| s.is_finite() && *s > 0.0), "{sig:?}");
+        assert!(r.shift_sigma[0] < 0.02 * PAPER_PITCH && r.rotation_sigma < 0.01f64.to_radians(), "{sig:?}");
     }
 
     #[test]
