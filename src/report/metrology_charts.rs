@@ -1,12 +1,13 @@
 //! Charts of the metrology comparison: false-colour height maps with a colour bar in nm,
 //! profiles through the centre (design against the part) and the height histogram with the
-//! level heights marked. PNG through [`write_png_chart`].
+//! level heights marked. PNG through [`write_png_chart`]. The registration's speed against its
+//! accuracy ([`registration_speed_accuracy`]).
 
 use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::{write_png_chart, FONT};
+use super::{draw_legend, write_png_chart, write_svg_chart, FONT};
 use crate::error::Result;
 use crate::grid::Grid;
 
@@ -299,4 +300,93 @@ mod tests {
         assert_eq!(img.get_pixel(15 + 30, 35 + 20).0, [160, 160, 160]);
         assert_eq!(colour(Palette::Diverging, 0.5), RGBColor(247, 247, 247));
     }
+}
+
+/// One setting of [`registration_speed_accuracy`]: its label, time (seconds), shift error and
+/// formal standard error (design pixels), and whether it is the default.
+pub struct SpeedAccuracyPoint {
+    pub label: String,
+    pub seconds: f64,
+    pub error: f64,
+    pub sigma: f64,
+    pub chosen: bool,
+}
+
+/// Registration time against shift error (log-log), one labelled point per setting, the formal
+/// standard error beside it and the accuracy goal `goal_px` as a line; PNG at `path` and SVG
+/// beside it.
+pub fn registration_speed_accuracy(path: &Path, points: &[SpeedAccuracyPoint], goal_px: f64) -> Result<()> {
+    let pos = |v: f64| v.is_finite() && v > 0.0;
+    let xs: Vec<f64> = points.iter().map(|p| p.seconds).filter(|&v| pos(v)).collect();
+    let ys: Vec<f64> =
+        points.iter().flat_map(|p| [p.error, p.sigma]).chain([goal_px]).filter(|&v| pos(v)).collect();
+    let span = |v: &[f64]| {
+        let (lo, hi) = v.iter().fold((f64::INFINITY, 0.0f64), |(l, h), &x| (l.min(x), h.max(x)));
+        if lo.is_finite() && hi > 0.0 {
+            (lo / 1.6, hi * 1.6)
+        } else {
+            (1e-3, 1.0)
+        }
+    };
+    let (x, y) = (span(&xs), span(&ys));
+    fn draw<DB: DrawingBackend>(
+        root: &DrawingArea<DB, plotters::coord::Shift>,
+        points: &[SpeedAccuracyPoint],
+        goal: f64,
+        x: (f64, f64),
+        y: (f64, f64),
+    ) -> std::result::Result<(), String> {
+        let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+        let mut ch = ChartBuilder::on(root)
+            .caption("registration: time against shift error (least-squares point budget)", (FONT, 17))
+            .margin(14)
+            .x_label_area_size(44)
+            .y_label_area_size(70)
+            .build_cartesian_2d((x.0..x.1).log_scale(), (y.0..y.1).log_scale())
+            .map_err(e)?;
+        // Three significant digits, no float noise ("0.3", not "0.30000000000000004").
+        let fmt = |v: &f64| {
+            let d = (2 - v.abs().log10().floor() as i32).max(0) as usize;
+            format!("{v:.d$}")
+        };
+        ch.configure_mesh()
+            .x_label_formatter(&fmt)
+            .y_label_formatter(&fmt)
+            .light_line_style(WHITE)
+            .x_desc("time per registration (s)")
+            .y_desc("shift error (design pixels, 4.29 um)")
+            .label_style((FONT, 13))
+            .axis_desc_style((FONT, 14))
+            .draw()
+            .map_err(e)?;
+        ch.draw_series(LineSeries::new([(x.0, goal), (x.1, goal)], RED.mix(0.6).stroke_width(1)))
+            .map_err(e)?
+            .label(format!("goal {goal} px"))
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RED.mix(0.6)));
+        let ok = |v: f64| v.is_finite() && v > 0.0;
+        let measured: Vec<(f64, f64)> =
+            points.iter().filter(|p| ok(p.seconds) && ok(p.error)).map(|p| (p.seconds, p.error)).collect();
+        let formal: Vec<(f64, f64)> =
+            points.iter().filter(|p| ok(p.seconds) && ok(p.sigma)).map(|p| (p.seconds, p.sigma)).collect();
+        ch.draw_series(LineSeries::new(measured.iter().copied(), BLUE.stroke_width(2)))
+            .map_err(e)?
+            .label("measured error")
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLUE.stroke_width(2)));
+        ch.draw_series(measured.iter().map(|&p| Circle::new(p, 4, BLUE.filled()))).map_err(e)?;
+        ch.draw_series(LineSeries::new(formal.iter().copied(), BLACK.mix(0.5).stroke_width(1)))
+            .map_err(e)?
+            .label("formal standard error")
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLACK.mix(0.5)));
+        for p in points.iter().filter(|p| ok(p.seconds) && ok(p.error)) {
+            let text = if p.chosen { format!("{} (default)", p.label) } else { p.label.clone() };
+            ch.draw_series([EmptyElement::at((p.seconds, p.error)) + Text::new(text, (7, 4), (FONT, 12))])
+                .map_err(e)?;
+            if p.chosen {
+                ch.draw_series([Circle::new((p.seconds, p.error), 8, BLUE.stroke_width(2))]).map_err(e)?;
+            }
+        }
+        draw_legend(&mut ch, SeriesLabelPosition::UpperRight, 13)
+    }
+    write_png_chart(path, 900, 560, |root| draw(root, points, goal_px, x, y))?;
+    write_svg_chart(&path.with_extension("svg"), 900, 560, |root| draw(root, points, goal_px, x, y))
 }
