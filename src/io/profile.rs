@@ -116,6 +116,14 @@ pub fn profile_unit(name: &str) -> Option<f64> {
     }
 }
 
+/// Metres per unit of a unit the caller names (`--x-unit`, `--z-unit`): those of
+/// [`profile_unit`], refused with the list otherwise.
+pub fn profile_unit_arg(name: &str) -> Result<f64> {
+    profile_unit(name).ok_or_else(|| {
+        Error::param("unit", format!("'{name}' is not a length unit (expected one of m, mm, um, nm, pm, A)"))
+    })
+}
+
 /// The unit a column-header cell names: the text in parentheses or brackets, else its last
 /// word (`Height (nm)`, `Z[um]`, `x um`, `um`).
 fn cell_unit(cell: &str) -> Option<(f64, String)> {
@@ -197,19 +205,17 @@ pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Re
                 header_units = Some((n + 1, [a.clone(), b.clone()]));
             }
         }
-        if cells.len() >= 2 {
-            if d != Delim::Space {
-                if let (Some(a), Some(b)) = (cell_unit(cells[0]), cell_unit(cells[1])) {
-                    header_units = Some((n + 1, [a, b]));
-                }
-                let (k, v) = (cells[0].to_string(), cells[1..].join(" ").trim().to_string());
-                if let Some(col) = unit_key_column(&k) {
-                    if let Some(u) = cell_unit(&v) {
-                        key_units[col] = Some((u.0, u.1, n + 1));
-                    }
-                }
-                metadata.push((k, v));
+        if cells.len() >= 2 && d != Delim::Space {
+            if let (Some(a), Some(b)) = (cell_unit(cells[0]), cell_unit(cells[1])) {
+                header_units = Some((n + 1, [a, b]));
             }
+            let (k, v) = (cells[0].to_string(), cells[1..].join(" ").trim().to_string());
+            if let Some(col) = unit_key_column(&k) {
+                if let Some(u) = cell_unit(&v) {
+                    key_units[col] = Some((u.0, u.1, n + 1));
+                }
+            }
+            metadata.push((k, v));
         }
     }
     let mut x = Vec::new();
@@ -289,7 +295,7 @@ pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Re
                 ))
             }
             (Some(f), _) => f,
-            (None, Some(g)) => (g, format!("{flag}")),
+            (None, Some(g)) => (g, flag.to_string()),
             (None, None) => {
                 return Err(Error::format(
                     path,

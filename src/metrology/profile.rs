@@ -37,7 +37,8 @@
 //!    line, both with their least-squares line removed (the 1-D cross-correlation); the largest
 //!    `|r|` wins, its sign gives the sign of `a`. Along the winning offset's row, a second local
 //!    maximum outside the main lobe reaching `max_peak_ratio` of the peak means the shift is
-//!    ambiguous (a periodic design along the line): refused, narrow the search.
+//!    ambiguous (a periodic design along the line): refused, narrow the search. A peak below
+//!    `min_correlation` (and a fitted model correlating by less) is refused as not matching.
 //! 2. *Refinement.* For each `sigma`, Gauss-Newton with Levenberg-Marquardt damping on
 //!    `(s, v, a, b, c)` (Jacobian `a grad H . d`, `a grad H . n`, `H`, `1`, `u - u_mean`);
 //!    `sigma` minimises the residual sum of squares `SSE(sigma)` by golden-section search on
@@ -292,7 +293,7 @@ pub fn terraces(p: &Profile) -> Result<Vec<Terrace>> {
     let zs: Vec<f64> = (0..p.len()).filter(|&k| p.valid[k]).map(|k| p.z[k]).collect();
     let range = zs.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
         - zs.iter().cloned().fold(f64::INFINITY, f64::min);
-    if !(range > 0.0) {
+    if range.is_nan() || range <= 0.0 {
         return Err(Error::Data("the profile is flat: no terraces".into()));
     }
     let flat = (5.0 * sn).max(1e-3 * range);
@@ -393,7 +394,7 @@ impl LineSpec {
         for (k, c) in cells.iter().enumerate() {
             v[k] = match (crate::units::parse_length(c), bare(c)) {
                 (Ok(m), _) => m,
-                (Err(_), Some(b)) if b == 0.0 => 0.0,
+                (Err(_), Some(0.0)) => 0.0,
                 (Err(_), Some(b)) => match last_unit {
                     Some(u) if cells.iter().filter(|c| bare(c).is_none()).count() == 1 => b * u,
                     _ => {
@@ -456,7 +457,9 @@ pub struct ProfileOptions {
     pub across_search: f64,
     /// Refuse when a second correlation peak along the line reaches this fraction of the first.
     pub max_peak_ratio: f64,
-    /// Refuse below this correlation between the profile and the design at the coarse match.
+    /// Refuse below this correlation between the profile and the design, at the coarse match
+    /// and for the fitted model (a line has few independent features: a quasi-periodic design
+    /// correlates by 0.5-0.6 with a profile along another direction).
     pub min_correlation: f64,
     /// Most profile points in the fit (a stride thins the rest).
     pub max_points: usize,
@@ -468,7 +471,7 @@ impl Default for ProfileOptions {
             along_search: 50e-6,
             across_search: 10e-6,
             max_peak_ratio: 0.9,
-            min_correlation: 0.5,
+            min_correlation: 0.8,
             max_points: 20_000,
         }
     }
@@ -855,7 +858,7 @@ pub fn compare_profile(
         let sd = (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
         let dd: Vec<f64> = r.windows(2).map(|w| w[1] - w[0]).collect();
         let sdd = (dd.iter().map(|v| v * v).sum::<f64>() / dd.len() as f64).sqrt();
-        if !(sd > 0.0) || sdd > 0.8 * std::f64::consts::SQRT_2 * sd {
+        if sd.is_nan() || sd <= 0.0 || sdd > 0.8 * std::f64::consts::SQRT_2 * sd {
             return Err(Error::Data(format!(
                 "the profile is featureless: {:.3} nm RMS about its line, with neighbour differences of {:.3} nm RMS \
                  (white noise has sqrt 2 times its RMS)",
@@ -1006,10 +1009,14 @@ pub fn compare_profile(
     let (errors, blur_sigma) = covariance(&ctx, &blurred, &p, &free, sigma, h, s2, profile_blur_sigma)?;
     let blur_resolved = blur_sigma < 0.25 * sigma;
     if !blur_resolved {
+        let err = if blur_sigma < sigma_max {
+            format!("+- {:.2} um", blur_sigma * 1e6)
+        } else {
+            format!("with a standard error beyond the {:.2} um search range", sigma_max * 1e6)
+        };
         warnings.push(format!(
-            "the lateral blur is not resolved: {:.2} +- {:.2} um against the design's {:.2} um pitch",
+            "the lateral blur is not resolved: {:.2} um {err} against the design's {:.2} um pitch",
             sigma * 1e6,
-            blur_sigma * 1e6,
             pmax * 1e6
         ));
     }
@@ -1041,6 +1048,14 @@ pub fn compare_profile(
         let mm: Vec<f64> = fit.iter().map(|f| f[2]).collect();
         detrended_correlation(&u, &zz, &mm)
     };
+    if correlation.is_nan() || correlation < opts.min_correlation {
+        return Err(Error::Registration(format!(
+            "the profile does not match the design along the line: the fitted model correlates by {correlation:.3} \
+             (below {:.2}), residual {:.1} nm RMS",
+            opts.min_correlation,
+            (sse / n as f64).sqrt() * 1e9
+        )));
+    }
     // Per-level step heights.
     let levels = match &design_levels {
         None => None,
@@ -1433,6 +1448,16 @@ mod tests {
         let p1 = simulate_profile(&flat, &sp1).unwrap();
         let e = compare_profile(&p1, &flat, &line, &ProfileOptions::default()).unwrap_err().to_string();
         assert!(e.contains("crosses 1 level"), "{e}");
+    }
+
+    #[test]
+    fn a_shift_searched_over_a_period_is_ambiguous() {
+        // The staircase repeats every 160 um along the line: a +-200 um search sees it twice.
+        let d = staircase();
+        let (sp, prof) = sim(&d, 0.9, 3.3e-6, 0.0, 7);
+        let opts = ProfileOptions { along_search: 200e-6, ..Default::default() };
+        let e = compare_profile(&prof, &d, &sp.line, &opts).unwrap_err();
+        assert!(matches!(e, Error::Registration(_)) && e.to_string().contains("ambiguous"), "{e}");
     }
 
     #[test]
