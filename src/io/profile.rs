@@ -26,8 +26,8 @@ use std::io::Write;
 use std::path::Path;
 
 use crate::error::{Error, Result};
+use crate::grid::profile::Profile;
 use crate::io::atomic::write_atomic;
-use crate::metrology::profile::Profile;
 
 /// What the caller states about a profile file (the command line's `--x-unit`, `--z-unit`).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]

@@ -76,112 +76,19 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::grid::blur::gaussian_blur;
+use crate::grid::profile::median;
+pub use crate::grid::profile::Profile;
 use crate::grid::{Grid, Unit};
 use crate::metrology::scan_registration::Sampler;
 
 /// Most distinct design heights for which the reference counts as multi-level.
 pub const MAX_LEVELS: usize = 256;
 
-/// A 1-D height profile; see the module docs.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Profile {
-    x: Vec<f64>,
-    z: Vec<f64>,
-    valid: Vec<bool>,
-}
-
-impl Profile {
-    /// Positions `x` (metres, finite, strictly increasing), heights `z` (metres) and validity
-    /// (`None`: every finite height valid; non-finite heights are always invalid).
-    pub fn new(x: Vec<f64>, z: Vec<f64>, valid: Option<Vec<bool>>) -> Result<Profile> {
-        if x.len() != z.len() || valid.as_ref().is_some_and(|v| v.len() != x.len()) {
-            return Err(Error::Data(format!(
-                "a profile needs as many heights as positions: {} positions, {} heights",
-                x.len(),
-                z.len()
-            )));
-        }
-        if x.len() < 2 {
-            return Err(Error::Data(format!("a profile needs at least 2 points, got {}", x.len())));
-        }
-        if let Some(k) = x.iter().position(|v| !v.is_finite()) {
-            return Err(Error::Data(format!("position {k} is not finite")));
-        }
-        if let Some(k) = (1..x.len()).find(|&k| x[k] <= x[k - 1]) {
-            return Err(Error::Data(format!(
-                "positions must be strictly increasing: point {k} at {:e} m follows {:e} m",
-                x[k],
-                x[k - 1]
-            )));
-        }
-        let valid: Vec<bool> = match valid {
-            Some(v) => v.iter().zip(&z).map(|(ok, h)| *ok && h.is_finite()).collect(),
-            None => z.iter().map(|h| h.is_finite()).collect(),
-        };
-        let z = z.iter().zip(&valid).map(|(h, ok)| if *ok { *h } else { 0.0 }).collect();
-        Ok(Profile { x, z, valid })
-    }
-
-    /// Positions, metres.
-    pub fn x(&self) -> &[f64] {
-        &self.x
-    }
-    /// Heights, metres (0 at invalid points).
-    pub fn z(&self) -> &[f64] {
-        &self.z
-    }
-    pub fn valid(&self) -> &[bool] {
-        &self.valid
-    }
-    pub fn is_valid(&self, k: usize) -> bool {
-        self.valid[k]
-    }
-    pub fn len(&self) -> usize {
-        self.x.len()
-    }
-    pub fn is_empty(&self) -> bool {
-        self.x.is_empty()
-    }
-    pub fn valid_count(&self) -> usize {
-        self.valid.iter().filter(|v| **v).count()
-    }
-    /// `x_last - x_first`, metres.
-    pub fn length(&self) -> f64 {
-        self.x[self.x.len() - 1] - self.x[0]
-    }
-    /// The sampling step: the median spacing of the positions, metres.
-    pub fn step(&self) -> f64 {
-        let mut d: Vec<f64> = self.x.windows(2).map(|w| w[1] - w[0]).collect();
-        median(&mut d)
-    }
-    /// The same positions and validity with other heights.
-    fn with_z(&self, z: Vec<f64>) -> Profile {
-        Profile { x: self.x.clone(), z, valid: self.valid.clone() }
-    }
-    /// `(u_k, z_k)` of the valid points, `u` from the first point.
-    fn points(&self) -> Vec<(f64, f64)> {
-        (0..self.len()).filter(|&k| self.valid[k]).map(|k| (self.x[k] - self.x[0], self.z[k])).collect()
-    }
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_unstable_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 /// Noise of a profile from its point-to-point differences: `1.4826 MAD(dz) / sqrt 2` over
 /// consecutive valid points (steps and a tilt do not enter).
 pub fn noise_estimate(p: &Profile) -> f64 {
     let mut d: Vec<f64> =
-        (1..p.len()).filter(|&k| p.valid[k] && p.valid[k - 1]).map(|k| p.z[k] - p.z[k - 1]).collect();
+        (1..p.len()).filter(|&k| p.valid()[k] && p.valid()[k - 1]).map(|k| p.z()[k] - p.z()[k - 1]).collect();
     if d.is_empty() {
         return 0.0;
     }
@@ -269,8 +176,9 @@ pub fn level_profile(p: &Profile, method: ProfileLevel) -> Result<(Profile, Leve
         }
     }
     let ss: f64 = pts.iter().zip(&sel).filter(|(_, s)| **s).map(|((u, z), _)| (z - o - t * u).powi(2)).sum();
-    let x0 = p.x[0];
-    let z = (0..p.len()).map(|k| if p.valid[k] { p.z[k] - o - t * (p.x[k] - x0) } else { 0.0 }).collect();
+    let x0 = p.x()[0];
+    let z =
+        (0..p.len()).map(|k| if p.valid()[k] { p.z()[k] - o - t * (p.x()[k] - x0) } else { 0.0 }).collect();
     Ok((p.with_z(z), Levelling { method, offset: o, slope: t, points: n, rms: (ss / n as f64).sqrt() }))
 }
 
@@ -290,7 +198,7 @@ pub struct Terrace {
 /// The levels of a (levelled) profile without a design; see the module docs. Lowest first.
 pub fn terraces(p: &Profile) -> Result<Vec<Terrace>> {
     let sn = noise_estimate(p);
-    let zs: Vec<f64> = (0..p.len()).filter(|&k| p.valid[k]).map(|k| p.z[k]).collect();
+    let zs: Vec<f64> = (0..p.len()).filter(|&k| p.valid()[k]).map(|k| p.z()[k]).collect();
     let range = zs.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
         - zs.iter().cloned().fold(f64::INFINITY, f64::min);
     if range.is_nan() || range <= 0.0 {
@@ -302,7 +210,8 @@ pub fn terraces(p: &Profile) -> Result<Vec<Terrace>> {
     let mut runs: Vec<Vec<usize>> = Vec::new();
     let mut cur: Vec<usize> = Vec::new();
     for k in 0..p.len() {
-        let joins = p.valid[k] && cur.last().is_some_and(|&j| j + 1 == k && (p.z[k] - p.z[j]).abs() <= flat);
+        let joins =
+            p.valid()[k] && cur.last().is_some_and(|&j| j + 1 == k && (p.z()[k] - p.z()[j]).abs() <= flat);
         if joins {
             cur.push(k);
         } else {
@@ -310,7 +219,7 @@ pub fn terraces(p: &Profile) -> Result<Vec<Terrace>> {
                 runs.push(std::mem::take(&mut cur));
             }
             cur.clear();
-            if p.valid[k] {
+            if p.valid()[k] {
                 cur.push(k);
             }
         }
@@ -319,7 +228,7 @@ pub fn terraces(p: &Profile) -> Result<Vec<Terrace>> {
         runs.push(cur);
     }
     let mut means: Vec<(f64, Vec<usize>)> =
-        runs.into_iter().map(|r| (r.iter().map(|&k| p.z[k]).sum::<f64>() / r.len() as f64, r)).collect();
+        runs.into_iter().map(|r| (r.iter().map(|&k| p.z()[k]).sum::<f64>() / r.len() as f64, r)).collect();
     means.sort_by(|a, b| a.0.total_cmp(&b.0));
     let merge = (10.0 * sn).max(0.02 * range);
     let mut levels: Vec<(Vec<f64>, usize)> = Vec::new();
@@ -329,7 +238,7 @@ pub fn terraces(p: &Profile) -> Result<Vec<Terrace>> {
             levels.push((Vec::new(), 0));
         }
         let lv = levels.last_mut().ok_or_else(|| Error::Data("no level".into()))?;
-        lv.0.extend(r.iter().map(|&k| p.z[k]));
+        lv.0.extend(r.iter().map(|&k| p.z()[k]));
         lv.1 += 1;
         last = m;
     }
