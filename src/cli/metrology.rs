@@ -371,13 +371,16 @@ pub fn compare_profile(cli: &Cli, a: &CompareProfileArgs) -> Result<()> {
 /// A profile comparison, or a profile's terraces, for a person (lengths in um, heights in nm).
 fn print_profile(r: &doefab::pipeline::compare_profile::ProfileReport, output: Option<&Path>) {
     println!(
-        "{} points ({} measured), step {:.4} um, length {:.2} um; levelled by {:?}: slope {:.4e}, rms {:.2} nm \
+        "{} points ({} measured), step {:.4} um, length {:.2} um; levelled by {}: slope {:.4e}, rms {:.2} nm \
          over {} points",
         r.points,
         r.valid_points,
         r.step * 1e6,
         r.length * 1e6,
-        r.levelling.method,
+        match r.levelling.method {
+            doefab::metrology::profile::ProfileLevel::Line => "line",
+            doefab::metrology::profile::ProfileLevel::Substrate => "substrate",
+        },
         r.levelling.slope,
         r.levelling.rms * 1e9,
         r.levelling.points
@@ -396,7 +399,7 @@ fn print_profile(r: &doefab::pipeline::compare_profile::ProfileReport, output: O
     }
     if let Some(c) = &r.comparison {
         println!(
-            "registered: along {:.3} +- {:.3} um, across {} , correlation {:.4}",
+            "registered: along {:.3} +- {:.3} um, across {}, correlation {:.4}",
             c.along_shift * 1e6,
             c.along_shift_sigma * 1e6,
             if c.across_fixed {

@@ -16,8 +16,9 @@
 //!   `r <= q_02 + w_i` (`q_02` the 2 % quantile of `r`, robust to low spikes) are refitted, for
 //!   `i = 0..8`. Halving the band each time lets a tilt that first mixes the substrate with the
 //!   level above be removed before the band closes on the substrate. The comparison with a
-//!   design fits its own offset and tilt, so the levelling changes only the levelled profile
-//!   reported and plotted, and the design-free terraces.
+//!   design fits its own offset and tilt (`compare-profile` runs it on the profile as read),
+//!   so the levelling changes only the levelled profile reported and plotted, and the
+//!   design-free terraces.
 //!
 //! # The design along the line ([`LineSpec`])
 //! Two points `p0 -> p1` (metres from the design's centre, x along columns, y along rows), or an

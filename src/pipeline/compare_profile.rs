@@ -68,9 +68,11 @@ impl ProfileReport {
     }
 }
 
-/// Reads the profile at `path`, levels it by `level`, compares it with `design` (or finds its
-/// terraces without one) and, given `out`, writes `profile.json`, `profile_fit.csv` (position,
-/// levelled height and, with a design, the fitted model, in metres) and `profile.svg` there at once.
+/// Reads the profile at `path`, levels it by `level`, compares it (as read: the model has its
+/// own offset and tilt) with `design`, or finds the levelled profile's terraces without one,
+/// and, given `out`, writes `profile.json`, `profile_fit.csv` (position, height and, with a
+/// design, the fitted model, each levelled by the levelling's line, in metres) and
+/// `profile.svg` there at once.
 pub fn compare_profile_file(
     path: &Path,
     read: &ProfileReadOptions,
@@ -84,7 +86,8 @@ pub fn compare_profile_file(
         Some(d) => {
             let loaded = chain::load_design(&d.source)?;
             let (reference, _, _) = reference_surface(&loaded, d.chain.as_ref())?;
-            let c = compare_profile(&levelled, &reference, &d.line, &d.options)?;
+            // On the profile as read: the model fits its own offset and tilt.
+            let c = compare_profile(&file.profile, &reference, &d.line, &d.options)?;
             (Some(c), None, Some(loaded.name), Some(loaded.sha256))
         }
         None => (None, Some(terraces(&levelled)?), None, None),
@@ -115,11 +118,16 @@ pub fn compare_profile_file(
     let csv = stage.stage_path("profile_fit.csv");
     type Points = Vec<(f64, f64)>;
     let (measured, model, levels): (Points, Points, Vec<f64>) = match &report.comparison {
-        Some(c) => (
-            c.fit.iter().map(|f| (f[0], f[1])).collect(),
-            c.fit.iter().map(|f| (f[0], f[2])).collect(),
-            Vec::new(),
-        ),
+        Some(c) => {
+            // Both levelled by the levelling's line, as the profile is shown without a design.
+            let (x0, lv) = (levelled.x()[0], &report.levelling);
+            let line = |x: f64| lv.offset + lv.slope * (x - x0);
+            (
+                c.fit.iter().map(|f| (f[0], f[1] - line(f[0]))).collect(),
+                c.fit.iter().map(|f| (f[0], f[2] - line(f[0]))).collect(),
+                Vec::new(),
+            )
+        }
         None => (
             (0..levelled.len())
                 .filter(|&k| levelled.is_valid(k))

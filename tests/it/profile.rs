@@ -103,7 +103,8 @@ fn a_simulated_profile_of_the_built_in_design_is_recovered_by_library_and_cli() 
     check("depth scale", c.depth_scale, 0.9, c.depth_scale_sigma, 0.009);
     check("blur", c.blur, sp.blur, c.blur_sigma, 0.2e-6);
     assert!(!c.complement && !c.across_fixed && c.blur_resolved, "{:?}", c.warnings);
-    // Offset and tilt are measured after the line levelling: the levelled profile's own.
+    check("offset", c.offset, sp.offset, c.offset_sigma, 2e-9);
+    check("tilt", c.tilt, sp.tilt, c.tilt_sigma, 2e-6);
     assert!((c.rms_residual - 5e-9).abs() < 0.5e-9, "{}", c.rms_residual);
     let l = c.levels.as_ref().unwrap();
     assert!(l.levels.len() >= 3, "{l:#?}");
@@ -154,6 +155,7 @@ fn a_simulated_profile_of_the_built_in_design_is_recovered_by_library_and_cli() 
         "--angle",
         "17deg",
     ]);
+    eprintln!("{text}");
     assert!(text.contains("depth scale 0.9") && text.contains("registered: along"), "{text}");
 }
 
@@ -261,6 +263,7 @@ fn a_line_of_a_real_surface_file_gives_its_known_step_heights() {
     assert!((num(&t[1], "height") - 1.0e-6).abs() < 1e-9, "{t:?}");
     assert!((num(&t[2], "height") - 1.5e-6).abs() < 1e-9, "{t:?}");
     assert!(out.join("profile.svg").exists());
+    eprintln!("{}", ok(&["compare-profile", path.to_str().unwrap(), "--level", "substrate"]));
 
     // Against the surface's ideal design (the pedestal without tilt), given as a height map:
     // the line at row 100 is y = +0.5 um from the centre; across it the design is flat.
