@@ -14,9 +14,13 @@
 //! Geometric operations (resample, crop, pad, mirror, rotate) and the filling of non-measured
 //! samples ([`fill`]) live here so that every stage treats sampling the same way. Sample `(i, j)` sits at
 //! `x = origin_x + j * pitch_x`, `y = origin_y + i * pitch_y`.
+//!
+//! Its 1-D counterpart, a height profile along a line (a stylus profiler's), is
+//! [`profile::Profile`].
 
 pub mod blur;
 pub mod fill;
+pub mod profile;
 
 use ndarray::{s, Array2};
 use serde::{Deserialize, Serialize};

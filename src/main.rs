@@ -51,6 +51,7 @@ fn run(cli: &Cli) -> Result<()> {
         Command::Stl(a) => fabrication::stl(cli, a),
         Command::SimulateScan(a) => metrology::simulate_scan(cli, a),
         Command::Compare(a) => metrology::compare(cli, a),
+        Command::CompareProfile(a) => metrology::compare_profile(cli, a),
         Command::ScanInfo(a) => metrology::scan_info(cli, a),
         Command::Reconstruct(a) => decoder::reconstruct(cli, a),
         Command::Finetune(a) => decoder::finetune(cli, a),

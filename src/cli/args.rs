@@ -11,7 +11,7 @@ use super::calibration::{CalibratePsfArgs, EvaluateArgs, MergeArgs};
 use super::decoder::{BenchDecoderArgs, FinetuneArgs, ReconstructArgs};
 use super::demo::DemoArgs;
 use super::fabrication::{FabArgs, GdsArgs, MaskArgs, PrecompensateArgs, QuantizeArgs, StlArgs, WrapArgs};
-use super::metrology::{CompareArgs, ScanInfoArgs, SimulateScanArgs};
+use super::metrology::{CompareArgs, CompareProfileArgs, ScanInfoArgs, SimulateScanArgs};
 use super::optics::{BenchPsfArgs, PsfArgs, PsfCompareArgs};
 
 #[derive(Parser)]
@@ -78,6 +78,13 @@ pub enum Command {
     /// part in the design frame (surface.exr, readable by `doefab psf`). Exit status 3 when the
     /// scan cannot be registered to the design (no match, ambiguous or featureless).
     Compare(CompareArgs),
+    /// A stylus profile (Dektak, Alpha-Step, P-series CSV/TXT export) levelled and compared with
+    /// its design along a line (--line x0,y0,x1,y1 or --angle through the centre): shift along
+    /// and across the line, depth scale, offset, tilt, lateral blur with standard errors, and
+    /// per-level step heights. Without a design: the step heights of the profile's own terraces.
+    /// JSON report, fit table and SVG plot with -o. Exit status 3 when the profile cannot be
+    /// registered to the design (no match, or an ambiguous shift).
+    CompareProfile(CompareProfileArgs),
     /// What a profilometer scan holds: size, pitch, units, valid fraction, warnings, ISO 25178
     /// height parameters (raw and after removing the least-squares plane).
     ScanInfo(ScanInfoArgs),

@@ -1,4 +1,4 @@
-//! The metrology commands: `simulate-scan`, `compare`, `scan-info`.
+//! The metrology commands: `simulate-scan`, `compare`, `compare-profile`, `scan-info`.
 
 use std::path::{Path, PathBuf};
 
@@ -116,6 +116,59 @@ pub struct CompareArgs {
     /// Height per count of an integer scan image without a scale, e.g. "0.1nm".
     #[arg(long, value_parser = clap_length)]
     pub scan_z_scale: Option<f64>,
+    #[command(flatten)]
+    pub read: ReadArgs,
+    #[command(flatten)]
+    pub optics: OpticsArgs,
+}
+
+/// Levelling choice of `compare-profile --level`.
+#[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
+pub enum ProfileLevelArg {
+    Line,
+    Substrate,
+}
+
+/// Arguments of `doefab compare-profile`.
+#[derive(Args)]
+pub struct CompareProfileArgs {
+    /// Stylus profile export (CSV or TXT: header, then position and height columns).
+    pub profile: PathBuf,
+    /// Height map file, or built-in:paper / built-in:fresnel (none: the profile's own terraces).
+    pub design: Option<String>,
+    /// The line on the design, "x0,y0,x1,y1" from its centre (x along columns, y along rows),
+    /// e.g. "-1mm,0,1mm,0.2mm"; the profile's first point at (x0, y0).
+    #[arg(long, allow_hyphen_values = true, conflicts_with = "angle")]
+    pub line: Option<String>,
+    /// The line through the design's centre at this angle (counter-clockwise from +x), e.g.
+    /// "30deg"; the profile centred on the centre.
+    #[arg(long, allow_hyphen_values = true)]
+    pub angle: Option<String>,
+    /// Levelling of the profile: least-squares line, or a line through the substrate (lowest level).
+    #[arg(long, value_enum, default_value_t = ProfileLevelArg::Line)]
+    pub level: ProfileLevelArg,
+    /// Process recipe: compare with the design wrapped and quantized as it makes it.
+    #[arg(long)]
+    pub recipe: Option<PathBuf>,
+    /// Level count (overrides the recipe's; without a recipe, wraps and quantizes the design
+    /// at --wavelength / --material / --order).
+    #[arg(long)]
+    pub levels: Option<usize>,
+    /// Unit of the position column, e.g. "um" (for files whose header names none).
+    #[arg(long)]
+    pub x_unit: Option<String>,
+    /// Unit of the height column, e.g. "nm" or "A" (for files whose header names none).
+    #[arg(long)]
+    pub z_unit: Option<String>,
+    /// How far along the line the profile's start may be from where the line puts it.
+    #[arg(long, value_parser = clap_length, default_value = "50um")]
+    pub along_search: f64,
+    /// How far across the line the profile may lie from it.
+    #[arg(long, value_parser = clap_length, default_value = "10um")]
+    pub across_search: f64,
+    /// Output folder (profile.json, profile_fit.csv, profile.svg).
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
     #[command(flatten)]
     pub read: ReadArgs,
     #[command(flatten)]
@@ -244,6 +297,154 @@ pub fn compare(cli: &Cli, a: &CompareArgs) -> Result<()> {
     let report = compare_scan(cli, scan, &scan_opts, &source, chain.as_ref(), *aperture, psf, output)?;
     warn_comparison(&report);
     print_result(cli, &report, || print_comparison(&report, output))
+}
+
+/// `doefab compare-profile`.
+pub fn compare_profile(cli: &Cli, a: &CompareProfileArgs) -> Result<()> {
+    let CompareProfileArgs {
+        profile,
+        design,
+        line,
+        angle,
+        level,
+        recipe,
+        levels,
+        x_unit,
+        z_unit,
+        along_search,
+        across_search,
+        output,
+        read,
+        optics,
+    } = a;
+    use doefab::metrology::profile::{LineSpec, ProfileLevel, ProfileOptions};
+    use doefab::pipeline::compare_profile::{compare_profile_file, ProfileDesign};
+    let read_opts = doefab::io::profile::ProfileReadOptions {
+        x_unit: x_unit.as_deref().map(doefab::io::profile::profile_unit_arg).transpose()?,
+        z_unit: z_unit.as_deref().map(doefab::io::profile::profile_unit_arg).transpose()?,
+    };
+    let level = match level {
+        ProfileLevelArg::Line => ProfileLevel::Line,
+        ProfileLevelArg::Substrate => ProfileLevel::Substrate,
+    };
+    let design = match design {
+        None => {
+            if line.is_some() || angle.is_some() || recipe.is_some() || levels.is_some() {
+                anyhow::bail!("--line, --angle, --recipe and --levels need a DESIGN to compare with");
+            }
+            None
+        }
+        Some(d) => {
+            let line = match (line, angle) {
+                (Some(l), None) => LineSpec::parse_points(l)?,
+                (None, Some(t)) => LineSpec::Angle { angle: doefab::units::parse_angle(t)? },
+                _ => anyhow::bail!("name the line on the design: --line x0,y0,x1,y1 or --angle A"),
+            };
+            let chain = match (recipe, levels) {
+                (Some(r), _) => {
+                    let r = Recipe::read(r)?;
+                    let n = levels.unwrap_or(r.level_count);
+                    Some(ChainParams { level_count: n, ..ChainParams::of_recipe(&r, false) })
+                }
+                (None, Some(n)) => {
+                    Some(chain_params(optics, *n, QuantizeMethod::Round, ReplicaMode::Design, 1e-6, false))
+                }
+                (None, None) => None,
+            };
+            Some(ProfileDesign {
+                source: DesignSource::parse(Some(d), read.options()?),
+                chain,
+                line,
+                options: ProfileOptions {
+                    along_search: *along_search,
+                    across_search: *across_search,
+                    ..Default::default()
+                },
+            })
+        }
+    };
+    let report = compare_profile_file(profile, &read_opts, level, design.as_ref(), output.as_deref())?;
+    warn(&report.warnings());
+    print_result(cli, &report, || print_profile(&report, output.as_deref()))
+}
+
+/// A profile comparison, or a profile's terraces, for a person (lengths in um, heights in nm).
+fn print_profile(r: &doefab::pipeline::compare_profile::ProfileReport, output: Option<&Path>) {
+    println!(
+        "{} points ({} measured), step {:.4} um, length {:.2} um; levelled by {}: slope {:.4e}, rms {:.2} nm \
+         over {} points",
+        r.points,
+        r.valid_points,
+        r.step * 1e6,
+        r.length * 1e6,
+        match r.levelling.method {
+            doefab::metrology::profile::ProfileLevel::Line => "line",
+            doefab::metrology::profile::ProfileLevel::Substrate => "substrate",
+        },
+        r.levelling.slope,
+        r.levelling.rms * 1e9,
+        r.levelling.points
+    );
+    if let Some(t) = &r.terraces {
+        for (k, l) in t.iter().enumerate() {
+            println!(
+                "  level {k}: {:.2} +- {:.2} nm above the lowest ({} points, {} terraces, spread {:.2} nm)",
+                l.height * 1e9,
+                l.height_sigma * 1e9,
+                l.points,
+                l.runs,
+                l.std * 1e9
+            );
+        }
+    }
+    if let Some(c) = &r.comparison {
+        println!(
+            "registered: along {:.3} +- {:.3} um, across {}, correlation {:.4}",
+            c.along_shift * 1e6,
+            c.along_shift_sigma * 1e6,
+            if c.across_fixed {
+                format!("{:.3} um (held: unobservable)", c.across_offset * 1e6)
+            } else {
+                format!("{:.3} +- {:.3} um", c.across_offset * 1e6, c.across_offset_sigma * 1e6)
+            },
+            c.correlation
+        );
+        println!(
+            "model: depth scale {:.4} +- {:.4}{}, offset {:.2} +- {:.2} nm, tilt {:.3e} +- {:.1e}, blur {:.3} +- {:.3} um, \
+             residual {:.2} nm RMS over {} points",
+            c.depth_scale,
+            c.depth_scale_sigma,
+            if c.complement { " (complement)" } else { "" },
+            c.offset * 1e9,
+            c.offset_sigma * 1e9,
+            c.tilt,
+            c.tilt_sigma,
+            c.blur * 1e6,
+            c.blur_sigma * 1e6,
+            c.rms_residual * 1e9,
+            c.points
+        );
+        if let Some(l) = &c.levels {
+            for s in &l.levels {
+                match (s.step_height, s.step_height_sigma, s.depth_scale, s.depth_scale_sigma) {
+                    (Some(h), Some(hs), Some(d), Some(ds)) => println!(
+                        "  level {}: step {:.2} +- {:.2} nm (design {:.2} nm), depth scale {:.4} +- {:.4} ({} points)",
+                        s.level,
+                        h * 1e9,
+                        hs * 1e9,
+                        s.design_step * 1e9,
+                        d,
+                        ds,
+                        s.points
+                    ),
+                    _ => println!("  level {}: reference ({} points)", s.level, s.points),
+                }
+            }
+        }
+    }
+    if let Some(o) = output {
+        println!("wrote {}", o.display());
+    }
 }
 
 /// `doefab scan-info`.

@@ -9,6 +9,7 @@ pub mod exr;
 pub mod heightmap;
 pub mod npy;
 pub mod png;
+pub mod profile;
 pub mod scan;
 pub mod tiff;
 

@@ -10,6 +10,7 @@
 pub mod info;
 pub mod level;
 pub mod outliers;
+pub mod profile;
 pub mod scan_compare;
 pub mod scan_registration;
 pub mod stats;

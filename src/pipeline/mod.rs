@@ -12,6 +12,8 @@
 //! * [`psf_compare`]: two PSF files compared (`doefab psf-compare`).
 //! * [`compare`]: a part's scan against its design through the fabrication chain, metrology and
 //!   optics (`doefab compare`).
+//! * [`compare_profile`]: a stylus profile against its design along a line, or measured by its
+//!   own terraces (`doefab compare-profile`).
 //! * [`precompensate`]: the next mask set corrected for the process a scan of the last part
 //!   measured (`doefab precompensate`), and the loop closed in simulation.
 //! * [`bench`](mod@bench): the PSF methods' benchmark and the decoders' benchmark on real captures
@@ -20,6 +22,7 @@
 pub mod bench;
 pub mod calibrate_psf;
 pub mod compare;
+pub mod compare_profile;
 pub mod merge;
 pub mod precompensate;
 pub mod psf;

@@ -275,6 +275,62 @@ pub fn height_histogram(
     })
 }
 
+/// A stylus profile against the design model fitted to it (or, without a design, against the
+/// terrace levels found): `measured` and `model` as (position m, height m) points, `levels` as
+/// horizontal lines (heights in metres); SVG at `path`.
+pub fn profile_chart(
+    path: &Path,
+    measured: &[(f64, f64)],
+    model: &[(f64, f64)],
+    levels: &[f64],
+    title: &str,
+) -> Result<()> {
+    let all = measured.iter().chain(model).map(|p| p.1).chain(levels.iter().copied());
+    let (lo, hi) = all.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    let (x0, x1) =
+        measured.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    let (lo, hi) = if lo.is_finite() && hi > lo { (lo * 1e9, hi * 1e9) } else { (-1.0, 1.0) };
+    let (x0, x1) = if x0.is_finite() && x1 > x0 { (x0 * 1e6, x1 * 1e6) } else { (0.0, 1.0) };
+    let pad = 0.05 * (hi - lo);
+    let line = |pts: &[(f64, f64)]| pts.iter().map(|p| (p.0 * 1e6, p.1 * 1e9)).collect::<Vec<_>>();
+    let (m, f) = (line(measured), line(model));
+    super::write_svg_chart(path, 1000, 420, |root| {
+        let mut ch = ChartBuilder::on(root)
+            .caption(title, (FONT, 16))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(70)
+            .build_cartesian_2d(x0..x1, lo - pad..hi + pad)
+            .map_err(err)?;
+        ch.configure_mesh()
+            .x_desc("position along the profile (um)")
+            .y_desc("height (nm)")
+            .label_style((FONT, 13))
+            .axis_desc_style((FONT, 14))
+            .draw()
+            .map_err(err)?;
+        ch.draw_series(LineSeries::new(m, RED.stroke_width(1)))
+            .map_err(err)?
+            .label("profile")
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RED));
+        if !f.is_empty() {
+            ch.draw_series(LineSeries::new(f, BLACK.stroke_width(1)))
+                .map_err(err)?
+                .label("design, fitted")
+                .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLACK));
+        }
+        for (k, h) in levels.iter().enumerate() {
+            let s = ch
+                .draw_series(LineSeries::new([(x0, h * 1e9), (x1, h * 1e9)], BLUE.mix(0.6).stroke_width(1)))
+                .map_err(err)?;
+            if k == 0 {
+                s.label("levels").legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLUE));
+            }
+        }
+        crate::report::draw_legend(&mut ch, SeriesLabelPosition::UpperRight, 13)
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

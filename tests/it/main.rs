@@ -15,6 +15,7 @@ mod level;
 mod optics;
 mod optics_plan;
 mod precompensate;
+mod profile;
 mod psf_compare;
 mod register;
 mod scan;
