@@ -469,7 +469,7 @@ pub struct ProfileComparison {
 
 /// The design blurred on a crop around the line, and where the crop's centre lies.
 struct Blurred {
-    sampler: Sampler,
+    sampler: Sampler<'static>,
     centre: [f64; 2],
     pitch: [f64; 2],
 }
@@ -502,7 +502,7 @@ impl Ctx<'_> {
     }
     fn blurred(&self, sigma: f64) -> Result<Blurred> {
         let g = gaussian_blur(self.crop, sigma)?;
-        Ok(Blurred { sampler: Sampler::new(&g), centre: self.crop_centre, pitch: self.crop.pitch() })
+        Ok(Blurred { sampler: Sampler::new_owned(&g), centre: self.crop_centre, pitch: self.crop.pitch() })
     }
 }
 

@@ -136,6 +136,19 @@ impl<'a> Sampler<'a> {
         }
     }
 
+    /// A sampler holding its own copy of the values (one that outlives the grid).
+    pub fn new_owned(g: &Grid) -> Sampler<'static> {
+        let s = Sampler::new(g);
+        Sampler {
+            v: Cow::Owned(s.v.into_owned()),
+            lap: s.lap,
+            valid: s.valid,
+            rows: s.rows,
+            cols: s.cols,
+            pitch: s.pitch,
+        }
+    }
+
     /// Also samples the 5-point Laplacian `d2h/dx2 + d2h/dy2` of the values (0 next to an
     /// invalid sample; edges repeat the edge sample).
     pub fn with_laplacian(g: &'a Grid) -> Sampler<'a> {
