@@ -331,33 +331,6 @@ pub fn profile_chart(
     })
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::grid::Unit;
-    use ndarray::Array2;
-
-    /// The map's pixels follow the palette: the lowest sample is viridis' first colour, the
-    /// highest its last, an invalid one grey.
-    #[test]
-    fn height_map_colours_follow_the_values() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("m.png");
-        let v = Array2::from_shape_fn((40, 60), |(_, j)| j as f64 * 1e-9);
-        let mut mask = Array2::from_elem((40, 60), true);
-        mask[[20, 30]] = false;
-        let g = Grid::new(v, [1e-6; 2], Unit::Metre).unwrap().with_mask(mask).unwrap();
-        height_map(&path, &g, "t", Palette::Sequential).unwrap();
-        let img = image::open(&path).unwrap().to_rgb8();
-        assert_eq!(img.dimensions(), (230, 110));
-        // Map pixel (i, j) sits at (15 + j, 35 + i).
-        assert_eq!(img.get_pixel(15, 40).0, [68, 1, 84]);
-        assert_eq!(img.get_pixel(15 + 59, 40).0, [253, 231, 37]);
-        assert_eq!(img.get_pixel(15 + 30, 35 + 20).0, [160, 160, 160]);
-        assert_eq!(colour(Palette::Diverging, 0.5), RGBColor(247, 247, 247));
-    }
-}
-
 /// One setting of [`registration_speed_accuracy`]: its label, time (seconds), shift error and
 /// formal standard error (design pixels), and whether it is the default.
 pub struct SpeedAccuracyPoint {
@@ -445,4 +418,55 @@ pub fn registration_speed_accuracy(path: &Path, points: &[SpeedAccuracyPoint], g
     }
     write_png_chart(path, 900, 560, |root| draw(root, points, goal_px, x, y))?;
     write_svg_chart(&path.with_extension("svg"), 900, 560, |root| draw(root, points, goal_px, x, y))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::Unit;
+    use ndarray::Array2;
+
+    /// The map's pixels follow the palette: the lowest sample is viridis' first colour, the
+    /// highest its last, an invalid one grey.
+    #[test]
+    fn height_map_colours_follow_the_values() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.png");
+        let v = Array2::from_shape_fn((40, 60), |(_, j)| j as f64 * 1e-9);
+        let mut mask = Array2::from_elem((40, 60), true);
+        mask[[20, 30]] = false;
+        let g = Grid::new(v, [1e-6; 2], Unit::Metre).unwrap().with_mask(mask).unwrap();
+        height_map(&path, &g, "t", Palette::Sequential).unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (230, 110));
+        // Map pixel (i, j) sits at (15 + j, 35 + i).
+        assert_eq!(img.get_pixel(15, 40).0, [68, 1, 84]);
+        assert_eq!(img.get_pixel(15 + 59, 40).0, [253, 231, 37]);
+        assert_eq!(img.get_pixel(15 + 30, 35 + 20).0, [160, 160, 160]);
+        assert_eq!(colour(Palette::Diverging, 0.5), RGBColor(247, 247, 247));
+    }
+
+    /// The chart is written as PNG and SVG, names the default and the goal, and its log-axis
+    /// labels carry no float noise (plotters prints 0.3 as 0.30000000000000004 unformatted).
+    #[test]
+    fn speed_accuracy_chart_marks_the_default_and_the_goal() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("sa.png");
+        let pts: Vec<SpeedAccuracyPoint> = [(0.06, 3e-3, 8e-3), (0.09, 1e-3, 2e-3), (0.3, 1.5e-3, 1e-3)]
+            .iter()
+            .enumerate()
+            .map(|(k, &(t, e, s))| SpeedAccuracyPoint {
+                label: format!("{}k", 25 << (2 * k)),
+                seconds: t,
+                error: e,
+                sigma: s,
+                chosen: k == 1,
+            })
+            .collect();
+        registration_speed_accuracy(&path, &pts, 0.02).unwrap();
+        assert!(image::open(&path).is_ok());
+        let svg = std::fs::read_to_string(path.with_extension("svg")).unwrap();
+        assert!(svg.contains("100k (default)") && svg.contains("goal 0.02 px"), "{svg}");
+        assert!(!svg.contains("0000000"), "float noise in the labels");
+    }
 }
