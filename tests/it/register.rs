@@ -81,7 +81,8 @@ fn simulate_scan_writes_gsf_and_refuses_other_formats() {
 /// An oracle independent of the `Pose` code under test: the design is a closed-form surface
 /// (a sum of Gaussian bumps), and the scan is that same formula evaluated at rotated and
 /// shifted positions, `h(R(-theta) (x_s - t))` with `R` written out by hand here, so no
-/// resampling and no library transform builds the truth. Registration must return `t` and
+/// resampling and no library transform builds the truth; once at the design's pitch and size,
+/// once at another pitch and extent. Registration must return `t` and
 /// `theta` (shift to 0.02 px, rotation to 0.01 degree) and a depth scale of 1.
 #[test]
 fn registration_recovers_a_closed_form_shift_and_rotation() {
@@ -118,21 +119,29 @@ fn registration_recovers_a_closed_form_shift_and_rotation() {
     .unwrap();
     let (t, theta) = ([2.37 * pitch, -1.61 * pitch], 0.8f64.to_radians());
     let (s, c) = theta.sin_cos();
-    let scan = Grid::new(
-        ndarray::Array2::from_shape_fn((n, n), |(i, j)| {
-            let (u, v) = (centred(j) - t[0], centred(i) - t[1]);
-            h(c * u + s * v, -s * u + c * v)
-        }),
-        [pitch; 2],
-        Unit::Metre,
-    )
-    .unwrap();
-    let r = register(&design, &scan, &RegisterOptions::default()).unwrap();
-    let e = [(r.pose.shift[0] - t[0]) / pitch, (r.pose.shift[1] - t[1]) / pitch];
-    let rot = (r.pose.rotation - theta).to_degrees();
-    eprintln!("shift error {e:?} px, rotation error {rot:.2e} deg, depth scale {}", r.depth_scale);
-    assert!(!r.pose.mirror && !r.complement, "{r:?}");
-    assert!(e[0].abs() <= 0.02 && e[1].abs() <= 0.02, "shift error {e:?} px; {r:?}");
-    assert!(rot.abs() <= 0.01, "rotation error {rot} deg");
-    assert!((r.depth_scale - 1.0).abs() < 0.005 && (r.pose.scale - 1.0).abs() < 1e-3, "{r:?}");
+    // The scan at the design's pitch and size, then at 2.7 um over 380 samples (another pitch
+    // and extent: the centres and pitches of the two grids must be handled apart).
+    for (scan_pitch, m) in [(pitch, n), (2.7e-6, 380)] {
+        let at = |i: usize| (i as f64 - (m as f64 - 1.0) / 2.0) * scan_pitch;
+        let scan = Grid::new(
+            ndarray::Array2::from_shape_fn((m, m), |(i, j)| {
+                let (u, v) = (at(j) - t[0], at(i) - t[1]);
+                h(c * u + s * v, -s * u + c * v)
+            }),
+            [scan_pitch; 2],
+            Unit::Metre,
+        )
+        .unwrap();
+        let r = register(&design, &scan, &RegisterOptions::default()).unwrap();
+        let e = [(r.pose.shift[0] - t[0]) / pitch, (r.pose.shift[1] - t[1]) / pitch];
+        let rot = (r.pose.rotation - theta).to_degrees();
+        eprintln!(
+            "scan pitch {scan_pitch:e}: shift error {e:?} px, rotation error {rot:.2e} deg, depth scale {}",
+            r.depth_scale
+        );
+        assert!(!r.pose.mirror && !r.complement, "{r:?}");
+        assert!(e[0].abs() <= 0.02 && e[1].abs() <= 0.02, "shift error {e:?} px; {r:?}");
+        assert!(rot.abs() <= 0.01, "rotation error {rot} deg");
+        assert!((r.depth_scale - 1.0).abs() < 0.005 && (r.pose.scale - 1.0).abs() < 1e-3, "{r:?}");
+    }
 }
