@@ -258,6 +258,11 @@ pub struct RegisterOptions {
     /// search (rotationally symmetric design).
     pub min_rotation_contrast: f64,
     /// Most scan samples used by the least-squares refinement (a stride thins the rest).
+    /// Default 100,000, read off `cargo bench --bench register`'s speed-accuracy chart: on a
+    /// 2048^2 scan of the paper design (2 um blur, 20 nm noise, 10% holes) the shift error is
+    /// 0.003 px (formal 0.004 px), seven times inside the 0.02 px goal, in 0.077 s; 400,000
+    /// gives 0.001 px in 0.10 s and 1.6 M 0.0015 px in 0.22 s (the error no longer falls with
+    /// the points: model error, not noise, is left).
     pub max_points: usize,
 }
 
@@ -269,7 +274,7 @@ impl Default for RegisterOptions {
             min_correlation: 0.5,
             max_peak_ratio: 0.9,
             min_rotation_contrast: 0.01,
-            max_points: 400_000,
+            max_points: 100_000,
         }
     }
 }
