@@ -19,5 +19,7 @@ add sdf_ascii $S/gwyddion/s1_tilt_pedestal.sdf
 add sur ../profilometry/*.sur
 add opd $S/instruments/wyko.opd
 add plu $S/instruments/sensofar.plu
+add al3d ../profilometry/*.al3d
+add tmd ../profilometry/*.tmd
 add png_pcal ../profilometry/*.png
 add tiff ../profilometry/*.tiff

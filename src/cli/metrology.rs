@@ -82,7 +82,8 @@ pub struct SimulateScanArgs {
 /// Arguments of `doefab compare`.
 #[derive(Args)]
 pub struct CompareArgs {
-    /// Scan file (.x3p, .gsf, .sdf, .sur, .dat, .xyz, .txt/.csv/.asc, .png, .tif, .npy).
+    /// Scan file (.x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .al3d, .tmd, .dat, .xyz, .txt/.csv/.asc, .png, .tif,
+    /// .npy).
     pub scan: PathBuf,
     /// Height map file, or built-in:paper / built-in:fresnel.
     #[arg(long)]
@@ -178,7 +179,8 @@ pub struct CompareProfileArgs {
 /// Arguments of `doefab scan-info`.
 #[derive(Args)]
 pub struct ScanInfoArgs {
-    /// Scan file (.x3p, .gsf, .sdf, .sur, .dat, .xyz, .txt/.csv/.asc, .png, .tif, .npy).
+    /// Scan file (.x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .al3d, .tmd, .dat, .xyz, .txt/.csv/.asc, .png, .tif,
+    /// .npy).
     pub file: PathBuf,
     /// Sample pitch, e.g. "1um" (for files that carry none).
     #[arg(long, value_parser = clap_length)]

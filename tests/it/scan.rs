@@ -505,3 +505,101 @@ fn gwyddion_native_files_reproduce_gwyddions_statistics() {
         );
     }
 }
+
+/// What surfalize 0.19.2 computed reading a file back (profilometry/README.md): rows, columns,
+/// pitch, non-measured points, Sq, Sa, Sz (in `unit` metres).
+struct Surfalize {
+    dim: (usize, usize),
+    pitch: [f64; 2],
+    missing: usize,
+    sq_sa_sz: [f64; 3],
+    unit: f64,
+}
+
+/// A scan against surfalize's reading of the same file: size, pitch (exact: both compute it
+/// from the same stored numbers), non-measured count (exact), Sq, Sa, Sz within 1e-4 relative
+/// (surfalize's figures are printed to 9 digits).
+fn check_surfalize(name: &str, s: &doefab::io::scan::Scan, want: &Surfalize) {
+    assert_eq!(s.grid.dim(), want.dim, "{name}: size");
+    assert_eq!(s.grid.pitch(), want.pitch, "{name}: pitch");
+    assert_eq!(want.dim.0 * want.dim.1 - s.grid.valid_count(), want.missing, "{name}: non-measured points");
+    let p = height_params(&s.grid).unwrap();
+    for (k, (got, w)) in [p.sq, p.sa, p.sz].into_iter().zip(want.sq_sa_sz).enumerate() {
+        let w = w * want.unit;
+        println!(
+            "{name}: {} {got:.9e} vs surfalize {w:.9e}, {:.1e} relative",
+            ["Sq", "Sa", "Sz"][k],
+            (got - w) / w
+        );
+        assert!((got - w).abs() <= 1e-4 * w, "{name}: {} = {got} vs surfalize {w}", ["Sq", "Sa", "Sz"][k]);
+    }
+}
+
+/// Alicona `.al3d` written by surfalize (rows padded to 8 bytes, the invalid pixel value for the
+/// non-measured points) and one built from the format's layout (more tags, a comment, texture
+/// planes and a repeatability plane that filters three points), each against surfalize's
+/// reading; the shared S1/S3 files against the reference statistics.
+#[test]
+fn alicona_al3d_reproduces_surfalizes_reading() {
+    let none = ScanOptions::default();
+    let s = read(&local("wave_pedestal.surfalize.al3d"), &none);
+    assert_eq!(s.format, ScanFormat::Al3d);
+    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    let want = Surfalize {
+        dim: (30, 41),
+        pitch: [1.5e-6, 2.0e-6],
+        missing: 7,
+        sq_sa_sz: [0.331273951, 0.24561185, 1.6470824],
+        unit: 1e-6,
+    };
+    check_surfalize("wave_pedestal.surfalize.al3d", &s, &want);
+    assert!(
+        s.metadata.iter().any(|(k, v)| k == "InvalidPixelValue" && v.starts_with("3000000")),
+        "{:?}",
+        s.metadata
+    );
+    let s = read(&local("quality_map.layout.al3d"), &none);
+    let want = Surfalize {
+        dim: (9, 13),
+        pitch: [2.5e-6, 2.0e-6],
+        missing: 5,
+        sq_sa_sz: [0.218434186, 0.184382914, 0.784082431],
+        unit: 1e-6,
+    };
+    check_surfalize("quality_map.layout.al3d", &s, &want);
+    assert!(s.warnings.iter().any(|w| w.starts_with("3 points whose repeatability")), "{:?}", s.warnings);
+    assert!(s.metadata.iter().any(|(k, v)| k == "comment" && v == "Built from the AL3D layout"));
+    let dir = shared().join("surfalize");
+    check_s1("surfalize S1 al3d", &read(&dir.join("s1_tilt_pedestal.al3d"), &none).grid, REL);
+    check_s3("surfalize S3 al3d", &read(&dir.join("s3_spikes_missing_nan.al3d"), &none).grid, REL);
+}
+
+/// TrueMap `.tmd` written by surfalize from the surface in millimetres (the format's unit; see
+/// profilometry/README.md), against surfalize's reading; the shared S1 file, which surfalize
+/// wrote from micrometre numbers, reads per the format as a surface a thousand times larger.
+#[test]
+fn truemap_tmd_reproduces_surfalizes_reading() {
+    let none = ScanOptions::default();
+    let s = read(&local("wave_pedestal.surfalize.tmd"), &none);
+    assert_eq!(s.format, ScanFormat::Tmd);
+    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    let want = Surfalize {
+        dim: (29, 37),
+        // surfalize's step (f32 length / count, in the file's millimetres), in metres.
+        pitch: [0.0008000000002416404 * 1e-3, 0.00124999996403168 * 1e-3],
+        missing: 5,
+        sq_sa_sz: [0.000347417401, 0.000262105081, 0.00164708239],
+        unit: 1e-3,
+    };
+    check_surfalize("wave_pedestal.surfalize.tmd", &s, &want);
+    assert!(
+        s.metadata.iter().any(|(k, v)| k == "comment" && v == "Exported by surfalize"),
+        "{:?}",
+        s.metadata
+    );
+    let s = read(&shared().join("surfalize/s1_tilt_pedestal.tmd"), &none);
+    assert_eq!(s.grid.pitch(), [1e-3, 1e-3]);
+    let p = height_params(&s.grid).unwrap();
+    assert!((p.sq / (S1_RAW.v[1] * 1e-6) - 1.0).abs() < 1e-6, "Sq {}", p.sq);
+    assert!(s.warnings.iter().any(|w| w.contains("kept: the file states its unit")), "{:?}", s.warnings);
+}

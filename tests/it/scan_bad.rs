@@ -24,8 +24,13 @@ fn decode(name: &str, bytes: &[u8], opts: &ScanOptions) -> doefab::Result<doefab
 /// Cuts `bytes` at several offsets (every byte of the first 600, then a spread) and checks the
 /// error names the file and, when `offsets`, a byte offset.
 fn check_cuts(name: &str, bytes: &[u8], offsets: bool) {
-    let n = bytes.len();
-    let mut cuts: Vec<usize> = (0..n.min(600)).collect();
+    check_cuts_below(name, bytes, 600, bytes.len(), offsets);
+}
+
+/// As [`check_cuts`] for a file whose reader needs only its first `n` bytes (padding after the
+/// last row may be absent), cut at every byte of the first `every`.
+fn check_cuts_below(name: &str, bytes: &[u8], every: usize, n: usize, offsets: bool) {
+    let mut cuts: Vec<usize> = (0..n.min(every)).collect();
     cuts.extend((1..40).map(|k| k * n / 40));
     cuts.extend([n - 1, n - 2, n - 8]);
     for cut in cuts {
@@ -309,4 +314,38 @@ fn gaussian_random_surface_has_iso_kurtosis_three() {
     assert!((p.sq / sigma - 1.0).abs() < 0.02, "Sq {}", p.sq);
     // Sa = sigma sqrt(2 / pi) for a Gaussian.
     assert!((p.sa / (sigma * (2.0 / std::f64::consts::PI).sqrt()) - 1.0).abs() < 0.02, "Sa {}", p.sa);
+}
+
+/// Alicona `.al3d` and TrueMap `.tmd`: cut at every byte of the header and a spread beyond (an
+/// error naming the file and the byte offset, never a panic), flipped bytes (no panic), and a
+/// file of another format under each extension (refused naming what was expected).
+#[test]
+fn al3d_and_tmd_cuts_corruption_and_other_formats() {
+    // (file, header length, bytes the reader needs: the padding after the last image row,
+    // 4 bytes for 41 f32 columns and 3 for 13 texture bytes, may be absent)
+    for (name, header, pad) in [
+        ("wave_pedestal.surfalize.al3d", 845, 4),
+        ("quality_map.layout.al3d", 17 + 52 * 15 + 256, 3),
+        ("wave_pedestal.surfalize.tmd", 32 + 24 + 24, 0),
+    ] {
+        let bytes = std::fs::read(local(name)).unwrap();
+        let short = format!("cut-{name}");
+        check_cuts_below(&short, &bytes, header + 8, bytes.len() - pad, true);
+        if pad > 0 {
+            assert!(decode(&short, &bytes[..bytes.len() - pad], &ScanOptions::default()).is_ok(), "{name}");
+        }
+        check_corruption(&short, &bytes);
+    }
+    let al3d = std::fs::read(local("wave_pedestal.surfalize.al3d")).unwrap();
+    let tmd = std::fs::read(local("wave_pedestal.surfalize.tmd")).unwrap();
+    let x3p = std::fs::read(local("s1_tilt_pedestal.x3pio.x3p")).unwrap();
+    let err = |name: &str, b: &[u8]| decode(name, b, &ScanOptions::default()).unwrap_err().to_string();
+    for other in [&tmd, &x3p] {
+        let e = err("wrong.al3d", other);
+        assert!(e.contains("wrong.al3d") && e.contains("not an Alicona AL3D file"), "{e}");
+    }
+    for other in [&al3d, &x3p] {
+        let e = err("wrong.tmd", other);
+        assert!(e.contains("wrong.tmd") && e.contains("not a TrueMap file"), "{e}");
+    }
 }

@@ -10,6 +10,8 @@
 //! | `.gwy` | Gwyddion native (first channel; its mask as non-measured points) | [`gwy`] |
 //! | `.opd` | Wyko / Bruker Vision binary | [`opd`] |
 //! | `.plu` | Sensofar PLu binary (2000 and later revisions) | [`plu`] |
+//! | `.al3d` | Alicona Imaging / Bruker Alicona AL3D (the depth image) | [`al3d`] |
+//! | `.tmd` | TrueMap / GelSight binary TrueMap Data File v2.0 | [`tmd`] |
 //! | `.dat` | Zygo MetroPro binary (recognised by its magic number; else a text matrix) | [`zygo`] |
 //! | `.xyz` | three text columns x y z on a regular grid | [`xyz`] |
 //! | `.txt`, `.csv`, `.asc` | text matrix ([`crate::io::csv`]; also the SPIP header of Gwyddion's `.asc`: `x-length`, `y-length` in nm, `Bit2nm`) | |
@@ -30,6 +32,7 @@
 //! Errors name the file and, for binary formats, the byte offset where the content stopped
 //! making sense (truncation, a bad field).
 
+pub mod al3d;
 pub mod gsf;
 pub mod gwy;
 pub mod opd;
@@ -37,6 +40,7 @@ pub mod plu;
 pub mod png_scale;
 pub mod sdf;
 pub mod sur;
+pub mod tmd;
 pub mod x3p;
 pub mod xyz;
 pub mod zygo;
@@ -90,6 +94,8 @@ pub enum ScanFormat {
     MetroPro,
     Opd,
     Plu,
+    Al3d,
+    Tmd,
     Xyz,
     Matrix,
     Png,
@@ -110,6 +116,8 @@ impl ScanFormat {
             ScanFormat::MetroPro => "Zygo MetroPro DAT",
             ScanFormat::Opd => "Wyko / Bruker Vision OPD",
             ScanFormat::Plu => "Sensofar PLu",
+            ScanFormat::Al3d => "Alicona AL3D",
+            ScanFormat::Tmd => "TrueMap TMD",
             ScanFormat::Xyz => "XYZ point list",
             ScanFormat::Matrix => "text matrix",
             ScanFormat::Png => "PNG",
@@ -166,6 +174,8 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
         "gwy" => ScanFormat::Gwy,
         "opd" => ScanFormat::Opd,
         "plu" => ScanFormat::Plu,
+        "al3d" => ScanFormat::Al3d,
+        "tmd" => ScanFormat::Tmd,
         "dat" if zygo::has_magic(head) => ScanFormat::MetroPro,
         "xyz" => ScanFormat::Xyz,
         "txt" | "csv" | "asc" | "dat" => ScanFormat::Matrix,
@@ -176,7 +186,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
             return Err(Error::format(
                 path,
                 format!(
-                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .dat, .xyz, \
+                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .al3d, .tmd, .dat, .xyz, \
                      .txt/.csv/.asc, .png, .tif/.tiff or .npy)"
                 ),
             ))
@@ -206,6 +216,8 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
         ScanFormat::MetroPro => zygo::decode(path, bytes),
         ScanFormat::Opd => opd::decode(path, bytes),
         ScanFormat::Plu => plu::decode(path, bytes),
+        ScanFormat::Al3d => al3d::decode(path, bytes),
+        ScanFormat::Tmd => tmd::decode(path, bytes),
         ScanFormat::Xyz => xyz::parse(path, text()?, opts.z_unit),
         ScanFormat::Matrix => {
             let mut raw = crate::io::csv::parse_csv(path, text()?)?;
@@ -428,6 +440,8 @@ mod tests {
         assert_eq!(detect_format(&p("a.dat"), b"\x88\x1b\x03\x6f....").unwrap(), ScanFormat::MetroPro);
         assert_eq!(detect_format(&p("a.dat"), b"1 2 3\n").unwrap(), ScanFormat::Matrix);
         assert_eq!(detect_format(&p("a.gwy"), b"GWYP").unwrap(), ScanFormat::Gwy);
+        assert_eq!(detect_format(&p("a.AL3D"), al3d::MAGIC).unwrap(), ScanFormat::Al3d);
+        assert_eq!(detect_format(&p("a.tmd"), tmd::MAGIC).unwrap(), ScanFormat::Tmd);
         assert!(detect_format(&p("a.mnt"), b"").unwrap_err().to_string().contains("a.mnt"));
     }
 
