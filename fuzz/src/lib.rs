@@ -48,3 +48,19 @@ pub fn design(name: &str, decoded: doefab::Result<RawMap>) {
     };
     let _ = heightmap_from_raw(path, raw, &opts);
 }
+
+/// Parses `data` as a stylus profile export and carries what parses through `compare-profile`
+/// without a design (both levellings, the terraces).
+pub fn profile(data: &[u8]) {
+    use doefab::io::profile::{parse_profile, ProfileReadOptions};
+    use doefab::metrology::profile::{level_profile, terraces, ProfileLevel};
+    let path = Path::new("fuzz.csv");
+    for opts in [ProfileReadOptions::default(), ProfileReadOptions { x_unit: Some(1e-6), z_unit: Some(1e-9) }] {
+        let Ok(file) = parse_profile(path, data, &opts) else { continue };
+        for method in [ProfileLevel::Line, ProfileLevel::Substrate] {
+            if let Ok((levelled, _)) = level_profile(&file.profile, method) {
+                let _ = terraces(&levelled);
+            }
+        }
+    }
+}

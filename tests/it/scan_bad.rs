@@ -349,3 +349,22 @@ fn al3d_and_tmd_cuts_corruption_and_other_formats() {
         assert!(e.contains("wrong.tmd") && e.contains("not a TrueMap file"), "{e}");
     }
 }
+
+/// An instrument format that is known but not read is refused by `scan-info` with its name and
+/// what to export, not as an unknown extension; an extension nobody uses stays unknown.
+#[test]
+fn known_unread_instrument_formats_are_refused_by_name() {
+    let dir = common::tempdir();
+    for (name, says) in [("part.mnt", "MountainsMap"), ("part.datx", "Zygo Mx"), ("part.vk4", "Keyence")] {
+        let p = dir.path().join(name);
+        std::fs::write(&p, b"not read").unwrap();
+        let o = common::doefab(&["scan-info", p.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(says) && err.contains(".x3p"), "{name}: {err}");
+        assert!(!err.contains("unknown scan format"), "{err}");
+    }
+    let p = dir.path().join("part.qqq");
+    std::fs::write(&p, b"x").unwrap();
+    let o = common::doefab(&["scan-info", p.to_str().unwrap()]);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("unknown scan format"));
+}

@@ -41,6 +41,7 @@ pub mod png_scale;
 pub mod sdf;
 pub mod sur;
 pub mod tmd;
+pub mod unread;
 pub mod x3p;
 pub mod xyz;
 pub mod zygo;
@@ -183,13 +184,16 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
         "tif" | "tiff" => ScanFormat::Tiff,
         "npy" => ScanFormat::Npy,
         _ => {
+            if let Some(why) = unread::refusal(&ext) {
+                return Err(Error::format(path, why));
+            }
             return Err(Error::format(
                 path,
                 format!(
                     "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .al3d, .tmd, .dat, .xyz, \
                      .txt/.csv/.asc, .png, .tif/.tiff or .npy)"
                 ),
-            ))
+            ));
         }
     })
 }
