@@ -130,6 +130,34 @@ def plu():
     return bytes(h) + struct.pack("<II", ROWS, COLS) + struct.pack("<%df" % len(v), *v)
 
 
+def al3d():
+    """Alicona AL3D: the 17-byte magic, 52-byte tags (20-byte key, 30-byte value, CR LF; Version
+    and TagCount first), a 256-byte comment ending in CR LF, then f32 depths in metres, each row
+    padded to 8 bytes; 3e15 as f32 = not measured (src/io/scan/al3d.rs)."""
+    stride = (COLS * 4 + 7) // 8 * 8
+    tags = [("Rows", ROWS), ("Cols", COLS), ("PixelSizeXMeter", "1e-06"), ("PixelSizeYMeter", "2e-06"),
+            ("InvalidPixelValue", "3000000028082176.0"), ("NumberOfPlanes", 0), ("TextureImageOffset", 0)]
+    offset = 17 + 52 * (3 + len(tags)) + 256
+    tags.append(("DepthImageOffset", offset))
+    out = b"AliconaImaging\0\r\n"
+    for k, v in [("Version", 1), ("TagCount", len(tags))] + tags:
+        out += struct.pack("20s30s2s", k.encode(), str(v).encode(), b"\r\n")
+    out += b"seed".ljust(254, b"\0") + b"\r\n"
+    for i in range(ROWS):
+        row = [3e15 if (i, j) == MISSING else Z[i][j] for j in range(COLS)]
+        out += struct.pack("<%df" % COLS, *row).ljust(stride, b"\0")
+    return out
+
+
+def tmd():
+    """TrueMap TMD v2.0: the 32-byte magic, a NUL-terminated comment, columns and rows (u32), x and
+    y length, x and y offset (f32 mm), f32 heights in mm row by row; NaN = not measured
+    (src/io/scan/tmd.rs)."""
+    v = [float("nan") if (k // COLS, k % COLS) == MISSING else x * 1e3 for k, x in enumerate(flat())]
+    return (b"Binary TrueMap Data File v2.0\r\n\0" + b"seed\0" + struct.pack("<II", COLS, ROWS)
+            + struct.pack("<ffff", COLS * 1e-3, ROWS * 2e-3, 0.0, 0.0) + struct.pack("<%df" % len(v), *v))
+
+
 def npy(descr, shape, fmt, vals):
     head = "{'descr': '%s', 'fortran_order': False, 'shape': %s, }" % (descr, shape)
     head += " " * (63 - (len(head) + 10) % 64) + "\n"
@@ -195,6 +223,8 @@ def main():
     put(out, "opd", "i16.opd", opd(2))
     put(out, "plu", "topography.plu", plu())
     put(out, "gwy", "masked.gwy", gwy())
+    put(out, "al3d", "seed.al3d", al3d())
+    put(out, "tmd", "seed.tmd", tmd())
     put(out, "exr", "float_z.exr", exr())
     v = flat()
     put(out, "npy", "f8_2d.npy", npy("<f8", "(%d, %d)" % (ROWS, COLS), "<%dd" % len(v), v))
