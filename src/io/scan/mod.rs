@@ -30,7 +30,8 @@
 //! NaN values become invalid samples of the grid's validity mask (set to 0, never data).
 //!
 //! Errors name the file and, for binary formats, the byte offset where the content stopped
-//! making sense (truncation, a bad field).
+//! making sense (truncation, a bad field). Instrument formats that are known but not read are
+//! refused by name, with what to export instead ([`unread`]).
 
 pub mod al3d;
 pub mod gsf;
