@@ -2,8 +2,8 @@
 """Writes the small Alicona .al3d and TrueMap .tmd test files of this folder and prints the
 statistics surfalize computes when it reads each one back (recorded in README.md).
 
-    python3 -m venv /tmp/szvenv && /tmp/szvenv/bin/pip install surfalize==0.19.2
-    /tmp/szvenv/bin/python profilometry/make_surfalize_files.py profilometry
+    python3 -m venv surfalize-venv && surfalize-venv/bin/pip install surfalize==0.19.2
+    surfalize-venv/bin/python profilometry/make_surfalize_files.py profilometry
 
 Files:
 - `wave_pedestal.surfalize.al3d`: written by surfalize's AL3D writer.
