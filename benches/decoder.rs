@@ -12,6 +12,8 @@
 
 use std::path::PathBuf;
 use std::process::Command;
+
+mod common;
 use std::time::Instant;
 
 use doefab::decoder::finetune::{Adam, FinetuneConfig};
@@ -116,13 +118,7 @@ fn main() -> doefab::Result<()> {
     let step_s = train_step_time(&w, 8, 320, 2);
     show("train step batch 8, 320x320", step_s);
 
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let candidates = [
-        std::env::var("DOEFAB_PYTHON").ok(),
-        Some(root.join(".venv/bin/python").display().to_string()),
-        Some("python3".into()),
-    ];
-    let result = candidates.into_iter().flatten().find_map(|p| torch(&p));
+    let result = common::python_with("torch").and_then(|p| torch(&p));
     let Some(text) = result else {
         println!("notice: no Python with torch found; the PyTorch comparison is skipped");
         return Ok(());

@@ -16,6 +16,8 @@
 use std::path::Path;
 use std::time::Instant;
 
+mod common;
+
 use doefab::design::{paper_example, ExampleParams};
 use doefab::fabrication::contrast::ContrastCurve;
 use doefab::fabrication::mask::{render, MaskOptions};
@@ -93,16 +95,7 @@ fn writer_grid(design: &Grid, dir: &Path) -> Result<()> {
     let period = WrapSpec::default().period()?;
     let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let script = root.join("benches/fab_opencv.py");
-    let python = [
-        std::env::var("DOEFAB_PYTHON").ok(),
-        Some(root.join(".venv/bin/python").display().to_string()),
-        Some("python3".into()),
-    ]
-    .into_iter()
-    .flatten()
-    .find(|p| {
-        std::process::Command::new(p).args(["-c", "import cv2"]).output().is_ok_and(|o| o.status.success())
-    });
+    let python = common::python_with("cv2");
     for run in 0..3 {
         let t = Instant::now();
         run_recipe(&source, &recipe, &dir.join("fab"), &FabOptions::default(), &mut |_| {})?;

@@ -20,6 +20,8 @@
 use std::path::Path;
 use std::time::Instant;
 
+mod common;
+
 use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
 use doefab::grid::Grid;
 use doefab::io::scan::{decode_scan_raw, scan_from_raw, ScanOptions};
@@ -51,19 +53,6 @@ fn timed(
 /// Shift error `[x, y]` in design pixels.
 fn shift_error(found: [f64; 2], truth: [f64; 2]) -> [f64; 2] {
     [(found[0] - truth[0]) / PAPER_PITCH, (found[1] - truth[1]) / PAPER_PITCH]
-}
-
-fn python_with_cv2(root: &Path) -> Option<String> {
-    [
-        std::env::var("DOEFAB_PYTHON").ok(),
-        Some(root.join(".venv/bin/python").display().to_string()),
-        Some("python3".into()),
-    ]
-    .into_iter()
-    .flatten()
-    .find(|p| {
-        std::process::Command::new(p).args(["-c", "import cv2"]).output().is_ok_and(|o| o.status.success())
-    })
 }
 
 fn main() -> doefab::Result<()> {
@@ -103,7 +92,7 @@ fn main() -> doefab::Result<()> {
         r.pose.mirror,
         r.complement,
     );
-    match python_with_cv2(root) {
+    match common::python_with("cv2") {
         Some(py) => {
             let (dn, sn) = (dir.join("design.npy"), dir.join("scan.npy"));
             doefab::io::npy::write_npy_f64(&dn, design.values())?;
