@@ -282,23 +282,33 @@ pub fn compare(cli: &Cli, a: &CompareArgs) -> Result<()> {
         ..Default::default()
     };
     let source = DesignSource::parse(Some(design), read.options()?);
-    let chain = match (recipe, levels) {
-        (Some(r), _) => {
-            let r = Recipe::read(r)?;
-            let n = levels.unwrap_or(r.level_count);
-            Some(ChainParams { level_count: n, ..ChainParams::of_recipe(&r, false) })
-        }
-        (None, Some(n)) => {
-            Some(chain_params(optics, *n, QuantizeMethod::Round, ReplicaMode::Design, 1e-6, false))
-        }
-        (None, None) => None,
-    };
+    let chain = comparison_chain(recipe.as_deref(), *levels, optics)?;
     let psf = (psf_method != "none").then(|| doefab::optics::Method::from_name(psf_method)).transpose()?;
     let psf =
         psf.map(|m| (m, doefab::optics::Options { allow_invalid: *allow_invalid, ..Default::default() }));
     let report = compare_scan(cli, scan, &scan_opts, &source, chain.as_ref(), *aperture, psf, output)?;
     warn_comparison(&report);
     print_result(cli, &report, || print_comparison(&report, output))
+}
+
+/// How the design is made for a comparison: the recipe's chain (its level count unless
+/// `levels` overrides it), or `levels` at the optics' wavelength, or the design as it is.
+fn comparison_chain(
+    recipe: Option<&Path>,
+    levels: Option<usize>,
+    optics: &OpticsArgs,
+) -> Result<Option<ChainParams>> {
+    Ok(match (recipe, levels) {
+        (Some(r), _) => {
+            let r = Recipe::read(r)?;
+            let n = levels.unwrap_or(r.level_count);
+            Some(ChainParams { level_count: n, ..ChainParams::of_recipe(&r, false) })
+        }
+        (None, Some(n)) => {
+            Some(chain_params(optics, n, QuantizeMethod::Round, ReplicaMode::Design, 1e-6, false))
+        }
+        (None, None) => None,
+    })
 }
 
 /// `doefab compare-profile`.
@@ -342,17 +352,7 @@ pub fn compare_profile(cli: &Cli, a: &CompareProfileArgs) -> Result<()> {
                 (None, Some(t)) => LineSpec::Angle { angle: doefab::units::parse_angle(t)? },
                 _ => anyhow::bail!("name the line on the design: --line x0,y0,x1,y1 or --angle A"),
             };
-            let chain = match (recipe, levels) {
-                (Some(r), _) => {
-                    let r = Recipe::read(r)?;
-                    let n = levels.unwrap_or(r.level_count);
-                    Some(ChainParams { level_count: n, ..ChainParams::of_recipe(&r, false) })
-                }
-                (None, Some(n)) => {
-                    Some(chain_params(optics, *n, QuantizeMethod::Round, ReplicaMode::Design, 1e-6, false))
-                }
-                (None, None) => None,
-            };
+            let chain = comparison_chain(recipe.as_deref(), *levels, optics)?;
             Some(ProfileDesign {
                 source: DesignSource::parse(Some(d), read.options()?),
                 chain,
