@@ -65,6 +65,30 @@ fn truth(a: f64) -> SimulateProfile {
     }
 }
 
+/// A profile simulated with depth scale `a`, written as a Dektak export `name` in a temporary
+/// folder, and compared through the library against the quantized built-in design.
+fn simulated_comparison(
+    a: f64,
+    name: &str,
+) -> (SimulateProfile, doefab::pipeline::compare_profile::ProfileReport, tempfile::TempDir, std::path::PathBuf)
+{
+    let (design, chain) = quantized_paper();
+    let sp = truth(a);
+    let prof = simulate_profile(&design, &sp).unwrap();
+    let dir = common::tempdir();
+    let csv = dir.path().join(name);
+    write_dektak(&csv, &prof);
+    let pd = ProfileDesign {
+        source: DesignSource::BuiltIn("paper".into()),
+        chain: Some(chain),
+        line: sp.line,
+        options: ProfileOptions::default(),
+    };
+    let r = compare_profile_file(&csv, &ProfileReadOptions::default(), ProfileLevel::Line, Some(&pd), None)
+        .unwrap();
+    (sp, r, dir, csv)
+}
+
 fn num(v: &Value, k: &str) -> f64 {
     v[k].as_f64().unwrap_or_else(|| panic!("{k} missing in {v}"))
 }
@@ -80,22 +104,8 @@ fn check(name: &str, got: f64, want: f64, sigma: f64, tol: f64) {
 
 #[test]
 fn a_simulated_profile_of_the_built_in_design_is_recovered_by_library_and_cli() {
-    let (design, chain) = quantized_paper();
-    let sp = truth(0.9);
-    let prof = simulate_profile(&design, &sp).unwrap();
-    let dir = common::tempdir();
-    let csv = dir.path().join("scan01.csv");
-    write_dektak(&csv, &prof);
-
     // Library.
-    let pd = ProfileDesign {
-        source: DesignSource::BuiltIn("paper".into()),
-        chain: Some(chain),
-        line: sp.line,
-        options: ProfileOptions::default(),
-    };
-    let r = compare_profile_file(&csv, &ProfileReadOptions::default(), ProfileLevel::Line, Some(&pd), None)
-        .unwrap();
+    let (sp, r, dir, csv) = simulated_comparison(0.9, "scan01.csv");
     assert_eq!((r.x_unit, r.z_unit), (1e-6, 1e-10));
     let c = r.comparison.as_ref().unwrap();
     check("along shift", c.along_shift, sp.along_shift, c.along_shift_sigma, 0.1e-6);
@@ -161,20 +171,7 @@ fn a_simulated_profile_of_the_built_in_design_is_recovered_by_library_and_cli() 
 
 #[test]
 fn the_complement_is_detected_and_bad_lines_and_files_are_refused() {
-    let (design, chain) = quantized_paper();
-    let sp = truth(-0.9);
-    let prof = simulate_profile(&design, &sp).unwrap();
-    let dir = common::tempdir();
-    let csv = dir.path().join("cast.csv");
-    write_dektak(&csv, &prof);
-    let pd = ProfileDesign {
-        source: DesignSource::BuiltIn("paper".into()),
-        chain: Some(chain),
-        line: sp.line,
-        options: ProfileOptions::default(),
-    };
-    let r = compare_profile_file(&csv, &ProfileReadOptions::default(), ProfileLevel::Line, Some(&pd), None)
-        .unwrap();
+    let (sp, r, dir, csv) = simulated_comparison(-0.9, "cast.csv");
     let c = r.comparison.unwrap();
     assert!(c.complement, "{c:?}");
     check("depth scale (complement)", c.depth_scale, 0.9, c.depth_scale_sigma, 0.009);
