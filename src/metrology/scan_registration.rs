@@ -370,10 +370,11 @@ fn bin(g: &Grid, pitch: [f64; 2]) -> (Img, Vec<f64>) {
             ((y / pitch[1] + (rows as f64 - 1.0) * 0.5).round().max(0.0) as usize).min(rows - 1)
         })
         .collect();
+    // Standard layout is contiguous, so the slices always exist.
     let values = g.values().as_standard_layout();
-    let vals = values.as_slice().unwrap_or(&[]);
+    let vals = values.as_slice().expect("standard layout is contiguous");
     let mask = g.mask().map(|m| m.as_standard_layout());
-    let mvals = mask.as_ref().and_then(|m| m.as_slice());
+    let mvals = mask.as_ref().map(|m| m.as_slice().expect("standard layout is contiguous"));
     sum.par_chunks_mut(cols).zip(cnt.par_chunks_mut(cols)).enumerate().for_each(|(bi, (srow, crow))| {
         let (i0, i1) = (imap.partition_point(|&b| b < bi), imap.partition_point(|&b| b <= bi));
         for i in i0..i1 {
