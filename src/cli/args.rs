@@ -12,7 +12,7 @@ use super::decoder::{BenchDecoderArgs, FinetuneArgs, ReconstructArgs};
 use super::demo::DemoArgs;
 use super::fabrication::{FabArgs, GdsArgs, MaskArgs, PrecompensateArgs, QuantizeArgs, StlArgs, WrapArgs};
 use super::metrology::{CompareArgs, CompareProfileArgs, ScanInfoArgs, SimulateScanArgs};
-use super::optics::{BenchPsfArgs, PsfArgs, PsfCompareArgs};
+use super::optics::{BenchPsfArgs, BenchStabilityArgs, PsfArgs, PsfCompareArgs};
 
 #[derive(Parser)]
 #[command(name = "doefab", version, about = "From a learned DOE design to a fabricated part", long_about = None)]
@@ -99,9 +99,13 @@ pub enum Command {
 // Parsed once per run: the size of the larger variant costs nothing.
 #[allow(clippy::large_enum_variant)]
 pub enum BenchCommand {
-    /// Error against run time of every PSF method, precision and sub-sampling on a small
-    /// scene, and error against pupil sampling with the guard's refusals: PNG + SVG + JSON.
+    /// Error against run time of every PSF method, precision and sub-sampling on a design at its
+    /// own geometry, and error against pupil sampling with the guard's refusals: PNG + SVG + JSON.
     Psf(BenchPsfArgs),
+    /// Stability maps of the two-step Fresnel method: its error against an exact truth over
+    /// pupil sampling x Fresnel number and pupil sampling x wavelength, each run with its
+    /// guard's verdict, the silent failures counted, the paper's sampling marked: PNG + SVG + JSON.
+    Stability(BenchStabilityArgs),
     /// Decoders on real captures: each scene's reference is registered onto its capture once
     /// (through the measured PSF), and the capture and every decoder are scored on the same
     /// pixels (PSNR-L, PSNR-gamma over all and saturated pixels, coverage, smallest output);

@@ -100,6 +100,17 @@ pub struct BenchPsfArgs {
     pub read: ReadArgs,
 }
 
+/// Arguments of `doefab bench stability`.
+#[derive(Args)]
+pub struct BenchStabilityArgs {
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Error above which a run its guard accepts counts as a silent failure.
+    #[arg(long, default_value_t = 1e-2)]
+    pub tolerance: f64,
+}
+
 /// `doefab psf`.
 pub fn psf(cli: &Cli, a: &PsfArgs) -> Result<()> {
     let PsfArgs {
@@ -251,5 +262,32 @@ pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
             println!("left out by the budget: {}", r.skipped.join(", "));
         }
         println!("wrote {}", output.display());
+    })
+}
+
+/// `doefab bench stability`.
+pub fn bench_stability(cli: &Cli, a: &BenchStabilityArgs) -> Result<()> {
+    use doefab::optics::stability::{steps, MapOptions};
+    let opts = MapOptions { tolerance: a.tolerance, ..MapOptions::default() };
+    let pb = progress(cli, steps(&opts) as u64);
+    let r = doefab::pipeline::bench::bench_stability(&opts, &a.output, &mut report_to(&pb))?;
+    pb.finish_and_clear();
+    print_result(cli, &r, || {
+        println!("truth: {}", r.truth);
+        for m in &r.maps {
+            let refused = m.cells.iter().filter(|c| !c.violations.is_empty()).count();
+            println!(
+                "{} over pupil sampling x {}: {} runs, {} refused by the guard ({} of them within the \
+                 tolerance), silent failures at {:.0e}: {}",
+                m.method,
+                m.y_axis.replace('_', " "),
+                m.cells.len(),
+                refused,
+                m.refused_within_tolerance,
+                r.tolerance,
+                m.silent_failures
+            );
+        }
+        println!("wrote {}", a.output.display());
     })
 }

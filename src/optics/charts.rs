@@ -1,6 +1,7 @@
 //! Charts of `doefab bench psf`: error against run time for every method, precision and
 //! sub-sampling, with the Pareto front of the valid runs; and the stability chart, error
-//! against sub-sampling (the FFT methods' pupil grid) per method, with the runs its guard refuses marked by crosses.
+//! against sub-sampling (the FFT methods' pupil grid) per method, with the runs its guard refuses marked by crosses;
+//! and the stability maps of [`crate::optics::stability`].
 
 use std::path::PathBuf;
 
@@ -9,6 +10,7 @@ use plotters::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::optics::psf_bench::{BenchPoint, BenchReport};
+use crate::optics::stability::{StabilityMap, StabilityReport};
 use crate::report::{write_png_chart, write_svg_chart, FONT};
 
 const SERIES: [(&str, &str, RGBColor); 4] = [
@@ -187,6 +189,155 @@ pub fn write_psf_charts(
     Ok(["speed_accuracy.png", "speed_accuracy.svg", "stability.png", "stability.svg"]
         .map(String::from)
         .to_vec())
+}
+
+/// The error classes of a stability map, with their colours: within a hundredth of the
+/// tolerance, within a tenth, within it, over it.
+fn error_class(error: f64, tolerance: f64) -> (RGBColor, &'static str) {
+    if error <= 0.01 * tolerance {
+        (RGBColor(0, 110, 0), "error <= tol / 100")
+    } else if error <= 0.1 * tolerance {
+        (RGBColor(120, 190, 0), "error <= tol / 10")
+    } else if error <= tolerance {
+        (RGBColor(230, 160, 0), "error <= tol")
+    } else {
+        (RGBColor(200, 0, 0), "error > tol")
+    }
+}
+
+fn stability_map_chart<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    report: &StabilityReport,
+    map: &StabilityMap,
+) -> std::result::Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let by_wavelength = map.y_axis == "wavelength";
+    let y_of = |c: &crate::optics::stability::MapCell| {
+        if by_wavelength {
+            c.wavelength * 1e9
+        } else {
+            c.fresnel_number
+        }
+    };
+    let xs = map.cells.iter().map(|c| c.lens_sampling_ratio);
+    // Room on the left for the legend.
+    let x_range = log_range(xs.chain(report.paper.iter().map(|p| p.lens_sampling_ratio)));
+    let x_range = x_range.start / 8.0..x_range.end;
+    let (y_lo, y_hi) =
+        map.cells.iter().map(y_of).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    let caption = format!(
+        "{} PSF: error vs pupil sampling and {} (tolerance {:.0e}; silent failures: {})",
+        map.method,
+        if by_wavelength { "wavelength" } else { "Fresnel number" },
+        report.tolerance,
+        map.silent_failures
+    );
+    let y_desc = if by_wavelength {
+        "wavelength, nm (g = 3.5 mm, F/7)".to_string()
+    } else {
+        format!("Fresnel number (D/2)^2 / (lambda g), g = d_s swept, {:.0} nm", map.cells[0].wavelength * 1e9)
+    };
+    let mut chart = ChartBuilder::on(root)
+        .caption(caption, (FONT, 17))
+        .margin(12)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x_range.log_scale(), y_lo - 0.08 * (y_hi - y_lo)..y_hi + 0.12 * (y_hi - y_lo))
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("pupil pitch / (lambda F#)   (the lens phase is undersampled right of 1)")
+        .y_desc(y_desc)
+        .x_labels(8)
+        .x_label_formatter(&|v| format!("{v:.2}"))
+        .y_label_formatter(&|v| format!("{v:.0}"))
+        .light_line_style(WHITE)
+        .label_style((FONT, 13))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let (y0, y1) = (y_lo - 0.08 * (y_hi - y_lo), y_hi + 0.12 * (y_hi - y_lo));
+    chart
+        .draw_series(LineSeries::new([(1.0, y0), (1.0, y1)], BLACK.stroke_width(2)))
+        .map_err(|x| e(&x))?
+        .label("lens-sampling limit (a guard condition)")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
+    if by_wavelength {
+        for (k, p) in report.paper.iter().enumerate() {
+            let x = p.lens_sampling_ratio;
+            let y_text = y1 - (0.02 + 0.035 * k as f64) * (y1 - y0);
+            chart
+                .draw_series(LineSeries::new([(x, y0), (x, y1)], BLUE.stroke_width(1)))
+                .map_err(|x| e(&x))?;
+            chart
+                .draw_series(std::iter::once(Text::new(
+                    format!("paper {:.0} nm", p.wavelength * 1e9),
+                    (x, y_text),
+                    (FONT, 12).into_font().color(&BLUE),
+                )))
+                .map_err(|x| e(&x))?;
+        }
+    }
+    for class in 0..4 {
+        let tol = report.tolerance;
+        let probe = [0.001 * tol, 0.05 * tol, 0.5 * tol, 2.0 * tol][class];
+        let (colour, label) = error_class(probe, tol);
+        let own: Vec<_> = map.cells.iter().filter(|c| error_class(c.error, tol).1 == label).collect();
+        chart
+            .draw_series(own.iter().map(|c| -> DynElement<DB, (f64, f64)> {
+                let at = (c.lens_sampling_ratio, y_of(c));
+                if c.violations.is_empty() {
+                    Circle::new(at, 6, colour.filled()).into_dyn()
+                } else {
+                    Cross::new(at, 7, colour.stroke_width(3)).into_dyn()
+                }
+            }))
+            .map_err(|x| e(&x))?
+            .label(label)
+            .legend(move |(x, y)| Circle::new((x + 8, y), 5, colour.filled()));
+    }
+    chart
+        .draw_series(
+            map.cells
+                .iter()
+                .filter(|c| c.silent)
+                .map(|c| Circle::new((c.lens_sampling_ratio, y_of(c)), 11, RED.stroke_width(2))),
+        )
+        .map_err(|x| e(&x))?
+        .label("silent failure: guard accepts, error > tol")
+        .legend(|(x, y)| Circle::new((x + 8, y), 6, RED.stroke_width(2)));
+    chart
+        .draw_series(std::iter::empty::<Circle<(f64, f64), i32>>())
+        .map_err(|x| e(&x))?
+        .label("dot: guard accepts; cross: guard refuses")
+        .legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
+    crate::report::draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, 12)?;
+    Ok(())
+}
+
+/// Writes one chart per stability map, `stability_<y axis>.{png,svg}` at `path_for(name)`;
+/// returns the names.
+pub fn write_stability_charts(
+    mut path_for: impl FnMut(&str) -> PathBuf,
+    report: &StabilityReport,
+) -> Result<Vec<String>> {
+    let mut names = Vec::new();
+    for map in &report.maps {
+        if map.cells.is_empty() {
+            return Err(Error::Data(format!("the {} map has no runs to chart", map.y_axis)));
+        }
+        for ext in ["png", "svg"] {
+            let name = format!("stability_{}.{ext}", map.y_axis);
+            let path = path_for(&name);
+            if ext == "png" {
+                write_png_chart(&path, 1000, 650, |r| stability_map_chart(r, report, map))?;
+            } else {
+                write_svg_chart(&path, 1000, 650, |r| stability_map_chart(r, report, map))?;
+            }
+            names.push(name);
+        }
+    }
+    Ok(names)
 }
 
 #[cfg(test)]

@@ -14,6 +14,8 @@
 //! * [`plan`]: the automatic plan (method, sampling, precision, spectral samples for a
 //!   tolerance).
 //! * [`spectrum`]: spectral bands weighted by a sensor response.
+//! * [`stability`]: stability maps of the transfer-function method across its guard, with the
+//!   silent failures counted.
 //! * [`fft`]: planned square 2-D FFTs (rustfft stays inside this stage).
 
 pub mod charts;
@@ -26,6 +28,7 @@ pub mod psf;
 pub mod psf_bench;
 pub mod psf_compare;
 pub mod spectrum;
+pub mod stability;
 pub mod system;
 
 pub use propagate::{simulate, Method, Options, Precision, Violation};

@@ -1,4 +1,4 @@
-//! `doefab bench psf` and `doefab bench decoder`: the benchmarks with their defaults and
+//! `doefab bench psf`, `doefab bench stability` and `doefab bench decoder`: the benchmarks with their defaults and
 //! outputs.
 
 use std::path::{Path, PathBuf};
@@ -13,9 +13,10 @@ use crate::error::Result;
 use crate::fabrication::chain::{self, DesignSource};
 use crate::io::atomic::{self, StagedDir};
 use crate::material::Material;
-use crate::optics::charts::write_psf_charts;
+use crate::optics::charts::{write_psf_charts, write_stability_charts};
 use crate::optics::output::system_for;
 use crate::optics::psf_bench::{self, run_bench, steps, BenchOptions};
+use crate::optics::stability::{self, MapOptions, StabilityReport};
 use crate::optics::system::OpticalSystem;
 
 /// `bench psf` as the command line states it.
@@ -54,6 +55,26 @@ pub fn bench_psf(
     let mut stage = StagedDir::new(output)?;
     write_psf_charts(|n| stage.stage_path(n), &report)?;
     atomic::write_json(&stage.stage_path("bench_psf.json"), &report)?;
+    stage.commit()?;
+    Ok(report)
+}
+
+/// Runs the stability maps ([`crate::optics::stability`]) and writes their charts (PNG, SVG)
+/// and `stability.json` into the folder `output`, all or nothing. Progress: one step per run.
+pub fn bench_stability(
+    opts: &MapOptions,
+    output: &Path,
+    progress: &mut dyn FnMut(&str, u64, u64),
+) -> Result<StabilityReport> {
+    let total = stability::steps(opts) as u64;
+    let mut done = 0;
+    let report = stability::run_maps(opts, |what| {
+        progress(what, done, total);
+        done += 1;
+    })?;
+    let mut stage = StagedDir::new(output)?;
+    write_stability_charts(|n| stage.stage_path(n), &report)?;
+    atomic::write_json(&stage.stage_path("stability.json"), &report)?;
     stage.commit()?;
     Ok(report)
 }

@@ -43,10 +43,10 @@ pub fn band_limit(wavelength: f64, z: f64, w: f64) -> f64 {
 /// The violated validity conditions at `wavelength` (see the module docs).
 pub fn check(system: &OpticalSystem, doe: &Grid, wavelength: f64) -> Result<Vec<Violation>> {
     let (n, dx, w) = grid(system);
-    let (_, gradient) = pupil_phase(system, doe, n, dx, wavelength)?;
+    let (f_doe, gradient) = pupil_phase(system, doe, n, dx, wavelength)?;
     let win = w as f64 * dx;
     let mut out = Vec::new();
-    out.extend(check_lens_sampling(system, dx, wavelength, true));
+    out.extend(check_lens_sampling(system, dx, wavelength, true, f_doe));
     // The whole band of the pupil grid must pass: a sharp aperture edge fills it.
     for (z, what) in [(system.doe_to_lens, "DOE -> lens"), (system.lens_to_sensor, "lens -> sensor")] {
         let f = 1.0 / (2.0 * dx);

@@ -41,7 +41,7 @@ pub fn check(system: &OpticalSystem, doe: &Grid, wavelength: f64) -> Result<Vec<
     let (n, dx, w) = grid(system);
     let (f_doe, gradient) = pupil_phase(system, doe, n, dx, wavelength)?;
     let mut out = Vec::new();
-    out.extend(check_lens_sampling(system, dx, wavelength, false));
+    out.extend(check_lens_sampling(system, dx, wavelength, false, f_doe));
     out.extend(check_bandwidth(system, dx, w, wavelength));
     out.extend(check_window(system, dx, w as f64 * dx, wavelength));
     if system.samples() > w {

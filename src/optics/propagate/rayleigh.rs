@@ -57,7 +57,7 @@ pub fn check(system: &OpticalSystem, doe: &Grid, wavelength: f64) -> Result<Vec<
             "direct integration models point samples only; set cells = false".into(),
         ));
     }
-    out.extend(check_lens_sampling(system, dx, wavelength, true));
+    out.extend(check_lens_sampling(system, dx, wavelength, true, f_doe));
     let half_lens = l as f64 * dx * 0.5;
     for (z, src, dst, what) in [
         (system.doe_to_lens, system.aperture * 0.5, half_lens, "DOE -> lens"),
