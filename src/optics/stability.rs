@@ -4,8 +4,12 @@
 //!
 //! The scene is [`psf_bench::scene`] (0.5 mm aperture, 3 um pixels, a 40 x 40 crop) with a DOE
 //! that has one truth at every pupil pitch swept: the phase `3 (cos(2 pi x / 60 um) +
-//! cos(2 pi y / 85 um))` rad at 550 nm, sampled at 1 um (0.31 rad per sample at most), so the
-//! pupil samples of every pitch are read from a well-resolved surface. The pupil pitch is the
+//! cos(2 pi y / 85 um))` rad at 550 nm, sampled at 0.8 um (0.25 rad per sample at most), so the
+//! pupil samples of every pitch are read from a well-resolved surface. 0.8 um is none of the
+//! swept pupil pitches `3 um / s`: every method then interpolates the same pupil samples (at a
+//! pitch equal to the DOE's, the matrix DFT takes the DOE's own samples with the DOE's parity,
+//! which can sit half a sample from the Fresnel method's grid: a different pupil, and a
+//! 4.7e-3 difference that is not either method's error). The pupil pitch is the
 //! transfer-function method's own, `dx = sensor_pitch / s` for `s` sub-samples per pixel.
 //!
 //! **Truth.** The matrix DFT ([`super::propagate::matrix_dft`]) on the same sampled pupil (pitch
@@ -38,7 +42,7 @@ use crate::grid::{Grid, Unit};
 use crate::material::Material;
 
 /// Pitch of the stability DOE's samples, metres.
-pub const DOE_PITCH: f64 = 1e-6;
+pub const DOE_PITCH: f64 = 0.8e-6;
 
 /// The paper's DOE pitch and F-number, and its three wavelengths (metres).
 const PAPER_PITCH: f64 = 4.29e-6;
