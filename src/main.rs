@@ -39,6 +39,7 @@ fn run(cli: &Cli) -> Result<()> {
         Command::CalibratePsf(a) => calibration::calibrate_psf(cli, a),
         Command::Evaluate(a) => calibration::evaluate(cli, a),
         Command::PsfCompare(a) => optics::psf_compare(cli, a),
+        Command::Report(a) => optics::report(cli, a),
         Command::Bench { what: BenchCommand::Psf(a) } => optics::bench_psf(cli, a),
         Command::Bench { what: BenchCommand::Stability(a) } => optics::bench_stability(cli, a),
         Command::Bench { what: BenchCommand::Decoder(a) } => decoder::bench_decoder(cli, a),

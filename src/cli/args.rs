@@ -12,7 +12,7 @@ use super::decoder::{BenchDecoderArgs, FinetuneArgs, ReconstructArgs};
 use super::demo::DemoArgs;
 use super::fabrication::{FabArgs, GdsArgs, MaskArgs, PrecompensateArgs, QuantizeArgs, StlArgs, WrapArgs};
 use super::metrology::{CompareArgs, CompareProfileArgs, ScanInfoArgs, SimulateScanArgs};
-use super::optics::{BenchPsfArgs, BenchStabilityArgs, PsfArgs, PsfCompareArgs};
+use super::optics::{BenchPsfArgs, BenchStabilityArgs, PsfArgs, PsfCompareArgs, ReportArgs};
 
 #[derive(Parser)]
 #[command(name = "doefab", version, about = "From a learned DOE design to a fabricated part", long_about = None)]
@@ -46,6 +46,9 @@ pub enum Command {
     /// Compare two PSFs (design, as-fabricated, measured): each one's peaks, encircled energy
     /// and centroid per channel, and the relative L2 after centroid alignment.
     PsfCompare(PsfCompareArgs),
+    /// The benchmarks of a design within one time budget, gathered into one static HTML page
+    /// (index.html) with its charts (SVG) and data (JSON, CSV).
+    Report(ReportArgs),
     /// Benchmarks with charts.
     Bench {
         #[command(subcommand)]

@@ -100,6 +100,28 @@ pub struct BenchPsfArgs {
     pub read: ReadArgs,
 }
 
+/// Arguments of `doefab report`.
+#[derive(Args)]
+pub struct ReportArgs {
+    /// Height map file, or built-in:paper / built-in:fresnel (default built-in:paper, at the
+    /// paper's geometry).
+    pub design: Option<String>,
+    /// Output folder (index.html, charts, data).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Optical system TOML (as for `psf`); unset fields keep the paper's values.
+    #[arg(long)]
+    pub system: Option<PathBuf>,
+    /// Material of the DOE (pdms, fused_silica, noa61, pmma, ip_dip).
+    #[arg(long, default_value = "pdms")]
+    pub material: String,
+    /// Wall-clock budget for all of it ("5min", "90s").
+    #[arg(long, default_value = "5min", value_parser = clap_duration)]
+    pub budget: f64,
+    #[command(flatten)]
+    pub read: ReadArgs,
+}
+
 /// Arguments of `doefab bench stability`.
 #[derive(Args)]
 pub struct BenchStabilityArgs {
@@ -289,5 +311,32 @@ pub fn bench_stability(cli: &Cli, a: &BenchStabilityArgs) -> Result<()> {
             );
         }
         println!("wrote {}", a.output.display());
+    })
+}
+
+/// `doefab report`.
+pub fn report(cli: &Cli, a: &ReportArgs) -> Result<()> {
+    use doefab::optics::psf_bench::BenchOptions;
+    use doefab::pipeline::bench::PsfBenchOptions;
+    use doefab::pipeline::report::{run_report, steps, ReportOptions};
+    let opts = ReportOptions {
+        psf: PsfBenchOptions {
+            design: DesignSource::parse(a.design.as_deref(), a.read.options()?),
+            system: a.system.clone(),
+            material: a.material.clone(),
+            bench: BenchOptions::default(),
+        },
+        budget: a.budget,
+    };
+    let pb = progress(cli, steps(&opts) as u64);
+    let page = run_report(&opts, &a.output, &mut report_to(&pb))?;
+    pb.finish_and_clear();
+    print_result(cli, &page, || {
+        println!(
+            "wrote {} ({} sections, {} figures; open index.html in a browser)",
+            a.output.display(),
+            page.sections.len(),
+            page.figures.len()
+        );
     })
 }

@@ -17,7 +17,9 @@
 //! * [`precompensate`]: the next mask set corrected for the process a scan of the last part
 //!   measured (`doefab precompensate`), and the loop closed in simulation.
 //! * [`bench`](mod@bench): the PSF methods' benchmark and the decoders' benchmark on real captures
-//!   (`doefab bench psf`, `doefab bench decoder`).
+//!   (`doefab bench psf`, `doefab bench stability`, `doefab bench decoder`).
+//! * [`report`]: the benchmarks of a design within one time budget, gathered into one static
+//!   HTML page with its charts and data (`doefab report`).
 
 pub mod bench;
 pub mod calibrate_psf;
@@ -27,3 +29,4 @@ pub mod merge;
 pub mod precompensate;
 pub mod psf;
 pub mod psf_compare;
+pub mod report;

@@ -18,6 +18,7 @@ mod precompensate;
 mod profile;
 mod psf_compare;
 mod register;
+mod report;
 mod scan;
 mod scan_bad;
 mod stl;

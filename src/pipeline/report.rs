@@ -1,0 +1,370 @@
+//! `doefab report`: the benchmarks of a design run within one time budget and gathered into
+//! one static HTML page (`index.html`) with its charts as SVG and the data beside it as JSON
+//! and CSV. It opens in a browser from the folder, without a server.
+//!
+//! Every number the page shows is a [`Figure`] of `report.json` (its value, unit and the text
+//! shown), and the page is written from that list alone: the sentence under each chart, the
+//! reading of what to pick and why, is built from figures, never typed in.
+
+use std::fmt::Write as _;
+use std::path::Path;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::bench::{bench_psf, PsfBenchOptions};
+use crate::error::{Error, Result};
+use crate::io::atomic::{self, StagedDir};
+use crate::optics::charts::{write_psf_charts, write_stability_charts};
+use crate::optics::psf_bench::{self, BenchOptions};
+use crate::optics::stability::{self, MapOptions, StabilityReport};
+
+/// What `doefab report` runs.
+#[derive(Debug, Clone)]
+pub struct ReportOptions {
+    /// The PSF benchmark's design, system and material; its budget is what the rest leaves.
+    pub psf: PsfBenchOptions,
+    /// Wall-clock seconds for everything.
+    pub budget: f64,
+}
+
+/// One number on the page.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Figure {
+    /// What it is, in words.
+    pub label: String,
+    pub value: f64,
+    /// Its unit (`s`, `m`, `1` for a pure number).
+    pub unit: String,
+    /// The text the page shows for it ([`shown`]).
+    pub shown: String,
+}
+
+/// One section of the page: a heading, its charts, the reading under them, and the figures the
+/// reading is made of.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Section {
+    pub title: String,
+    /// Chart files (SVG) beside the page.
+    pub charts: Vec<String>,
+    /// Data files beside the page.
+    pub data: Vec<String>,
+    /// The reading: words and figures in turn.
+    pub reading: Vec<Piece>,
+}
+
+/// A piece of a reading: words, or the figure of that index in [`Page::figures`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Piece {
+    Words(String),
+    Figure(usize),
+}
+
+/// The page, as `report.json` holds it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Page {
+    pub title: String,
+    pub design: String,
+    pub figures: Vec<Figure>,
+    pub sections: Vec<Section>,
+}
+
+/// The text a figure shows: three significant digits, in positional notation from 0.01 to
+/// 10,000 and in scientific notation outside (`0.394`, `1.68`, `42`, `2.5e-4`).
+pub fn shown(v: f64) -> String {
+    if !v.is_finite() {
+        return "n/a".into();
+    }
+    let a = v.abs();
+    if a == 0.0 {
+        "0".into()
+    } else if (1e-2..1e4).contains(&a) {
+        let digits = (2 - a.log10().floor() as i32).max(0) as usize;
+        let t = format!("{v:.digits$}");
+        if t.contains('.') {
+            t.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            t
+        }
+    } else {
+        let t = format!("{v:.1e}");
+        t.replace(".0e", "e")
+    }
+}
+
+/// Builds readings from words and figures.
+struct Builder {
+    figures: Vec<Figure>,
+}
+
+impl Builder {
+    fn fig(&mut self, label: &str, value: f64, unit: &str) -> Piece {
+        self.figures.push(Figure { label: label.into(), value, unit: unit.into(), shown: shown(value) });
+        Piece::Figure(self.figures.len() - 1)
+    }
+}
+
+fn words(w: &str) -> Piece {
+    Piece::Words(w.into())
+}
+
+/// How many progress steps [`run_report`] takes.
+pub fn steps(opts: &ReportOptions) -> usize {
+    stability::steps(&MapOptions::default()) + psf_bench::steps(&opts.psf.bench)
+}
+
+/// Runs the benchmarks within `opts.budget` and writes the page, its charts and data into the
+/// folder `output`, all or nothing. The stability maps run first (their sweep is fixed, about
+/// 15 s on two cores); the PSF benchmark gets what is left.
+pub fn run_report(
+    opts: &ReportOptions,
+    output: &Path,
+    progress: &mut dyn FnMut(&str, u64, u64),
+) -> Result<Page> {
+    if !(opts.budget > 0.0 && opts.budget.is_finite()) {
+        return Err(Error::param("budget", format!("must be a positive time, got {} s", opts.budget)));
+    }
+    let start = Instant::now();
+    let total = steps(opts) as u64;
+    let mut done = 0u64;
+    let maps = stability::run_maps(&MapOptions::default(), |what| {
+        progress(what, done, total);
+        done += 1;
+    })?;
+    let left = opts.budget - start.elapsed().as_secs_f64();
+    if left <= 0.05 * opts.budget {
+        return Err(Error::Limit(format!(
+            "the budget of {:.0} s was spent by the stability maps alone ({:.0} s): give more time",
+            opts.budget,
+            start.elapsed().as_secs_f64()
+        )));
+    }
+    // A few seconds of the budget stay for the charts and files.
+    let left = left - (0.02 * opts.budget).min(5.0);
+    let psf_opts = PsfBenchOptions {
+        bench: BenchOptions { budget: left, ..opts.psf.bench.clone() },
+        ..opts.psf.clone()
+    };
+    let scratch = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
+    let psf = bench_psf(&psf_opts, &scratch.path().join("psf"), &mut |what, _, _| {
+        progress(what, done, total);
+        done += 1;
+    })?;
+
+    let mut stage = StagedDir::new(output)?;
+    let svg = |names: Vec<String>, prefix: &str| -> Vec<String> {
+        names.into_iter().filter(|n| n.ends_with(".svg")).map(|n| format!("{prefix}{n}")).collect()
+    };
+    let psf_charts = svg(write_psf_charts(|n| stage.stage_path(&format!("psf_{n}")), &psf)?, "psf_");
+    let map_charts = svg(write_stability_charts(|n| stage.stage_path(n), &maps)?, "");
+    atomic::write_json(&stage.stage_path("bench_psf.json"), &psf)?;
+    atomic::write_json(&stage.stage_path("stability.json"), &maps)?;
+    atomic::write_bytes(&stage.stage_path("bench_psf.csv"), psf_csv(&psf).as_bytes())?;
+    atomic::write_bytes(&stage.stage_path("stability.csv"), stability_csv(&maps).as_bytes())?;
+
+    let design = match &opts.psf.design {
+        crate::fabrication::chain::DesignSource::BuiltIn(n) => format!("built-in:{n}"),
+        crate::fabrication::chain::DesignSource::File(p, _) => p.display().to_string(),
+    };
+    let page = page(&design, &psf, &maps, psf_charts, map_charts);
+    atomic::write_json(&stage.stage_path("report.json"), &page)?;
+    atomic::write_bytes(&stage.stage_path("index.html"), html(&page).as_bytes())?;
+    stage.commit()?;
+    Ok(page)
+}
+
+/// One row per run of the PSF benchmark.
+fn psf_csv(r: &psf_bench::BenchReport) -> String {
+    let mut s =
+        String::from("method,precision,subsample,pupil_pitch_m,seconds,relative_l2,guard_refuses,pareto\n");
+    for p in &r.points {
+        let _ = writeln!(
+            s,
+            "{},{},{},{:e},{:e},{:e},{},{}",
+            p.method,
+            p.precision,
+            p.subsample,
+            p.pupil_pitch,
+            p.seconds,
+            p.error,
+            p.violations.join(";"),
+            p.pareto
+        );
+    }
+    s
+}
+
+/// One row per run of the stability maps.
+fn stability_csv(r: &StabilityReport) -> String {
+    let mut s = String::from(
+        "map,method,subsample,pupil_pitch_m,wavelength_m,focal_length_m,lens_sampling_ratio,fresnel_number,relative_l2,guard_refuses,silent\n",
+    );
+    for m in &r.maps {
+        for c in &m.cells {
+            let _ = writeln!(
+                s,
+                "{},{},{},{:e},{:e},{:e},{:e},{:e},{:e},{},{}",
+                m.y_axis,
+                m.method,
+                c.subsample,
+                c.pupil_pitch,
+                c.wavelength,
+                c.focal_length,
+                c.lens_sampling_ratio,
+                c.fresnel_number,
+                c.error,
+                c.violations.join(";"),
+                c.silent
+            );
+        }
+    }
+    s
+}
+
+/// The page's sections and figures from the two reports.
+fn page(
+    design: &str,
+    psf: &psf_bench::BenchReport,
+    maps: &StabilityReport,
+    psf_charts: Vec<String>,
+    map_charts: Vec<String>,
+) -> Page {
+    let mut b = Builder { figures: Vec::new() };
+    let mut reading = vec![
+        words("The PSF of the design by every method, precision and pixel sub-sampling, timed and scored against a reference (matrix DFT, Gauss-Legendre pixels) that differs from its own refinement by"),
+        b.fig("reference self-difference", psf.reference.difference, "1"),
+        words(". The automatic plan:"),
+    ];
+    for p in &psf.plans {
+        reading.push(words(" at tolerance"));
+        reading.push(b.fig("plan tolerance", p.tolerance, "1"));
+        reading.push(words(&format!(" it takes {} {} with", p.method, p.precision)));
+        reading.push(b.fig("plan sub-samples per pixel", p.subsample as f64, "1"));
+        reading.push(words("sub-samples per pixel, in"));
+        reading.push(b.fig("plan run time", p.seconds, "s"));
+        reading.push(words("s, error"));
+        reading.push(b.fig("plan error", p.error, "1"));
+        match p.time_ratio {
+            Some(t) => {
+                reading.push(words(if p.meets_tolerance { "(meets it;" } else { "(MISSES it;" }));
+                reading.push(b.fig("plan time over the cheapest adequate run", t, "1"));
+                reading.push(words("times the time of the cheapest run of the sweep that meets it)."));
+            }
+            None => reading.push(words(if p.meets_tolerance {
+                "(meets it; no run of the sweep does)."
+            } else {
+                "(MISSES it; no run of the sweep meets it either)."
+            })),
+        }
+    }
+    reading.push(words(" Pick the leftmost point below your tolerance; the plan should sit on it or just right of it. A hollow point is a run its guard refuses: trust only filled ones."));
+    let psf_section = Section {
+        title: "PSF: speed against accuracy".into(),
+        charts: psf_charts,
+        data: vec!["bench_psf.json".into(), "bench_psf.csv".into()],
+        reading,
+    };
+    let mut reading = vec![
+        words("The two-step Fresnel method against an exact truth on the same sampled pupil, over pupil sampling and Fresnel number, and over pupil sampling and wavelength; at tolerance"),
+        b.fig("stability tolerance", maps.tolerance, "1"),
+        words(":"),
+    ];
+    for m in &maps.maps {
+        let refused = m.cells.iter().filter(|c| !c.violations.is_empty()).count();
+        reading.push(words(&format!(" over {},", m.y_axis.replace('_', " "))));
+        reading.push(b.fig("runs", m.cells.len() as f64, "1"));
+        reading.push(words("runs,"));
+        reading.push(b.fig("silent failures", m.silent_failures as f64, "1"));
+        reading.push(words("silent failures (accepted by the guard, over the tolerance),"));
+        reading.push(b.fig("refused by the guard", refused as f64, "1"));
+        reading.push(words("refused, of which"));
+        reading.push(b.fig("refused within the tolerance", m.refused_within_tolerance as f64, "1"));
+        reading.push(words("within the tolerance."));
+    }
+    reading.push(words(" Trust a dot; a cross names the condition that failed in stability.json. The paper's own sampling is drawn in blue: right of the black line the lens phase is undersampled, so use the matrix DFT there."));
+    let map_section = Section {
+        title: "PSF: where the Fresnel method fails".into(),
+        charts: map_charts,
+        data: vec!["stability.json".into(), "stability.csv".into()],
+        reading,
+    };
+    Page {
+        title: "doefab report".into(),
+        design: design.into(),
+        figures: b.figures,
+        sections: vec![psf_section, map_section],
+    }
+}
+
+/// Escapes text for HTML.
+fn escape(t: &str) -> String {
+    t.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+/// The page as HTML: every number from [`Page::figures`], every chart an `<img>` of a file
+/// beside it.
+pub fn html(page: &Page) -> String {
+    let mut h = String::new();
+    let _ = write!(
+        h,
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title>\n<style>\
+         body{{font-family:sans-serif;max-width:1050px;margin:2em auto;line-height:1.45}}\
+         img{{max-width:100%;border:1px solid #ccc;margin:0.5em 0}} .fig{{font-weight:bold}}\
+         </style></head><body>\n<h1>{}</h1>\n<p>Design: <code>{}</code>. Data: report.json (every number \
+         on this page, with its unit).</p>\n",
+        escape(&page.title),
+        escape(&page.title),
+        escape(&page.design)
+    );
+    for s in &page.sections {
+        let _ = writeln!(h, "<h2>{}</h2>", escape(&s.title));
+        for c in &s.charts {
+            let _ = writeln!(h, "<img src=\"{}\" alt=\"{}\">", escape(c), escape(c));
+        }
+        h.push_str("<p>");
+        for (k, p) in s.reading.iter().enumerate() {
+            let text = match p {
+                Piece::Words(w) => escape(w.trim()),
+                Piece::Figure(i) => {
+                    let f = &page.figures[*i];
+                    format!("<span class=\"fig\" title=\"{}\">{}</span>", escape(&f.label), escape(&f.shown))
+                }
+            };
+            // One space between pieces, none before punctuation.
+            if k > 0 && !text.starts_with(['.', ',', ':', ';', ')']) {
+                h.push(' ');
+            }
+            h.push_str(&text);
+        }
+        h.push_str("</p>\n<p>Data: ");
+        let links: Vec<String> =
+            s.data.iter().map(|d| format!("<a href=\"{0}\">{0}</a>", escape(d))).collect();
+        h.push_str(&links.join(", "));
+        h.push_str("</p>\n");
+    }
+    h.push_str("</body></html>\n");
+    h
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn figures_are_shown_with_three_significant_digits() {
+        for (v, t) in [
+            (0.394123, "0.394"),
+            (1.6789, "1.68"),
+            (42.0, "42"),
+            (2.5e-4, "2.5e-4"),
+            (1e-2, "0.01"),
+            (0.0, "0"),
+            (12345.0, "1.2e4"),
+            (3.0, "3"),
+            (-0.5, "-0.5"),
+        ] {
+            assert_eq!(shown(v), t, "{v}");
+        }
+    }
+}

@@ -1,0 +1,157 @@
+//! `doefab report`: one static page from the benchmarks, within its budget.
+
+use doefab::fabrication::chain::DesignSource;
+use doefab::optics::psf_bench::BenchOptions;
+use doefab::pipeline::bench::PsfBenchOptions;
+use doefab::pipeline::report::{run_report, shown, ReportOptions};
+
+/// `html` without the elements from `open` to `close`.
+fn without(html: &str, open: &str, close: &str) -> String {
+    let mut out = String::new();
+    let mut rest = html;
+    while let Some(i) = rest.find(open) {
+        out.push_str(&rest[..i]);
+        rest = rest[i..].find(close).map_or("", |j| &rest[i + j + close.len()..]);
+    }
+    out.push_str(rest);
+    out
+}
+
+/// The numbers in `html`'s text: digits (with a point, an exponent, a sign) not glued to a
+/// letter or an underscore (so `f32` is a name, not a number), outside tags, `<style>` and
+/// `<code>` (which holds the design's name).
+fn numbers_in_text(html: &str) -> Vec<String> {
+    let text = without(&without(html, "<style>", "</style>"), "<code>", "</code>");
+    let mut plain = String::new();
+    let mut in_tag = false;
+    for c in text.chars() {
+        match c {
+            '<' => in_tag = true,
+            '>' => {
+                in_tag = false;
+                plain.push(' ');
+            }
+            _ if !in_tag => plain.push(c),
+            _ => {}
+        }
+    }
+    let c: Vec<char> = plain.chars().collect();
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < c.len() {
+        let glued = i > 0 && (c[i - 1].is_alphanumeric() || c[i - 1] == '_');
+        if !c[i].is_ascii_digit() || glued {
+            i += 1;
+            continue;
+        }
+        let start = if i > 0 && c[i - 1] == '-' { i - 1 } else { i };
+        let next_digit = |j: usize| j + 1 < c.len() && c[j + 1].is_ascii_digit();
+        let mut j = i;
+        while j < c.len()
+            && (c[j].is_ascii_digit()
+                || (c[j] == '.' && next_digit(j))
+                || (c[j] == 'e' && (next_digit(j) || (j + 1 < c.len() && c[j + 1] == '-')))
+                || (c[j] == '-' && c[j - 1] == 'e'))
+        {
+            j += 1;
+        }
+        out.push(c[start..j].iter().collect());
+        i = j;
+    }
+    out
+}
+
+/// On a small camera (0.5 mm aperture, 40^2 crop) and a 40 s budget: the page links only files
+/// that exist, every number on it is a figure of report.json shown as [`shown`] writes it, and
+/// the figures hold what the benchmarks' own JSON say.
+#[test]
+fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let sys = dir.path().join("small.toml");
+    std::fs::write(
+        &sys,
+        "aperture = \"0.5 mm\"\nfocal_length = \"3.5 mm\"\nlens_to_sensor = \"3.5 mm\"\ndoe_to_lens = \"1 mm\"\n\
+         crop = 40\nsensor_pitch = \"3 um\"\npupil_window = \"0.6 mm\"\n",
+    )
+    .unwrap();
+    let opts = ReportOptions {
+        psf: PsfBenchOptions {
+            design: DesignSource::BuiltIn("paper".into()),
+            system: Some(sys),
+            material: "pdms".into(),
+            bench: BenchOptions { max_subsample: 3, ..Default::default() },
+        },
+        budget: 40.0,
+    };
+    let out = dir.path().join("report");
+    let page = run_report(&opts, &out, &mut |_, _, _| {}).unwrap();
+    let html = std::fs::read_to_string(out.join("index.html")).unwrap();
+    // Every linked file exists, and every chart of the sections is linked.
+    let mut linked = 0;
+    for attr in ["src=\"", "href=\""] {
+        for part in html.split(attr).skip(1) {
+            let name = &part[..part.find('"').unwrap()];
+            assert!(out.join(name).is_file(), "{name} is linked but not written");
+            linked += 1;
+        }
+    }
+    for s in &page.sections {
+        for c in &s.charts {
+            assert!(html.contains(&format!("src=\"{c}\"")), "{c} not on the page");
+        }
+    }
+    assert!(linked >= 8, "{linked}");
+    // Every number on the page is one of report.json's figures, as shown() writes its value.
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let figures = json["figures"].as_array().unwrap();
+    let texts: Vec<&str> = figures.iter().map(|f| f["shown"].as_str().unwrap()).collect();
+    for f in figures {
+        assert_eq!(f["shown"].as_str().unwrap(), shown(f["value"].as_f64().unwrap()), "{f}");
+        assert!(!f["unit"].as_str().unwrap().is_empty(), "{f}");
+    }
+    let numbers = numbers_in_text(&html);
+    assert!(numbers.len() >= 20, "{numbers:?}");
+    for n in &numbers {
+        assert!(texts.contains(&n.as_str()), "{n} on the page is no figure of report.json: {texts:?}");
+    }
+    // The figures say what the benchmarks measured.
+    let maps: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("stability.json")).unwrap()).unwrap();
+    let silent: Vec<f64> = figures
+        .iter()
+        .filter(|f| f["label"] == "silent failures")
+        .map(|f| f["value"].as_f64().unwrap())
+        .collect();
+    assert_eq!(
+        silent,
+        [
+            maps["maps"][0]["silent_failures"].as_f64().unwrap(),
+            maps["maps"][1]["silent_failures"].as_f64().unwrap()
+        ]
+    );
+    let psf: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("bench_psf.json")).unwrap()).unwrap();
+    let errors: Vec<f64> =
+        figures.iter().filter(|f| f["label"] == "plan error").map(|f| f["value"].as_f64().unwrap()).collect();
+    let want: Vec<f64> =
+        psf["plans"].as_array().unwrap().iter().map(|p| p["error"].as_f64().unwrap()).collect();
+    assert_eq!(errors, want);
+}
+
+#[test]
+fn the_report_refuses_a_budget_it_cannot_keep() {
+    let opts = ReportOptions {
+        psf: PsfBenchOptions {
+            design: DesignSource::BuiltIn("paper".into()),
+            system: None,
+            material: "pdms".into(),
+            bench: BenchOptions::default(),
+        },
+        budget: 0.0,
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let e = run_report(&opts, &dir.path().join("r"), &mut |_, _, _| {}).unwrap_err().to_string();
+    assert!(e.contains("budget"), "{e}");
+    assert!(!dir.path().join("r").exists());
+}
