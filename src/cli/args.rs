@@ -11,6 +11,7 @@ use super::calibration::{CalibratePsfArgs, EvaluateArgs, MergeArgs};
 use super::decoder::{BenchDecoderArgs, FinetuneArgs, ReconstructArgs};
 use super::demo::DemoArgs;
 use super::fabrication::{FabArgs, GdsArgs, MaskArgs, PrecompensateArgs, QuantizeArgs, StlArgs, WrapArgs};
+use super::metrology::BenchRegisterArgs;
 use super::metrology::{CompareArgs, CompareProfileArgs, ScanInfoArgs, SimulateScanArgs};
 use super::optics::{BenchPsfArgs, BenchStabilityArgs, PsfArgs, PsfCompareArgs, ReportArgs};
 
@@ -109,6 +110,10 @@ pub enum BenchCommand {
     /// pupil sampling x Fresnel number and pupil sampling x wavelength, each run with its
     /// guard's verdict, the silent failures counted, the paper's sampling marked: PNG + SVG + JSON.
     Stability(BenchStabilityArgs),
+    /// Where scan registration fails: its error and verdict (registered, refused, accepted but
+    /// wrong) over noise, blur, missing fraction, rotation, scale and level count, from simulated
+    /// scans of known pose: PNG + SVG + JSON + CSV.
+    Register(BenchRegisterArgs),
     /// Decoders on real captures: each scene's reference is registered onto its capture once
     /// (through the measured PSF), and the capture and every decoder are scored on the same
     /// pixels (PSNR-L, PSNR-gamma over all and saturated pixels, coverage, smallest output);

@@ -13,7 +13,7 @@ use doefab::units::{clap_length, length_unit};
 
 use super::args::{Cli, OpticsArgs, ReadArgs};
 use super::fabrication::chain_params;
-use crate::{print_result, progress, warn};
+use crate::{print_result, progress, report_to, warn};
 
 /// Levelling choice on the command line (`scan-info --level`).
 #[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
@@ -570,4 +570,42 @@ pub fn print_comparison(r: &doefab::pipeline::compare::CompareReport, output: &P
         }
     }
     println!("wrote {}", output.display());
+}
+
+/// Arguments of `doefab bench register`.
+#[derive(Args)]
+pub struct BenchRegisterArgs {
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+/// `doefab bench register`.
+pub fn bench_register(cli: &Cli, a: &BenchRegisterArgs) -> Result<()> {
+    let pb = progress(cli, doefab::metrology::registration_bench::steps() as u64);
+    let r = doefab::pipeline::bench::bench_register(&a.output, &mut report_to(&pb))?;
+    pb.finish_and_clear();
+    print_result(cli, &r, || {
+        for axis in &r.axes {
+            let own: Vec<_> = r.trials.iter().filter(|t| t.axis == axis.name).collect();
+            let refused: Vec<String> =
+                own.iter().filter(|t| t.outcome == "refused").map(|t| format!("{}", t.value)).collect();
+            let worst =
+                own.iter().filter(|t| t.outcome != "refused").map(|t| t.shift_error).fold(0.0, f64::max);
+            println!(
+                "{:<9} ({}): worst accepted shift error {:.3} samples; refused at {}",
+                axis.name,
+                axis.unit,
+                worst,
+                if refused.is_empty() { "none".to_string() } else { refused.join(", ") }
+            );
+        }
+        println!(
+            "{} trials: {} refused, {} accepted but wrong (silent failures); wrote {}",
+            r.trials.len(),
+            r.refused,
+            r.silent_failures,
+            a.output.display()
+        );
+    })
 }

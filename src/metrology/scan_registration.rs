@@ -42,7 +42,14 @@
 //!    `sigma^2 (J^T J)^-1`.
 //! 5. *Confidence.* The correlation coefficient between the scan (fitted plane removed) and the
 //!    design at the registered positions; below `min_correlation` the scan is refused as not
-//!    matching the design.
+//!    matching the design. The scan's own white noise `sigma_n` (from its neighbour differences,
+//!    robustly: `1.4826 MAD / sqrt 2`, so zone edges do not count) caps what a right pose can
+//!    reach, `rho_max = sqrt(1 - sigma_n^2 / var(scan))`; below `min_correlation_ratio *
+//!    rho_max` the pose is refused as not trusted. `doefab bench register` found the poses this
+//!    catches: a rotation far beyond the search (20-90 deg), a scale 20 % off, a blur of 10-20
+//!    design samples, each accepted before at correlations of 0.53-0.94 on scans whose noise
+//!    allowed 0.998, with the pose 0.2-14 deg or 1-14 samples off; a right pose on a scan with
+//!    300 nm of noise correlates 0.76 and stays accepted.
 
 use std::borrow::Cow;
 use std::sync::Arc;
@@ -252,6 +259,8 @@ pub struct RegisterOptions {
     pub try_mirror: bool,
     /// Refuse below this correlation coefficient between scan and registered design.
     pub min_correlation: f64,
+    /// Refuse below this fraction of the correlation the scan's own noise allows (module docs).
+    pub min_correlation_ratio: f64,
     /// Refuse when the second correlation peak reaches this fraction of the first (periodic).
     pub max_peak_ratio: f64,
     /// Refuse when the best correlation changes by less than this fraction over the rotation
@@ -272,6 +281,7 @@ impl Default for RegisterOptions {
             max_rotation: 3f64.to_radians(),
             try_mirror: true,
             min_correlation: 0.5,
+            min_correlation_ratio: 0.95,
             max_peak_ratio: 0.9,
             min_rotation_contrast: 0.01,
             max_points: 100_000,
@@ -295,6 +305,8 @@ pub struct Registration {
     pub blur: f64,
     /// Correlation coefficient between scan (plane removed) and registered design.
     pub correlation: f64,
+    /// The highest correlation the scan's white noise allows a right pose (module docs).
+    pub noise_ceiling: f64,
     /// Second to first peak of the coarse correlation (1 = ambiguous shift).
     pub peak_ratio: f64,
     /// Relative drop of the coarse correlation peak across the rotation search.
@@ -509,7 +521,7 @@ struct Peak {
 
 /// Registers `scan` (heights, metres) to `design` (heights, metres); see the module docs.
 pub fn register(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Registration> {
-    check_observable(design, scan)?;
+    let noise_ceiling = check_observable(design, scan)?;
     let pd = design.pitch();
     let (dr, dc) = design.dim();
     let mut f = 1usize;
@@ -591,6 +603,7 @@ pub fn register(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Re
         offset: p.lin[1],
         tilt: [p.lin[2], p.lin[3]],
         correlation: fit.correlation,
+        noise_ceiling,
         peak_ratio: coarse.peak_ratio,
         rotation_contrast: coarse.rotation_contrast,
         mirror_ratio: coarse.mirror_ratio,
@@ -607,6 +620,17 @@ pub fn register(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Re
             "the scan does not match the design: correlation {:.3} after registration is below {:.2} \
              (wrong design, wrong scan, or a part too damaged to register)",
             reg.correlation, opts.min_correlation
+        )));
+    }
+    if reg.correlation < opts.min_correlation_ratio * noise_ceiling {
+        return Err(Error::Validity(format!(
+            "the pose found is not trusted: the registered design correlates {:.3} with the scan where the \
+             scan's own noise allows {:.3} (below {:.0}% of it); a rotation far beyond the +-{:.1} deg \
+             searched, a scale far from 1, a blur of many samples, or not this design",
+            reg.correlation,
+            noise_ceiling,
+            100.0 * opts.min_correlation_ratio,
+            opts.max_rotation.to_degrees()
         )));
     }
     if coarse.peak_ratio > opts.max_peak_ratio {
@@ -631,8 +655,9 @@ pub fn register(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Re
 /// Rows of the scan [`check_observable`] reads at most.
 const OBSERVABLE_ROWS: usize = 256;
 
-/// Refuses a flat design and a scan that is flat or white noise (step 1 of the module docs).
-fn check_observable(design: &Grid, scan: &Grid) -> Result<()> {
+/// Refuses a flat design and a scan that is flat or white noise (step 1 of the module docs);
+/// returns the correlation the scan's white noise allows (step 5).
+fn check_observable(design: &Grid, scan: &Grid) -> Result<f64> {
     let (lo, hi) = design.min_max().ok_or_else(|| Error::Data("the design has no valid sample".into()))?;
     if hi <= lo {
         return Err(Error::Validity("the design is flat: there is nothing to register against".into()));
@@ -642,6 +667,7 @@ fn check_observable(design: &Grid, scan: &Grid) -> Result<()> {
     let row_step = scan.dim().0.div_ceil(OBSERVABLE_ROWS).max(1);
     let plane = crate::metrology::level::fit_plane_rows(scan, None, row_step)?;
     let (mut n, mut s, mut ss, mut nd, mut sd) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut diffs = Vec::new();
     for (i, row) in scan.values().outer_iter().enumerate().step_by(row_step) {
         let mut prev: Option<f64> = None;
         for (j, &z) in row.iter().enumerate() {
@@ -653,6 +679,10 @@ fn check_observable(design: &Grid, scan: &Grid) -> Result<()> {
                 if let Some(q) = prev {
                     nd += 1.0;
                     sd += (r - q) * (r - q);
+                    // Every fourth difference is plenty for a median.
+                    if j % 4 == 0 {
+                        diffs.push(r - q);
+                    }
                 }
                 prev = Some(r);
             } else {
@@ -675,7 +705,23 @@ fn check_observable(design: &Grid, scan: &Grid) -> Result<()> {
             var.sqrt() * 1e9
         )));
     }
-    Ok(())
+    // White noise from the neighbour differences' median absolute deviation (steps at zone
+    // edges are outliers to it).
+    let noise = 1.4826 * median_abs_deviation(&mut diffs) / std::f64::consts::SQRT_2;
+    Ok((1.0 - noise * noise / var).max(0.0).sqrt())
+}
+
+/// The median absolute deviation of `v` from its median (reorders `v`); 0 for no values.
+fn median_abs_deviation(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mid = v.len() / 2;
+    let median = *v.select_nth_unstable_by(mid, f64::total_cmp).1;
+    for x in v.iter_mut() {
+        *x = (*x - median).abs();
+    }
+    *v.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 struct Coarse {

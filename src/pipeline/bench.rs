@@ -79,6 +79,35 @@ pub fn bench_stability(
     Ok(report)
 }
 
+/// Runs the registration trials ([`crate::metrology::registration_bench`]) and writes their
+/// chart (PNG, SVG), `register.json` and `register.csv` into the folder `output`, all or
+/// nothing. Progress: one step per trial.
+pub fn bench_register(
+    output: &Path,
+    progress: &mut dyn FnMut(&str, u64, u64),
+) -> Result<crate::metrology::registration_bench::RegistrationBench> {
+    use crate::metrology::registration_bench as rb;
+    let total = rb::steps() as u64;
+    let mut done = 0;
+    let report = rb::run(|what| {
+        progress(what, done, total);
+        done += 1;
+    })?;
+    let mut stage = StagedDir::new(output)?;
+    rb::write_chart(|n| stage.stage_path(n), &report)?;
+    atomic::write_json(&stage.stage_path("register.json"), &report)?;
+    let mut csv = String::from("axis,value,seed,outcome,shift_error_samples,rotation_error_deg,seconds\n");
+    for t in &report.trials {
+        csv.push_str(&format!(
+            "{},{:e},{},{},{:e},{:e},{:e}\n",
+            t.axis, t.value, t.seed, t.outcome, t.shift_error, t.rotation_error_deg, t.seconds
+        ));
+    }
+    atomic::write_bytes(&stage.stage_path("register.csv"), csv.as_bytes())?;
+    stage.commit()?;
+    Ok(report)
+}
+
 /// The decoders' benchmark as the command line states it, before defaults.
 #[derive(Debug, Clone)]
 pub struct DecoderBenchOptions {

@@ -1,0 +1,287 @@
+//! Where scan registration fails (`doefab bench register`): its error and verdict over one axis
+//! of trouble at a time, from a known truth.
+//!
+//! The part is the paper's DOE on 320 samples of 4.29 um, wrapped at 530 nm in PDMS and
+//! quantized to 8 levels (the surface `compare` registers a scan to). A scan of it is
+//! simulated ([`super::synthetic_scan`]) at 2.7 um with a known pose, and
+//! [`register`](super::scan_registration::register) must find that pose without being told
+//! anything of it (it searches rotation, mirror and height sign). The baseline scan: 20 nm of
+//! noise, a 2 um blur, 10 % of samples missing, a rotation of 0.3 deg, scale 1, a shift of
+//! (3.2, -1.7) um; each axis then moves one of these (noise, blur, missing fraction, rotation,
+//! scale, and the design's level count) across and past where registration can work, two
+//! seeds per value.
+//!
+//! Each trial ends one of three ways: **registered** (the pose within [`WRONG_SHIFT`] design
+//! samples and [`WRONG_ROTATION`] of the truth, mirror and height sign right), **refused** (an
+//! error naming why), or **wrong**: accepted with a pose outside those bounds, a silent
+//! failure. The count of wrong trials is the figure that must be zero.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::scan_registration::{register, Pose, RegisterOptions};
+use super::synthetic_scan::{simulate_scan, SimulateParams};
+use crate::design::{paper_example, ExampleParams, PAPER_PITCH};
+use crate::error::Result;
+use crate::fabrication::quantize::{quantize, QuantizeMethod};
+use crate::fabrication::wrap::{wrap, WrapSpec};
+use crate::grid::Grid;
+use crate::report::{write_png_chart, write_svg_chart, FONT};
+
+/// A pose further than this from the truth, in design samples, is wrong.
+pub const WRONG_SHIFT: f64 = 0.5;
+/// A rotation further than this from the truth, radians (0.1 deg), is wrong.
+pub const WRONG_ROTATION: f64 = 0.1 * std::f64::consts::PI / 180.0;
+
+const SAMPLES: usize = 320;
+const SCAN_PITCH: f64 = 2.7e-6;
+const SEEDS: [u64; 2] = [1, 2];
+
+/// One axis of the sweep: its name, unit and the values tried.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Axis {
+    pub name: String,
+    pub unit: String,
+    pub values: Vec<f64>,
+}
+
+/// The axes swept (module docs), in their units.
+pub fn axes() -> Vec<Axis> {
+    let a = |name: &str, unit: &str, values: &[f64]| Axis {
+        name: name.into(),
+        unit: unit.into(),
+        values: values.to_vec(),
+    };
+    vec![
+        a("noise", "nm", &[0.0, 100.0, 300.0, 600.0, 1000.0, 3000.0]),
+        a("blur", "um", &[0.0, 5.0, 20.0, 40.0, 80.0]),
+        a("missing", "fraction", &[0.0, 0.6, 0.9, 0.97, 0.99, 0.998]),
+        a("rotation", "deg", &[0.0, 2.5, 8.0, 20.0, 45.0, 90.0]),
+        a("scale", "1", &[0.8, 0.9, 0.97, 1.0, 1.03, 1.1, 1.25]),
+        a("levels", "count", &[2.0, 4.0, 8.0, 64.0]),
+    ]
+}
+
+/// One registration trial.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Trial {
+    pub axis: String,
+    pub value: f64,
+    pub seed: u64,
+    /// `registered`, `refused` or `wrong`.
+    pub outcome: String,
+    /// Distance of the found shift from the truth, design samples (NaN if refused).
+    pub shift_error: f64,
+    /// Found rotation minus the truth, degrees (NaN if refused).
+    pub rotation_error_deg: f64,
+    /// Correlation of the scan with the registered design (NaN if refused).
+    pub correlation: f64,
+    /// The registration's own formal standard errors: shift (design samples, the larger of x
+    /// and y) and rotation (degrees); NaN if refused.
+    pub shift_sigma: f64,
+    pub rotation_sigma_deg: f64,
+    /// Wall-clock seconds of the registration alone.
+    pub seconds: f64,
+    /// Why it was refused.
+    pub reason: Option<String>,
+}
+
+/// Everything [`run`] measured.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RegistrationBench {
+    pub units: String,
+    pub design_samples: usize,
+    pub design_pitch: f64,
+    pub scan_pitch: f64,
+    pub wrong_shift: f64,
+    pub wrong_rotation_deg: f64,
+    pub axes: Vec<Axis>,
+    pub trials: Vec<Trial>,
+    /// Trials accepted with a wrong pose.
+    pub silent_failures: usize,
+    pub refused: usize,
+}
+
+/// Trials [`run`] makes (for a progress bar).
+pub fn steps() -> usize {
+    axes().iter().map(|a| a.values.len() * SEEDS.len()).sum()
+}
+
+/// The part's surface at `levels` levels (module docs).
+fn part(levels: usize) -> Result<Grid> {
+    let p = ExampleParams {
+        samples: SAMPLES,
+        aperture: 0.9 * SAMPLES as f64 * PAPER_PITCH,
+        ..Default::default()
+    };
+    let (w, r) = wrap(&paper_example(&p)?, &WrapSpec::default())?;
+    Ok(quantize(&w, r.period, levels, QuantizeMethod::Round)?.heights)
+}
+
+/// The baseline scan's parameters with `axis` set to `value`; the design's level count.
+fn params(axis: &str, value: f64, seed: u64) -> (SimulateParams, usize) {
+    let mut p = SimulateParams {
+        blur: 2e-6,
+        noise: 20e-9,
+        missing: 0.1,
+        pose: Pose { mirror: false, rotation: 0.3f64.to_radians(), scale: 1.0, shift: [3.2e-6, -1.7e-6] },
+        pitch: Some([SCAN_PITCH; 2]),
+        seed,
+        ..SimulateParams::default()
+    };
+    let mut levels = 8;
+    match axis {
+        "noise" => p.noise = value * 1e-9,
+        "blur" => p.blur = value * 1e-6,
+        "missing" => p.missing = value,
+        "rotation" => p.pose.rotation = value.to_radians(),
+        "scale" => p.pose.scale = value,
+        _ => levels = value as usize,
+    }
+    (p, levels)
+}
+
+/// Runs every trial (module docs), calling `tick` before each ([`steps`] in all).
+pub fn run(mut tick: impl FnMut(&str)) -> Result<RegistrationBench> {
+    let axes = axes();
+    let opts = RegisterOptions::default();
+    let mut trials = Vec::new();
+    let mut parts: BTreeMap<usize, Grid> = BTreeMap::new();
+    for axis in &axes {
+        for &value in &axis.values {
+            for seed in SEEDS {
+                tick(&format!("{} = {value} {}, seed {seed}", axis.name, axis.unit));
+                let (p, levels) = params(&axis.name, value, seed);
+                let design = match parts.entry(levels) {
+                    std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+                    std::collections::btree_map::Entry::Vacant(e) => e.insert(part(levels)?),
+                };
+                let scan = simulate_scan(design, &p)?;
+                let t = Instant::now();
+                let got = register(design, &scan, &opts);
+                let seconds = t.elapsed().as_secs_f64();
+                let trial = match got {
+                    Ok(r) => {
+                        let d = [r.pose.shift[0] - p.pose.shift[0], r.pose.shift[1] - p.pose.shift[1]];
+                        let shift_error = d[0].hypot(d[1]) / PAPER_PITCH;
+                        let rotation_error = r.pose.rotation - p.pose.rotation;
+                        let right = shift_error <= WRONG_SHIFT
+                            && rotation_error.abs() <= WRONG_ROTATION
+                            && r.pose.mirror == p.pose.mirror
+                            && r.complement == p.complement;
+                        Trial {
+                            axis: axis.name.clone(),
+                            value,
+                            seed,
+                            outcome: if right { "registered" } else { "wrong" }.into(),
+                            shift_error,
+                            rotation_error_deg: rotation_error.to_degrees(),
+                            correlation: r.correlation,
+                            shift_sigma: r.shift_sigma[0].max(r.shift_sigma[1]) / PAPER_PITCH,
+                            rotation_sigma_deg: r.rotation_sigma.to_degrees(),
+                            seconds,
+                            reason: None,
+                        }
+                    }
+                    Err(e) => Trial {
+                        axis: axis.name.clone(),
+                        value,
+                        seed,
+                        outcome: "refused".into(),
+                        shift_error: f64::NAN,
+                        rotation_error_deg: f64::NAN,
+                        correlation: f64::NAN,
+                        shift_sigma: f64::NAN,
+                        rotation_sigma_deg: f64::NAN,
+                        seconds,
+                        reason: Some(e.to_string()),
+                    },
+                };
+                trials.push(trial);
+            }
+        }
+    }
+    let count = |o: &str| trials.iter().filter(|t| t.outcome == o).count();
+    Ok(RegistrationBench {
+        units: "shift errors in design samples (4.29 um), rotation errors in degrees, times in s; axis values in their units".into(),
+        design_samples: SAMPLES,
+        design_pitch: PAPER_PITCH,
+        scan_pitch: SCAN_PITCH,
+        wrong_shift: WRONG_SHIFT,
+        wrong_rotation_deg: WRONG_ROTATION.to_degrees(),
+        silent_failures: count("wrong"),
+        refused: count("refused"),
+        axes,
+        trials,
+    })
+}
+
+/// The shift error drawn for a refused trial (above every accepted one).
+const REFUSED_AT: f64 = 30.0;
+
+fn chart<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    r: &RegistrationBench,
+) -> std::result::Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let title = format!(
+        "Scan registration: shift error against each trouble, two seeds (silent failures: {}; refused: {})",
+        r.silent_failures, r.refused
+    );
+    let root = root.titled(&title, (FONT, 18)).map_err(|x| e(&x))?;
+    let panels = root.split_evenly((2, 3));
+    for (axis, area) in r.axes.iter().zip(panels.iter()) {
+        let (lo, hi) =
+            axis.values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
+        let pad = 0.06 * (hi - lo).max(1e-12);
+        let mut c = ChartBuilder::on(area)
+            .caption(format!("{} ({})", axis.name, axis.unit), (FONT, 15))
+            .margin(8)
+            .x_label_area_size(28)
+            .y_label_area_size(52)
+            .build_cartesian_2d(lo - pad..hi + pad, (1e-4..REFUSED_AT * 3.0).log_scale())
+            .map_err(|x| e(&x))?;
+        c.configure_mesh()
+            .y_desc("shift error, design samples")
+            .y_label_formatter(&|v| format!("{v:.0e}"))
+            .x_labels(6)
+            .light_line_style(WHITE)
+            .label_style((FONT, 11))
+            .draw()
+            .map_err(|x| e(&x))?;
+        c.draw_series(LineSeries::new(
+            [(lo - pad, r.wrong_shift), (hi + pad, r.wrong_shift)],
+            RED.stroke_width(1),
+        ))
+        .map_err(|x| e(&x))?;
+        let own = r.trials.iter().filter(|t| t.axis == axis.name);
+        c.draw_series(own.map(|t| -> DynElement<DB, (f64, f64)> {
+            match t.outcome.as_str() {
+                "refused" => Cross::new((t.value, REFUSED_AT), 6, BLACK.stroke_width(2)).into_dyn(),
+                "wrong" => Circle::new((t.value, t.shift_error.max(1e-4)), 7, RED.stroke_width(2)).into_dyn(),
+                _ => Circle::new((t.value, t.shift_error.max(1e-4)), 4, RGBColor(0, 120, 0).filled())
+                    .into_dyn(),
+            }
+        }))
+        .map_err(|x| e(&x))?;
+    }
+    Ok(())
+}
+
+/// Writes `register.{png,svg}` at `path_for(name)`: one panel per axis, the shift error of each
+/// trial (green dot: registered; red ring: accepted but wrong, a silent failure; black cross at
+/// the top: refused), the red line the error past which a pose counts as wrong. Returns the
+/// names.
+pub fn write_chart(
+    mut path_for: impl FnMut(&str) -> std::path::PathBuf,
+    r: &RegistrationBench,
+) -> Result<Vec<String>> {
+    write_png_chart(&path_for("register.png"), 1200, 700, |root| chart(root, r))?;
+    write_svg_chart(&path_for("register.svg"), 1200, 700, |root| chart(root, r))?;
+    Ok(vec!["register.png".into(), "register.svg".into()])
+}
