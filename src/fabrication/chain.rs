@@ -23,7 +23,7 @@ use crate::grid::fill::fill_missing;
 use crate::grid::{Grid, Unit};
 use crate::io::atomic::{write_json, StagedDir};
 use crate::io::exr::write_exr;
-use crate::io::heightmap::{read_heightmap, read_raw, Metadata, ReadOptions};
+use crate::io::heightmap::{read_heightmap_hashed, read_raw, Metadata, ReadOptions};
 use crate::io::png::{write_png_u16, write_png_u8};
 use crate::io::tiff::{write_tiff_u16, write_tiff_u8};
 use crate::material::{Material, PAPER_WAVELENGTHS};
@@ -87,11 +87,10 @@ pub fn load_design(source: &DesignSource) -> Result<LoadedDesign> {
                 sha256: crate::io::hex_sha256(&bytes),
             })
         }
-        DesignSource::File(path, read) => Ok(LoadedDesign {
-            heights: read_heightmap(path, read)?,
-            name: path.display().to_string(),
-            sha256: crate::io::file_sha256(path)?,
-        }),
+        DesignSource::File(path, read) => {
+            let (heights, sha256) = read_heightmap_hashed(path, read)?;
+            Ok(LoadedDesign { heights, name: path.display().to_string(), sha256 })
+        }
     }
 }
 
