@@ -17,7 +17,7 @@ use crate::fabrication::recipe::{Output, Recipe};
 use crate::fabrication::stl::{
     level_heights, surface_mesh, surface_stl, write_stl_part, StlOptions, StlReport,
 };
-use crate::fabrication::wrap::{check_finite, to_master, wrap, WrapReport, WrapSpec};
+use crate::fabrication::wrap::{into_master, wrap, WrapReport, WrapSpec};
 use crate::fabrication::{Provenance, ReplicaMode};
 use crate::grid::fill::fill_missing;
 use crate::grid::{Grid, Unit};
@@ -169,7 +169,7 @@ pub fn prepare(design: &LoadedDesign, p: &ChainParams) -> Result<Prepared> {
     let spec = p.wrap_spec()?;
     let (heights, filled_samples) = if p.fill {
         let (g, n) = fill_missing(&design.heights)?;
-        (g, n)
+        (std::borrow::Cow::Owned(g), n)
     } else {
         if let Some(mask) = design.heights.mask() {
             let missing = mask.iter().filter(|v| !**v).count();
@@ -180,16 +180,17 @@ pub fn prepare(design: &LoadedDesign, p: &ChainParams) -> Result<Prepared> {
                 design.name
             )));
         }
-        check_finite(&design.heights)?;
-        (design.heights.clone(), 0)
+        // Non-finite heights are refused by `wrap`.
+        (std::borrow::Cow::Borrowed(&design.heights), 0)
     };
     let (wrapped, wrap_report) = wrap(&heights, &spec)?;
+    drop(heights);
     let period = wrap_report.period;
     // The zone period is a property of the design, checked before any inversion.
     let features = feature_check(&wrapped, period, p.level_count, p.min_feature);
     let surface = match p.replica_mode {
         ReplicaMode::Design => wrapped,
-        ReplicaMode::Master => to_master(&wrapped, period)?,
+        ReplicaMode::Master => into_master(wrapped, period)?,
     };
     let quantized = quantize(&surface, period, p.level_count, p.quantization)?;
     let efficiency = efficiency_table(&spec, p.level_count, &PAPER_WAVELENGTHS)?;
@@ -656,7 +657,7 @@ pub fn run_recipe(
     let mut stl = None;
     if recipe.outputs.contains(&Output::Stl) {
         let opts = recipe.stl_options();
-        let mesh = surface_mesh(&prep.quantized.heights, &opts)?;
+        let mesh = surface_mesh(&prep.quantized.heights()?, &opts)?;
         let part = recipe.replica_mode.part_name();
         let report = write_stl_part(&mesh, opts.unit, Some(part), &stage.stage_path("surface.stl"))?;
         artifacts.push(artifact(&stage.final_path("surface.stl"), "stl"));
