@@ -47,7 +47,11 @@ fn main() {
     let design = paper_example(&ExampleParams::default()).expect("design");
     let (wrapped, w) = wrap(&design, &WrapSpec::default()).expect("wrap");
     let q = quantize(&wrapped, w.period, LEVELS, QuantizeMethod::Round).expect("quantize");
-    let map = q.heights.resample([pitch_um * 1e-6; 2], Interpolation::Nearest).expect("resample");
+    let map = q
+        .heights()
+        .expect("heights")
+        .resample([pitch_um * 1e-6; 2], Interpolation::Nearest)
+        .expect("resample");
     drop((design, wrapped, q));
     let (nr, nc) = map.dim();
     let rss_before = peak_rss();

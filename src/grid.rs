@@ -20,6 +20,7 @@
 
 pub mod blur;
 pub mod fill;
+pub mod par;
 pub mod profile;
 
 use ndarray::{s, Array2};
@@ -118,6 +119,11 @@ impl Grid {
 
     /// Builds a grid whose non-finite values are marked invalid (how NaN-bearing files arrive).
     pub fn from_values_nan_invalid(values: Array2<f64>, pitch: [f64; 2], unit: Unit) -> Result<Self> {
+        let all_finite =
+            par::map_blocks(&values, |_, b| b.iter().all(|v| v.is_finite())).into_iter().all(|f| f);
+        if all_finite {
+            return Grid::new(values, pitch, unit);
+        }
         let valid = values.mapv(f64::is_finite);
         Grid::new(values, pitch, unit)?.with_mask(valid)
     }
@@ -198,30 +204,56 @@ impl Grid {
         self.origin[1] + i as f64 * self.pitch[1]
     }
 
-    /// Minimum and maximum over valid samples, `None` if none is valid.
-    pub fn min_max(&self) -> Option<(f64, f64)> {
-        let mut lo = f64::INFINITY;
-        let mut hi = f64::NEG_INFINITY;
-        for ((i, j), &v) in self.values.indexed_iter() {
-            if self.is_valid(i, j) {
-                lo = lo.min(v);
-                hi = hi.max(v);
-            }
-        }
-        (lo <= hi).then_some((lo, hi))
+    /// The valid flags of rows `r0..r0 + n` (`None` when every sample is valid).
+    fn mask_rows(&self, r0: usize, n: usize) -> Option<ndarray::ArrayView2<'_, bool>> {
+        self.valid.as_ref().map(|m| m.slice(s![r0..r0 + n, ..]))
     }
 
-    /// The first non-finite valid value, with the count of all of them: `(count, (row, col))`.
-    pub fn non_finite(&self) -> Option<(usize, (usize, usize))> {
-        let mut first = None;
-        let mut count = 0;
-        for ((i, j), &v) in self.values.indexed_iter() {
-            if !v.is_finite() && self.is_valid(i, j) {
-                count += 1;
-                first.get_or_insert((i, j));
+    /// Minimum and maximum over valid samples (NaN values ignored), `None` if none is valid.
+    /// Computed in parallel over row blocks ([`par`]).
+    pub fn min_max(&self) -> Option<(f64, f64)> {
+        self.min_max_finite().0
+    }
+
+    /// [`Grid::min_max`], and whether every valid sample is finite, from one pass
+    /// ([`Grid::non_finite`] then says which are not).
+    pub fn min_max_finite(&self) -> (Option<(f64, f64)>, bool) {
+        let start = (f64::INFINITY, f64::NEG_INFINITY, true);
+        let parts = par::map_blocks(&self.values, |r0, b| {
+            let fold = |(lo, hi, finite): (f64, f64, bool), &v: &f64| {
+                (lo.min(v), hi.max(v), finite && v.is_finite())
+            };
+            match self.mask_rows(r0, b.nrows()) {
+                None => b.iter().fold(start, fold),
+                Some(m) => b.iter().zip(m.iter()).filter(|(_, ok)| **ok).map(|(v, _)| v).fold(start, fold),
             }
-        }
-        first.map(|f| (count, f))
+        });
+        let (lo, hi, finite) = parts.into_iter().fold(start, |a, b| (a.0.min(b.0), a.1.max(b.1), a.2 && b.2));
+        ((lo <= hi).then_some((lo, hi)), finite)
+    }
+
+    /// The first non-finite valid value (row-major order), with the count of all of them:
+    /// `(count, (row, col))`.
+    pub fn non_finite(&self) -> Option<(usize, (usize, usize))> {
+        let parts = par::map_blocks(&self.values, |r0, b| {
+            let mask = self.mask_rows(r0, b.nrows());
+            let bad =
+                |(i, j): (usize, usize), v: f64| !v.is_finite() && mask.as_ref().is_none_or(|m| m[[i, j]]);
+            if !b.iter().any(|v| !v.is_finite()) {
+                return (0, None);
+            }
+            let mut first = None;
+            let mut count = 0;
+            for ((i, j), &v) in b.indexed_iter() {
+                if bad((i, j), v) {
+                    count += 1;
+                    first.get_or_insert((r0 + i, j));
+                }
+            }
+            (count, first)
+        });
+        let count: usize = parts.iter().map(|p| p.0).sum();
+        parts.into_iter().find_map(|p| p.1).map(|f| (count, f))
     }
 
     /// Crops rows `r0..r1` and columns `c0..c1` (half-open), keeping physical positions.
@@ -267,27 +299,19 @@ impl Grid {
     /// Mirrors about the vertical axis (x -> -x, columns reversed) and/or the horizontal one.
     /// The physical footprint stays where it was.
     pub fn mirror(&self, flip_x: bool, flip_y: bool) -> Grid {
-        let mut values = self.values.clone();
-        let mut valid = self.valid.clone();
-        if flip_x {
-            values.invert_axis(ndarray::Axis(1));
-            if let Some(m) = valid.as_mut() {
-                m.invert_axis(ndarray::Axis(1));
-            }
-        }
-        if flip_y {
-            values.invert_axis(ndarray::Axis(0));
-            if let Some(m) = valid.as_mut() {
-                m.invert_axis(ndarray::Axis(0));
-            }
-        }
-        Grid {
-            values: values.as_standard_layout().to_owned(),
-            pitch: self.pitch,
-            origin: self.origin,
-            unit: self.unit,
-            valid: valid.map(|m| m.as_standard_layout().to_owned()),
-        }
+        self.clone().into_mirrored(flip_x, flip_y)
+    }
+
+    /// [`Grid::mirror`] in place: the samples are moved within the grid's own storage.
+    pub fn into_mirrored(mut self, flip_x: bool, flip_y: bool) -> Grid {
+        self.values = mirror_array(self.values, flip_x, flip_y);
+        self.into_mirrored_mask(flip_x, flip_y)
+    }
+
+    /// Mirrors the validity mask alone (for a caller that has mirrored the values itself).
+    pub(crate) fn into_mirrored_mask(mut self, flip_x: bool, flip_y: bool) -> Grid {
+        self.valid = self.valid.map(|m| mirror_array(m, flip_x, flip_y));
+        self
     }
 
     /// Samples the grid at fractional index `(fi, fj)` (row, column) with `method`.
@@ -441,6 +465,31 @@ impl Grid {
         }
         Grid::new(values, self.pitch, self.unit)?.with_origin(self.origin).with_mask(valid)
     }
+}
+
+/// `a` with its columns (`flip_x`) and/or rows (`flip_y`) reversed, in standard layout, moved
+/// in place when `a` is already in standard layout.
+fn mirror_array<T: Copy + Send + Sync>(mut a: Array2<T>, flip_x: bool, flip_y: bool) -> Array2<T> {
+    if !a.is_standard_layout() {
+        a = a.as_standard_layout().to_owned();
+    }
+    if flip_x {
+        par::map_blocks_mut(&mut a, |_, mut b| {
+            for mut row in b.rows_mut() {
+                if let Some(r) = row.as_slice_mut() {
+                    r.reverse();
+                }
+            }
+        });
+    }
+    if flip_y {
+        let n = a.nrows();
+        for i in 0..n / 2 {
+            let (mut top, mut bottom) = a.multi_slice_mut((s![i, ..], s![n - 1 - i, ..]));
+            ndarray::Zip::from(&mut top).and(&mut bottom).for_each(std::mem::swap);
+        }
+    }
+    a
 }
 
 fn check_pitch(pitch: [f64; 2]) -> Result<()> {

@@ -29,6 +29,7 @@
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`linalg`]: dense linear solves (nalgebra LU) for the least-squares fits.
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
+//! * [`float`]: exact inlined `round` and `floor` for the per-sample passes.
 //! * [`error`]: the library's error type.
 
 pub mod calibration;
@@ -37,6 +38,7 @@ pub mod demo;
 pub mod design;
 pub mod error;
 pub mod fabrication;
+pub mod float;
 pub mod grid;
 pub mod image;
 pub mod io;

@@ -17,13 +17,13 @@ use crate::fabrication::recipe::{Output, Recipe};
 use crate::fabrication::stl::{
     level_heights, surface_mesh, surface_stl, write_stl_part, StlOptions, StlReport,
 };
-use crate::fabrication::wrap::{check_finite, to_master, wrap, WrapReport, WrapSpec};
+use crate::fabrication::wrap::{into_master, wrap, WrapReport, WrapSpec};
 use crate::fabrication::{Provenance, ReplicaMode};
 use crate::grid::fill::fill_missing;
 use crate::grid::{Grid, Unit};
 use crate::io::atomic::{write_json, StagedDir};
 use crate::io::exr::write_exr;
-use crate::io::heightmap::{read_heightmap, read_raw, Metadata, ReadOptions};
+use crate::io::heightmap::{read_heightmap_hashed, read_raw, Metadata, ReadOptions};
 use crate::io::png::{write_png_u16, write_png_u8};
 use crate::io::tiff::{write_tiff_u16, write_tiff_u8};
 use crate::material::{Material, PAPER_WAVELENGTHS};
@@ -87,11 +87,10 @@ pub fn load_design(source: &DesignSource) -> Result<LoadedDesign> {
                 sha256: crate::io::hex_sha256(&bytes),
             })
         }
-        DesignSource::File(path, read) => Ok(LoadedDesign {
-            heights: read_heightmap(path, read)?,
-            name: path.display().to_string(),
-            sha256: crate::io::file_sha256(path)?,
-        }),
+        DesignSource::File(path, read) => {
+            let (heights, sha256) = read_heightmap_hashed(path, read)?;
+            Ok(LoadedDesign { heights, name: path.display().to_string(), sha256 })
+        }
     }
 }
 
@@ -170,7 +169,7 @@ pub fn prepare(design: &LoadedDesign, p: &ChainParams) -> Result<Prepared> {
     let spec = p.wrap_spec()?;
     let (heights, filled_samples) = if p.fill {
         let (g, n) = fill_missing(&design.heights)?;
-        (g, n)
+        (std::borrow::Cow::Owned(g), n)
     } else {
         if let Some(mask) = design.heights.mask() {
             let missing = mask.iter().filter(|v| !**v).count();
@@ -181,16 +180,17 @@ pub fn prepare(design: &LoadedDesign, p: &ChainParams) -> Result<Prepared> {
                 design.name
             )));
         }
-        check_finite(&design.heights)?;
-        (design.heights.clone(), 0)
+        // Non-finite heights are refused by `wrap`.
+        (std::borrow::Cow::Borrowed(&design.heights), 0)
     };
     let (wrapped, wrap_report) = wrap(&heights, &spec)?;
+    drop(heights);
     let period = wrap_report.period;
     // The zone period is a property of the design, checked before any inversion.
     let features = feature_check(&wrapped, period, p.level_count, p.min_feature);
     let surface = match p.replica_mode {
         ReplicaMode::Design => wrapped,
-        ReplicaMode::Master => to_master(&wrapped, period)?,
+        ReplicaMode::Master => into_master(wrapped, period)?,
     };
     let quantized = quantize(&surface, period, p.level_count, p.quantization)?;
     let efficiency = efficiency_table(&spec, p.level_count, &PAPER_WAVELENGTHS)?;
@@ -657,7 +657,7 @@ pub fn run_recipe(
     let mut stl = None;
     if recipe.outputs.contains(&Output::Stl) {
         let opts = recipe.stl_options();
-        let mesh = surface_mesh(&prep.quantized.heights, &opts)?;
+        let mesh = surface_mesh(&prep.quantized.heights()?, &opts)?;
         let part = recipe.replica_mode.part_name();
         let report = write_stl_part(&mesh, opts.unit, Some(part), &stage.stage_path("surface.stl"))?;
         artifacts.push(artifact(&stage.final_path("surface.stl"), "stl"));

@@ -112,6 +112,11 @@ impl ContrastCurve {
         let (mut a, mut b) = (self.dose[0], self.dose[self.dose.len() - 1]);
         for _ in 0..80 {
             let m = 0.5 * (a + b);
+            // A midpoint on an end stays the answer: either the bracket keeps that end or
+            // shrinks onto it, and every later step repeats itself.
+            if m == a || m == b {
+                break;
+            }
             if self.depth_at(m) < depth {
                 a = m;
             } else {

@@ -12,14 +12,14 @@
 //! scale. Each design sample is a flat cell, so resampling to the writer grid takes the
 //! nearest sample (no interpolation across phase wraps).
 
-use ndarray::Array2;
+use ndarray::{s, Array2};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::marks::{label_cells, Canvas};
 use crate::fabrication::Provenance;
-use crate::grid::{Grid, Interpolation, Unit};
+use crate::grid::{par, Grid, Interpolation, Unit};
 
 /// Resist polarity.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum, Default)]
@@ -222,9 +222,12 @@ pub fn render_levels(
             opts.max_pixels as f64 / 1e6
         )));
     }
-    // Level -> gray table through the inverted contrast curve.
+    // Level -> gray table through the inverted contrast curve, computed once per level (in
+    // parallel; the first failing level in order is the one reported).
+    use rayon::prelude::*;
     let top = heights[level_count - 1];
-    let table: Vec<LevelDose> = (0..level_count)
+    let rows: Vec<Result<LevelDose>> = (0..level_count)
+        .into_par_iter()
         .map(|l| {
             let target = match opts.polarity {
                 Polarity::Positive => top - heights[l],
@@ -239,7 +242,9 @@ pub fn render_levels(
                 gray: (dose * full_scale as f64).round() as u32,
             })
         })
-        .collect::<Result<_>>()?;
+        .collect();
+    let table: Vec<LevelDose> = rows.into_iter().collect::<Result<_>>()?;
+    let gray_of: Vec<u16> = table.iter().map(|t| t.gray as u16).collect();
 
     // A design already on the writer grid is taken as it is.
     let same =
@@ -259,12 +264,23 @@ pub fn render_levels(
         on_writer
     };
     let mut gray = Array2::<u16>::zeros((h, w));
-    for ((i, j), &l) in on_writer.values().indexed_iter() {
-        let l = l as usize;
-        if l >= level_count {
-            return Err(Error::Data(format!("level {l} at row {i}, column {j} is outside 0..{level_count}")));
+    // The pattern, row blocks in parallel; the first level out of range in row-major order is
+    // the one reported.
+    let src = on_writer.values();
+    let bad = par::map_blocks_mut(&mut gray, |r0, mut block| {
+        for (k, mut out) in block.rows_mut().into_iter().enumerate() {
+            let Some(i) = (r0 + k).checked_sub(b).filter(|&i| i < ph) else { continue };
+            for (j, (o, &l)) in out.slice_mut(s![b..b + pw]).iter_mut().zip(src.row(i)).enumerate() {
+                match gray_of.get(l as usize) {
+                    Some(&g) => *o = g,
+                    None => return Some((l as usize, i, j)),
+                }
+            }
         }
-        gray[[i + b, j + b]] = table[l].gray as u16;
+        None
+    });
+    if let Some((l, i, j)) = bad.into_iter().flatten().next() {
+        return Err(Error::Data(format!("level {l} at row {i}, column {j} is outside 0..{level_count}")));
     }
     let mut marks_px = Vec::new();
     if b > 0 && (opts.marks || !opts.label.is_empty()) {
@@ -296,14 +312,22 @@ pub fn render_levels(
                 return Err(Error::param("label", "the frame is too narrow for the label: widen --border"));
             }
         }
-        for i in 0..h {
-            for j in 0..w {
-                let in_pattern = i >= b && i < b + ph && j >= b && j < b + pw;
-                if !in_pattern && canvas.covered(j, i) {
-                    gray[[i, j]] = full_scale as u16;
+        // Only the frame can be covered: rows above and below the pattern, and the columns
+        // left and right of it.
+        let canvas = &canvas;
+        par::map_blocks_mut(&mut gray, |r0, mut block| {
+            for (k, mut out) in block.rows_mut().into_iter().enumerate() {
+                let i = r0 + k;
+                let frame_row = i < b || i >= b + ph;
+                // The whole row in the frame, else its parts left and right of the pattern.
+                let cols = if frame_row { [0..w, 0..0] } else { [0..b, b + pw..w] };
+                for j in cols.into_iter().flatten() {
+                    if canvas.covered(j, i) {
+                        out[j] = full_scale as u16;
+                    }
                 }
             }
-        }
+        });
     }
     let units = [
         ("length", "m"),

@@ -1,11 +1,12 @@
 //! Quantization of wrapped heights to N levels, the predicted diffraction efficiency of the
 //! quantized profile, and the minimum-feature check against the writer.
 
-use ndarray::Array2;
+use ndarray::{s, Array2, Zip};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::grid::{Grid, Unit};
+use crate::float;
+use crate::grid::{par, Grid, Unit};
 
 /// How heights are mapped onto levels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
@@ -37,13 +38,11 @@ pub fn check_level_count(n: usize) -> Result<()> {
     }
 }
 
-/// A quantized map: levels `0..N-1` and the heights they stand for.
+/// A quantized map: levels `0..N-1` (the heights they stand for: [`Quantized::heights`]).
 #[derive(Debug, Clone)]
 pub struct Quantized {
     /// Level index per sample (`Unit::Level`).
     pub levels: Grid,
-    /// `level * period / N`, metres.
-    pub heights: Grid,
     pub level_count: usize,
     /// Height of one full period (`p * h_2pi`), metres.
     pub period: f64,
@@ -52,10 +51,73 @@ pub struct Quantized {
     pub rms_error: f64,
 }
 
+impl Quantized {
+    /// The heights the levels stand for, `level * period / N` metres (computed on each call).
+    pub fn heights(&self) -> Result<Grid> {
+        let n = self.level_count as f64;
+        let period = self.period;
+        let mut h = self.levels.values().clone();
+        par::map_blocks_mut(&mut h, |_, mut b| b.mapv_inplace(|l| level_height(l, period, n)));
+        self.levels.map_values(h, Unit::Metre)
+    }
+}
+
+/// `l * period / n`. Where `n` is a power of two, dividing by it is an exact scaling, so the
+/// product with `1 / n` has the same bits and spares a division.
+#[inline]
+fn level_height(l: f64, period: f64, n: f64) -> f64 {
+    let x = l * period;
+    if is_power_of_two(n) {
+        x * (1.0 / n)
+    } else {
+        x / n
+    }
+}
+
+/// Whether `n` (a level count) is a power of two.
+#[inline]
+fn is_power_of_two(n: f64) -> bool {
+    n >= 1.0 && n.to_bits() & ((1u64 << 52) - 1) == 0
+}
+
+/// The level of a wrapped height by rounding: `round(h N / P) mod N`. The remainder is taken
+/// only outside `[0, N)` (the top level `N` is phase-equivalent to 0), with the bits of `%`.
+#[inline]
+fn round_level(h: f64, period: f64, n: f64) -> f64 {
+    let r = float::round(h / period * n);
+    if r >= 0.0 && r < n {
+        r
+    } else if r == n {
+        0.0
+    } else {
+        remainder(r, n)
+    }
+}
+
+/// `r % n`, out of line: an inlined `%` may be evaluated on every sample even where its result
+/// is not used (it is a library call).
+#[cold]
+#[inline(never)]
+fn remainder(r: f64, n: f64) -> f64 {
+    r % n
+}
+
+/// The squared phase-wrapped error `d^2` of quantized height `q` against height `h`:
+/// `d = q - h` taken into `[-P/2, P/2]` by whole periods. Below a quarter period the wrap
+/// cannot move `d` (`round(d / P)` is a signed zero) and is skipped.
+#[inline]
+fn wrapped_sq_error(q: f64, h: f64, period: f64) -> f64 {
+    let d = q - h;
+    let d = if d.abs() < 0.25 * period { d } else { d - float::round(d / period) * period };
+    d * d
+}
+
 /// Quantizes wrapped heights (in `[0, period)`) to `level_count` levels.
 ///
 /// Level `l` stands for height `l * period / N`. Rounding maps `h` to `round(h N / period)`;
-/// the top level `N` is phase-equivalent to 0 and becomes 0.
+/// the top level `N` is phase-equivalent to 0 and becomes 0. Rounding runs in parallel over
+/// row blocks; the RMS error is summed over the samples in row-major order on one thread
+/// (beside the levels), so its bits do not depend on the number of threads.
 pub fn quantize(
     heights: &Grid,
     period: f64,
@@ -69,7 +131,9 @@ pub fn quantize(
     if !(period > 0.0 && period.is_finite()) {
         return Err(Error::param("period", format!("must be positive, got {period}")));
     }
-    if let Some((lo, hi)) = heights.min_max() {
+    // The range check, then the finite check, from one pass over the heights.
+    let (range, finite) = heights.min_max_finite();
+    if let Some((lo, hi)) = range {
         if lo < -1e-12 * period || hi > period * (1.0 + 1e-9) {
             return Err(Error::Data(format!(
                 "quantization needs heights wrapped into [0, {:.4} um); got {:.4}..{:.4} um: wrap first",
@@ -79,17 +143,29 @@ pub fn quantize(
             )));
         }
     }
-    crate::fabrication::wrap::check_finite(heights)?;
+    if !finite {
+        crate::fabrication::wrap::check_finite(heights)?;
+    }
     let n = level_count as f64;
     let (nr, nc) = heights.dim();
     let mut levels = Array2::<f64>::zeros((nr, nc));
+    let values = heights.values();
     match method {
         QuantizeMethod::Round => {
-            for ((i, j), l) in levels.indexed_iter_mut() {
-                if heights.is_valid(i, j) {
-                    *l = (heights.values()[[i, j]] / period * n).round() % n;
+            par::map_blocks_mut(&mut levels, |r0, mut block| {
+                let rows = s![r0..r0 + block.nrows(), ..];
+                let input = values.slice(rows);
+                match heights.mask().map(|m| m.slice(rows)) {
+                    None => {
+                        Zip::from(&mut block).and(&input).for_each(|l, &h| *l = round_level(h, period, n))
+                    }
+                    Some(m) => Zip::from(&mut block).and(&input).and(&m).for_each(|l, &h, &ok| {
+                        if ok {
+                            *l = round_level(h, period, n)
+                        }
+                    }),
                 }
-            }
+            });
         }
         QuantizeMethod::FloydSteinberg => {
             let mut u = heights.values().mapv(|h| h / period * n);
@@ -118,24 +194,24 @@ pub fn quantize(
             }
         }
     }
-    let qh = levels.mapv(|l| l * period / n);
+    // The squared errors summed over the valid samples in row-major order, on one thread.
     let mut sq = 0.0;
-    for ((i, j), &q) in qh.indexed_iter() {
-        if heights.is_valid(i, j) {
-            let d = q - heights.values()[[i, j]];
-            let d = d - (d / period).round() * period;
-            sq += d * d;
+    match (heights.mask(), levels.as_slice(), values.as_slice()) {
+        (None, Some(ls), Some(hs)) => {
+            for (&l, &h) in ls.iter().zip(hs) {
+                sq += wrapped_sq_error(level_height(l, period, n), h, period);
+            }
+        }
+        _ => {
+            for ((i, j), &l) in levels.indexed_iter() {
+                if heights.is_valid(i, j) {
+                    sq += wrapped_sq_error(level_height(l, period, n), values[[i, j]], period);
+                }
+            }
         }
     }
     let rms_error = (sq / heights.valid_count().max(1) as f64).sqrt();
-    Ok(Quantized {
-        levels: heights.map_values(levels, Unit::Level)?,
-        heights: heights.map_values(qh, Unit::Metre)?,
-        level_count,
-        period,
-        method,
-        rms_error,
-    })
+    Ok(Quantized { levels: heights.map_values(levels, Unit::Level)?, level_count, period, method, rms_error })
 }
 
 /// Diffraction efficiency of order `m` of an N-level staircase approximation of a blazed
@@ -247,55 +323,58 @@ pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_featur
     let (nr, nc) = heights.dim();
     let v = heights.values();
     let [px, py] = heights.pitch();
-    let wrapd = |d: f64| d - (d / period).round() * period;
-    let limit = UNDERSAMPLED_STEP * period;
+    // A difference taken modulo the period into [-P/2, P/2]. Below a quarter period the
+    // correction `round(d / P) P` is a signed zero and is skipped (only the sign of a zero
+    // difference could change, and no figure depends on it).
+    let wrapd = |d: f64| if d.abs() < 0.25 * period { d } else { d - float::round(d / period) * period };
+    let zones = ZoneTally::new(period, [px, py], UNDERSAMPLED_STEP * period, steps_per_zone, min_feature);
     // Per row: smallest zone period, samples below the feature, steps, samples counted. The
     // minimum and the counts do not depend on how rows are split among threads.
     use rayon::prelude::*;
+    let plain = if heights.mask().is_none() { v.as_slice() } else { None };
     let rows: Vec<(f64, usize, usize, usize)> = (0..nr)
         .into_par_iter()
         .map(|i| {
-            let (mut min_period, mut below, mut steps, mut counted) = (f64::INFINITY, 0, 0, 0);
-            // The wrapped difference from sample `a` to `b` when both are valid.
-            let diff = |a: (usize, usize), b: (usize, usize)| -> Option<f64> {
-                (heights.is_valid(a.0, a.1) && heights.is_valid(b.0, b.1)).then(|| wrapd(v[b] - v[a]))
-            };
-            for j in 0..nc {
-                if !heights.is_valid(i, j) {
-                    continue;
-                }
-                // One-sided differences at the border, central inside.
-                let gx = [
-                    (j > 0).then(|| diff((i, j - 1), (i, j))).flatten(),
-                    (j + 1 < nc).then(|| diff((i, j), (i, j + 1))).flatten(),
-                ];
-                let gy = [
-                    (i > 0).then(|| diff((i - 1, j), (i, j))).flatten(),
-                    (i + 1 < nr).then(|| diff((i, j), (i + 1, j))).flatten(),
-                ];
-                counted += 1;
-                if gx.iter().chain(&gy).flatten().any(|d| d.abs() > limit) {
-                    steps += 1;
-                    continue;
-                }
-                let mean = |g: &[Option<f64>; 2], step: f64| {
-                    let n = g.iter().flatten().count();
-                    if n == 0 {
-                        0.0
-                    } else {
-                        g.iter().flatten().sum::<f64>() / (n as f64 * step)
+            let mut row_tally = zones.row();
+            let mut counted = 0;
+            match plain {
+                Some(flat) => {
+                    // Every sample valid, rows contiguous: the differences straight from the
+                    // rows, each horizontal one used for both of its samples.
+                    let row_at = |k: usize| &flat[k * nc..(k + 1) * nc];
+                    let (row, up, down) =
+                        (row_at(i), (i > 0).then(|| row_at(i - 1)), (i + 1 < nr).then(|| row_at(i + 1)));
+                    let mut left = None;
+                    for j in 0..nc {
+                        let right = (j + 1 < nc).then(|| wrapd(row[j + 1] - row[j]));
+                        let u = up.map(|r| wrapd(row[j] - r[j]));
+                        let d = down.map(|r| wrapd(r[j] - row[j]));
+                        row_tally.add(&zones, [left, right, u, d]);
+                        left = right;
                     }
-                };
-                let grad = mean(&gx, px).hypot(mean(&gy, py));
-                if grad > 0.0 {
-                    let lam = period / grad;
-                    min_period = min_period.min(lam);
-                    if lam / steps_per_zone <= min_feature {
-                        below += 1;
+                    counted = nc;
+                }
+                None => {
+                    // The wrapped difference from sample `a` to `b` when both are valid.
+                    let valid = |(i, j): (usize, usize)| heights.is_valid(i, j);
+                    let diff = |a: (usize, usize), b: (usize, usize)| -> Option<f64> {
+                        (valid(a) && valid(b)).then(|| wrapd(v[b] - v[a]))
+                    };
+                    for j in (0..nc).filter(|&j| valid((i, j))) {
+                        counted += 1;
+                        row_tally.add(
+                            &zones,
+                            [
+                                (j > 0).then(|| diff((i, j - 1), (i, j))).flatten(),
+                                (j + 1 < nc).then(|| diff((i, j), (i, j + 1))).flatten(),
+                                (i > 0).then(|| diff((i - 1, j), (i, j))).flatten(),
+                                (i + 1 < nr).then(|| diff((i, j), (i + 1, j))).flatten(),
+                            ],
+                        );
                     }
                 }
             }
-            (min_period, below, steps, counted)
+            (row_tally.min_period, row_tally.below, row_tally.steps, counted)
         })
         .collect();
     let (min_period, below, steps, counted) =
@@ -306,6 +385,129 @@ pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_featur
         min_feature,
         fraction_below: below as f64 / counted.max(1) as f64,
         step_samples: steps,
+    }
+}
+
+/// The fixed parameters of [`feature_check`]'s per-sample evaluation.
+///
+/// A sample's local zone period is `lam = P / hypot(gx, gy)` with the mean gradients
+/// `g = sum / (count * pitch)` of its wrapped differences; the report needs the smallest `lam`
+/// and the count of `lam / N <= min_feature`. `hypot` is a library call and the means take
+/// divisions, so each sample is first judged by the estimate `s = ex^2 + ey^2` of `hypot^2`
+/// (means as products with reciprocals: a few ulp off, when the square neither overflows nor
+/// underflows). Only a sample whose estimate lies within a relative margin of 1e-9 of a
+/// decision threshold is evaluated exactly, so the figures are those of the exact formula.
+struct ZoneTally {
+    period: f64,
+    pitch: [f64; 2],
+    /// `1 / (count * pitch)` for counts 0 (unused), 1, 2, per axis.
+    inv: [[f64; 3]; 2],
+    limit: f64,
+    steps_per_zone: f64,
+    min_feature: f64,
+    /// `s` above this: certainly below the minimum feature; below `below_lo`: certainly not.
+    /// `None` when the thresholds cannot be formed (no positive finite minimum feature).
+    below_range: Option<(f64, f64)>,
+}
+
+/// Relative margin around a threshold inside which a sample is evaluated exactly.
+const ZONE_MARGIN: f64 = 1e-9;
+
+/// One row's running figures of [`feature_check`].
+struct RowTally {
+    min_period: f64,
+    /// Estimates `s` at or above this may reach `min_period` and are evaluated exactly.
+    min_threshold: f64,
+    below: usize,
+    steps: usize,
+}
+
+impl ZoneTally {
+    fn new(period: f64, pitch: [f64; 2], limit: f64, steps_per_zone: f64, min_feature: f64) -> Self {
+        let inv = pitch.map(|p| [0.0, 1.0 / p, 1.0 / (2.0 * p)]);
+        // lam / N <= f  <=>  hypot^2 >= (P / (N f))^2.
+        let b = (period / (steps_per_zone * min_feature)).powi(2);
+        let below_range = (b.is_normal() && min_feature > 0.0 && b < 1e280 && b > 1e-280)
+            .then_some((b * (1.0 + ZONE_MARGIN), b * (1.0 - ZONE_MARGIN)));
+        ZoneTally { period, pitch, inv, limit, steps_per_zone, min_feature, below_range }
+    }
+
+    fn row(&self) -> RowTally {
+        RowTally { min_period: f64::INFINITY, min_threshold: 0.0, below: 0, steps: 0 }
+    }
+
+    /// The exact zone period of a sample (infinite where the surface is flat).
+    #[cold]
+    fn exact(&self, [left, right, up, down]: [Option<f64>; 4]) -> f64 {
+        let mean = |a: Option<f64>, b: Option<f64>, step: f64| {
+            let (n, sum) = [a, b].iter().flatten().fold((0, 0.0), |(n, s), d| (n + 1, s + d));
+            if n == 0 {
+                0.0
+            } else {
+                sum / (n as f64 * step)
+            }
+        };
+        let grad = mean(left, right, self.pitch[0]).hypot(mean(up, down, self.pitch[1]));
+        if grad > 0.0 {
+            self.period / grad
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+impl RowTally {
+    /// Adds a sample given its wrapped differences to the left, right, up and down neighbours
+    /// (`None` at the border or next to an invalid sample).
+    #[inline]
+    fn add(&mut self, z: &ZoneTally, diffs: [Option<f64>; 4]) {
+        if diffs.iter().flatten().any(|d| d.abs() > z.limit) {
+            self.steps += 1;
+            return;
+        }
+        // Per axis the sum of the differences and its reciprocal weight.
+        let axis = |a: Option<f64>, b: Option<f64>, inv: &[f64; 3]| match (a, b) {
+            (Some(a), Some(b)) => (a + b, inv[2]),
+            (Some(a), None) | (None, Some(a)) => (a, inv[1]),
+            (None, None) => (0.0, 0.0),
+        };
+        let ((sx, wx), (sy, wy)) = (axis(diffs[0], diffs[1], &z.inv[0]), axis(diffs[2], diffs[3], &z.inv[1]));
+        if sx == 0.0 && sy == 0.0 {
+            // Flat: the exact means are zero too, no zone period.
+            return;
+        }
+        let (ex, ey) = (sx * wx, sy * wy);
+        let s = ex * ex + ey * ey;
+        let Some((hi, lo)) = z.below_range.filter(|_| s > 1e-280 && s < 1e280) else {
+            self.exact(z, diffs);
+            return;
+        };
+        if s >= self.min_threshold {
+            self.new_min(z, z.exact(diffs));
+        }
+        let below = s > hi || (s >= lo && z.exact(diffs) / z.steps_per_zone <= z.min_feature);
+        self.below += below as usize;
+    }
+
+    /// The exact path for a sample the estimate cannot judge.
+    #[cold]
+    fn exact(&mut self, z: &ZoneTally, diffs: [Option<f64>; 4]) {
+        let lam = z.exact(diffs);
+        self.new_min(z, lam);
+        if lam / z.steps_per_zone <= z.min_feature {
+            self.below += 1;
+        }
+    }
+
+    /// Takes `lam` into the minimum and moves the threshold of estimates that may reach it:
+    /// `lam <= m  <=>  hypot^2 >= (P / m)^2`.
+    fn new_min(&mut self, z: &ZoneTally, lam: f64) {
+        if lam < self.min_period {
+            self.min_period = lam;
+            let t = (z.period / lam).powi(2) * (1.0 - ZONE_MARGIN);
+            // A threshold that cannot be formed sends every later sample to the exact path.
+            self.min_threshold = if t.is_finite() { t } else { 0.0 };
+        }
     }
 }
 

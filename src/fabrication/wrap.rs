@@ -11,8 +11,11 @@
 
 use serde::{Deserialize, Serialize};
 
+use ndarray::{s, Array2, Zip};
+
 use crate::error::{Error, Result};
-use crate::grid::{Grid, Unit};
+use crate::float;
+use crate::grid::{par, Grid, Unit};
 use crate::material::Material;
 
 /// Design wavelength, material and multi-order factor of the wrap.
@@ -66,6 +69,11 @@ pub struct WrapReport {
 
 /// Wraps heights modulo the period of `spec`. The input must hold heights in metres with no
 /// non-finite valid samples. Invalid samples stay invalid.
+///
+/// A valid height `h` becomes `w = h - k P` with `k = floor(h / P)`; rounding can put `w` at
+/// exactly `P` (taken down to 0, phase-equivalent) or a hair below 0 (clamped to 0). Computed
+/// in parallel over row blocks; every figure of the report is a count or an extremum, the same
+/// however the rows are split.
 pub fn wrap(heights: &Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
     if heights.unit() != Unit::Metre {
         return Err(Error::param(
@@ -73,33 +81,71 @@ pub fn wrap(heights: &Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
             format!("expected heights in m, got {}", heights.unit().symbol()),
         ));
     }
-    check_finite(heights)?;
-    let period = spec.period()?;
-    let mut wrapped_samples = 0;
-    let mut max_wraps = 0i64;
-    let mut max_height = 0.0f64;
-    let mut out = heights.values().clone();
-    for ((i, j), v) in out.indexed_iter_mut() {
-        if !heights.is_valid(i, j) {
-            continue;
+    let period = match spec.period() {
+        Ok(p) => p,
+        Err(e) => {
+            check_finite(heights)?;
+            return Err(e);
         }
-        let k = (*v / period).floor();
-        let mut w = *v - k * period;
-        // Rounding can put w at exactly `period`; that is phase-equivalent to 0.
-        if w >= period {
-            w -= period;
-        }
-        if w < 0.0 {
-            w = 0.0;
-        }
-        if k != 0.0 {
-            wrapped_samples += 1;
-            max_wraps = max_wraps.max(k.abs() as i64);
-        }
-        max_height = max_height.max(w);
-        *v = w;
+    };
+    let src = heights.values();
+    let mut out = Array2::<f64>::zeros(src.dim());
+    // Per block: wrapped samples, most periods removed, largest output and input heights,
+    // whether every valid height is finite.
+    let parts =
+        par::map_blocks_mut(&mut out, |r0, mut block| {
+            let rows = s![r0..r0 + block.nrows(), ..];
+            let input = src.slice(rows);
+            let (mut wrapped, mut max_wraps, mut max_height, mut input_max, mut finite) =
+                (0usize, 0i64, 0.0f64, f64::NEG_INFINITY, true);
+            let mut one = |o: &mut f64, v: f64| {
+                // Inside (0, P) the quotient v / P rounds below 1 (it is at most 1 - 2^-53), so
+                // k = 0 and w = v: the division is skipped. Zero takes the general path, which
+                // turns -0 into +0.
+                let w = if v > 0.0 && v < period {
+                    v
+                } else {
+                    let k = float::floor(v / period);
+                    let mut w = v - k * period;
+                    if w >= period {
+                        w -= period;
+                    }
+                    if w < 0.0 {
+                        w = 0.0;
+                    }
+                    if k != 0.0 {
+                        wrapped += 1;
+                        max_wraps = max_wraps.max(k.abs() as i64);
+                    }
+                    finite &= v.is_finite();
+                    w
+                };
+                max_height = max_height.max(w);
+                input_max = input_max.max(v);
+                *o = w;
+            };
+            match heights.mask().map(|m| m.slice(rows)) {
+                None => Zip::from(&mut block).and(&input).for_each(|o, &v| one(o, v)),
+                // Invalid samples keep their stored value (0).
+                Some(valid) => Zip::from(&mut block).and(&input).and(&valid).for_each(|o, &v, &ok| {
+                    if ok {
+                        one(o, v)
+                    } else {
+                        *o = v
+                    }
+                }),
+            }
+            (wrapped, max_wraps, max_height, input_max, finite)
+        });
+    let (wrapped_samples, max_wraps, max_height, input_max, finite) =
+        parts.into_iter().fold((0, 0i64, 0.0f64, f64::NEG_INFINITY, true), |a, b| {
+            (a.0 + b.0, a.1.max(b.1), a.2.max(b.2), a.3.max(b.3), a.4 && b.4)
+        });
+    if !finite {
+        check_finite(heights)?;
     }
-    let input_max_height = heights.min_max().map_or(0.0, |(_, hi)| hi);
+    // No valid sample: the largest input height is reported as 0.
+    let input_max_height = if input_max == f64::NEG_INFINITY { 0.0 } else { input_max };
     let report =
         WrapReport { period, index: spec.index()?, wrapped_samples, max_wraps, input_max_height, max_height };
     Ok((heights.map_values(out, Unit::Metre)?, report))
@@ -108,25 +154,49 @@ pub fn wrap(heights: &Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
 /// The master whose PDMS cast equals `design`: complement modulo `period` and mirror in x.
 /// `design` must already be wrapped into `[0, period)`.
 pub fn to_master(design: &Grid, period: f64) -> Result<Grid> {
-    if let Some((lo, hi)) = design.min_max() {
-        if lo < 0.0 || hi >= period * (1.0 + 1e-12) {
-            return Err(Error::Data(format!(
-                "replica inversion needs wrapped heights in [0, {:.4} um), got {:.4}..{:.4} um",
-                period * 1e6,
-                lo * 1e6,
-                hi * 1e6
-            )));
+    into_master(design.clone(), period)
+}
+
+/// [`to_master`] computed in `design`'s own storage: each height `h` becomes `P - h`, or 0
+/// where that is `P`, then the columns are reversed.
+pub fn into_master(mut design: Grid, period: f64) -> Result<Grid> {
+    // One pass over the rows: the range of the valid heights, the complement, the reversal.
+    // On a range error the grid (consumed) is dropped half-changed.
+    let mask = design.mask().cloned();
+    let start = (f64::INFINITY, f64::NEG_INFINITY);
+    let parts = par::map_blocks_mut(design.values_mut(), |r0, mut block| {
+        let (mut lo, mut hi) = start;
+        for (k, mut row) in block.rows_mut().into_iter().enumerate() {
+            let valid = mask.as_ref().map(|m| m.row(r0 + k));
+            for (j, h) in row.iter_mut().enumerate() {
+                if valid.as_ref().is_none_or(|m| m[j]) {
+                    lo = lo.min(*h);
+                    hi = hi.max(*h);
+                }
+                let c = period - *h;
+                *h = if c >= period { c - period } else { c };
+            }
+            if let Some(r) = row.as_slice_mut() {
+                r.reverse();
+            } else {
+                let n = row.len();
+                for j in 0..n / 2 {
+                    row.swap(j, n - 1 - j);
+                }
+            }
         }
-    }
-    let comp = design.values().mapv(|h| {
-        let c = period - h;
-        if c >= period {
-            c - period
-        } else {
-            c
-        }
+        (lo, hi)
     });
-    Ok(design.map_values(comp, design.unit())?.mirror(true, false))
+    let (lo, hi) = parts.into_iter().fold(start, |a, b| (a.0.min(b.0), a.1.max(b.1)));
+    if lo <= hi && (lo < 0.0 || hi >= period * (1.0 + 1e-12)) {
+        return Err(Error::Data(format!(
+            "replica inversion needs wrapped heights in [0, {:.4} um), got {:.4}..{:.4} um",
+            period * 1e6,
+            lo * 1e6,
+            hi * 1e6
+        )));
+    }
+    Ok(design.into_mirrored_mask(true, false))
 }
 
 /// Refuses non-finite valid samples with their count and first location.

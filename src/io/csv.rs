@@ -24,13 +24,15 @@ use crate::units::parse_length;
 /// Reads a text matrix (see the module docs).
 pub fn read_csv(path: &Path) -> Result<RawMap> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let text = String::from_utf8(bytes).map_err(|e| {
-        Error::format(
-            path,
-            format!("not UTF-8 text (invalid byte at offset {})", e.utf8_error().valid_up_to()),
-        )
+    decode_csv(path, &bytes)
+}
+
+/// Decodes the bytes of a text matrix file (see [`read_csv`]); `path` names it in errors.
+pub fn decode_csv(path: &Path, bytes: &[u8]) -> Result<RawMap> {
+    let text = std::str::from_utf8(bytes).map_err(|e| {
+        Error::format(path, format!("not UTF-8 text (invalid byte at offset {})", e.valid_up_to()))
     })?;
-    parse_csv(path, &text)
+    parse_csv(path, text)
 }
 
 #[derive(Clone, Copy, PartialEq)]

@@ -234,11 +234,42 @@ pub fn read_raw(path: &Path, channel: Option<&str>) -> Result<RawMap> {
     }
 }
 
+/// Decodes the bytes of a height-map file (what [`read_raw`] returns for the file holding them),
+/// choosing the format by the extension of `path`.
+pub fn decode_raw(path: &Path, bytes: &[u8], channel: Option<&str>) -> Result<RawMap> {
+    match Format::from_path(path)? {
+        Format::Npy => super::npy::decode_npy_map(path, bytes),
+        Format::Exr => super::exr::decode_exr(path, bytes, channel),
+        Format::Tiff => super::tiff::decode_tiff(path, bytes),
+        Format::Png => super::png::decode_png(path, bytes),
+        Format::Csv => super::csv::decode_csv(path, bytes),
+    }
+}
+
+/// Reads a height map (what [`read_raw`] returns) together with the hex SHA-256 of the file's
+/// bytes ([`crate::io::file_sha256`]), reading the file once: the hash is computed on one
+/// thread while the data is decoded on another.
+pub fn read_raw_hashed(path: &Path, channel: Option<&str>) -> Result<(RawMap, String)> {
+    if Format::from_path(path)? == Format::Npy {
+        return super::npy::read_npy_hashed(path);
+    }
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let (sha, raw) = rayon::join(|| crate::io::hex_sha256(&bytes), || decode_raw(path, &bytes, channel));
+    Ok((raw?, sha))
+}
+
 /// Reads a design height map into a grid of heights in metres (see the module docs for how
 /// pitch, unit, scale and plausibility are resolved). Non-finite values are invalid samples.
 pub fn read_heightmap(path: &Path, opts: &ReadOptions) -> Result<Grid> {
     let raw = read_raw(path, opts.channel.as_deref())?;
     heightmap_from_raw(path, raw, opts)
+}
+
+/// [`read_heightmap`] together with the hex SHA-256 of the file's bytes, the file read once
+/// (see [`read_raw_hashed`]).
+pub fn read_heightmap_hashed(path: &Path, opts: &ReadOptions) -> Result<(Grid, String)> {
+    let (raw, sha) = read_raw_hashed(path, opts.channel.as_deref())?;
+    Ok((heightmap_from_raw(path, raw, opts)?, sha))
 }
 
 /// Resolves a [`RawMap`] read from `path` into a height grid (the second half of
@@ -251,11 +282,31 @@ pub fn heightmap_from_raw(path: &Path, raw: RawMap, opts: &ReadOptions) -> Resul
     if !offset.is_finite() {
         return Err(Error::param("z-offset", format!("must be finite, got {offset}")));
     }
+    // One pass: the range of the finite stored values (for the plausibility check), the
+    // heights `v k + offset` in place, and whether every height is finite.
+    let mut raw = raw;
+    let start = (f64::INFINITY, f64::NEG_INFINITY, true);
+    let parts = crate::grid::par::map_blocks_mut(&mut raw.values, |_, mut b| {
+        let (mut lo, mut hi, mut finite) = start;
+        b.map_inplace(|v| {
+            if v.is_finite() {
+                lo = lo.min(*v);
+                hi = hi.max(*v);
+            }
+            *v = *v * k + offset;
+            finite &= v.is_finite();
+        });
+        (lo, hi, finite)
+    });
+    let (lo, hi, finite) = parts.into_iter().fold(start, |a, b| (a.0.min(b.0), a.1.max(b.1), a.2 && b.2));
     if !opts.allow_implausible {
-        check_plausible(&file, &raw, k)?;
+        check_plausible_range(&file, &raw, k, lo, hi)?;
     }
-    let values = raw.values.mapv(|v| v * k + offset);
-    Grid::from_values_nan_invalid(values, pitch, Unit::Metre)
+    if finite {
+        Grid::new(raw.values, pitch, Unit::Metre)
+    } else {
+        Grid::from_values_nan_invalid(raw.values, pitch, Unit::Metre)
+    }
 }
 
 /// Refuses a height grid whose peak-to-valley lies outside a DOE's relief
@@ -385,11 +436,17 @@ fn resolve_scale(file: &str, raw: &RawMap, opts: &ReadOptions) -> Result<f64> {
 /// [`MIN_PLAUSIBLE_PV`, `MAX_PLAUSIBLE_PV`], suggesting the length unit that would fit (the one
 /// putting the height closest to 1 um, the order of a visible-light DOE's relief).
 fn check_plausible(file: &str, raw: &RawMap, k: f64) -> Result<()> {
-    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-    for &v in raw.values.iter().filter(|v| v.is_finite()) {
-        lo = lo.min(v);
-        hi = hi.max(v);
-    }
+    let start = (f64::INFINITY, f64::NEG_INFINITY);
+    let parts = crate::grid::par::map_blocks(&raw.values, |_, b| {
+        b.iter().filter(|v| v.is_finite()).fold(start, |(lo, hi), &v| (lo.min(v), hi.max(v)))
+    });
+    let (lo, hi) = parts.into_iter().fold(start, |(lo, hi), (a, b)| (lo.min(a), hi.max(b)));
+    check_plausible_range(file, raw, k, lo, hi)
+}
+
+/// [`check_plausible`] given the smallest and largest finite stored values `lo`, `hi` (`lo > hi`
+/// when there is none); `raw` supplies the kind of the values.
+fn check_plausible_range(file: &str, raw: &RawMap, k: f64, lo: f64, hi: f64) -> Result<()> {
     if lo > hi {
         return Err(Error::Data(format!("{file}: no finite height value in the map")));
     }

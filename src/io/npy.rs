@@ -395,7 +395,12 @@ pub fn read_npy_2d(path: &Path) -> Result<Array2<f64>> {
 }
 
 fn read_npy_checked(path: &Path) -> Result<(NpyHeader, Array2<f64>)> {
-    let (h, arr) = read_npy_nd(path)?;
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    decode_npy_checked(path, &bytes)
+}
+
+fn decode_npy_checked(path: &Path, bytes: &[u8]) -> Result<(NpyHeader, Array2<f64>)> {
+    let (h, arr) = decode_npy(path, bytes)?;
     let (rows, cols) = match h.shape.as_slice() {
         [r, c] | [r, c, 1] => (*r, *c),
         s => {
@@ -418,7 +423,17 @@ fn read_npy_checked(path: &Path) -> Result<(NpyHeader, Array2<f64>)> {
 /// neither pitch nor unit.
 pub fn read_npy(path: &Path) -> Result<RawMap> {
     let (h, values) = read_npy_checked(path)?;
-    Ok(RawMap {
+    Ok(raw_map(h, values))
+}
+
+/// Decodes the bytes of a whole `.npy` height map (what [`read_npy`] returns).
+pub fn decode_npy_map(path: &Path, bytes: &[u8]) -> Result<RawMap> {
+    let (h, values) = decode_npy_checked(path, bytes)?;
+    Ok(raw_map(h, values))
+}
+
+fn raw_map(h: NpyHeader, values: Array2<f64>) -> RawMap {
+    RawMap {
         values,
         kind: SampleKind::Float,
         pitch: None,
@@ -428,7 +443,112 @@ pub fn read_npy(path: &Path) -> Result<RawMap> {
             ("fortran_order".into(), if h.fortran_order { "True" } else { "False" }.into()),
         ],
         scale_hint: None,
-    })
+    }
+}
+
+/// Bytes read (and handed to the hash) at a time by [`read_npy_hashed`].
+const HASH_CHUNK: usize = 8 << 20;
+
+/// Reads a `.npy` height map (what [`read_npy`] returns) together with the hex SHA-256 of the
+/// whole file, reading the file once. A little-endian C-order `f8` map, the common case, is
+/// read straight into its values while another thread hashes each chunk read; any other file
+/// is read whole, then hashed on one thread while it is decoded on another.
+pub fn read_npy_hashed(path: &Path) -> Result<(RawMap, String)> {
+    if let Some(found) = read_f8_hashed(path)? {
+        return Ok(found);
+    }
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let (sha, raw) = rayon::join(|| crate::io::hex_sha256(&bytes), || decode_npy_map(path, &bytes));
+    Ok((raw?, sha))
+}
+
+/// The fast path of [`read_npy_hashed`]: `None` when the file is not a plain 2-D
+/// little-endian C-order `f8` map whose length matches its header (the general path then
+/// reads it and reports what is wrong).
+fn read_f8_hashed(path: &Path) -> Result<Option<(RawMap, String)>> {
+    use sha2::{Digest, Sha256};
+    use std::io::Read;
+    if cfg!(target_endian = "big") {
+        return Ok(None);
+    }
+    let io = |e| Error::io(path, e);
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let len = file.metadata().map_err(io)?.len();
+    // Preamble: magic, version, header length (u16 for v1, u32 for v2 and v3).
+    let mut head = vec![0u8; 12.min(len as usize)];
+    file.read_exact(&mut head).map_err(io)?;
+    if head.len() < 12 || &head[..6] != MAGIC {
+        return Ok(None);
+    }
+    let hlen = match head[6] {
+        1 => u16::from_le_bytes([head[8], head[9]]) as usize + 10,
+        2 | 3 => u32::from_le_bytes([head[8], head[9], head[10], head[11]]) as usize + 12,
+        _ => return Ok(None),
+    };
+    if hlen as u64 > len {
+        return Ok(None);
+    }
+    let have = head.len();
+    head.resize(hlen.max(have), 0);
+    if hlen > have {
+        file.read_exact(&mut head[have..]).map_err(io)?;
+    }
+    let Ok(h) = parse_header(path, &head) else { return Ok(None) };
+    let (rows, cols) = match h.shape.as_slice() {
+        [r, c] | [r, c, 1] => (*r, *c),
+        _ => return Ok(None),
+    };
+    let plain = matches!(parse_descr(path, &h.descr), Ok((Elem::F8, false))) && !h.fortran_order;
+    let count = rows.checked_mul(cols).filter(|&n| n > 0);
+    let fits =
+        |n: usize| n.checked_mul(8).and_then(|b| b.checked_add(h.data_offset)).map(|e| e as u64) == Some(len);
+    let Some(count) = count.filter(|&n| plain && fits(n)) else {
+        return Ok(None);
+    };
+    // The header bytes read past the preamble may already hold the first data bytes.
+    let mut values = vec![0f64; count];
+    let data: &mut [u8] = bytemuck::cast_slice_mut(&mut values);
+    let early = have.saturating_sub(h.data_offset);
+    data[..early].copy_from_slice(&head[h.data_offset..h.data_offset + early]);
+    let mut hasher = Sha256::new();
+    hasher.update(&head[..h.data_offset]);
+    let read: std::io::Result<(bool, Sha256)> = std::thread::scope(|s| {
+        let (tx, rx) = std::sync::mpsc::sync_channel::<&[u8]>(4);
+        let hashing = s.spawn(move || {
+            for chunk in rx {
+                hasher.update(chunk);
+            }
+            hasher
+        });
+        let (first, rest) = data.split_at_mut(early);
+        let mut result = Ok(true);
+        if tx.send(&*first).is_ok() {
+            for chunk in rest.chunks_mut(HASH_CHUNK) {
+                if let Err(e) = file.read_exact(chunk) {
+                    result = Err(e);
+                    break;
+                }
+                if tx.send(&*chunk).is_err() {
+                    break;
+                }
+            }
+        }
+        drop(tx);
+        // A file that grew since its length was taken is read again by the general path.
+        if let Ok(true) = result {
+            result = file.read(&mut [0u8; 1]).map(|n| n == 0);
+        }
+        let hasher = hashing.join().map_err(|_| std::io::Error::other("the hashing thread failed"))?;
+        result.map(|complete| (complete, hasher))
+    });
+    let (complete, hasher) = read.map_err(io)?;
+    if !complete {
+        return Ok(None);
+    }
+    let sha = hasher.finalize().iter().map(|b| format!("{b:02x}")).collect();
+    let values = Array2::from_shape_vec((rows, cols), values)
+        .map_err(|e| Error::format(path, format!("data does not fit shape ({rows}, {cols}): {e}")))?;
+    Ok(Some((raw_map(h, values), sha)))
 }
 
 /// Element types the writer can store.
@@ -654,6 +774,54 @@ mod tests {
         for cut in 0..good.len() {
             assert!(decode2(&good[..cut]).is_err(), "cut at {cut}");
         }
+    }
+
+    #[test]
+    fn hashed_read_equals_read_and_file_hash() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("h.npy");
+        let mut vals: Vec<f64> = (0..2 * 3).map(|k| k as f64 * 1.5e-7 - 2e-7).collect();
+        vals[4] = f64::NAN;
+        let d: Vec<u8> = vals.iter().flat_map(|v| v.to_le_bytes()).collect();
+        let f4: Vec<u8> = vals.iter().flat_map(|v| (*v as f32).to_le_bytes()).collect();
+        let fd: Vec<u8> = [1.0f64, 4.0, 2.0, 5.0, 3.0, 6.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        // The fast path (plain f8, versions 1-3, a (H, W, 1) shape), and the general one (f4,
+        // Fortran order, big endian) and the errors of cut, overlong and tiny files.
+        let mut files = vec![
+            raw_npy("<f8", false, "(2, 3)", &d, 1),
+            raw_npy("<f8", false, "(2, 3)", &d, 2),
+            raw_npy("<f8", false, "(2, 3, 1)", &d, 3),
+            raw_npy("<f4", false, "(2, 3)", &f4, 1),
+            raw_npy("<f8", true, "(2, 3)", &fd, 1),
+            raw_npy(
+                ">f8",
+                false,
+                "(2, 3)",
+                &vals.iter().flat_map(|v| v.to_be_bytes()).collect::<Vec<_>>(),
+                1,
+            ),
+        ];
+        files.push(files[0][..files[0].len() - 3].to_vec());
+        files.push(files[0].iter().copied().chain([0u8; 8]).collect());
+        files.push(files[0][..7].to_vec());
+        for (k, bytes) in files.iter().enumerate() {
+            std::fs::write(&p, bytes).unwrap();
+            match (read_npy(&p), read_npy_hashed(&p)) {
+                (Ok(a), Ok((b, sha))) => {
+                    assert_eq!(format!("{:?}", a), format!("{:?}", b), "file {k}");
+                    assert_eq!(sha, crate::io::file_sha256(&p).unwrap(), "file {k}");
+                }
+                (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string(), "file {k}"),
+                (a, b) => panic!("file {k}: {a:?} against {b:?}"),
+            }
+        }
+        // A file larger than one read chunk.
+        let big: Vec<f64> = (0..(HASH_CHUNK / 8 + 1000)).map(|k| k as f64).collect();
+        let a = Array2::from_shape_vec((big.len() / 8, 8), big).unwrap();
+        write_npy_f64(&p, &a).unwrap();
+        let (raw, sha) = read_npy_hashed(&p).unwrap();
+        assert_eq!(raw.values, a);
+        assert_eq!(sha, crate::io::file_sha256(&p).unwrap());
     }
 
     #[test]

@@ -180,7 +180,23 @@ fn encode(
 
 /// Encodes a 16-bit grayscale PNG in memory (what [`write_png_u16`] writes).
 pub fn encode_png_u16(path: &Path, values: &Array2<u16>, meta: &Metadata) -> Result<Vec<u8>> {
-    let data: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
+    // Samples to big-endian bytes, in parallel chunks.
+    use rayon::prelude::*;
+    const CHUNK: usize = 1 << 16;
+    let src = values.as_standard_layout();
+    let mut data = vec![0u8; 2 * values.len()];
+    match src.as_slice() {
+        Some(flat) => data.par_chunks_mut(2 * CHUNK).zip(flat.par_chunks(CHUNK)).for_each(|(out, vals)| {
+            for (o, v) in out.chunks_exact_mut(2).zip(vals) {
+                o.copy_from_slice(&v.to_be_bytes());
+            }
+        }),
+        None => {
+            for (o, v) in data.chunks_exact_mut(2).zip(src.iter()) {
+                o.copy_from_slice(&v.to_be_bytes());
+            }
+        }
+    }
     encode(path, values.dim(), png::BitDepth::Sixteen, png::ColorType::Grayscale, &data, meta)
 }
 

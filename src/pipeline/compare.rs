@@ -88,7 +88,7 @@ pub fn reference_surface(
             let prep = chain::prepare(design, &p)?;
             let q = prep.quantized;
             let spec = LevelSpec { count: q.level_count, step: q.period / q.level_count as f64 };
-            Ok((q.heights, Some(spec), p.wrap_spec()?))
+            Ok((q.heights()?, Some(spec), p.wrap_spec()?))
         }
     }
 }
