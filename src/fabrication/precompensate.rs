@@ -413,7 +413,7 @@ mod tests {
         let n = 320;
         let p = ExampleParams { samples: n, aperture: 0.9 * n as f64 * PAPER_PITCH, ..Default::default() };
         let (w, rep) = wrap(&paper_example(&p).unwrap(), &WrapSpec::default()).unwrap();
-        let t = quantize(&w, rep.period, 8, QuantizeMethod::Round).unwrap().heights;
+        let t = quantize(&w, rep.period, 8, QuantizeMethod::Round).unwrap().heights().unwrap();
         let sigma = 2.0 * PAPER_PITCH;
         let bounds = [0.0, 1.1 * rep.period * 7.0 / 8.0];
         let (_, d100) = deconvolve(&t, sigma, bounds, 100).unwrap();

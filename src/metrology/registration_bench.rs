@@ -119,7 +119,7 @@ fn part(levels: usize) -> Result<Grid> {
         ..Default::default()
     };
     let (w, r) = wrap(&paper_example(&p)?, &WrapSpec::default())?;
-    Ok(quantize(&w, r.period, levels, QuantizeMethod::Round)?.heights)
+    quantize(&w, r.period, levels, QuantizeMethod::Round)?.heights()
 }
 
 /// The baseline scan's parameters with `axis` set to `value`; the design's level count.
