@@ -10,7 +10,9 @@ use doefab::units::{clap_length, length_unit};
 use super::calibration::{CalibratePsfArgs, EvaluateArgs, MergeArgs};
 use super::decoder::{BenchDecoderArgs, FinetuneArgs, ReconstructArgs};
 use super::demo::DemoArgs;
-use super::fabrication::{FabArgs, GdsArgs, MaskArgs, PrecompensateArgs, QuantizeArgs, StlArgs, WrapArgs};
+use super::fabrication::{
+    BenchFabArgs, FabArgs, GdsArgs, MaskArgs, PrecompensateArgs, QuantizeArgs, StlArgs, WrapArgs,
+};
 use super::metrology::{CompareArgs, CompareProfileArgs, ScanInfoArgs, SimulateScanArgs};
 use super::optics::{BenchPsfArgs, BenchStabilityArgs, PsfArgs, PsfCompareArgs};
 
@@ -106,6 +108,12 @@ pub enum BenchCommand {
     /// pupil sampling x Fresnel number and pupil sampling x wavelength, each run with its
     /// guard's verdict, the silent failures counted, the paper's sampling marked: PNG + SVG + JSON.
     Stability(BenchStabilityArgs),
+    /// The fabrication stage's numerical methods against known truths: quantization (predicted
+    /// against simulated efficiency per level count and wavelength), the STL heightfield
+    /// (triangles, time and measured height error against max_error) and GDSII tracing (polygons,
+    /// vertices, file size and time against the vertex limit; polygon area against the bitmap):
+    /// PNG + SVG + JSON + CSV.
+    Fab(BenchFabArgs),
     /// Decoders on real captures: each scene's reference is registered onto its capture once
     /// (through the measured PSF), and the capture and every decoder are scored on the same
     /// pixels (PSNR-L, PSNR-gamma over all and saturated pixels, coverage, smallest output);

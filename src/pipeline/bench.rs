@@ -1,5 +1,5 @@
-//! `doefab bench psf`, `doefab bench stability` and `doefab bench decoder`: the benchmarks with their defaults and
-//! outputs.
+//! `doefab bench psf`, `doefab bench stability`, `doefab bench fab` and `doefab bench decoder`: the
+//! benchmarks with their defaults and outputs.
 
 use std::path::{Path, PathBuf};
 
@@ -10,6 +10,7 @@ use crate::calibration::evaluate::ScoringOptions;
 use crate::decoder::capture_bench::{self, scene_dirs, BenchConfig, BenchReport, FinetuneBench};
 use crate::decoder::finetune::FinetuneConfig;
 use crate::error::Result;
+use crate::fabrication::bench::{self as fab_bench, FabBenchOptions, FabBenchReport};
 use crate::fabrication::chain::{self, DesignSource};
 use crate::io::atomic::{self, StagedDir};
 use crate::material::Material;
@@ -18,6 +19,7 @@ use crate::optics::output::system_for;
 use crate::optics::psf_bench::{self, run_bench, steps, BenchOptions};
 use crate::optics::stability::{self, MapOptions, StabilityReport};
 use crate::optics::system::OpticalSystem;
+use crate::report::fabrication_charts::write_fab_bench_charts;
 
 /// `bench psf` as the command line states it.
 #[derive(Debug, Clone)]
@@ -76,6 +78,40 @@ pub fn bench_stability(
     write_stability_charts(|n| stage.stage_path(n), &report)?;
     atomic::write_json(&stage.stage_path("stability.json"), &report)?;
     stage.commit()?;
+    Ok(report)
+}
+
+/// Runs the fabrication stage's sweeps ([`crate::fabrication::bench`]) on a design (any height
+/// map `fab` takes) and writes their charts (PNG, SVG), `bench_fab.json` and one CSV per sweep
+/// (`quantization.csv`, `stl_heightfield.csv`, `gds.csv`) into the folder `output`, all or
+/// nothing. Progress: one step per sweep point ([`fab_bench::steps`]).
+pub fn bench_fab(
+    design: &DesignSource,
+    opts: &FabBenchOptions,
+    output: &Path,
+    progress: &mut dyn FnMut(&str, u64, u64),
+) -> Result<FabBenchReport> {
+    opts.check()?;
+    let total = fab_bench::steps(opts) as u64 + 1;
+    progress("loading the design", 0, total);
+    let loaded = chain::load_design(design)?;
+    let mut done = 1;
+    let report = fab_bench::run_bench(&loaded.heights, &loaded.name, opts, |what| {
+        progress(what, done, total);
+        done += 1;
+    })?;
+    let mut stage = StagedDir::new(output)?;
+    write_fab_bench_charts(|n| stage.stage_path(n), &report)?;
+    atomic::write_json(&stage.stage_path("bench_fab.json"), &report)?;
+    for (name, text) in [
+        ("quantization.csv", report.quantization.csv()),
+        ("stl_heightfield.csv", report.stl.csv()),
+        ("gds.csv", report.gds.csv()),
+    ] {
+        atomic::write_bytes(&stage.stage_path(name), text.as_bytes())?;
+    }
+    stage.commit()?;
+    progress("", total, total);
     Ok(report)
 }
 
@@ -193,4 +229,80 @@ pub fn bench_decoder(
         }
     }
     Ok(DecoderBenchOutcome { report, warnings })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::heightmap::ReadOptions;
+
+    #[test]
+    fn bench_fab_writes_every_output_or_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let npy = dir.path().join("design.npy");
+        let h = ndarray::Array2::from_shape_fn((30, 34), |(i, j)| {
+            0.5 + 0.4 * ((i as f64 * 0.31).sin() * (j as f64 * 0.27).cos())
+        });
+        crate::io::npy::write_npy_f64(&npy, &h).unwrap();
+        let read = ReadOptions { pitch: Some([4e-6; 2]), unit: Some(1e-6), ..Default::default() };
+        let design = DesignSource::File(npy.clone(), read.clone());
+        let opts = FabBenchOptions {
+            level_counts: vec![2, 8],
+            max_errors: vec![2e-9, 20e-9],
+            vertex_limits: vec![8, 8190],
+            repeats: 1,
+            ..FabBenchOptions::default()
+        };
+        let out = dir.path().join("out");
+        let mut calls = 0;
+        let r = bench_fab(&design, &opts, &out, &mut |_, done, total| {
+            assert!(done <= total);
+            calls += 1;
+        })
+        .unwrap();
+        assert!(calls >= fab_bench::steps(&opts));
+        assert_eq!(r.design_samples, [30, 34]);
+        assert_eq!(r.gds.max_area_difference, 0);
+        assert!(r.stl.points.iter().all(|p| p.within_bound));
+        for n in [
+            "bench_fab.json",
+            "quantization.csv",
+            "stl_heightfield.csv",
+            "gds.csv",
+            "quantization.png",
+            "quantization.svg",
+            "stl_heightfield.png",
+            "stl_heightfield.svg",
+            "gds.png",
+            "gds.svg",
+        ] {
+            assert!(std::fs::metadata(out.join(n)).unwrap().len() > 100, "{n}");
+        }
+        let svg = std::fs::read_to_string(out.join("stl_heightfield.svg")).unwrap();
+        assert!(svg.contains("max_error, nm") && svg.contains("bound held; over: 0"), "{svg}");
+        let svg = std::fs::read_to_string(out.join("gds.svg")).unwrap();
+        assert!(svg.contains("file size, MB") && svg.contains("at most 0 nm^2"));
+        let csv = std::fs::read_to_string(out.join("gds.csv")).unwrap();
+        assert_eq!(csv.lines().count(), 1 + 2 * 3);
+        // Nothing but the timings changes between runs.
+        let again = dir.path().join("again");
+        let r2 = bench_fab(&design, &opts, &again, &mut |_, _, _| {}).unwrap();
+        let strip = |r: &FabBenchReport| {
+            let mut v = serde_json::to_value(r).unwrap();
+            for sweep in ["stl", "gds"] {
+                for p in v[sweep]["points"].as_array_mut().unwrap() {
+                    p["seconds"] = serde_json::Value::Null;
+                }
+            }
+            v
+        };
+        assert_eq!(strip(&r), strip(&r2));
+        // A failing run leaves no output folder.
+        let missing = DesignSource::File(dir.path().join("none.npy"), read);
+        let none = dir.path().join("none");
+        assert!(bench_fab(&missing, &opts, &none, &mut |_, _, _| {}).is_err());
+        let bad = FabBenchOptions { vertex_limits: vec![2], ..opts };
+        assert!(bench_fab(&design, &bad, &none, &mut |_, _, _| {}).is_err());
+        assert!(!none.exists());
+    }
 }

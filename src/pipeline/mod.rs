@@ -16,8 +16,9 @@
 //!   own terraces (`doefab compare-profile`).
 //! * [`precompensate`]: the next mask set corrected for the process a scan of the last part
 //!   measured (`doefab precompensate`), and the loop closed in simulation.
-//! * [`bench`](mod@bench): the PSF methods' benchmark and the decoders' benchmark on real captures
-//!   (`doefab bench psf`, `doefab bench decoder`).
+//! * [`bench`](mod@bench): the PSF methods' benchmark, the stability maps, the fabrication
+//!   stage's sweeps and the decoders' benchmark on real captures (`doefab bench psf`,
+//!   `doefab bench stability`, `doefab bench fab`, `doefab bench decoder`).
 
 pub mod bench;
 pub mod calibrate_psf;
