@@ -10,7 +10,9 @@ use doefab::units::{clap_length, length_unit};
 use super::calibration::{CalibratePsfArgs, EvaluateArgs, MergeArgs};
 use super::decoder::{BenchDecoderArgs, FinetuneArgs, ReconstructArgs};
 use super::demo::DemoArgs;
-use super::fabrication::{FabArgs, GdsArgs, MaskArgs, PrecompensateArgs, QuantizeArgs, StlArgs, WrapArgs};
+use super::fabrication::{
+    BenchFabArgs, FabArgs, GdsArgs, MaskArgs, PrecompensateArgs, QuantizeArgs, StlArgs, WrapArgs,
+};
 use super::metrology::BenchRegisterArgs;
 use super::metrology::{CompareArgs, CompareProfileArgs, ScanInfoArgs, SimulateScanArgs};
 use super::optics::{BenchPsfArgs, BenchStabilityArgs, PsfArgs, PsfCompareArgs, ReportArgs};
@@ -114,6 +116,12 @@ pub enum BenchCommand {
     /// wrong) over noise, blur, missing fraction, rotation, scale and level count, from simulated
     /// scans of known pose: PNG + SVG + JSON + CSV.
     Register(BenchRegisterArgs),
+    /// The fabrication stage's numerical methods against known truths: quantization (predicted
+    /// against simulated efficiency per level count and wavelength), the STL heightfield
+    /// (triangles, time and measured height error against max_error) and GDSII tracing (polygons,
+    /// vertices, file size and time against the vertex limit; polygon area against the bitmap):
+    /// PNG + SVG + JSON + CSV.
+    Fab(BenchFabArgs),
     /// Decoders on real captures: each scene's reference is registered onto its capture once
     /// (through the measured PSF), and the capture and every decoder are scored on the same
     /// pixels (PSNR-L, PSNR-gamma over all and saturated pixels, coverage, smallest output);

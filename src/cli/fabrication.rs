@@ -1,4 +1,4 @@
-//! The fabrication commands: `fab`, `wrap`, `quantize`, `mask`, `gds`, `stl`.
+//! The fabrication commands: `fab`, `wrap`, `quantize`, `mask`, `gds`, `stl`, `bench fab`.
 
 use std::path::{Path, PathBuf};
 
@@ -14,7 +14,7 @@ use doefab::fabrication::ReplicaMode;
 use doefab::units::clap_length;
 
 use super::args::{Cli, OpticsArgs, ReadArgs};
-use crate::{print_result, progress, warn};
+use crate::{print_result, progress, report_to, warn};
 
 /// Mesher choice on the command line.
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -137,6 +137,26 @@ pub struct GdsArgs {
     /// without a warning).
     #[arg(long, default_value_t = doefab::fabrication::gds::SIGNED_LENGTH_MAX_VERTICES)]
     pub max_vertices: usize,
+}
+
+/// Arguments of `doefab bench fab`.
+#[derive(Args)]
+pub struct BenchFabArgs {
+    /// Height map file, or built-in:paper / built-in:fresnel (default built-in:paper).
+    pub design: Option<String>,
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Writer grid the GDSII sweep's level map is resampled onto.
+    #[arg(long, value_parser = clap_length, default_value = "2 um")]
+    pub gds_pitch: f64,
+    /// Timed runs per STL and GDSII configuration (the best is reported).
+    #[arg(long, default_value_t = 3)]
+    pub repeats: usize,
+    #[command(flatten)]
+    pub optics: OpticsArgs,
+    #[command(flatten)]
+    pub read: ReadArgs,
 }
 
 /// Arguments of `doefab stl`.
@@ -461,5 +481,74 @@ pub fn precompensate(cli: &Cli, a: &PrecompensateArgs) -> Result<()> {
         for f in &report.files {
             println!("  {}", a.output.join(f).display());
         }
+    })
+}
+
+/// `doefab bench fab`.
+pub fn bench_fab(cli: &Cli, a: &BenchFabArgs) -> Result<()> {
+    let BenchFabArgs { design, output, gds_pitch, repeats, optics, read } = a;
+    use doefab::fabrication::bench::{steps, FabBenchOptions};
+    let opts = FabBenchOptions {
+        wavelength: optics.wavelength,
+        material: optics.material.clone(),
+        order: optics.order,
+        gds_pitch: *gds_pitch,
+        repeats: *repeats,
+        ..FabBenchOptions::default()
+    };
+    let design = DesignSource::parse(design.as_deref(), read.options()?);
+    let pb = progress(cli, steps(&opts) as u64 + 1);
+    let r = doefab::pipeline::bench::bench_fab(&design, &opts, output, &mut report_to(&pb))?;
+    pb.finish_and_clear();
+    print_result(cli, &r, || {
+        let q = &r.quantization;
+        println!(
+            "quantization ({} at {:.0} nm, order {}): simulated vs predicted efficiency, largest difference {:.1e}",
+            q.material,
+            q.design_wavelength * 1e9,
+            q.order,
+            q.max_difference
+        );
+        for n in q.points.iter().map(|p| p.level_count).collect::<std::collections::BTreeSet<_>>() {
+            let row: Vec<String> = q
+                .points
+                .iter()
+                .filter(|p| p.level_count == n)
+                .map(|p| format!("{:.0} nm {:.4}", p.wavelength * 1e9, p.simulated))
+                .collect();
+            println!("  N = {n:<3} {}", row.join(", "));
+        }
+        println!("STL heightfield of {} x {} samples:", r.stl.samples[0], r.stl.samples[1]);
+        for p in &r.stl.points {
+            println!(
+                "  max_error {:>4.0} nm: {:>8} triangles, {:.3} s, measured max {:.3} nm, RMS {:.3} nm{}",
+                p.max_error * 1e9,
+                p.triangles,
+                p.seconds,
+                p.measured_max_error * 1e9,
+                p.measured_rms_error * 1e9,
+                if p.within_bound { "" } else { "  OVER THE BOUND" }
+            );
+        }
+        let g = &r.gds;
+        println!(
+            "GDSII {}-level mask set, {} x {} at {:.2} um (polygon area - bitmap area: at most {} nm^2):",
+            g.level_count,
+            g.samples[0],
+            g.samples[1],
+            g.pitch * 1e6,
+            g.max_area_difference
+        );
+        for p in &g.points {
+            println!(
+                "  at most {:>4} vertices: {:>6} polygons, {:>7} vertices, {:.2} MB, {:.3} s",
+                p.max_vertices,
+                p.polygons,
+                p.vertices,
+                p.bytes as f64 / 1e6,
+                p.seconds
+            );
+        }
+        println!("wrote {}", output.display());
     })
 }

@@ -1,5 +1,5 @@
-//! `doefab bench psf`, `doefab bench stability` and `doefab bench decoder`: the benchmarks with their defaults and
-//! outputs.
+//! `doefab bench psf`, `doefab bench stability`, `doefab bench register`, `doefab bench fab` and
+//! `doefab bench decoder`: the benchmarks with their defaults and outputs.
 
 use std::path::{Path, PathBuf};
 
@@ -10,6 +10,7 @@ use crate::calibration::evaluate::ScoringOptions;
 use crate::decoder::capture_bench::{self, scene_dirs, BenchConfig, BenchReport, FinetuneBench};
 use crate::decoder::finetune::FinetuneConfig;
 use crate::error::Result;
+use crate::fabrication::bench::{self as fab_bench, FabBenchOptions, FabBenchReport};
 use crate::fabrication::chain::{self, DesignSource};
 use crate::io::atomic::{self, StagedDir};
 use crate::material::Material;
@@ -18,6 +19,7 @@ use crate::optics::output::system_for;
 use crate::optics::psf_bench::{self, run_bench, steps, BenchOptions};
 use crate::optics::stability::{self, MapOptions, StabilityReport};
 use crate::optics::system::OpticalSystem;
+use crate::report::fabrication_charts::write_fab_bench_charts;
 
 /// `bench psf` as the command line states it.
 #[derive(Debug, Clone)]
@@ -105,6 +107,40 @@ pub fn bench_register(
     }
     atomic::write_bytes(&stage.stage_path("register.csv"), csv.as_bytes())?;
     stage.commit()?;
+    Ok(report)
+}
+
+/// Runs the fabrication stage's sweeps ([`crate::fabrication::bench`]) on a design (any height
+/// map `fab` takes) and writes their charts (PNG, SVG), `bench_fab.json` and one CSV per sweep
+/// (`quantization.csv`, `stl_heightfield.csv`, `gds.csv`) into the folder `output`, all or
+/// nothing. Progress: one step per sweep point ([`fab_bench::steps`]).
+pub fn bench_fab(
+    design: &DesignSource,
+    opts: &FabBenchOptions,
+    output: &Path,
+    progress: &mut dyn FnMut(&str, u64, u64),
+) -> Result<FabBenchReport> {
+    opts.check()?;
+    let total = fab_bench::steps(opts) as u64 + 1;
+    progress("loading the design", 0, total);
+    let loaded = chain::load_design(design)?;
+    let mut done = 1;
+    let report = fab_bench::run_bench(&loaded.heights, &loaded.name, opts, |what| {
+        progress(what, done, total);
+        done += 1;
+    })?;
+    let mut stage = StagedDir::new(output)?;
+    write_fab_bench_charts(|n| stage.stage_path(n), &report)?;
+    atomic::write_json(&stage.stage_path("bench_fab.json"), &report)?;
+    for (name, text) in [
+        ("quantization.csv", report.quantization.csv()),
+        ("stl_heightfield.csv", report.stl.csv()),
+        ("gds.csv", report.gds.csv()),
+    ] {
+        atomic::write_bytes(&stage.stage_path(name), text.as_bytes())?;
+    }
+    stage.commit()?;
+    progress("", total, total);
     Ok(report)
 }
 

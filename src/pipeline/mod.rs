@@ -16,8 +16,10 @@
 //!   own terraces (`doefab compare-profile`).
 //! * [`precompensate`]: the next mask set corrected for the process a scan of the last part
 //!   measured (`doefab precompensate`), and the loop closed in simulation.
-//! * [`bench`](mod@bench): the PSF methods' benchmark and the decoders' benchmark on real captures
-//!   (`doefab bench psf`, `doefab bench stability`, `doefab bench decoder`).
+//! * [`bench`](mod@bench): the PSF methods' benchmark, the stability maps, the registration
+//!   map, the fabrication stage's sweeps and the decoders' benchmark on real captures (`doefab
+//!   bench psf`, `doefab bench stability`, `doefab bench register`, `doefab bench fab`, `doefab
+//!   bench decoder`).
 //! * [`report`]: the benchmarks of a design within one time budget, gathered into one static
 //!   HTML page with its charts and data (`doefab report`).
 
