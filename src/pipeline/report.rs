@@ -14,10 +14,13 @@ use serde::Serialize;
 
 use super::bench::{bench_psf, PsfBenchOptions};
 use crate::error::{Error, Result};
+use crate::fabrication::bench::{self as fab_bench, FabBenchOptions, FabBenchReport};
 use crate::io::atomic::{self, StagedDir};
+use crate::metrology::registration_bench::{self as reg_bench, RegistrationBench};
 use crate::optics::charts::{write_psf_charts, write_stability_charts};
 use crate::optics::psf_bench::{self, BenchOptions};
 use crate::optics::stability::{self, MapOptions, StabilityReport};
+use crate::report::fabrication_charts::write_fab_bench_charts;
 
 /// What `doefab report` runs.
 #[derive(Debug, Clone)]
@@ -111,12 +114,16 @@ fn words(w: &str) -> Piece {
 
 /// How many progress steps [`run_report`] takes.
 pub fn steps(opts: &ReportOptions) -> usize {
-    stability::steps(&MapOptions::default()) + psf_bench::steps(&opts.psf.bench)
+    stability::steps(&MapOptions::default())
+        + reg_bench::steps()
+        + fab_bench::steps(&FabBenchOptions::default())
+        + psf_bench::steps(&opts.psf.bench)
 }
 
 /// Runs the benchmarks within `opts.budget` and writes the page, its charts and data into the
-/// folder `output`, all or nothing. The stability maps run first (their sweep is fixed, about
-/// 15 s on two cores); the PSF benchmark gets what is left.
+/// folder `output`, all or nothing. The fixed sweeps run first (the stability maps and the
+/// registration map, about 15 s each on two cores; the fabrication sweeps on the design, about
+/// 25 s for the paper's); the PSF benchmark gets what is left.
 pub fn run_report(
     opts: &ReportOptions,
     output: &Path,
@@ -132,10 +139,19 @@ pub fn run_report(
         progress(what, done, total);
         done += 1;
     })?;
+    let registration = reg_bench::run(|what| {
+        progress(what, done, total);
+        done += 1;
+    })?;
+    let loaded = crate::fabrication::chain::load_design(&opts.psf.design)?;
+    let fab = fab_bench::run_bench(&loaded.heights, &loaded.name, &FabBenchOptions::default(), |what| {
+        progress(what, done, total);
+        done += 1;
+    })?;
     let left = opts.budget - start.elapsed().as_secs_f64();
     if left <= 0.05 * opts.budget {
         return Err(Error::Limit(format!(
-            "the budget of {:.0} s was spent by the stability maps alone ({:.0} s): give more time",
+            "the budget of {:.0} s was spent by the fixed sweeps alone ({:.0} s): give more time",
             opts.budget,
             start.elapsed().as_secs_f64()
         )));
@@ -158,16 +174,17 @@ pub fn run_report(
     };
     let psf_charts = svg(write_psf_charts(|n| stage.stage_path(&format!("psf_{n}")), &psf)?, "psf_");
     let map_charts = svg(write_stability_charts(|n| stage.stage_path(n), &maps)?, "");
+    let reg_charts = svg(reg_bench::write_chart(|n| stage.stage_path(n), &registration)?, "");
+    let fab_charts = svg(write_fab_bench_charts(|n| stage.stage_path(&format!("fab_{n}")), &fab)?, "fab_");
+    atomic::write_json(&stage.stage_path("register.json"), &registration)?;
+    atomic::write_json(&stage.stage_path("bench_fab.json"), &fab)?;
     atomic::write_json(&stage.stage_path("bench_psf.json"), &psf)?;
     atomic::write_json(&stage.stage_path("stability.json"), &maps)?;
     atomic::write_bytes(&stage.stage_path("bench_psf.csv"), psf_csv(&psf).as_bytes())?;
     atomic::write_bytes(&stage.stage_path("stability.csv"), stability_csv(&maps).as_bytes())?;
 
-    let design = match &opts.psf.design {
-        crate::fabrication::chain::DesignSource::BuiltIn(n) => format!("built-in:{n}"),
-        crate::fabrication::chain::DesignSource::File(p, _) => p.display().to_string(),
-    };
-    let page = page(&design, &psf, &maps, psf_charts, map_charts);
+    let charts = Charts { psf: psf_charts, maps: map_charts, registration: reg_charts, fab: fab_charts };
+    let page = page(&loaded.name, &psf, &maps, &registration, &fab, charts);
     atomic::write_json(&stage.stage_path("report.json"), &page)?;
     atomic::write_bytes(&stage.stage_path("index.html"), html(&page).as_bytes())?;
     stage.commit()?;
@@ -222,13 +239,22 @@ fn stability_csv(r: &StabilityReport) -> String {
     s
 }
 
-/// The page's sections and figures from the two reports.
+/// The chart files of each section.
+struct Charts {
+    psf: Vec<String>,
+    maps: Vec<String>,
+    registration: Vec<String>,
+    fab: Vec<String>,
+}
+
+/// The page's sections and figures from the reports.
 fn page(
     design: &str,
     psf: &psf_bench::BenchReport,
     maps: &StabilityReport,
-    psf_charts: Vec<String>,
-    map_charts: Vec<String>,
+    registration: &RegistrationBench,
+    fab: &FabBenchReport,
+    charts: Charts,
 ) -> Page {
     let mut b = Builder { figures: Vec::new() };
     let mut reading = vec![
@@ -261,7 +287,7 @@ fn page(
     reading.push(words(" Pick the leftmost point below your tolerance; the plan should sit on it or just right of it. A hollow point is a run its guard refuses: trust only filled ones."));
     let psf_section = Section {
         title: "PSF: speed against accuracy".into(),
-        charts: psf_charts,
+        charts: charts.psf,
         data: vec!["bench_psf.json".into(), "bench_psf.csv".into()],
         reading,
     };
@@ -285,15 +311,54 @@ fn page(
     reading.push(words(" Trust a dot; a cross names the condition that failed in stability.json. The paper's own sampling is drawn in blue: right of the black line the lens phase is undersampled, so use the matrix DFT there."));
     let map_section = Section {
         title: "PSF: where the Fresnel method fails".into(),
-        charts: map_charts,
+        charts: charts.maps,
         data: vec!["stability.json".into(), "stability.csv".into()],
+        reading,
+    };
+    let registered = registration.trials.iter().filter(|t| t.outcome == "registered");
+    let worst = registered.map(|t| t.shift_error).fold(0.0, f64::max);
+    let reading = vec![
+        words("Scans of a known pose, one trouble at a time pushed past where registration can work:"),
+        b.fig("registration trials", registration.trials.len() as f64, "1"),
+        words("trials,"),
+        b.fig("registration silent failures", registration.silent_failures as f64, "1"),
+        words("accepted with a wrong pose (silent failures),"),
+        b.fig("registration refusals", registration.refused as f64, "1"),
+        words("refused; the worst accepted shift error"),
+        b.fig("worst accepted shift error", worst, "design samples"),
+        words("design samples, against the bound of"),
+        b.fig("wrong-pose bound", registration.wrong_shift, "design samples"),
+        words(". Read each panel left to right: green dots are poses found, black crosses at the top are refusals (the reason is in register.json); a part beyond the crosses needs a better scan, not a looser registration."),
+    ];
+    let registration_section = Section {
+        title: "Metrology: where scan registration fails".into(),
+        charts: charts.registration,
+        data: vec!["register.json".into()],
+        reading,
+    };
+    let stl_bounded = fab.stl.points.iter().filter(|p| p.within_bound).count();
+    let reading = vec![
+        words("Quantization: the predicted design-order efficiency (Swanson, with detuning) against a simulated grating's, largest difference"),
+        b.fig("quantization max difference", fab.quantization.max_difference, "1"),
+        words(". STL heightfield: the measured height error within its bound at"),
+        b.fig("STL points within bound", stl_bounded as f64, "1"),
+        words("of"),
+        b.fig("STL points", fab.stl.points.len() as f64, "1"),
+        words("settings. GDSII: polygon area against the bitmap, largest difference"),
+        b.fig("GDS max area difference", fab.gds.max_area_difference as f64, "nm^2"),
+        words("square nanometres (exact: zero). Pick the level count where the efficiency curve flattens for your shortest wavelength, the largest max_error your part tolerates (triangles fall fast with it), and any vertex limit your mask shop accepts (size and time level off above the design's largest polygon)."),
+    ];
+    let fab_section = Section {
+        title: "Fabrication: quantization, STL and GDSII against their truths".into(),
+        charts: charts.fab,
+        data: vec!["bench_fab.json".into()],
         reading,
     };
     Page {
         title: "doefab report".into(),
         design: design.into(),
         figures: b.figures,
-        sections: vec![psf_section, map_section],
+        sections: vec![fab_section, registration_section, psf_section, map_section],
     }
 }
 

@@ -1,6 +1,8 @@
 //! `doefab report`: one static page from the benchmarks, within its budget.
 
+use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
 use doefab::fabrication::chain::DesignSource;
+use doefab::io::heightmap::ReadOptions;
 use doefab::optics::psf_bench::BenchOptions;
 use doefab::pipeline::bench::PsfBenchOptions;
 use doefab::pipeline::report::{run_report, shown, ReportOptions};
@@ -61,7 +63,7 @@ fn numbers_in_text(html: &str) -> Vec<String> {
     out
 }
 
-/// On a small camera (0.5 mm aperture, 40^2 crop) and a 40 s budget: the page links only files
+/// On a small design and camera (0.5 mm aperture, 40^2 crop) and a 90 s budget: the page links only files
 /// that exist, every number on it is a figure of report.json shown as [`shown`] writes it, and
 /// the figures hold what the benchmarks' own JSON say.
 #[test]
@@ -74,14 +76,19 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
          crop = 40\nsensor_pitch = \"3 um\"\npupil_window = \"0.6 mm\"\n",
     )
     .unwrap();
+    // The paper's design on 140 samples (0.6 mm), for the fabrication sweeps to be quick.
+    let design = dir.path().join("design.npy");
+    let p = ExampleParams { samples: 140, aperture: 0.55e-3, ..Default::default() };
+    doefab::io::npy::write_npy_f64(&design, paper_example(&p).unwrap().values()).unwrap();
+    let read = ReadOptions { pitch: Some([PAPER_PITCH; 2]), unit: Some(1.0), ..Default::default() };
     let opts = ReportOptions {
         psf: PsfBenchOptions {
-            design: DesignSource::BuiltIn("paper".into()),
+            design: DesignSource::File(design, read),
             system: Some(sys),
             material: "pdms".into(),
             bench: BenchOptions { max_subsample: 3, ..Default::default() },
         },
-        budget: 40.0,
+        budget: 90.0,
     };
     let out = dir.path().join("report");
     let page = run_report(&opts, &out, &mut |_, _, _| {}).unwrap();
@@ -100,7 +107,8 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
             assert!(html.contains(&format!("src=\"{c}\"")), "{c} not on the page");
         }
     }
-    assert!(linked >= 8, "{linked}");
+    assert!(linked >= 14, "{linked}");
+    assert_eq!(page.sections.len(), 4);
     // Every number on the page is one of report.json's figures, as shown() writes its value.
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
