@@ -10,9 +10,11 @@
 //! * [`recipe`]: process recipes ([`bundled`]: those of `masks/`, compiled in); [`chain`]: the
 //!   whole chain behind `doefab fab`;
 //! * [`bench`](mod@bench): speed against accuracy of quantization, the STL heightfield and the GDSII
-//!   tracing, each against a truth computed another way (`doefab bench fab`).
+//!   tracing, each against a truth computed another way (`doefab bench fab`); [`bench_charts`]
+//!   draws them.
 
 pub mod bench;
+pub mod bench_charts;
 pub mod bundled;
 pub mod chain;
 pub mod contrast;

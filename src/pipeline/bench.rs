@@ -11,6 +11,7 @@ use crate::decoder::capture_bench::{self, scene_dirs, BenchConfig, BenchReport, 
 use crate::decoder::finetune::FinetuneConfig;
 use crate::error::Result;
 use crate::fabrication::bench::{self as fab_bench, FabBenchOptions, FabBenchReport};
+use crate::fabrication::bench_charts::write_fab_bench_charts;
 use crate::fabrication::chain::{self, DesignSource};
 use crate::io::atomic::{self, StagedDir};
 use crate::material::Material;
@@ -19,7 +20,6 @@ use crate::optics::output::system_for;
 use crate::optics::psf_bench::{self, run_bench, steps, BenchOptions};
 use crate::optics::stability::{self, MapOptions, StabilityReport};
 use crate::optics::system::OpticalSystem;
-use crate::report::fabrication_charts::write_fab_bench_charts;
 
 /// `bench psf` as the command line states it.
 #[derive(Debug, Clone)]

@@ -15,12 +15,12 @@ use serde::Serialize;
 use super::bench::{bench_psf, PsfBenchOptions};
 use crate::error::{Error, Result};
 use crate::fabrication::bench::{self as fab_bench, FabBenchOptions, FabBenchReport};
+use crate::fabrication::bench_charts::write_fab_bench_charts;
 use crate::io::atomic::{self, StagedDir};
 use crate::metrology::registration_bench::{self as reg_bench, RegistrationBench};
 use crate::optics::charts::{write_psf_charts, write_stability_charts};
 use crate::optics::psf_bench::{self, BenchOptions};
 use crate::optics::stability::{self, MapOptions, StabilityReport};
-use crate::report::fabrication_charts::write_fab_bench_charts;
 
 /// What `doefab report` runs.
 #[derive(Debug, Clone)]

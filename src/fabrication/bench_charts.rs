@@ -1,0 +1,361 @@
+//! Charts of `doefab bench fab` ([`super::bench`]): efficiency against level count (predicted
+//! lines, simulated circles), STL triangles, time and measured error against `max_error`, GDSII
+//! file size and time against the vertex limit.
+
+use std::path::PathBuf;
+
+use plotters::prelude::*;
+
+use super::bench::{FabBenchReport, GdsSweep, QuantizationSweep, StlPoint, StlSweep};
+use crate::error::{Error, Result};
+use crate::report::{draw_legend, write_png_chart, write_svg_chart, FONT};
+
+/// Log range covering the positive finite `values`, padded by `pad` on each side.
+fn log_span(values: impl Iterator<Item = f64>, pad: f64) -> std::ops::Range<f64> {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    if lo.is_finite() {
+        lo / pad..hi * pad
+    } else {
+        1e-3..1.0
+    }
+}
+
+/// A log axis's label: `f(v)` where the mantissa of `v` is 1, 2 or 5, else none (plotters
+/// puts a key point at every digit of a decade).
+fn log_label(v: f64, f: impl Fn(f64) -> String) -> String {
+    if !(v.is_finite() && v > 0.0) {
+        return String::new();
+    }
+    let m = v / 10f64.powf(v.log10().floor());
+    if [1.0, 2.0, 5.0, 10.0].iter().any(|k| (m - k).abs() < 1e-6 * k) {
+        f(v)
+    } else {
+        String::new()
+    }
+}
+
+/// `v` with at most six decimals and no trailing zeros.
+fn short(v: f64) -> String {
+    format!("{}", (v * 1e6).round() / 1e6)
+}
+
+/// A count as `200k`, `2M`.
+fn count(v: f64) -> String {
+    if v >= 1e6 {
+        format!("{}M", short(v / 1e6))
+    } else if v >= 1e3 {
+        format!("{}k", short(v / 1e3))
+    } else {
+        short(v)
+    }
+}
+
+/// The colour of a wavelength: red, green or blue by band.
+fn channel_colour(wavelength: f64) -> RGBColor {
+    if wavelength >= 590e-9 {
+        RGBColor(200, 0, 0)
+    } else if wavelength >= 495e-9 {
+        RGBColor(0, 140, 0)
+    } else {
+        RGBColor(0, 0, 220)
+    }
+}
+
+fn quantization_chart<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    q: &QuantizationSweep,
+) -> std::result::Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    let log2 = |n: usize| (n as f64).log2();
+    let (x0, x1) = q.points.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+        (a.min(log2(p.level_count)), b.max(log2(p.level_count)))
+    });
+    let y0 = q.points.iter().map(|p| p.predicted.min(p.simulated)).fold(1.0, f64::min);
+    let caption = format!(
+        "Quantization: order-{} efficiency vs level count, {} design at {:.0} nm (lines: Swanson; circles: \
+         simulated grating; max |diff| {:.0e})",
+        q.order,
+        q.material,
+        q.design_wavelength * 1e9,
+        q.max_difference.max(1e-300)
+    );
+    let mut chart = ChartBuilder::on(root)
+        .caption(caption, (FONT, 16))
+        .margin(12)
+        .x_label_area_size(45)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x0 - 0.3..x1 + 0.3, (y0 - 0.05).max(0.0)..1.02)
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("level count N (log scale)")
+        .y_desc("efficiency of the design order (fraction of the light)")
+        .x_labels((2.0 * (x1 - x0 + 0.6)) as usize + 2)
+        .x_label_formatter(&|v| {
+            if (v - v.round()).abs() < 1e-9 && *v >= 0.0 {
+                format!("{}", 2u64.pow(v.round() as u32))
+            } else {
+                String::new()
+            }
+        })
+        .y_label_formatter(&|v| format!("{v:.2}"))
+        .label_style((FONT, 13))
+        .axis_desc_style((FONT, 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let mut wavelengths: Vec<f64> = q.points.iter().map(|p| p.wavelength).collect();
+    wavelengths.sort_by(|a, b| b.total_cmp(a));
+    wavelengths.dedup();
+    for l in wavelengths {
+        let colour = channel_colour(l);
+        let mut own: Vec<_> = q.points.iter().filter(|p| p.wavelength == l).collect();
+        own.sort_by_key(|p| p.level_count);
+        chart
+            .draw_series(LineSeries::new(
+                own.iter().map(|p| (log2(p.level_count), p.predicted)),
+                colour.stroke_width(2),
+            ))
+            .map_err(|x| e(&x))?
+            .label(format!("{:.0} nm predicted", l * 1e9))
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
+        chart
+            .draw_series(
+                own.iter()
+                    .map(|p| Circle::new((log2(p.level_count), p.simulated), 6, colour.stroke_width(2))),
+            )
+            .map_err(|x| e(&x))?
+            .label(format!("{:.0} nm simulated", l * 1e9))
+            .legend(move |(x, y)| Circle::new((x + 8, y), 5, colour.stroke_width(2)));
+    }
+    draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 13)
+}
+
+fn stl_cost_chart<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    s: &StlSweep,
+) -> std::result::Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    let x = log_span(s.points.iter().map(|p| p.max_error * 1e9), 1.4);
+    let caption = format!(
+        "STL heightfield, {} x {} samples: triangles and time vs max_error",
+        s.samples[0], s.samples[1]
+    );
+    let mut chart = ChartBuilder::on(root)
+        .caption(caption, (FONT, 16))
+        .margin(12)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .right_y_label_area_size(60)
+        .build_cartesian_2d(
+            x.clone().log_scale(),
+            log_span(s.points.iter().map(|p| p.triangles as f64), 2.0).log_scale(),
+        )
+        .map_err(|x| e(&x))?
+        .set_secondary_coord(x.log_scale(), log_span(s.points.iter().map(|p| p.seconds), 2.0).log_scale());
+    chart
+        .configure_mesh()
+        .x_desc("max_error, nm (the mesher's bound)")
+        .y_desc("triangles in the STL")
+        .y_labels(30)
+        .x_label_formatter(&|v| log_label(*v, short))
+        .y_label_formatter(&|v| log_label(*v, count))
+        .light_line_style(TRANSPARENT)
+        .bold_line_style(BLACK.mix(0.15))
+        .label_style((FONT, 13))
+        .axis_desc_style((FONT, 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_secondary_axes()
+        .y_desc("time to mesh, s (best of runs)")
+        .y_labels(30)
+        .y_label_formatter(&|v| log_label(*v, short))
+        .label_style((FONT, 13))
+        .axis_desc_style((FONT, 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let tri: Vec<(f64, f64)> = s.points.iter().map(|p| (p.max_error * 1e9, p.triangles as f64)).collect();
+    let secs: Vec<(f64, f64)> = s.points.iter().map(|p| (p.max_error * 1e9, p.seconds)).collect();
+    chart
+        .draw_series(LineSeries::new(tri.iter().copied(), BLUE.stroke_width(2)))
+        .map_err(|x| e(&x))?
+        .label("triangles (left axis)")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.stroke_width(2)));
+    chart.draw_series(tri.iter().map(|&p| Circle::new(p, 4, BLUE.filled()))).map_err(|x| e(&x))?;
+    chart
+        .draw_secondary_series(LineSeries::new(secs.iter().copied(), RED.stroke_width(2)))
+        .map_err(|x| e(&x))?
+        .label("time (right axis)")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED.stroke_width(2)));
+    chart
+        .draw_secondary_series(secs.iter().map(|&p| TriangleMarker::new(p, 5, RED.filled())))
+        .map_err(|x| e(&x))?;
+    draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 13)
+}
+
+fn stl_error_chart<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    s: &StlSweep,
+) -> std::result::Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    let x = log_span(s.points.iter().map(|p| p.max_error * 1e9), 1.4);
+    let y = log_span(
+        s.points
+            .iter()
+            .flat_map(|p| [p.max_error, p.measured_max_error, p.measured_rms_error])
+            .map(|v| v * 1e9),
+        1.6,
+    );
+    let over = s.points.iter().filter(|p| !p.within_bound).count();
+    let caption =
+        format!("measured height error vs max_error (on or under the line: bound held; over: {over})");
+    let mut chart = ChartBuilder::on(root)
+        .caption(caption, (FONT, 16))
+        .margin(12)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x.clone().log_scale(), y.log_scale())
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("max_error, nm (the mesher's bound)")
+        .y_desc("|mesh - height map| at the samples, nm")
+        .y_labels(30)
+        .x_label_formatter(&|v| log_label(*v, short))
+        .y_label_formatter(&|v| log_label(*v, short))
+        .light_line_style(TRANSPARENT)
+        .bold_line_style(BLACK.mix(0.15))
+        .label_style((FONT, 13))
+        .axis_desc_style((FONT, 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    chart
+        .draw_series(LineSeries::new([(x.start, x.start), (x.end, x.end)], BLACK.stroke_width(1)))
+        .map_err(|x| e(&x))?
+        .label("bound: error = max_error")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
+    for (colour, label, value) in [
+        (BLUE, "measured max", (|p: &StlPoint| p.measured_max_error) as fn(&StlPoint) -> f64),
+        (RGBColor(0, 140, 0), "measured RMS", |p: &StlPoint| p.measured_rms_error),
+    ] {
+        let pts: Vec<(f64, f64)> = s.points.iter().map(|p| (p.max_error * 1e9, value(p) * 1e9)).collect();
+        chart
+            .draw_series(LineSeries::new(pts.iter().copied(), colour.stroke_width(2)))
+            .map_err(|x| e(&x))?
+            .label(label)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
+        chart.draw_series(pts.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map_err(|x| e(&x))?;
+    }
+    draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, 13)
+}
+
+fn stl_chart<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    s: &StlSweep,
+) -> std::result::Result<(), String> {
+    let (left, right) = root.split_horizontally(root.dim_in_pixel().0 / 2);
+    stl_cost_chart(&left, s)?;
+    stl_error_chart(&right, s)
+}
+
+fn gds_chart<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    g: &GdsSweep,
+) -> std::result::Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    let x = log_span(g.points.iter().map(|p| p.max_vertices as f64), 1.4);
+    let mb_hi = g.points.iter().map(|p| p.bytes as f64 / 1e6).fold(0.0, f64::max) * 1.15;
+    let s_hi = g.points.iter().map(|p| p.seconds).fold(0.0, f64::max) * 1.15;
+    let caption = format!(
+        "GDSII {}-level mask set, {} x {} at {:.1} um: file size and time vs vertex limit (polygon area - \
+         bitmap area: at most {} nm^2)",
+        g.level_count,
+        g.samples[0],
+        g.samples[1],
+        g.pitch * 1e6,
+        g.max_area_difference
+    );
+    let mut chart = ChartBuilder::on(root)
+        .caption(caption, (FONT, 16))
+        .margin(12)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .right_y_label_area_size(60)
+        .build_cartesian_2d(x.clone().log_scale(), 0.0..mb_hi.max(1e-6))
+        .map_err(|x| e(&x))?
+        .set_secondary_coord(x.log_scale(), 0.0..s_hi.max(1e-6));
+    chart
+        .configure_mesh()
+        .x_desc("most vertices per polygon (labels: polygons written)")
+        .y_desc("file size, MB")
+        .x_labels(30)
+        .x_label_formatter(&|v| log_label(*v, short))
+        .light_line_style(TRANSPARENT)
+        .bold_line_style(BLACK.mix(0.15))
+        .y_label_formatter(&|v| format!("{v:.2}"))
+        .label_style((FONT, 13))
+        .axis_desc_style((FONT, 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_secondary_axes()
+        .y_desc("time to trace and encode, s (best of runs)")
+        .y_label_formatter(&|v| format!("{v:.2}"))
+        .label_style((FONT, 13))
+        .axis_desc_style((FONT, 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let size: Vec<(f64, f64, usize)> =
+        g.points.iter().map(|p| (p.max_vertices as f64, p.bytes as f64 / 1e6, p.polygons)).collect();
+    let secs: Vec<(f64, f64)> = g.points.iter().map(|p| (p.max_vertices as f64, p.seconds)).collect();
+    chart
+        .draw_series(LineSeries::new(size.iter().map(|p| (p.0, p.1)), BLUE.stroke_width(2)))
+        .map_err(|x| e(&x))?
+        .label("file size (left axis)")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.stroke_width(2)));
+    chart
+        .draw_series(size.iter().map(|&(x, y, n)| {
+            EmptyElement::at((x, y))
+                + Circle::new((0, 0), 4, BLUE.filled())
+                + Text::new(format!("{n}"), (4, -18), (FONT, 12))
+        }))
+        .map_err(|x| e(&x))?;
+    chart
+        .draw_secondary_series(LineSeries::new(secs.iter().copied(), RED.stroke_width(2)))
+        .map_err(|x| e(&x))?
+        .label("time (right axis)")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED.stroke_width(2)));
+    chart
+        .draw_secondary_series(secs.iter().map(|&p| TriangleMarker::new(p, 5, RED.filled())))
+        .map_err(|x| e(&x))?;
+    draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 13)
+}
+
+/// Writes the charts of `doefab bench fab` at `path_for(name)`: `quantization.{png,svg}`
+/// (efficiency against level count, predicted and simulated, per wavelength),
+/// `stl_heightfield.{png,svg}` (triangles and time, and the measured error, against
+/// `max_error`) and `gds.{png,svg}` (file size and time against the vertex limit); returns
+/// the names.
+pub fn write_fab_bench_charts(
+    mut path_for: impl FnMut(&str) -> PathBuf,
+    report: &FabBenchReport,
+) -> Result<Vec<String>> {
+    if report.quantization.points.is_empty() || report.stl.points.is_empty() || report.gds.points.is_empty() {
+        return Err(Error::Data("a fabrication benchmark sweep has no points to chart".into()));
+    }
+    let q = &report.quantization;
+    write_png_chart(&path_for("quantization.png"), 1000, 650, |r| quantization_chart(r, q))?;
+    write_svg_chart(&path_for("quantization.svg"), 1000, 650, |r| quantization_chart(r, q))?;
+    let s = &report.stl;
+    write_png_chart(&path_for("stl_heightfield.png"), 1400, 600, |r| stl_chart(r, s))?;
+    write_svg_chart(&path_for("stl_heightfield.svg"), 1400, 600, |r| stl_chart(r, s))?;
+    let g = &report.gds;
+    write_png_chart(&path_for("gds.png"), 1000, 650, |r| gds_chart(r, g))?;
+    write_svg_chart(&path_for("gds.svg"), 1000, 650, |r| gds_chart(r, g))?;
+    Ok(["quantization", "stl_heightfield", "gds"]
+        .iter()
+        .flat_map(|n| [format!("{n}.png"), format!("{n}.svg")])
+        .collect())
+}
