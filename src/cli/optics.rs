@@ -6,6 +6,8 @@ use anyhow::Result;
 use clap::Args;
 
 use doefab::fabrication::chain::DesignSource;
+use doefab::optics::psf_bench::BenchOptions;
+use doefab::pipeline::bench::PsfBenchOptions;
 use doefab::units::{clap_duration, clap_length};
 
 use super::args::{Cli, ReadArgs};
@@ -72,9 +74,9 @@ pub struct PsfCompareArgs {
     pub radius: Option<f64>,
 }
 
-/// Arguments of `doefab bench psf`.
+/// The design, camera and time budget of `doefab bench psf` and `doefab report`.
 #[derive(Args)]
-pub struct BenchPsfArgs {
+pub struct BenchOnArgs {
     /// Height map file, or built-in:paper / built-in:fresnel (default built-in:paper, at the
     /// paper's geometry).
     pub design: Option<String>,
@@ -87,39 +89,43 @@ pub struct BenchPsfArgs {
     /// Material of the DOE (pdms, fused_silica, noa61, pmma, ip_dip).
     #[arg(long, default_value = "pdms")]
     pub material: String,
-    /// Wall-clock budget ("5min", "90s"): how far each method's series goes.
+    /// Wall-clock budget for the whole command ("5min", "90s").
     #[arg(long, default_value = "5min", value_parser = clap_duration)]
     pub budget: f64,
+    #[command(flatten)]
+    pub read: ReadArgs,
+}
+
+impl BenchOnArgs {
+    /// The PSF benchmark's options over `bench` (its budget replaced by `--budget`).
+    fn psf_options(&self, bench: BenchOptions) -> Result<PsfBenchOptions> {
+        Ok(PsfBenchOptions {
+            design: DesignSource::parse(self.design.as_deref(), self.read.options()?),
+            system: self.system.clone(),
+            material: self.material.clone(),
+            bench: BenchOptions { budget: self.budget, ..bench },
+        })
+    }
+}
+
+/// Arguments of `doefab bench psf`.
+#[derive(Args)]
+pub struct BenchPsfArgs {
+    #[command(flatten)]
+    pub on: BenchOnArgs,
     /// Largest sub-sampling per pixel and axis swept (the reference runs at 2 and 4 more).
     #[arg(long, default_value_t = 5)]
     pub max_subsample: usize,
     /// Tolerances at which the automatic plan is placed on the chart.
     #[arg(long, value_delimiter = ',', default_values_t = [1e-2, 1e-3, 1e-4])]
     pub tolerances: Vec<f64>,
-    #[command(flatten)]
-    pub read: ReadArgs,
 }
 
-/// Arguments of `doefab report`.
+/// Arguments of `doefab report` (its output folder gets index.html, the charts and the data).
 #[derive(Args)]
 pub struct ReportArgs {
-    /// Height map file, or built-in:paper / built-in:fresnel (default built-in:paper, at the
-    /// paper's geometry).
-    pub design: Option<String>,
-    /// Output folder (index.html, charts, data).
-    #[arg(short, long)]
-    pub output: PathBuf,
-    /// Optical system TOML (as for `psf`); unset fields keep the paper's values.
-    #[arg(long)]
-    pub system: Option<PathBuf>,
-    /// Material of the DOE (pdms, fused_silica, noa61, pmma, ip_dip).
-    #[arg(long, default_value = "pdms")]
-    pub material: String,
-    /// Wall-clock budget for all of it ("5min", "90s").
-    #[arg(long, default_value = "5min", value_parser = clap_duration)]
-    pub budget: f64,
     #[command(flatten)]
-    pub read: ReadArgs,
+    pub on: BenchOnArgs,
 }
 
 /// Arguments of `doefab bench stability`.
@@ -226,19 +232,15 @@ pub fn psf_compare(cli: &Cli, a: &PsfCompareArgs) -> Result<()> {
 
 /// `doefab bench psf`.
 pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
-    let BenchPsfArgs { design, output, system, material, budget, max_subsample, tolerances, read } = a;
-    use doefab::optics::psf_bench::{steps, BenchOptions};
-    use doefab::pipeline::bench::{bench_psf, PsfBenchOptions};
-    let opts = PsfBenchOptions {
-        design: DesignSource::parse(design.as_deref(), read.options()?),
-        system: system.clone(),
-        material: material.clone(),
-        bench: BenchOptions {
-            budget: *budget,
-            max_subsample: *max_subsample,
-            tolerances: tolerances.clone(),
-        },
+    use doefab::optics::psf_bench::steps;
+    use doefab::pipeline::bench::bench_psf;
+    let bench = BenchOptions {
+        max_subsample: a.max_subsample,
+        tolerances: a.tolerances.clone(),
+        ..Default::default()
     };
+    let opts = a.on.psf_options(bench)?;
+    let output = &a.on.output;
     let pb = progress(cli, steps(&opts.bench) as u64);
     let r = bench_psf(&opts, output, &mut report_to(&pb))?;
     pb.finish_and_clear();
@@ -316,25 +318,15 @@ pub fn bench_stability(cli: &Cli, a: &BenchStabilityArgs) -> Result<()> {
 
 /// `doefab report`.
 pub fn report(cli: &Cli, a: &ReportArgs) -> Result<()> {
-    use doefab::optics::psf_bench::BenchOptions;
-    use doefab::pipeline::bench::PsfBenchOptions;
     use doefab::pipeline::report::{run_report, steps, ReportOptions};
-    let opts = ReportOptions {
-        psf: PsfBenchOptions {
-            design: DesignSource::parse(a.design.as_deref(), a.read.options()?),
-            system: a.system.clone(),
-            material: a.material.clone(),
-            bench: BenchOptions::default(),
-        },
-        budget: a.budget,
-    };
+    let opts = ReportOptions { psf: a.on.psf_options(BenchOptions::default())?, budget: a.on.budget };
     let pb = progress(cli, steps(&opts) as u64);
-    let page = run_report(&opts, &a.output, &mut report_to(&pb))?;
+    let page = run_report(&opts, &a.on.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &page, || {
         println!(
             "wrote {} ({} sections, {} figures; open index.html in a browser)",
-            a.output.display(),
+            a.on.output.display(),
             page.sections.len(),
             page.figures.len()
         );
