@@ -16,7 +16,7 @@
 //! * [`spectrum`]: spectral bands weighted by a sensor response.
 //! * [`stability`]: stability maps of the transfer-function method across its guard, with the
 //!   silent failures counted.
-//! * [`fft`]: planned square 2-D FFTs (rustfft stays inside this stage).
+//! * [`fft`]: planned square 2-D FFTs of this stage.
 
 pub mod charts;
 pub mod convolve;
