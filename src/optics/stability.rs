@@ -2,7 +2,7 @@
 //! two-dimensional sweeps that cross its validity guard, with every run's guard verdict, and the
 //! count of silent failures (the guard accepts, the error is over the tolerance).
 //!
-//! The scene is [`psf_bench::scene`] (0.5 mm aperture, 3 um pixels, a 40 x 40 crop) with a DOE
+//! The scene is [`super::psf_bench::scene`] (0.5 mm aperture, 3 um pixels, a 40 x 40 crop) with a DOE
 //! that has one truth at every pupil pitch swept: the phase `3 (cos(2 pi x / 60 um) +
 //! cos(2 pi y / 85 um))` rad at 550 nm, sampled at 0.8 um (0.25 rad per sample at most), so the
 //! pupil samples of every pitch are read from a well-resolved surface. 0.8 um is none of the
