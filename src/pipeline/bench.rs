@@ -43,14 +43,9 @@ pub fn bench_psf(
     progress: &mut dyn FnMut(&str, u64, u64),
 ) -> Result<psf_bench::BenchReport> {
     let loaded = chain::load_design(&opts.design)?;
-    let mut system = system_for(&loaded.heights);
-    system.material = Material::by_name(&opts.material)?;
-    if let Some(p) = &opts.system {
-        system = OpticalSystem::read_toml(p, &system)?;
-    }
     let total = steps(&opts.bench) as u64;
     let mut done = 0;
-    let report = run_bench(&system, &loaded.heights, &opts.bench, |what| {
+    let report = run_psf_bench(opts, &loaded.heights, |what| {
         progress(what, done, total);
         done += 1;
     })?;
@@ -59,6 +54,21 @@ pub fn bench_psf(
     atomic::write_json(&stage.stage_path("bench_psf.json"), &report)?;
     stage.commit()?;
     Ok(report)
+}
+
+/// The PSF benchmark of `opts` on the design's `heights` (loaded already), in the paper's camera
+/// fitted to the design, with the material and system file of `opts`; writes nothing.
+pub fn run_psf_bench(
+    opts: &PsfBenchOptions,
+    heights: &crate::grid::Grid,
+    tick: impl FnMut(&str),
+) -> Result<psf_bench::BenchReport> {
+    let mut system = system_for(heights);
+    system.material = Material::by_name(&opts.material)?;
+    if let Some(p) = &opts.system {
+        system = OpticalSystem::read_toml(p, &system)?;
+    }
+    run_bench(&system, heights, &opts.bench, tick)
 }
 
 /// Runs the stability maps ([`crate::optics::stability`]) and writes their charts (PNG, SVG)

@@ -12,7 +12,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use super::bench::{bench_psf, PsfBenchOptions};
+use super::bench::{run_psf_bench, PsfBenchOptions};
 use crate::error::{Error, Result};
 use crate::fabrication::bench::{self as fab_bench, FabBenchOptions, FabBenchReport};
 use crate::fabrication::bench_charts::write_fab_bench_charts;
@@ -162,8 +162,7 @@ pub fn run_report(
         bench: BenchOptions { budget: left, ..opts.psf.bench.clone() },
         ..opts.psf.clone()
     };
-    let scratch = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
-    let psf = bench_psf(&psf_opts, &scratch.path().join("psf"), &mut |what, _, _| {
+    let psf = run_psf_bench(&psf_opts, &loaded.heights, |what| {
         progress(what, done, total);
         done += 1;
     })?;
