@@ -106,3 +106,14 @@ fn exr_data_window_beyond_the_file_is_refused_before_allocating() {
     assert!(e.contains("w.exr") && e.contains("data window") && e.contains("452-byte"), "{e}");
     assert!(largest < 1 << 20, "largest allocation {largest} bytes");
 }
+
+/// gwy: a channel named `/00/data` (the fuzz target's seed with one digit added) parsed as
+/// channel 0, and the reader then looked up `/0/data`, which the file does not hold, and
+/// panicked. The channel is now taken by the name the file gives it.
+#[test]
+fn gwy_channel_number_written_with_a_leading_zero_reads() {
+    let bytes = finding("gwy-channel-00.gwy");
+    let r = decode_scan_raw(Path::new("c.gwy"), &bytes, &ScanOptions::default()).unwrap();
+    assert!(r.raw.metadata.iter().any(|(k, v)| k == "channel" && v == "/00/data"), "{:?}", r.raw.metadata);
+    assert_eq!(r.raw.values.dim(), (5, 6));
+}

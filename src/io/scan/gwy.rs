@@ -277,15 +277,16 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     if top.type_name != "GwyContainer" {
         return Err(b.bad(4, format!("the file holds a {}, not a GwyContainer", top.type_name)));
     }
-    // The lowest-numbered channel `/N/data`.
-    let channel = top
+    // The lowest-numbered channel `/N/data`, by the name the file gives it (`/01/data` and
+    // `/+1/data` parse as 1 too: the key is the file's own, not one rebuilt from the number).
+    let (key, value) = top
         .components
         .iter()
-        .filter_map(|(n, _)| n.strip_prefix('/')?.strip_suffix("/data")?.parse::<u32>().ok())
-        .min()
+        .filter_map(|(n, v)| Some((n.strip_prefix('/')?.strip_suffix("/data")?.parse::<u32>().ok()?, n, v)))
+        .min_by_key(|(number, _, _)| *number)
+        .map(|(_, n, v)| (n.clone(), v))
         .ok_or_else(|| b.bad(4, "no channel (/N/data) in the container"))?;
-    let key = format!("/{channel}/data");
-    let data = field(&b, &key, top.get(&key).expect("found above"))?;
+    let data = field(&b, &key, value)?;
     let mut metadata: Vec<(String, String)> = top
         .components
         .iter()
@@ -301,7 +302,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     metadata.push(("yoff".into(), format!("{} {}", data.origin[1], data.unit_xy)));
     let mut warnings = Vec::new();
     let mut values = data.values;
-    let mask_key = format!("/{channel}/mask");
+    let mask_key = format!("{}/mask", key.trim_end_matches("/data"));
     if let Some(m) = top.get(&mask_key) {
         let mask = field(&b, &mask_key, m)?;
         if (mask.rows, mask.cols) != (data.rows, data.cols) {
