@@ -10,16 +10,9 @@ use super::bench::{FabBenchReport, GdsSweep, QuantizationSweep, StlPoint, StlSwe
 use crate::error::{Error, Result};
 use crate::report::{draw_legend, write_png_chart, write_svg_chart, FONT};
 
-/// Log range covering the positive finite `values`, padded by `pad` on each side.
+/// Log range covering `values` (positive ones), widened by `pad` each way.
 fn log_span(values: impl Iterator<Item = f64>, pad: f64) -> std::ops::Range<f64> {
-    let (lo, hi) = values
-        .filter(|v| v.is_finite() && *v > 0.0)
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
-    if lo.is_finite() {
-        lo / pad..hi * pad
-    } else {
-        1e-3..1.0
-    }
+    crate::report::log_span(values, pad, 1e-3..1.0)
 }
 
 /// A log axis's label: `f(v)` where the mantissa of `v` is 1, 2 or 5, else none (plotters

@@ -22,14 +22,7 @@ const SERIES: [(&str, &str, RGBColor); 4] = [
 
 /// Log range covering `values` (positive ones), padded by a factor of 2.
 fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
-    let (lo, hi) = values
-        .filter(|v| v.is_finite() && *v > 0.0)
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
-    if lo.is_finite() {
-        lo / 2.0..hi * 2.0
-    } else {
-        1e-6..1.0
-    }
+    crate::report::log_span(values, 2.0, 1e-6..1.0)
 }
 
 fn speed_chart<DB: DrawingBackend>(

@@ -37,6 +37,23 @@ fn chart_error(path: &Path, e: impl std::fmt::Display) -> Error {
     Error::format(path, format!("drawing the chart failed: {e}"))
 }
 
+/// A log axis's range: the positive finite `values` widened by the factor `pad` each way, or
+/// `empty` when there are none.
+pub fn log_span(
+    values: impl Iterator<Item = f64>,
+    pad: f64,
+    empty: std::ops::Range<f64>,
+) -> std::ops::Range<f64> {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    if lo.is_finite() {
+        lo / pad..hi * pad
+    } else {
+        empty
+    }
+}
+
 /// Draws the legend of `chart`'s labelled series at `position`: labels in the embedded font at
 /// `size` pt on a translucent white box with a black border.
 pub fn draw_legend<'a, DB, CT>(
