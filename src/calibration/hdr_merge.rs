@@ -153,6 +153,10 @@ pub struct MergeReport {
     /// Per channel: the black level subtracted (fraction of full scale; the mean of the dark
     /// frame when one is given) and where it came from.
     pub black_level: Vec<f64>,
+    /// Per channel: how far the black level may be off, fraction of full scale (0 where it is
+    /// given or measured by dark frames; see [`estimate_black_level`]; where it could not be
+    /// measured, the shortest frame's lowest value).
+    pub black_level_uncertainty: Vec<f64>,
     pub black_level_source: String,
     pub noise_floor: f64,
     pub saturation: f64,
@@ -232,9 +236,12 @@ pub fn mean_dark(darks: &[Capture]) -> Result<Image> {
 }
 
 /// The black level of each channel of `frame` (fraction of full scale) from the histogram of
-/// its counts: the mode refined by a three-point Gaussian fit (see the module docs). Returns
-/// `None` for a channel, with the reason in `warnings`, where the frame has no dark region.
-pub fn estimate_black_level(frame: &Capture, warnings: &mut Vec<String>) -> Vec<Option<f64>> {
+/// its counts: the mode refined by a three-point Gaussian fit (see the module docs), with its
+/// uncertainty: half a count where every dark sample reads one count (nothing to fit), else 0
+/// (the fit's own error, about a hundredth of a count on a dark region of thousands of samples,
+/// is not counted). Returns `None` for a channel, with the reason in `warnings`, where the frame
+/// has no dark region.
+pub fn estimate_black_level(frame: &Capture, warnings: &mut Vec<String>) -> Vec<Option<(f64, f64)>> {
     let full = frame.full_scale();
     let (_, _, nc) = frame.image.values.dim();
     (0..nc)
@@ -260,7 +267,7 @@ pub fn estimate_black_level(frame: &Capture, warnings: &mut Vec<String>) -> Vec<
                 return None;
             }
             if m == 0 {
-                return Some(0.0);
+                return Some((0.0, 0.0));
             }
             let (a, b, d) = (hist[m - 1], hist[m], hist[m + 1]);
             let offset = if a > 0 && d > 0 {
@@ -276,11 +283,22 @@ pub fn estimate_black_level(frame: &Capture, warnings: &mut Vec<String>) -> Vec<
                     "{name}, channel {c}: the dark samples all read {m} counts; the black level is known \
                      to half a count only"
                 ));
-                0.0
+                return Some((m as f64 / full, 0.5 / full));
             };
-            Some((m as f64 + offset) / full)
+            Some(((m as f64 + offset) / full, 0.0))
         })
         .collect()
+}
+
+/// The black level of a merge (see [`black_level`]).
+struct Black {
+    /// Per sample, `(H, W, C)`.
+    level: Array3<f64>,
+    /// Per channel: the mean level, how far it may be off, both fractions of full scale.
+    means: Vec<f64>,
+    uncertainty: Vec<f64>,
+    /// Where it came from.
+    source: String,
 }
 
 /// The black level as an `(H, W, C)` array (the mean dark frame, or one level per channel) with
@@ -292,7 +310,7 @@ fn black_level(
     response: Option<&Response>,
     level: &BlackLevel,
     warnings: &mut Vec<String>,
-) -> Result<(Array3<f64>, Vec<f64>, String)> {
+) -> Result<Black> {
     let shape = frames[0].image.values.dim();
     let nc = shape.2;
     let per_channel = |v: &[f64]| Array3::from_shape_fn(shape, |(_, _, c)| v[c]);
@@ -323,28 +341,40 @@ fn black_level(
                     format!("{bad} is not a fraction of full scale in [0, 0.5)"),
                 ));
             }
-            Ok((per_channel(&v), v, "given".into()))
+            Ok(Black { level: per_channel(&v), means: v, uncertainty: vec![0.0; nc], source: "given".into() })
         }
         (BlackLevel::Auto, Some(d), _) => {
             let means =
                 (0..nc).map(|c| d.values.index_axis(ndarray::Axis(2), c).mean().unwrap_or(0.0)).collect();
-            Ok((d.values.clone(), means, "dark frames".into()))
+            Ok(Black {
+                level: d.values.clone(),
+                means,
+                uncertainty: vec![0.0; nc],
+                source: "dark frames".into(),
+            })
         }
-        (BlackLevel::Auto, None, Some(_)) => Ok((
-            Array3::zeros(shape),
-            vec![0.0; nc],
-            "none: the recovered response curve maps raw values to exposure".into(),
-        )),
+        (BlackLevel::Auto, None, Some(_)) => Ok(Black {
+            level: Array3::zeros(shape),
+            means: vec![0.0; nc],
+            uncertainty: vec![0.0; nc],
+            source: "none: the recovered response curve maps raw values to exposure".into(),
+        }),
         (BlackLevel::Auto, None, None) => {
             let k = (0..frames.len()).fold(0, |best, k| if times[k] < times[best] { k } else { best });
             let est = estimate_black_level(&frames[k], warnings);
-            let v: Vec<f64> = est.iter().map(|e| e.unwrap_or(0.0)).collect();
+            let v: Vec<f64> = est.iter().map(|e| e.map_or(0.0, |e| e.0)).collect();
+            // Not measurable: the level lies anywhere between 0 and the frame's lowest value.
+            let lowest = |c: usize| {
+                frames[k].image.values.index_axis(ndarray::Axis(2), c).iter().copied().fold(1.0, f64::min)
+            };
+            let uncertainty =
+                est.iter().enumerate().map(|(c, e)| e.map_or_else(|| lowest(c), |e| e.1)).collect();
             let source = if est.iter().all(Option::is_some) {
                 format!("estimated from the histogram of the shortest frame, {}", frames[k].path.display())
             } else {
                 format!("not measurable in the shortest frame, {}: 0 used", frames[k].path.display())
             };
-            Ok((per_channel(&v), v, source))
+            Ok(Black { level: per_channel(&v), means: v, uncertainty, source })
         }
     }
 }
@@ -372,7 +402,7 @@ pub fn merge(
         r.check(frames)?;
     }
     let mut warnings = Vec::new();
-    let (black, black_means, black_source) =
+    let Black { level: black, means: black_means, uncertainty: black_uncertainty, source: black_source } =
         black_level(frames, times, dark, response, &opts.black_level, &mut warnings)?;
     // Linear values with the black level removed.
     let linear: Vec<Array3<f64>> = frames
@@ -517,6 +547,7 @@ pub fn merge(
             reference_exposure_s: opts.reference_exposure,
             bits: frames[0].bits,
             black_level: black_means,
+            black_level_uncertainty: black_uncertainty,
             black_level_source: black_source,
             noise_floor: lo,
             saturation: hi,

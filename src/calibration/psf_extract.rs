@@ -114,6 +114,9 @@ pub struct PsfOptions {
     pub noise_threshold: f64,
     /// Channel wavelengths (metres), if known.
     pub wavelengths: Option<Vec<f64>>,
+    /// Largest estimated relative L2 error of a channel ([`PsfCalibration::estimated_error`])
+    /// without a warning.
+    pub max_error: f64,
 }
 
 impl Default for PsfOptions {
@@ -128,6 +131,7 @@ impl Default for PsfOptions {
             max_outside: 0.05,
             noise_threshold: 3.0,
             wavelengths: None,
+            max_error: 0.02,
         }
     }
 }
@@ -162,6 +166,9 @@ pub struct PsfCalibration {
     /// below the noise floor that were zeroed, each as a fraction of the channel's energy.
     pub energy_outside: Vec<f64>,
     pub below_floor: Vec<f64>,
+    /// Per channel: the relative L2 error the calibration expects of itself from the noise of
+    /// the samples it kept and the samples it zeroed ([`estimated_error`]).
+    pub estimated_error: Vec<f64>,
     /// Centroid and peak of each channel after centring (metres from the crop centre).
     pub channels: Vec<ChannelSummary>,
     pub encircled_energy: Vec<EncircledEnergy>,
@@ -229,6 +236,59 @@ fn support(values: &Array2<f64>, floor: f64) -> Array2<bool> {
     })
 }
 
+/// The relative L2 error a calibrated channel expects of itself, from three terms over the
+/// crop (background subtracted, before clamping), `S` the kept samples and `Z` the zeroed ones:
+///
+/// `e^2 = (sum_S sigma(v)^2 + sum_Z v^2) / sum_S v^2 + (|f| + b)^2`
+///
+/// * noise: a kept sample of radiance `v` takes its value from the longest frame that does not
+///   saturate at `v`, whose noise is the background's `sigma` (that of the longest frame) times
+///   the ratio of the longest time to that frame's: `sigma(v) = sigma g(v)`,
+///   `g(v) = max(1, v t_max / (s r))`, `s` the saturation level, `r` the reference exposure
+///   (frames one stop apart and the weighted merge of several make it an upper bound within a
+///   factor of about 2);
+/// * black level: an error `delta` of it (the merge's
+///   [`MergeReport::black_level_uncertainty`], fraction of full scale, plus half a count where
+///   the background is too quiet to dither the counts, so that each count's rounding is a bias)
+///   is an offset of `delta r / t` in a sample from a frame of time `t`, of one sign in every
+///   sample: it adds `b = delta r / t_max sum_S g(v) / sum_S v` to the channel's sum, the
+///   fraction by which normalising to sum 1 scales every sample (an upper bound: the merge's
+///   weights favour frames in which the sample is brighter);
+/// * the tail: a zeroed sample loses its value, measured as `v` (truth plus noise), and the
+///   energy zeroed, the fraction `f` of the channel's ([`PsfCalibration::below_floor`]), scales
+///   every kept sample by `1 / (1 - f)` when the channel is normalised to sum 1.
+fn estimated_error(
+    values: &Array2<f64>,
+    support: &Array2<bool>,
+    sigma: f64,
+    black_uncertainty: f64,
+    lost: f64,
+    merge: &MergeReport,
+) -> f64 {
+    let t_max = merge.frames.iter().map(|f| f.exposure_used).fold(0.0, f64::max);
+    let r = merge.reference_exposure_s.unwrap_or(1.0);
+    let full = merge.saturation * r;
+    let beta = if t_max > 0.0 { black_uncertainty * r / t_max } else { f64::INFINITY };
+    let (mut noise, mut signal, mut offset, mut sum) = (0.0, 0.0, 0.0, 0.0);
+    for (v, &kept) in values.iter().zip(support) {
+        if kept {
+            let g = (v * t_max / full).max(1.0);
+            noise += sigma * sigma * g * g;
+            signal += v * v;
+            offset += beta * g;
+            sum += v.max(0.0);
+        } else {
+            noise += v * v;
+        }
+    }
+    if signal > 0.0 && sum > 0.0 {
+        let b = offset / sum;
+        (noise / signal + (lost.abs() + b).powi(2)).sqrt()
+    } else {
+        f64::INFINITY
+    }
+}
+
 /// Extracts the PSF from a merged pinhole bracket (see the module docs).
 pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCalibration)> {
     let (h, w, nc) = merged.radiance.dim();
@@ -253,7 +313,7 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
 
     // Background from the border strip.
     let mut img = merged.radiance.values.clone();
-    let (mut background, mut sigma) = (Vec::new(), Vec::new());
+    let (mut background, mut sigma, mut undithered) = (Vec::new(), Vec::new(), Vec::new());
     for c in 0..nc {
         let mut strip: Vec<f64> = img
             .indexed_iter()
@@ -264,7 +324,11 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
             .collect();
         let (b, s) = clipped_mean_rms(&mut strip);
         background.push(b);
-        sigma.push(s.max(quantization_noise(&merged.report)));
+        let q = quantization_noise(&merged.report);
+        // A background quieter than one count's rounding: the counts are not dithered by noise,
+        // so every sample's rounding is a bias, not noise.
+        undithered.push(s < q);
+        sigma.push(s.max(q));
         img.index_axis_mut(ndarray::Axis(2), c).mapv_inplace(|v| v - b);
     }
     let neighbours = |i: usize, j: usize| {
@@ -509,6 +573,7 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
     let m = if same_pitch { n } else { (n as f64 * ratio).ceil() as usize + 4 };
     let mut channels = Vec::new();
     let mut below_floor = Vec::new();
+    let mut estimated = Vec::new();
     for c in 0..nc {
         let plane = Grid::new(
             img.index_axis(ndarray::Axis(2), c).to_owned(),
@@ -533,6 +598,21 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
         let all: f64 = values.sum();
         let zeroed: f64 = values.iter().zip(&support).filter(|(_, s)| !**s).map(|(v, _)| v).sum();
         below_floor.push(if all > 0.0 { zeroed / all } else { 1.0 });
+        let full = if merged.report.bits == 8 { 255.0 } else { 65535.0 };
+        let black_uncertainty = merged.report.black_level_uncertainty.get(c).copied().unwrap_or(0.0)
+            + if undithered[c] { 0.5 / full } else { 0.0 };
+        let e =
+            estimated_error(values, &support, sigma[c], black_uncertainty, below_floor[c], &merged.report);
+        if e > opts.max_error {
+            warnings.push(format!(
+                "channel {c}: the PSF is uncertain: its estimated relative L2 error is {:.1} % (over {:.1} %), \
+                 from the read noise and the tail below the noise floor; add longer exposures to the bracket \
+                 (or average more frames per exposure)",
+                100.0 * e,
+                100.0 * opts.max_error
+            ));
+        }
+        estimated.push(e);
         let clamped =
             Array2::from_shape_fn(values.dim(), |p| if support[p] { values[p].max(0.0) } else { 0.0 });
         let origin = -(n as f64 - 1.0) * 0.5 * opts.sensor_pitch;
@@ -569,6 +649,7 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
         hot_pixel_positions: hot_list.iter().take(1000).copied().collect(),
         energy_outside,
         below_floor,
+        estimated_error: estimated,
         channels: psf.summary(),
         encircled_energy,
         merge: merged.report.clone(),

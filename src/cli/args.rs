@@ -7,7 +7,7 @@ use clap::{Args, Parser, Subcommand};
 use doefab::io::heightmap::ReadOptions;
 use doefab::units::{clap_length, length_unit};
 
-use super::calibration::{CalibratePsfArgs, EvaluateArgs, MergeArgs};
+use super::calibration::{BenchCalibrationArgs, CalibratePsfArgs, EvaluateArgs, MergeArgs};
 use super::decoder::{BenchDecoderArgs, FinetuneArgs, ReconstructArgs};
 use super::demo::DemoArgs;
 use super::fabrication::{
@@ -122,6 +122,11 @@ pub enum BenchCommand {
     /// vertices, file size and time against the vertex limit; polygon area against the bitmap):
     /// PNG + SVG + JSON + CSV.
     Fab(BenchFabArgs),
+    /// Where the PSF calibration fails: the error of the PSF recovered from simulated pinhole
+    /// brackets of a known PSF (default the paper's measured one) against the frame count, read
+    /// noise and black level, each trial calibrated, warned, refused or silently wrong:
+    /// PNG + SVG + JSON + CSV.
+    Calibration(BenchCalibrationArgs),
     /// Decoders on real captures: each scene's reference is registered onto its capture once
     /// (through the measured PSF), and the capture and every decoder are scored on the same
     /// pixels (PSNR-L, PSNR-gamma over all and saturated pixels, coverage, smallest output);

@@ -396,3 +396,50 @@ fn print_calibration(r: &doefab::calibration::psf_extract::PsfCalibration, outpu
         );
     }
 }
+
+/// Arguments of `doefab bench calibration`.
+#[derive(Args)]
+pub struct BenchCalibrationArgs {
+    /// The true PSF the brackets are simulated from (a PSF file: .npy, .npz, .exr); default the
+    /// paper's measured PSF, built in.
+    psf: Option<PathBuf>,
+    /// Output folder.
+    #[arg(short, long)]
+    output: PathBuf,
+}
+
+/// `doefab bench calibration`.
+pub fn bench_calibration(cli: &Cli, a: &BenchCalibrationArgs) -> Result<()> {
+    let pb = progress(cli, doefab::calibration::bench::steps() as u64);
+    let r = doefab::pipeline::bench::bench_calibration(a.psf.as_deref(), &a.output, &mut report_to(&pb))?;
+    pb.finish_and_clear();
+    print_result(cli, &r, || {
+        for axis in &r.axes {
+            let own: Vec<_> = r.trials.iter().filter(|t| t.axis == axis.name).collect();
+            let within: Vec<String> = own
+                .iter()
+                .filter(|t| t.outcome == "calibrated")
+                .map(|t| format!("{}", t.value))
+                .collect::<std::collections::BTreeSet<_>>()
+                .into_iter()
+                .collect();
+            let worst = own.iter().map(|t| t.worst).filter(|e| e.is_finite()).fold(0.0, f64::max);
+            println!(
+                "{:<11} ({}): within {:.0} % at {}; worst error {:.2} %",
+                axis.name,
+                axis.unit,
+                100.0 * r.tolerance,
+                if within.is_empty() { "none".to_string() } else { within.join(", ") },
+                100.0 * worst
+            );
+        }
+        println!(
+            "{} trials: {} warned, {} refused, {} over the tolerance silently; wrote {}",
+            r.trials.len(),
+            r.warned,
+            r.refused,
+            r.silent_failures,
+            a.output.display()
+        );
+    })
+}

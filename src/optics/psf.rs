@@ -261,7 +261,26 @@ impl Psf {
     /// Each channel is normalised to sum 1.
     pub fn read_npz(path: &Path, key: Option<&str>, pitch: f64, wavelengths: Option<&[f64]>) -> Result<Psf> {
         let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-        let mut zip = zip::ZipArchive::new(file)
+        Psf::decode_npz(path, file, key, pitch, wavelengths)
+    }
+
+    /// The paper's measured PSF (Metzler et al. 2020, `measured_psf.npz`, array `psf_val`,
+    /// 319 x 319 x RGB at 4.29 um; BSD-3, `assets/deepoptics-hdr/LICENSE`), compiled in.
+    pub fn paper_measured() -> Result<Psf> {
+        const BYTES: &[u8] = include_bytes!("../../assets/deepoptics-hdr/measured_psf.npz");
+        let path = Path::new("built-in:paper-measured-psf");
+        Psf::decode_npz(path, std::io::Cursor::new(BYTES), Some("psf_val"), 4.29e-6, None)
+    }
+
+    /// [`Psf::read_npz`] on an open archive; `path` names it in errors.
+    fn decode_npz<R: std::io::Read + std::io::Seek>(
+        path: &Path,
+        reader: R,
+        key: Option<&str>,
+        pitch: f64,
+        wavelengths: Option<&[f64]>,
+    ) -> Result<Psf> {
+        let mut zip = zip::ZipArchive::new(reader)
             .map_err(|e| Error::format(path, format!("not a NumPy .npz (zip) archive: {e}")))?;
         let names: Vec<String> = zip.file_names().filter(|n| n.ends_with(".npy")).map(String::from).collect();
         let entry = match key {

@@ -1,5 +1,6 @@
-//! `doefab bench psf`, `doefab bench stability`, `doefab bench register`, `doefab bench fab` and
-//! `doefab bench decoder`: the benchmarks with their defaults and outputs.
+//! `doefab bench psf`, `doefab bench stability`, `doefab bench register`, `doefab bench fab`,
+//! `doefab bench calibration` and `doefab bench decoder`: the benchmarks with their defaults and
+//! outputs.
 
 use std::path::{Path, PathBuf};
 
@@ -116,6 +117,41 @@ pub fn bench_register(
         ));
     }
     atomic::write_bytes(&stage.stage_path("register.csv"), csv.as_bytes())?;
+    stage.commit()?;
+    Ok(report)
+}
+
+/// Runs the PSF calibration trials ([`crate::calibration::bench`]) on the PSF file `psf` (any
+/// file `psf` writes or `calibrate-psf` reads; `None`: the paper's measured PSF, compiled in)
+/// and writes their chart (PNG, SVG), `calibration.json` and `calibration.csv` into the folder
+/// `output`, all or nothing. Progress: one step per trial.
+pub fn bench_calibration(
+    psf: Option<&Path>,
+    output: &Path,
+    progress: &mut dyn FnMut(&str, u64, u64),
+) -> Result<crate::calibration::bench::CalibrationBench> {
+    use crate::calibration::bench as cb;
+    let (truth, name) = match psf {
+        Some(p) => (crate::optics::Psf::read(p, None, None)?, p.display().to_string()),
+        None => (crate::optics::Psf::paper_measured()?, "built-in:paper-measured-psf".to_string()),
+    };
+    let total = cb::steps() as u64;
+    let mut done = 0;
+    let report = cb::run(&truth, &name, |what| {
+        progress(what, done, total);
+        done += 1;
+    })?;
+    let mut stage = StagedDir::new(output)?;
+    cb::write_chart(|n| stage.stage_path(n), &report)?;
+    atomic::write_json(&stage.stage_path("calibration.json"), &report)?;
+    let mut csv = String::from("axis,value,seed,outcome,worst_relative_l2,estimated_relative_l2,seconds\n");
+    for t in &report.trials {
+        csv.push_str(&format!(
+            "{},{:e},{},{},{:e},{:e},{:e}\n",
+            t.axis, t.value, t.seed, t.outcome, t.worst, t.estimated, t.seconds
+        ));
+    }
+    atomic::write_bytes(&stage.stage_path("calibration.csv"), csv.as_bytes())?;
     stage.commit()?;
     Ok(report)
 }

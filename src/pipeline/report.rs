@@ -13,6 +13,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::bench::{run_psf_bench, PsfBenchOptions};
+use crate::calibration::bench::{self as cal_bench, CalibrationBench};
 use crate::error::{Error, Result};
 use crate::fabrication::bench::{self as fab_bench, FabBenchOptions, FabBenchReport};
 use crate::fabrication::bench_charts::write_fab_bench_charts;
@@ -117,13 +118,15 @@ pub fn steps(opts: &ReportOptions) -> usize {
     stability::steps(&MapOptions::default())
         + reg_bench::steps()
         + fab_bench::steps(&FabBenchOptions::default())
+        + cal_bench::steps()
         + psf_bench::steps(&opts.psf.bench)
 }
 
 /// Runs the benchmarks within `opts.budget` and writes the page, its charts and data into the
 /// folder `output`, all or nothing. The fixed sweeps run first (the stability maps and the
 /// registration map, about 15 s each on two cores; the fabrication sweeps on the design, about
-/// 25 s for the paper's); the PSF benchmark gets what is left.
+/// 25 s for the paper's; the calibration trials on the paper's measured PSF, about 10 s); the
+/// PSF benchmark gets what is left.
 pub fn run_report(
     opts: &ReportOptions,
     output: &Path,
@@ -148,6 +151,11 @@ pub fn run_report(
         progress(what, done, total);
         done += 1;
     })?;
+    let calibration =
+        cal_bench::run(&crate::optics::Psf::paper_measured()?, "built-in:paper-measured-psf", |what| {
+            progress(what, done, total);
+            done += 1;
+        })?;
     let left = opts.budget - start.elapsed().as_secs_f64();
     if left <= 0.05 * opts.budget {
         return Err(Error::Limit(format!(
@@ -175,6 +183,8 @@ pub fn run_report(
     let map_charts = svg(write_stability_charts(|n| stage.stage_path(n), &maps)?, "");
     let reg_charts = svg(reg_bench::write_chart(|n| stage.stage_path(n), &registration)?, "");
     let fab_charts = svg(write_fab_bench_charts(|n| stage.stage_path(&format!("fab_{n}")), &fab)?, "fab_");
+    let cal_charts = svg(cal_bench::write_chart(|n| stage.stage_path(n), &calibration)?, "");
+    atomic::write_json(&stage.stage_path("calibration.json"), &calibration)?;
     atomic::write_json(&stage.stage_path("register.json"), &registration)?;
     atomic::write_json(&stage.stage_path("bench_fab.json"), &fab)?;
     atomic::write_json(&stage.stage_path("bench_psf.json"), &psf)?;
@@ -182,8 +192,14 @@ pub fn run_report(
     atomic::write_bytes(&stage.stage_path("bench_psf.csv"), psf_csv(&psf).as_bytes())?;
     atomic::write_bytes(&stage.stage_path("stability.csv"), stability_csv(&maps).as_bytes())?;
 
-    let charts = Charts { psf: psf_charts, maps: map_charts, registration: reg_charts, fab: fab_charts };
-    let page = page(&loaded.name, &psf, &maps, &registration, &fab, charts);
+    let charts = Charts {
+        psf: psf_charts,
+        maps: map_charts,
+        registration: reg_charts,
+        fab: fab_charts,
+        calibration: cal_charts,
+    };
+    let page = page(&loaded.name, &psf, &maps, &registration, &fab, &calibration, charts);
     atomic::write_json(&stage.stage_path("report.json"), &page)?;
     atomic::write_bytes(&stage.stage_path("index.html"), html(&page).as_bytes())?;
     stage.commit()?;
@@ -244,6 +260,7 @@ struct Charts {
     maps: Vec<String>,
     registration: Vec<String>,
     fab: Vec<String>,
+    calibration: Vec<String>,
 }
 
 /// The page's sections and figures from the reports.
@@ -253,6 +270,7 @@ fn page(
     maps: &StabilityReport,
     registration: &RegistrationBench,
     fab: &FabBenchReport,
+    calibration: &CalibrationBench,
     charts: Charts,
 ) -> Page {
     let mut b = Builder { figures: Vec::new() };
@@ -353,11 +371,38 @@ fn page(
         data: vec!["bench_fab.json".into()],
         reading,
     };
+    let calibrated = calibration.trials.iter().filter(|t| t.outcome == "calibrated");
+    let fewest = calibrated.filter(|t| t.axis == "frames").map(|t| t.value).fold(f64::INFINITY, f64::min);
+    let mut reading = vec![
+        words("Pinhole brackets of the paper's measured PSF simulated with one trouble at a time (frames, read noise, black level), merged and calibrated as calibrate-psf does:"),
+        b.fig("calibration trials", calibration.trials.len() as f64, "1"),
+        words("trials against the tolerance of"),
+        b.fig("calibration tolerance", calibration.tolerance, "1"),
+        words("(relative L2, largest channel);"),
+        b.fig("calibration silent failures", calibration.silent_failures as f64, "1"),
+        words("over it with nothing said (silent failures),"),
+        b.fig("calibration warned", calibration.warned as f64, "1"),
+        words("over it and warned by the calibration's own error estimate,"),
+        b.fig("calibration refusals", calibration.refused as f64, "1"),
+        words("refused."),
+    ];
+    if fewest.is_finite() {
+        reading.push(words(" The fewest frames one stop apart that meet the tolerance:"));
+        reading.push(b.fig("fewest frames within tolerance", fewest, "frames"));
+        reading.push(words("."));
+    }
+    reading.push(words(" Grey rings are the calibration's own estimate of its error (printed as a warning when over the tolerance): bracket until it is below your tolerance; where it is far above, the bracket cannot give the PSF."));
+    let calibration_section = Section {
+        title: "Calibration: the measured PSF from a pinhole bracket".into(),
+        charts: charts.calibration,
+        data: vec!["calibration.json".into()],
+        reading,
+    };
     Page {
         title: "doefab report".into(),
         design: design.into(),
         figures: b.figures,
-        sections: vec![fab_section, registration_section, psf_section, map_section],
+        sections: vec![fab_section, registration_section, psf_section, map_section, calibration_section],
     }
 }
 

@@ -107,8 +107,8 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
             assert!(html.contains(&format!("src=\"{c}\"")), "{c} not on the page");
         }
     }
-    assert!(linked >= 14, "{linked}");
-    assert_eq!(page.sections.len(), 4);
+    assert!(linked >= 16, "{linked}");
+    assert_eq!(page.sections.len(), 5);
     // Every number on the page is one of report.json's figures, as shown() writes its value.
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
@@ -145,6 +145,12 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
     let want: Vec<f64> =
         psf["plans"].as_array().unwrap().iter().map(|p| p["error"].as_f64().unwrap()).collect();
     assert_eq!(errors, want);
+    let cal: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("calibration.json")).unwrap()).unwrap();
+    let figure =
+        |label: &str| figures.iter().find(|f| f["label"] == label).unwrap()["value"].as_f64().unwrap();
+    assert_eq!(figure("calibration silent failures"), cal["silent_failures"].as_f64().unwrap());
+    assert_eq!(figure("calibration trials"), cal["trials"].as_array().unwrap().len() as f64);
 }
 
 #[test]
