@@ -8,7 +8,7 @@ use doefab::io::heightmap::ReadOptions;
 use doefab::units::{clap_length, length_unit};
 
 use super::calibration::{BenchCalibrationArgs, CalibratePsfArgs, EvaluateArgs, MergeArgs};
-use super::decoder::{BenchDecoderArgs, FinetuneArgs, ReconstructArgs};
+use super::decoder::{BenchDecoderArgs, BenchTilingArgs, FinetuneArgs, ReconstructArgs};
 use super::demo::DemoArgs;
 use super::fabrication::{
     BenchFabArgs, FabArgs, GdsArgs, MaskArgs, PrecompensateArgs, QuantizeArgs, StlArgs, WrapArgs,
@@ -127,6 +127,10 @@ pub enum BenchCommand {
     /// noise and black level, each trial calibrated, warned, refused or silently wrong:
     /// PNG + SVG + JSON + CSV.
     Calibration(BenchCalibrationArgs),
+    /// The decoder's reconstruction against tile size and overlap, and f32 against f64, on a
+    /// simulated capture: difference from the f64 one-pass output and time: PNG + SVG + JSON +
+    /// CSV.
+    Tiling(BenchTilingArgs),
     /// Decoders on real captures: each scene's reference is registered onto its capture once
     /// (through the measured PSF), and the capture and every decoder are scored on the same
     /// pixels (PSNR-L, PSNR-gamma over all and saturated pixels, coverage, smallest output);

@@ -409,3 +409,54 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         println!("-> {}", output.display());
     })
 }
+
+/// Arguments of `doefab bench tiling`.
+#[derive(Args)]
+pub struct BenchTilingArgs {
+    /// The decoder: a .safetensors file or built-in:paper-simulated-psf /
+    /// built-in:paper-measured-psf.
+    #[arg(long, default_value = "built-in:paper-measured-psf")]
+    pub decoder: PathBuf,
+    /// Side of the simulated capture, pixels (a multiple of 16).
+    #[arg(long, default_value_t = 512)]
+    pub size: usize,
+    /// Tile sides to try (multiples of 16), comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [128, 256, 384])]
+    pub tiles: Vec<usize>,
+    /// Overlaps to try (multiples of 16), comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [0, 16, 32, 64, 96, 128])]
+    pub overlaps: Vec<usize>,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+/// `doefab bench tiling`.
+pub fn bench_tiling(cli: &Cli, a: &BenchTilingArgs) -> Result<()> {
+    use doefab::decoder::tiling_bench::{steps, TilingOptions};
+    let opts =
+        TilingOptions { size: a.size, tiles: a.tiles.clone(), overlaps: a.overlaps.clone(), seed: a.seed };
+    let pb = progress(cli, steps(&opts) as u64);
+    let r = doefab::pipeline::bench::bench_tiling(&a.decoder, &opts, &a.output, &mut report_to(&pb))?;
+    pb.finish_and_clear();
+    print_result(cli, &r, || {
+        println!("f64 one pass (the reference): {:.2} s", r.reference_seconds);
+        for p in &r.runs {
+            let how = match (p.tile, p.overlap) {
+                (Some(t), Some(o)) => format!("tile {t:>4}, overlap {o:>3}, {:>3} passes", p.passes),
+                _ => "one pass".to_string(),
+            };
+            println!(
+                "{} {how:<34} {:>6.2} s  relative L2 {:.2e}  largest difference {:.2e}",
+                p.precision, p.seconds, p.relative_l2, p.max_abs
+            );
+        }
+        if !r.skipped.is_empty() {
+            let s: Vec<String> = r.skipped.iter().map(|[t, o]| format!("{t}/{o}")).collect();
+            println!("skipped (tile <= 2 overlap, or over 9 passes' cost): {}", s.join(", "));
+        }
+        println!("wrote {}", a.output.display());
+    })
+}

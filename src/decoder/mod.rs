@@ -3,7 +3,8 @@
 //! ([`reconstruct`]), fine-tuning for one fabricated part's PSF ([`finetune`]) and seeded
 //! procedural HDR scenes to train on without a data set ([`scenes`]), and the benchmark of
 //! decoders on real captures against bracket-merged references ([`capture_bench`]), with their charts
-//! ([`charts`], [`training_chart`]).
+//! ([`charts`], [`training_chart`]); the reconstruction's numerics, tiles and precision
+//! ([`tiling_bench`]).
 //!
 //! Images here are `(H, W, 3)` `f32` arrays (row-major, channels last, as the paper's NHWC);
 //! the network runs on NCHW burn tensors on the CPU (burn's Flex backend) or, with the `cuda`
@@ -16,6 +17,7 @@ pub mod finetune;
 pub mod measurement;
 pub mod reconstruct;
 pub mod scenes;
+pub mod tiling_bench;
 pub mod training_chart;
 pub mod unet;
 pub mod weights;

@@ -1,5 +1,5 @@
 //! `doefab bench psf`, `doefab bench stability`, `doefab bench register`, `doefab bench fab`,
-//! `doefab bench calibration` and `doefab bench decoder`: the benchmarks with their defaults and
+//! `doefab bench calibration`, `doefab bench tiling` and `doefab bench decoder`: the benchmarks with their defaults and
 //! outputs.
 
 use std::path::{Path, PathBuf};
@@ -152,6 +152,48 @@ pub fn bench_calibration(
         ));
     }
     atomic::write_bytes(&stage.stage_path("calibration.csv"), csv.as_bytes())?;
+    stage.commit()?;
+    Ok(report)
+}
+
+/// Runs the reconstruction's tiling and precision sweep ([`crate::decoder::tiling_bench`]) with
+/// the decoder file `decoder` (or a built-in name) and writes its chart (PNG, SVG),
+/// `tiling.json` and `tiling.csv` into the folder `output`, all or nothing. Progress: one step
+/// per reconstruction.
+pub fn bench_tiling(
+    decoder: &Path,
+    opts: &crate::decoder::tiling_bench::TilingOptions,
+    output: &Path,
+    progress: &mut dyn FnMut(&str, u64, u64),
+) -> Result<crate::decoder::tiling_bench::TilingBench> {
+    use crate::decoder::tiling_bench as tb;
+    let weights = crate::decoder::weights::DecoderWeights::read(decoder)?;
+    let net = crate::decoder::unet::UNet::from_weights(&weights, &crate::decoder::device(false)?);
+    let psf = crate::optics::Psf::paper_measured()?;
+    let total = tb::steps(opts) as u64;
+    let mut done = 0;
+    let report = tb::run(&net, &decoder.display().to_string(), &psf, opts, |what| {
+        progress(what, done, total);
+        done += 1;
+    })?;
+    let mut stage = StagedDir::new(output)?;
+    tb::write_chart(|n| stage.stage_path(n), &report)?;
+    atomic::write_json(&stage.stage_path("tiling.json"), &report)?;
+    let mut csv = String::from("precision,tile,overlap,passes,seconds,relative_l2,max_abs\n");
+    for r in &report.runs {
+        let opt = |v: Option<usize>| v.map_or("one pass".to_string(), |v| v.to_string());
+        csv.push_str(&format!(
+            "{},{},{},{},{:e},{:e},{:e}\n",
+            r.precision,
+            opt(r.tile),
+            opt(r.overlap),
+            r.passes,
+            r.seconds,
+            r.relative_l2,
+            r.max_abs
+        ));
+    }
+    atomic::write_bytes(&stage.stage_path("tiling.csv"), csv.as_bytes())?;
     stage.commit()?;
     Ok(report)
 }

@@ -63,7 +63,7 @@ fn numbers_in_text(html: &str) -> Vec<String> {
     out
 }
 
-/// On a small design and camera (0.5 mm aperture, 40^2 crop) and a 90 s budget: the page links only files
+/// On a small design and camera (0.5 mm aperture, 40^2 crop) and a 150 s budget: the page links only files
 /// that exist, every number on it is a figure of report.json shown as [`shown`] writes it, and
 /// the figures hold what the benchmarks' own JSON say.
 #[test]
@@ -88,7 +88,7 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
             material: "pdms".into(),
             bench: BenchOptions { max_subsample: 3, ..Default::default() },
         },
-        budget: 90.0,
+        budget: 150.0,
     };
     let out = dir.path().join("report");
     let page = run_report(&opts, &out, &mut |_, _, _| {}).unwrap();
@@ -107,8 +107,8 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
             assert!(html.contains(&format!("src=\"{c}\"")), "{c} not on the page");
         }
     }
-    assert!(linked >= 16, "{linked}");
-    assert_eq!(page.sections.len(), 5);
+    assert!(linked >= 18, "{linked}");
+    assert_eq!(page.sections.len(), 6);
     // Every number on the page is one of report.json's figures, as shown() writes its value.
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
@@ -151,6 +151,9 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
         |label: &str| figures.iter().find(|f| f["label"] == label).unwrap()["value"].as_f64().unwrap();
     assert_eq!(figure("calibration silent failures"), cal["silent_failures"].as_f64().unwrap());
     assert_eq!(figure("calibration trials"), cal["trials"].as_array().unwrap().len() as f64);
+    let tiling: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("tiling.json")).unwrap()).unwrap();
+    assert_eq!(figure("f32 against f64, one pass"), tiling["runs"][0]["relative_l2"].as_f64().unwrap());
 }
 
 #[test]
