@@ -297,7 +297,7 @@ fn picture_name(decoder: &Path, taken: &mut Vec<String>) -> String {
 /// initial decoder on the PSF, scoring it along the run. Writes into `out`: `report.json`,
 /// `decoders.png` (decoder x scene chart), per scene `<scene>/*.png` (the registered
 /// reference, the capture and each reconstruction tone-mapped at [`PICTURE_EV`]) and, with
-/// fine-tuning, `finetuned/` (decoder, training record) and `psnr_vs_steps.png`. `progress`
+/// fine-tuning, `finetuned/` (decoder, training record) and `psnr_vs_time.png`. `progress`
 /// is told what is happening and each unit of work done. Refuses when no scene can be scored.
 pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -> Result<BenchReport> {
     if cfg.scenes.is_empty() {
@@ -395,7 +395,7 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
     crate::io::atomic::write_json(&out.join("report.json"), &report)?;
     crate::decoder::charts::write_decoder_scene_chart(&out.join("decoders.png"), &report)?;
     if report.finetune.is_some() {
-        crate::decoder::charts::write_bench_chart(&out.join("psnr_vs_steps.png"), &report)?;
+        crate::decoder::charts::write_bench_chart(&out.join("psnr_vs_time.png"), &report)?;
     }
     Ok(report)
 }

@@ -4,9 +4,9 @@
 //!   all scored pixels, PSNR-gamma over the saturated ones and the smallest output, one group
 //!   per scored scene (labelled with its coverage), one colour per decoder; refused scenes are
 //!   listed under the chart with their reason.
-//! * [`write_bench_chart`]: PSNR-gamma of the decoder being fine-tuned along the run, against
-//!   the other decoders of each scene (horizontal lines), over all scored pixels and the
-//!   saturated ones.
+//! * [`write_bench_chart`]: PSNR-gamma of the decoder being fine-tuned against its training
+//!   time, against the other decoders of each scene (horizontal lines), over all scored pixels
+//!   and the saturated ones, and its validation PSNR on the held-out simulated set.
 
 use std::path::Path;
 
@@ -120,7 +120,10 @@ pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()
     })
 }
 
-/// Draws the fine-tuning curve of `report` into `path` (PNG, 1200 x 500).
+/// Draws the fine-tuning curve of `report` into `path` (PNG, 1650 x 500): three panels against
+/// the training time in minutes (wall clock on the machine's threads, scoring excluded), the
+/// step count in the captions. The validation points' times are their steps times the run's
+/// mean seconds per step.
 pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
     let Some(run) = &report.finetune else {
         return Err(Error::Data("no fine-tuning run to chart".into()));
@@ -128,13 +131,17 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
     if run.curve.is_empty() {
         return Err(Error::Data("no fine-tuning points to chart".into()));
     }
-    let last = run.curve.iter().map(|p| p.step).max().unwrap_or(0).max(1) as f64;
+    let minutes = |seconds: f64| seconds / 60.0;
+    let last = run.curve.iter().map(|p| minutes(p.seconds)).fold(0.0, f64::max).max(1e-3);
+    let steps = run.curve.iter().map(|p| p.step).max().unwrap_or(0);
+    let threads = rayon::current_num_threads();
+    let x_desc = format!("training time, minutes ({steps} steps, {threads} threads)");
     let scenes: Vec<&str> =
         report.scenes.iter().filter(|s| s.footing.is_some()).map(|s| s.name.as_str()).collect();
     let others: Vec<&String> = report.decoders.iter().filter(|d| !d.starts_with("fine-tuned here")).collect();
-    write_png_chart(path, 1200, 500, |root| {
+    write_png_chart(path, 1650, 500, |root| {
         let e = |e: &dyn std::fmt::Display| e.to_string();
-        let panels = root.split_evenly((1, 2));
+        let panels = root.split_evenly((1, 3));
         for (panel, saturated) in panels.iter().zip([false, true]) {
             let value = |s: &Score| {
                 if saturated {
@@ -165,7 +172,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                 .map_err(|x| e(&x))?;
             chart
                 .configure_mesh()
-                .x_desc("fine-tuning step")
+                .x_desc(x_desc.as_str())
                 .y_desc("dB")
                 .label_style((FONT, 13))
                 .draw()
@@ -175,7 +182,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                 let line: Vec<(f64, f64)> = run
                     .curve
                     .iter()
-                    .filter_map(|p| value(p.scores.get(k)?).map(|v| (p.step as f64, v)))
+                    .filter_map(|p| value(p.scores.get(k)?).map(|v| (minutes(p.seconds), v)))
                     .collect();
                 chart
                     .draw_series(LineSeries::new(line.iter().copied(), color.stroke_width(2)))
@@ -204,6 +211,44 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], style));
                 }
             }
+            crate::report::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;
+        }
+        let validation: Vec<(f64, f64)> = run
+            .history
+            .iter()
+            .filter_map(|h| h.val_psnr.map(|v| (minutes(h.step as f64 * run.seconds_per_step), v)))
+            .collect();
+        if let Some(&(_, first)) = validation.first() {
+            let (lo, hi) = validation
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &(_, v)| (a.min(v), b.max(v)));
+            let mut chart = ChartBuilder::on(&panels[2])
+                .caption("validation PSNR (held-out simulated set)", (FONT, 18))
+                .margin(12)
+                .x_label_area_size(40)
+                .y_label_area_size(60)
+                .build_cartesian_2d(0.0..last, (lo - 0.2)..(hi + 0.2))
+                .map_err(|x| e(&x))?;
+            chart
+                .configure_mesh()
+                .x_desc(x_desc.as_str())
+                .y_desc("dB (sqrt domain, peak 1)")
+                .label_style((FONT, 13))
+                .draw()
+                .map_err(|x| e(&x))?;
+            chart
+                .draw_series(LineSeries::new([(0.0, first), (last, first)], BLACK.stroke_width(1)))
+                .map_err(|x| e(&x))?
+                .label("the start")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
+            chart
+                .draw_series(LineSeries::new(validation.iter().copied(), RED.stroke_width(2)))
+                .map_err(|x| e(&x))?
+                .label("fine-tuned here")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED.stroke_width(2)));
+            chart
+                .draw_series(validation.iter().map(|&p| Circle::new(p, 3, RED.filled())))
+                .map_err(|x| e(&x))?;
             crate::report::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;
         }
         Ok(())

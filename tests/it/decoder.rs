@@ -674,7 +674,7 @@ fn bench_decoder_scores_every_decoder_on_one_pixel_set_and_carries_on_past_a_bad
     assert_eq!(curve[0]["scores"][0]["all"], start["all"]);
     let tuned = scores.iter().find(|s| s["decoder"].as_str().unwrap().starts_with("fine-tuned")).unwrap();
     assert_eq!(curve[1]["scores"][0]["all"], tuned["all"]);
-    assert!(out.join("psnr_vs_steps.png").is_file() && out.join("decoders.png").is_file());
+    assert!(out.join("psnr_vs_time.png").is_file() && out.join("decoders.png").is_file());
     for scene in ["Fruit", "Kitchen"] {
         for picture in ["reference", "capture", "paper-simulated-psf", "paper-measured-psf", "finetuned"] {
             let img = image::open(out.join(scene).join(format!("{picture}.png"))).unwrap();
