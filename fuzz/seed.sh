@@ -21,5 +21,8 @@ add opd $S/instruments/wyko.opd
 add plu $S/instruments/sensofar.plu
 add al3d ../profilometry/*.al3d
 add tmd ../profilometry/*.tmd
+add vk4 ../profilometry/*.vk4
+add vk6 ../profilometry/*.vk6
+add frt ../profilometry/*.frt
 add png_pcal ../profilometry/*.png
 add tiff ../profilometry/*.tiff

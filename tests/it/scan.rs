@@ -520,6 +520,11 @@ struct Surfalize {
 /// from the same stored numbers), non-measured count (exact), Sq, Sa, Sz within 1e-4 relative
 /// (surfalize's figures are printed to 9 digits).
 fn check_surfalize(name: &str, s: &doefab::io::scan::Scan, want: &Surfalize) {
+    check_reading(name, s, want, "surfalize");
+}
+
+/// As [`check_surfalize`], against the reading of `program`.
+fn check_reading(name: &str, s: &doefab::io::scan::Scan, want: &Surfalize, program: &str) {
     assert_eq!(s.grid.dim(), want.dim, "{name}: size");
     assert_eq!(s.grid.pitch(), want.pitch, "{name}: pitch");
     assert_eq!(want.dim.0 * want.dim.1 - s.grid.valid_count(), want.missing, "{name}: non-measured points");
@@ -527,11 +532,11 @@ fn check_surfalize(name: &str, s: &doefab::io::scan::Scan, want: &Surfalize) {
     for (k, (got, w)) in [p.sq, p.sa, p.sz].into_iter().zip(want.sq_sa_sz).enumerate() {
         let w = w * want.unit;
         println!(
-            "{name}: {} {got:.9e} vs surfalize {w:.9e}, {:.1e} relative",
+            "{name}: {} {got:.9e} vs {program} {w:.9e}, {:.1e} relative",
             ["Sq", "Sa", "Sz"][k],
             (got - w) / w
         );
-        assert!((got - w).abs() <= 1e-4 * w, "{name}: {} = {got} vs surfalize {w}", ["Sq", "Sa", "Sz"][k]);
+        assert!((got - w).abs() <= 1e-4 * w, "{name}: {} = {got} vs {program} {w}", ["Sq", "Sa", "Sz"][k]);
     }
 }
 
@@ -602,4 +607,105 @@ fn truemap_tmd_reproduces_surfalizes_reading() {
     let p = height_params(&s.grid).unwrap();
     assert!((p.sq / (S1_RAW.v[1] * 1e-6) - 1.0).abs() < 1e-6, "Sq {}", p.sq);
     assert!(s.warnings.iter().any(|w| w.contains("kept: the file states its unit")), "{:?}", s.warnings);
+}
+
+/// The wave-pedestal surface of `profilometry/make_vk_frt_files.py`, micrometres (i = row from
+/// the top of the image, j = column).
+fn wave_pedestal_um(i: usize, j: usize) -> f64 {
+    use std::f64::consts::PI;
+    let (fi, fj) = (i as f64, j as f64);
+    let mut z =
+        0.05 + 0.4 * (2.0 * PI * fj / 13.0).sin() * (2.0 * PI * fi / 11.0).cos() + 0.002 * fj - 0.001 * fi;
+    if (10..20).contains(&i) && (15..30).contains(&j) {
+        z += 0.8;
+    }
+    z
+}
+
+/// Every measured point of `s` against the injected surface shifted by `shift_um`, within half a
+/// count of `count` metres; the non-measured points exactly `missing`.
+fn check_wave_pedestal(
+    name: &str,
+    s: &doefab::io::scan::Scan,
+    shift_um: f64,
+    count: f64,
+    missing: &[(usize, usize)],
+) {
+    let v = s.grid.values_nan_invalid();
+    for ((i, j), h) in v.indexed_iter() {
+        if missing.contains(&(i, j)) {
+            assert!(h.is_nan(), "{name}: ({i}, {j}) should be non-measured, reads {h}");
+        } else {
+            let want = (wave_pedestal_um(i, j) + shift_um) * 1e-6;
+            assert!((h - want).abs() <= 0.5 * count * (1.0 + 1e-9), "{name}: ({i}, {j}) {h} vs {want}");
+        }
+    }
+}
+
+/// Keyence `.vk4` and `.vk6` built from the VK4 layout (profilometry/make_vk_frt_files.py),
+/// against surfalize's and SurfaceTopography's readings (the same figures from both) and the
+/// surface the script injected; the second height layer is skipped with a warning.
+#[test]
+fn keyence_vk_reproduces_surfalize_and_surfacetopography() {
+    let none = ScanOptions::default();
+    for name in ["wave_pedestal.layout.vk4", "wave_pedestal.layout.vk6"] {
+        let s = read(&local(name), &none);
+        assert_eq!(s.format, ScanFormat::Vk);
+        let want = Surfalize {
+            dim: (23, 31),
+            // surfalize: 1.25 and 1.5999999999999999 um; SurfaceTopography: 1250000 and
+            // 1600000 pm: the stored 1250000 and 1600000 pm.
+            pitch: [1_250_000.0 * 1e-12, 1_600_000.0 * 1e-12],
+            missing: 0,
+            sq_sa_sz: [0.389009715, 0.307907414, 1.64316],
+            unit: 1e-6,
+        };
+        check_surfalize(name, &s, &want);
+        check_wave_pedestal(name, &s, 1.0, 10e-12, &[]);
+        assert_eq!(s.warnings, ["height image 1 read; height image 2 skipped"], "{name}");
+        let m = |k: &str| s.metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
+        assert_eq!(m("date"), Some("2023-11-07T09:41:03+01:00"), "{name}");
+        assert_eq!(m("lens_magnification"), Some("50"));
+        assert_eq!(m("lens_name"), Some("CF IC EPI Plan 50X"));
+        assert_eq!(m("title"), Some("wave pedestal"));
+        assert_eq!(m("numerical_aperture"), Some("0.95"));
+        assert_eq!(m("images_not_read"), Some("colour peak image, light image 1"));
+    }
+}
+
+/// FRT MicroProf `.frt` built from the FRT layout (profilometry/make_vk_frt_files.py): version
+/// 1.00 with the single-image block and 1.01 with the multi-image block (an intensity image
+/// skipped with a warning), against SurfaceTopography's reading and the injected surface,
+/// the first stored row the bottom of the image and the count 1 non-measured.
+#[test]
+fn frt_microprof_reproduces_surfacetopography() {
+    let none = ScanOptions::default();
+    let missing = [(3, 4), (12, 20), (22, 30), (0, 17)];
+    // (file, SurfaceTopography's Sq; Sa and Sz by numpy on its heights, metres; count, shift)
+    for (name, sq_sa_sz, count, shift) in [
+        ("wave_pedestal.layout.frt", [3.8926128e-07, 3.07642757e-07, 1.643168e-06], 1e-12, 0.0),
+        ("wave_pedestal_multi.layout.frt", [3.89262602e-07, 3.07643927e-07, 1.6432e-06], 5e-11, 1.0),
+    ] {
+        let s = read(&local(name), &none);
+        assert_eq!(s.format, ScanFormat::Frt);
+        // SurfaceTopography: steps 2.5e-06 and 2e-06 m, the ranges over the counts.
+        let want = Surfalize {
+            dim: (23, 31),
+            pitch: [31.0 * 2.5e-6 / 31.0, 23.0 * 2e-6 / 23.0],
+            missing: 4,
+            sq_sa_sz,
+            unit: 1.0,
+        };
+        check_reading(name, &s, &want, "SurfaceTopography");
+        check_wave_pedestal(name, &s, shift, count, &missing);
+        let m = |k: &str| s.metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
+        assert_eq!(m("date"), Some("2023-11-14T22:13:20Z"), "{name}");
+        assert_eq!(m("parameter_set"), Some("CWL 300um"));
+        assert_eq!(m("description"), Some("wave pedestal from the FRT layout"));
+        if name.contains("multi") {
+            assert_eq!(s.warnings, ["Topography (top sensor) 1 read; skipped: Intensity (top sensor) 1"]);
+        } else {
+            assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+        }
+    }
 }

@@ -355,7 +355,7 @@ fn al3d_and_tmd_cuts_corruption_and_other_formats() {
 #[test]
 fn known_unread_instrument_formats_are_refused_by_name() {
     let dir = common::tempdir();
-    for (name, says) in [("part.mnt", "MountainsMap"), ("part.datx", "Zygo Mx"), ("part.vk4", "Keyence")] {
+    for (name, says) in [("part.mnt", "MountainsMap"), ("part.datx", "Zygo Mx"), ("part.nms", "NanoFocus")] {
         let p = dir.path().join(name);
         std::fs::write(&p, b"not read").unwrap();
         let o = common::doefab(&["scan-info", p.to_str().unwrap()]);
@@ -367,4 +367,38 @@ fn known_unread_instrument_formats_are_refused_by_name() {
     std::fs::write(&p, b"x").unwrap();
     let o = common::doefab(&["scan-info", p.to_str().unwrap()]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("unknown scan format"));
+}
+
+/// Keyence `.vk4` / `.vk6` and FRT `.frt`: cut at every byte of the header and a spread beyond
+/// (an error naming the file and the byte offset, never a panic), flipped bytes (no panic), and
+/// a file of another format under each extension (refused naming what was expected).
+#[test]
+fn vk_and_frt_cuts_corruption_and_other_formats() {
+    for (name, every) in [
+        // Header, offset table and measurement conditions (84 + 336), then the images.
+        ("wave_pedestal.layout.vk4", 1200),
+        ("wave_pedestal.layout.vk6", 800),
+        ("wave_pedestal.layout.frt", 400),
+        ("wave_pedestal_multi.layout.frt", 400),
+    ] {
+        let bytes = std::fs::read(local(name)).unwrap();
+        let short = format!("cut-{name}");
+        check_cuts_below(&short, &bytes, every, bytes.len(), true);
+        check_corruption(&short, &bytes);
+    }
+    let vk4 = std::fs::read(local("wave_pedestal.layout.vk4")).unwrap();
+    let frt = std::fs::read(local("wave_pedestal.layout.frt")).unwrap();
+    let tmd = std::fs::read(local("wave_pedestal.surfalize.tmd")).unwrap();
+    let x3p = std::fs::read(local("s1_tilt_pedestal.x3pio.x3p")).unwrap();
+    let err = |name: &str, b: &[u8]| decode(name, b, &ScanOptions::default()).unwrap_err().to_string();
+    for other in [&frt, &tmd, &x3p] {
+        let e = err("wrong.vk4", other);
+        assert!(e.contains("wrong.vk4") && e.contains("not a Keyence VK file"), "{e}");
+    }
+    let e = err("wrong.vk6", &x3p);
+    assert!(e.contains("wrong.vk6") && e.contains("not a Keyence VK file"), "{e}");
+    for other in [&vk4, &tmd, &x3p] {
+        let e = err("wrong.frt", other);
+        assert!(e.contains("wrong.frt") && e.contains("not an FRT MicroProf file"), "{e}");
+    }
 }
