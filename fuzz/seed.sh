@@ -21,5 +21,6 @@ add opd $S/instruments/wyko.opd
 add plu $S/instruments/sensofar.plu
 add al3d ../profilometry/*.al3d
 add tmd ../profilometry/*.tmd
+add datx ../profilometry/*.datx
 add png_pcal ../profilometry/*.png
 add tiff ../profilometry/*.tiff

@@ -12,6 +12,7 @@
 //! | `.plu` | Sensofar PLu binary (2000 and later revisions) | [`plu`] |
 //! | `.al3d` | Alicona Imaging / Bruker Alicona AL3D (the depth image) | [`al3d`] |
 //! | `.tmd` | TrueMap / GelSight binary TrueMap Data File v2.0 | [`tmd`] |
+//! | `.datx` | Zygo Mx (HDF5: the surface map, its `No Data` marker, unit and lateral converters) | [`datx`] |
 //! | `.dat` | Zygo MetroPro binary (recognised by its magic number; else a text matrix) | [`zygo`] |
 //! | `.xyz` | three text columns x y z on a regular grid | [`xyz`] |
 //! | `.txt`, `.csv`, `.asc` | text matrix ([`crate::io::csv`]; also the SPIP header of Gwyddion's `.asc`: `x-length`, `y-length` in nm, `Bit2nm`) | |
@@ -34,6 +35,7 @@
 //! refused by name, with what to export instead ([`unread`]).
 
 pub mod al3d;
+pub mod datx;
 pub mod gsf;
 pub mod gwy;
 pub mod opd;
@@ -98,6 +100,7 @@ pub enum ScanFormat {
     Plu,
     Al3d,
     Tmd,
+    Datx,
     Xyz,
     Matrix,
     Png,
@@ -120,6 +123,7 @@ impl ScanFormat {
             ScanFormat::Plu => "Sensofar PLu",
             ScanFormat::Al3d => "Alicona AL3D",
             ScanFormat::Tmd => "TrueMap TMD",
+            ScanFormat::Datx => "Zygo Mx DATX",
             ScanFormat::Xyz => "XYZ point list",
             ScanFormat::Matrix => "text matrix",
             ScanFormat::Png => "PNG",
@@ -178,6 +182,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
         "plu" => ScanFormat::Plu,
         "al3d" => ScanFormat::Al3d,
         "tmd" => ScanFormat::Tmd,
+        "datx" => ScanFormat::Datx,
         "dat" if zygo::has_magic(head) => ScanFormat::MetroPro,
         "xyz" => ScanFormat::Xyz,
         "txt" | "csv" | "asc" | "dat" => ScanFormat::Matrix,
@@ -191,7 +196,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
             return Err(Error::format(
                 path,
                 format!(
-                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .al3d, .tmd, .dat, .xyz, \
+                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .al3d, .tmd, .datx, .dat, .xyz, \
                      .txt/.csv/.asc, .png, .tif/.tiff or .npy)"
                 ),
             ));
@@ -223,6 +228,7 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
         ScanFormat::Plu => plu::decode(path, bytes),
         ScanFormat::Al3d => al3d::decode(path, bytes),
         ScanFormat::Tmd => tmd::decode(path, bytes),
+        ScanFormat::Datx => datx::decode(path, bytes),
         ScanFormat::Xyz => xyz::parse(path, text()?, opts.z_unit),
         ScanFormat::Matrix => {
             let mut raw = crate::io::csv::parse_csv(path, text()?)?;
@@ -447,6 +453,7 @@ mod tests {
         assert_eq!(detect_format(&p("a.gwy"), b"GWYP").unwrap(), ScanFormat::Gwy);
         assert_eq!(detect_format(&p("a.AL3D"), al3d::MAGIC).unwrap(), ScanFormat::Al3d);
         assert_eq!(detect_format(&p("a.tmd"), tmd::MAGIC).unwrap(), ScanFormat::Tmd);
+        assert_eq!(detect_format(&p("a.DATX"), datx::MAGIC).unwrap(), ScanFormat::Datx);
         assert!(detect_format(&p("a.mnt"), b"").unwrap_err().to_string().contains("a.mnt"));
     }
 

@@ -11,7 +11,6 @@ const UNREAD: &[(&[&str], &str, &str)] = &[
          ISO 25178-71 .sdf",
     ),
     (&["opdx"], "a Bruker Vision64 file", "not read yet"),
-    (&["datx"], "a Zygo Mx file (HDF5)", "not read yet"),
     (&["vk4", "vk6", "vk7"], "a Keyence VK file", "not read yet"),
     (&["lext", "ols", "poir"], "an Olympus LEXT file", "not read yet"),
     (&["frt"], "an FRT MicroProf file", "not read yet"),
@@ -45,8 +44,9 @@ mod tests {
             m.contains("MountainsMap") && m.contains(".sur") && m.contains("no public description"),
             "{m}"
         );
-        let d = refusal("datx").unwrap();
-        assert!(d.contains("Zygo") && d.contains(".x3p") && d.contains("not read yet"), "{d}");
+        let d = refusal("opdx").unwrap();
+        assert!(d.contains("Vision64") && d.contains(".x3p") && d.contains("not read yet"), "{d}");
+        assert_eq!(refusal("datx"), None);
         assert!(refusal("vk6").unwrap().contains("Keyence"));
         assert_eq!(refusal("x3p"), None);
         assert_eq!(refusal("foo"), None);
