@@ -22,5 +22,6 @@ add plu $S/instruments/sensofar.plu
 add al3d ../profilometry/*.al3d
 add tmd ../profilometry/*.tmd
 add datx ../profilometry/*.datx
+add opdx ../profilometry/*.opdx
 add png_pcal ../profilometry/*.png
 add tiff ../profilometry/*.tiff

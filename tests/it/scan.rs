@@ -672,3 +672,38 @@ fn zygo_datx_reproduces_surface_topographys_reading() {
         }
     }
 }
+
+/// Bruker Vision64 `.opdx` built from the format's layout (make_opdx_files.py: f32 counts of
+/// `DataScale` = 0.001 um, extents over (n - 1) points, NaN non-measured points, an intensity
+/// channel beside the height channel), against SurfaceTopography 1.27.1's reading
+/// (profilometry/README.md) and the injected surface.
+#[test]
+fn vision64_opdx_reproduces_surface_topographys_reading() {
+    let s = read(&local("wave_pedestal.layout.opdx"), &ScanOptions::default());
+    assert_eq!(s.format, ScanFormat::Opdx);
+    assert_eq!(s.warnings, ["the height channel 'Height' is read; other 2-D channels skipped: Intensity"]);
+    assert_eq!(s.grid.dim(), (26, 35));
+    let [px, py] = s.grid.pitch();
+    assert!((px / 0.65e-6 - 1.0).abs() < 1e-12 && (py / 0.8e-6 - 1.0).abs() < 1e-12, "{px} {py}");
+    assert_eq!(26 * 35 - s.grid.valid_count(), 6);
+    let p = height_params(&s.grid).unwrap();
+    for (name, got, want) in
+        [("Sq", p.sq, 0.35696619e-6), ("Sa", p.sa, 0.270244907e-6), ("Sz", p.sz, 1.64316705e-6)]
+    {
+        println!(
+            "opdx {name} {got:.9e} vs SurfaceTopography {want:.9e}, {:.1e} relative",
+            (got - want) / want
+        );
+        assert!((got - want).abs() <= 1e-6 * want, "{name} {got} vs {want}");
+    }
+    let md = |k: &str| s.metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
+    assert_eq!(md("MeasurementSettings/InstrumentName"), Some("ContourX-500"));
+    assert_eq!(md("MeasurementSettings/Objective"), Some("20X"));
+    assert_eq!(md("Date"), Some("11/26/2026"));
+    for ((i, j), v) in s.grid.values().indexed_iter() {
+        match datx_surface_um(i, j) {
+            None => assert!(!s.grid.is_valid(i, j), "({i}, {j}) should be non-measured"),
+            Some(z) => assert!((v - z * 1e-6).abs() <= 6e-8 * 1.7e-6, "({i}, {j}) {v} vs {z} um"),
+        }
+    }
+}

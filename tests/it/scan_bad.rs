@@ -367,6 +367,23 @@ fn datx_cuts_corruption_and_other_formats() {
     assert!(e.contains("wrong.datx") && e.contains("not a Zygo .datx file: no HDF5 signature"), "{e}");
 }
 
+/// Bruker Vision64 `.opdx`: cut at every byte of the first 600 and a spread beyond (an error
+/// naming the file and the byte offset, never a panic), flipped bytes (no panic), and files of
+/// other formats (refused naming what was expected).
+#[test]
+fn opdx_cuts_corruption_and_other_formats() {
+    let bytes = std::fs::read(local("wave_pedestal.layout.opdx")).unwrap();
+    check_cuts("cut.opdx", &bytes, true);
+    check_corruption("cut.opdx", &bytes);
+    let err = |name: &str, b: &[u8]| decode(name, b, &ScanOptions::default()).unwrap_err().to_string();
+    for other in ["s1_tilt_pedestal.x3pio.x3p", "wave_pedestal.h5py.datx"] {
+        let e = err("wrong.opdx", &std::fs::read(local(other)).unwrap());
+        assert!(e.contains("wrong.opdx") && e.contains("not a Bruker Vision64 .opdx file"), "{e}");
+    }
+    let e = err("wrong.datx", &bytes);
+    assert!(e.contains("not a Zygo .datx file"), "{e}");
+}
+
 /// An instrument format that is known but not read is refused by `scan-info` with its name and
 /// what to export, not as an unknown extension; an extension nobody uses stays unknown.
 #[test]

@@ -9,6 +9,7 @@
 //! | `.sur` | Digital Surf (MountainsMap) | [`sur`] |
 //! | `.gwy` | Gwyddion native (first channel; its mask as non-measured points) | [`gwy`] |
 //! | `.opd` | Wyko / Bruker Vision binary | [`opd`] |
+//! | `.opdx` | Bruker Vision64 / Dektak "VCA DATA" (the primary 2-D height channel) | [`opdx`] |
 //! | `.plu` | Sensofar PLu binary (2000 and later revisions) | [`plu`] |
 //! | `.al3d` | Alicona Imaging / Bruker Alicona AL3D (the depth image) | [`al3d`] |
 //! | `.tmd` | TrueMap / GelSight binary TrueMap Data File v2.0 | [`tmd`] |
@@ -39,6 +40,7 @@ pub mod datx;
 pub mod gsf;
 pub mod gwy;
 pub mod opd;
+pub mod opdx;
 pub mod plu;
 pub mod png_scale;
 pub mod sdf;
@@ -97,6 +99,7 @@ pub enum ScanFormat {
     Gwy,
     MetroPro,
     Opd,
+    Opdx,
     Plu,
     Al3d,
     Tmd,
@@ -120,6 +123,7 @@ impl ScanFormat {
             ScanFormat::Gwy => "Gwyddion GWY",
             ScanFormat::MetroPro => "Zygo MetroPro DAT",
             ScanFormat::Opd => "Wyko / Bruker Vision OPD",
+            ScanFormat::Opdx => "Bruker Vision64 OPDx",
             ScanFormat::Plu => "Sensofar PLu",
             ScanFormat::Al3d => "Alicona AL3D",
             ScanFormat::Tmd => "TrueMap TMD",
@@ -179,6 +183,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
         "sur" => ScanFormat::Sur,
         "gwy" => ScanFormat::Gwy,
         "opd" => ScanFormat::Opd,
+        "opdx" => ScanFormat::Opdx,
         "plu" => ScanFormat::Plu,
         "al3d" => ScanFormat::Al3d,
         "tmd" => ScanFormat::Tmd,
@@ -196,7 +201,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
             return Err(Error::format(
                 path,
                 format!(
-                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .al3d, .tmd, .datx, .dat, .xyz, \
+                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .opdx, .plu, .al3d, .tmd, .datx, .dat, .xyz, \
                      .txt/.csv/.asc, .png, .tif/.tiff or .npy)"
                 ),
             ));
@@ -225,6 +230,7 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
         ScanFormat::Gwy => gwy::decode(path, bytes),
         ScanFormat::MetroPro => zygo::decode(path, bytes),
         ScanFormat::Opd => opd::decode(path, bytes),
+        ScanFormat::Opdx => opdx::decode(path, bytes),
         ScanFormat::Plu => plu::decode(path, bytes),
         ScanFormat::Al3d => al3d::decode(path, bytes),
         ScanFormat::Tmd => tmd::decode(path, bytes),
@@ -454,6 +460,7 @@ mod tests {
         assert_eq!(detect_format(&p("a.AL3D"), al3d::MAGIC).unwrap(), ScanFormat::Al3d);
         assert_eq!(detect_format(&p("a.tmd"), tmd::MAGIC).unwrap(), ScanFormat::Tmd);
         assert_eq!(detect_format(&p("a.DATX"), datx::MAGIC).unwrap(), ScanFormat::Datx);
+        assert_eq!(detect_format(&p("a.opdx"), opdx::MAGIC).unwrap(), ScanFormat::Opdx);
         assert!(detect_format(&p("a.mnt"), b"").unwrap_err().to_string().contains("a.mnt"));
     }
 
