@@ -24,5 +24,7 @@ add tmd ../profilometry/*.tmd
 add vk4 ../profilometry/*.vk4
 add vk6 ../profilometry/*.vk6
 add frt ../profilometry/*.frt
+add datx ../profilometry/*.datx
+add opdx ../profilometry/*.opdx
 add png_pcal ../profilometry/*.png
 add tiff ../profilometry/*.tiff

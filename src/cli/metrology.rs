@@ -82,7 +82,7 @@ pub struct SimulateScanArgs {
 /// Arguments of `doefab compare`.
 #[derive(Args)]
 pub struct CompareArgs {
-    /// Scan file (.x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .al3d, .tmd, .dat, .xyz, .txt/.csv/.asc, .png, .tif,
+    /// Scan file (.x3p, .gsf, .sdf, .sur, .gwy, .opd, .opdx, .plu, .al3d, .tmd, .datx, .dat, .xyz, .txt/.csv/.asc, .png, .tif,
     /// .npy).
     pub scan: PathBuf,
     /// Height map file, or built-in:paper / built-in:fresnel.
@@ -179,7 +179,7 @@ pub struct CompareProfileArgs {
 /// Arguments of `doefab scan-info`.
 #[derive(Args)]
 pub struct ScanInfoArgs {
-    /// Scan file (.x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .al3d, .tmd, .dat, .xyz, .txt/.csv/.asc, .png, .tif,
+    /// Scan file (.x3p, .gsf, .sdf, .sur, .gwy, .opd, .opdx, .plu, .al3d, .tmd, .datx, .dat, .xyz, .txt/.csv/.asc, .png, .tif,
     /// .npy).
     pub file: PathBuf,
     /// Sample pitch, e.g. "1um" (for files that carry none).

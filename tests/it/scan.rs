@@ -709,3 +709,107 @@ fn frt_microprof_reproduces_surfacetopography() {
         }
     }
 }
+
+/// The surface `make_datx_files.py` injects (micrometres; i = row, j = column), `None` where
+/// the file marks the point not measured.
+fn datx_surface_um(i: usize, j: usize) -> Option<f64> {
+    const MISSING: [(usize, usize); 6] = [(0, 0), (3, 7), (12, 20), (12, 21), (25, 34), (17, 33)];
+    if MISSING.contains(&(i, j)) {
+        return None;
+    }
+    let (fi, fj) = (i as f64, j as f64);
+    let tau = std::f64::consts::TAU;
+    let mut z = 0.05 + 0.4 * (tau * fj / 13.0).sin() * (tau * fi / 11.0).cos() + 0.002 * fj - 0.001 * fi;
+    if (10..20).contains(&i) && (15..30).contains(&j) {
+        z += 0.8;
+    }
+    Some(z)
+}
+
+/// Zygo `.datx` written with h5py in Mx's layout: f32 nanometres in a chunked, deflated and
+/// shuffled dataset, `No Data` points, an intensity channel, found through the `/MetaData`
+/// link table; against SurfaceTopography 1.27.1's reading (profilometry/README.md) and the
+/// injected surface. The same surface as f64 fringes in an older layout (`/Data/Surface`, no
+/// link table, fixed-array converters; SurfaceTopography refuses fringes) against the surface.
+#[test]
+fn zygo_datx_reproduces_surface_topographys_reading() {
+    let none = ScanOptions::default();
+    let s = read(&local("wave_pedestal.h5py.datx"), &none);
+    assert_eq!(s.format, ScanFormat::Datx);
+    assert_eq!(
+        s.warnings,
+        ["the height map /Measurement/Surface is read; other channels skipped: /Measurement/Intensity"]
+    );
+    // SurfaceTopography: 35 x 26 points, pitch 650 nm x 800 nm (its 799.9999999999999 is its
+    // size / count), 6 masked, Sq 356.96619 nm; Sa 270.244907 nm and Sz 1643.16705 nm from the
+    // heights it returns.
+    assert_eq!(s.grid.dim(), (26, 35));
+    let [px, py] = s.grid.pitch();
+    assert!((px / 650e-9 - 1.0).abs() < 1e-12 && (py / 800e-9 - 1.0).abs() < 1e-12, "{px} {py}");
+    assert_eq!(26 * 35 - s.grid.valid_count(), 6);
+    let p = height_params(&s.grid).unwrap();
+    for (name, got, want) in
+        [("Sq", p.sq, 356.96619e-9), ("Sa", p.sa, 270.244907e-9), ("Sz", p.sz, 1643.16705e-9)]
+    {
+        println!(
+            "datx {name} {got:.9e} vs SurfaceTopography {want:.9e}, {:.1e} relative",
+            (got - want) / want
+        );
+        assert!((got - want).abs() <= 1e-6 * want, "{name} {got} vs {want}");
+    }
+    let md = |k: &str| s.metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
+    assert_eq!(md("Data Context.Data Attributes.System Type"), Some("NexView NX2"));
+    assert_eq!(md("Data Context.Data Attributes.Objective"), Some("50X Mirau"));
+    assert_eq!(md("Data Context.Data Attributes.Time Stamp"), Some("2026-11-26 10:15:00"));
+    assert_eq!(md("Unit"), Some("NanoMeters"));
+    let fringes = read(&local("wave_pedestal_fringes.h5py.datx"), &none);
+    assert!(fringes.warnings.is_empty(), "{:?}", fringes.warnings);
+    assert_eq!(fringes.grid.pitch(), [650e-9, 800e-9]);
+    for (g, tol) in [(&s.grid, 6e-8), (&fringes.grid, 1e-12)] {
+        for ((i, j), v) in g.values().indexed_iter() {
+            match datx_surface_um(i, j) {
+                None => assert!(!g.is_valid(i, j), "({i}, {j}) should be non-measured"),
+                Some(z) => {
+                    assert!(g.is_valid(i, j), "({i}, {j})");
+                    // f32 nanometres: half an f32 step of the largest height (1.7 um).
+                    assert!((v - z * 1e-6).abs() <= tol * 1.7e-6, "({i}, {j}) {v} vs {z} um");
+                }
+            }
+        }
+    }
+}
+
+/// Bruker Vision64 `.opdx` built from the format's layout (make_opdx_files.py: f32 counts of
+/// `DataScale` = 0.001 um, extents over (n - 1) points, NaN non-measured points, an intensity
+/// channel beside the height channel), against SurfaceTopography 1.27.1's reading
+/// (profilometry/README.md) and the injected surface.
+#[test]
+fn vision64_opdx_reproduces_surface_topographys_reading() {
+    let s = read(&local("wave_pedestal.layout.opdx"), &ScanOptions::default());
+    assert_eq!(s.format, ScanFormat::Opdx);
+    assert_eq!(s.warnings, ["the height channel 'Height' is read; other 2-D channels skipped: Intensity"]);
+    assert_eq!(s.grid.dim(), (26, 35));
+    let [px, py] = s.grid.pitch();
+    assert!((px / 0.65e-6 - 1.0).abs() < 1e-12 && (py / 0.8e-6 - 1.0).abs() < 1e-12, "{px} {py}");
+    assert_eq!(26 * 35 - s.grid.valid_count(), 6);
+    let p = height_params(&s.grid).unwrap();
+    for (name, got, want) in
+        [("Sq", p.sq, 0.35696619e-6), ("Sa", p.sa, 0.270244907e-6), ("Sz", p.sz, 1.64316705e-6)]
+    {
+        println!(
+            "opdx {name} {got:.9e} vs SurfaceTopography {want:.9e}, {:.1e} relative",
+            (got - want) / want
+        );
+        assert!((got - want).abs() <= 1e-6 * want, "{name} {got} vs {want}");
+    }
+    let md = |k: &str| s.metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
+    assert_eq!(md("MeasurementSettings/InstrumentName"), Some("ContourX-500"));
+    assert_eq!(md("MeasurementSettings/Objective"), Some("20X"));
+    assert_eq!(md("Date"), Some("11/26/2026"));
+    for ((i, j), v) in s.grid.values().indexed_iter() {
+        match datx_surface_um(i, j) {
+            None => assert!(!s.grid.is_valid(i, j), "({i}, {j}) should be non-measured"),
+            Some(z) => assert!((v - z * 1e-6).abs() <= 6e-8 * 1.7e-6, "({i}, {j}) {v} vs {z} um"),
+        }
+    }
+}

@@ -350,12 +350,46 @@ fn al3d_and_tmd_cuts_corruption_and_other_formats() {
     }
 }
 
+/// Zygo `.datx`: cut at every byte of the first 600 and a spread beyond (an error naming the file
+/// and where it ends, never a panic), flipped bytes (no panic), an HDF5 file without a surface
+/// and a file of another format (refused naming what was expected).
+#[test]
+fn datx_cuts_corruption_and_other_formats() {
+    for name in ["wave_pedestal.h5py.datx", "wave_pedestal_fringes.h5py.datx"] {
+        let bytes = std::fs::read(local(name)).unwrap();
+        let short = format!("cut-{name}");
+        check_cuts(&short, &bytes, true);
+        check_corruption(&short, &bytes);
+    }
+    let err = |name: &str, b: &[u8]| decode(name, b, &ScanOptions::default()).unwrap_err().to_string();
+    let x3p = std::fs::read(local("s1_tilt_pedestal.x3pio.x3p")).unwrap();
+    let e = err("wrong.datx", &x3p);
+    assert!(e.contains("wrong.datx") && e.contains("not a Zygo .datx file: no HDF5 signature"), "{e}");
+}
+
+/// Bruker Vision64 `.opdx`: cut at every byte of the first 600 and a spread beyond (an error
+/// naming the file and the byte offset, never a panic), flipped bytes (no panic), and files of
+/// other formats (refused naming what was expected).
+#[test]
+fn opdx_cuts_corruption_and_other_formats() {
+    let bytes = std::fs::read(local("wave_pedestal.layout.opdx")).unwrap();
+    check_cuts("cut.opdx", &bytes, true);
+    check_corruption("cut.opdx", &bytes);
+    let err = |name: &str, b: &[u8]| decode(name, b, &ScanOptions::default()).unwrap_err().to_string();
+    for other in ["s1_tilt_pedestal.x3pio.x3p", "wave_pedestal.h5py.datx"] {
+        let e = err("wrong.opdx", &std::fs::read(local(other)).unwrap());
+        assert!(e.contains("wrong.opdx") && e.contains("not a Bruker Vision64 .opdx file"), "{e}");
+    }
+    let e = err("wrong.datx", &bytes);
+    assert!(e.contains("not a Zygo .datx file"), "{e}");
+}
+
 /// An instrument format that is known but not read is refused by `scan-info` with its name and
 /// what to export, not as an unknown extension; an extension nobody uses stays unknown.
 #[test]
 fn known_unread_instrument_formats_are_refused_by_name() {
     let dir = common::tempdir();
-    for (name, says) in [("part.mnt", "MountainsMap"), ("part.datx", "Zygo Mx"), ("part.nms", "NanoFocus")] {
+    for (name, says) in [("part.mnt", "MountainsMap"), ("part.lext", "Olympus LEXT"), ("part.nms", "NanoFocus")] {
         let p = dir.path().join(name);
         std::fs::write(&p, b"not read").unwrap();
         let o = common::doefab(&["scan-info", p.to_str().unwrap()]);

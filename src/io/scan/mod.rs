@@ -9,11 +9,13 @@
 //! | `.sur` | Digital Surf (MountainsMap) | [`sur`] |
 //! | `.gwy` | Gwyddion native (first channel; its mask as non-measured points) | [`gwy`] |
 //! | `.opd` | Wyko / Bruker Vision binary | [`opd`] |
+//! | `.opdx` | Bruker Vision64 / Dektak "VCA DATA" (the primary 2-D height channel) | [`opdx`] |
 //! | `.plu` | Sensofar PLu binary (2000 and later revisions) | [`plu`] |
 //! | `.al3d` | Alicona Imaging / Bruker Alicona AL3D (the depth image) | [`al3d`] |
 //! | `.tmd` | TrueMap / GelSight binary TrueMap Data File v2.0 | [`tmd`] |
 //! | `.frt` | FRT MicroProf binary, versions 1.00 and 1.01 (the topography) | [`frt`] |
 //! | `.vk4`, `.vk6`, `.vk7` | Keyence VK (the first height image; `.vk6`/`.vk7` hold it in a zip) | [`vk`] |
+//! | `.datx` | Zygo Mx (HDF5: the surface map, its `No Data` marker, unit and lateral converters) | [`datx`] |
 //! | `.dat` | Zygo MetroPro binary (recognised by its magic number; else a text matrix) | [`zygo`] |
 //! | `.xyz` | three text columns x y z on a regular grid | [`xyz`] |
 //! | `.txt`, `.csv`, `.asc` | text matrix ([`crate::io::csv`]; also the SPIP header of Gwyddion's `.asc`: `x-length`, `y-length` in nm, `Bit2nm`) | |
@@ -37,9 +39,11 @@
 
 pub mod al3d;
 pub mod frt;
+pub mod datx;
 pub mod gsf;
 pub mod gwy;
 pub mod opd;
+pub mod opdx;
 pub mod plu;
 pub mod png_scale;
 pub mod sdf;
@@ -99,11 +103,13 @@ pub enum ScanFormat {
     Gwy,
     MetroPro,
     Opd,
+    Opdx,
     Plu,
     Al3d,
     Tmd,
     Vk,
     Frt,
+    Datx,
     Xyz,
     Matrix,
     Png,
@@ -123,11 +129,13 @@ impl ScanFormat {
             ScanFormat::Gwy => "Gwyddion GWY",
             ScanFormat::MetroPro => "Zygo MetroPro DAT",
             ScanFormat::Opd => "Wyko / Bruker Vision OPD",
+            ScanFormat::Opdx => "Bruker Vision64 OPDx",
             ScanFormat::Plu => "Sensofar PLu",
             ScanFormat::Al3d => "Alicona AL3D",
             ScanFormat::Tmd => "TrueMap TMD",
             ScanFormat::Vk => "Keyence VK",
             ScanFormat::Frt => "FRT MicroProf",
+            ScanFormat::Datx => "Zygo Mx DATX",
             ScanFormat::Xyz => "XYZ point list",
             ScanFormat::Matrix => "text matrix",
             ScanFormat::Png => "PNG",
@@ -183,11 +191,13 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
         "sur" => ScanFormat::Sur,
         "gwy" => ScanFormat::Gwy,
         "opd" => ScanFormat::Opd,
+        "opdx" => ScanFormat::Opdx,
         "plu" => ScanFormat::Plu,
         "al3d" => ScanFormat::Al3d,
         "tmd" => ScanFormat::Tmd,
         "vk4" | "vk6" | "vk7" => ScanFormat::Vk,
         "frt" => ScanFormat::Frt,
+        "datx" => ScanFormat::Datx,
         "dat" if zygo::has_magic(head) => ScanFormat::MetroPro,
         "xyz" => ScanFormat::Xyz,
         "txt" | "csv" | "asc" | "dat" => ScanFormat::Matrix,
@@ -201,7 +211,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
             return Err(Error::format(
                 path,
                 format!(
-                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .al3d, .tmd, .vk4/.vk6/.vk7, .frt, .dat, .xyz, \
+                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .opdx, .plu, .al3d, .tmd, .vk4/.vk6/.vk7, .frt, .datx, .dat, .xyz, \
                      .txt/.csv/.asc, .png, .tif/.tiff or .npy)"
                 ),
             ));
@@ -230,11 +240,13 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
         ScanFormat::Gwy => gwy::decode(path, bytes),
         ScanFormat::MetroPro => zygo::decode(path, bytes),
         ScanFormat::Opd => opd::decode(path, bytes),
+        ScanFormat::Opdx => opdx::decode(path, bytes),
         ScanFormat::Plu => plu::decode(path, bytes),
         ScanFormat::Al3d => al3d::decode(path, bytes),
         ScanFormat::Tmd => tmd::decode(path, bytes),
         ScanFormat::Vk => vk::decode(path, bytes),
         ScanFormat::Frt => frt::decode(path, bytes),
+        ScanFormat::Datx => datx::decode(path, bytes),
         ScanFormat::Xyz => xyz::parse(path, text()?, opts.z_unit),
         ScanFormat::Matrix => {
             let mut raw = crate::io::csv::parse_csv(path, text()?)?;
@@ -461,6 +473,8 @@ mod tests {
         assert_eq!(detect_format(&p("a.tmd"), tmd::MAGIC).unwrap(), ScanFormat::Tmd);
         assert_eq!(detect_format(&p("a.VK6"), b"VK6").unwrap(), ScanFormat::Vk);
         assert_eq!(detect_format(&p("a.frt"), frt::MAGIC).unwrap(), ScanFormat::Frt);
+        assert_eq!(detect_format(&p("a.DATX"), datx::MAGIC).unwrap(), ScanFormat::Datx);
+        assert_eq!(detect_format(&p("a.opdx"), opdx::MAGIC).unwrap(), ScanFormat::Opdx);
         assert!(detect_format(&p("a.mnt"), b"").unwrap_err().to_string().contains("a.mnt"));
     }
 
