@@ -21,5 +21,7 @@ add opd $S/instruments/wyko.opd
 add plu $S/instruments/sensofar.plu
 add al3d ../profilometry/*.al3d
 add tmd ../profilometry/*.tmd
+add spm ../profilometry/*.spm
+add plux ../profilometry/*.plux
 add png_pcal ../profilometry/*.png
 add tiff ../profilometry/*.tiff

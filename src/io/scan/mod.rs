@@ -10,8 +10,10 @@
 //! | `.gwy` | Gwyddion native (first channel; its mask as non-measured points) | [`gwy`] |
 //! | `.opd` | Wyko / Bruker Vision binary | [`opd`] |
 //! | `.plu` | Sensofar PLu binary (2000 and later revisions) | [`plu`] |
+//! | `.plux` | Sensofar PLUx (zip of `index.xml` + f32 layers; the first layer) | [`plux`] |
 //! | `.al3d` | Alicona Imaging / Bruker Alicona AL3D (the depth image) | [`al3d`] |
 //! | `.tmd` | TrueMap / GelSight binary TrueMap Data File v2.0 | [`tmd`] |
+//! | `.spm`, `.001`... | Bruker Nanoscope (versions 4.3 to 9, 16/32-bit; the height channel) | [`nanoscope`] |
 //! | `.dat` | Zygo MetroPro binary (recognised by its magic number; else a text matrix) | [`zygo`] |
 //! | `.xyz` | three text columns x y z on a regular grid | [`xyz`] |
 //! | `.txt`, `.csv`, `.asc` | text matrix ([`crate::io::csv`]; also the SPIP header of Gwyddion's `.asc`: `x-length`, `y-length` in nm, `Bit2nm`) | |
@@ -36,8 +38,10 @@
 pub mod al3d;
 pub mod gsf;
 pub mod gwy;
+pub mod nanoscope;
 pub mod opd;
 pub mod plu;
+pub mod plux;
 pub mod png_scale;
 pub mod sdf;
 pub mod sur;
@@ -96,8 +100,10 @@ pub enum ScanFormat {
     MetroPro,
     Opd,
     Plu,
+    Plux,
     Al3d,
     Tmd,
+    Nanoscope,
     Xyz,
     Matrix,
     Png,
@@ -118,8 +124,10 @@ impl ScanFormat {
             ScanFormat::MetroPro => "Zygo MetroPro DAT",
             ScanFormat::Opd => "Wyko / Bruker Vision OPD",
             ScanFormat::Plu => "Sensofar PLu",
+            ScanFormat::Plux => "Sensofar PLUx",
             ScanFormat::Al3d => "Alicona AL3D",
             ScanFormat::Tmd => "TrueMap TMD",
+            ScanFormat::Nanoscope => "Bruker Nanoscope SPM",
             ScanFormat::Xyz => "XYZ point list",
             ScanFormat::Matrix => "text matrix",
             ScanFormat::Png => "PNG",
@@ -176,8 +184,13 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
         "gwy" => ScanFormat::Gwy,
         "opd" => ScanFormat::Opd,
         "plu" => ScanFormat::Plu,
+        "plux" => ScanFormat::Plux,
         "al3d" => ScanFormat::Al3d,
         "tmd" => ScanFormat::Tmd,
+        "spm" => ScanFormat::Nanoscope,
+        e if e.len() == 3 && e.bytes().all(|c| c.is_ascii_digit()) && nanoscope::has_magic(head) => {
+            ScanFormat::Nanoscope
+        }
         "dat" if zygo::has_magic(head) => ScanFormat::MetroPro,
         "xyz" => ScanFormat::Xyz,
         "txt" | "csv" | "asc" | "dat" => ScanFormat::Matrix,
@@ -191,7 +204,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
             return Err(Error::format(
                 path,
                 format!(
-                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .al3d, .tmd, .dat, .xyz, \
+                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .plu, .plux, .al3d, .tmd, .spm, .dat, .xyz, \
                      .txt/.csv/.asc, .png, .tif/.tiff or .npy)"
                 ),
             ));
@@ -221,8 +234,10 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
         ScanFormat::MetroPro => zygo::decode(path, bytes),
         ScanFormat::Opd => opd::decode(path, bytes),
         ScanFormat::Plu => plu::decode(path, bytes),
+        ScanFormat::Plux => plux::decode(path, bytes),
         ScanFormat::Al3d => al3d::decode(path, bytes),
         ScanFormat::Tmd => tmd::decode(path, bytes),
+        ScanFormat::Nanoscope => nanoscope::decode(path, bytes),
         ScanFormat::Xyz => xyz::parse(path, text()?, opts.z_unit),
         ScanFormat::Matrix => {
             let mut raw = crate::io::csv::parse_csv(path, text()?)?;
@@ -447,6 +462,9 @@ mod tests {
         assert_eq!(detect_format(&p("a.gwy"), b"GWYP").unwrap(), ScanFormat::Gwy);
         assert_eq!(detect_format(&p("a.AL3D"), al3d::MAGIC).unwrap(), ScanFormat::Al3d);
         assert_eq!(detect_format(&p("a.tmd"), tmd::MAGIC).unwrap(), ScanFormat::Tmd);
+        assert_eq!(detect_format(&p("a.spm"), b"").unwrap(), ScanFormat::Nanoscope);
+        assert_eq!(detect_format(&p("a.003"), nanoscope::MAGIC).unwrap(), ScanFormat::Nanoscope);
+        assert!(detect_format(&p("a.003"), b"x").is_err());
         assert!(detect_format(&p("a.mnt"), b"").unwrap_err().to_string().contains("a.mnt"));
     }
 

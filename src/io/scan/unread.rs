@@ -16,8 +16,6 @@ const UNREAD: &[(&[&str], &str, &str)] = &[
     (&["lext", "ols", "poir"], "an Olympus LEXT file", "not read yet"),
     (&["frt"], "an FRT MicroProf file", "not read yet"),
     (&["nms"], "a NanoFocus file", "not read yet"),
-    (&["spm"], "a Bruker Nanoscope (or ISO 28600 text) file", "not read yet"),
-    (&["plux"], "a Sensofar PLUx archive", "not read yet (the older .plu is read)"),
 ];
 
 /// The refusal for a known instrument format that is not read, `None` for any other extension
