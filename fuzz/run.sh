@@ -21,7 +21,7 @@ seconds=${1:-60}
 shift || true
 targets=("$@")
 if [ ${#targets[@]} -eq 0 ]; then
-  targets=(x3p gsf sdf_binary sdf_ascii sur gwy metropro opd plu al3d tmd vk4 vk6 frt datx opdx png_pcal npy tiff exr profile)
+  targets=(x3p gsf sdf_binary sdf_ascii sur gwy metropro opd plu al3d tmd vk4 vk6 frt datx opdx spm plux png_pcal npy tiff exr profile)
 fi
 triple=$(rustc -vV | sed -n 's/^host: //p')
 export RUSTFLAGS="-Cpasses=sancov-module -Cllvm-args=-sanitizer-coverage-level=4 \

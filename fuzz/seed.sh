@@ -26,5 +26,7 @@ add vk6 ../profilometry/*.vk6
 add frt ../profilometry/*.frt
 add datx ../profilometry/*.datx
 add opdx ../profilometry/*.opdx
+add spm ../profilometry/*.spm
+add plux ../profilometry/*.plux
 add png_pcal ../profilometry/*.png
 add tiff ../profilometry/*.tiff

@@ -813,3 +813,80 @@ fn vision64_opdx_reproduces_surface_topographys_reading() {
         }
     }
 }
+
+/// Bruker Nanoscope `.spm` built from the format's layout (version 9.3 with 32-bit data and three
+/// channels, version 5.31 with 16-bit data), against SurfaceTopography's reading (pySPM reads
+/// the same Sq, Sa, Sz) and against the surface injected, within one stored count.
+#[test]
+fn nanoscope_spm_reproduces_surfacetopographys_reading() {
+    let none = ScanOptions::default();
+    // (file, Sq, Sa, Sz in nm, metres per count)
+    for (name, sq_sa_sz, count) in [
+        (
+            "wave_pedestal.v9.layout.spm",
+            [334.365262, 248.59571, 1647.08242],
+            440.0 / 2f64.powi(32) * 43.91e-9,
+        ),
+        ("wave_pedestal.v5.layout.spm", [334.364555, 248.595143, 1647.08061], 440.0 / 65536.0 * 43.91e-9),
+    ] {
+        let s = read(&local(name), &none);
+        assert_eq!(s.format, ScanFormat::Nanoscope);
+        let want = Surfalize {
+            dim: (29, 41),
+            // Scan Size 20 x 12 um over the counts, as the reader computes it from the header.
+            pitch: [20.0 * 1e-6 / 41.0, 12.0 * 1e-6 / 29.0],
+            missing: 0,
+            sq_sa_sz,
+            unit: 1e-9,
+        };
+        check_surfalize(name, &s, &want);
+        // The top line of the image is row 0 (the file stores the bottom line first).
+        let g = s.grid.values();
+        for ((i, j), v) in g.indexed_iter() {
+            let truth = wave_pedestal_um(i, j) * 1e-6;
+            assert!((v - truth).abs() <= 0.5 * count + 1e-15, "{name} ({i}, {j}): {v} vs {truth}");
+        }
+        let meta = |k: &str| s.metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
+        assert_eq!(meta("channel"), Some("Height"), "{name}");
+        assert_eq!(meta("instrument"), Some("Bruker Dimension Icon"), "{name}");
+        assert_eq!(meta("Ciao scan list: @Sens. Phase"), Some("V 18 \u{ba}/V"), "{name}");
+    }
+    let s = read(&local("wave_pedestal.v9.layout.spm"), &none);
+    assert!(
+        s.warnings.iter().any(|w| w.contains("read 'Height', skipped 'ZSensor', 'Phase'")),
+        "{:?}",
+        s.warnings
+    );
+    assert!(read(&local("wave_pedestal.v5.layout.spm"), &none).warnings.is_empty());
+}
+
+/// Sensofar `.plux` built from the format's layout (two layers, an intensity stack, NaN points),
+/// against surfalize's and SurfaceTopography's readings and the surface injected.
+#[test]
+fn sensofar_plux_reproduces_two_programs_readings() {
+    let name = "wave_pedestal.layout.plux";
+    let s = read(&local(name), &ScanOptions::default());
+    assert_eq!(s.format, ScanFormat::Plux);
+    let mut want = Surfalize {
+        dim: (27, 37),
+        pitch: [0.65 * 1e-6, 0.9 * 1e-6],
+        missing: 6,
+        sq_sa_sz: [0.350323766, 0.26383993, 1.64316726],
+        unit: 1e-6,
+    };
+    check_surfalize(name, &s, &want);
+    // SurfaceTopography's figures (f64 sums; surfalize sums in f32).
+    want.sq_sa_sz = [0.350323778, 0.263839931, 1.64316714];
+    check_surfalize(name, &s, &want);
+    for ((i, j), v) in s.grid.values().indexed_iter() {
+        if s.grid.is_valid(i, j) {
+            let truth = wave_pedestal_um(i, j) * 1e-6;
+            assert!((v - truth).abs() <= 1e-7 * truth.abs() + 1e-15, "({i}, {j}): {v} vs {truth}");
+        }
+    }
+    assert!(s.warnings.iter().any(|w| w.contains("skipped LAYER_1")), "{:?}", s.warnings);
+    let meta = |k: &str| s.metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
+    assert_eq!(meta("instrument"), Some("Sensofar S neox"));
+    assert_eq!(meta("objective"), Some("Nikon 50X EPI"));
+    assert_eq!(meta("date"), Some("2025-10-16 14:15:41"));
+}

@@ -350,6 +350,42 @@ fn al3d_and_tmd_cuts_corruption_and_other_formats() {
     }
 }
 
+/// Bruker Nanoscope `.spm` and Sensofar `.plux`: cut at every byte of the header (and a spread
+/// beyond), flipped bytes, and a file of another format under each extension; an ISO 28600 text
+/// `.spm` is refused naming that format.
+#[test]
+fn spm_and_plux_cuts_corruption_and_other_formats() {
+    // (file, cut at every byte below, bytes the reader needs: the v9 file's Height image is the
+    // second of three 29 x 41 x 4-byte images after an 8192-byte header)
+    for (name, every, need) in [
+        ("wave_pedestal.v9.layout.spm", 8192 + 8, Some(8192 + 2 * 29 * 41 * 4)),
+        ("wave_pedestal.v5.layout.spm", 8192 + 8, None),
+        ("wave_pedestal.layout.plux", 600, None),
+    ] {
+        let bytes = std::fs::read(local(name)).unwrap();
+        let short = format!("cut-{name}");
+        let n = need.unwrap_or(bytes.len());
+        check_cuts_below(&short, &bytes, every, n, true);
+        assert!(decode(&short, &bytes[..n], &ScanOptions::default()).is_ok(), "{name}");
+        check_corruption(&short, &bytes);
+    }
+    let spm = std::fs::read(local("wave_pedestal.v5.layout.spm")).unwrap();
+    let plux = std::fs::read(local("wave_pedestal.layout.plux")).unwrap();
+    let x3p = std::fs::read(local("s1_tilt_pedestal.x3pio.x3p")).unwrap();
+    let err = |name: &str, b: &[u8]| decode(name, b, &ScanOptions::default()).unwrap_err().to_string();
+    for other in [&plux, &x3p] {
+        let e = err("wrong.spm", other);
+        assert!(e.contains("wrong.spm") && e.contains("not a Bruker Nanoscope file"), "{e}");
+    }
+    for other in [&spm, &x3p] {
+        let e = err("wrong.plux", other);
+        assert!(e.contains("wrong.plux") && e.contains("not a Sensofar PLUx file"), "{e}");
+    }
+    let iso = b"ISO/TC 201 SPM data transfer format\r\ngeneral information\r\n";
+    let e = err("iso.spm", iso);
+    assert!(e.contains("iso.spm") && e.contains("ISO 28600") && e.contains(".x3p"), "{e}");
+}
+
 /// Zygo `.datx`: cut at every byte of the first 600 and a spread beyond (an error naming the file
 /// and where it ends, never a panic), flipped bytes (no panic), an HDF5 file without a surface
 /// and a file of another format (refused naming what was expected).
@@ -389,7 +425,9 @@ fn opdx_cuts_corruption_and_other_formats() {
 #[test]
 fn known_unread_instrument_formats_are_refused_by_name() {
     let dir = common::tempdir();
-    for (name, says) in [("part.mnt", "MountainsMap"), ("part.lext", "Olympus LEXT"), ("part.nms", "NanoFocus")] {
+    for (name, says) in
+        [("part.mnt", "MountainsMap"), ("part.lext", "Olympus LEXT"), ("part.nms", "NanoFocus")]
+    {
         let p = dir.path().join(name);
         std::fs::write(&p, b"not read").unwrap();
         let o = common::doefab(&["scan-info", p.to_str().unwrap()]);

@@ -11,11 +11,13 @@
 //! | `.opd` | Wyko / Bruker Vision binary | [`opd`] |
 //! | `.opdx` | Bruker Vision64 / Dektak "VCA DATA" (the primary 2-D height channel) | [`opdx`] |
 //! | `.plu` | Sensofar PLu binary (2000 and later revisions) | [`plu`] |
+//! | `.plux` | Sensofar PLUx (zip of `index.xml` + f32 layers; the first layer) | [`plux`] |
 //! | `.al3d` | Alicona Imaging / Bruker Alicona AL3D (the depth image) | [`al3d`] |
 //! | `.tmd` | TrueMap / GelSight binary TrueMap Data File v2.0 | [`tmd`] |
 //! | `.frt` | FRT MicroProf binary, versions 1.00 and 1.01 (the topography) | [`frt`] |
 //! | `.vk4`, `.vk6`, `.vk7` | Keyence VK (the first height image; `.vk6`/`.vk7` hold it in a zip) | [`vk`] |
 //! | `.datx` | Zygo Mx (HDF5: the surface map, its `No Data` marker, unit and lateral converters) | [`datx`] |
+//! | `.spm`, `.001`... | Bruker Nanoscope (versions 4.3 to 9, 16/32-bit; the height channel) | [`nanoscope`] |
 //! | `.dat` | Zygo MetroPro binary (recognised by its magic number; else a text matrix) | [`zygo`] |
 //! | `.xyz` | three text columns x y z on a regular grid | [`xyz`] |
 //! | `.txt`, `.csv`, `.asc` | text matrix ([`crate::io::csv`]; also the SPIP header of Gwyddion's `.asc`: `x-length`, `y-length` in nm, `Bit2nm`) | |
@@ -38,13 +40,15 @@
 //! refused by name, with what to export instead ([`unread`]).
 
 pub mod al3d;
-pub mod frt;
 pub mod datx;
+pub mod frt;
 pub mod gsf;
 pub mod gwy;
+pub mod nanoscope;
 pub mod opd;
 pub mod opdx;
 pub mod plu;
+pub mod plux;
 pub mod png_scale;
 pub mod sdf;
 pub mod sur;
@@ -105,11 +109,13 @@ pub enum ScanFormat {
     Opd,
     Opdx,
     Plu,
+    Plux,
     Al3d,
     Tmd,
     Vk,
     Frt,
     Datx,
+    Nanoscope,
     Xyz,
     Matrix,
     Png,
@@ -131,11 +137,13 @@ impl ScanFormat {
             ScanFormat::Opd => "Wyko / Bruker Vision OPD",
             ScanFormat::Opdx => "Bruker Vision64 OPDx",
             ScanFormat::Plu => "Sensofar PLu",
+            ScanFormat::Plux => "Sensofar PLUx",
             ScanFormat::Al3d => "Alicona AL3D",
             ScanFormat::Tmd => "TrueMap TMD",
             ScanFormat::Vk => "Keyence VK",
             ScanFormat::Frt => "FRT MicroProf",
             ScanFormat::Datx => "Zygo Mx DATX",
+            ScanFormat::Nanoscope => "Bruker Nanoscope SPM",
             ScanFormat::Xyz => "XYZ point list",
             ScanFormat::Matrix => "text matrix",
             ScanFormat::Png => "PNG",
@@ -193,11 +201,16 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
         "opd" => ScanFormat::Opd,
         "opdx" => ScanFormat::Opdx,
         "plu" => ScanFormat::Plu,
+        "plux" => ScanFormat::Plux,
         "al3d" => ScanFormat::Al3d,
         "tmd" => ScanFormat::Tmd,
         "vk4" | "vk6" | "vk7" => ScanFormat::Vk,
         "frt" => ScanFormat::Frt,
         "datx" => ScanFormat::Datx,
+        "spm" => ScanFormat::Nanoscope,
+        e if e.len() == 3 && e.bytes().all(|c| c.is_ascii_digit()) && nanoscope::has_magic(head) => {
+            ScanFormat::Nanoscope
+        }
         "dat" if zygo::has_magic(head) => ScanFormat::MetroPro,
         "xyz" => ScanFormat::Xyz,
         "txt" | "csv" | "asc" | "dat" => ScanFormat::Matrix,
@@ -211,7 +224,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
             return Err(Error::format(
                 path,
                 format!(
-                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .opdx, .plu, .al3d, .tmd, .vk4/.vk6/.vk7, .frt, .datx, .dat, .xyz, \
+                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .opdx, .plu, .plux, .al3d, .tmd, .vk4/.vk6/.vk7, .frt, .datx, .spm, .dat, .xyz, \
                      .txt/.csv/.asc, .png, .tif/.tiff or .npy)"
                 ),
             ));
@@ -242,11 +255,13 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
         ScanFormat::Opd => opd::decode(path, bytes),
         ScanFormat::Opdx => opdx::decode(path, bytes),
         ScanFormat::Plu => plu::decode(path, bytes),
+        ScanFormat::Plux => plux::decode(path, bytes),
         ScanFormat::Al3d => al3d::decode(path, bytes),
         ScanFormat::Tmd => tmd::decode(path, bytes),
         ScanFormat::Vk => vk::decode(path, bytes),
         ScanFormat::Frt => frt::decode(path, bytes),
         ScanFormat::Datx => datx::decode(path, bytes),
+        ScanFormat::Nanoscope => nanoscope::decode(path, bytes),
         ScanFormat::Xyz => xyz::parse(path, text()?, opts.z_unit),
         ScanFormat::Matrix => {
             let mut raw = crate::io::csv::parse_csv(path, text()?)?;
@@ -475,6 +490,9 @@ mod tests {
         assert_eq!(detect_format(&p("a.frt"), frt::MAGIC).unwrap(), ScanFormat::Frt);
         assert_eq!(detect_format(&p("a.DATX"), datx::MAGIC).unwrap(), ScanFormat::Datx);
         assert_eq!(detect_format(&p("a.opdx"), opdx::MAGIC).unwrap(), ScanFormat::Opdx);
+        assert_eq!(detect_format(&p("a.spm"), b"").unwrap(), ScanFormat::Nanoscope);
+        assert_eq!(detect_format(&p("a.003"), nanoscope::MAGIC).unwrap(), ScanFormat::Nanoscope);
+        assert!(detect_format(&p("a.003"), b"x").is_err());
         assert!(detect_format(&p("a.mnt"), b"").unwrap_err().to_string().contains("a.mnt"));
     }
 

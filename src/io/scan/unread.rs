@@ -20,8 +20,6 @@ const UNREAD: &[(&[&str], &str, &str)] = &[
          maximum, the other from its minimum, their spacings differ by a factor of 10^6, and \
          neither knows the marker of points not measured, so no reading could be checked",
     ),
-    (&["spm"], "a Bruker Nanoscope (or ISO 28600 text) file", "not read yet"),
-    (&["plux"], "a Sensofar PLUx archive", "not read yet (the older .plu is read)"),
 ];
 
 /// The refusal for a known instrument format that is not read, `None` for any other extension
@@ -59,6 +57,8 @@ mod tests {
         assert_eq!(refusal("opdx"), None);
         assert_eq!(refusal("vk6"), None);
         assert_eq!(refusal("frt"), None);
+        assert_eq!(refusal("spm"), None);
+        assert_eq!(refusal("plux"), None);
         assert_eq!(refusal("x3p"), None);
         assert_eq!(refusal("foo"), None);
     }

@@ -28,7 +28,7 @@ fn hex_md5(b: &[u8]) -> String {
 }
 
 /// Reads one zip entry, refusing more than `limit` bytes (no zip bombs).
-fn entry(
+pub(crate) fn entry(
     path: &Path,
     zip: &mut zip::ZipArchive<Cursor<&[u8]>>,
     name: &str,
