@@ -57,6 +57,12 @@
 //!    noise's positive half over the whole crop, several percent of the energy. The signed
 //!    share of the zeroed samples in the channel's energy is reported, and each channel scaled
 //!    to sum 1 ([`Psf::new`]).
+//! 9. *Its own error*: `e^2 = (sum_S sigma(v)^2 + sum_Z v^2) / sum_S v^2 + (|f| + b)^2` over the
+//!    kept samples `S` and zeroed ones `Z`, `f` the energy fraction zeroed, `b` the black
+//!    level's uncertainty as a one-signed offset summed over the kept samples, `sigma(v)` the
+//!    background noise times the exposure ratio of the frame a sample of radiance `v` comes
+//!    from (terms and their bounds on the function `estimated_error`); a warning when over
+//!    [`PsfOptions::max_error`]. `doefab bench calibration` checks it against known PSFs.
 //!
 //! The paper's measured PSF is 319 x 319 (odd: the centre on a pixel); its simulated PSFs are
 //! 320 x 320. Both sizes are accepted.
@@ -166,8 +172,10 @@ pub struct PsfCalibration {
     /// below the noise floor that were zeroed, each as a fraction of the channel's energy.
     pub energy_outside: Vec<f64>,
     pub below_floor: Vec<f64>,
-    /// Per channel: the relative L2 error the calibration expects of itself from the noise of
-    /// the samples it kept and the samples it zeroed ([`estimated_error`]).
+    /// Per channel: the relative L2 error the calibration expects of itself: the noise of the
+    /// samples it kept (the background's, times the exposure ratio of the frame each comes
+    /// from), the samples it zeroed, the energy fraction zeroed, and the black level's
+    /// uncertainty as a one-signed offset (the equation is in the module docs, step 9).
     pub estimated_error: Vec<f64>,
     /// Centroid and peak of each channel after centring (metres from the crop centre).
     pub channels: Vec<ChannelSummary>,
