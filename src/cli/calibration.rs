@@ -416,13 +416,10 @@ pub fn bench_calibration(cli: &Cli, a: &BenchCalibrationArgs) -> Result<()> {
     print_result(cli, &r, || {
         for axis in &r.axes {
             let own: Vec<_> = r.trials.iter().filter(|t| t.axis == axis.name).collect();
-            let within: Vec<String> = own
-                .iter()
-                .filter(|t| t.outcome == "calibrated")
-                .map(|t| format!("{}", t.value))
-                .collect::<std::collections::BTreeSet<_>>()
-                .into_iter()
-                .collect();
+            // Trials come in the axis's order, the seeds of one value together.
+            let mut within: Vec<String> =
+                own.iter().filter(|t| t.outcome == "calibrated").map(|t| format!("{}", t.value)).collect();
+            within.dedup();
             let worst = own.iter().map(|t| t.worst).filter(|e| e.is_finite()).fold(0.0, f64::max);
             println!(
                 "{:<11} ({}): within {:.0} % at {}; worst error {:.2} %",

@@ -237,7 +237,6 @@ fn chart<DB: DrawingBackend>(
     let palette = [RGBColor(0, 90, 200), RGBColor(220, 120, 0), RGBColor(0, 140, 60), RGBColor(160, 0, 160)];
     let tiles: Vec<usize> = {
         let mut t: Vec<usize> = r.runs.iter().filter_map(|p| p.tile).collect();
-        t.dedup();
         t.sort_unstable();
         t.dedup();
         t
