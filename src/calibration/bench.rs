@@ -32,7 +32,7 @@ use super::hdr_merge::{merge, MergeOptions};
 use super::psf_extract::{calibrate_psf, simulate_pinhole_bracket, Centre, PsfCalibration, PsfOptions};
 use crate::error::Result;
 use crate::optics::Psf;
-use crate::report::{write_png_chart, write_svg_chart, FONT};
+use crate::report::{failure_panel, write_png_chart, write_svg_chart, FONT};
 
 /// The largest relative L2 error (per channel) of a usable calibrated PSF: the accuracy the
 /// calibration tests hold it to (2 %).
@@ -214,29 +214,14 @@ fn chart<DB: DrawingBackend>(
     let panels = root.split_evenly((1, r.axes.len()));
     let floor = 1e-4;
     for (axis, area) in r.axes.iter().zip(panels.iter()) {
-        let (lo, hi) =
-            axis.values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
-        let pad = 0.06 * (hi - lo).max(1e-12);
-        let mut c = ChartBuilder::on(area)
-            .caption(format!("{} ({})", axis.name, axis.unit), (FONT, 15))
-            .margin(8)
-            .x_label_area_size(28)
-            .y_label_area_size(52)
-            .build_cartesian_2d(lo - pad..hi + pad, (floor..REFUSED_AT * 3.0).log_scale())
-            .map_err(|x| e(&x))?;
-        c.configure_mesh()
-            .y_desc("relative L2 error of the PSF")
-            .y_label_formatter(&|v| format!("{v:.0e}"))
-            .x_labels(6)
-            .light_line_style(WHITE)
-            .label_style((FONT, 11))
-            .draw()
-            .map_err(|x| e(&x))?;
-        c.draw_series(LineSeries::new(
-            [(lo - pad, r.tolerance), (hi + pad, r.tolerance)],
-            RED.stroke_width(1),
-        ))
-        .map_err(|x| e(&x))?;
+        let mut c = failure_panel(
+            area,
+            &format!("{} ({})", axis.name, axis.unit),
+            &axis.values,
+            floor..REFUSED_AT * 3.0,
+            "relative L2 error of the PSF",
+            r.tolerance,
+        )?;
         let own: Vec<&Trial> = r.trials.iter().filter(|t| t.axis == axis.name).collect();
         // The calibration's own estimate, as grey rings.
         c.draw_series(own.iter().filter(|t| t.estimated.is_finite()).map(|t| {

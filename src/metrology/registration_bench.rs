@@ -30,7 +30,7 @@ use crate::error::Result;
 use crate::fabrication::quantize::{quantize, QuantizeMethod};
 use crate::fabrication::wrap::{wrap, WrapSpec};
 use crate::grid::Grid;
-use crate::report::{write_png_chart, write_svg_chart, FONT};
+use crate::report::{failure_panel, write_png_chart, write_svg_chart, FONT};
 
 /// A pose further than this from the truth, in design samples, is wrong.
 pub const WRONG_SHIFT: f64 = 0.5;
@@ -236,29 +236,14 @@ fn chart<DB: DrawingBackend>(
     let root = root.titled(&title, (FONT, 18)).map_err(|x| e(&x))?;
     let panels = root.split_evenly((2, 3));
     for (axis, area) in r.axes.iter().zip(panels.iter()) {
-        let (lo, hi) =
-            axis.values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
-        let pad = 0.06 * (hi - lo).max(1e-12);
-        let mut c = ChartBuilder::on(area)
-            .caption(format!("{} ({})", axis.name, axis.unit), (FONT, 15))
-            .margin(8)
-            .x_label_area_size(28)
-            .y_label_area_size(52)
-            .build_cartesian_2d(lo - pad..hi + pad, (1e-4..REFUSED_AT * 3.0).log_scale())
-            .map_err(|x| e(&x))?;
-        c.configure_mesh()
-            .y_desc("shift error, design samples")
-            .y_label_formatter(&|v| format!("{v:.0e}"))
-            .x_labels(6)
-            .light_line_style(WHITE)
-            .label_style((FONT, 11))
-            .draw()
-            .map_err(|x| e(&x))?;
-        c.draw_series(LineSeries::new(
-            [(lo - pad, r.wrong_shift), (hi + pad, r.wrong_shift)],
-            RED.stroke_width(1),
-        ))
-        .map_err(|x| e(&x))?;
+        let mut c = failure_panel(
+            area,
+            &format!("{} ({})", axis.name, axis.unit),
+            &axis.values,
+            1e-4..REFUSED_AT * 3.0,
+            "shift error, design samples",
+            r.wrong_shift,
+        )?;
         let own = r.trials.iter().filter(|t| t.axis == axis.name);
         c.draw_series(own.map(|t| -> DynElement<DB, (f64, f64)> {
             match t.outcome.as_str() {

@@ -54,6 +54,43 @@ pub fn log_span(
     }
 }
 
+/// A chart of a failure map's panel: x the values swept along one axis (padded 6 % each way),
+/// y logarithmic over `y` with `y_desc`, and a red horizontal line at `limit` (the error past
+/// which a trial fails). The trials are drawn on the returned chart.
+pub fn failure_panel<'a, DB: DrawingBackend>(
+    area: &'a DrawingArea<DB, plotters::coord::Shift>,
+    caption: &str,
+    values: &[f64],
+    y: std::ops::Range<f64>,
+    y_desc: &str,
+    limit: f64,
+) -> std::result::Result<
+    ChartContext<'a, DB, Cartesian2d<plotters::coord::types::RangedCoordf64, LogCoord<f64>>>,
+    String,
+> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    let (lo, hi) = values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
+    let pad = 0.06 * (hi - lo).max(1e-12);
+    let mut c = ChartBuilder::on(area)
+        .caption(caption, (FONT, 15))
+        .margin(8)
+        .x_label_area_size(28)
+        .y_label_area_size(52)
+        .build_cartesian_2d(lo - pad..hi + pad, y.log_scale())
+        .map_err(|x| e(&x))?;
+    c.configure_mesh()
+        .y_desc(y_desc)
+        .y_label_formatter(&|v| format!("{v:.0e}"))
+        .x_labels(6)
+        .light_line_style(WHITE)
+        .label_style((FONT, 11))
+        .draw()
+        .map_err(|x| e(&x))?;
+    c.draw_series(LineSeries::new([(lo - pad, limit), (hi + pad, limit)], RED.stroke_width(1)))
+        .map_err(|x| e(&x))?;
+    Ok(c)
+}
+
 /// Draws the legend of `chart`'s labelled series at `position`: labels in the embedded font at
 /// `size` pt on a translucent white box with a black border.
 pub fn draw_legend<'a, DB, CT>(
