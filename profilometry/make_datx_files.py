@@ -43,6 +43,7 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+from wave_pedestal import surface_um
 
 ROWS, COLS = 26, 35
 DX, DY = 0.65e-6, 0.8e-6
@@ -50,13 +51,6 @@ MISSING = [(0, 0), (3, 7), (12, 20), (12, 21), (25, 34), (17, 33)]
 WAVELENGTH = 632.8e-9
 SCALE_FACTOR = 0.5
 OBLIQUITY = 1.02
-
-
-def surface_um(rows, cols):
-    i, j = np.mgrid[0:rows, 0:cols].astype(float)
-    z = 0.05 + 0.4 * np.sin(2 * np.pi * j / 13) * np.cos(2 * np.pi * i / 11) + 0.002 * j - 0.001 * i
-    z[10:20, 15:30] += 0.8
-    return z
 
 
 VSTR = h5py.string_dtype('ascii')

@@ -26,19 +26,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from wave_pedestal import surface_um
 
 HEADER = 8192
 SENS_Z = 43.91  # nm/V, the Height channel's sensitivity
 SENS_ZSENSOR = 9.5  # nm/V, the Height Sensor's
 HARD = 440.0  # V, the Z scale's hard value
 ROWS, COLS = 29, 41
-
-
-def surface_um(rows, cols):
-    i, j = np.mgrid[0:rows, 0:cols].astype(float)
-    z = 0.05 + 0.4 * np.sin(2 * np.pi * j / 13) * np.cos(2 * np.pi * i / 11) + 0.002 * j - 0.001 * i
-    z[10:20, 15:30] += 0.8
-    return z
 
 
 def counts(z_um, bpp, sens):

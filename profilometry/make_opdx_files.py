@@ -31,18 +31,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from wave_pedestal import surface_um
 
 MAGIC = b'VCA DATA\x01\x00\x00\x55'
 ROWS, COLS = 26, 35
 DX, DY = 0.65, 0.8  # um
 MISSING = [(0, 0), (3, 7), (12, 20), (12, 21), (25, 34), (17, 33)]
-
-
-def surface_um(rows, cols):
-    i, j = np.mgrid[0:rows, 0:cols].astype(float)
-    z = 0.05 + 0.4 * np.sin(2 * np.pi * j / 13) * np.cos(2 * np.pi * i / 11) + 0.002 * j - 0.001 * i
-    z[10:20, 15:30] += 0.8
-    return z
 
 
 def name(s):

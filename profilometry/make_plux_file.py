@@ -25,19 +25,10 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
+from wave_pedestal import surface_um
 
 ROWS, COLS = 27, 37
 MISSING = [(0, 0), (4, 9), (12, 20), (12, 21), (26, 36), (19, 3)]
-
-
-def surface_um(rows, cols):
-    i, j = np.mgrid[0:rows, 0:cols].astype(float)
-    z = 0.05 + 0.4 * np.sin(2 * np.pi * j / 13) * np.cos(2 * np.pi * i / 11) + 0.002 * j - 0.001 * i
-    z[10:20, 15:30] += 0.8
-    for r, c in MISSING:
-        if r < rows and c < cols:
-            z[r, c] = np.nan
-    return z
 
 
 INDEX = """<?xml version="1.0" encoding="UTF-8"?>
@@ -100,7 +91,7 @@ def stats_surfacetopography(path):
 
 
 def write(path, rows, cols):
-    z = surface_um(rows, cols)
+    z = surface_um(rows, cols, MISSING)
     stack = np.repeat((np.nan_to_num(z) * 100).astype(np.uint8)[:, :, None], 3, axis=2)
     with zipfile.ZipFile(path, 'w', compression=zipfile.ZIP_DEFLATED) as zf:
         for name, data in [

@@ -28,15 +28,7 @@ from pathlib import Path
 import numpy as np
 import surfalize
 from surfalize import Surface
-
-
-def surface_um(rows, cols, missing):
-    i, j = np.mgrid[0:rows, 0:cols].astype(float)
-    z = 0.05 + 0.4 * np.sin(2 * np.pi * j / 13) * np.cos(2 * np.pi * i / 11) + 0.002 * j - 0.001 * i
-    z[10:20, 15:30] += 0.8
-    for r, c in missing:
-        z[r, c] = np.nan
-    return z
+from wave_pedestal import surface_um
 
 
 def stats(path, label, unit):

@@ -35,18 +35,10 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
+from wave_pedestal import surface_um
 
 ROWS, COLS = 23, 31
 MISSING = [(3, 4), (12, 20), (22, 30), (0, 17)]
-
-
-def surface_um(rows, cols, missing):
-    i, j = np.mgrid[0:rows, 0:cols].astype(float)
-    z = 0.05 + 0.4 * np.sin(2 * np.pi * j / 13) * np.cos(2 * np.pi * i / 11) + 0.002 * j - 0.001 * i
-    z[10:20, 15:30] += 0.8
-    for r, c in missing:
-        z[r, c] = np.nan
-    return z
 
 
 # ---- Keyence VK4 ----------------------------------------------------------------------------
@@ -110,9 +102,11 @@ def vk4_bytes():
 def vk6_bytes(vk4):
     bmp = bytearray(b'BM' + struct.pack('<I', 70) + bytes(64))
     zbuf = io.BytesIO()
+    # A fixed entry date, so that the same script writes the same bytes.
+    entry = lambda name: zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
     with zipfile.ZipFile(zbuf, 'w', zipfile.ZIP_DEFLATED) as z:
-        z.writestr('MeasureCondition', '<Condition/>')
-        z.writestr('Vk4File', vk4)
+        z.writestr(entry('MeasureCondition'), '<Condition/>', zipfile.ZIP_DEFLATED)
+        z.writestr(entry('Vk4File'), vk4, zipfile.ZIP_DEFLATED)
     return b'VK6' + struct.pack('<I', len(bmp)) + bytes(bmp) + zbuf.getvalue()
 
 

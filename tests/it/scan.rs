@@ -609,7 +609,7 @@ fn truemap_tmd_reproduces_surfalizes_reading() {
     assert!(s.warnings.iter().any(|w| w.contains("kept: the file states its unit")), "{:?}", s.warnings);
 }
 
-/// The wave-pedestal surface of `profilometry/make_vk_frt_files.py`, micrometres (i = row from
+/// The wave-pedestal surface of `profilometry/wave_pedestal.py`, micrometres (i = row from
 /// the top of the image, j = column).
 fn wave_pedestal_um(i: usize, j: usize) -> f64 {
     use std::f64::consts::PI;
@@ -710,20 +710,11 @@ fn frt_microprof_reproduces_surfacetopography() {
     }
 }
 
-/// The surface `make_datx_files.py` injects (micrometres; i = row, j = column), `None` where
-/// the file marks the point not measured.
+/// The surface `make_datx_files.py` injects ([`wave_pedestal_um`]), `None` where the file marks
+/// the point not measured.
 fn datx_surface_um(i: usize, j: usize) -> Option<f64> {
     const MISSING: [(usize, usize); 6] = [(0, 0), (3, 7), (12, 20), (12, 21), (25, 34), (17, 33)];
-    if MISSING.contains(&(i, j)) {
-        return None;
-    }
-    let (fi, fj) = (i as f64, j as f64);
-    let tau = std::f64::consts::TAU;
-    let mut z = 0.05 + 0.4 * (tau * fj / 13.0).sin() * (tau * fi / 11.0).cos() + 0.002 * fj - 0.001 * fi;
-    if (10..20).contains(&i) && (15..30).contains(&j) {
-        z += 0.8;
-    }
-    Some(z)
+    (!MISSING.contains(&(i, j))).then(|| wave_pedestal_um(i, j))
 }
 
 /// Zygo `.datx` written with h5py in Mx's layout: f32 nanometres in a chunked, deflated and

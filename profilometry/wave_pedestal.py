@@ -1,0 +1,18 @@
+"""The surface every instrument test file of this folder carries (imported by the make_*.py
+scripts beside it), micrometres; i = row (the first row in the file unless a format says
+otherwise), j = column:
+
+z = 0.05 + 0.4 sin(2 pi j / 13) cos(2 pi i / 11) + 0.002 j - 0.001 i, plus 0.8 where
+10 <= i < 20 and 15 <= j < 30; the points `missing` (row, column) within the map are NaN.
+"""
+import numpy as np
+
+
+def surface_um(rows, cols, missing=()):
+    i, j = np.mgrid[0:rows, 0:cols].astype(float)
+    z = 0.05 + 0.4 * np.sin(2 * np.pi * j / 13) * np.cos(2 * np.pi * i / 11) + 0.002 * j - 0.001 * i
+    z[10:20, 15:30] += 0.8
+    for r, c in missing:
+        if r < rows and c < cols:
+            z[r, c] = np.nan
+    return z
