@@ -16,6 +16,7 @@
 //! shrinks. A tile and overlap whose passes would cost more than [`MAX_COST`] times one pass
 //! over the image (cores small against their tiles) are skipped, and listed.
 
+use std::path::Path;
 use std::time::Instant;
 
 use burn::tensor::FloatDType;
@@ -27,6 +28,7 @@ use crate::decoder::measurement::{measure, MeasurementModel};
 use crate::decoder::reconstruct::{infer_tiled, RECEPTIVE_RADIUS};
 use crate::decoder::scenes::procedural_scene;
 use crate::decoder::unet::{UNet, SIZE_MULTIPLE};
+use crate::decoder::weights::DecoderWeights;
 use crate::decoder::{infer, to_tensor};
 use crate::error::{Error, Result};
 use crate::image::Image;
@@ -157,20 +159,16 @@ fn compare(y: &Image<f32>, reference: &[f64]) -> (f64, f64) {
     ((d2 / r2.max(f64::MIN_POSITIVE)).sqrt(), max)
 }
 
-/// Runs the sweep (module docs) with decoder `net` (named `name`) on a capture simulated through
-/// `psf`, calling `tick` before each step ([`steps`] in all).
-pub fn run(
-    net: &UNet,
-    name: &str,
-    psf: &Psf,
-    opts: &TilingOptions,
-    mut tick: impl FnMut(&str),
-) -> Result<TilingBench> {
+/// Runs the sweep (module docs) with the decoder file (or built-in name) `decoder` on the CPU, on
+/// a capture simulated through the paper's measured PSF, calling `tick` before each step
+/// ([`steps`] in all).
+pub fn run(decoder: &Path, opts: &TilingOptions, mut tick: impl FnMut(&str)) -> Result<TilingBench> {
     if opts.size == 0 || !opts.size.is_multiple_of(SIZE_MULTIPLE) {
         return Err(Error::param("size", format!("{} px; expected a positive multiple of 16", opts.size)));
     }
+    let net = &UNet::from_weights(&DecoderWeights::read(decoder)?, &crate::decoder::device(false)?);
     let (kept, skipped) = plan(opts);
-    let x = capture(psf, opts.size, opts.seed)?;
+    let x = capture(&Psf::paper_measured()?, opts.size, opts.seed)?;
     tick("f64 reference, one pass");
     let t = Instant::now();
     let reference = infer_f64(net, &x)?;
@@ -209,7 +207,7 @@ pub fn run(
     Ok(TilingBench {
         units: "differences against the f64 one-pass output (1 = the sensor's clipping level); times in s; sizes in pixels"
             .into(),
-        decoder: name.into(),
+        decoder: decoder.display().to_string(),
         options: opts.clone(),
         receptive_radius: RECEPTIVE_RADIUS,
         reference_seconds,

@@ -167,12 +167,9 @@ pub fn bench_tiling(
     progress: &mut dyn FnMut(&str, u64, u64),
 ) -> Result<crate::decoder::tiling_bench::TilingBench> {
     use crate::decoder::tiling_bench as tb;
-    let weights = crate::decoder::weights::DecoderWeights::read(decoder)?;
-    let net = crate::decoder::unet::UNet::from_weights(&weights, &crate::decoder::device(false)?);
-    let psf = crate::optics::Psf::paper_measured()?;
     let total = tb::steps(opts) as u64;
     let mut done = 0;
-    let report = tb::run(&net, &decoder.display().to_string(), &psf, opts, |what| {
+    let report = tb::run(decoder, opts, |what| {
         progress(what, done, total);
         done += 1;
     })?;

@@ -165,20 +165,10 @@ pub fn run_report(
             done += 1;
         })?;
     let decoder = std::path::Path::new("built-in:paper-measured-psf");
-    let net = crate::decoder::unet::UNet::from_weights(
-        &crate::decoder::weights::DecoderWeights::read(decoder)?,
-        &crate::decoder::device(false)?,
-    );
-    let tiling = tiling_bench::run(
-        &net,
-        &decoder.display().to_string(),
-        &crate::optics::Psf::paper_measured()?,
-        &report_tiling(),
-        |what| {
-            progress(what, done, total);
-            done += 1;
-        },
-    )?;
+    let tiling = tiling_bench::run(decoder, &report_tiling(), |what| {
+        progress(what, done, total);
+        done += 1;
+    })?;
     let left = opts.budget - start.elapsed().as_secs_f64();
     if left <= 0.05 * opts.budget {
         return Err(Error::Limit(format!(
