@@ -32,7 +32,7 @@ use super::hdr_merge::{merge, MergeOptions};
 use super::psf_extract::{calibrate_psf, simulate_pinhole_bracket, Centre, PsfCalibration, PsfOptions};
 use crate::error::Result;
 use crate::optics::Psf;
-use crate::report::{failure_panel, write_png_chart, write_svg_chart, FONT};
+use crate::report::{failure_panel, write_png_chart, write_svg_chart, SweepAxis, FONT};
 
 /// The largest relative L2 error (per channel) of a usable calibrated PSF: the accuracy the
 /// calibration tests hold it to (2 %).
@@ -44,21 +44,9 @@ const BASE_FRAMES: usize = 12;
 const BASE_NOISE: f64 = 0.002;
 const BASE_BLACK: f64 = 0.01;
 
-/// One axis of the sweep: its name, unit and the values tried.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Axis {
-    pub name: String,
-    pub unit: String,
-    pub values: Vec<f64>,
-}
-
 /// The axes swept (module docs), in their units.
-pub fn axes() -> Vec<Axis> {
-    let a = |name: &str, unit: &str, values: &[f64]| Axis {
-        name: name.into(),
-        unit: unit.into(),
-        values: values.to_vec(),
-    };
+pub fn axes() -> Vec<SweepAxis> {
+    let a = SweepAxis::new;
     vec![
         a("frames", "count", &[2.0, 3.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0]),
         a("read noise", "% of full scale", &[0.0, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0]),
@@ -93,7 +81,7 @@ pub struct CalibrationBench {
     pub units: String,
     pub truth: String,
     pub tolerance: f64,
-    pub axes: Vec<Axis>,
+    pub axes: Vec<SweepAxis>,
     pub trials: Vec<Trial>,
     /// Trials over the tolerance that nothing warned of.
     pub silent_failures: usize,
@@ -116,7 +104,7 @@ fn params(axis: &str, value: f64) -> (usize, f64, f64) {
 }
 
 /// One trial: the bracket simulated, merged and calibrated, the result scored.
-fn trial(truth: &Psf, axis: &Axis, value: f64, seed: u64) -> Result<Trial> {
+fn trial(truth: &Psf, axis: &SweepAxis, value: f64, seed: u64) -> Result<Trial> {
     let (frames, noise, black) = params(&axis.name, value);
     let (values, times, _) = simulate_pinhole_bracket(truth, MARGIN, frames, noise, black, seed);
     let captures: Vec<Capture> = values
@@ -214,14 +202,8 @@ fn chart<DB: DrawingBackend>(
     let panels = root.split_evenly((1, r.axes.len()));
     let floor = 1e-4;
     for (axis, area) in r.axes.iter().zip(panels.iter()) {
-        let mut c = failure_panel(
-            area,
-            &format!("{} ({})", axis.name, axis.unit),
-            &axis.values,
-            floor..REFUSED_AT * 3.0,
-            "relative L2 error of the PSF",
-            r.tolerance,
-        )?;
+        let mut c =
+            failure_panel(area, axis, floor..REFUSED_AT * 3.0, "relative L2 error of the PSF", r.tolerance)?;
         let own: Vec<&Trial> = r.trials.iter().filter(|t| t.axis == axis.name).collect();
         // The calibration's own estimate, as grey rings.
         c.draw_series(own.iter().filter(|t| t.estimated.is_finite()).map(|t| {

@@ -30,7 +30,7 @@ use crate::error::Result;
 use crate::fabrication::quantize::{quantize, QuantizeMethod};
 use crate::fabrication::wrap::{wrap, WrapSpec};
 use crate::grid::Grid;
-use crate::report::{failure_panel, write_png_chart, write_svg_chart, FONT};
+use crate::report::{failure_panel, write_png_chart, write_svg_chart, SweepAxis, FONT};
 
 /// A pose further than this from the truth, in design samples, is wrong.
 pub const WRONG_SHIFT: f64 = 0.5;
@@ -41,21 +41,9 @@ const SAMPLES: usize = 320;
 const SCAN_PITCH: f64 = 2.7e-6;
 const SEEDS: [u64; 2] = [1, 2];
 
-/// One axis of the sweep: its name, unit and the values tried.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Axis {
-    pub name: String,
-    pub unit: String,
-    pub values: Vec<f64>,
-}
-
 /// The axes swept (module docs), in their units.
-pub fn axes() -> Vec<Axis> {
-    let a = |name: &str, unit: &str, values: &[f64]| Axis {
-        name: name.into(),
-        unit: unit.into(),
-        values: values.to_vec(),
-    };
+pub fn axes() -> Vec<SweepAxis> {
+    let a = SweepAxis::new;
     vec![
         a("noise", "nm", &[0.0, 100.0, 300.0, 600.0, 1000.0, 3000.0]),
         a("blur", "um", &[0.0, 5.0, 20.0, 40.0, 80.0]),
@@ -99,7 +87,7 @@ pub struct RegistrationBench {
     pub scan_pitch: f64,
     pub wrong_shift: f64,
     pub wrong_rotation_deg: f64,
-    pub axes: Vec<Axis>,
+    pub axes: Vec<SweepAxis>,
     pub trials: Vec<Trial>,
     /// Trials accepted with a wrong pose.
     pub silent_failures: usize,
@@ -236,14 +224,8 @@ fn chart<DB: DrawingBackend>(
     let root = root.titled(&title, (FONT, 18)).map_err(|x| e(&x))?;
     let panels = root.split_evenly((2, 3));
     for (axis, area) in r.axes.iter().zip(panels.iter()) {
-        let mut c = failure_panel(
-            area,
-            &format!("{} ({})", axis.name, axis.unit),
-            &axis.values,
-            1e-4..REFUSED_AT * 3.0,
-            "shift error, design samples",
-            r.wrong_shift,
-        )?;
+        let mut c =
+            failure_panel(area, axis, 1e-4..REFUSED_AT * 3.0, "shift error, design samples", r.wrong_shift)?;
         let own = r.trials.iter().filter(|t| t.axis == axis.name);
         c.draw_series(own.map(|t| -> DynElement<DB, (f64, f64)> {
             match t.outcome.as_str() {

@@ -54,13 +54,28 @@ pub fn log_span(
     }
 }
 
-/// A chart of a failure map's panel: x the values swept along one axis (padded 6 % each way),
-/// y logarithmic over `y` with `y_desc`, and a red horizontal line at `limit` (the error past
-/// which a trial fails). The trials are drawn on the returned chart.
+/// One axis of a failure map's sweep (`bench register`, `bench calibration`): its name, unit and
+/// the values tried, in that unit.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SweepAxis {
+    pub name: String,
+    pub unit: String,
+    pub values: Vec<f64>,
+}
+
+impl SweepAxis {
+    pub fn new(name: &str, unit: &str, values: &[f64]) -> SweepAxis {
+        SweepAxis { name: name.into(), unit: unit.into(), values: values.to_vec() }
+    }
+}
+
+/// A chart of a failure map's panel: x the values swept along `axis` (padded 6 % each way,
+/// captioned with its name and unit), y logarithmic over `y` with `y_desc`, and a red horizontal
+/// line at `limit` (the error past which a trial fails). The trials are drawn on the returned
+/// chart.
 pub fn failure_panel<'a, DB: DrawingBackend>(
     area: &'a DrawingArea<DB, plotters::coord::Shift>,
-    caption: &str,
-    values: &[f64],
+    axis: &SweepAxis,
     y: std::ops::Range<f64>,
     y_desc: &str,
     limit: f64,
@@ -69,10 +84,11 @@ pub fn failure_panel<'a, DB: DrawingBackend>(
     String,
 > {
     let e = |x: &dyn std::fmt::Display| x.to_string();
-    let (lo, hi) = values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
+    let (lo, hi) =
+        axis.values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
     let pad = 0.06 * (hi - lo).max(1e-12);
     let mut c = ChartBuilder::on(area)
-        .caption(caption, (FONT, 15))
+        .caption(format!("{} ({})", axis.name, axis.unit), (FONT, 15))
         .margin(8)
         .x_label_area_size(28)
         .y_label_area_size(52)
