@@ -147,8 +147,17 @@ impl Grid {
     pub fn values_mut(&mut self) -> &mut Array2<f64> {
         &mut self.values
     }
+    /// Mutable access to the values together with the mask (for passes that change values in
+    /// place and skip the invalid samples).
+    pub fn values_mut_and_mask(&mut self) -> (&mut Array2<f64>, Option<&Array2<bool>>) {
+        (&mut self.values, self.valid.as_ref())
+    }
     pub fn into_values(self) -> Array2<f64> {
         self.values
+    }
+    /// The same grid with its values now meaning `unit` (changed in place by the caller).
+    pub fn into_unit(self, unit: Unit) -> Grid {
+        Grid { unit, ..self }
     }
     /// `[x, y]` pitch in metres.
     pub fn pitch(&self) -> [f64; 2] {

@@ -198,7 +198,7 @@ pub fn wrap(cli: &Cli, a: &WrapArgs) -> Result<()> {
     let source = DesignSource::parse(Some(design), read.options()?);
     let loaded = chain::load_design(&source)?;
     let params = chain_params(optics, 65536, QuantizeMethod::Round, *replica, 1e-6, *fill);
-    let report = chain::write_wrapped(&loaded, &params, output)?;
+    let report = chain::write_wrapped(loaded, &params, output)?;
     warn(&report.warnings);
     print_result(cli, &report, || {
         println!(

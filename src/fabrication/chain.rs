@@ -11,13 +11,14 @@ use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::gds::{write_layer_previews, write_mask_set, MaskSetOptions, MaskSetReport};
 use crate::fabrication::mask::{GrayscaleMask, MaskMeta, MaskOptions};
 use crate::fabrication::quantize::{
-    efficiency_table, feature_check, quantize, EfficiencyRow, FeatureReport, QuantizeMethod, Quantized,
+    efficiency_table, feature_check, quantize, quantize_owned, EfficiencyRow, FeatureReport, QuantizeMethod,
+    Quantized,
 };
 use crate::fabrication::recipe::{Output, Recipe};
 use crate::fabrication::stl::{
     level_heights, surface_mesh, surface_stl, write_stl_part, StlOptions, StlReport,
 };
-use crate::fabrication::wrap::{into_master, wrap, WrapReport, WrapSpec};
+use crate::fabrication::wrap::{into_master, wrap_owned, WrapReport, WrapSpec};
 use crate::fabrication::{Provenance, ReplicaMode};
 use crate::grid::fill::fill_missing;
 use crate::grid::{Grid, Unit};
@@ -150,11 +151,21 @@ impl ChainParams {
     }
 }
 
+/// The surface to make and its checks: what the chain computes before quantizing.
+#[derive(Debug, Clone)]
+pub struct Shaped {
+    /// Wrapped heights of the surface to make (the master in master mode), metres.
+    pub surface: Grid,
+    pub wrap: WrapReport,
+    pub features: FeatureReport,
+    pub filled_samples: usize,
+    pub warnings: Vec<String>,
+    pub provenance: Provenance,
+}
+
 /// Everything the chain computes before writing artifacts.
 #[derive(Debug, Clone)]
 pub struct Prepared {
-    /// Wrapped heights of the surface to make (the master in master mode), metres.
-    pub surface: Grid,
     pub wrap: WrapReport,
     pub quantized: Quantized,
     pub efficiency: Vec<EfficiencyRow>,
@@ -164,12 +175,12 @@ pub struct Prepared {
     pub provenance: Provenance,
 }
 
-/// Runs load-independent steps: fill, wrap, master inversion, quantization and checks.
-pub fn prepare(design: &LoadedDesign, p: &ChainParams) -> Result<Prepared> {
+/// Fill, wrap, feature check and master inversion, in the design's own storage.
+pub fn shape(design: LoadedDesign, p: &ChainParams) -> Result<Shaped> {
     let spec = p.wrap_spec()?;
+    let provenance = p.provenance(&design)?;
     let (heights, filled_samples) = if p.fill {
-        let (g, n) = fill_missing(&design.heights)?;
-        (std::borrow::Cow::Owned(g), n)
+        fill_missing(&design.heights)?
     } else {
         if let Some(mask) = design.heights.mask() {
             let missing = mask.iter().filter(|v| !**v).count();
@@ -181,10 +192,9 @@ pub fn prepare(design: &LoadedDesign, p: &ChainParams) -> Result<Prepared> {
             )));
         }
         // Non-finite heights are refused by `wrap`.
-        (std::borrow::Cow::Borrowed(&design.heights), 0)
+        (design.heights, 0)
     };
-    let (wrapped, wrap_report) = wrap(&heights, &spec)?;
-    drop(heights);
+    let (wrapped, wrap_report) = wrap_owned(heights, &spec)?;
     let period = wrap_report.period;
     // The zone period is a property of the design, checked before any inversion.
     let features = feature_check(&wrapped, period, p.level_count, p.min_feature);
@@ -192,8 +202,6 @@ pub fn prepare(design: &LoadedDesign, p: &ChainParams) -> Result<Prepared> {
         ReplicaMode::Design => wrapped,
         ReplicaMode::Master => into_master(wrapped, period)?,
     };
-    let quantized = quantize(&surface, period, p.level_count, p.quantization)?;
-    let efficiency = efficiency_table(&spec, p.level_count, &PAPER_WAVELENGTHS)?;
     let mut warnings = Vec::new();
     if features.fraction_below > 0.0 {
         warnings.push(format!(
@@ -217,17 +225,29 @@ pub fn prepare(design: &LoadedDesign, p: &ChainParams) -> Result<Prepared> {
     if filled_samples > 0 {
         warnings.push(format!("{filled_samples} non-finite or non-measured samples were filled (Laplace)"));
     }
-    let provenance = p.provenance(design)?;
-    Ok(Prepared {
-        surface,
-        wrap: wrap_report,
-        quantized,
-        efficiency,
-        features,
-        filled_samples,
-        warnings,
-        provenance,
-    })
+    Ok(Shaped { surface, wrap: wrap_report, features, filled_samples, warnings, provenance })
+}
+
+impl Shaped {
+    /// Quantizes the surface (in its own storage) and predicts the efficiency.
+    pub fn quantize(self, p: &ChainParams) -> Result<Prepared> {
+        let quantized = quantize_owned(self.surface, self.wrap.period, p.level_count, p.quantization)?;
+        let efficiency = efficiency_table(&p.wrap_spec()?, p.level_count, &PAPER_WAVELENGTHS)?;
+        Ok(Prepared {
+            wrap: self.wrap,
+            quantized,
+            efficiency,
+            features: self.features,
+            filled_samples: self.filled_samples,
+            warnings: self.warnings,
+            provenance: self.provenance,
+        })
+    }
+}
+
+/// Runs load-independent steps: fill, wrap, master inversion, quantization and checks.
+pub fn prepare(design: LoadedDesign, p: &ChainParams) -> Result<Prepared> {
+    shape(design, p)?.quantize(p)
 }
 
 /// One file the chain wrote.
@@ -327,8 +347,8 @@ pub struct WrapFileReport {
 }
 
 /// `doefab wrap`: wraps (and optionally inverts) a design and writes the heights.
-pub fn write_wrapped(design: &LoadedDesign, p: &ChainParams, output: &Path) -> Result<WrapFileReport> {
-    let prepared = prepare(design, p)?;
+pub fn write_wrapped(design: LoadedDesign, p: &ChainParams, output: &Path) -> Result<WrapFileReport> {
+    let prepared = shape(design, p)?;
     write_height_map(output, &prepared.surface, &prepared.provenance)?;
     Ok(WrapFileReport {
         wrap: prepared.wrap,
@@ -584,14 +604,18 @@ pub fn run_recipe(
     let design = load_design(source)?;
     progress("design loaded");
     let params = ChainParams::of_recipe(recipe, opts.fill);
-    let prep = prepare(&design, &params)?;
-    let mut warnings = prep.warnings.clone();
-    progress("wrapped and quantized");
+    let shaped = shape(design, &params)?;
     let mut stage = StagedDir::new(out_dir)?;
     let mut artifacts = Vec::new();
+    // The surface is written before quantization turns it into levels in place.
     if opts.intermediates {
-        write_height_map(&stage.stage_path("surface.exr"), &prep.surface, &prep.provenance)?;
+        write_height_map(&stage.stage_path("surface.exr"), &shaped.surface, &shaped.provenance)?;
         artifacts.push(artifact(&stage.final_path("surface.exr"), "wrapped_surface"));
+    }
+    let prep = shaped.quantize(&params)?;
+    let mut warnings = prep.warnings.clone();
+    progress("wrapped and quantized");
+    if opts.intermediates {
         write_level_map(&stage.stage_path("levels.exr"), &prep.quantized, &prep.provenance)?;
         artifacts.push(artifact(&stage.final_path("levels.exr"), "level_map"));
         write_png_u8(
@@ -689,8 +713,9 @@ pub fn run_recipe(
         recipe_path: recipe.path.clone(),
         units,
         provenance: prep.provenance.clone(),
-        design_size: [design.heights.dim().1, design.heights.dim().0],
-        design_pitch_m: design.heights.pitch(),
+        // The levels keep the design's sampling.
+        design_size: [prep.quantized.levels.dim().1, prep.quantized.levels.dim().0],
+        design_pitch_m: prep.quantized.levels.pitch(),
         wrap: prep.wrap.clone(),
         level_count: recipe.level_count,
         quantization_rms_error_m: prep.quantized.rms_error,

@@ -115,11 +115,23 @@ fn wrapped_sq_error(q: f64, h: f64, period: f64) -> f64 {
 /// Quantizes wrapped heights (in `[0, period)`) to `level_count` levels.
 ///
 /// Level `l` stands for height `l * period / N`. Rounding maps `h` to `round(h N / period)`;
-/// the top level `N` is phase-equivalent to 0 and becomes 0. Rounding runs in parallel over
-/// row blocks; the RMS error is summed over the samples in row-major order on one thread
-/// (beside the levels), so its bits do not depend on the number of threads.
+/// the top level `N` is phase-equivalent to 0 and becomes 0. Runs in parallel over fixed row
+/// blocks; the RMS error's squares are summed in row-major order within each block and the
+/// block sums in block order, so its bits do not depend on the number of threads.
 pub fn quantize(
     heights: &Grid,
+    period: f64,
+    level_count: usize,
+    method: QuantizeMethod,
+) -> Result<Quantized> {
+    quantize_owned(heights.clone(), period, level_count, method)
+}
+
+/// [`quantize`] in the heights' own storage: each height becomes its level. A non-finite
+/// height stays non-finite in place (NaN), so the error names the same samples as for the
+/// input.
+pub fn quantize_owned(
+    mut heights: Grid,
     period: f64,
     level_count: usize,
     method: QuantizeMethod,
@@ -131,87 +143,110 @@ pub fn quantize(
     if !(period > 0.0 && period.is_finite()) {
         return Err(Error::param("period", format!("must be positive, got {period}")));
     }
-    // The range check, then the finite check, from one pass over the heights.
-    let (range, finite) = heights.min_max_finite();
-    if let Some((lo, hi)) = range {
-        if lo < -1e-12 * period || hi > period * (1.0 + 1e-9) {
-            return Err(Error::Data(format!(
-                "quantization needs heights wrapped into [0, {:.4} um); got {:.4}..{:.4} um: wrap first",
-                period * 1e6,
-                lo * 1e6,
-                hi * 1e6
-            )));
-        }
-    }
-    if !finite {
-        crate::fabrication::wrap::check_finite(heights)?;
-    }
     let n = level_count as f64;
-    let (nr, nc) = heights.dim();
-    let mut levels = Array2::<f64>::zeros((nr, nc));
-    let values = heights.values();
-    match method {
+    let check_range = |range: Option<(f64, f64)>| match range {
+        Some((lo, hi)) if lo < -1e-12 * period || hi > period * (1.0 + 1e-9) => Err(Error::Data(format!(
+            "quantization needs heights wrapped into [0, {:.4} um); got {:.4}..{:.4} um: wrap first",
+            period * 1e6,
+            lo * 1e6,
+            hi * 1e6
+        ))),
+        _ => Ok(()),
+    };
+    let sq = match method {
         QuantizeMethod::Round => {
-            par::map_blocks_mut(&mut levels, |r0, mut block| {
-                let rows = s![r0..r0 + block.nrows(), ..];
-                let input = values.slice(rows);
-                match heights.mask().map(|m| m.slice(rows)) {
-                    None => {
-                        Zip::from(&mut block).and(&input).for_each(|l, &h| *l = round_level(h, period, n))
-                    }
-                    Some(m) => Zip::from(&mut block).and(&input).and(&m).for_each(|l, &h, &ok| {
+            // One pass: the range of the valid heights, their levels in place (invalid samples
+            // at 0) and the squared errors.
+            let (values, mask) = heights.values_mut_and_mask();
+            let start = (0.0, f64::INFINITY, f64::NEG_INFINITY);
+            // Carried through a fold, not captured by a closure, so that they stay in registers.
+            let one = |(sq, lo, hi): (f64, f64, f64), h: &mut f64| {
+                let v = *h;
+                let l = round_level(v, period, n);
+                *h = l;
+                // Compare and select; NaN is skipped as `f64::min` and `max` skip it.
+                (
+                    sq + wrapped_sq_error(level_height(l, period, n), v, period),
+                    if v < lo { v } else { lo },
+                    if v > hi { v } else { hi },
+                )
+            };
+            let parts = par::map_blocks_mut(values, |r0, mut block| {
+                match mask.map(|m| m.slice(s![r0..r0 + block.nrows(), ..])) {
+                    None => block.iter_mut().fold(start, one),
+                    Some(valid) => Zip::from(&mut block).and(&valid).fold(start, |a, h, &ok| {
                         if ok {
-                            *l = round_level(h, period, n)
+                            one(a, h)
+                        } else {
+                            *h = 0.0;
+                            a
                         }
                     }),
                 }
             });
+            let (sq, lo, hi) = parts.into_iter().fold(start, |a, b| (a.0 + b.0, a.1.min(b.1), a.2.max(b.2)));
+            check_range((lo <= hi).then_some((lo, hi)))?;
+            sq
         }
         QuantizeMethod::FloydSteinberg => {
-            let mut u = heights.values().mapv(|h| h / period * n);
-            for i in 0..nr {
-                let forward = i % 2 == 0;
-                for k in 0..nc {
-                    let j = if forward { k } else { nc - 1 - k };
-                    if !heights.is_valid(i, j) {
-                        continue;
+            let (range, finite) = heights.min_max_finite();
+            check_range(range)?;
+            if !finite {
+                // Diffusion would spread a NaN to its neighbours.
+                crate::fabrication::wrap::check_finite(&heights)?;
+            }
+            let levels = floyd_steinberg(&heights, period, n);
+            // The squared errors summed as the rounding pass sums them.
+            let values = heights.values();
+            let parts = par::map_blocks(&levels, |r0, block| {
+                let mut sq = 0.0;
+                for ((i, j), &l) in block.indexed_iter() {
+                    if heights.is_valid(r0 + i, j) {
+                        sq += wrapped_sq_error(level_height(l, period, n), values[[r0 + i, j]], period);
                     }
-                    let q = u[[i, j]].round().clamp(0.0, n);
-                    let err = u[[i, j]] - q;
-                    levels[[i, j]] = q % n;
-                    let ahead = if forward { j + 1 } else { j.wrapping_sub(1) };
-                    let behind = if forward { j.wrapping_sub(1) } else { j + 1 };
-                    let mut push = |ii: usize, jj: usize, w: f64| {
-                        if ii < nr && jj < nc && heights.is_valid(ii, jj) {
-                            u[[ii, jj]] += err * w;
-                        }
-                    };
-                    push(i, ahead, 7.0 / 16.0);
-                    push(i + 1, behind, 3.0 / 16.0);
-                    push(i + 1, j, 5.0 / 16.0);
-                    push(i + 1, ahead, 1.0 / 16.0);
                 }
-            }
+                sq
+            });
+            *heights.values_mut() = levels;
+            parts.into_iter().sum()
         }
-    }
-    // The squared errors summed over the valid samples in row-major order, on one thread.
-    let mut sq = 0.0;
-    match (heights.mask(), levels.as_slice(), values.as_slice()) {
-        (None, Some(ls), Some(hs)) => {
-            for (&l, &h) in ls.iter().zip(hs) {
-                sq += wrapped_sq_error(level_height(l, period, n), h, period);
-            }
-        }
-        _ => {
-            for ((i, j), &l) in levels.indexed_iter() {
-                if heights.is_valid(i, j) {
-                    sq += wrapped_sq_error(level_height(l, period, n), values[[i, j]], period);
-                }
-            }
-        }
-    }
+    };
+    // Non-finite heights became NaN levels at the same samples.
+    crate::fabrication::wrap::check_finite(&heights)?;
     let rms_error = (sq / heights.valid_count().max(1) as f64).sqrt();
-    Ok(Quantized { levels: heights.map_values(levels, Unit::Level)?, level_count, period, method, rms_error })
+    Ok(Quantized { levels: heights.into_unit(Unit::Level), level_count, period, method, rms_error })
+}
+
+/// The levels of Floyd-Steinberg error diffusion (serpentine scan, invalid samples skipped and
+/// left at 0).
+fn floyd_steinberg(heights: &Grid, period: f64, n: f64) -> Array2<f64> {
+    let (nr, nc) = heights.dim();
+    let mut levels = Array2::<f64>::zeros((nr, nc));
+    let mut u = heights.values().mapv(|h| h / period * n);
+    for i in 0..nr {
+        let forward = i % 2 == 0;
+        for k in 0..nc {
+            let j = if forward { k } else { nc - 1 - k };
+            if !heights.is_valid(i, j) {
+                continue;
+            }
+            let q = u[[i, j]].round().clamp(0.0, n);
+            let err = u[[i, j]] - q;
+            levels[[i, j]] = q % n;
+            let ahead = if forward { j + 1 } else { j.wrapping_sub(1) };
+            let behind = if forward { j.wrapping_sub(1) } else { j + 1 };
+            let mut push = |ii: usize, jj: usize, w: f64| {
+                if ii < nr && jj < nc && heights.is_valid(ii, jj) {
+                    u[[ii, jj]] += err * w;
+                }
+            };
+            push(i, ahead, 7.0 / 16.0);
+            push(i + 1, behind, 3.0 / 16.0);
+            push(i + 1, j, 5.0 / 16.0);
+            push(i + 1, ahead, 1.0 / 16.0);
+        }
+    }
+    levels
 }
 
 /// Diffraction efficiency of order `m` of an N-level staircase approximation of a blazed

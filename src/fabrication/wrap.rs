@@ -11,7 +11,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use ndarray::{s, Array2, Zip};
+use ndarray::{s, Zip};
 
 use crate::error::{Error, Result};
 use crate::float;
@@ -75,6 +75,12 @@ pub struct WrapReport {
 /// in parallel over row blocks; every figure of the report is a count or an extremum, the same
 /// however the rows are split.
 pub fn wrap(heights: &Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
+    wrap_owned(heights.clone(), spec)
+}
+
+/// [`wrap`] computed in the heights' own storage. A non-finite height stays non-finite in
+/// place (NaN), so the error names the same samples as for the input.
+pub fn wrap_owned(mut heights: Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
     if heights.unit() != Unit::Metre {
         return Err(Error::param(
             "heights",
@@ -84,71 +90,70 @@ pub fn wrap(heights: &Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
     let period = match spec.period() {
         Ok(p) => p,
         Err(e) => {
-            check_finite(heights)?;
+            check_finite(&heights)?;
             return Err(e);
         }
     };
-    let src = heights.values();
-    let mut out = Array2::<f64>::zeros(src.dim());
+    let (values, mask) = heights.values_mut_and_mask();
     // Per block: wrapped samples, most periods removed, largest output and input heights,
     // whether every valid height is finite.
-    let parts =
-        par::map_blocks_mut(&mut out, |r0, mut block| {
-            let rows = s![r0..r0 + block.nrows(), ..];
-            let input = src.slice(rows);
-            let (mut wrapped, mut max_wraps, mut max_height, mut input_max, mut finite) =
-                (0usize, 0i64, 0.0f64, f64::NEG_INFINITY, true);
-            let mut one = |o: &mut f64, v: f64| {
-                // Inside (0, P) the quotient v / P rounds below 1 (it is at most 1 - 2^-53), so
-                // k = 0 and w = v: the division is skipped. Zero takes the general path, which
-                // turns -0 into +0.
-                let w = if v > 0.0 && v < period {
-                    v
-                } else {
-                    let k = float::floor(v / period);
-                    let mut w = v - k * period;
-                    if w >= period {
-                        w -= period;
-                    }
-                    if w < 0.0 {
-                        w = 0.0;
-                    }
-                    if k != 0.0 {
-                        wrapped += 1;
-                        max_wraps = max_wraps.max(k.abs() as i64);
-                    }
-                    finite &= v.is_finite();
-                    w
-                };
-                max_height = max_height.max(w);
-                input_max = input_max.max(v);
-                *o = w;
-            };
-            match heights.mask().map(|m| m.slice(rows)) {
-                None => Zip::from(&mut block).and(&input).for_each(|o, &v| one(o, v)),
-                // Invalid samples keep their stored value (0).
-                Some(valid) => Zip::from(&mut block).and(&input).and(&valid).for_each(|o, &v, &ok| {
-                    if ok {
-                        one(o, v)
-                    } else {
-                        *o = v
-                    }
-                }),
+    // The figures are carried through a fold, not captured by a closure, so that they stay
+    // in registers.
+    type Figures = (usize, i64, f64, f64, bool);
+    let start: Figures = (0, 0, 0.0, f64::NEG_INFINITY, true);
+    let one = |(mut wrapped, mut max_wraps, max_height, input_max, mut finite): Figures, h: &mut f64| {
+        let v = *h;
+        // Inside (0, P) the quotient v / P rounds below 1 (it is at most 1 - 2^-53), so k = 0
+        // and w = v: the division is skipped. Zero takes the general path, which turns -0
+        // into +0.
+        let w = if v > 0.0 && v < period {
+            v
+        } else {
+            let k = float::floor(v / period);
+            let mut w = v - k * period;
+            if w >= period {
+                w -= period;
             }
-            (wrapped, max_wraps, max_height, input_max, finite)
-        });
-    let (wrapped_samples, max_wraps, max_height, input_max, finite) =
-        parts.into_iter().fold((0, 0i64, 0.0f64, f64::NEG_INFINITY, true), |a, b| {
-            (a.0 + b.0, a.1.max(b.1), a.2.max(b.2), a.3.max(b.3), a.4 && b.4)
-        });
+            if w < 0.0 {
+                w = 0.0;
+            }
+            if k != 0.0 {
+                wrapped += 1;
+                max_wraps = max_wraps.max(k.abs() as i64);
+            }
+            finite &= v.is_finite();
+            w
+        };
+        *h = w;
+        // Compare and select: NaN is skipped as `f64::max` skips it.
+        (
+            wrapped,
+            max_wraps,
+            if w > max_height { w } else { max_height },
+            if v > input_max { v } else { input_max },
+            finite,
+        )
+    };
+    let parts = par::map_blocks_mut(values, |r0, mut block| {
+        match mask.map(|m| m.slice(s![r0..r0 + block.nrows(), ..])) {
+            None => block.iter_mut().fold(start, one),
+            // Invalid samples keep their stored value (0).
+            Some(valid) => {
+                Zip::from(&mut block).and(&valid).fold(start, |a, h, &ok| if ok { one(a, h) } else { a })
+            }
+        }
+    });
+    let (wrapped_samples, max_wraps, max_height, input_max, finite) = parts
+        .into_iter()
+        .fold(start, |a, b| (a.0 + b.0, a.1.max(b.1), a.2.max(b.2), a.3.max(b.3), a.4 && b.4));
     if !finite {
-        check_finite(heights)?;
+        check_finite(&heights)?;
     }
     // No valid sample: the largest input height is reported as 0.
     let input_max_height = if input_max == f64::NEG_INFINITY { 0.0 } else { input_max };
     let report =
         WrapReport { period, index: spec.index()?, wrapped_samples, max_wraps, input_max_height, max_height };
-    Ok((heights.map_values(out, Unit::Metre)?, report))
+    Ok((heights, report))
 }
 
 /// The master whose PDMS cast equals `design`: complement modulo `period` and mirror in x.

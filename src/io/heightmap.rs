@@ -283,21 +283,28 @@ pub fn heightmap_from_raw(path: &Path, raw: RawMap, opts: &ReadOptions) -> Resul
         return Err(Error::param("z-offset", format!("must be finite, got {offset}")));
     }
     // One pass: the range of the finite stored values (for the plausibility check), the
-    // heights `v k + offset` in place, and whether every height is finite.
+    // heights `v k + offset` in place (kept as stored when that is the identity), and whether
+    // every height is finite. Compare and select, not `f64::min`, whose NaN handling keeps the
+    // pass scalar.
     let mut raw = raw;
     let start = (f64::INFINITY, f64::NEG_INFINITY, true);
-    let parts = crate::grid::par::map_blocks_mut(&mut raw.values, |_, mut b| {
-        let (mut lo, mut hi, mut finite) = start;
-        b.map_inplace(|v| {
-            if v.is_finite() {
-                lo = lo.min(*v);
-                hi = hi.max(*v);
-            }
-            *v = *v * k + offset;
-            finite &= v.is_finite();
-        });
-        (lo, hi, finite)
-    });
+    let range = |(lo, hi, finite): (f64, f64, bool), x: f64| {
+        let ok = x.is_finite();
+        (if ok && x < lo { x } else { lo }, if ok && x > hi { x } else { hi }, finite && ok)
+    };
+    let parts = if k == 1.0 && offset == 0.0 {
+        crate::grid::par::map_blocks(&raw.values, |_, b| b.iter().fold(start, |a, &x| range(a, x)))
+    } else {
+        crate::grid::par::map_blocks_mut(&mut raw.values, |_, mut b| {
+            let (mut lo, mut hi, mut finite) = start;
+            b.map_inplace(|v| {
+                (lo, hi, _) = range((lo, hi, true), *v);
+                *v = *v * k + offset;
+                finite &= v.is_finite();
+            });
+            (lo, hi, finite)
+        })
+    };
     let (lo, hi, finite) = parts.into_iter().fold(start, |a, b| (a.0.min(b.0), a.1.max(b.1), a.2 && b.2));
     if !opts.allow_implausible {
         check_plausible_range(&file, &raw, k, lo, hi)?;

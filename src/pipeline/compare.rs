@@ -85,7 +85,7 @@ pub fn reference_surface(
         None => Ok((design.heights.clone(), None, WrapSpec::default())),
         Some(p) => {
             let p = ChainParams { replica_mode: ReplicaMode::Design, ..p.clone() };
-            let prep = chain::prepare(design, &p)?;
+            let prep = chain::prepare(design.clone(), &p)?;
             let q = prep.quantized;
             let spec = LevelSpec { count: q.level_count, step: q.period / q.level_count as f64 };
             Ok((q.heights()?, Some(spec), p.wrap_spec()?))
