@@ -379,13 +379,34 @@ pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_featur
                     let row_at = |k: usize| &flat[k * nc..(k + 1) * nc];
                     let (row, up, down) =
                         (row_at(i), (i > 0).then(|| row_at(i - 1)), (i + 1 < nr).then(|| row_at(i + 1)));
-                    let mut left = None;
-                    for j in 0..nc {
-                        let right = (j + 1 < nc).then(|| wrapd(row[j + 1] - row[j]));
-                        let u = up.map(|r| wrapd(row[j] - r[j]));
-                        let d = down.map(|r| wrapd(r[j] - row[j]));
-                        row_tally.add(&zones, [left, right, u, d]);
-                        left = right;
+                    match (up, down) {
+                        // An interior row: every sample but the first and last has all four
+                        // differences, passed as `Some` so that the inlined tally drops its
+                        // checks for missing ones.
+                        (Some(up), Some(down)) if nc >= 2 => {
+                            let vert = |j: usize| (wrapd(row[j] - up[j]), wrapd(down[j] - row[j]));
+                            let mut left = wrapd(row[1] - row[0]);
+                            let (u, d) = vert(0);
+                            row_tally.add(&zones, [None, Some(left), Some(u), Some(d)]);
+                            for j in 1..nc - 1 {
+                                let right = wrapd(row[j + 1] - row[j]);
+                                let (u, d) = vert(j);
+                                row_tally.add(&zones, [Some(left), Some(right), Some(u), Some(d)]);
+                                left = right;
+                            }
+                            let (u, d) = vert(nc - 1);
+                            row_tally.add(&zones, [Some(left), None, Some(u), Some(d)]);
+                        }
+                        _ => {
+                            let mut left = None;
+                            for j in 0..nc {
+                                let right = (j + 1 < nc).then(|| wrapd(row[j + 1] - row[j]));
+                                let u = up.map(|r| wrapd(row[j] - r[j]));
+                                let d = down.map(|r| wrapd(r[j] - row[j]));
+                                row_tally.add(&zones, [left, right, u, d]);
+                                left = right;
+                            }
+                        }
                     }
                     counted = nc;
                 }
@@ -494,7 +515,7 @@ impl ZoneTally {
 impl RowTally {
     /// Adds a sample given its wrapped differences to the left, right, up and down neighbours
     /// (`None` at the border or next to an invalid sample).
-    #[inline]
+    #[inline(always)]
     fn add(&mut self, z: &ZoneTally, diffs: [Option<f64>; 4]) {
         if diffs.iter().flatten().any(|d| d.abs() > z.limit) {
             self.steps += 1;
@@ -638,6 +659,81 @@ mod tests {
         }
         let g = Grid::new(Array2::from_elem((2, 2), 2e-6), [1e-6, 1e-6], Unit::Metre).unwrap();
         assert!(quantize(&g, 1e-6, 4, QuantizeMethod::Round).unwrap_err().to_string().contains("wrap first"));
+    }
+
+    /// The feature check's figures straight from their definition (module docs of
+    /// [`feature_check`]), every sample evaluated exactly.
+    fn feature_reference(g: &Grid, period: f64, n: f64, min_feature: f64) -> (f64, usize, usize, usize) {
+        let (nr, nc) = g.dim();
+        let v = g.values();
+        let wrapd = |d: f64| d - (d / period).round() * period;
+        let diff = |a: (usize, usize), b: (usize, usize)| {
+            (g.is_valid(a.0, a.1) && g.is_valid(b.0, b.1)).then(|| wrapd(v[b] - v[a]))
+        };
+        let (mut min, mut below, mut steps, mut counted) = (f64::INFINITY, 0, 0, 0);
+        for i in (0..nr).filter(|&i| (0..nc).any(|j| g.is_valid(i, j))) {
+            for j in (0..nc).filter(|&j| g.is_valid(i, j)) {
+                counted += 1;
+                let h = [
+                    (j > 0).then(|| diff((i, j - 1), (i, j))),
+                    (j + 1 < nc).then(|| diff((i, j), (i, j + 1))),
+                ];
+                let w = [
+                    (i > 0).then(|| diff((i - 1, j), (i, j))),
+                    (i + 1 < nr).then(|| diff((i, j), (i + 1, j))),
+                ];
+                let (h, w): (Vec<f64>, Vec<f64>) = (
+                    h.into_iter().flatten().flatten().collect(),
+                    w.into_iter().flatten().flatten().collect(),
+                );
+                if h.iter().chain(&w).any(|d| d.abs() > UNDERSAMPLED_STEP * period) {
+                    steps += 1;
+                    continue;
+                }
+                let mean = |d: &[f64], pitch: f64| {
+                    if d.is_empty() {
+                        0.0
+                    } else {
+                        d.iter().sum::<f64>() / (d.len() as f64 * pitch)
+                    }
+                };
+                let grad = mean(&h, g.pitch()[0]).hypot(mean(&w, g.pitch()[1]));
+                let lam = if grad > 0.0 { period / grad } else { f64::INFINITY };
+                min = min.min(lam);
+                below += (lam / n <= min_feature) as usize;
+            }
+        }
+        (min, below, steps, counted)
+    }
+
+    #[test]
+    fn feature_check_equals_its_definition_evaluated_at_every_sample() {
+        // A wrapped diffractive lens (zone periods from 70 um at the centre to a few um at
+        // the corners, where the steps pass 0.4 of a period), dx != dy, with and without a
+        // mask of non-measured samples.
+        let p = 1.2e-6;
+        let (nr, nc) = (61, 83);
+        let v = Array2::from_shape_fn((nr, nc), |(i, j)| {
+            let (x, y) = ((j as f64 - 40.0) * 1.1e-6, (i as f64 - 30.0) * 0.9e-6);
+            ((x * x + y * y) * 2.6e5 + 1e-9 * ((i * 7 + j * 3) % 5) as f64).rem_euclid(p)
+        });
+        let plain = Grid::new(v, [1.1e-6, 0.9e-6], Unit::Metre).unwrap();
+        let valid = Array2::from_shape_fn((nr, nc), |(i, j)| (i * 13 + j * 7) % 17 != 0);
+        let masked = plain.clone().with_mask(valid).unwrap();
+        for g in [&plain, &masked] {
+            for (n, f) in [(8usize, 0.8e-6), (8, 1.5e-6), (16, 0.3e-6), (LEVELS_16BIT, 5e-6)] {
+                let per_zone = if n == LEVELS_16BIT { 1.0 } else { n as f64 };
+                let r = feature_check(g, p, n, f);
+                let (min, below, steps, counted) = feature_reference(g, p, per_zone, f);
+                assert_eq!(r.min_zone_period, min, "N {n}, f {f}");
+                assert_eq!(r.fraction_below, below as f64 / counted as f64, "N {n}, f {f}");
+                assert_eq!(r.step_samples, steps, "N {n}, f {f}");
+                assert!(
+                    below > 0 && below < counted && steps > 0 || n == LEVELS_16BIT,
+                    "N {n}: {below} {steps}"
+                );
+            }
+        }
     }
 
     #[test]
