@@ -27,6 +27,7 @@ pub mod propagate;
 pub mod psf;
 pub mod psf_bench;
 pub mod psf_compare;
+pub mod spectral_bench;
 pub mod spectrum;
 pub mod stability;
 pub mod system;
