@@ -259,12 +259,21 @@ fn image(t: &Tiff, p: &Page, index: usize) -> Result<Image> {
             ),
         ));
     }
+    let rows_per_strip = if rps == 0 { rows } else { rps }.min(rows).max(1);
+    // The bytes an uncompressed strip needs (some writers state more in StripByteCounts:
+    // Gwyddion's TIFF export gives bits): what must lie in the file.
+    let row_bytes = cols.checked_mul(spp).and_then(|n| n.checked_mul(bits)).map(|n| n.div_ceil(8));
     let mut strips = Vec::with_capacity(offsets.len());
     for (k, (&o, &n)) in offsets.iter().zip(&counts).enumerate() {
-        t.b.take(o as usize, n as usize, &format!("page {index}'s strip {k}"))?;
-        strips.push((o as usize, n as usize));
+        let (o, n) = (o as usize, n as usize);
+        let strip_rows = rows.saturating_sub(k.saturating_mul(rows_per_strip)).min(rows_per_strip);
+        let need = match (compression, row_bytes) {
+            (1, Some(rb)) => n.min(rb.saturating_mul(strip_rows)),
+            _ => n,
+        };
+        t.b.take(o, need, &format!("page {index}'s strip {k}"))?;
+        strips.push((o, n));
     }
-    let rows_per_strip = if rps == 0 { rows } else { rps }.min(rows).max(1);
     Ok(Image { at: p.at, cols, rows, spp, bits, format, compression, fill_order, strips, rows_per_strip })
 }
 
@@ -368,7 +377,7 @@ fn mask(t: &Tiff, img: &Image, index: usize) -> Result<Vec<bool>> {
         for j in 0..img.cols {
             let byte = row[j / 8];
             let bit = if lsb { j % 8 } else { 7 - j % 8 };
-            out.push(byte >> bit & 1 == 1);
+            out.push((byte >> bit) & 1 == 1);
         }
     }
     Ok(out)
@@ -378,20 +387,23 @@ fn mask(t: &Tiff, img: &Image, index: usize) -> Result<Vec<bool>> {
 fn flatten(xml: &str) -> std::result::Result<Vec<(String, String)>, String> {
     let doc = roxmltree::Document::parse(xml).map_err(|e| e.to_string())?;
     let mut out = Vec::new();
-    fn walk(n: roxmltree::Node, path: &str, out: &mut Vec<(String, String)>) {
-        for c in n.children().filter(|c| c.is_element()) {
-            let p = if path.is_empty() {
-                c.tag_name().name().to_string()
-            } else {
-                format!("{path}/{}", c.tag_name().name())
-            };
-            if let Some(t) = c.text().map(str::trim).filter(|t| !t.is_empty()) {
-                out.push((p.clone(), t.to_string()));
+    // Depth-first in file order, without recursion; elements below MAX_DEPTH (the LEXT blocks
+    // nest three deep) are not kept, which bounds the paths' length.
+    const MAX_DEPTH: usize = 16;
+    let mut stack: Vec<(roxmltree::Node, String, usize)> = vec![(doc.root_element(), String::new(), 0)];
+    while let Some((n, path, depth)) = stack.pop() {
+        let children: Vec<_> = n.children().filter(|c| c.is_element() && depth < MAX_DEPTH).collect();
+        for c in children.into_iter().rev() {
+            let name = c.tag_name().name();
+            let p = if path.is_empty() { name.to_string() } else { format!("{path}/{name}") };
+            stack.push((c, p, depth + 1));
+        }
+        if n != doc.root_element() {
+            if let Some(t) = n.text().map(str::trim).filter(|t| !t.is_empty()) {
+                out.push((path, t.to_string()));
             }
-            walk(c, &p, out);
         }
     }
-    walk(doc.root_element(), "", &mut out);
     Ok(out)
 }
 
