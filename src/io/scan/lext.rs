@@ -706,3 +706,137 @@ fn tiff_date(s: &str) -> Option<String> {
         && digits(17..19);
     ok.then(|| format!("{}-{}-{}T{}", &s[0..4], &s[5..7], &s[8..10], &s[11..19]))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One page for [`tiff`]: (description, width, height, bits, sample format, fill order,
+    /// the strip's bytes).
+    type PageSpec<'a> = (&'a str, u32, u32, u16, u16, u16, Vec<u8>);
+
+    /// A classic TIFF of `pages`, one strip each, in the byte order `big` says (built from the
+    /// TIFF 6.0 layout, for tests).
+    fn tiff(big: bool, pages: &[PageSpec]) -> Vec<u8> {
+        let u16b = |v: u16| if big { v.to_be_bytes() } else { v.to_le_bytes() };
+        let u32b = |v: u32| if big { v.to_be_bytes() } else { v.to_le_bytes() };
+        let mut out = if big { b"MM\0*".to_vec() } else { b"II*\0".to_vec() };
+        out.extend_from_slice(&u32b(8));
+        for (k, (desc, w, h, bits, format, fill, data)) in pages.iter().enumerate() {
+            let mut text = desc.as_bytes().to_vec();
+            text.push(0);
+            let n = 10u16;
+            let ifd = out.len();
+            let text_at = ifd + 2 + 12 * n as usize + 4;
+            let data_at = text_at + text.len();
+            let next = if k + 1 == pages.len() { 0 } else { (data_at + data.len()) as u32 };
+            out.extend_from_slice(&u16b(n));
+            let mut entry = |tag: u16, kind: u16, count: u32, value: [u8; 4]| {
+                out.extend_from_slice(&u16b(tag));
+                out.extend_from_slice(&u16b(kind));
+                out.extend_from_slice(&u32b(count));
+                out.extend_from_slice(&value);
+            };
+            let short = |v: u16| {
+                let mut a = [0u8; 4];
+                a[..2].copy_from_slice(&u16b(v));
+                a
+            };
+            entry(IMAGE_WIDTH, 4, 1, u32b(*w));
+            entry(IMAGE_LENGTH, 4, 1, u32b(*h));
+            entry(BITS_PER_SAMPLE, 3, 1, short(*bits));
+            entry(FILL_ORDER, 3, 1, short(*fill));
+            entry(IMAGE_DESCRIPTION, 2, text.len() as u32, u32b(text_at as u32));
+            entry(STRIP_OFFSETS, 4, 1, u32b(data_at as u32));
+            entry(SAMPLES_PER_PIXEL, 3, 1, short(1));
+            entry(ROWS_PER_STRIP, 4, 1, u32b(*h));
+            entry(STRIP_BYTE_COUNTS, 4, 1, u32b(data.len() as u32));
+            entry(SAMPLE_FORMAT, 3, 1, short(*format));
+            out.extend_from_slice(&u32b(next));
+            out.extend_from_slice(&text);
+            out.extend_from_slice(data);
+        }
+        out
+    }
+
+    const XML: &str = "<?xml version=\"1.0\"?><TiffTagDescData a=\"1\"><HeightInfo>\
+        <HeightDataPerPixelX>1000000</HeightDataPerPixelX><HeightDataPerPixelY>2000000</HeightDataPerPixelY>\
+        <HeightDataPerPixelZ>1000</HeightDataPerPixelZ></HeightInfo></TiffTagDescData>";
+
+    #[test]
+    fn float_heights_lsb_first_mask_and_both_byte_orders() {
+        for big in [false, true] {
+            // 3 x 2 f64 heights (one NaN), and 32-bit floats; a mask marking (0, 2) and (1, 0)
+            // with the least significant bit first.
+            let h = [1.0f64, 2.0, 3.0, f64::NAN, 5.0, 6.0];
+            let f64s: Vec<u8> =
+                h.iter().flat_map(|v| if big { v.to_be_bytes() } else { v.to_le_bytes() }).collect();
+            let f32s: Vec<u8> = h
+                .iter()
+                .flat_map(|&v| if big { (v as f32).to_be_bytes() } else { (v as f32).to_le_bytes() })
+                .collect();
+            for (bits, data) in [(64, f64s), (32, f32s)] {
+                let bytes = tiff(
+                    big,
+                    &[
+                        (XML, 1, 1, 8, 1, 1, vec![0]),
+                        ("Height", 3, 2, bits, 3, 1, data),
+                        ("invalid", 3, 2, 1, 1, 2, vec![0b100, 0b001]),
+                    ],
+                );
+                let r = decode(Path::new("t.lext"), &bytes).unwrap();
+                let v: Vec<f64> = r.raw.values.iter().copied().collect();
+                let want = [1.0, 2.0, f64::NAN, f64::NAN, 5.0, 6.0];
+                assert!(
+                    v.iter().zip(want).all(|(a, b)| a == &b || a.is_nan() && b.is_nan()),
+                    "{big} {bits}: {v:?}"
+                );
+                assert_eq!(r.raw.pitch, Some([1e6 * PM, 2e6 * PM]));
+                assert_eq!(r.raw.unit, Some(1000.0 * PM));
+                let m = |k: &str| r.raw.metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.clone());
+                assert_eq!(m("invalid_page").as_deref(), Some("page 2: 1 points not measured"));
+                assert_eq!(m("calibration").as_deref(), Some("no EXIF device settings"));
+                assert_eq!(m("instrument").as_deref(), Some("Olympus LEXT"));
+                assert!(r.warnings.is_empty(), "{:?}", r.warnings);
+            }
+        }
+    }
+
+    #[test]
+    fn unsigned_bytes_signed_shorts_and_refusals() {
+        let page0 = (XML, 1, 1, 8, 1, 1, vec![0]);
+        let r = decode(
+            Path::new("t.lext"),
+            &tiff(false, &[page0.clone(), ("HEIGHT", 2, 1, 8, 1, 1, vec![7, 255])]),
+        )
+        .unwrap();
+        assert_eq!(r.raw.values.iter().copied().collect::<Vec<_>>(), [7.0, 255.0]);
+        let s: Vec<u8> = [-3i16, 4].iter().flat_map(|v| v.to_be_bytes()).collect();
+        let r = decode(Path::new("t.lext"), &tiff(true, &[page0.clone(), ("HEIGHT", 2, 1, 16, 2, 1, s)]))
+            .unwrap();
+        assert_eq!(r.raw.values.iter().copied().collect::<Vec<_>>(), [-3.0, 4.0]);
+        let err =
+            |pages: &[PageSpec]| decode(Path::new("t.lext"), &tiff(false, pages)).unwrap_err().to_string();
+        let e = err(&[page0.clone(), ("HEIGHT", 2, 1, 16, 3, 1, vec![0; 4])]);
+        assert!(e.contains("16-bit samples of SampleFormat 3 are not read"), "{e}");
+        let e = err(&[page0.clone(), ("HEIGHT", 2, 1, 16, 1, 1, vec![0; 3])]);
+        assert!(e.contains("strip 0 holds 3 bytes"), "{e}");
+        let e = err(&[page0.clone(), ("INTENSITY", 2, 1, 16, 1, 1, vec![0; 4])]);
+        assert!(e.contains("no page titled HEIGHT"), "{e}");
+        let e = err(&[("HEIGHT", 2, 1, 16, 1, 1, vec![0; 4])]);
+        assert!(e.contains("no <TiffTagDescData>"), "{e}");
+        let e = err(&[("<TiffTagDescData><a>", 1, 1, 8, 1, 1, vec![0])]);
+        assert!(e.contains("XML does not parse"), "{e}");
+        let e = decode(Path::new("t.lext"), b"II+\0\x08\0\0\0").unwrap_err().to_string();
+        assert!(e.contains("BigTIFF"), "{e}");
+        let mut looped = tiff(false, &[page0]);
+        let n = looped.len();
+        let ifd_next = 8 + 2 + 12 * 10;
+        looped[ifd_next..ifd_next + 4].copy_from_slice(&8u32.to_le_bytes());
+        assert!(n > ifd_next);
+        let e = decode(Path::new("t.lext"), &looped).unwrap_err().to_string();
+        assert!(e.contains("loops"), "{e}");
+        assert_eq!(tiff_date("2024:03:05 14:22:31").as_deref(), Some("2024-03-05T14:22:31"));
+        assert_eq!(tiff_date("5 March 2024"), None);
+    }
+}
