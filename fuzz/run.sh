@@ -21,7 +21,7 @@ seconds=${1:-60}
 shift || true
 targets=("$@")
 if [ ${#targets[@]} -eq 0 ]; then
-  targets=(x3p gsf sdf_binary sdf_ascii sur gwy metropro opd plu al3d tmd vk4 vk6 frt datx opdx spm plux png_pcal npy tiff exr profile)
+  targets=(x3p gsf sdf_binary sdf_ascii sur gwy metropro opd plu al3d tmd vk4 vk6 lext frt datx opdx spm plux png_pcal npy tiff exr profile)
 fi
 triple=$(rustc -vV | sed -n 's/^host: //p')
 export RUSTFLAGS="-Cpasses=sancov-module -Cllvm-args=-sanitizer-coverage-level=4 \
@@ -37,9 +37,13 @@ for t in "${targets[@]}"; do
   # A zip must be whole: x3p inputs keep their length and also start from the reference
   # files in profilometry/ (the kept corpus holds only zips under 8 kB), and so do datx
   # inputs (an HDF5 file's chunks and heaps lie anywhere in it); the others are cut at 4 kB
-  # (every header field fits, and short inputs run a hundred times faster).
+  # (every header field fits, and short inputs run a hundred times faster); lext inputs keep
+  # 16 kB (a TIFF's IFDs and strips lie anywhere, and the kept seeds are 7 and 8 kB).
   len=4096
   extra=()
+  if [ "$t" = lext ]; then
+    len=16384
+  fi
   if [ "$t" = x3p ] || [ "$t" = datx ]; then
     len=400000
     extra=(../profilometry)

@@ -23,6 +23,7 @@ add al3d ../profilometry/*.al3d
 add tmd ../profilometry/*.tmd
 add vk4 ../profilometry/*.vk4
 add vk6 ../profilometry/*.vk6
+add lext ../profilometry/*.lext
 add frt ../profilometry/*.frt
 add datx ../profilometry/*.datx
 add opdx ../profilometry/*.opdx

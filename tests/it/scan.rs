@@ -673,6 +673,65 @@ fn keyence_vk_reproduces_surfalize_and_surfacetopography() {
     }
 }
 
+/// Olympus LEXT `.lext` written with tifffile in the LEXT layout (profilometry/make_lext.py):
+/// little-endian with the EXIF calibration factors (1.002, 0.998, 1.010), and big-endian with
+/// signed 32-bit counts in strips of 5 rows, the mask as page 0 too and no EXIF block; each
+/// against surfalize's reading (and the first against SurfaceTopography's), and the injected
+/// surface with the INVALID page's points not measured.
+#[test]
+fn olympus_lext_reproduces_surfalize_and_surfacetopography() {
+    let none = ScanOptions::default();
+    let missing = [(3, 4), (12, 20), (22, 30), (0, 17), (7, 0)];
+    let pm = 1e-12;
+    // (file, calibration factors as MakerCalibrationValue x 1e-6, surfalize's Sq, Sa, Sz in um)
+    for (name, cal, sq_sa_sz) in [
+        (
+            "wave_pedestal.tifffile.lext",
+            [1_002_000.0 * 1e-6, 998_000.0 * 1e-6, 1_010_000.0 * 1e-6],
+            [0.389467548, 0.307868036, 1.643169],
+        ),
+        ("wave_pedestal_be.tifffile.lext", [1.0; 3], [0.389468345, 0.30786835, 1.6432]),
+    ] {
+        let s = read(&local(name), &none);
+        assert_eq!(s.format, ScanFormat::Lext);
+        assert!(s.warnings.is_empty(), "{name}: {:?}", s.warnings);
+        // surfalize: 2.505 and 1.2475 um (calibrated), 2.5 and 1.25 um; SurfaceTopography
+        // 2.5049999999999994 and 1.2475 um: the stored 2500000 and 1250000 pm times the factors.
+        let want = Surfalize {
+            dim: (23, 31),
+            pitch: [2_500_000.0 * cal[0] * pm, 1_250_000.0 * cal[1] * pm],
+            missing: 5,
+            sq_sa_sz,
+            unit: 1e-6,
+        };
+        check_surfalize(name, &s, &want);
+        check_wave_pedestal(name, &s, 1.0, 50.0 * cal[2] * pm, &missing);
+        let m = |k: &str| s.metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
+        assert_eq!(m("instrument"), Some("OLYMPUS OLS4100"), "{name}");
+        assert_eq!(m("date"), Some("2024-03-05T14:22:31"), "{name}");
+        assert_eq!(m("software"), Some("LEXT 2.1.3.1"), "{name}");
+        assert_eq!(m("invalid_page"), Some("page 3: 5 points not measured"), "{name}");
+        assert_eq!(m("HeightInfo/HeightDataPerPixelZ"), Some("50"), "{name}");
+        if name.contains("_be") {
+            assert_eq!(m("calibration"), Some("no EXIF device settings"));
+            assert_eq!(m("images_not_read"), Some("INTENSITY (page 1), COLOR (page 4)"));
+            assert_eq!(m("height_page"), Some("page 2 of 5 (32-bit signed, byte order MM)"));
+        } else {
+            assert_eq!(m("objective"), Some("MPLAPON50XLEXT"));
+            assert_eq!(m("magnification"), Some("50.0"));
+            assert_eq!(
+                m("calibration"),
+                Some("MakerCalibrationValue x 1e-6 applied: X 1.002, Y 0.998, Z 1.01")
+            );
+            assert_eq!(m("images_not_read"), Some("COLOR (page 0, inferred), INTENSITY (page 1)"));
+            assert_eq!(m("height_page"), Some("page 2 of 4 (16-bit unsigned, byte order II)"));
+            // SurfaceTopography 1.27.1 (its heights, with the INVALID page as the mask).
+            let st = Surfalize { sq_sa_sz: [0.389467548, 0.307868036, 1.643169], ..want };
+            check_reading(name, &s, &st, "SurfaceTopography");
+        }
+    }
+}
+
 /// FRT MicroProf `.frt` built from the FRT layout (profilometry/make_vk_frt_files.py): version
 /// 1.00 with the single-image block and 1.01 with the multi-image block (an intensity image
 /// skipped with a warning), against SurfaceTopography's reading and the injected surface,

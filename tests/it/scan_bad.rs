@@ -426,7 +426,7 @@ fn opdx_cuts_corruption_and_other_formats() {
 fn known_unread_instrument_formats_are_refused_by_name() {
     let dir = common::tempdir();
     for (name, says) in
-        [("part.mnt", "MountainsMap"), ("part.lext", "Olympus LEXT"), ("part.nms", "NanoFocus")]
+        [("part.mnt", "MountainsMap"), ("part.ols", "Olympus LEXT OLS3000"), ("part.nms", "NanoFocus")]
     {
         let p = dir.path().join(name);
         std::fs::write(&p, b"not read").unwrap();
@@ -473,4 +473,34 @@ fn vk_and_frt_cuts_corruption_and_other_formats() {
         let e = err("wrong.frt", other);
         assert!(e.contains("wrong.frt") && e.contains("not an FRT MicroProf file"), "{e}");
     }
+}
+
+/// Olympus `.lext`: cut at every byte of the first pages' IFDs and a spread beyond (an error
+/// naming the file and the byte offset: every page's strips must lie in the file), flipped
+/// bytes (no panic), a file of another format or a plain TIFF under the extension, and a LEXT
+/// file without a HEIGHT page (each refused naming what was expected).
+#[test]
+fn lext_cuts_corruption_and_other_formats() {
+    for name in ["wave_pedestal.tifffile.lext", "wave_pedestal_be.tifffile.lext"] {
+        let bytes = std::fs::read(local(name)).unwrap();
+        let short = format!("cut-{name}");
+        check_cuts_below(&short, &bytes, 1500, bytes.len(), true);
+        check_corruption(&short, &bytes);
+    }
+    let lext = std::fs::read(local("wave_pedestal.tifffile.lext")).unwrap();
+    let tmd = std::fs::read(local("wave_pedestal.surfalize.tmd")).unwrap();
+    let x3p = std::fs::read(local("s1_tilt_pedestal.x3pio.x3p")).unwrap();
+    let tiff = std::fs::read(local("s1_tilt_pedestal.grey16.tiff")).unwrap();
+    let err = |name: &str, b: &[u8]| decode(name, b, &ScanOptions::default()).unwrap_err().to_string();
+    for other in [&tmd, &x3p] {
+        let e = err("wrong.lext", other);
+        assert!(e.contains("wrong.lext") && e.contains("not an Olympus LEXT file"), "{e}");
+    }
+    let e = err("plain.lext", &tiff);
+    assert!(e.contains("plain.lext") && e.contains("no <TiffTagDescData>"), "{e}");
+    let at = lext.windows(7).position(|w| w == b"HEIGHT\0").unwrap();
+    let mut no_height = lext.clone();
+    no_height[at..at + 6].copy_from_slice(b"HEIGHX");
+    let e = err("flat.lext", &no_height);
+    assert!(e.contains("flat.lext") && e.contains("no page titled HEIGHT"), "{e}");
 }

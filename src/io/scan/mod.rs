@@ -15,6 +15,7 @@
 //! | `.al3d` | Alicona Imaging / Bruker Alicona AL3D (the depth image) | [`al3d`] |
 //! | `.tmd` | TrueMap / GelSight binary TrueMap Data File v2.0 | [`tmd`] |
 //! | `.frt` | FRT MicroProf binary, versions 1.00 and 1.01 (the topography) | [`frt`] |
+//! | `.lext` | Olympus LEXT (multi-page TIFF: the `HEIGHT` page, its `INVALID` mask as non-measured points) | [`lext`] |
 //! | `.vk4`, `.vk6`, `.vk7` | Keyence VK (the first height image; `.vk6`/`.vk7` hold it in a zip) | [`vk`] |
 //! | `.datx` | Zygo Mx (HDF5: the surface map, its `No Data` marker, unit and lateral converters) | [`datx`] |
 //! | `.spm`, `.001`... | Bruker Nanoscope (versions 4.3 to 9, 16/32-bit; the height channel) | [`nanoscope`] |
@@ -44,6 +45,7 @@ pub mod datx;
 pub mod frt;
 pub mod gsf;
 pub mod gwy;
+pub mod lext;
 pub mod nanoscope;
 pub mod opd;
 pub mod opdx;
@@ -113,6 +115,7 @@ pub enum ScanFormat {
     Al3d,
     Tmd,
     Vk,
+    Lext,
     Frt,
     Datx,
     Nanoscope,
@@ -141,6 +144,7 @@ impl ScanFormat {
             ScanFormat::Al3d => "Alicona AL3D",
             ScanFormat::Tmd => "TrueMap TMD",
             ScanFormat::Vk => "Keyence VK",
+            ScanFormat::Lext => "Olympus LEXT",
             ScanFormat::Frt => "FRT MicroProf",
             ScanFormat::Datx => "Zygo Mx DATX",
             ScanFormat::Nanoscope => "Bruker Nanoscope SPM",
@@ -205,6 +209,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
         "al3d" => ScanFormat::Al3d,
         "tmd" => ScanFormat::Tmd,
         "vk4" | "vk6" | "vk7" => ScanFormat::Vk,
+        "lext" => ScanFormat::Lext,
         "frt" => ScanFormat::Frt,
         "datx" => ScanFormat::Datx,
         "spm" => ScanFormat::Nanoscope,
@@ -224,7 +229,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
             return Err(Error::format(
                 path,
                 format!(
-                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .opdx, .plu, .plux, .al3d, .tmd, .vk4/.vk6/.vk7, .frt, .datx, .spm, .dat, .xyz, \
+                    "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .opdx, .plu, .plux, .al3d, .tmd, .vk4/.vk6/.vk7, .lext, .frt, .datx, .spm, .dat, .xyz, \
                      .txt/.csv/.asc, .png, .tif/.tiff or .npy)"
                 ),
             ));
@@ -259,6 +264,7 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
         ScanFormat::Al3d => al3d::decode(path, bytes),
         ScanFormat::Tmd => tmd::decode(path, bytes),
         ScanFormat::Vk => vk::decode(path, bytes),
+        ScanFormat::Lext => lext::decode(path, bytes),
         ScanFormat::Frt => frt::decode(path, bytes),
         ScanFormat::Datx => datx::decode(path, bytes),
         ScanFormat::Nanoscope => nanoscope::decode(path, bytes),
@@ -488,6 +494,7 @@ mod tests {
         assert_eq!(detect_format(&p("a.tmd"), tmd::MAGIC).unwrap(), ScanFormat::Tmd);
         assert_eq!(detect_format(&p("a.VK6"), b"VK6").unwrap(), ScanFormat::Vk);
         assert_eq!(detect_format(&p("a.frt"), frt::MAGIC).unwrap(), ScanFormat::Frt);
+        assert_eq!(detect_format(&p("a.LEXT"), b"II*\0").unwrap(), ScanFormat::Lext);
         assert_eq!(detect_format(&p("a.DATX"), datx::MAGIC).unwrap(), ScanFormat::Datx);
         assert_eq!(detect_format(&p("a.opdx"), opdx::MAGIC).unwrap(), ScanFormat::Opdx);
         assert_eq!(detect_format(&p("a.spm"), b"").unwrap(), ScanFormat::Nanoscope);

@@ -10,7 +10,19 @@ const UNREAD: &[(&[&str], &str, &str)] = &[
          export the surface from MountainsMap as Digital Surf .sur, ISO 25178-72 .x3p or \
          ISO 25178-71 .sdf",
     ),
-    (&["lext", "ols", "poir"], "an Olympus LEXT file", "not read yet"),
+    (
+        &["ols"],
+        "an Olympus LEXT OLS3000 file",
+        "not read yet: its layout (a TIFF whose first page carries an INI-like text header, \
+         `System Name = OLS`, with `XY Convert Value` and `Z Convert Value` per page) is not the \
+         `.lext` one of the OLS4000 and later, which is read",
+    ),
+    (
+        &["poir", "oir"],
+        "an Olympus OIR file (`.poir`: a zip of them; OLS5000 and later)",
+        "not read yet: a chunked binary layout of its own (magic `OLYMPUSRAWFORMAT`), not the \
+         TIFF of `.lext`, which is read",
+    ),
     (
         &["nms"],
         "a NanoFocus \u{b5}surf file",
@@ -53,6 +65,11 @@ mod tests {
             let d = refusal(exts[0]).unwrap();
             assert!(d.contains(what) && d.contains(".x3p") && d.contains("not read yet"), "{d}");
         }
+        let o = refusal("ols").unwrap();
+        assert!(o.contains("OLS3000") && o.contains(".lext") && o.contains(".x3p"), "{o}");
+        let p = refusal("poir").unwrap();
+        assert!(p.contains("OLYMPUSRAWFORMAT") && p.contains(".x3p"), "{p}");
+        assert_eq!(refusal("lext"), None);
         assert_eq!(refusal("datx"), None);
         assert_eq!(refusal("opdx"), None);
         assert_eq!(refusal("vk6"), None);
