@@ -133,5 +133,5 @@ fn main() -> Result<()> {
 }
 
 fn run_plan(p: &Plan, doe: &doefab::Grid) -> Result<Psf> {
-    doefab::optics::plan::run(p, doe, &[])
+    doefab::optics::plan::run(p, doe, &[]).map(|(psf, _)| psf)
 }

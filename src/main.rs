@@ -41,6 +41,7 @@ fn run(cli: &Cli) -> Result<()> {
         Command::PsfCompare(a) => optics::psf_compare(cli, a),
         Command::Report(a) => optics::report(cli, a),
         Command::Bench { what: BenchCommand::Psf(a) } => optics::bench_psf(cli, a),
+        Command::Bench { what: BenchCommand::Spectral(a) } => optics::bench_spectral(cli, a),
         Command::Bench { what: BenchCommand::Stability(a) } => optics::bench_stability(cli, a),
         Command::Bench { what: BenchCommand::Register(a) } => metrology::bench_register(cli, a),
         Command::Bench { what: BenchCommand::Fab(a) } => fabrication::bench_fab(cli, a),

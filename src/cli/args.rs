@@ -15,7 +15,9 @@ use super::fabrication::{
 };
 use super::metrology::BenchRegisterArgs;
 use super::metrology::{CompareArgs, CompareProfileArgs, ScanInfoArgs, SimulateScanArgs};
-use super::optics::{BenchPsfArgs, BenchStabilityArgs, PsfArgs, PsfCompareArgs, ReportArgs};
+use super::optics::{
+    BenchPsfArgs, BenchSpectralArgs, BenchStabilityArgs, PsfArgs, PsfCompareArgs, ReportArgs,
+};
 
 #[derive(Parser)]
 #[command(name = "doefab", version, about = "From a learned DOE design to a fabricated part", long_about = None)]
@@ -108,6 +110,10 @@ pub enum BenchCommand {
     /// Error against run time of every PSF method, precision and sub-sampling on a design at its
     /// own geometry, and error against pupil sampling with the guard's refusals: PNG + SVG + JSON.
     Psf(BenchPsfArgs),
+    /// Spectral sampling of colour bands: the error of the midpoint rule over N sub-bands per
+    /// band against a converged reference, the plan's estimate beside it, and the plan's rule
+    /// placed at each tolerance with the silent failures counted: PNG + SVG + JSON.
+    Spectral(BenchSpectralArgs),
     /// Stability maps of the two-step Fresnel method: its error against an exact truth over
     /// pupil sampling x Fresnel number and pupil sampling x wavelength, each run with its
     /// guard's verdict, the silent failures counted, the paper's sampling marked: PNG + SVG + JSON.

@@ -121,6 +121,35 @@ pub struct BenchPsfArgs {
     pub tolerances: Vec<f64>,
 }
 
+/// Arguments of `doefab bench spectral`.
+#[derive(Args)]
+pub struct BenchSpectralArgs {
+    /// Height map file, or built-in:paper / built-in:fresnel (default built-in:paper, at the
+    /// paper's geometry).
+    pub design: Option<String>,
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Optical system TOML (as for `psf`); unset fields keep the paper's values.
+    #[arg(long)]
+    pub system: Option<PathBuf>,
+    /// Material of the DOE (pdms, fused_silica, noa61, pmma, ip_dip).
+    #[arg(long, default_value = "pdms")]
+    pub material: String,
+    /// Sensor spectral response CSV (wavelength_nm,r,g,b); default the paper's three
+    /// wavelengths as 80 nm wide Gaussian bands.
+    #[arg(long)]
+    pub response: Option<PathBuf>,
+    /// The reference takes 3^K sub-bands per band (2..=6).
+    #[arg(long, default_value_t = 5)]
+    pub reference_power: u32,
+    /// Tolerances at which the plan's rule is placed on the chart.
+    #[arg(long, value_delimiter = ',', default_values_t = [1e-2, 1e-3, 1e-4])]
+    pub tolerances: Vec<f64>,
+    #[command(flatten)]
+    pub read: ReadArgs,
+}
+
 /// Arguments of `doefab report` (its output folder gets index.html, the charts and the data).
 #[derive(Args)]
 pub struct ReportArgs {
@@ -286,6 +315,62 @@ pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
             println!("left out by the budget: {}", r.skipped.join(", "));
         }
         println!("wrote {}", output.display());
+    })
+}
+
+/// `doefab bench spectral`.
+pub fn bench_spectral(cli: &Cli, a: &BenchSpectralArgs) -> Result<()> {
+    use doefab::optics::spectral_bench::{steps, SpectralOptions};
+    let bands = match &a.response {
+        Some(p) => doefab::optics::spectrum::read_response_csv(p)?,
+        None => doefab::optics::spectral_bench::paper_bands()?,
+    };
+    let opts =
+        SpectralOptions { bands, reference_power: a.reference_power, tolerances: a.tolerances.clone() };
+    let on = PsfBenchOptions {
+        design: DesignSource::parse(a.design.as_deref(), a.read.options()?),
+        system: a.system.clone(),
+        material: a.material.clone(),
+        bench: BenchOptions::default(),
+    };
+    let pb = progress(cli, steps(&opts) as u64);
+    let r = doefab::pipeline::bench::bench_spectral(&on, &opts, &a.output, &mut report_to(&pb))?;
+    pb.finish_and_clear();
+    print_result(cli, &r, || {
+        println!(
+            "{} in f64, one sample per pixel, {:.2} s a wavelength; reference {} sub-bands (against {}: {:.1e})",
+            r.method,
+            r.seconds_per_wavelength,
+            r.reference_samples,
+            r.reference_samples / 3,
+            r.reference_difference
+        );
+        for p in &r.points {
+            println!(
+                "band {:<4} N={:<3} error {:.2e}  estimate {:.2e}  {:.2} s",
+                p.band, p.samples, p.error, p.estimate, p.seconds
+            );
+        }
+        for p in &r.plans {
+            let rule = p.rule_samples.map_or("refused".into(), |n| n.to_string());
+            match (p.samples, p.error) {
+                (Some(n), Some(e)) => println!(
+                    "plan at {:.0e}: estimate asks {rule}, the run settled on N = {n}, error {e:.2e} ({}), {:.1} s; \
+                     smallest adequate N of the sweep: {}",
+                    p.tolerance,
+                    if p.meets_tolerance { "meets" } else { "MISSES" },
+                    p.seconds.unwrap_or(0.0),
+                    p.smallest_adequate.map_or("none".into(), |n| n.to_string())
+                ),
+                _ => println!(
+                    "plan at {:.0e}: estimate asks {rule}; refused ({})",
+                    p.tolerance,
+                    p.refused.as_deref().unwrap_or("")
+                ),
+            }
+        }
+        println!("silent failures: {}", r.silent_failures);
+        println!("wrote {}", a.output.display());
     })
 }
 

@@ -10,6 +10,7 @@ use plotters::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::optics::psf_bench::{BenchPoint, BenchReport};
+use crate::optics::spectral_bench::SpectralReport;
 use crate::optics::stability::{StabilityMap, StabilityReport};
 use crate::report::{write_png_chart, write_svg_chart, FONT};
 
@@ -331,6 +332,128 @@ pub fn write_stability_charts(
         }
     }
     Ok(names)
+}
+
+fn spectral_chart<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    report: &SpectralReport,
+) -> std::result::Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let caption = format!(
+        "Spectral samples: error vs sub-bands per band ({}, {} DOE samples; reference {} sub-bands; silent failures: {})",
+        report.method, report.doe_samples, report.reference_samples, report.silent_failures
+    );
+    let n_max = report
+        .points
+        .iter()
+        .map(|p| p.samples)
+        .chain(report.plans.iter().filter_map(|p| p.samples))
+        .max()
+        .unwrap_or(1) as f64;
+    let mut chart = ChartBuilder::on(root)
+        .caption(caption, (FONT, 17))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d(
+            (0.8..n_max * 1.25).log_scale(),
+            log_range(
+                report
+                    .points
+                    .iter()
+                    .flat_map(|p| [p.error, p.estimate])
+                    .chain(report.plans.iter().map(|p| p.tolerance)),
+            )
+            .log_scale(),
+        )
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_desc("sub-bands per band N (midpoint rule; time = N monochromatic runs)")
+        .y_desc("relative L2 error of the band's PSF")
+        .x_label_formatter(&|v| format!("{v:.0}"))
+        .y_label_formatter(&|v| format!("{v:.0e}"))
+        .label_style((FONT, 13))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let colours = [RED, GREEN, BLUE, MAGENTA, CYAN, BLACK];
+    for (k, (band, _, _)) in report.bands.iter().enumerate() {
+        let colour = colours[k % colours.len()];
+        let series: Vec<(f64, f64, f64)> = report
+            .points
+            .iter()
+            .filter(|p| &p.band == band)
+            .map(|p| (p.samples as f64, p.error, p.estimate))
+            .collect();
+        chart
+            .draw_series(LineSeries::new(series.iter().map(|p| (p.0, p.1)), colour.stroke_width(2)))
+            .map_err(|x| e(&x))?
+            .label(format!("band {band}: measured"))
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
+        chart
+            .draw_series(series.iter().map(|p| Circle::new((p.0, p.1), 4, colour.filled())))
+            .map_err(|x| e(&x))?;
+        chart
+            .draw_series(DashedLineSeries::new(
+                series.iter().map(|p| (p.0, p.2)),
+                6,
+                4,
+                colour.stroke_width(1),
+            ))
+            .map_err(|x| e(&x))?
+            .label(format!("band {band}: plan's estimate"))
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(1)));
+    }
+    for p in &report.plans {
+        let tol = p.tolerance;
+        chart
+            .draw_series(DashedLineSeries::new(
+                [(0.8, tol), (n_max * 1.25, tol)],
+                3,
+                5,
+                BLACK.mix(0.5).stroke_width(1),
+            ))
+            .map_err(|x| e(&x))?;
+        let text = match (p.samples, p.error) {
+            (Some(n), Some(err)) => {
+                chart
+                    .draw_series(std::iter::once(Cross::new((n as f64, err), 8, BLACK.stroke_width(2))))
+                    .map_err(|x| e(&x))?;
+                format!(
+                    "tolerance {tol:.0e}: estimate asks {}, the run settles on N = {n} ({})",
+                    p.rule_samples.map_or("-".into(), |r| r.to_string()),
+                    if p.meets_tolerance { "meets" } else { "MISSES" }
+                )
+            }
+            _ => format!("tolerance {tol:.0e}: plan refuses"),
+        };
+        chart
+            .draw_series(std::iter::once(Text::new(text, (0.9, tol * 1.15), (FONT, 12))))
+            .map_err(|x| e(&x))?;
+    }
+    chart
+        .draw_series(std::iter::empty::<Cross<(f64, f64), i32>>())
+        .map_err(|x| e(&x))?
+        .label("cross: the plan's run at a tolerance (N it settled on, worst band)")
+        .legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
+    crate::report::draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 12)?;
+    Ok(())
+}
+
+/// Writes `spectral.{png,svg}` at `path_for(name)`; returns the names.
+pub fn write_spectral_charts(
+    mut path_for: impl FnMut(&str) -> PathBuf,
+    report: &SpectralReport,
+) -> Result<Vec<String>> {
+    if report.points.is_empty() {
+        return Err(Error::Data("the spectral sweep has no runs to chart".into()));
+    }
+    let png = "spectral.png".to_string();
+    write_png_chart(&path_for(&png), 1000, 650, |r| spectral_chart(r, report))?;
+    let svg = "spectral.svg".to_string();
+    write_svg_chart(&path_for(&svg), 1000, 650, |r| spectral_chart(r, report))?;
+    Ok(vec![png, svg])
 }
 
 #[cfg(test)]

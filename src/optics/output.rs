@@ -91,11 +91,11 @@ pub fn simulate_and_write(
 /// Runs `plan` on `doe` (and on a flat DOE for the Strehl ratio, with the same plan on an odd
 /// crop) and writes the outputs into `out`, the plan in the JSON summary.
 pub fn plan_and_write(doe: &Grid, plan: &Plan, bands: &[Band], out: &Path) -> Result<PsfReport> {
-    let psf = run(plan, doe, bands)?;
+    let (psf, ran) = run(plan, doe, bands)?;
     let odd =
-        Plan { system: OpticalSystem { crop: plan.system.crop | 1, ..plan.system.clone() }, ..plan.clone() };
-    let flat = run(&odd, &flat_doe(&odd.system)?, bands)?;
-    report_and_write(&psf, &flat, &plan.system, Some(plan), out)
+        Plan { system: OpticalSystem { crop: ran.system.crop | 1, ..ran.system.clone() }, ..ran.clone() };
+    let (flat, _) = run(&odd, &flat_doe(&odd.system)?, bands)?;
+    report_and_write(&psf, &flat, &ran.system, Some(&ran), out)
 }
 
 fn report_and_write(

@@ -264,7 +264,7 @@ pub fn run_bench(
     for &tolerance in &opts.tolerances {
         tick(&format!("automatic plan at tolerance {tolerance:e}"));
         let p = super::plan::plan(system, doe, &[], tolerance)?;
-        let (psf, seconds) = timed(|| super::plan::run(&p, doe, &[]))?;
+        let ((psf, _), seconds) = timed(|| super::plan::run(&p, doe, &[]))?;
         let error = worst_error(&psf, &reference);
         plans.push(PlanPoint {
             tolerance,

@@ -14,19 +14,21 @@
 //! integrand, so the reference is `1 / 9` as far from the integral as `N_ref / 3`; the
 //! difference between the two (reported) bounds the reference's own error by 1/8 of itself.
 //!
-//! **The plan's rule.** For each band the pilot runs at its edges and centre give the estimate
-//! `e(N) = ||D2|| / (6 N^2 ||f_mean||)` of the plan ([`super::plan::spectral_error`]); the
-//! rule takes the smallest `N` with
-//! `e(N) <= tolerance` (the whole tolerance: in the plan the spectral term gets what the pixel
-//! and precision terms leave, never more). Each tolerance's `N` is simulated and scored; a
-//! measured error over the tolerance is a silent failure of the estimate.
+//! **The plan.** For each band the pilot runs at its edges and centre give the estimate
+//! `e(N) = ||D2|| / (6 N^2 ||f_mean||)` of the plan ([`super::plan::spectral_error`]); its rule
+//! takes the smallest `N` with `e(N) <= tolerance` (the whole tolerance: in the plan the
+//! spectral term gets what the pixel and precision terms leave, never more), rounded up to a
+//! multiple of 3, and the plan's run ([`super::plan::run`]) checks that `N` against its own
+//! middle thirds and triples it until they agree. Each tolerance's plan is run and scored: the
+//! estimate alone and the `N` the run settled on are both reported, and a run whose measured
+//! error is over the tolerance is a silent failure.
 //!
 //! The error is the relative L2 of the band's PSF (normalised to sum 1) against the
 //! reference's.
 
 use serde::{Deserialize, Serialize};
 
-use super::plan::{plan, spectral_error, spectral_samples_needed, MAX_SPECTRAL};
+use super::plan::{plan, run, spectral_error, spectral_samples_needed, Estimate, Plan, MAX_SPECTRAL};
 use super::propagate::{simulate, Options, Precision};
 use super::psf::{relative_l2, Channel, Psf};
 use super::spectrum::{combine, Band};
@@ -46,10 +48,10 @@ pub struct SpectralOptions {
 }
 
 impl SpectralOptions {
-    /// The paper's channels as bands ([`paper_bands`]), 81 sub-bands for the reference, the
+    /// The paper's channels as bands ([`paper_bands`]), 243 sub-bands for the reference, the
     /// rule placed at 1e-2, 1e-3 and 1e-4.
     pub fn paper() -> Result<SpectralOptions> {
-        Ok(SpectralOptions { bands: paper_bands()?, reference_power: 4, tolerances: vec![1e-2, 1e-3, 1e-4] })
+        Ok(SpectralOptions { bands: paper_bands()?, reference_power: 5, tolerances: vec![1e-2, 1e-3, 1e-4] })
     }
 }
 
@@ -83,21 +85,25 @@ pub struct SpectralPoint {
     pub seconds: f64,
 }
 
-/// The plan's rule at one tolerance, scored.
+/// The plan at one tolerance, run and scored.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SpectralPlanPoint {
     pub tolerance: f64,
-    /// The `N` the rule takes (the largest over the bands, as the plan takes it); `None` where
-    /// it refuses (more than [`MAX_SPECTRAL`] sub-bands).
+    /// The `N` the pilot's estimate asks for (the largest over the bands, as the plan takes
+    /// it); `None` where it refuses (more than [`MAX_SPECTRAL`] sub-bands).
+    pub rule_samples: Option<usize>,
+    /// The `N` the run settled on after checking itself against its middle thirds.
     pub samples: Option<usize>,
-    /// Worst band's measured error at that `N`.
+    /// Worst band's measured error of the run's PSF.
     pub error: Option<f64>,
     /// `error <= tolerance` (false where refused).
     pub meets_tolerance: bool,
-    /// Why the rule refused, if it did.
+    /// Why the plan or its run refused, if it did.
     pub refused: Option<String>,
     /// The smallest `N` of the sweep whose every band is within the tolerance, if any.
     pub smallest_adequate: Option<usize>,
+    /// Seconds of the run.
+    pub seconds: Option<f64>,
 }
 
 /// Everything one `bench spectral` run measured.
@@ -205,7 +211,8 @@ pub fn run_spectral(
         per_band.push((band, reference, pilot));
     }
 
-    // The plan's rule at each tolerance, its N simulated where the sweep has not.
+    // The plan at each tolerance: its rule's N (rounded up to a multiple of 3), then its run,
+    // which checks and refines N itself.
     let mut plans = Vec::new();
     for &tol in &opts.tolerances {
         let mut rule = Some(1);
@@ -223,45 +230,47 @@ pub fn run_spectral(
                 }
             }
         }
-        let mut error = None;
-        if let Some(n_rule) = rule {
-            let mut worst: f64 = 0.0;
-            for (band, reference, pilot) in &per_band {
-                let e = match points.iter().find(|p| p.band == band.name && p.samples == n_rule) {
-                    Some(p) => p.error,
-                    None => {
-                        let samples = band.samples(n_rule);
-                        let mut channels = Vec::new();
-                        let mut seconds = 0.0;
-                        for &(l, _) in &samples {
-                            let (c, s) = one(l)?;
-                            channels.push(c);
-                            seconds += s;
-                        }
-                        let e = relative_l2(&band_psf(band, &channels, &samples)?, reference);
-                        let estimate = spectral_error([&pilot[0], &pilot[1], &pilot[2]], n_rule);
-                        points.push(SpectralPoint {
-                            band: band.name.clone(),
-                            samples: n_rule,
-                            error: e,
-                            estimate,
-                            seconds,
-                        });
-                        e
-                    }
-                };
-                worst = worst.max(e);
-            }
-            error = Some(worst);
-        }
-        plans.push(SpectralPlanPoint {
+        let mut point = SpectralPlanPoint {
             tolerance: tol,
-            samples: rule,
-            error,
-            meets_tolerance: error.is_some_and(|e| e <= tol),
+            rule_samples: rule,
+            samples: None,
+            error: None,
+            meets_tolerance: false,
             refused,
             smallest_adequate: None,
-        });
+            seconds: None,
+        };
+        if let Some(n_rule) = rule {
+            let n = n_rule.div_ceil(3) * 3;
+            let planned = Plan {
+                tolerance: tol,
+                precision: Precision::F64,
+                system: OpticalSystem {
+                    wavelengths: opts.bands.iter().flat_map(|b| b.samples(n)).map(|s| s.0).collect(),
+                    ..base.clone()
+                },
+                spectral_samples: n,
+                estimate: Estimate { pixel_integration: 0.0, precision: 0.0, spectral: 0.0, total: 0.0 },
+                choices: Vec::new(),
+                ..spatial.clone()
+            };
+            let t = std::time::Instant::now();
+            match run(&planned, doe, &opts.bands) {
+                Ok((psf, ran)) => {
+                    point.seconds = Some(t.elapsed().as_secs_f64());
+                    let mut worst: f64 = 0.0;
+                    for (c, (_, reference, _)) in psf.channels.iter().zip(&per_band) {
+                        worst = worst.max(relative_l2(c.grid.values(), reference));
+                    }
+                    point.samples = Some(ran.spectral_samples);
+                    point.error = Some(worst);
+                    point.meets_tolerance = worst <= tol;
+                }
+                Err(Error::Validity(why)) => point.refused = Some(why),
+                Err(e) => return Err(e),
+            }
+        }
+        plans.push(point);
     }
     points.sort_by(|a, b| a.band.cmp(&b.band).then(a.samples.cmp(&b.samples)));
     for p in &mut plans {

@@ -1,4 +1,4 @@
-//! `doefab bench psf`, `doefab bench stability`, `doefab bench register`, `doefab bench fab`,
+//! `doefab bench psf`, `doefab bench spectral`, `doefab bench stability`, `doefab bench register`, `doefab bench fab`,
 //! `doefab bench calibration`, `doefab bench tiling` and `doefab bench decoder`: the benchmarks with their defaults and
 //! outputs.
 
@@ -16,9 +16,10 @@ use crate::fabrication::bench_charts::write_fab_bench_charts;
 use crate::fabrication::chain::{self, DesignSource};
 use crate::io::atomic::{self, StagedDir};
 use crate::material::Material;
-use crate::optics::charts::{write_psf_charts, write_stability_charts};
+use crate::optics::charts::{write_psf_charts, write_spectral_charts, write_stability_charts};
 use crate::optics::output::system_for;
 use crate::optics::psf_bench::{self, run_bench, steps, BenchOptions};
+use crate::optics::spectral_bench::{self, SpectralOptions, SpectralReport};
 use crate::optics::stability::{self, MapOptions, StabilityReport};
 use crate::optics::system::OpticalSystem;
 
@@ -64,12 +65,42 @@ pub fn run_psf_bench(
     heights: &crate::grid::Grid,
     tick: impl FnMut(&str),
 ) -> Result<psf_bench::BenchReport> {
+    run_bench(&design_system(opts, heights)?, heights, &opts.bench, tick)
+}
+
+/// The paper's camera fitted to the design, with the material and system file of `opts`.
+fn design_system(opts: &PsfBenchOptions, heights: &crate::grid::Grid) -> Result<OpticalSystem> {
     let mut system = system_for(heights);
     system.material = Material::by_name(&opts.material)?;
     if let Some(p) = &opts.system {
         system = OpticalSystem::read_toml(p, &system)?;
     }
-    run_bench(&system, heights, &opts.bench, tick)
+    Ok(system)
+}
+
+/// Runs the spectral-sampling sweep ([`crate::optics::spectral_bench`]) on a design in its
+/// system (the design, system file and material of `on`; its budget is not used) and writes
+/// `spectral.{png,svg}` and `spectral.json` into the folder `output`, all or nothing. Progress:
+/// one step per monochromatic run.
+pub fn bench_spectral(
+    on: &PsfBenchOptions,
+    opts: &SpectralOptions,
+    output: &Path,
+    progress: &mut dyn FnMut(&str, u64, u64),
+) -> Result<SpectralReport> {
+    let loaded = chain::load_design(&on.design)?;
+    let system = design_system(on, &loaded.heights)?;
+    let total = spectral_bench::steps(opts) as u64;
+    let mut done = 0;
+    let report = spectral_bench::run_spectral(&system, &loaded.heights, opts, |what| {
+        progress(what, done.min(total), total);
+        done += 1;
+    })?;
+    let mut stage = StagedDir::new(output)?;
+    write_spectral_charts(|n| stage.stage_path(n), &report)?;
+    atomic::write_json(&stage.stage_path("spectral.json"), &report)?;
+    stage.commit()?;
+    Ok(report)
 }
 
 /// Runs the stability maps ([`crate::optics::stability`]) and writes their charts (PNG, SVG)

@@ -70,7 +70,7 @@ fn reference(system: &OpticalSystem, doe: &Grid, bands: &[Band]) -> Vec<Array2<f
 fn check(name: &str, system: &OpticalSystem, doe: &Grid, bands: &[Band]) -> doefab::optics::plan::Plan {
     let p = plan(system, doe, bands, TOL).unwrap();
     assert!(p.estimate.total <= TOL, "{name}: estimate {:?}", p.estimate);
-    let psf = run(&p, doe, bands).unwrap();
+    let (psf, p) = run(&p, doe, bands).unwrap();
     let want = reference(system, doe, bands);
     for (c, w) in psf.channels.iter().zip(&want) {
         let e = doefab::optics::psf::relative_l2(c.grid.values(), w);
@@ -200,7 +200,7 @@ fn the_plan_meets_three_tolerances_on_five_designs() {
         let want = reference(&s, &doe, &[]);
         for tol in [1e-2, 1e-3, 1e-4] {
             let p = plan(&s, &doe, &[], tol).unwrap();
-            let psf = run(&p, &doe, &[]).unwrap();
+            let (psf, _) = run(&p, &doe, &[]).unwrap();
             for (c, w) in psf.channels.iter().zip(&want) {
                 let e = doefab::optics::psf::relative_l2(c.grid.values(), w);
                 eprintln!(
@@ -460,11 +460,12 @@ fn bench_psf_command_charts_a_design_in_its_system() {
 }
 
 /// `bench spectral` on the bench scene with the paper's channels as 80 nm bands: the reference
-/// (81 sub-bands) is converged far below the tolerances, the midpoint rule's error falls at
-/// least as `N^-2` once its sub-bands resolve the band (9 -> 27: a ninth or less), and the
-/// plan's rule meets every tolerance it accepts (no silent failure). Measured: at 1e-2 the rule
-/// takes 10 sub-bands (error 2.0e-3; 9 would do), at 1e-3 29 (3.2e-4; 27 would do); at 1e-4
-/// it refuses (its estimate asks for more than 64 sub-bands for 'g', where 27 measure 1.4e-5).
+/// (243 sub-bands) is converged far below the tolerances, the midpoint rule's error falls at
+/// least as `N^-2` once its sub-bands resolve the band (9 -> 27: a ninth or less), and every
+/// plan the bench runs meets its tolerance (no silent failure), its run having checked the
+/// estimate's `N` against its own middle thirds. Measured: at 1e-2 the estimate asks 10, the
+/// run settles on 36 (error 1.4e-4; 9 would do), at 1e-3 it asks 29 and settles on 90
+/// (2.0e-5; 27 would do); at 1e-4 the estimate refuses (more than 64 sub-bands for 'g').
 #[test]
 fn spectral_sampling_sweep_meets_the_rule_and_converges() {
     use doefab::optics::spectral_bench::{run_spectral, steps, SpectralOptions};
@@ -476,19 +477,20 @@ fn spectral_sampling_sweep_meets_the_rule_and_converges() {
         eprintln!("{} N={} error {:.2e} estimate {:.2e}", p.band, p.samples, p.error, p.estimate);
     }
     for p in &r.plans {
-        eprintln!("rule at {:.0e}: N={:?} error {:?} ({:?})", p.tolerance, p.samples, p.error, p.refused);
+        eprintln!(
+            "plan at {:.0e}: asks {:?}, settles on {:?}, error {:?} ({:?})",
+            p.tolerance, p.rule_samples, p.samples, p.error, p.refused
+        );
     }
     assert_eq!(r.silent_failures, 0);
-    assert!(r.reference_difference < 1e-3, "{}", r.reference_difference);
+    assert!(r.reference_difference < 1e-4, "{}", r.reference_difference);
     for band in ["r", "g", "b"] {
         let at = |n: usize| r.points.iter().find(|p| p.band == band && p.samples == n).unwrap().error;
         let ratio = at(9) / at(27);
         assert!(ratio > 6.0, "band {band}: N=9 / N=27 error ratio {ratio}");
     }
     for p in r.plans.iter().filter(|p| p.tolerance >= 1e-3) {
-        assert!(
-            p.meets_tolerance && p.smallest_adequate.is_some_and(|n| p.samples.unwrap() <= 2 * n),
-            "{p:?}"
-        );
+        let (n, adequate) = (p.samples.unwrap(), p.smallest_adequate.unwrap());
+        assert!(p.meets_tolerance && n <= 4 * adequate, "{p:?}");
     }
 }
