@@ -464,7 +464,7 @@ pub fn run(plan: &Plan, doe: &Grid, bands: &[Band]) -> Result<(Psf, Plan)> {
         return Ok((psf, plan.clone()));
     }
     let mut n = plan.spectral_samples;
-    if n % 3 != 0 {
+    if !n.is_multiple_of(3) {
         return Err(Error::param("spectral_samples", format!("the run checks multiples of 3, got {n}")));
     }
     let simulate_at = |wavelengths: Vec<f64>| -> Result<Vec<Channel>> {
