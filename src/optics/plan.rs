@@ -323,7 +323,10 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
         why,
     );
     let e_pix = pixel_error(chosen.pixel_rule, system.sensor_pitch, chosen.subsample, cutoff);
-    let below = chosen.subsample - 1;
+    // Every cheaper sub-sampling, rejected, with its estimate.
+    let rejected: Vec<String> = (1..chosen.subsample)
+        .map(|s| format!("{s} x {s}: {:.1e}", pixel_error(chosen.pixel_rule, system.sensor_pitch, s, cutoff)))
+        .collect();
     say(
         "pixel integration",
         format!("{:?} {} x {}", chosen.pixel_rule, chosen.subsample, chosen.subsample),
@@ -332,10 +335,10 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
             cutoff * 1e-3,
             lmin * 1e9,
             e_pix,
-            if below > 0 {
-                format!(" ({below} per axis: {:.1e})", pixel_error(chosen.pixel_rule, system.sensor_pitch, below, cutoff))
-            } else {
+            if rejected.is_empty() {
                 String::new()
+            } else {
+                format!("; cheaper, rejected: {}", rejected.join(", "))
             }
         ),
     );
@@ -380,7 +383,7 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
         say("spectral samples", "1 per channel".into(), "monochromatic channels".into());
         (1, 0.0, system.wavelengths.clone())
     } else {
-        let mut worst = (0, 0.0, String::new());
+        let mut worst = (0, 0.0, String::new(), String::new());
         for b in bands {
             let (lo, hi) = b.range();
             let pilot_system = OpticalSystem { wavelengths: vec![lo, 0.5 * (lo + hi), hi], ..chosen.clone() };
@@ -399,7 +402,12 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
                 ))
             })?;
             if n > worst.0 {
-                worst = (n, spectral_error([&f[0], &f[1], &f[2]], n), b.name.clone());
+                // The nearest cheaper counts, rejected, with their estimates.
+                let rejected = (n.saturating_sub(3).max(1)..n)
+                    .map(|m| format!("{m}: {:.1e}", spectral_error([&f[0], &f[1], &f[2]], m)))
+                    .collect::<Vec<_>>()
+                    .join(", ");
+                worst = (n, spectral_error([&f[0], &f[1], &f[2]], n), b.name.clone(), rejected);
             }
         }
         // A multiple of 3, so that the run can check the result against its own middle thirds.
@@ -408,10 +416,14 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
             "spectral samples",
             format!("{n} per band (to start)"),
             format!(
-                "midpoint rule, band '{}' (pilot at its edges and centre): estimate {:.1e} at {} <= the remaining {:.1e}; \
+                "midpoint rule, band '{}' (pilot at its edges and centre): estimate {:.1e} at {} <= the remaining {:.1e}{}; \
                  rounded up to a multiple of 3, checked by the run against its own middle thirds and tripled until \
                  they agree",
-                worst.2, worst.1, worst.0, remaining
+                worst.2,
+                worst.1,
+                worst.0,
+                remaining,
+                if worst.3.is_empty() { String::new() } else { format!(" (cheaper, rejected: {})", worst.3) }
             ),
         );
         let wl = bands.iter().flat_map(|b| b.samples(n)).map(|s| s.0).collect();
