@@ -155,10 +155,51 @@ pub fn spectral_error(f: [&ndarray::Array2<f64>; 3], n: usize) -> f64 {
     norm(&d2) / (6.0 * (n * n) as f64 * norm(&mean))
 }
 
-/// The smallest number of midpoint sub-bands whose estimate ([`spectral_error`]) from the
-/// pilot `f` is within `budget`, up to [`MAX_SPECTRAL`].
-pub fn spectral_samples_needed(f: [&ndarray::Array2<f64>; 3], budget: f64) -> Option<usize> {
-    (1..=MAX_SPECTRAL).find(|&n| spectral_error(f, n) <= budget)
+/// The spectral count the plan starts a run with (see [`spectral_count`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpectralCount {
+    /// The smallest count whose estimate is within the budget, the largest over the bands.
+    pub needed: usize,
+    /// That band's estimate at `needed`.
+    pub estimate: f64,
+    /// That band's name.
+    pub band: String,
+    /// The nearest cheaper counts of that band with their estimates, as text.
+    pub rejected: String,
+}
+
+impl SpectralCount {
+    /// `needed` rounded up to a multiple of 3, so that [`run`] can check the result against
+    /// its own middle thirds.
+    pub fn start(&self) -> usize {
+        self.needed.div_ceil(3) * 3
+    }
+}
+
+/// The plan's spectral rule for bands whose pilots (absolute intensities times the response at
+/// each band's low edge, centre and high edge) are `pilots`, named: per band the smallest
+/// number of midpoint sub-bands whose estimate ([`spectral_error`]) is within `budget`, up to
+/// [`MAX_SPECTRAL`] (beyond, an error naming the band), and the largest of them.
+pub fn spectral_count<'a>(
+    pilots: impl IntoIterator<Item = (&'a str, [&'a ndarray::Array2<f64>; 3])>,
+    budget: f64,
+) -> Result<SpectralCount> {
+    let mut worst = SpectralCount { needed: 0, estimate: 0.0, band: String::new(), rejected: String::new() };
+    for (name, f) in pilots {
+        let n = (1..=MAX_SPECTRAL).find(|&n| spectral_error(f, n) <= budget).ok_or_else(|| {
+            Error::Validity(format!(
+                "band '{name}' would need more than {MAX_SPECTRAL} spectral samples for an error within {budget:.1e}"
+            ))
+        })?;
+        if n > worst.needed {
+            let rejected = (n.saturating_sub(3).max(1)..n)
+                .map(|m| format!("{m}: {:.1e}", spectral_error(f, m)))
+                .collect::<Vec<_>>()
+                .join(", ");
+            worst = SpectralCount { needed: n, estimate: spectral_error(f, n), band: name.into(), rejected };
+        }
+    }
+    Ok(worst)
 }
 
 /// The plan for `doe` in `system` (its aperture, distances, lens, sensor, material; its
@@ -383,7 +424,7 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
         say("spectral samples", "1 per channel".into(), "monochromatic channels".into());
         (1, 0.0, system.wavelengths.clone())
     } else {
-        let mut worst = (0, 0.0, String::new(), String::new());
+        let mut pilots = Vec::new();
         for b in bands {
             let (lo, hi) = b.range();
             let pilot_system = OpticalSystem { wavelengths: vec![lo, 0.5 * (lo + hi), hi], ..chosen.clone() };
@@ -395,23 +436,13 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
                 .zip(&pilot_system.wavelengths)
                 .map(|(c, &l)| c.grid.values() * (c.captured.unwrap_or(1.0) * b.response_at(l)))
                 .collect();
-            let n = spectral_samples_needed([&f[0], &f[1], &f[2]], remaining).ok_or_else(|| {
-                Error::Validity(format!(
-                    "band '{}' would need more than {MAX_SPECTRAL} spectral samples for a tolerance of {tolerance:e}",
-                    b.name
-                ))
-            })?;
-            if n > worst.0 {
-                // The nearest cheaper counts, rejected, with their estimates.
-                let rejected = (n.saturating_sub(3).max(1)..n)
-                    .map(|m| format!("{m}: {:.1e}", spectral_error([&f[0], &f[1], &f[2]], m)))
-                    .collect::<Vec<_>>()
-                    .join(", ");
-                worst = (n, spectral_error([&f[0], &f[1], &f[2]], n), b.name.clone(), rejected);
-            }
+            pilots.push(f);
         }
-        // A multiple of 3, so that the run can check the result against its own middle thirds.
-        let n = worst.0.div_ceil(3) * 3;
+        let count = spectral_count(
+            bands.iter().zip(&pilots).map(|(b, f)| (b.name.as_str(), [&f[0], &f[1], &f[2]])),
+            remaining,
+        )?;
+        let n = count.start();
         say(
             "spectral samples",
             format!("{n} per band (to start)"),
@@ -419,15 +450,15 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
                 "midpoint rule, band '{}' (pilot at its edges and centre): estimate {:.1e} at {} <= the remaining {:.1e}{}; \
                  rounded up to a multiple of 3, checked by the run against its own middle thirds and tripled until \
                  they agree",
-                worst.2,
-                worst.1,
-                worst.0,
+                count.band,
+                count.estimate,
+                count.needed,
                 remaining,
-                if worst.3.is_empty() { String::new() } else { format!(" (cheaper, rejected: {})", worst.3) }
+                if count.rejected.is_empty() { String::new() } else { format!(" (cheaper, rejected: {})", count.rejected) }
             ),
         );
         let wl = bands.iter().flat_map(|b| b.samples(n)).map(|s| s.0).collect();
-        (n, worst.1, wl)
+        (n, count.estimate, wl)
     };
     cost *= wavelengths.len() as f64;
     let system = OpticalSystem { wavelengths, ..chosen };
@@ -498,7 +529,7 @@ pub fn run(plan: &Plan, doe: &Grid, bands: &[Band]) -> Result<(Psf, Plan)> {
         for (b, chans) in bands.iter().zip(&channels) {
             let coarse: Vec<Channel> = (0..n / 3).map(|j| chans[3 * j + 1].clone()).collect();
             let (fine, coarse) = (band_psf(b, chans.clone(), n)?, band_psf(b, coarse, n / 3)?);
-            diffs.push(relative_l2_of(&coarse, &fine));
+            diffs.push(coarse.relative_l2(&fine)?.into_iter().fold(0.0, f64::max));
         }
         let estimate = diffs
             .iter()
@@ -568,13 +599,4 @@ pub fn run(plan: &Plan, doe: &Grid, bands: &[Band]) -> Result<(Psf, Plan)> {
         before = Some(diffs);
         n *= 3;
     }
-}
-
-/// The worst channel's relative L2 of `a` against `b`.
-fn relative_l2_of(a: &Psf, b: &Psf) -> f64 {
-    a.channels
-        .iter()
-        .zip(&b.channels)
-        .map(|(x, y)| crate::optics::psf::relative_l2(x.grid.values(), y.grid.values()))
-        .fold(0.0, f64::max)
 }

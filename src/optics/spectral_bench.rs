@@ -28,7 +28,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::plan::{plan, run, spectral_error, spectral_samples_needed, Estimate, Plan, MAX_SPECTRAL};
+use super::plan::{plan, run, spectral_count, spectral_error, Estimate, Plan};
 use super::propagate::{simulate, Options, Precision};
 use super::psf::{relative_l2, Channel, Psf};
 use super::spectrum::{combine, Band};
@@ -90,7 +90,7 @@ pub struct SpectralPoint {
 pub struct SpectralPlanPoint {
     pub tolerance: f64,
     /// The `N` the pilot's estimate asks for (the largest over the bands, as the plan takes
-    /// it); `None` where it refuses (more than [`MAX_SPECTRAL`] sub-bands).
+    /// it); `None` where it refuses (more than [`super::plan::MAX_SPECTRAL`] sub-bands).
     pub rule_samples: Option<usize>,
     /// The `N` the run settled on after checking itself against its middle thirds.
     pub samples: Option<usize>,
@@ -121,17 +121,16 @@ pub struct SpectralReport {
     pub reference_difference: f64,
     pub points: Vec<SpectralPoint>,
     pub plans: Vec<SpectralPlanPoint>,
-    /// Tolerances where the rule took an `N` that measured over the tolerance (a refusal is
-    /// not one).
+    /// Tolerances whose plan, as run, measured over the tolerance (a refusal is not one).
     pub silent_failures: usize,
     /// Seconds of one monochromatic run (mean).
     pub seconds_per_wavelength: f64,
 }
 
 /// How many times [`run_spectral`] calls its `tick`: one per monochromatic run of the sweep and
-/// the pilots (the plan's extra `N` add theirs without a tick).
+/// the pilots, and one per tolerance's plan run.
 pub fn steps(opts: &SpectralOptions) -> usize {
-    opts.bands.len() * (3usize.pow(opts.reference_power) + 2)
+    opts.bands.len() * (3usize.pow(opts.reference_power) + 2) + opts.tolerances.len()
 }
 
 /// Runs the sweep (module docs) on `doe` in `system`.
@@ -215,24 +214,16 @@ pub fn run_spectral(
     // which checks and refines N itself.
     let mut plans = Vec::new();
     for &tol in &opts.tolerances {
-        let mut rule = Some(1);
-        let mut refused = None;
-        for (band, _, pilot) in &per_band {
-            match spectral_samples_needed([&pilot[0], &pilot[1], &pilot[2]], tol) {
-                Some(n) => rule = rule.map(|r: usize| r.max(n)),
-                None => {
-                    rule = None;
-                    refused = Some(format!(
-                        "band '{}' would need more than {MAX_SPECTRAL} spectral samples",
-                        band.name
-                    ));
-                    break;
-                }
-            }
-        }
+        tick(&format!("the plan at {tol:.0e}"));
+        let pilots = per_band.iter().map(|(b, _, f)| (b.name.as_str(), [&f[0], &f[1], &f[2]]));
+        let (rule, refused) = match spectral_count(pilots, tol) {
+            Ok(count) => (Some(count), None),
+            Err(Error::Validity(why)) => (None, Some(why)),
+            Err(e) => return Err(e),
+        };
         let mut point = SpectralPlanPoint {
             tolerance: tol,
-            rule_samples: rule,
+            rule_samples: rule.as_ref().map(|c| c.needed),
             samples: None,
             error: None,
             meets_tolerance: false,
@@ -240,8 +231,8 @@ pub fn run_spectral(
             smallest_adequate: None,
             seconds: None,
         };
-        if let Some(n_rule) = rule {
-            let n = n_rule.div_ceil(3) * 3;
+        if let Some(count) = rule {
+            let n = count.start();
             let planned = Plan {
                 tolerance: tol,
                 precision: Precision::F64,
