@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 import tifffile
-from wave_pedestal import surface_um
+from wave_pedestal import surface_um, surfalize_stats
 
 ROWS, COLS = 23, 31
 MISSING = [(3, 4), (12, 20), (22, 30), (0, 17), (7, 0)]
@@ -167,17 +167,6 @@ def lext_be():
 
 
 # ---- Reading back ---------------------------------------------------------------------------
-
-def surfalize_stats(path):
-    from surfalize import Surface
-    s = Surface.load(path)
-    nan = np.isnan(s.data)
-    m = Surface(np.where(nan, 0.0, s.data), s.step_x, s.step_y, mask=nan)
-    p = m.height_parameters()
-    print(f'{path.name}: surfalize: {s.size.y} rows x {s.size.x} cols, step_x {s.step_x!r} '
-          f'step_y {s.step_y!r} um, non-measured {int(nan.sum())}, '
-          f'Sq {p["Sq"]:.9g} Sa {p["Sa"]:.9g} Sz {p["Sz"]:.9g} um')
-
 
 def topography_stats(path):
     """SurfaceTopography's heights, with the INVALID page (which it does not read) as the mask
