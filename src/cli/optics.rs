@@ -74,9 +74,9 @@ pub struct PsfCompareArgs {
     pub radius: Option<f64>,
 }
 
-/// The design, camera and time budget of `doefab bench psf` and `doefab report`.
+/// The design and camera of `doefab bench psf`, `bench spectral` and `doefab report`.
 #[derive(Args)]
-pub struct BenchOnArgs {
+pub struct BenchDesignArgs {
     /// Height map file, or built-in:paper / built-in:fresnel (default built-in:paper, at the
     /// paper's geometry).
     pub design: Option<String>,
@@ -89,22 +89,36 @@ pub struct BenchOnArgs {
     /// Material of the DOE (pdms, fused_silica, noa61, pmma, ip_dip).
     #[arg(long, default_value = "pdms")]
     pub material: String,
-    /// Wall-clock budget for the whole command ("5min", "90s").
-    #[arg(long, default_value = "5min", value_parser = clap_duration)]
-    pub budget: f64,
     #[command(flatten)]
     pub read: ReadArgs,
 }
 
-impl BenchOnArgs {
-    /// The PSF benchmark's options over `bench` (its budget replaced by `--budget`).
+impl BenchDesignArgs {
+    /// The PSF benchmark's options with `bench`.
     fn psf_options(&self, bench: BenchOptions) -> Result<PsfBenchOptions> {
         Ok(PsfBenchOptions {
             design: DesignSource::parse(self.design.as_deref(), self.read.options()?),
             system: self.system.clone(),
             material: self.material.clone(),
-            bench: BenchOptions { budget: self.budget, ..bench },
+            bench,
         })
+    }
+}
+
+/// [`BenchDesignArgs`] with a time budget (`doefab bench psf`, `doefab report`).
+#[derive(Args)]
+pub struct BenchOnArgs {
+    #[command(flatten)]
+    pub at: BenchDesignArgs,
+    /// Wall-clock budget for the whole command ("5min", "90s").
+    #[arg(long, default_value = "5min", value_parser = clap_duration)]
+    pub budget: f64,
+}
+
+impl BenchOnArgs {
+    /// The PSF benchmark's options over `bench` (its budget replaced by `--budget`).
+    fn psf_options(&self, bench: BenchOptions) -> Result<PsfBenchOptions> {
+        self.at.psf_options(BenchOptions { budget: self.budget, ..bench })
     }
 }
 
@@ -124,18 +138,8 @@ pub struct BenchPsfArgs {
 /// Arguments of `doefab bench spectral`.
 #[derive(Args)]
 pub struct BenchSpectralArgs {
-    /// Height map file, or built-in:paper / built-in:fresnel (default built-in:paper, at the
-    /// paper's geometry).
-    pub design: Option<String>,
-    /// Output folder.
-    #[arg(short, long)]
-    pub output: PathBuf,
-    /// Optical system TOML (as for `psf`); unset fields keep the paper's values.
-    #[arg(long)]
-    pub system: Option<PathBuf>,
-    /// Material of the DOE (pdms, fused_silica, noa61, pmma, ip_dip).
-    #[arg(long, default_value = "pdms")]
-    pub material: String,
+    #[command(flatten)]
+    pub at: BenchDesignArgs,
     /// Sensor spectral response CSV (wavelength_nm,r,g,b); default the paper's three
     /// wavelengths as 80 nm wide Gaussian bands.
     #[arg(long)]
@@ -146,8 +150,6 @@ pub struct BenchSpectralArgs {
     /// Tolerances at which the plan's rule is placed on the chart.
     #[arg(long, value_delimiter = ',', default_values_t = [1e-2, 1e-3, 1e-4])]
     pub tolerances: Vec<f64>,
-    #[command(flatten)]
-    pub read: ReadArgs,
 }
 
 /// Arguments of `doefab report` (its output folder gets index.html, the charts and the data).
@@ -269,7 +271,7 @@ pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
         ..Default::default()
     };
     let opts = a.on.psf_options(bench)?;
-    let output = &a.on.output;
+    let output = &a.on.at.output;
     let pb = progress(cli, steps(&opts.bench) as u64);
     let r = bench_psf(&opts, output, &mut report_to(&pb))?;
     pb.finish_and_clear();
@@ -327,14 +329,9 @@ pub fn bench_spectral(cli: &Cli, a: &BenchSpectralArgs) -> Result<()> {
     };
     let opts =
         SpectralOptions { bands, reference_power: a.reference_power, tolerances: a.tolerances.clone() };
-    let on = PsfBenchOptions {
-        design: DesignSource::parse(a.design.as_deref(), a.read.options()?),
-        system: a.system.clone(),
-        material: a.material.clone(),
-        bench: BenchOptions::default(),
-    };
+    let on = a.at.psf_options(BenchOptions::default())?;
     let pb = progress(cli, steps(&opts) as u64);
-    let r = doefab::pipeline::bench::bench_spectral(&on, &opts, &a.output, &mut report_to(&pb))?;
+    let r = doefab::pipeline::bench::bench_spectral(&on, &opts, &a.at.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         println!(
@@ -370,7 +367,7 @@ pub fn bench_spectral(cli: &Cli, a: &BenchSpectralArgs) -> Result<()> {
             }
         }
         println!("silent failures: {}", r.silent_failures);
-        println!("wrote {}", a.output.display());
+        println!("wrote {}", a.at.output.display());
     })
 }
 
@@ -406,12 +403,12 @@ pub fn report(cli: &Cli, a: &ReportArgs) -> Result<()> {
     use doefab::pipeline::report::{run_report, steps, ReportOptions};
     let opts = ReportOptions { psf: a.on.psf_options(BenchOptions::default())?, budget: a.on.budget };
     let pb = progress(cli, steps(&opts) as u64);
-    let page = run_report(&opts, &a.on.output, &mut report_to(&pb))?;
+    let page = run_report(&opts, &a.on.at.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &page, || {
         println!(
             "wrote {} ({} sections, {} figures; open index.html in a browser)",
-            a.on.output.display(),
+            a.on.at.output.display(),
             page.sections.len(),
             page.figures.len()
         );
