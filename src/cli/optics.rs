@@ -360,9 +360,13 @@ pub fn bench_spectral(cli: &Cli, a: &BenchSpectralArgs) -> Result<()> {
                     p.smallest_adequate.map_or("none".into(), |n| n.to_string())
                 ),
                 _ => println!(
-                    "plan at {:.0e}: estimate asks {rule}; refused ({})",
+                    "plan at {:.0e}: estimate asks {rule}; {}",
                     p.tolerance,
-                    p.refused.as_deref().unwrap_or("")
+                    match (&p.refused, &p.not_scored) {
+                        (Some(why), _) => format!("refused ({why})"),
+                        (_, Some(why)) => format!("not scored ({why})"),
+                        _ => String::new(),
+                    }
                 ),
             }
         }

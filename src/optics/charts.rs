@@ -426,6 +426,9 @@ fn spectral_chart<DB: DrawingBackend>(
                     if p.meets_tolerance { "meets" } else { "MISSES" }
                 )
             }
+            _ if p.not_scored.is_some() => {
+                format!("tolerance {tol:.0e}: the run outgrew the reference, not scored")
+            }
             _ => format!("tolerance {tol:.0e}: plan refuses"),
         };
         chart

@@ -100,6 +100,8 @@ pub struct SpectralPlanPoint {
     pub meets_tolerance: bool,
     /// Why the plan or its run refused, if it did.
     pub refused: Option<String>,
+    /// Why a run was not scored: it took more sub-bands than the reference has.
+    pub not_scored: Option<String>,
     /// The smallest `N` of the sweep whose every band is within the tolerance, if any.
     pub smallest_adequate: Option<usize>,
     /// Seconds of the run.
@@ -121,7 +123,8 @@ pub struct SpectralReport {
     pub reference_difference: f64,
     pub points: Vec<SpectralPoint>,
     pub plans: Vec<SpectralPlanPoint>,
-    /// Tolerances whose plan, as run, measured over the tolerance (a refusal is not one).
+    /// Tolerances whose plan, as run, measured over the tolerance (a refusal or an unscored run
+    /// is not one).
     pub silent_failures: usize,
     /// Seconds of one monochromatic run (mean).
     pub seconds_per_wavelength: f64,
@@ -228,6 +231,7 @@ pub fn run_spectral(
             error: None,
             meets_tolerance: false,
             refused,
+            not_scored: None,
             smallest_adequate: None,
             seconds: None,
         };
@@ -254,8 +258,15 @@ pub fn run_spectral(
                         worst = worst.max(relative_l2(c.grid.values(), reference));
                     }
                     point.samples = Some(ran.spectral_samples);
-                    point.error = Some(worst);
-                    point.meets_tolerance = worst <= tol;
+                    if ran.spectral_samples <= n_ref {
+                        point.error = Some(worst);
+                        point.meets_tolerance = worst <= tol;
+                    } else {
+                        point.not_scored = Some(format!(
+                            "the run took {} sub-bands, more than the reference's {n_ref}: raise the reference",
+                            ran.spectral_samples
+                        ));
+                    }
                 }
                 Err(Error::Validity(why)) => point.refused = Some(why),
                 Err(e) => return Err(e),
@@ -273,7 +284,7 @@ pub fn run_spectral(
             at.len() == opts.bands.len() && at.iter().all(|q| q.error <= p.tolerance)
         });
     }
-    let silent_failures = plans.iter().filter(|p| p.refused.is_none() && !p.meets_tolerance).count();
+    let silent_failures = plans.iter().filter(|p| p.error.is_some() && !p.meets_tolerance).count();
     let seconds_per_wavelength = run_seconds.iter().sum::<f64>() / run_seconds.len().max(1) as f64;
     Ok(SpectralReport {
         units: "lengths in m, times in s, errors relative L2".into(),
