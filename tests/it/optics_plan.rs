@@ -494,3 +494,18 @@ fn spectral_sampling_sweep_meets_the_rule_and_converges() {
         assert!(p.meets_tolerance && n <= 4 * adequate, "{p:?}");
     }
 }
+
+/// A plan run that takes more sub-bands than the reference has is not scored against it (it
+/// would be measured against a coarser integral than its own), and is not counted as a silent
+/// failure: at 1e-3 the rule asks for 29 sub-bands, the reference has 9.
+#[test]
+fn spectral_plan_runs_finer_than_the_reference_are_not_scored() {
+    use doefab::optics::spectral_bench::{run_spectral, SpectralOptions};
+    let opts =
+        SpectralOptions { reference_power: 2, tolerances: vec![1e-3], ..SpectralOptions::paper().unwrap() };
+    let r = run_spectral(&scene(), &built_in_doe(), &opts, |_| {}).unwrap();
+    let p = &r.plans[0];
+    assert!(p.samples.unwrap() > 9 && p.error.is_none() && !p.meets_tolerance, "{p:?}");
+    assert!(p.not_scored.as_deref().is_some_and(|w| w.contains("more than the reference's 9")), "{p:?}");
+    assert_eq!(r.silent_failures, 0);
+}
