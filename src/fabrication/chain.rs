@@ -18,7 +18,7 @@ use crate::fabrication::recipe::{Output, Recipe};
 use crate::fabrication::stl::{
     level_heights, surface_mesh, surface_stl, write_stl_part, StlOptions, StlReport,
 };
-use crate::fabrication::wrap::{into_master, wrap_owned, WrapReport, WrapSpec};
+use crate::fabrication::wrap::{wrap_owned, wrap_to_master_owned, WrapReport, WrapSpec};
 use crate::fabrication::{Provenance, ReplicaMode};
 use crate::grid::fill::fill_missing;
 use crate::grid::{Grid, Unit};
@@ -194,14 +194,14 @@ pub fn shape(design: LoadedDesign, p: &ChainParams) -> Result<Shaped> {
         // Non-finite heights are refused by `wrap`.
         (design.heights, 0)
     };
-    let (wrapped, wrap_report) = wrap_owned(heights, &spec)?;
-    let period = wrap_report.period;
-    // The zone period is a property of the design, checked before any inversion.
-    let features = feature_check(&wrapped, period, p.level_count, p.min_feature);
-    let surface = match p.replica_mode {
-        ReplicaMode::Design => wrapped,
-        ReplicaMode::Master => into_master(wrapped, period)?,
+    // The master is wrapped, complemented and mirrored in one pass.
+    let (surface, wrap_report) = match p.replica_mode {
+        ReplicaMode::Design => wrap_owned(heights, &spec)?,
+        ReplicaMode::Master => wrap_to_master_owned(heights, &spec)?,
     };
+    // The zone periods are the design's: the master's gradients are the design's, negated and
+    // mirrored (to the rounding of `P - h`).
+    let features = feature_check(&surface, wrap_report.period, p.level_count, p.min_feature);
     let mut warnings = Vec::new();
     if features.fraction_below > 0.0 {
         warnings.push(format!(

@@ -80,7 +80,18 @@ pub fn wrap(heights: &Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
 
 /// [`wrap`] computed in the heights' own storage. A non-finite height stays non-finite in
 /// place (NaN), so the error names the same samples as for the input.
-pub fn wrap_owned(mut heights: Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
+pub fn wrap_owned(heights: Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
+    wrap_in_place(heights, spec, false)
+}
+
+/// [`wrap`] then [`into_master`] in one pass over the heights' own storage: each block of rows
+/// wrapped, complemented and reversed while it is in cache (the same bits as the two passes;
+/// the wrapped heights lie in `[0, P)`, so the master's range check cannot fail).
+pub fn wrap_to_master_owned(heights: Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
+    wrap_in_place(heights, spec, true)
+}
+
+fn wrap_in_place(mut heights: Grid, spec: &WrapSpec, master: bool) -> Result<(Grid, WrapReport)> {
     if heights.unit() != Unit::Metre {
         return Err(Error::param(
             "heights",
@@ -135,25 +146,60 @@ pub fn wrap_owned(mut heights: Grid, spec: &WrapSpec) -> Result<(Grid, WrapRepor
         )
     };
     let parts = par::map_blocks_mut(values, |r0, mut block| {
-        match mask.map(|m| m.slice(s![r0..r0 + block.nrows(), ..])) {
+        let figures = match mask.map(|m| m.slice(s![r0..r0 + block.nrows(), ..])) {
             None => block.iter_mut().fold(start, one),
             // Invalid samples keep their stored value (0).
             Some(valid) => {
                 Zip::from(&mut block).and(&valid).fold(start, |a, h, &ok| if ok { one(a, h) } else { a })
             }
+        };
+        if master {
+            for mut row in block.rows_mut() {
+                row.mapv_inplace(|h| complement(h, period));
+                reverse(row);
+            }
         }
+        figures
     });
     let (wrapped_samples, max_wraps, max_height, input_max, finite) = parts
         .into_iter()
         .fold(start, |a, b| (a.0 + b.0, a.1.max(b.1), a.2.max(b.2), a.3.max(b.3), a.4 && b.4));
+    // The mask follows the mirrored values.
+    let heights = if master { heights.into_mirrored_mask(true, false) } else { heights };
     if !finite {
-        check_finite(&heights)?;
+        // Named where the input has them: the master's columns turned back.
+        let input_order = if master { heights.into_mirrored(true, false) } else { heights };
+        check_finite(&input_order)?;
+        return Err(Error::Data("non-finite heights".into()));
     }
     // No valid sample: the largest input height is reported as 0.
     let input_max_height = if input_max == f64::NEG_INFINITY { 0.0 } else { input_max };
     let report =
         WrapReport { period, index: spec.index()?, wrapped_samples, max_wraps, input_max_height, max_height };
     Ok((heights, report))
+}
+
+/// The master's height over a wrapped height `h`: `P - h`, or 0 where that is `P`.
+#[inline]
+fn complement(h: f64, period: f64) -> f64 {
+    let c = period - h;
+    if c >= period {
+        c - period
+    } else {
+        c
+    }
+}
+
+/// Reverses a row in place (the mirror in x).
+fn reverse(mut row: ndarray::ArrayViewMut1<'_, f64>) {
+    if let Some(r) = row.as_slice_mut() {
+        r.reverse();
+    } else {
+        let n = row.len();
+        for j in 0..n / 2 {
+            row.swap(j, n - 1 - j);
+        }
+    }
 }
 
 /// The master whose PDMS cast equals `design`: complement modulo `period` and mirror in x.
@@ -178,17 +224,9 @@ pub fn into_master(mut design: Grid, period: f64) -> Result<Grid> {
                     lo = lo.min(*h);
                     hi = hi.max(*h);
                 }
-                let c = period - *h;
-                *h = if c >= period { c - period } else { c };
+                *h = complement(*h, period);
             }
-            if let Some(r) = row.as_slice_mut() {
-                r.reverse();
-            } else {
-                let n = row.len();
-                for j in 0..n / 2 {
-                    row.swap(j, n - 1 - j);
-                }
-            }
+            reverse(row);
         }
         (lo, hi)
     });
@@ -219,6 +257,31 @@ pub fn check_finite(g: &Grid) -> Result<()> {
 mod tests {
     use super::*;
     use ndarray::Array2;
+
+    #[test]
+    fn wrap_to_master_in_one_pass_equals_wrap_then_master() {
+        let spec = WrapSpec::default();
+        let p = spec.period().unwrap();
+        // Heights over several periods, negative ones, exact multiples, dx != dy, and a mask.
+        let v = Array2::from_shape_fn((37, 29), |(i, j)| {
+            (i as f64 * 0.173 - j as f64 * 0.091) * p + (i * j % 3) as f64 * p
+        });
+        let valid = Array2::from_shape_fn((37, 29), |(i, j)| (i * 7 + j * 3) % 11 != 0);
+        let plain = Grid::new(v, [1e-6, 2e-6], Unit::Metre).unwrap();
+        for g in [plain.clone(), plain.with_mask(valid).unwrap()] {
+            let (w, r) = wrap(&g, &spec).unwrap();
+            let two = into_master(w, p).unwrap();
+            let (one, r1) = wrap_to_master_owned(g.clone(), &spec).unwrap();
+            assert_eq!(r1, r);
+            assert_eq!(one.mask(), two.mask());
+            assert!(one.values().iter().zip(two.values()).all(|(a, b)| a.to_bits() == b.to_bits()));
+        }
+        // A non-finite height is named where the input has it.
+        let mut v = Array2::from_elem((3, 5), 0.5 * p);
+        v[[1, 1]] = f64::NAN;
+        let e = wrap_to_master_owned(Grid::new(v, [1e-6, 1e-6], Unit::Metre).unwrap(), &spec).unwrap_err();
+        assert!(e.to_string().contains("row 1, column 1"), "{e}");
+    }
 
     fn grid(v: Array2<f64>) -> Grid {
         Grid::new(v, [1e-6, 1e-6], Unit::Metre).unwrap()
