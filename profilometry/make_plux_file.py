@@ -25,7 +25,7 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
-from wave_pedestal import surface_um
+from wave_pedestal import surface_um, surfalize_stats
 
 ROWS, COLS = 27, 37
 MISSING = [(0, 0), (4, 9), (12, 20), (12, 21), (26, 36), (19, 3)]
@@ -62,19 +62,6 @@ INDEX = """<?xml version="1.0" encoding="UTF-8"?>
 """
 
 
-def stats_surfalize(path):
-    import surfalize
-    from surfalize import Surface
-
-    s = Surface.load(path)
-    nan = np.isnan(s.data)
-    m = Surface(np.where(nan, 0.0, s.data), s.step_x, s.step_y, mask=nan)
-    p = m.height_parameters()
-    print(f'{path.name}: surfalize {surfalize.__version__}: {s.size.y} rows x {s.size.x} cols, '
-          f'step_x {s.step_x!r} step_y {s.step_y!r} (um), non-measured {int(nan.sum())}, '
-          f'Sq {p["Sq"]:.9g} Sa {p["Sa"]:.9g} Sz {p["Sz"]:.9g} um')
-
-
 def stats_surfacetopography(path):
     import SurfaceTopography
     from SurfaceTopography import open_topography
@@ -109,7 +96,7 @@ def main():
     out = Path(sys.argv[1] if len(sys.argv) > 1 else '.')
     path = out / 'wave_pedestal.layout.plux'
     write(path, ROWS, COLS)
-    stats_surfalize(path)
+    surfalize_stats(path)
     stats_surfacetopography(path)
     # A small seed for the fuzz target (its inputs are cut at 4 kB): 5 x 4 points.
     seed = out.parent / 'fuzz' / 'corpus' / 'plux'

@@ -28,19 +28,7 @@ from pathlib import Path
 import numpy as np
 import surfalize
 from surfalize import Surface
-from wave_pedestal import surface_um
-
-
-def stats(path, label, unit):
-    """Reads `path` with surfalize and prints its size, pitch, non-measured count, Sq, Sa, Sz."""
-    s = Surface.load(path)
-    nan = np.isnan(s.data)
-    # surfalize computes the height parameters on the valid points once the non-measured ones
-    # are masked (it refuses NaN in the data itself).
-    m = Surface(np.where(nan, 0.0, s.data), s.step_x, s.step_y, mask=nan)
-    p = m.height_parameters()
-    print(f'{label}: {s.size.y} rows x {s.size.x} cols, step_x {s.step_x!r} step_y {s.step_y!r} ({unit}), '
-          f'non-measured {int(nan.sum())}, Sq {p["Sq"]:.9g} Sa {p["Sa"]:.9g} Sz {p["Sz"]:.9g} {unit}')
+from wave_pedestal import surface_um, surfalize_stats as stats
 
 
 def tag(key, value):
