@@ -1,6 +1,6 @@
 """The surface every instrument test file of this folder carries (imported by the make_*.py
-scripts beside it, with the reading back by surfalize that four of them print), micrometres; i = row (the first row in the file unless a format says
-otherwise), j = column:
+scripts beside it, with the reading back by surfalize that four of them print), micrometres;
+i = row (the first row in the file unless a format says otherwise), j = column:
 
 z = 0.05 + 0.4 sin(2 pi j / 13) cos(2 pi i / 11) + 0.002 j - 0.001 i, plus 0.8 where
 10 <= i < 20 and 15 <= j < 30; the points `missing` (row, column) within the map are NaN.
