@@ -51,6 +51,22 @@ impl Plan2d {
         });
     }
 
+    /// The unnormalised 2-D DFT of `field` (side `n`) in place, forward or `inverse`
+    /// (`exp(+2 pi i k x / n)`).
+    ///
+    /// # Panics
+    /// If `field` is not `n x n` (a programming error, not user input).
+    pub fn transform(&self, field: &mut Array2<Complex64>, inverse: bool) {
+        let n = self.n;
+        assert_eq!(field.dim(), (n, n), "field does not match the plan");
+        let mut tmp = vec![Complex64::new(0.0, 0.0); n * n];
+        let data = field.as_slice_mut().expect("standard layout");
+        self.rows(data, inverse);
+        transpose::transpose(data, &mut tmp, n, n);
+        self.rows(&mut tmp, inverse);
+        transpose::transpose(&tmp, data, n, n);
+    }
+
     /// Multiplies the 2-D spectrum of `field` (side `n`) by `h` (in FFT order, symmetric in its
     /// two axes) and transforms back, normalised: the circular convolution of `field` with the
     /// kernel whose transfer function is `h`.
@@ -150,6 +166,27 @@ mod tests {
             let want = naive_convolve(&field, &h);
             for (a, b) in got.iter().zip(want.iter()) {
                 assert!((a - b).norm() < 1e-12, "{a} vs {b}");
+            }
+        }
+    }
+
+    #[test]
+    fn transform_matches_the_naive_dft() {
+        let n = 10usize;
+        let field = Array2::from_shape_fn((n, n), |(i, j)| Complex64::new((i as f64 - 2.0 * j as f64).cos(), j as f64));
+        let mut planner = FftPlanner::new();
+        let plan = Plan2d::new(&mut planner, n);
+        for inverse in [false, true] {
+            let sign = if inverse { 1.0 } else { -1.0 };
+            let mut got = field.clone();
+            plan.transform(&mut got, inverse);
+            for ((p, q), g) in got.indexed_iter() {
+                let mut want = Complex64::new(0.0, 0.0);
+                for ((i, j), v) in field.indexed_iter() {
+                    let t = ((p * i + q * j) % n) as f64 / n as f64;
+                    want += v * Complex64::from_polar(1.0, sign * 2.0 * std::f64::consts::PI * t);
+                }
+                assert!((g - want).norm() < 1e-10, "{g} vs {want}");
             }
         }
     }
