@@ -31,7 +31,8 @@ pub struct PsfArgs {
     /// The plan's tolerance: relative L2 error per channel.
     #[arg(long, default_value_t = doefab::optics::plan::DEFAULT_TOLERANCE)]
     pub tolerance: f64,
-    /// Print the plan's choices and the condition that bounds each.
+    /// Print the plan's choices and the condition that bounds each, and after the run the
+    /// cheaper pixel sub-samplings it rejected, run and measured against its own.
     #[arg(long)]
     pub explain: bool,
     /// Sensor spectral response CSV (wavelength_nm,r,g,b): one channel per response column,
@@ -205,6 +206,11 @@ pub fn psf(cli: &Cli, a: &PsfArgs) -> Result<()> {
     let report = job.run(output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     warn(&report.warnings);
+    if *explain {
+        if let Some(measured) = job.measure_cheaper()? {
+            eprint!("{}", measured.explain());
+        }
+    }
     print_result(cli, &report, || {
         for c in &report.channels {
             println!(
@@ -405,7 +411,11 @@ pub fn bench_stability(cli: &Cli, a: &BenchStabilityArgs) -> Result<()> {
 /// `doefab report`.
 pub fn report(cli: &Cli, a: &ReportArgs) -> Result<()> {
     use doefab::pipeline::report::{run_report, steps, ReportOptions};
-    let opts = ReportOptions { psf: a.on.psf_options(BenchOptions::default())?, budget: a.on.budget };
+    let opts = ReportOptions {
+        psf: a.on.psf_options(BenchOptions::default())?,
+        budget: a.on.budget,
+        maps: doefab::optics::stability::MapOptions::default(),
+    };
     let pb = progress(cli, steps(&opts) as u64);
     let page = run_report(&opts, &a.on.at.output, &mut report_to(&pb))?;
     pb.finish_and_clear();

@@ -216,7 +216,8 @@ fn stability_map_chart<DB: DrawingBackend>(
     };
     let xs = map.cells.iter().map(|c| c.lens_sampling_ratio);
     // Room on the left for the legend.
-    let x_range = log_range(xs.chain(report.paper.iter().map(|p| p.lens_sampling_ratio)));
+    let x_range =
+        log_range(xs.chain(report.paper.iter().map(|p| p.lens_sampling_ratio)).chain(std::iter::once(map.limit_x)));
     let x_range = x_range.start / 8.0..x_range.end;
     let (y_lo, y_hi) =
         map.cells.iter().map(y_of).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
@@ -241,7 +242,11 @@ fn stability_map_chart<DB: DrawingBackend>(
         .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
-        .x_desc("pupil pitch / (lambda F#)   (the lens phase is undersampled right of 1)")
+        .x_desc(if map.method == "matrix_dft" {
+            "pupil pitch / (lambda F#)   (the matrix DFT never samples the lens phase)"
+        } else {
+            "pupil pitch / (lambda F#)   (the lens phase is undersampled right of 1)"
+        })
         .y_desc(y_desc)
         .x_labels(8)
         .x_label_formatter(&|v| format!("{v:.2}"))
@@ -252,9 +257,9 @@ fn stability_map_chart<DB: DrawingBackend>(
         .map_err(|x| e(&x))?;
     let (y0, y1) = (y_lo - 0.08 * (y_hi - y_lo), y_hi + 0.12 * (y_hi - y_lo));
     chart
-        .draw_series(LineSeries::new([(1.0, y0), (1.0, y1)], BLACK.stroke_width(2)))
+        .draw_series(LineSeries::new([(map.limit_x, y0), (map.limit_x, y1)], BLACK.stroke_width(2)))
         .map_err(|x| e(&x))?
-        .label("lens-sampling limit (a guard condition)")
+        .label(map.limit.as_str())
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
     if by_wavelength {
         for (k, p) in report.paper.iter().enumerate() {
@@ -309,7 +314,7 @@ fn stability_map_chart<DB: DrawingBackend>(
     Ok(())
 }
 
-/// Writes one chart per stability map, `stability_<y axis>.{png,svg}` at `path_for(name)`;
+/// Writes one chart per stability map, `stability_<method>_<y axis>.{png,svg}` at `path_for(name)`;
 /// returns the names.
 pub fn write_stability_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
@@ -318,10 +323,10 @@ pub fn write_stability_charts(
     let mut names = Vec::new();
     for map in &report.maps {
         if map.cells.is_empty() {
-            return Err(Error::Data(format!("the {} map has no runs to chart", map.y_axis)));
+            return Err(Error::Data(format!("the {} {} map has no runs to chart", map.method, map.y_axis)));
         }
         for ext in ["png", "svg"] {
-            let name = format!("stability_{}.{ext}", map.y_axis);
+            let name = format!("stability_{}_{}.{ext}", map.method, map.y_axis);
             let path = path_for(&name);
             if ext == "png" {
                 write_png_chart(&path, 1000, 650, |r| stability_map_chart(r, report, map))?;

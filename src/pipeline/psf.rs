@@ -88,6 +88,15 @@ impl PsfJob {
         }
     }
 
+    /// The plan's rejected cheaper pixel sub-samplings, run and measured against its own
+    /// ([`plan::measure_cheaper`]); `None` with a forced method.
+    pub fn measure_cheaper(&self) -> Result<Option<plan::CheaperMeasured>> {
+        match &self.how {
+            How::Plan { plan, bands } => Ok(Some(plan::measure_cheaper(plan, &self.heights, bands)?)),
+            How::Method { .. } => Ok(None),
+        }
+    }
+
     /// Simulates and writes the outputs into the folder `output`; the report carries the
     /// warnings. Progress: one step, the planned simulation (none with a forced method).
     pub fn run(&self, output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<PsfReport> {

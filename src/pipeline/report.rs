@@ -31,6 +31,8 @@ pub struct ReportOptions {
     pub psf: PsfBenchOptions,
     /// Wall-clock seconds for everything.
     pub budget: f64,
+    /// The stability maps' sweeps.
+    pub maps: MapOptions,
 }
 
 /// One number on the page.
@@ -122,7 +124,7 @@ fn report_tiling() -> TilingOptions {
 
 /// How many progress steps [`run_report`] takes.
 pub fn steps(opts: &ReportOptions) -> usize {
-    stability::steps(&MapOptions::default())
+    stability::steps(&opts.maps)
         + reg_bench::steps()
         + fab_bench::steps(&FabBenchOptions::default())
         + cal_bench::steps()
@@ -131,8 +133,9 @@ pub fn steps(opts: &ReportOptions) -> usize {
 }
 
 /// Runs the benchmarks within `opts.budget` and writes the page, its charts and data into the
-/// folder `output`, all or nothing. The fixed sweeps run first (the stability maps and the
-/// registration map, about 15 s each on two cores; the fabrication sweeps on the design, about
+/// folder `output`, all or nothing. The fixed sweeps run first (the stability maps, about 2
+/// min on two cores, most of it the angular spectrum's truth; the registration map, about 15
+/// s; the fabrication sweeps on the design, about
 /// 25 s for the paper's; the calibration trials on the paper's measured PSF, about 10 s; the
 /// decoder's tiling sweep, about 10 s); the PSF benchmark gets what is left.
 pub fn run_report(
@@ -146,7 +149,7 @@ pub fn run_report(
     let start = Instant::now();
     let total = steps(opts) as u64;
     let mut done = 0u64;
-    let maps = stability::run_maps(&MapOptions::default(), |what| {
+    let maps = stability::run_maps(&opts.maps, |what| {
         progress(what, done, total);
         done += 1;
     })?;
@@ -337,13 +340,13 @@ fn page(design: &str, m: Measured, charts: Charts) -> Page {
         reading,
     };
     let mut reading = vec![
-        words("The two-step Fresnel method against an exact truth on the same sampled pupil, over pupil sampling and Fresnel number, and over pupil sampling and wavelength; at tolerance"),
+        words("Each PSF method against a truth, over pupil sampling and Fresnel number, and over pupil sampling and wavelength (the two-step Fresnel method against the matrix DFT of the same sampled pupil; the angular spectrum against direct Rayleigh-Sommerfeld integration of the same samples; the matrix DFT against itself on the surface between the DOE's samples); at tolerance"),
         b.fig("stability tolerance", maps.tolerance, "1"),
         words(":"),
     ];
     for m in &maps.maps {
         let refused = m.cells.iter().filter(|c| !c.violations.is_empty()).count();
-        reading.push(words(&format!(" over {},", m.y_axis.replace('_', " "))));
+        reading.push(words(&format!(" {} over {},", m.method.replace('_', " "), m.y_axis.replace('_', " "))));
         reading.push(b.fig("runs", m.cells.len() as f64, "1"));
         reading.push(words("runs,"));
         reading.push(b.fig("silent failures", m.silent_failures as f64, "1"));
@@ -353,9 +356,9 @@ fn page(design: &str, m: Measured, charts: Charts) -> Page {
         reading.push(b.fig("refused within the tolerance", m.refused_within_tolerance as f64, "1"));
         reading.push(words("within the tolerance."));
     }
-    reading.push(words(" Trust a dot; a cross names the condition that failed in stability.json. The paper's own sampling is drawn in blue: right of the black line the lens phase is undersampled, so use the matrix DFT there."));
+    reading.push(words(" Trust a dot; a cross names the condition that failed in stability.json. The paper's own sampling is drawn in blue: right of the black line of the transfer-function methods' maps the lens phase is undersampled, so use the matrix DFT there, at the DOE's own pitch (a coarser pupil is refused where it reads the surface too sparsely)."));
     let map_section = Section {
-        title: "PSF: where the Fresnel method fails".into(),
+        title: "PSF: where each method fails".into(),
         charts: charts.maps,
         data: vec!["stability.json".into(), "stability.csv".into()],
         reading,

@@ -514,9 +514,16 @@ fn psf_command_writes_exr_npy_png_and_json() {
     assert!(run.status.success(), "{stderr}");
     // The default plan at 1e-3: the DOE's own samples, Gauss-Legendre pixels, f32, and the
     // explanation of each choice on stderr.
-    for needle in
-        ["plan for tolerance 1.0e-3", "pupil pitch", "the DOE's own 4.290 um samples", "precision", "f32"]
-    {
+    for needle in [
+        "plan for tolerance 1.0e-3",
+        "pupil pitch",
+        "the DOE's own 4.290 um samples",
+        "precision",
+        "f32",
+        // After the run, the rejected cheaper sub-samplings measured against the plan's.
+        "measured: the cheaper pixel sub-samplings against the plan's 4 x 4 run",
+        "3 x 3: ",
+    ] {
         assert!(stderr.contains(needle), "{needle}: {stderr}");
     }
     let report: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
@@ -640,11 +647,15 @@ fn the_folded_real_transform_equals_the_direct_collins_sum_in_f64_and_f32() {
     assert!(e.contains("f32 is implemented for matrix_dft only"), "{e}");
 }
 
-/// The stability maps of the two-step Fresnel method (`bench stability`): over pupil sampling
-/// x Fresnel number and pupil sampling x wavelength, no run its guard accepts is over the
-/// tolerance (1e-2, nor over 1e-3), runs on both sides of the guard's boundary are there, and the files say the
-/// same. The run at 0.97 lambda F# (g = 2.8 mm, s = 1), 1.3e-2 off its exact truth, is refused
-/// for the DOE's bandwidth added to the lens phase's: the lens phase alone would pass it.
+/// The stability maps of the two-step Fresnel method, the angular spectrum and the matrix DFT
+/// (`bench stability`): over pupil sampling x Fresnel number and pupil sampling x wavelength,
+/// no run its guard accepts is over the tolerance (1e-2; for the transfer-function methods
+/// not over 1e-3 either), runs on both sides of the guard's boundary are there, and the files
+/// say the same. The Fresnel run at 0.97 lambda F# (g = 2.8 mm, s = 1), 1.3e-2 off its exact
+/// truth, is refused for the DOE's bandwidth added to the lens phase's: the lens phase alone
+/// would pass it. The angular spectrum's truth is non-paraxial: where the guard accepts, it
+/// agrees with it to 4e-4 (measured 3.7e-4 at g = 4 mm, s = 1; 2.4e-5 or less at s >= 2),
+/// while a paraxial truth would differ by 3e-2.
 #[test]
 fn the_stability_maps_count_no_silent_failure() {
     use doefab::optics::stability::MapOptions;
@@ -652,18 +663,35 @@ fn the_stability_maps_count_no_silent_failure() {
     let out = d.path().join("stab");
     let r =
         doefab::pipeline::bench::bench_stability(&MapOptions::default(), &out, &mut |_, _, _| {}).unwrap();
-    assert_eq!(r.maps.len(), 2);
+    assert_eq!(r.maps.len(), 6);
     for m in &r.maps {
         assert_eq!(m.silent_failures, 0, "{:?}", m.cells.iter().filter(|c| c.silent).collect::<Vec<_>>());
-        // None at a ten times tighter tolerance either.
+        // None at a ten times tighter tolerance either, for the transfer-function methods.
         let over = m.cells.iter().filter(|c| c.violations.is_empty() && c.error > 1e-3);
-        assert_eq!(over.count(), 0, "{}", m.y_axis);
+        if m.method != "matrix_dft" {
+            assert_eq!(over.count(), 0, "{}", m.y_axis);
+        }
         assert!(m.cells.iter().any(|c| c.violations.is_empty() && c.error <= r.tolerance), "{}", m.y_axis);
         assert!(m.cells.iter().any(|c| !c.violations.is_empty() && c.error > r.tolerance), "{}", m.y_axis);
-        let svg = std::fs::read_to_string(out.join(format!("stability_{}.svg", m.y_axis))).unwrap();
-        assert!(svg.contains("silent failures: 0") && svg.contains("lens-sampling limit"), "{}", m.y_axis);
-        assert!(out.join(format!("stability_{}.png", m.y_axis)).exists());
+        let name = format!("stability_{}_{}", m.method, m.y_axis);
+        let svg = std::fs::read_to_string(out.join(format!("{name}.svg"))).unwrap();
+        assert!(svg.contains("silent failures: 0") && svg.contains(&m.limit), "{name}");
+        assert!(out.join(format!("{name}.png")).exists());
     }
+    for m in r.maps.iter().filter(|m| m.method == "angular_spectrum") {
+        assert_eq!(m.cells.len(), 28, "{}", m.y_axis);
+        let worst = m.cells.iter().filter(|c| c.violations.is_empty()).map(|c| c.error).fold(0.0, f64::max);
+        assert!(worst < 4e-4, "{worst}");
+    }
+    // The matrix DFT's pupils coarser than the DOE's samples with more than pi / 2 per sample
+    // are refused (`pupil_resampling`), and were over the tolerance: at 550 nm, g = 3.5 mm, the
+    // 6.5 um pupil (2.0 rad per sample) is 1.3e-2 off.
+    let mdft = &r.maps[5];
+    assert_eq!(mdft.method, "matrix_dft");
+    let c = mdft.cells.iter().find(|c| (c.wavelength - 550e-9).abs() < 1e-15 && (c.pupil_pitch - 6.5e-6).abs() < 1e-15);
+    let c = c.unwrap();
+    assert!(c.error > r.tolerance, "{c:?}");
+    assert_eq!(c.violations, ["pupil_resampling"]);
     let edge =
         r.maps[0].cells.iter().find(|c| c.subsample == 1 && (c.focal_length - 2.8e-3).abs() < 1e-12).unwrap();
     assert!(edge.lens_sampling_ratio < 1.0 && edge.error > r.tolerance, "{edge:?}");

@@ -509,3 +509,37 @@ fn spectral_plan_runs_finer_than_the_reference_are_not_scored() {
     assert!(p.not_scored.as_deref().is_some_and(|w| w.contains("more than the reference's 9")), "{p:?}");
     assert_eq!(r.silent_failures, 0);
 }
+
+/// `psf --explain` measures the cheaper pixel sub-samplings the plan rejected: on the built-in
+/// design at 1e-2 and 1e-3, each figure is that run's error against the independent reference
+/// to within the plan's own error there, and the verdict line follows the figures.
+#[test]
+fn the_rejected_cheaper_points_are_measured_against_an_independent_reference() {
+    use doefab::optics::plan::measure_cheaper;
+    use doefab::optics::psf::relative_l2;
+    let s = scene();
+    let doe = built_in_doe();
+    let want = reference(&s, &doe, &[]);
+    let worst = |psf: &Psf| {
+        psf.channels.iter().zip(&want).map(|(c, w)| relative_l2(c.grid.values(), w)).fold(0.0, f64::max)
+    };
+    for tol in [1e-2, 1e-3] {
+        let p = plan(&s, &doe, &[], tol).unwrap();
+        let (own, _) = run(&p, &doe, &[]).unwrap();
+        let own_error = worst(&own);
+        assert!(own_error <= tol, "{own_error}");
+        let m = measure_cheaper(&p, &doe, &[]).unwrap();
+        assert_eq!(m.runs.len(), p.system.subsample.min(4) - 1, "{}", p.explain());
+        for r in &m.runs {
+            let sys = OpticalSystem { subsample: r.subsample, ..p.system.clone() };
+            let forced = Options { allow_invalid: true, precision: p.precision };
+            let truth = worst(&simulate(&sys, &doe, p.method, &forced).unwrap());
+            eprintln!("{tol:.0e}: {s} x {s}: measured {:.2e}, against the reference {truth:.2e}", r.error, s = r.subsample);
+            assert!((r.error - truth).abs() <= own_error + 1e-9, "{tol}: {r:?} vs {truth} (own {own_error})");
+        }
+        let text = m.explain();
+        let adequate = m.runs.iter().any(|r| r.valid && r.error + m.chosen_estimate <= tol);
+        assert_eq!(text.contains("would have met the tolerance"), adequate, "{text}");
+        assert_eq!(text.contains("every cheaper sub-sampling misses"), !adequate, "{text}");
+    }
+}
