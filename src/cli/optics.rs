@@ -320,7 +320,7 @@ pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
             );
         }
         if !r.skipped.is_empty() {
-            println!("left out by the budget: {}", r.skipped.join(", "));
+            println!("left out: {}", r.skipped.join(", "));
         }
         println!("wrote {}", output.display());
     })

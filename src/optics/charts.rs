@@ -14,12 +14,41 @@ use crate::optics::spectral_bench::SpectralReport;
 use crate::optics::stability::{StabilityMap, StabilityReport};
 use crate::report::{write_png_chart, write_svg_chart, FONT};
 
-const SERIES: [(&str, &str, RGBColor); 4] = [
-    ("matrix_dft", "f64", BLUE),
-    ("matrix_dft", "f32", GREEN),
-    ("fresnel", "f64", RED),
-    ("angular_spectrum", "f64", MAGENTA),
-];
+/// The series of `points` in their order of appearance, each with its colour: the methods'
+/// own hues (matrix DFT blue and green, Fresnel red, angular spectrum magenta), the FFT
+/// methods' paddings lighter below their own and darker above.
+fn series(points: &[BenchPoint]) -> Vec<(String, RGBColor)> {
+    let mut out: Vec<(String, RGBColor)> = Vec::new();
+    for p in points {
+        if out.iter().any(|s| s.0 == p.series) {
+            continue;
+        }
+        let own = match p.method.as_str() {
+            "fresnel" => 1.5,
+            _ => 2.0,
+        };
+        let shade = |c: RGBColor| {
+            let f = |v: u8, t: f64| (v as f64 + (t - v as f64) * 0.55) as u8;
+            // Nominal 1.25, own, 3, as run: rounded up to fast FFT sizes (1.25 runs at up to
+            // 1.35, the Fresnel method's 1.5 at up to 1.55).
+            if p.method != "matrix_dft" && p.padding < own - 0.1 {
+                RGBColor(f(c.0, 255.0), f(c.1, 255.0), f(c.2, 255.0))
+            } else if p.method != "matrix_dft" && p.padding > own + 0.5 {
+                RGBColor(f(c.0, 0.0), f(c.1, 0.0), f(c.2, 0.0))
+            } else {
+                c
+            }
+        };
+        let colour = match (p.method.as_str(), p.precision.as_str()) {
+            ("matrix_dft", "f64") => BLUE,
+            ("matrix_dft", _) => GREEN,
+            ("fresnel", _) => shade(RED),
+            _ => shade(MAGENTA),
+        };
+        out.push((p.series.clone(), colour));
+    }
+    out
+}
 
 /// Log range covering `values` (positive ones), padded by a factor of 2.
 fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
@@ -65,16 +94,15 @@ fn speed_chart<DB: DrawingBackend>(
         .label_style((FONT, 13))
         .draw()
         .map_err(|x| e(&x))?;
-    for (method, precision, colour) in SERIES {
-        let own: Vec<&BenchPoint> =
-            points.iter().filter(|p| p.method == method && p.precision == precision).collect();
+    for (name, colour) in series(points) {
+        let own: Vec<&BenchPoint> = points.iter().filter(|p| p.series == name).collect();
         chart
             .draw_series(own.iter().map(|p| {
                 let style = if p.violations.is_empty() { colour.filled() } else { colour.stroke_width(1) };
                 Circle::new((p.seconds, p.error.max(1e-300)), 4, style)
             }))
             .map_err(|x| e(&x))?
-            .label(format!("{method} {precision}"))
+            .label(name)
             .legend(move |(x, y)| Circle::new((x + 8, y), 4, colour.filled()));
     }
     let front: Vec<(f64, f64)> = points.iter().filter(|p| p.pareto).map(|p| (p.seconds, p.error)).collect();
@@ -140,17 +168,17 @@ fn stability_chart<DB: DrawingBackend>(
         .label_style((FONT, 13))
         .draw()
         .map_err(|x| e(&x))?;
-    for (method, precision, colour) in SERIES {
+    for (name, colour) in series(points) {
         let mut own: Vec<(f64, f64, bool)> = points
             .iter()
-            .filter(|p| p.method == method && p.precision == precision)
+            .filter(|p| p.series == name)
             .map(|p| (p.subsample as f64, p.error.max(1e-300), p.violations.is_empty()))
             .collect();
         own.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
         chart
             .draw_series(LineSeries::new(own.iter().map(|&(x, y, _)| (x, y)), colour))
             .map_err(|x| e(&x))?
-            .label(format!("{method} {precision}"))
+            .label(name)
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour));
         chart
             .draw_series(own.iter().map(|&(x, y, valid)| -> DynElement<DB, (f64, f64)> {
@@ -470,8 +498,10 @@ mod tests {
 
     fn point(method: &str, s: usize, seconds: f64, error: f64, valid: bool) -> BenchPoint {
         BenchPoint {
+            series: format!("{method} f64"),
             method: method.into(),
             precision: "f64".into(),
+            padding: 1.0,
             subsample: s,
             pixel_rule: "midpoint".into(),
             pupil_pitch: 3e-6 / s as f64,

@@ -52,8 +52,9 @@ const MAX_SUBSAMPLE: usize = 32;
 const MAX_REFINE: usize = 8;
 /// The most spectral samples per band the plan considers.
 pub const MAX_SPECTRAL: usize = 64;
-/// The largest pupil or FFT grid side the plan considers (memory: 16 bytes a sample).
-const MAX_SIDE: usize = 8192;
+/// The largest pupil or FFT grid side the plan and `bench psf` run (memory: 16 bytes a
+/// sample, a few such arrays at once: about 5 GB at this side).
+pub const MAX_SIDE: usize = 8192;
 
 /// One choice of the plan with the condition that bounds it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -5,7 +5,8 @@
 //! Each method (matrix DFT in f64 and f32, two-step Fresnel, angular spectrum) runs at `s` =
 //! 1, 2, ... sub-samples per pixel and axis (Gauss-Legendre nodes for the matrix DFT; the
 //! transfer-function methods sample the pupil and the sensor uniformly at `pitch / s`, the
-//! midpoint rule, so `s` is also their pupil grid), forced past its validity guard so that the
+//! midpoint rule, so `s` is also their pupil grid; each of them at three paddings of its FFT
+//! window, 1.25, its own and 3 times the pupil's side), forced past its validity guard so that the
 //! error where it refuses is seen; the guard's verdict is recorded with each run. A time budget
 //! sets how far each series goes (see [`BenchOptions::budget`]).
 //!
@@ -25,7 +26,8 @@ use std::time::Instant;
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
-use super::propagate::check;
+use super::plan::MAX_SIDE;
+use super::propagate::{asm, check, fresnel};
 use super::system::{OpticalSystem, PixelRule};
 use super::{simulate, Method, Options, Precision, Psf};
 use crate::error::Result;
@@ -37,13 +39,30 @@ pub const N: usize = 112;
 /// Pitch of the small scene's DOE grid, metres.
 pub const PITCH: f64 = 5e-6;
 
-/// Method and precision pairs run, in order.
-const CONFIGS: [(Method, Precision); 4] = [
-    (Method::MatrixDft, Precision::F32),
-    (Method::MatrixDft, Precision::F64),
-    (Method::Fresnel, Precision::F64),
-    (Method::AngularSpectrum, Precision::F64),
+/// The series run, in order: method, precision and, for the FFT methods, the padding (FFT
+/// window over the pupil's side; `None` the method's own: 1.5 for the Fresnel method, 2 for the
+/// angular spectrum), below and above the method's own.
+const CONFIGS: [(Method, Precision, Option<f64>); 8] = [
+    (Method::MatrixDft, Precision::F32, None),
+    (Method::MatrixDft, Precision::F64, None),
+    (Method::Fresnel, Precision::F64, Some(1.25)),
+    (Method::Fresnel, Precision::F64, None),
+    (Method::Fresnel, Precision::F64, Some(3.0)),
+    (Method::AngularSpectrum, Precision::F64, Some(1.25)),
+    (Method::AngularSpectrum, Precision::F64, None),
+    (Method::AngularSpectrum, Precision::F64, Some(3.0)),
 ];
+
+/// A series' name: method and precision, and the FFT methods' nominal padding.
+fn series_name(method: Method, precision: Precision, padding: Option<f64>) -> String {
+    match method {
+        Method::MatrixDft => format!("{method} {}", precision.name()),
+        _ => {
+            let own = if method == Method::Fresnel { 1.5 } else { 2.0 };
+            format!("{method} {} pad {}", precision.name(), padding.unwrap_or(own))
+        }
+    }
+}
 
 /// Timed runs per configuration at most (the fastest counts), after one warm-up run; fewer
 /// once a configuration has taken this many seconds.
@@ -54,9 +73,10 @@ const REPEAT_SECONDS: f64 = 2.0;
 #[derive(Debug, Clone, PartialEq)]
 pub struct BenchOptions {
     /// Wall-clock seconds for the whole run. The reference and the plans run first; what is
-    /// left is shared equally among the four series, and a series stops before a sub-sampling
-    /// that would end past its share, predicted from the one before (those are listed in
-    /// [`BenchReport::skipped`]; a series whose share is spent skips the rest).
+    /// left is shared equally among the eight series, and a series stops before a sub-sampling
+    /// that would end past its share, predicted from the one before, or whose FFT window
+    /// exceeds [`MAX_SIDE`] (memory); those are listed in [`BenchReport::skipped`] with the
+    /// reason.
     pub budget: f64,
     /// The largest sub-sampling of the sweep (the reference runs at two more and four more).
     pub max_subsample: usize,
@@ -125,8 +145,13 @@ pub struct BenchReport {
 /// One timed run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct BenchPoint {
+    /// Method, precision and (FFT methods) padding, as the charts name it.
+    pub series: String,
     pub method: String,
     pub precision: String,
+    /// FFT window side over the pupil samples' side as run (the nominal padding rounded up to
+    /// a fast FFT size; 1 for the matrix DFT, which has none).
+    pub padding: f64,
     /// Sub-samples per pixel and axis.
     pub subsample: usize,
     /// Their quadrature rule (`gauss_legendre`, or `midpoint` for the FFT methods, whose
@@ -284,29 +309,43 @@ pub fn run_bench(
     let share = (opts.budget - start.elapsed().as_secs_f64()).max(0.0) / CONFIGS.len() as f64;
     let mut points = Vec::new();
     let mut skipped = Vec::new();
-    for (k, (method, precision)) in CONFIGS.into_iter().enumerate() {
+    for (k, (method, precision, padding)) in CONFIGS.into_iter().enumerate() {
         let series_end = opts.budget - share * (CONFIGS.len() - 1 - k) as f64;
         // Wall time of the series' last configuration (warm-up and repeats included).
         let mut last_spent: Option<f64> = None;
+        // Once a run is left out, the finer ones of the series are too.
+        let mut stopped: Option<&str> = None;
         for s in 1..=opts.max_subsample {
-            let name = format!("{} {} s={s}", method.name(), precision.name());
-            // The next run is predicted from the last one: the work grows at most as the
-            // number of samples, (s / (s - 1))^2.
-            let growth = if s > 1 { (s as f64 / (s - 1) as f64).powi(2) } else { 1.0 };
-            let predicted_end = start.elapsed().as_secs_f64() + last_spent.map_or(0.0, |t| t * growth);
-            if predicted_end > series_end {
-                tick(&format!("{name}: skipped (budget)"));
-                skipped.push(name);
-                continue;
-            }
-            tick(&name);
             // The FFT methods sample the sensor on their uniform grid: the midpoint rule.
             let (pixel_rule, rule) = if method == Method::MatrixDft {
                 (PixelRule::GaussLegendre, "gauss_legendre")
             } else {
                 (PixelRule::Midpoint, "midpoint")
             };
-            let sys = OpticalSystem { subsample: s, pixel_rule, ..system.clone() };
+            let sys = OpticalSystem { subsample: s, pixel_rule, padding, ..system.clone() };
+            let window = match method {
+                Method::Fresnel => fresnel::grid(&sys),
+                Method::AngularSpectrum => asm::grid(&sys),
+                _ => (1, 0.0, 1),
+            };
+            let pad = window.2 as f64 / window.0 as f64;
+            let series = series_name(method, precision, padding);
+            let name = format!("{series} s={s}");
+            // The next run is predicted from the last one: the work grows at most as the
+            // number of samples, (s / (s - 1))^2.
+            let growth = if s > 1 { (s as f64 / (s - 1) as f64).powi(2) } else { 1.0 };
+            let predicted_end = start.elapsed().as_secs_f64() + last_spent.map_or(0.0, |t| t * growth);
+            if stopped.is_none() && window.2 > MAX_SIDE {
+                stopped = Some("memory");
+            } else if stopped.is_none() && predicted_end > series_end {
+                stopped = Some("budget");
+            }
+            if let Some(why) = stopped {
+                tick(&format!("{name}: skipped ({why})"));
+                skipped.push(format!("{name} ({why})"));
+                continue;
+            }
+            tick(&name);
             let violations: Vec<String> = check(method, &sys, doe)?
                 .iter()
                 .map(|v| format!("{} at {:.0} nm", v.condition, v.wavelength * 1e9))
@@ -317,8 +356,10 @@ pub fn run_bench(
             last_spent = Some(began.elapsed().as_secs_f64());
             let pupil_pitch = if method == Method::MatrixDft { sys.pupil_pitch } else { sys.sample_pitch() };
             points.push(BenchPoint {
+                series,
                 method: method.name().into(),
                 precision: precision.name().into(),
+                padding: pad,
                 subsample: s,
                 pixel_rule: rule.into(),
                 pupil_pitch,
@@ -341,7 +382,7 @@ pub fn run_bench(
             .filter(|p| p.error <= plan.tolerance)
             .min_by(|a, b| a.seconds.total_cmp(&b.seconds));
         if let Some(c) = cheapest {
-            plan.cheapest_adequate = Some(format!("{} {} s={}", c.method, c.precision, c.subsample));
+            plan.cheapest_adequate = Some(format!("{} s={}", c.series, c.subsample));
             plan.time_ratio = Some(plan.seconds / c.seconds);
         }
     }

@@ -123,6 +123,11 @@ pub struct OpticalSystem {
     /// spectrum gets the cell's envelope `sinc(fx dx) sinc(fy dx)` (`sinc t = sin(pi t)/(pi t)`).
     /// `false` (point samples) is what the paper's simulation does.
     pub cells: bool,
+    /// FFT window side over the pupil samples' side for the transfer-function methods
+    /// (`None`: each method's own, 1.5 for the two-step Fresnel method, 2 for the angular
+    /// spectrum); rounded up to a fast FFT size. `bench psf` sweeps it.
+    #[serde(default)]
+    pub padding: Option<f64>,
 }
 
 impl Default for OpticalSystem {
@@ -145,6 +150,7 @@ impl Default for OpticalSystem {
             material: Material::pdms(),
             interpolation: Interpolation::Bilinear,
             cells: false,
+            padding: None,
         }
     }
 }
@@ -164,7 +170,7 @@ pub struct Abcd {
 impl OpticalSystem {
     /// Checks every parameter: positive finite distances and pitches, a crop of at least one
     /// pixel, wavelengths within the material's dispersion range, a pupil window that holds
-    /// the aperture.
+    /// the aperture, a padding from 1 to 16.
     pub fn validate(&self) -> Result<()> {
         let positive = |name: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
@@ -198,6 +204,14 @@ impl OpticalSystem {
                     self.aperture * 1e3
                 ),
             ));
+        }
+        if let Some(p) = self.padding {
+            if !(p.is_finite() && (1.0..=16.0).contains(&p)) {
+                return Err(Error::param(
+                    "padding",
+                    format!("the FFT window over the pupil's side must be from 1 to 16, got {p}"),
+                ));
+            }
         }
         if self.wavelengths.is_empty() {
             return Err(Error::param("wavelengths", "needs at least one wavelength"));
@@ -387,6 +401,7 @@ struct SystemFile {
     wavelengths: Option<Vec<String>>,
     material: Option<String>,
     cells: Option<bool>,
+    padding: Option<f64>,
 }
 
 impl OpticalSystem {
@@ -436,6 +451,9 @@ impl OpticalSystem {
         s.subsample = f.subsample.unwrap_or(s.subsample);
         s.pixel_rule = f.pixel_rule.unwrap_or(s.pixel_rule);
         s.cells = f.cells.unwrap_or(s.cells);
+        if f.padding.is_some() {
+            s.padding = f.padding;
+        }
         s.validate().map_err(|e| Error::format(path, e.to_string()))?;
         Ok(s)
     }
@@ -482,14 +500,16 @@ mod tests {
             &p,
             "aperture = \"2.5 mm\"\nfocal_length = \"17.5mm\"\nlens_to_sensor = \"17.5 mm\"\n\
              object_distance = \"infinity\"\nwavelengths = [\"550nm\", \"0.45 um\"]\ncrop = 64\n\
-             material = \"fused_silica\"\npixel_rule = \"gauss_legendre\"\n",
+             material = \"fused_silica\"\npixel_rule = \"gauss_legendre\"\npadding = 3\n",
         )
         .unwrap();
         let s = OpticalSystem::read_toml(&p, &OpticalSystem::default()).unwrap();
         assert_eq!((s.aperture, s.focal_length, s.crop), (2.5e-3, 17.5e-3, 64));
         assert!((s.wavelengths[1] - 450e-9).abs() < 1e-20 && (s.f_number() - 7.0).abs() < 1e-12);
         assert_eq!((s.material, s.pixel_rule), (Material::fused_silica(), PixelRule::GaussLegendre));
+        assert_eq!(s.padding, Some(3.0));
         for (text, needle) in [
+            ("padding = 0.5", "padding"),
             ("aperture = \"5\"", "aperture: "),
             ("lens_to_sensor = \"-3 mm\"", "lens_to_sensor"),
             ("focal = \"3 mm\"", "unknown field `focal`"),
@@ -547,6 +567,7 @@ mod tests {
         bad(&|s| s.lens_to_sensor = -1e-3, "lens_to_sensor");
         bad(&|s| s.object_distance = Some(0.0), "object_distance");
         bad(&|s| s.crop = 0, "crop");
+        bad(&|s| s.padding = Some(f64::NAN), "padding");
         bad(&|s| s.pupil_window = 1e-3, "smaller than");
         bad(&|s| s.wavelengths = vec![1.5e-6], "outside the dispersion formula's range 400-700 nm");
     }

@@ -236,13 +236,14 @@ pub fn run_report(
 /// One row per run of the PSF benchmark.
 fn psf_csv(r: &psf_bench::BenchReport) -> String {
     let mut s =
-        String::from("method,precision,subsample,pupil_pitch_m,seconds,relative_l2,guard_refuses,pareto\n");
+        String::from("method,precision,padding,subsample,pupil_pitch_m,seconds,relative_l2,guard_refuses,pareto\n");
     for p in &r.points {
         let _ = writeln!(
             s,
-            "{},{},{},{:e},{:e},{:e},{},{}",
+            "{},{},{},{},{:e},{:e},{:e},{},{}",
             p.method,
             p.precision,
+            p.padding,
             p.subsample,
             p.pupil_pitch,
             p.seconds,
@@ -306,7 +307,7 @@ fn page(design: &str, m: Measured, charts: Charts) -> Page {
     let Measured { psf, maps, registration, fab, calibration, tiling } = m;
     let mut b = Builder { figures: Vec::new() };
     let mut reading = vec![
-        words("The PSF of the design by every method, precision and pixel sub-sampling, timed and scored against a reference (matrix DFT, Gauss-Legendre pixels) that differs from its own refinement by"),
+        words("The PSF of the design by every method, precision, FFT padding and pixel sub-sampling, timed and scored against a reference (matrix DFT, Gauss-Legendre pixels) that differs from its own refinement by"),
         b.fig("reference self-difference", psf.reference.difference, "1"),
         words(". The automatic plan:"),
     ];

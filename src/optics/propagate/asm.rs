@@ -28,11 +28,13 @@ use crate::grid::Grid;
 use crate::optics::fft::{fft_freq, good_size};
 use crate::optics::system::{sinc, OpticalSystem};
 
-/// `(n, dx, w)`: pupil samples, pitch and padded FFT size (at least 2n) of this method.
+/// `(n, dx, w)`: pupil samples, pitch and padded FFT size of this method (at least `2 n`, or
+/// `system.padding` times `n`).
 pub fn grid(system: &OpticalSystem) -> (usize, f64, usize) {
     let dx = system.sample_pitch();
     let n = system.pupil_samples(dx, system.samples() % 2);
-    (n, dx, good_size(2 * n, n % 2))
+    let w = system.padding.map_or(2 * n, |p| (p * n as f64).ceil() as usize);
+    (n, dx, good_size(w.max(n), n % 2))
 }
 
 /// Matsushima and Shimobaba's band limit for distance `z` in a window of `w` metres.

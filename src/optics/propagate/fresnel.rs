@@ -29,11 +29,16 @@ use crate::grid::Grid;
 use crate::optics::fft::{fft_freq, good_size, Plan2d};
 use crate::optics::system::{sinc, OpticalSystem};
 
-/// `(n, dx, w)`: pupil samples, pitch and padded FFT size of this method.
+/// `(n, dx, w)`: pupil samples, pitch and padded FFT size of this method (`n / 4` a side, as
+/// the paper's code, or `system.padding` times `n`).
 pub fn grid(system: &OpticalSystem) -> (usize, f64, usize) {
     let dx = system.sample_pitch();
     let n = system.pupil_samples(dx, system.samples() % 2);
-    (n, dx, good_size(n + 2 * n.div_ceil(4), n % 2))
+    let w = match system.padding {
+        Some(p) => (p * n as f64).ceil() as usize,
+        None => n + 2 * n.div_ceil(4),
+    };
+    (n, dx, good_size(w.max(n), n % 2))
 }
 
 /// The violated validity conditions at `wavelength` (see the module docs).
