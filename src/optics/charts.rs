@@ -244,8 +244,9 @@ fn stability_map_chart<DB: DrawingBackend>(
     };
     let xs = map.cells.iter().map(|c| c.lens_sampling_ratio);
     // Room on the left for the legend.
-    let x_range =
-        log_range(xs.chain(report.paper.iter().map(|p| p.lens_sampling_ratio)).chain(std::iter::once(map.limit_x)));
+    let x_range = log_range(
+        xs.chain(report.paper.iter().map(|p| p.lens_sampling_ratio)).chain(std::iter::once(map.limit_x)),
+    );
     let x_range = x_range.start / 8.0..x_range.end;
     let (y_lo, y_hi) =
         map.cells.iter().map(y_of).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));

@@ -173,7 +173,9 @@ mod tests {
     #[test]
     fn transform_matches_the_naive_dft() {
         let n = 10usize;
-        let field = Array2::from_shape_fn((n, n), |(i, j)| Complex64::new((i as f64 - 2.0 * j as f64).cos(), j as f64));
+        let field = Array2::from_shape_fn((n, n), |(i, j)| {
+            Complex64::new((i as f64 - 2.0 * j as f64).cos(), j as f64)
+        });
         let mut planner = FftPlanner::new();
         let plan = Plan2d::new(&mut planner, n);
         for inverse in [false, true] {

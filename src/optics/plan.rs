@@ -559,7 +559,11 @@ pub fn measure_cheaper(plan: &Plan, doe: &Grid, bands: &[Band]) -> Result<Cheape
     } else {
         bands.iter().map(|b| b.range()).map(|(lo, hi)| 0.5 * (lo + hi)).collect()
     };
-    let at = |subsample: usize| OpticalSystem { subsample, wavelengths: wavelengths.clone(), ..plan.system.clone() };
+    let at = |subsample: usize| OpticalSystem {
+        subsample,
+        wavelengths: wavelengths.clone(),
+        ..plan.system.clone()
+    };
     let forced = Options { allow_invalid: true, precision: plan.precision };
     let chosen = plan.system.subsample;
     let reference = propagate::simulate(&at(chosen), doe, plan.method, &forced)?;

@@ -178,7 +178,6 @@ pub fn steps(opts: &MapOptions) -> usize {
 
 /// `method` (the two-step Fresnel or the angular-spectrum method) and its truth at one
 /// configuration (module docs).
-#[allow(clippy::too_many_arguments)]
 fn cell(
     method: Method,
     base: &OpticalSystem,
@@ -206,6 +205,7 @@ fn cell(
             relative_l2(&pixels(&run, s), &pixels(&truth, s))
         }
         _ => {
+            // The Fresnel method against the matrix DFT of the same pupil.
             let forced = Options { allow_invalid: true, precision: Precision::F64 };
             let truth_system = OpticalSystem { pupil_pitch: dx, ..sys.clone() };
             let truth = simulate(&truth_system, doe, Method::MatrixDft, &Options::default())?;
@@ -213,15 +213,29 @@ fn cell(
             relative_l2(run.channels[0].grid.values(), truth.channels[0].grid.values())
         }
     };
-    let mut violations: Vec<String> = check(method, &sys, doe)?.into_iter().map(|v| v.condition).collect();
+    verdict(method, &sys, doe, dx, error, tolerance)
+}
+
+/// The cell of `method`'s run in `sys` (one wavelength) at pupil pitch `dx` with `error`: the
+/// guard's verdict and the axes.
+fn verdict(
+    method: Method,
+    sys: &OpticalSystem,
+    doe: &Grid,
+    dx: f64,
+    error: f64,
+    tolerance: f64,
+) -> Result<MapCell> {
+    let mut violations: Vec<String> = check(method, sys, doe)?.into_iter().map(|v| v.condition).collect();
     violations.dedup();
+    let wavelength = sys.wavelengths[0];
     Ok(MapCell {
-        subsample: s,
+        subsample: sys.subsample,
         pupil_pitch: dx,
         wavelength,
-        focal_length: g,
+        focal_length: sys.focal_length,
         lens_sampling_ratio: dx / (wavelength * sys.f_number()),
-        fresnel_number: (0.5 * sys.aperture).powi(2) / (wavelength * g),
+        fresnel_number: (0.5 * sys.aperture).powi(2) / (wavelength * sys.focal_length),
         error,
         // A NaN error is over any tolerance.
         silent: violations.is_empty() && (error > tolerance || error.is_nan()),
@@ -246,26 +260,18 @@ fn mdft_truth(sys: &OpticalSystem, doe: &Grid) -> Result<Array2<f64>> {
 }
 
 /// The matrix DFT at pupil pitch `dx` against `truth` ([`mdft_truth`] of `sys`).
-fn mdft_cell(sys: &OpticalSystem, doe: &Grid, dx: f64, truth: &Array2<f64>, tolerance: f64) -> Result<MapCell> {
+fn mdft_cell(
+    sys: &OpticalSystem,
+    doe: &Grid,
+    dx: f64,
+    truth: &Array2<f64>,
+    tolerance: f64,
+) -> Result<MapCell> {
     let sys = OpticalSystem { pupil_pitch: dx, ..sys.clone() };
     let forced = Options { allow_invalid: true, precision: Precision::F64 };
     let run = simulate(&sys, doe, Method::MatrixDft, &forced)?;
     let error = relative_l2(run.channels[0].grid.values(), truth);
-    let mut violations: Vec<String> =
-        check(Method::MatrixDft, &sys, doe)?.into_iter().map(|v| v.condition).collect();
-    violations.dedup();
-    let wavelength = sys.wavelengths[0];
-    Ok(MapCell {
-        subsample: sys.subsample,
-        pupil_pitch: dx,
-        wavelength,
-        focal_length: sys.focal_length,
-        lens_sampling_ratio: dx / (wavelength * sys.f_number()),
-        fresnel_number: (0.5 * sys.aperture).powi(2) / (wavelength * sys.focal_length),
-        error,
-        silent: violations.is_empty() && (error > tolerance || error.is_nan()),
-        violations,
-    })
+    verdict(Method::MatrixDft, &sys, doe, dx, error, tolerance)
 }
 
 /// Midpoint sub-samples summed into pixels (`s x s` blocks), normalised to sum 1.
@@ -279,13 +285,21 @@ fn pixels(intensity: &Array2<f64>, s: usize) -> Array2<f64> {
     px / total
 }
 
-fn map(method: Method, y_axis: &str, cells: Vec<MapCell>, tolerance: f64, base: &OpticalSystem) -> StabilityMap {
+fn map(
+    method: Method,
+    y_axis: &str,
+    cells: Vec<MapCell>,
+    tolerance: f64,
+    base: &OpticalSystem,
+) -> StabilityMap {
     let silent_failures = cells.iter().filter(|c| c.silent).count();
     let refused_within_tolerance =
         cells.iter().filter(|c| !c.violations.is_empty() && c.error <= tolerance).count();
     let (limit_x, limit) = match method {
         // lambda |B| / dx = crop window in focus (|B| = g): dx / (lambda F#) = D / window.
-        Method::MatrixDft => (base.aperture / base.sensor_window(), "replica-period limit (a guard condition)"),
+        Method::MatrixDft => {
+            (base.aperture / base.sensor_window(), "replica-period limit (a guard condition)")
+        }
         _ => (1.0, "lens-sampling limit (a guard condition)"),
     };
     StabilityMap {
@@ -328,7 +342,8 @@ fn row(
             }
         }
         _ => {
-            let subsamples = if method == Method::AngularSpectrum { &opts.asm_subsamples } else { &opts.subsamples };
+            let subsamples =
+                if method == Method::AngularSpectrum { &opts.asm_subsamples } else { &opts.subsamples };
             for &s in subsamples {
                 tick(&what(format!("s = {s}")));
                 cells.push(cell(method, base, doe, s, g, wavelength, opts.tolerance)?);

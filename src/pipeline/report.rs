@@ -235,8 +235,9 @@ pub fn run_report(
 
 /// One row per run of the PSF benchmark.
 fn psf_csv(r: &psf_bench::BenchReport) -> String {
-    let mut s =
-        String::from("method,precision,padding,subsample,pupil_pitch_m,seconds,relative_l2,guard_refuses,pareto\n");
+    let mut s = String::from(
+        "method,precision,padding,subsample,pupil_pitch_m,seconds,relative_l2,guard_refuses,pareto\n",
+    );
     for p in &r.points {
         let _ = writeln!(
             s,

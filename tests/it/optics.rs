@@ -688,7 +688,10 @@ fn the_stability_maps_count_no_silent_failure() {
     // 6.5 um pupil (2.0 rad per sample) is 1.3e-2 off.
     let mdft = &r.maps[5];
     assert_eq!(mdft.method, "matrix_dft");
-    let c = mdft.cells.iter().find(|c| (c.wavelength - 550e-9).abs() < 1e-15 && (c.pupil_pitch - 6.5e-6).abs() < 1e-15);
+    let c = mdft
+        .cells
+        .iter()
+        .find(|c| (c.wavelength - 550e-9).abs() < 1e-15 && (c.pupil_pitch - 6.5e-6).abs() < 1e-15);
     let c = c.unwrap();
     assert!(c.error > r.tolerance, "{c:?}");
     assert_eq!(c.violations, ["pupil_resampling"]);

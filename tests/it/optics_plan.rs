@@ -554,7 +554,11 @@ fn the_rejected_cheaper_points_are_measured_against_an_independent_reference() {
             let sys = OpticalSystem { subsample: r.subsample, ..p.system.clone() };
             let forced = Options { allow_invalid: true, precision: p.precision };
             let truth = worst(&simulate(&sys, &doe, p.method, &forced).unwrap());
-            eprintln!("{tol:.0e}: {s} x {s}: measured {:.2e}, against the reference {truth:.2e}", r.error, s = r.subsample);
+            eprintln!(
+                "{tol:.0e}: {s} x {s}: measured {:.2e}, against the reference {truth:.2e}",
+                r.error,
+                s = r.subsample
+            );
             assert!((r.error - truth).abs() <= own_error + 1e-9, "{tol}: {r:?} vs {truth} (own {own_error})");
         }
         let text = m.explain();

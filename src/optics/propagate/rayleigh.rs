@@ -166,7 +166,14 @@ pub fn sensor_intensity(system: &OpticalSystem, doe: &Grid, wavelength: f64) -> 
 /// "Fast-Fourier-transform based numerical integration method for the Rayleigh-Sommerfeld
 /// diffraction formula", Appl. Opt. 45, 1102): no periodic replicas, the same sum as the
 /// direct loop up to rounding.
-fn lattice_convolve(src: &Array2<Complex64>, o: i64, nout: usize, dx: f64, z: f64, k: f64) -> Array2<Complex64> {
+fn lattice_convolve(
+    src: &Array2<Complex64>,
+    o: i64,
+    nout: usize,
+    dx: f64,
+    z: f64,
+    k: f64,
+) -> Array2<Complex64> {
     let ns = src.dim().0;
     let nt = nout + ns - 1;
     let p = good_size(nt, 0);
@@ -174,11 +181,13 @@ fn lattice_convolve(src: &Array2<Complex64>, o: i64, nout: usize, dx: f64, z: f6
     let t0 = o - (ns as i64 - 1);
     let off: Vec<f64> = (0..nt).map(|i| (t0 + i as i64) as f64 * dx).collect();
     let mut table = Array2::<Complex64>::zeros((p, p));
-    table.as_slice_mut().expect("standard layout").par_chunks_mut(p).take(nt).enumerate().for_each(|(a, row)| {
-        for (b, v) in row.iter_mut().take(nt).enumerate() {
-            *v = kernel(off[a] * off[a] + off[b] * off[b], z, k) * (dx * dx);
-        }
-    });
+    table.as_slice_mut().expect("standard layout").par_chunks_mut(p).take(nt).enumerate().for_each(
+        |(a, row)| {
+            for (b, v) in row.iter_mut().take(nt).enumerate() {
+                *v = kernel(off[a] * off[a] + off[b] * off[b], z, k) * (dx * dx);
+            }
+        },
+    );
     let mut planner = rustfft::FftPlanner::new();
     let plan = Plan2d::new(&mut planner, p);
     // The table depends on x^2 + y^2 on a square: its spectrum is symmetric in the two axes.
