@@ -48,7 +48,7 @@ pub struct PsfJob {
 
 #[derive(Debug, Clone)]
 enum How {
-    Method { system: OpticalSystem, method: Method, options: Options },
+    Method { system: Box<OpticalSystem>, method: Method, options: Options },
     Plan { plan: Box<Plan>, bands: Vec<Band> },
 }
 
@@ -67,7 +67,7 @@ pub fn prepare(opts: &PsfOptions) -> Result<PsfJob> {
         }
         system.subsample = opts.subsample;
         let options = Options { allow_invalid: opts.allow_invalid, ..Default::default() };
-        How::Method { system, method: Method::from_name(method)?, options }
+        How::Method { system: Box::new(system), method: Method::from_name(method)?, options }
     } else {
         let bands = match &opts.response {
             Some(p) => spectrum::read_response_csv(p)?,

@@ -305,7 +305,7 @@ fn band_limited_intensity_with(
     // Bin p of w goes to bin p (low half) or p + wf - w (high half); an even w's Nyquist bin
     // is split between +-w/2 so the interpolant of real data stays real.
     let place = |p: usize| -> Vec<(usize, f64)> {
-        if w % 2 == 0 && p == w / 2 {
+        if w.is_multiple_of(2) && p == w / 2 {
             vec![(p, 0.5), (p + wf - w, 0.5)]
         } else if p < w.div_ceil(2) {
             vec![(p, 1.0)]
