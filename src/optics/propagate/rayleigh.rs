@@ -218,8 +218,8 @@ fn alias_amplitude(dx: f64, band: f64, z: f64, wavelength: f64) -> f64 {
 /// The samples are interpolated (the DFT zero-padded: the band-limited field of band
 /// `B = 1 / (2 dx)`) onto a lattice `r` times finer, `dx_f = dx / r`, over the pupil window;
 /// both steps (DOE -> lens over `d_phi`, lens -> sensor over `d_s`) are the direct
-/// Rayleigh-Sommerfeld sum of the module docs on that lattice ([`lattice_convolve`]), with the
-/// hyperbolic lens between them. The sampled propagator's spectrum is the sum of the exact
+/// Rayleigh-Sommerfeld sum of the module docs on that lattice (each an exact linear
+/// convolution by FFT), with the hyperbolic lens between them. The sampled propagator's spectrum is the sum of the exact
 /// transfer function's replicas `H(f - m / dx_f)`; for a field of band `b` the nearest replica
 /// sits at `1 / dx_f - b`, evanescent when that exceeds `1 / lambda`, and then decays as
 /// `exp(-2 pi z sqrt(f^2 - 1/lambda^2))`. `r` is the smallest integer with `1 / dx_f >= 1.05
