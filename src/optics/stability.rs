@@ -176,6 +176,25 @@ pub fn steps(opts: &MapOptions) -> usize {
         * (opts.focal_lengths.len() + opts.wavelengths.len())
 }
 
+/// `base` at focal length `g` with the sensor in focus, one wavelength, `subsample` sub-samples
+/// per pixel by `pixel_rule`.
+fn in_focus(
+    base: &OpticalSystem,
+    g: f64,
+    wavelength: f64,
+    subsample: usize,
+    pixel_rule: PixelRule,
+) -> OpticalSystem {
+    OpticalSystem {
+        focal_length: g,
+        lens_to_sensor: g,
+        subsample,
+        pixel_rule,
+        wavelengths: vec![wavelength],
+        ..base.clone()
+    }
+}
+
 /// `method` (the two-step Fresnel or the angular-spectrum method) and its truth at one
 /// configuration (module docs).
 fn cell(
@@ -187,14 +206,7 @@ fn cell(
     wavelength: f64,
     tolerance: f64,
 ) -> Result<MapCell> {
-    let sys = OpticalSystem {
-        focal_length: g,
-        lens_to_sensor: g,
-        subsample: s,
-        pixel_rule: PixelRule::Midpoint,
-        wavelengths: vec![wavelength],
-        ..base.clone()
-    };
+    let sys = in_focus(base, g, wavelength, s, PixelRule::Midpoint);
     let dx = sys.sample_pitch();
     let error = match method {
         Method::AngularSpectrum => {
@@ -275,7 +287,7 @@ fn mdft_cell(
 }
 
 /// Midpoint sub-samples summed into pixels (`s x s` blocks), normalised to sum 1.
-fn pixels(intensity: &Array2<f64>, s: usize) -> Array2<f64> {
+pub(crate) fn pixels(intensity: &Array2<f64>, s: usize) -> Array2<f64> {
     let c = intensity.dim().0 / s;
     let mut px = Array2::<f64>::zeros((c, c));
     for ((i, j), v) in intensity.indexed_iter() {
@@ -327,14 +339,7 @@ fn row(
     let mut cells = Vec::new();
     match method {
         Method::MatrixDft => {
-            let sys = OpticalSystem {
-                focal_length: g,
-                lens_to_sensor: g,
-                subsample: MDFT_SUBSAMPLE,
-                pixel_rule: PixelRule::GaussLegendre,
-                wavelengths: vec![wavelength],
-                ..base.clone()
-            };
+            let sys = in_focus(base, g, wavelength, MDFT_SUBSAMPLE, PixelRule::GaussLegendre);
             let truth = mdft_truth(&sys, doe)?;
             for &dx in &opts.mdft_pitches {
                 tick(&what(format!("pupil pitch {:.1} um", dx * 1e6)));

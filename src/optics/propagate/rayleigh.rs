@@ -346,6 +346,7 @@ mod tests {
     use super::*;
     use crate::optics::propagate::{asm, check, Method};
     use crate::optics::psf::relative_l2;
+    use crate::optics::stability::pixels;
 
     /// The stability maps' scene at g = d_s = 2 mm, 2 sub-samples per 3 um pixel, 550 nm: a
     /// run the angular-spectrum guard accepts.
@@ -358,16 +359,6 @@ mod tests {
             ..crate::optics::psf_bench::scene()
         };
         (sys, crate::optics::stability::doe().unwrap())
-    }
-
-    fn pixels(i: &Array2<f64>, s: usize) -> Array2<f64> {
-        let c = i.dim().0 / s;
-        let mut px = Array2::<f64>::zeros((c, c));
-        for ((a, b), v) in i.indexed_iter() {
-            px[[a / s, b / s]] += v;
-        }
-        let t = px.sum();
-        px / t
     }
 
     /// Two independent ways to the same answer: the angular spectrum (periodic, in the
