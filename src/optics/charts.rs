@@ -9,6 +9,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use crate::error::{Error, Result};
+use crate::optics::propagate::Method;
 use crate::optics::psf_bench::{BenchPoint, BenchReport};
 use crate::optics::spectral_bench::SpectralReport;
 use crate::optics::stability::{StabilityMap, StabilityReport};
@@ -23,20 +24,15 @@ fn series(points: &[BenchPoint]) -> Vec<(String, RGBColor)> {
         if out.iter().any(|s| s.0 == p.series) {
             continue;
         }
-        let own = match p.method.as_str() {
-            "fresnel" => 1.5,
-            _ => 2.0,
-        };
+        let own = Method::from_name(&p.method).ok().and_then(Method::default_padding);
         let shade = |c: RGBColor| {
             let f = |v: u8, t: f64| (v as f64 + (t - v as f64) * 0.55) as u8;
             // Nominal 1.25, own, 3, as run: rounded up to fast FFT sizes (1.25 runs at up to
             // 1.35, the Fresnel method's 1.5 at up to 1.55).
-            if p.method != "matrix_dft" && p.padding < own - 0.1 {
-                RGBColor(f(c.0, 255.0), f(c.1, 255.0), f(c.2, 255.0))
-            } else if p.method != "matrix_dft" && p.padding > own + 0.5 {
-                RGBColor(f(c.0, 0.0), f(c.1, 0.0), f(c.2, 0.0))
-            } else {
-                c
+            match own {
+                Some(own) if p.padding < own - 0.1 => RGBColor(f(c.0, 255.0), f(c.1, 255.0), f(c.2, 255.0)),
+                Some(own) if p.padding > own + 0.5 => RGBColor(f(c.0, 0.0), f(c.1, 0.0), f(c.2, 0.0)),
+                _ => c,
             }
         };
         let colour = match (p.method.as_str(), p.precision.as_str()) {

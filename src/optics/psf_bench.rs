@@ -55,12 +55,9 @@ const CONFIGS: [(Method, Precision, Option<f64>); 8] = [
 
 /// A series' name: method and precision, and the FFT methods' nominal padding.
 fn series_name(method: Method, precision: Precision, padding: Option<f64>) -> String {
-    match method {
-        Method::MatrixDft => format!("{method} {}", precision.name()),
-        _ => {
-            let own = if method == Method::Fresnel { 1.5 } else { 2.0 };
-            format!("{method} {} pad {}", precision.name(), padding.unwrap_or(own))
-        }
+    match padding.or(method.default_padding()) {
+        Some(p) => format!("{method} {} pad {p}", precision.name()),
+        None => format!("{method} {}", precision.name()),
     }
 }
 

@@ -33,7 +33,9 @@ use crate::optics::system::{sinc, OpticalSystem};
 pub fn grid(system: &OpticalSystem) -> (usize, f64, usize) {
     let dx = system.sample_pitch();
     let n = system.pupil_samples(dx, system.samples() % 2);
-    let w = system.padding.map_or(2 * n, |p| (p * n as f64).ceil() as usize);
+    let own = super::Method::AngularSpectrum.default_padding().expect("an FFT method has a default padding");
+    let p = system.padding.unwrap_or(own);
+    let w = (p * n as f64).ceil() as usize;
     (n, dx, good_size(w.max(n), n % 2))
 }
 

@@ -62,6 +62,18 @@ impl Method {
         }
     }
 
+    /// The FFT window over the pupil samples' side a transfer-function method takes when the
+    /// system sets no `padding` (nominal: the Fresnel method pads `n / 4` a side, the angular
+    /// spectrum to `2 n`, each then rounded up to a fast FFT size); `None` for the methods
+    /// without an FFT window.
+    pub fn default_padding(self) -> Option<f64> {
+        match self {
+            Method::Fresnel => Some(1.5),
+            Method::AngularSpectrum => Some(2.0),
+            Method::MatrixDft | Method::RayleighSommerfeld => None,
+        }
+    }
+
     /// Parses a method name (as [`Method::name`] writes it; `-` and `_` alike).
     pub fn from_name(name: &str) -> Result<Method> {
         let n = name.trim().to_ascii_lowercase().replace('-', "_");
