@@ -71,10 +71,10 @@ pub struct FinetuneArgs {
     /// chosen by name, validate and are never trained on.
     #[arg(long)]
     pub validation_data: Option<PathBuf>,
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = doefab::decoder::dataset::HOLDOUT_EVERY)]
     pub holdout_every: usize,
     /// Leave out equirectangular panoramas narrower than this (pixels).
-    #[arg(long, default_value_t = 1024)]
+    #[arg(long, default_value_t = doefab::decoder::dataset::MIN_PANORAMA_WIDTH)]
     pub min_panorama_width: usize,
     /// Largest white-balance gain of the training views' colour jitter: each channel's gain
     /// is log-uniform in [1/G, G] (2 spans the casts of unbalanced sensor RGB).
@@ -87,12 +87,12 @@ pub struct FinetuneArgs {
     #[arg(long)]
     pub resume: bool,
     /// Total steps (80: on the paper's real captures, longer runs drift in colour; README).
-    #[arg(long, default_value_t = 80)]
+    #[arg(long, default_value_t = doefab::decoder::finetune::STEPS)]
     pub steps: usize,
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = doefab::decoder::finetune::BATCH)]
     pub batch: usize,
     /// Crop side, pixels (a multiple of 16).
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = doefab::decoder::finetune::CROP)]
     pub crop: usize,
     /// Adam step size (default 1e-4; on --resume, replaces the saved one when given).
     #[arg(long)]
@@ -112,29 +112,29 @@ pub struct FinetuneArgs {
     /// Weight of a penalty on negative outputs, mean(min(y, 0)^2), in the training loss (10:
     /// the fine-tuned decoder then scores above its start on both of the paper's real scenes,
     /// which without it lose on Kitchen; 0 = the paper's loss alone; README)
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = doefab::decoder::finetune::NEGATIVE_PENALTY)]
     pub negative_penalty: f64,
     /// Weight of the fine-tuned weights in the decoder written, w0 + blend (w - w0)
     /// (WiSE-FT; 1 = the best validated weights as they are; 0.5 measured best on the
     /// paper's real captures).
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = doefab::decoder::finetune::BLEND)]
     pub blend: f64,
     /// Read noise of the simulated captures, fraction of full scale (default: as measured
     /// on the paper's captures; the paper trained with 0.02).
-    #[arg(long, default_value_t = 0.001)]
+    #[arg(long, default_value_t = doefab::decoder::finetune::READ_NOISE)]
     pub read_noise: f64,
     /// Shot noise of the simulated captures: variance per unit signal (full scale = 1;
     /// default as measured on the paper's captures).
-    #[arg(long, default_value_t = 8e-5)]
+    #[arg(long, default_value_t = doefab::decoder::finetune::SHOT_NOISE)]
     pub shot_noise: f64,
     /// Bit depth of the simulated captures (0 = not quantised; 8 as the paper's captures).
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = doefab::decoder::finetune::BITS)]
     pub bits: u32,
     /// Validate and checkpoint every this many steps.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = doefab::decoder::finetune::CHECKPOINT_EVERY)]
     pub checkpoint_every: usize,
     /// Validation set size.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = doefab::decoder::finetune::VALIDATION)]
     pub validation: usize,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -163,17 +163,18 @@ pub struct BenchDecoderArgs {
     /// Smallest fraction of a scene that must be registered; below it the scene is refused.
     #[arg(long, default_value_t = 0.3)]
     pub min_coverage: f64,
-    /// Fine-tuning steps of --init on the PSF (0: no fine-tuning).
-    #[arg(long, default_value_t = 50)]
+    /// Fine-tuning steps of --init on the PSF (0: no fine-tuning; default finetune's).
+    #[arg(long, default_value_t = doefab::decoder::finetune::STEPS)]
     pub steps: usize,
     /// The decoder to fine-tune.
     #[arg(long, default_value = "built-in:paper-simulated-psf")]
     pub init: PathBuf,
-    /// Batch size of the fine-tuning.
-    #[arg(long, default_value_t = 2)]
+    /// Batch size of the fine-tuning (finetune's).
+    #[arg(long, default_value_t = doefab::decoder::finetune::BATCH)]
     pub batch: usize,
-    /// Training crop side, pixels (a multiple of 16).
-    #[arg(long, default_value_t = 128)]
+    /// Training crop side, pixels (a multiple of 16; finetune's: 128 px crops, smaller than
+    /// the 320 px PSF, lose on the real captures).
+    #[arg(long, default_value_t = doefab::decoder::finetune::CROP)]
     pub crop: usize,
     /// Adam step size.
     #[arg(long, default_value_t = 1e-4)]
@@ -181,13 +182,17 @@ pub struct BenchDecoderArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Score the decoder being fine-tuned on the real scenes every this many steps
-    /// (default: a fifth of the run).
+    /// (default: at each validation, every 20 steps).
     #[arg(long)]
     pub evaluate_every: Option<usize>,
-    /// HDR images to fine-tune on (a folder of EXR / Radiance .hdr; default: procedural
-    /// scenes). Not the benchmark's own scenes, or the scores measure memory.
+    /// HDR images to fine-tune on (a folder of EXR / Radiance .hdr), with finetune's hold-out
+    /// for validation and its narrowest panorama. Not the benchmark's own scenes, or the
+    /// scores measure memory.
+    #[arg(long, default_value = "../shared/data/hdr")]
+    pub train_data: PathBuf,
+    /// Fine-tune on seeded procedural HDR scenes instead of --train-data.
     #[arg(long)]
-    pub train_data: Option<PathBuf>,
+    pub procedural: bool,
     /// Tile side of the registration, pixels.
     #[arg(long, default_value_t = 48)]
     pub tile: usize,
@@ -340,6 +345,7 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         seed,
         evaluate_every,
         train_data,
+        procedural,
         tile,
         output,
     } = a;
@@ -356,7 +362,7 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         lr: *lr,
         seed: *seed,
         evaluate_every: *evaluate_every,
-        train_data: train_data.clone(),
+        train_data: (!procedural).then(|| train_data.clone()),
         tile: *tile,
     };
     let pb = progress(cli, 0);

@@ -245,7 +245,8 @@ pub struct FinetuneReport {
     pub steps: usize,
     pub seconds_per_step: f64,
     pub training_data: String,
-    /// The fine-tuned decoder's scores along the run (step 0 = the starting decoder).
+    /// The scores along the run of the decoder it would write if stopped there (best validated,
+    /// blended; step 0 = the starting decoder).
     pub curve: Vec<CurvePoint>,
     /// The training curve on simulated data (loss, validation PSNR).
     pub history: Vec<HistoryEntry>,
@@ -400,8 +401,8 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
     Ok(report)
 }
 
-/// Fine-tunes `f.init` on `psf`, scoring it on `scenes` every `f.evaluate_every` steps and at
-/// the end; writes `finetuned/`. Returns the run's report and the last reconstructions.
+/// Fine-tunes `f.init` on `psf`, scoring on `scenes` every `f.evaluate_every` steps and at
+/// the end the decoder the run would write if it stopped there; writes `finetuned/`. Returns the run's report and the last reconstructions.
 fn run_finetune(
     f: &FinetuneBench,
     cfg: &BenchConfig,
@@ -412,15 +413,21 @@ fn run_finetune(
     progress: &mut dyn FnMut(&str, u64),
 ) -> Result<(FinetuneReport, Vec<Image<f32>>)> {
     let start = DecoderWeights::read(&f.init)?;
-    let source: Box<dyn SceneSource> = match &f.train_data {
-        Some(dir) => Box::new(super::dataset::HdrScenes::new(
-            &dir.display().to_string(),
-            super::dataset::read_dir(dir)?,
+    // Real images as `finetune` takes them: its hold-out validates, narrow panoramas left out.
+    let real = match &f.train_data {
+        Some(dir) => Some(super::dataset::training_and_validation(
+            dir,
+            None,
+            super::dataset::HOLDOUT_EVERY,
+            super::dataset::MIN_PANORAMA_WIDTH,
         )?),
-        None => Box::new(GeneratedScenes {
-            name: "procedural HDR scenes",
-            generate: super::scenes::procedural_scene,
-        }),
+        None => None,
+    };
+    let procedural =
+        GeneratedScenes { name: "procedural HDR scenes", generate: super::scenes::procedural_scene };
+    let (source, validation): (&dyn SceneSource, Option<&dyn SceneSource>) = match &real {
+        Some((t, v)) => (t, Some(v)),
+        None => (&procedural, None),
     };
     let init = f.init.display().to_string();
     let desc = format!("{init} (sha256 {})", super::weights::decoder_sha256(&f.init)?);
@@ -428,8 +435,8 @@ fn run_finetune(
         UNet::from_weights(&start, device),
         psf,
         &crate::io::file_sha256(&cfg.psf)?,
-        source.as_ref(),
-        None,
+        source,
+        validation,
         f.config.clone(),
         &desc,
     )?;
@@ -441,7 +448,9 @@ fn run_finetune(
     loop {
         if trainer.step() % f.evaluate_every == 0 || trainer.step() == steps {
             progress(&format!("scoring step {} on the real scenes", trainer.step()), 0);
-            let net = UNet::from_weights(&trainer.decoder()?, device);
+            // The decoder the run would write if it stopped here (the best validated weights,
+            // blended), the one `finetuned/` receives at the end; not the raw current weights.
+            let net = UNet::from_weights(&trainer.written_decoder()?.0, device);
             let (sc, im): (Vec<Score>, Vec<Image<f32>>) = scenes
                 .iter()
                 .map(|s| score_decoder(s, name, &net))

@@ -195,6 +195,12 @@ pub fn training_and_validation(
     Ok((train, val))
 }
 
+/// `doefab finetune`'s default hold-out: 1 in this many images (by name) validates.
+pub const HOLDOUT_EVERY: usize = 5;
+/// `doefab finetune`'s default narrowest panorama used, pixels (narrower ones hurt on the
+/// paper's real captures; README, fine-tuning table).
+pub const MIN_PANORAMA_WIDTH: usize = 1024;
+
 /// Default largest white-balance gain of the colour jitter (see the module docs).
 pub const WHITE_BALANCE: f64 = 2.0;
 

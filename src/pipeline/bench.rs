@@ -286,7 +286,7 @@ pub struct DecoderBenchOptions {
     pub lr: f64,
     /// Seed of the fine-tuning's random choices.
     pub seed: u64,
-    /// Score the decoder being fine-tuned every this many steps; `None`: a fifth of the run.
+    /// Score the decoder being fine-tuned every this many steps; `None`: at each validation.
     pub evaluate_every: Option<usize>,
     /// HDR images to fine-tune on; `None`: procedural scenes.
     pub train_data: Option<PathBuf>,
@@ -314,7 +314,8 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
     } else {
         o.decoders.clone()
     };
-    let evaluate_every = o.evaluate_every.unwrap_or((o.steps / 5).max(1));
+    // By default the real scenes score the decoder as each validation leaves it.
+    let evaluate_every = o.evaluate_every.unwrap_or(crate::decoder::finetune::CHECKPOINT_EVERY);
     let finetune = (o.steps > 0).then(|| FinetuneBench {
         init: o.init.clone(),
         config: FinetuneConfig {
@@ -323,9 +324,7 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
             crop: o.crop,
             lr: o.lr,
             seed: o.seed,
-            checkpoint_every: evaluate_every,
-            validation: 4,
-            ..FinetuneConfig::default()
+            ..FinetuneConfig::recommended()
         },
         evaluate_every,
         train_data: o.train_data.clone(),

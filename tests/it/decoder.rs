@@ -622,6 +622,7 @@ fn bench_decoder_scores_every_decoder_on_one_pixel_set_and_carries_on_past_a_bad
         "1",
         "--crop",
         "64",
+        "--procedural",
         "-o",
         out.to_str().unwrap(),
     ]);
@@ -681,8 +682,32 @@ fn bench_decoder_scores_every_decoder_on_one_pixel_set_and_carries_on_past_a_bad
             assert_eq!((img.width(), img.height()), (640, 640), "{scene}/{picture}");
         }
     }
-    let tuned = DecoderWeights::read(&out.join("finetuned/decoder.safetensors")).unwrap();
-    assert!(tuned.metadata.get("training_steps").is_some_and(|v| v == "1"), "{:?}", tuned.metadata);
+    let written = out.join("finetuned/decoder.safetensors");
+    let tuned_weights = DecoderWeights::read(&written).unwrap();
+    assert!(
+        tuned_weights.metadata.get("training_steps").is_some_and(|v| v == "1"),
+        "{:?}",
+        tuned_weights.metadata
+    );
+    // The fine-tuned row scores the decoder written, not the run's raw last weights.
+    let again = tmp.path().join("again");
+    let stdout = common::ok(&[
+        "--json",
+        "bench",
+        "decoder",
+        "--data",
+        data.to_str().unwrap(),
+        "--scene",
+        &scene("Fruit"),
+        "--decoder",
+        written.to_str().unwrap(),
+        "--steps",
+        "0",
+        "-o",
+        again.to_str().unwrap(),
+    ]);
+    let rescored: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(rescored["scores"][1]["all"], tuned["all"], "{}", rescored["scores"][1]);
     // A data folder without captures, or without scenes in them, is refused with its name;
     // so is a run whose every scene fails, with each scene's reason.
     let (empty, x) = (tmp.path().join("empty"), tmp.path().join("x"));
