@@ -411,11 +411,7 @@ pub fn bench_stability(cli: &Cli, a: &BenchStabilityArgs) -> Result<()> {
 /// `doefab report`.
 pub fn report(cli: &Cli, a: &ReportArgs) -> Result<()> {
     use doefab::pipeline::report::{run_report, steps, ReportOptions};
-    let opts = ReportOptions {
-        psf: a.on.psf_options(BenchOptions::default())?,
-        budget: a.on.budget,
-        maps: doefab::optics::stability::MapOptions::default(),
-    };
+    let opts = ReportOptions::new(a.on.psf_options(BenchOptions::default())?, a.on.budget);
     let pb = progress(cli, steps(&opts) as u64);
     let page = run_report(&opts, &a.on.at.output, &mut report_to(&pb))?;
     pb.finish_and_clear();

@@ -14,6 +14,7 @@ use serde::Serialize;
 
 use super::bench::{run_psf_bench, PsfBenchOptions};
 use crate::calibration::bench::{self as cal_bench, CalibrationBench};
+use crate::decoder::finetune_time::{self, TimedFinetune, TimedOptions};
 use crate::decoder::tiling_bench::{self as tiling_bench, TilingBench, TilingOptions};
 use crate::error::{Error, Result};
 use crate::fabrication::bench::{self as fab_bench, FabBenchOptions, FabBenchReport};
@@ -33,6 +34,24 @@ pub struct ReportOptions {
     pub budget: f64,
     /// The stability maps' sweeps.
     pub maps: MapOptions,
+    /// The decoder's fine-tuning against time (its seconds count within `budget`).
+    pub finetune: TimedOptions,
+}
+
+/// The share of the budget [`ReportOptions::new`] gives the fine-tuning run.
+pub const FINETUNE_SHARE: f64 = 0.15;
+
+impl ReportOptions {
+    /// The default sweeps within `budget` seconds: the stability maps' defaults, fine-tuning
+    /// for [`FINETUNE_SHARE`] of the budget, and what is left for the PSF benchmark.
+    pub fn new(psf: PsfBenchOptions, budget: f64) -> ReportOptions {
+        ReportOptions {
+            psf,
+            budget,
+            maps: MapOptions::default(),
+            finetune: TimedOptions::new(FINETUNE_SHARE * budget),
+        }
+    }
 }
 
 /// One number on the page.
@@ -129,6 +148,7 @@ pub fn steps(opts: &ReportOptions) -> usize {
         + fab_bench::steps(&FabBenchOptions::default())
         + cal_bench::steps()
         + tiling_bench::steps(&report_tiling())
+        + finetune_time::steps(&opts.finetune)
         + psf_bench::steps(&opts.psf.bench)
 }
 
@@ -137,7 +157,8 @@ pub fn steps(opts: &ReportOptions) -> usize {
 /// min on two cores, most of it the angular spectrum's truth; the registration map, about 15
 /// s; the fabrication sweeps on the design, about
 /// 25 s for the paper's; the calibration trials on the paper's measured PSF, about 10 s; the
-/// decoder's tiling sweep, about 10 s); the PSF benchmark gets what is left.
+/// decoder's tiling sweep, about 10 s; the decoder's fine-tuning for its own seconds, by
+/// default [`FINETUNE_SHARE`] of the budget); the PSF benchmark gets what is left.
 pub fn run_report(
     opts: &ReportOptions,
     output: &Path,
@@ -162,16 +183,21 @@ pub fn run_report(
         progress(what, done, total);
         done += 1;
     })?;
-    let calibration =
-        cal_bench::run(&crate::optics::Psf::paper_measured()?, "built-in:paper-measured-psf", |what| {
-            progress(what, done, total);
-            done += 1;
-        })?;
+    let measured_psf = crate::optics::Psf::paper_measured()?;
+    let calibration = cal_bench::run(&measured_psf, "built-in:paper-measured-psf", |what| {
+        progress(what, done, total);
+        done += 1;
+    })?;
     let decoder = std::path::Path::new("built-in:paper-measured-psf");
     let tiling = tiling_bench::run(decoder, &report_tiling(), |what| {
         progress(what, done, total);
         done += 1;
     })?;
+    let finetune =
+        finetune_time::run(&opts.finetune, &measured_psf, "built-in:paper-measured-psf", |what| {
+            progress(what, done, total);
+            done += 1;
+        })?;
     let left = opts.budget - start.elapsed().as_secs_f64();
     if left <= 0.05 * opts.budget {
         return Err(Error::Limit(format!(
@@ -203,6 +229,8 @@ pub fn run_report(
     atomic::write_json(&stage.stage_path("calibration.json"), &calibration)?;
     let tiling_charts = svg(tiling_bench::write_chart(|n| stage.stage_path(n), &tiling)?, "");
     atomic::write_json(&stage.stage_path("tiling.json"), &tiling)?;
+    let finetune_charts = svg(finetune_time::write_chart(|n| stage.stage_path(n), &finetune)?, "");
+    atomic::write_json(&stage.stage_path("finetune_time.json"), &finetune)?;
     atomic::write_json(&stage.stage_path("register.json"), &registration)?;
     atomic::write_json(&stage.stage_path("bench_fab.json"), &fab)?;
     atomic::write_json(&stage.stage_path("bench_psf.json"), &psf)?;
@@ -217,6 +245,7 @@ pub fn run_report(
         fab: fab_charts,
         calibration: cal_charts,
         tiling: tiling_charts,
+        finetune: finetune_charts,
     };
     let measured = Measured {
         psf: &psf,
@@ -225,6 +254,7 @@ pub fn run_report(
         fab: &fab,
         calibration: &calibration,
         tiling: &tiling,
+        finetune: &finetune,
     };
     let page = page(&loaded.name, measured, charts);
     atomic::write_json(&stage.stage_path("report.json"), &page)?;
@@ -291,6 +321,7 @@ struct Charts {
     fab: Vec<String>,
     calibration: Vec<String>,
     tiling: Vec<String>,
+    finetune: Vec<String>,
 }
 
 /// What the benchmarks of the page measured.
@@ -301,11 +332,12 @@ struct Measured<'a> {
     fab: &'a FabBenchReport,
     calibration: &'a CalibrationBench,
     tiling: &'a TilingBench,
+    finetune: &'a TimedFinetune,
 }
 
 /// The page's sections and figures from the reports.
 fn page(design: &str, m: Measured, charts: Charts) -> Page {
-    let Measured { psf, maps, registration, fab, calibration, tiling } = m;
+    let Measured { psf, maps, registration, fab, calibration, tiling, finetune } = m;
     let mut b = Builder { figures: Vec::new() };
     let mut reading = vec![
         words("The PSF of the design by every method, precision, FFT padding and pixel sub-sampling, timed and scored against a reference (matrix DFT, Gauss-Legendre pixels) that differs from its own refinement by"),
@@ -466,6 +498,7 @@ fn page(design: &str, m: Measured, charts: Charts) -> Page {
         data: vec!["tiling.json".into()],
         reading,
     };
+    let finetune_section = finetune_section(&mut b, finetune, charts.finetune);
     Page {
         title: "doefab report".into(),
         design: design.into(),
@@ -477,6 +510,7 @@ fn page(design: &str, m: Measured, charts: Charts) -> Page {
             map_section,
             calibration_section,
             tiling_section,
+            finetune_section,
         ],
     }
 }
@@ -529,6 +563,49 @@ pub fn html(page: &Page) -> String {
     }
     h.push_str("</body></html>\n");
     h
+}
+
+/// The fine-tuning section: the validation PSNR from the start to the best, the time, and when
+/// half the gain was in.
+fn finetune_section(b: &mut Builder, r: &TimedFinetune, charts: Vec<String>) -> Section {
+    let (start, best) = r.start_and_best();
+    let last = r.points.last().map_or(0.0, |p| p.seconds);
+    let mut reading = vec![
+        words("The paper's simulated-PSF decoder fine-tuned for the paper's measured PSF with doefab finetune's settings on procedural scenes, in batches of"),
+        b.fig("fine-tuning batch", r.batch as f64, "crops"),
+        words("crops"),
+        b.fig("fine-tuning crop side", r.crop as f64, "px"),
+        words("px a side:"),
+        b.fig("fine-tuning steps", r.steps as f64, "1"),
+        words("steps in"),
+        b.fig("fine-tuning training time", last / 60.0, "min"),
+        words("minutes of training on"),
+        b.fig("fine-tuning threads", r.threads as f64, "threads"),
+        words("threads ("),
+        b.fig("fine-tuning seconds per step", r.seconds_per_step, "s"),
+        words("s a step). The held-out validation PSNR went from"),
+        b.fig("validation PSNR at the start", start, "dB"),
+        words("dB to a best of"),
+        b.fig("best validation PSNR", best, "dB"),
+        words("dB"),
+    ];
+    match r.half_gain_seconds() {
+        Some(s) => {
+            reading.push(words(", half of that gain within"));
+            reading.push(b.fig("training time to half the gain", s, "s"));
+            reading.push(words("s. Stop where the curve flattens: later minutes buy less."));
+        }
+        None => reading.push(words(
+            ": no gain in this time; give the run more minutes or real images (finetune --data).",
+        )),
+    }
+    reading.push(words(" These are simulated captures of simulated scenes: score the result on real captures with bench decoder before trusting it there, and fine-tune on real HDR images (finetune --data) for a decoder to keep."));
+    Section {
+        title: "Decoder: fine-tuning against time".into(),
+        charts,
+        data: vec!["finetune_time.json".into()],
+        reading,
+    }
 }
 
 #[cfg(test)]

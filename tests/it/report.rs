@@ -1,5 +1,7 @@
 //! `doefab report`: one static page from the benchmarks, within its budget.
 
+use doefab::decoder::finetune::FinetuneConfig;
+use doefab::decoder::finetune_time::TimedOptions;
 use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
 use doefab::fabrication::chain::DesignSource;
 use doefab::io::heightmap::ReadOptions;
@@ -99,6 +101,11 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
             wavelengths: vec![450e-9, 650e-9],
             ..MapOptions::default()
         },
+        // Small crops, for the test's time; the page is tested here, not the settings.
+        finetune: TimedOptions {
+            config: FinetuneConfig { batch: 1, crop: 64, validation: 2, ..FinetuneConfig::recommended() },
+            ..TimedOptions::new(10.0)
+        },
     };
     let out = dir.path().join("report");
     let page = run_report(&opts, &out, &mut |_, _, _| {}).unwrap();
@@ -118,7 +125,7 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
         }
     }
     assert!(linked >= 18, "{linked}");
-    assert_eq!(page.sections.len(), 6);
+    assert_eq!(page.sections.len(), 7);
     // Every number on the page is one of report.json's figures, as shown() writes its value.
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
@@ -161,6 +168,14 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
     let tiling: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("tiling.json")).unwrap()).unwrap();
     assert_eq!(figure("f32 against f64, one pass"), tiling["runs"][0]["relative_l2"].as_f64().unwrap());
+    let finetune: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("finetune_time.json")).unwrap()).unwrap();
+    let points = finetune["points"].as_array().unwrap();
+    assert_eq!(points.len(), 9);
+    assert_eq!(figure("validation PSNR at the start"), points[0]["val_psnr"].as_f64().unwrap());
+    let best = points.iter().map(|p| p["val_psnr"].as_f64().unwrap()).fold(f64::MIN, f64::max);
+    assert_eq!(figure("best validation PSNR"), best);
+    assert_eq!(figure("fine-tuning steps"), finetune["steps"].as_f64().unwrap());
 }
 
 #[test]
@@ -174,6 +189,7 @@ fn the_report_refuses_a_budget_it_cannot_keep() {
         },
         budget: 0.0,
         maps: MapOptions::default(),
+        finetune: TimedOptions::new(0.0),
     };
     let dir = tempfile::tempdir().unwrap();
     let e = run_report(&opts, &dir.path().join("r"), &mut |_, _, _| {}).unwrap_err().to_string();

@@ -1,0 +1,332 @@
+//! Fine-tuning against time (the report's decoder section): how far a few minutes of CPU
+//! fine-tuning move the decoder, as the held-out validation PSNR against training time.
+//!
+//! The run is [`Trainer`]'s, with the settings of `doefab finetune` (measured noise, 8-bit
+//! captures, negative-output penalty, batches of 4 crops 256 px a side;
+//! [`FinetuneConfig::recommended`]), so that its time per step is what a user's run costs. The
+//! first step is timed, and the run then takes as many steps as the budget holds, in
+//! `evaluations` equal legs (at least one step each), the
+//! validation set (simulated once, from held-out seeds) scored after each leg. The time axis is
+//! training time (the steps' wall clock on the machine's threads), validation excluded, as in
+//! `bench decoder`'s fine-tuning chart.
+//!
+//! Without `data` the scenes are the seeded procedural HDR scenes ([`procedural_scene`]): a
+//! gain there is a gain on simulated captures of simulated scenes, which the paper's real
+//! captures need not show (README, Decoder).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use serde::Serialize;
+
+use crate::decoder::finetune::{psnr_of_loss, FinetuneConfig, GeneratedScenes, Trainer};
+use crate::decoder::scenes::procedural_scene;
+use crate::decoder::unet::UNet;
+use crate::decoder::weights::{decoder_sha256, DecoderWeights};
+use crate::error::{Error, Result};
+use crate::optics::Psf;
+use crate::report::{write_png_chart, write_svg_chart, FONT};
+
+/// What [`run`] runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TimedOptions {
+    /// The decoder to start from (a file or `built-in:NAME`).
+    pub init: PathBuf,
+    /// Wall-clock seconds for the whole run, validation included; the run takes at least
+    /// `evaluations` steps even when they take longer.
+    pub seconds: f64,
+    /// Validations after the start (the legs of the run).
+    pub evaluations: usize,
+    /// Training settings (`steps` is set from the budget).
+    pub config: FinetuneConfig,
+}
+
+impl TimedOptions {
+    /// `doefab finetune`'s settings from the paper's simulated-PSF decoder, with 8 validation
+    /// views, within `seconds`.
+    pub fn new(seconds: f64) -> TimedOptions {
+        TimedOptions {
+            init: super::default_init(),
+            seconds,
+            evaluations: 8,
+            config: FinetuneConfig { validation: 8, ..FinetuneConfig::recommended() },
+        }
+    }
+}
+
+/// The validation score after a number of steps.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TimedPoint {
+    pub step: usize,
+    /// Training time up to this step (validation excluded), seconds.
+    pub seconds: f64,
+    /// Validation PSNR (the loss's sqrt domain), dB.
+    pub val_psnr: f64,
+}
+
+/// What [`run`] measured.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TimedFinetune {
+    /// The starting decoder and its SHA-256.
+    pub init: String,
+    pub psf: String,
+    pub training_data: String,
+    pub batch: usize,
+    pub crop: usize,
+    pub validation_views: usize,
+    /// Threads the steps ran on.
+    pub threads: usize,
+    pub steps: usize,
+    pub seconds_per_step: f64,
+    /// Wall-clock seconds of the whole run (validation and setup included).
+    pub total_seconds: f64,
+    /// Step 0 (the start) and every validation after it.
+    pub points: Vec<TimedPoint>,
+    pub units: &'static str,
+}
+
+impl TimedFinetune {
+    /// The start's validation PSNR and the best one, dB.
+    pub fn start_and_best(&self) -> (f64, f64) {
+        let start = self.points.first().map_or(f64::NAN, |p| p.val_psnr);
+        (start, self.points.iter().map(|p| p.val_psnr).fold(start, f64::max))
+    }
+
+    /// Training seconds at the first validation that reached half of the best gain over the
+    /// start (`None` without a gain).
+    pub fn half_gain_seconds(&self) -> Option<f64> {
+        let (start, best) = self.start_and_best();
+        if !start.is_finite() || best <= start {
+            return None;
+        }
+        self.points.iter().find(|p| p.val_psnr - start >= 0.5 * (best - start)).map(|p| p.seconds)
+    }
+}
+
+/// How many progress ticks [`run`] gives: one per validation after the start.
+pub fn steps(opts: &TimedOptions) -> usize {
+    opts.evaluations
+}
+
+/// Fine-tunes `opts.init` on `psf` (named `psf_name` in the outputs) for what `opts.seconds`
+/// holds, scoring the validation set after each of `opts.evaluations` legs (see the module
+/// docs). `tick` is called once per validation.
+pub fn run(
+    opts: &TimedOptions,
+    psf: &Psf,
+    psf_name: &str,
+    mut tick: impl FnMut(&str),
+) -> Result<TimedFinetune> {
+    if !(opts.seconds > 0.0 && opts.seconds.is_finite()) {
+        return Err(Error::param("seconds", format!("must be a positive time, got {} s", opts.seconds)));
+    }
+    if opts.evaluations == 0 {
+        return Err(Error::param("evaluations", "must be at least 1"));
+    }
+    let clock = Instant::now();
+    let device = super::device(false)?;
+    let start = DecoderWeights::read(&opts.init)?;
+    let init = format!("{} (sha256 {})", opts.init.display(), decoder_sha256(&opts.init)?);
+    let source = GeneratedScenes { name: "procedural HDR scenes", generate: procedural_scene };
+    let mut trainer = Trainer::new(
+        UNet::from_weights(&start, &device),
+        psf,
+        psf_name,
+        &source,
+        None,
+        opts.config.clone(),
+        &init,
+    )?;
+    let validation_seconds = clock.elapsed().as_secs_f64();
+    let mut points = vec![TimedPoint { step: 0, seconds: 0.0, val_psnr: psnr_from(&trainer)? }];
+    let step_clock = Instant::now();
+    trainer.train_step()?;
+    let first = step_clock.elapsed().as_secs_f64();
+    // Steps the rest of the budget holds, with one validation per leg (a validation costs
+    // at most what setting up the validation set and scoring it once did).
+    let left = opts.seconds - clock.elapsed().as_secs_f64() - opts.evaluations as f64 * validation_seconds;
+    let more = (left / first).floor().max(0.0) as usize;
+    let every = ((1 + more) / opts.evaluations).max(1);
+    let total = every * opts.evaluations;
+    let mut seconds = first;
+    loop {
+        if trainer.step() % every == 0 {
+            let psnr = trainer.evaluate()?;
+            points.push(TimedPoint { step: trainer.step(), seconds, val_psnr: psnr });
+            tick(&format!("fine-tuning: step {} of {total}, validation {psnr:.2} dB", trainer.step()));
+        }
+        if trainer.step() >= total {
+            break;
+        }
+        let step_clock = Instant::now();
+        trainer.train_step()?;
+        seconds += step_clock.elapsed().as_secs_f64();
+    }
+    Ok(TimedFinetune {
+        init,
+        psf: psf_name.into(),
+        training_data: source.name.into(),
+        batch: opts.config.batch,
+        crop: opts.config.crop,
+        validation_views: opts.config.validation,
+        threads: rayon::current_num_threads(),
+        steps: total,
+        seconds_per_step: seconds / total as f64,
+        total_seconds: clock.elapsed().as_secs_f64(),
+        points,
+        units: "PSNR in dB (validation loss's sqrt domain, peak = the clipping level); seconds",
+    })
+}
+
+/// The validation PSNR the trainer logged last.
+fn psnr_from(trainer: &Trainer) -> Result<f64> {
+    trainer
+        .history()
+        .iter()
+        .rev()
+        .find_map(|h| h.val_loss)
+        .map(psnr_of_loss)
+        .ok_or_else(|| Error::Data("the fine-tuning run logged no validation".into()))
+}
+
+fn chart<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    r: &TimedFinetune,
+) -> std::result::Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let minutes = |s: f64| s / 60.0;
+    let last = r.points.iter().map(|p| minutes(p.seconds)).fold(0.0, f64::max).max(1e-3);
+    let (lo, hi) = r
+        .points
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.val_psnr), b.max(p.val_psnr)));
+    if !lo.is_finite() {
+        return Err("no validation to chart".into());
+    }
+    let pad = ((hi - lo) * 0.15).max(0.1);
+    let mut c = ChartBuilder::on(root)
+        .caption(
+            format!(
+                "Fine-tuning {} on {}: held-out validation PSNR against training time",
+                r.init.split(' ').next().unwrap_or(""),
+                r.training_data
+            ),
+            (FONT, 16),
+        )
+        .margin(12)
+        .x_label_area_size(44)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..last * 1.05, (lo - pad)..(hi + pad))
+        .map_err(|x| e(&x))?;
+    let x_desc = format!(
+        "training time, minutes of wall clock on {} threads ({} steps of {} x {}^2, {:.2} s a step)",
+        r.threads, r.steps, r.batch, r.crop, r.seconds_per_step
+    );
+    c.configure_mesh()
+        .x_desc(x_desc)
+        .y_desc("validation PSNR, dB")
+        .label_style((FONT, 12))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let (start, best) = r.start_and_best();
+    c.draw_series(LineSeries::new([(0.0, start), (last * 1.05, start)], BLACK.stroke_width(1)))
+        .map_err(|x| e(&x))?
+        .label(format!("the start, {start:.2} dB"))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
+    let line: Vec<(f64, f64)> = r.points.iter().map(|p| (minutes(p.seconds), p.val_psnr)).collect();
+    c.draw_series(LineSeries::new(line.clone(), BLUE.stroke_width(2)))
+        .map_err(|x| e(&x))?
+        .label(format!("fine-tuned, best {best:.2} dB"))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.stroke_width(2)));
+    c.draw_series(line.iter().map(|&p| Circle::new(p, 4, BLUE.filled()))).map_err(|x| e(&x))?;
+    if let Some(s) = r.half_gain_seconds() {
+        let at = minutes(s);
+        c.draw_series(LineSeries::new([(at, lo - pad), (at, hi + pad)], RED.stroke_width(1)))
+            .map_err(|x| e(&x))?
+            .label(format!("half the gain, {s:.0} s"))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED));
+    }
+    crate::report::draw_legend(&mut c, SeriesLabelPosition::LowerRight, 12)?;
+    Ok(())
+}
+
+/// Writes `finetune_time.{png,svg}` at `path_for(name)`: validation PSNR against training
+/// minutes, the start and the time of half the gain drawn. Returns the names.
+pub fn write_chart(mut path_for: impl FnMut(&str) -> PathBuf, r: &TimedFinetune) -> Result<Vec<String>> {
+    write_png_chart(&path_for("finetune_time.png"), 1000, 520, |root| chart(root, r))?;
+    write_svg_chart(&path_for("finetune_time.svg"), 1000, 520, |root| chart(root, r))?;
+    Ok(vec!["finetune_time.png".into(), "finetune_time.svg".into()])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::decoder::finetune::Trainer;
+
+    fn point(step: usize, seconds: f64, val_psnr: f64) -> TimedPoint {
+        TimedPoint { step, seconds, val_psnr }
+    }
+
+    fn timed(points: Vec<TimedPoint>) -> TimedFinetune {
+        TimedFinetune {
+            init: "x".into(),
+            psf: "p".into(),
+            training_data: "d".into(),
+            batch: 2,
+            crop: 64,
+            validation_views: 2,
+            threads: 1,
+            steps: points.last().map_or(0, |p| p.step),
+            seconds_per_step: 1.0,
+            total_seconds: 1.0,
+            points,
+            units: "",
+        }
+    }
+
+    /// Half the gain: the first validation at least half-way from the start to the best.
+    #[test]
+    fn half_the_gain_is_the_first_point_half_way_to_the_best() {
+        let r =
+            timed(vec![point(0, 0.0, 10.0), point(1, 5.0, 10.9), point(2, 10.0, 11.0), point(3, 15.0, 12.0)]);
+        assert_eq!(r.start_and_best(), (10.0, 12.0));
+        assert_eq!(r.half_gain_seconds(), Some(10.0));
+        let flat = timed(vec![point(0, 0.0, 10.0), point(1, 5.0, 9.0)]);
+        assert_eq!(flat.start_and_best(), (10.0, 10.0));
+        assert_eq!(flat.half_gain_seconds(), None);
+    }
+
+    /// A budget too small for a step still runs one step a leg; the start's PSNR is the
+    /// starting decoder's validation PSNR as a trainer of its own scores it, each later point
+    /// is a validation after its leg, and the chart is written.
+    #[test]
+    fn a_timed_run_scores_its_legs_and_the_start_matches_an_independent_trainer() {
+        let psf = Psf::paper_measured().unwrap();
+        let config = FinetuneConfig { batch: 1, crop: 32, validation: 2, ..FinetuneConfig::recommended() };
+        let opts =
+            TimedOptions { seconds: 1e-3, evaluations: 2, config: config.clone(), ..TimedOptions::new(1.0) };
+        let mut ticks = 0;
+        let r = run(&opts, &psf, "built-in:paper-measured-psf", |_| ticks += 1).unwrap();
+        assert_eq!(ticks, 2);
+        assert_eq!(r.steps, 2);
+        let steps: Vec<usize> = r.points.iter().map(|p| p.step).collect();
+        assert_eq!(steps, [0, 1, 2]);
+        assert!(r.points.windows(2).all(|w| w[1].seconds > w[0].seconds), "{:?}", r.points);
+        // The same start, validated by a trainer of its own.
+        let device = crate::decoder::device(false).unwrap();
+        let net = UNet::from_weights(&DecoderWeights::read(&opts.init).unwrap(), &device);
+        let source = GeneratedScenes { name: "procedural HDR scenes", generate: procedural_scene };
+        let t = Trainer::new(net, &psf, "x", &source, None, config, "start").unwrap();
+        assert_eq!(r.points[0].val_psnr, psnr_of_loss(t.validation_loss().unwrap()));
+        let dir = tempfile::tempdir().unwrap();
+        let names = write_chart(|n| dir.path().join(n), &r).unwrap();
+        for n in names {
+            assert!(std::fs::metadata(dir.path().join(n)).unwrap().len() > 1000);
+        }
+        let bad = TimedOptions { seconds: 0.0, ..opts };
+        assert!(run(&bad, &psf, "p", |_| {}).unwrap_err().to_string().contains("seconds"));
+    }
+}
