@@ -195,7 +195,7 @@ fn design_psf(design: &LoadedDesign, out: &Path, p: &mut Progress) -> Result<Psf
     let system = psf_out::system_for(&design.heights);
     let plan = plan::plan(&system, &design.heights, &[], plan::DEFAULT_TOLERANCE)?;
     p.show(&format!("PSF of the built-in design by {}", plan.method));
-    let psf = psf_out::plan_and_write(&design.heights, &plan, &[], out)?;
+    let psf = psf_out::plan_and_write(&design.heights, &plan, &[], out, &mut |_| {})?;
     p.step("PSF written");
     Ok(psf)
 }

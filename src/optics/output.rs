@@ -10,7 +10,7 @@ use std::path::Path;
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
-use super::plan::{run, Plan};
+use super::plan::{run_reporting, Plan};
 use super::propagate::{simulate, Method, Options};
 use super::psf::{ChannelSummary, Peak, Psf};
 use super::spectrum::Band;
@@ -89,12 +89,21 @@ pub fn simulate_and_write(
 }
 
 /// Runs `plan` on `doe` (and on a flat DOE for the Strehl ratio, with the same plan on an odd
-/// crop) and writes the outputs into `out`, the plan in the JSON summary.
-pub fn plan_and_write(doe: &Grid, plan: &Plan, bands: &[Band], out: &Path) -> Result<PsfReport> {
-    let (psf, ran) = run(plan, doe, bands)?;
+/// crop) and writes the outputs into `out`, the plan in the JSON summary. `progress` is told
+/// what is being simulated ([`run_reporting`]).
+pub fn plan_and_write(
+    doe: &Grid,
+    plan: &Plan,
+    bands: &[Band],
+    out: &Path,
+    progress: &mut dyn FnMut(&str),
+) -> Result<PsfReport> {
+    let (psf, ran) = run_reporting(plan, doe, bands, progress)?;
     let odd =
         Plan { system: OpticalSystem { crop: ran.system.crop | 1, ..ran.system.clone() }, ..ran.clone() };
-    let (flat, _) = run(&odd, &flat_doe(&odd.system)?, bands)?;
+    let (flat, _) = run_reporting(&odd, &flat_doe(&odd.system)?, bands, &mut |what| {
+        progress(&format!("flat reference: {what}"))
+    })?;
     report_and_write(&psf, &flat, &ran.system, Some(&ran), out)
 }
 

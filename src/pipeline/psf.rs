@@ -98,17 +98,15 @@ impl PsfJob {
     }
 
     /// Simulates and writes the outputs into the folder `output`; the report carries the
-    /// warnings. Progress: one step, the planned simulation (none with a forced method).
+    /// warnings. Progress: one step, the planned simulation, its message saying what is being
+    /// simulated (each tripling of spectral sub-bands; none with a forced method).
     pub fn run(&self, output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<PsfReport> {
         match &self.how {
             How::Method { system, method, options } => {
                 output::simulate_and_write(&self.heights, system, *method, options, output)
             }
             How::Plan { plan, bands } => {
-                let message =
-                    format!("PSF by {} ({} wavelengths)", plan.method, plan.system.wavelengths.len());
-                progress(&message, 0, 1);
-                output::plan_and_write(&self.heights, plan, bands, output)
+                output::plan_and_write(&self.heights, plan, bands, output, &mut |what| progress(what, 0, 1))
             }
         }
     }
