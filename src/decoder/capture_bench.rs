@@ -402,7 +402,8 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
 }
 
 /// Fine-tunes `f.init` on `psf`, scoring on `scenes` every `f.evaluate_every` steps and at
-/// the end the decoder the run would write if it stopped there; writes `finetuned/`. Returns the run's report and the last reconstructions.
+/// the end the decoder the run would write if it stopped there; writes `finetuned/`. Returns
+/// the run's report and the last reconstructions.
 fn run_finetune(
     f: &FinetuneBench,
     cfg: &BenchConfig,
