@@ -130,6 +130,8 @@ pub fn run(
     let start = DecoderWeights::read(&opts.init)?;
     let init = format!("{} (sha256 {})", opts.init.display(), decoder_sha256(&opts.init)?);
     let source = GeneratedScenes { name: "procedural HDR scenes", generate: procedural_scene };
+    // The trainer records the PSF's hash in the decoders it writes; this run writes none, so
+    // the PSF's name stands in for it.
     let mut trainer = Trainer::new(
         UNet::from_weights(&start, &device),
         psf,
