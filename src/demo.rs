@@ -482,7 +482,7 @@ fn fine_tune(init: &Path, psf_path: &Path, out: &Path, p: &mut Progress) -> Resu
     use crate::decoder::{finetune as ft, measurement, reconstruct as rc, scenes};
     let psf = Psf::read(psf_path, None, Some(SENSOR_PITCH))?;
     let psf_sha = crate::io::file_sha256(psf_path)?;
-    let source = ft::GeneratedScenes { name: "procedural HDR scenes", generate: scenes::procedural_scene };
+    let source = ft::procedural_scenes();
     let cfg = ft::FinetuneConfig {
         steps: FINETUNE_STEPS,
         batch: 1,

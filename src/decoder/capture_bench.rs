@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 use ndarray::Zip;
 use serde::Serialize;
 
-use super::finetune::{FinetuneConfig, GeneratedScenes, HistoryEntry, SceneSource, Trainer};
+use super::finetune::{FinetuneConfig, HistoryEntry, Trainer, TrainingScenes};
 use super::reconstruct::{reconstruct, Negatives, ReconstructOptions};
 use super::unet::UNet;
 use super::weights::DecoderWeights;
@@ -414,22 +414,16 @@ fn run_finetune(
     progress: &mut dyn FnMut(&str, u64),
 ) -> Result<(FinetuneReport, Vec<Image<f32>>)> {
     let start = DecoderWeights::read(&f.init)?;
-    // Real images as `finetune` takes them: its hold-out validates, narrow panoramas left out.
-    let real = match &f.train_data {
-        Some(dir) => Some(super::dataset::training_and_validation(
-            dir,
-            None,
-            super::dataset::HOLDOUT_EVERY,
-            super::dataset::MIN_PANORAMA_WIDTH,
-        )?),
-        None => None,
-    };
-    let procedural =
-        GeneratedScenes { name: "procedural HDR scenes", generate: super::scenes::procedural_scene };
-    let (source, validation): (&dyn SceneSource, Option<&dyn SceneSource>) = match &real {
-        Some((t, v)) => (t, Some(v)),
-        None => (&procedural, None),
-    };
+    // Real images as `finetune` takes them by default: its hold-out validates, narrow
+    // panoramas left out.
+    let training = TrainingScenes::new(
+        f.train_data.as_deref(),
+        None,
+        super::dataset::HOLDOUT_EVERY,
+        super::dataset::MIN_PANORAMA_WIDTH,
+        super::dataset::WHITE_BALANCE,
+    )?;
+    let (source, validation) = training.sources();
     let init = f.init.display().to_string();
     let desc = format!("{init} (sha256 {})", super::weights::decoder_sha256(&f.init)?);
     let mut trainer = Trainer::new(

@@ -27,6 +27,7 @@ use burn::tensor::{Tensor, TensorData};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::decoder::dataset::{training_and_validation, HdrScenes};
 use crate::decoder::measurement::{measure, Measurement, MeasurementModel};
 use crate::decoder::unet::{is_trainable, tensor_values, UNet};
 use crate::decoder::weights::{encode_safetensors, read_safetensors, DecoderWeights, NamedTensor};
@@ -68,6 +69,57 @@ where
             return Err(Error::Data(format!("{} (seed {seed}) made the value {v}", self.name)));
         }
         Ok(scene)
+    }
+}
+
+/// A scene generator `f(seed, rows, cols)`.
+pub type SceneGenerator = fn(u64, usize, usize) -> Image<f32>;
+
+/// The seeded procedural HDR scenes
+/// ([`procedural_scene`](crate::decoder::scenes::procedural_scene)) as a scene source.
+pub fn procedural_scenes() -> GeneratedScenes<SceneGenerator> {
+    GeneratedScenes { name: "procedural HDR scenes", generate: crate::decoder::scenes::procedural_scene }
+}
+
+/// A run's scenes: real HDR images with their validation images, or procedural scenes (which
+/// validate on held-out seeds of their own).
+pub enum TrainingScenes {
+    Real { training: HdrScenes, validation: HdrScenes },
+    Procedural(GeneratedScenes<SceneGenerator>),
+}
+
+impl TrainingScenes {
+    /// The images of `data` as `finetune` takes them ([`training_and_validation`]: validated on
+    /// `validation` or on 1 in `holdout_every` of them, panoramas narrower than
+    /// `min_panorama_width` left out, colour jitter up to `white_balance`); procedural scenes
+    /// without `data`.
+    pub fn new(
+        data: Option<&Path>,
+        validation: Option<&Path>,
+        holdout_every: usize,
+        min_panorama_width: usize,
+        white_balance: f64,
+    ) -> Result<TrainingScenes> {
+        if !(white_balance >= 1.0 && white_balance.is_finite()) {
+            return Err(Error::param("white_balance", format!("{white_balance} must be finite and >= 1")));
+        }
+        Ok(match data {
+            Some(dir) => {
+                let (mut training, validation) =
+                    training_and_validation(dir, validation, holdout_every, min_panorama_width)?;
+                training.white_balance = white_balance;
+                TrainingScenes::Real { training, validation }
+            }
+            None => TrainingScenes::Procedural(procedural_scenes()),
+        })
+    }
+
+    /// The training source and, for real images, the validation source ([`Trainer::new`]'s).
+    pub fn sources(&self) -> (&dyn SceneSource, Option<&dyn SceneSource>) {
+        match self {
+            TrainingScenes::Real { training, validation } => (training, Some(validation)),
+            TrainingScenes::Procedural(p) => (p, None),
+        }
     }
 }
 
@@ -939,31 +991,16 @@ pub struct FinetuneOutcome {
 /// Runs a fine-tuning job into `job.output` (see the module docs): `on_step` sees every
 /// step. A run that stops on an error leaves the last good checkpoint and says so.
 pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Result<FinetuneOutcome> {
-    use crate::decoder::dataset::training_and_validation;
     let psf = Psf::read(&job.psf, job.psf_key.as_deref(), Some(job.pitch))?;
     let psf_sha = crate::io::file_sha256(&job.psf)?;
-    let procedural =
-        GeneratedScenes { name: "procedural HDR scenes", generate: crate::decoder::scenes::procedural_scene };
-    if !(job.white_balance >= 1.0 && job.white_balance.is_finite()) {
-        return Err(Error::param("white_balance", format!("{} must be finite and >= 1", job.white_balance)));
-    }
-    let real = match &job.data {
-        Some(dir) => {
-            let (mut t, v) = training_and_validation(
-                dir,
-                job.validation_data.as_deref(),
-                job.holdout_every,
-                job.min_panorama_width,
-            )?;
-            t.white_balance = job.white_balance;
-            Some((t, v))
-        }
-        None => None,
-    };
-    let (source, validation): (&dyn SceneSource, Option<&dyn SceneSource>) = match &real {
-        Some((t, v)) => (t, Some(v)),
-        None => (&procedural, None),
-    };
+    let scenes = TrainingScenes::new(
+        job.data.as_deref(),
+        job.validation_data.as_deref(),
+        job.holdout_every,
+        job.min_panorama_width,
+        job.white_balance,
+    )?;
+    let (source, validation) = scenes.sources();
     let device = crate::decoder::device(job.gpu)?;
     let mut trainer = if job.resume {
         let ckpt = job.output.join(CHECKPOINT);

@@ -10,9 +10,9 @@
 //! training time (the steps' wall clock on the machine's threads), validation excluded, as in
 //! `bench decoder`'s fine-tuning chart.
 //!
-//! Without `data` the scenes are the seeded procedural HDR scenes ([`procedural_scene`]): a
-//! gain there is a gain on simulated captures of simulated scenes, which the paper's real
-//! captures need not show (README, Decoder).
+//! The scenes are the seeded procedural HDR scenes ([`procedural_scenes`]): a gain there is a
+//! gain on simulated captures of simulated scenes, which the paper's real captures need not
+//! show (README, Decoder).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -21,8 +21,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 
-use crate::decoder::finetune::{psnr_of_loss, FinetuneConfig, GeneratedScenes, Trainer};
-use crate::decoder::scenes::procedural_scene;
+use crate::decoder::finetune::{procedural_scenes, psnr_of_loss, FinetuneConfig, Trainer};
 use crate::decoder::unet::UNet;
 use crate::decoder::weights::{decoder_sha256, DecoderWeights};
 use crate::error::{Error, Result};
@@ -129,7 +128,7 @@ pub fn run(
     let device = super::device(false)?;
     let start = DecoderWeights::read(&opts.init)?;
     let init = format!("{} (sha256 {})", opts.init.display(), decoder_sha256(&opts.init)?);
-    let source = GeneratedScenes { name: "procedural HDR scenes", generate: procedural_scene };
+    let source = procedural_scenes();
     // The trainer records the PSF's hash in the decoders it writes; this run writes none, so
     // the PSF's name stands in for it.
     let mut trainer = Trainer::new(
@@ -320,7 +319,7 @@ mod tests {
         // The same start, validated by a trainer of its own.
         let device = crate::decoder::device(false).unwrap();
         let net = UNet::from_weights(&DecoderWeights::read(&opts.init).unwrap(), &device);
-        let source = GeneratedScenes { name: "procedural HDR scenes", generate: procedural_scene };
+        let source = procedural_scenes();
         let t = Trainer::new(net, &psf, "x", &source, None, config, "start").unwrap();
         assert_eq!(r.points[0].val_psnr, psnr_of_loss(t.validation_loss().unwrap()));
         let dir = tempfile::tempdir().unwrap();
