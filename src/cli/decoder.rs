@@ -313,6 +313,7 @@ pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
     });
     pb.finish_and_clear();
     let outcome = outcome?;
+    warn(&outcome.warnings);
     print_result(cli, &outcome, || {
         println!(
             "{} steps{}; validation PSNR {} at the start, best {:.2} dB at step {}, written (blend {}) {:.2} dB -> {}",

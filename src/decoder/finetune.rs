@@ -211,6 +211,21 @@ impl Default for FinetuneConfig {
 
 /// `doefab finetune`'s steps (on the paper's real captures, longer runs drift in colour; README).
 pub const STEPS: usize = 80;
+/// Why a run handed over before [`STEPS`] steps may be worse than its start: on the paper's
+/// real captures the decoder first falls, then rises above its start (README, Fine-tuning
+/// against time). `None` when `steps` is at least [`STEPS`] or the written decoder is the start
+/// itself (`best_step` 0).
+pub fn short_run_warning(steps: usize, best_step: usize) -> Option<String> {
+    (steps < STEPS && best_step > 0).then(|| {
+        format!(
+            "the decoder comes from a run of {steps} steps, fewer than the {STEPS} measured to lift the paper's \
+             simulated-PSF decoder above its start on the paper's real captures: after 20 steps two seeds wrote \
+             decoders 0.2 to 0.7 dB below their start on both scenes while their simulated validation rose; score it \
+             on real captures (doefab bench decoder --steps 0 --decoder FILE) before use"
+        )
+    })
+}
+
 /// `doefab finetune`'s batch and crop side, pixels (the crop well over the decoder's receptive
 /// radius; 128 px crops, smaller than the 320 px PSF, lose on the real captures; README).
 pub const BATCH: usize = 4;
@@ -986,6 +1001,8 @@ pub struct FinetuneOutcome {
     pub data: String,
     pub validation_data: String,
     pub history: Vec<HistoryEntry>,
+    /// Why the written decoder may be worse than its start ([`short_run_warning`]).
+    pub warnings: Vec<String>,
 }
 
 /// Runs a fine-tuning job into `job.output` (see the module docs): `on_step` sees every
@@ -1038,5 +1055,6 @@ pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Resul
         data: source.describe(),
         validation_data: trainer.validation_data.clone(),
         history: trainer.history().to_vec(),
+        warnings: short_run_warning(trainer.step(), best_step).into_iter().collect(),
     })
 }

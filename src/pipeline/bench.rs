@@ -305,6 +305,32 @@ pub struct DecoderBenchOutcome {
     pub warnings: Vec<String>,
 }
 
+/// The scenes on which the fine-tuned decoder (the curve's last point) scores below its start
+/// (the first), PSNR-gamma over all scored pixels, as warnings with the figures.
+fn below_start(f: &capture_bench::FinetuneReport) -> Vec<String> {
+    let (Some(start), Some(end)) = (f.curve.first(), f.curve.last()) else { return Vec::new() };
+    start
+        .scores
+        .iter()
+        .zip(&end.scores)
+        .filter(|(a, b)| b.all.gamma_db < a.all.gamma_db)
+        .map(|(a, b)| {
+            format!(
+                "{}: the decoder fine-tuned for {} steps scores {:.2} dB PSNR-gamma, below its start's {:.2} dB{}",
+                a.scene,
+                end.step,
+                b.all.gamma_db,
+                a.all.gamma_db,
+                if end.step < crate::decoder::finetune::STEPS {
+                    format!(" (runs shorter than {} steps can be; see the curve)", crate::decoder::finetune::STEPS)
+                } else {
+                    String::new()
+                }
+            )
+        })
+        .collect()
+}
+
 /// The benchmark's settings with the defaults filled in (lists the scene folders under
 /// `<data>/captures` when no scene is given).
 pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
@@ -372,5 +398,57 @@ pub fn bench_decoder(
             warnings.push(format!("scene {} not scored: {e}", s.name));
         }
     }
+    if let Some(f) = &report.finetune {
+        warnings.extend(below_start(f));
+    }
     Ok(DecoderBenchOutcome { report, warnings })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calibration::evaluate::Psnr;
+    use crate::decoder::capture_bench::{CurvePoint, FinetuneReport, Score};
+
+    fn point(step: usize, db: [f64; 2]) -> CurvePoint {
+        let score = |scene: &str, gamma_db: f64| Score {
+            scene: scene.into(),
+            decoder: "fine-tuned here".into(),
+            all: Psnr {
+                linear_db: 0.0,
+                gamma_db,
+                peak: 1.0,
+                pixels: 1,
+                min_output: 0.0,
+                negative_fraction: 0.0,
+            },
+            saturated: None,
+            min_output: 0.0,
+            channel_balance: Vec::new(),
+        };
+        CurvePoint { step, seconds: 0.0, scores: vec![score("Fruit", db[0]), score("Kitchen", db[1])] }
+    }
+
+    /// A fine-tuned decoder below its start on a scene is a warning naming the scene and both
+    /// figures (the measured 20-step point of the README's curve), and says why when the run
+    /// was short; one above its start on every scene is not.
+    #[test]
+    fn a_fine_tuned_decoder_below_its_start_is_a_warning() {
+        let run = |steps: usize, end: [f64; 2]| FinetuneReport {
+            init: "start".into(),
+            steps,
+            seconds_per_step: 1.0,
+            training_data: "images".into(),
+            curve: vec![point(0, [39.72, 32.78]), point(steps, end)],
+            history: Vec::new(),
+        };
+        let w = below_start(&run(20, [39.17, 32.09]));
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert!(w[1].starts_with("Kitchen") && w[1].contains("32.09") && w[1].contains("32.78"), "{}", w[1]);
+        assert!(w[0].contains("shorter than 80 steps"), "{}", w[0]);
+        let w = below_start(&run(80, [40.24, 32.09]));
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(w[0].starts_with("Kitchen") && !w[0].contains("shorter"), "{}", w[0]);
+        assert!(below_start(&run(80, [40.24, 32.96])).is_empty());
+    }
 }

@@ -564,6 +564,13 @@ fn finetune_command_trains_resumes_and_refuses_bad_input() {
     };
     let o = run(&["--steps", "2", "--crop", "32"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // From random weights a step validates better, so the decoder written is not the start,
+    // and a run that short is said to be (README: shorter runs fell below their start).
+    let record: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("training.json")).unwrap()).unwrap();
+    assert!(record["best_step"].as_u64().unwrap() > 0, "{record}");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("warning: the decoder comes from a run of 2 steps, fewer than the 80"), "{err}");
     let o = run(&["--steps", "3", "--crop", "32", "--resume"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let d = DecoderWeights::read(&out.join("decoder.safetensors")).unwrap();
