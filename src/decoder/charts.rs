@@ -168,7 +168,8 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                 .margin(12)
                 .x_label_area_size(40)
                 .y_label_area_size(60)
-                .build_cartesian_2d(0.0..last, (lo - 0.5)..(hi + 0.5))
+                // Room under the data for the legend, so that it covers no line.
+                .build_cartesian_2d(0.0..last, (lo - 0.5 - 0.6 * (hi - lo))..(hi + 0.5))
                 .map_err(|x| e(&x))?;
             chart
                 .configure_mesh()
@@ -201,14 +202,33 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                     else {
                         continue;
                     };
-                    // One thin line per other decoder, fainter for later ones.
-                    let style = color.mix(1.0 - 0.6 * d as f64 / others.len().max(1) as f64).stroke_width(1);
-                    let short: String = decoder.chars().take(50).collect();
+                    // One thin line per other decoder, told apart by its dashes: the start
+                    // of the run in long dashes, the others solid, then dotted, then short dashes.
+                    let start = **decoder == run.init;
+                    let style = color.stroke_width(1);
+                    // (dash, gap) in pixels, and the legend's three pieces on its 18 px.
+                    let non_start: Vec<_> = others.iter().filter(|o| ***o != run.init).collect();
+                    let kind = if start {
+                        0
+                    } else {
+                        1 + non_start.iter().position(|o| ***o == **decoder).unwrap_or(d) % 3
+                    };
+                    let (dash, gap, pieces): (u32, u32, [(i32, i32); 3]) = match kind {
+                        0 => (10, 5, [(0, 10), (15, 18), (15, 18)]),
+                        1 => (10_000, 1, [(0, 18), (0, 18), (0, 18)]),
+                        2 => (2, 4, [(0, 2), (6, 8), (12, 14)]),
+                        _ => (5, 4, [(0, 5), (9, 14), (9, 14)]),
+                    };
+                    let short: String = decoder.chars().take(44).collect();
+                    let label = format!("{scene}: {short}{}", if start { " (the start)" } else { "" });
                     chart
-                        .draw_series(LineSeries::new([(0.0, v), (last, v)], style))
+                        .draw_series(DashedLineSeries::new([(0.0, v), (last, v)], dash, gap, style))
                         .map_err(|x| e(&x))?
-                        .label(format!("{scene}: {short}"))
-                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], style));
+                        .label(label)
+                        .legend(move |(x, y)| {
+                            let piece = |(a, b): (i32, i32)| PathElement::new(vec![(a, 0), (b, 0)], style);
+                            EmptyElement::at((x, y)) + piece(pieces[0]) + piece(pieces[1]) + piece(pieces[2])
+                        });
                 }
             }
             crate::report::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;
