@@ -193,7 +193,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                 chart
                     .draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled())))
                     .map_err(|x| e(&x))?;
-                for (d, decoder) in others.iter().enumerate() {
+                for decoder in &others {
                     let Some(v) = report
                         .scores
                         .iter()
@@ -206,13 +206,18 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                     // of the run in long dashes, the others solid, then dotted, then short dashes.
                     let start = **decoder == run.init;
                     let style = color.stroke_width(1);
-                    // (dash, gap) in pixels, and the legend's three pieces on its 18 px.
-                    let non_start: Vec<_> = others.iter().filter(|o| ***o != run.init).collect();
-                    let kind = if start {
-                        0
-                    } else {
-                        1 + non_start.iter().position(|o| ***o == **decoder).unwrap_or(d) % 3
+                    let kind = match start {
+                        true => 0,
+                        false => {
+                            1 + others
+                                .iter()
+                                .filter(|o| ***o != run.init)
+                                .position(|o| o == decoder)
+                                .unwrap_or(0)
+                                % 3
+                        }
                     };
+                    // (dash, gap) in pixels, and the legend's three pieces on its 18 px.
                     let (dash, gap, pieces): (u32, u32, [(i32, i32); 3]) = match kind {
                         0 => (10, 5, [(0, 10), (15, 18), (15, 18)]),
                         1 => (10_000, 1, [(0, 18), (0, 18), (0, 18)]),

@@ -322,7 +322,7 @@ fn below_start(f: &capture_bench::FinetuneReport) -> Vec<String> {
                 b.all.gamma_db,
                 a.all.gamma_db,
                 if end.step < crate::decoder::finetune::STEPS {
-                    format!(" (runs shorter than {} steps can be; see the curve)", crate::decoder::finetune::STEPS)
+                    format!(" (a run shorter than {} steps can be: see the curve)", crate::decoder::finetune::STEPS)
                 } else {
                     String::new()
                 }

@@ -50,12 +50,10 @@ pub fn log_span(
         .filter(|v| v.is_finite() && *v > 0.0)
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
     if lo.is_finite() {
-        {
-            // Just under the power of ten, which plotters (ln x / ln 10, rounded up) would
-            // otherwise place a decade higher.
-            let decade = 10f64.powf((lo.log10() + 1e-9).floor()) * (1.0 - 1e-9);
-            (lo / pad).min(decade)..hi * pad
-        }
+        // Just under the power of ten, which plotters (ln x / ln 10, rounded up) would
+        // otherwise place a decade higher.
+        let decade = 10f64.powf((lo.log10() + 1e-9).floor()) * (1.0 - 1e-9);
+        (lo / pad).min(decade)..hi * pad
     } else {
         empty
     }
