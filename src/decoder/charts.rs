@@ -139,6 +139,18 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
     let scenes: Vec<&str> =
         report.scenes.iter().filter(|s| s.footing.is_some()).map(|s| s.name.as_str()).collect();
     let others: Vec<&String> = report.decoders.iter().filter(|d| !d.starts_with("fine-tuned here")).collect();
+    // How each other decoder's line is dashed: 0 for the run's start, then 1, 2, 3 in turn.
+    let mut turn = 0;
+    let dash_kinds: Vec<usize> = others
+        .iter()
+        .map(|d| match **d == run.init {
+            true => 0,
+            false => {
+                turn += 1;
+                1 + (turn - 1) % 3
+            }
+        })
+        .collect();
     write_png_chart(path, 1650, 500, |root| {
         let e = |e: &dyn std::fmt::Display| e.to_string();
         let panels = root.split_evenly((1, 3));
@@ -193,7 +205,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                 chart
                     .draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled())))
                     .map_err(|x| e(&x))?;
-                for decoder in &others {
+                for (decoder, &kind) in others.iter().zip(&dash_kinds) {
                     let Some(v) = report
                         .scores
                         .iter()
@@ -204,19 +216,8 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                     };
                     // One thin line per other decoder, told apart by its dashes: the start
                     // of the run in long dashes, the others solid, then dotted, then short dashes.
-                    let start = **decoder == run.init;
+                    let start = kind == 0;
                     let style = color.stroke_width(1);
-                    let kind = match start {
-                        true => 0,
-                        false => {
-                            1 + others
-                                .iter()
-                                .filter(|o| ***o != run.init)
-                                .position(|o| o == decoder)
-                                .unwrap_or(0)
-                                % 3
-                        }
-                    };
                     // (dash, gap) in pixels, and the legend's three pieces on its 18 px.
                     let (dash, gap, pieces): (u32, u32, [(i32, i32); 3]) = match kind {
                         0 => (10, 5, [(0, 10), (15, 18), (15, 18)]),
