@@ -218,13 +218,22 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                     // of the run in long dashes, the others solid, then dotted, then short dashes.
                     let start = kind == 0;
                     let style = color.stroke_width(1);
-                    // (dash, gap) in pixels, and the legend's three pieces on its 18 px.
-                    let (dash, gap, pieces): (u32, u32, [(i32, i32); 3]) = match kind {
-                        0 => (10, 5, [(0, 10), (15, 18), (15, 18)]),
-                        1 => (10_000, 1, [(0, 18), (0, 18), (0, 18)]),
-                        2 => (2, 4, [(0, 2), (6, 8), (12, 14)]),
-                        _ => (5, 4, [(0, 5), (9, 14), (9, 14)]),
+                    // (dash, gap) in pixels.
+                    let (dash, gap): (u32, u32) = match kind {
+                        0 => (10, 5),
+                        1 => (10_000, 1),
+                        2 => (2, 4),
+                        _ => (5, 4),
                     };
+                    // The legend's 18 px drawn the same way: its first three dashes (a dash
+                    // past the end repeats the first).
+                    let pieces = [0, 1, 2].map(|k| {
+                        let a = match k * (dash + gap) {
+                            a if a < 18 => a,
+                            _ => 0,
+                        };
+                        (a as i32, (a + dash).min(18) as i32)
+                    });
                     let short: String = decoder.chars().take(44).collect();
                     let label = format!("{scene}: {short}{}", if start { " (the start)" } else { "" });
                     chart

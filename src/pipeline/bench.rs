@@ -316,9 +316,10 @@ fn below_start(f: &capture_bench::FinetuneReport) -> Vec<String> {
         .filter(|(a, b)| b.all.gamma_db < a.all.gamma_db)
         .map(|(a, b)| {
             format!(
-                "{}: the decoder fine-tuned for {} steps scores {:.2} dB PSNR-gamma, below its start's {:.2} dB{}",
+                "{}: the decoder fine-tuned for {} step{} scores {:.2} dB PSNR-gamma, below its start's {:.2} dB{}",
                 a.scene,
                 end.step,
+                if end.step == 1 { "" } else { "s" },
                 b.all.gamma_db,
                 a.all.gamma_db,
                 if end.step < crate::decoder::finetune::STEPS {
