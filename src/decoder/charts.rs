@@ -225,15 +225,6 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                         2 => (2, 4),
                         _ => (5, 4),
                     };
-                    // The legend's 18 px drawn the same way: its first three dashes (a dash
-                    // past the end repeats the first).
-                    let pieces = [0, 1, 2].map(|k| {
-                        let a = match k * (dash + gap) {
-                            a if a < 18 => a,
-                            _ => 0,
-                        };
-                        (a as i32, (a + dash).min(18) as i32)
-                    });
                     let short: String = decoder.chars().take(44).collect();
                     let label = format!("{scene}: {short}{}", if start { " (the start)" } else { "" });
                     chart
@@ -242,7 +233,8 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                         .label(label)
                         .legend(move |(x, y)| {
                             let piece = |(a, b): (i32, i32)| PathElement::new(vec![(a, 0), (b, 0)], style);
-                            EmptyElement::at((x, y)) + piece(pieces[0]) + piece(pieces[1]) + piece(pieces[2])
+                            let [p, q, r] = crate::report::legend_dashes(dash, gap, 18);
+                            EmptyElement::at((x, y)) + piece(p) + piece(q) + piece(r)
                         });
                 }
             }

@@ -433,7 +433,12 @@ fn spectral_chart<DB: DrawingBackend>(
             ))
             .map_err(|x| e(&x))?
             .label(format!("band {band}: plan's estimate"))
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(1)));
+            .legend(move |(x, y)| {
+                let piece =
+                    |(a, b): (i32, i32)| PathElement::new(vec![(a, 0), (b, 0)], colour.stroke_width(1));
+                let [p, q, r] = crate::report::legend_dashes(6, 4, 16);
+                EmptyElement::at((x, y)) + piece(p) + piece(q) + piece(r)
+            });
     }
     for p in &report.plans {
         let tol = p.tolerance;

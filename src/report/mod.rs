@@ -133,6 +133,19 @@ where
         .map_err(|e| e.to_string())
 }
 
+/// The dashes of a legend sample `length` pixels long for a line drawn by `DashedLineSeries`
+/// with `dash` and `gap` (pixels): the first three, as (start, end) offsets along the sample (a
+/// dash starting past the end repeats the first, so that short patterns need no more pieces).
+pub fn legend_dashes(dash: u32, gap: u32, length: u32) -> [(i32, i32); 3] {
+    [0, 1, 2].map(|k| {
+        let a = match k * (dash + gap) {
+            a if a < length => a,
+            _ => 0,
+        };
+        (a as i32, (a + dash).min(length) as i32)
+    })
+}
+
 /// Draws `draw` into a `width` x `height` RGB bitmap and writes it as an 8-bit PNG at `path`.
 pub fn write_png_chart<F>(path: &Path, width: u32, height: u32, draw: F) -> Result<()>
 where
@@ -176,6 +189,15 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A legend sample repeats its line's dash pattern: dash, gap, dash; a solid line (one
+    /// dash longer than the sample) fills it; a dash past the end repeats the first.
+    #[test]
+    fn legend_dashes_follow_the_line_pattern() {
+        assert_eq!(legend_dashes(6, 4, 16), [(0, 6), (10, 16), (0, 6)]);
+        assert_eq!(legend_dashes(2, 4, 18), [(0, 2), (6, 8), (12, 14)]);
+        assert_eq!(legend_dashes(10_000, 1, 18), [(0, 18); 3]);
+    }
 
     /// Every value on a log axis has a labelled key point at or below it: the STL chart's RMS
     /// errors (0.17 nm and up, padded 1.6x) and mesh times (0.32 s and up, padded 2x) stood
