@@ -301,7 +301,7 @@ fn chart<DB: DrawingBackend>(
     c.configure_mesh()
         .x_desc("time, s (2 threads)")
         .y_desc("relative L2 to the f64 one-pass output")
-        .x_label_formatter(&|v| format!("{v}"))
+        .x_label_formatter(&|v| crate::report::log_label(*v, crate::report::short))
         .y_label_formatter(&|v| format!("{v:.0e}"))
         .label_style((FONT, 12))
         .draw()

@@ -8,30 +8,11 @@ use plotters::prelude::*;
 
 use super::bench::{FabBenchReport, GdsSweep, QuantizationSweep, StlPoint, StlSweep};
 use crate::error::{Error, Result};
-use crate::report::{draw_legend, write_png_chart, write_svg_chart, FONT};
+use crate::report::{draw_legend, log_label, short, write_png_chart, write_svg_chart, FONT};
 
 /// Log range covering `values` (positive ones), widened by `pad` each way.
 fn log_span(values: impl Iterator<Item = f64>, pad: f64) -> std::ops::Range<f64> {
     crate::report::log_span(values, pad, 1e-3..1.0)
-}
-
-/// A log axis's label: `f(v)` where the mantissa of `v` is 1, 2 or 5, else none (plotters
-/// puts a key point at every digit of a decade).
-fn log_label(v: f64, f: impl Fn(f64) -> String) -> String {
-    if !(v.is_finite() && v > 0.0) {
-        return String::new();
-    }
-    let m = v / 10f64.powf(v.log10().floor());
-    if [1.0, 2.0, 5.0, 10.0].iter().any(|k| (m - k).abs() < 1e-6 * k) {
-        f(v)
-    } else {
-        String::new()
-    }
-}
-
-/// `v` with at most six decimals and no trailing zeros.
-fn short(v: f64) -> String {
-    format!("{}", (v * 1e6).round() / 1e6)
 }
 
 /// A count as `200k`, `2M`.

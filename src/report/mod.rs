@@ -133,6 +133,25 @@ where
         .map_err(|e| e.to_string())
 }
 
+/// A log axis's label: `f(v)` where the mantissa of `v` is 1, 2 or 5, else none (plotters
+/// puts a key point at every digit of a decade).
+pub fn log_label(v: f64, f: impl Fn(f64) -> String) -> String {
+    if !(v.is_finite() && v > 0.0) {
+        return String::new();
+    }
+    let m = v / 10f64.powf(v.log10().floor());
+    if [1.0, 2.0, 5.0, 10.0].iter().any(|k| (m - k).abs() < 1e-6 * k) {
+        f(v)
+    } else {
+        String::new()
+    }
+}
+
+/// `v` with at most six decimals and no trailing zeros.
+pub fn short(v: f64) -> String {
+    format!("{}", (v * 1e6).round() / 1e6)
+}
+
 /// The dashes of a legend sample `length` pixels long for a line drawn by `DashedLineSeries`
 /// with `dash` and `gap` (pixels): the first three, as (start, end) offsets along the sample (a
 /// dash starting past the end repeats the first, so that short patterns need no more pieces).
