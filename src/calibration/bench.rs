@@ -32,7 +32,10 @@ use super::hdr_merge::{merge, MergeOptions};
 use super::psf_extract::{calibrate_psf, simulate_pinhole_bracket, Centre, PsfCalibration, PsfOptions};
 use crate::error::Result;
 use crate::optics::Psf;
-use crate::report::{draw_legend, failure_panel, write_png_chart, write_svg_chart, SweepAxis, FONT};
+use crate::report::{
+    draw_failure_key, failure_panel, write_png_chart, write_svg_chart, SweepAxis, ESTIMATE, FONT, WARNED,
+    WITHIN,
+};
 
 /// The largest relative L2 error (per channel) of a usable calibrated PSF: the accuracy the
 /// calibration tests hold it to (2 %).
@@ -201,45 +204,27 @@ fn chart<DB: DrawingBackend>(
     let root = root.titled(&title, (FONT, 17)).map_err(|x| e(&x))?;
     let panels = root.split_evenly((1, r.axes.len()));
     let floor = 1e-4;
-    let (green, orange, grey) = (RGBColor(0, 120, 0), RGBColor(220, 140, 0), RGBColor(150, 150, 150));
     for (i, (axis, area)) in r.axes.iter().zip(panels.iter()).enumerate() {
         let mut c =
             failure_panel(area, axis, floor..REFUSED_AT * 3.0, "relative L2 error of the PSF", r.tolerance)?;
         if i == 0 {
             // The key, in the first panel's empty upper right.
-            let none = || std::iter::empty::<Circle<(f64, f64), i32>>();
-            c.draw_series(none())
-                .map_err(|x| e(&x))?
-                .label("within the tolerance")
-                .legend(move |(x, y)| Circle::new((x + 8, y), 4, green.filled()));
-            c.draw_series(none())
-                .map_err(|x| e(&x))?
-                .label("over it, warned")
-                .legend(move |(x, y)| TriangleMarker::new((x + 8, y), 6, orange.filled()));
-            c.draw_series(none())
-                .map_err(|x| e(&x))?
-                .label("over it, not warned: silent failure")
-                .legend(|(x, y)| Circle::new((x + 8, y), 7, RED.stroke_width(2)));
-            c.draw_series(none())
-                .map_err(|x| e(&x))?
-                .label("refused (drawn at the top)")
-                .legend(|(x, y)| Cross::new((x + 8, y), 6, BLACK.stroke_width(2)));
-            c.draw_series(none())
-                .map_err(|x| e(&x))?
-                .label("the calibration's own estimate")
-                .legend(move |(x, y)| Circle::new((x + 8, y), 6, grey.stroke_width(1)));
-            c.draw_series(none())
-                .map_err(|x| e(&x))?
-                .label("the tolerance")
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], RED.stroke_width(1)));
-            draw_legend(&mut c, SeriesLabelPosition::UpperRight, 11)?;
+            draw_failure_key(
+                &mut c,
+                SeriesLabelPosition::UpperRight,
+                "within the tolerance",
+                Some("over it, warned"),
+                "over it, not warned: silent failure",
+                Some("the calibration's own estimate"),
+                "the tolerance",
+            )?;
         }
         let own: Vec<&Trial> = r.trials.iter().filter(|t| t.axis == axis.name).collect();
         // The calibration's own estimate, as grey rings.
         c.draw_series(
             own.iter()
                 .filter(|t| t.estimated.is_finite())
-                .map(|t| Circle::new((t.value, t.estimated.max(floor)), 6, grey.stroke_width(1))),
+                .map(|t| Circle::new((t.value, t.estimated.max(floor)), 6, ESTIMATE.stroke_width(1))),
         )
         .map_err(|x| e(&x))?;
         c.draw_series(own.iter().map(|t| -> DynElement<DB, (f64, f64)> {
@@ -247,8 +232,8 @@ fn chart<DB: DrawingBackend>(
             match t.outcome.as_str() {
                 "refused" => Cross::new((t.value, REFUSED_AT), 6, BLACK.stroke_width(2)).into_dyn(),
                 "silent" => Circle::new(at, 7, RED.stroke_width(2)).into_dyn(),
-                "warned" => TriangleMarker::new(at, 6, orange.filled()).into_dyn(),
-                _ => Circle::new(at, 4, green.filled()).into_dyn(),
+                "warned" => TriangleMarker::new(at, 6, WARNED.filled()).into_dyn(),
+                _ => Circle::new(at, 4, WITHIN.filled()).into_dyn(),
             }
         }))
         .map_err(|x| e(&x))?;

@@ -30,7 +30,9 @@ use crate::error::Result;
 use crate::fabrication::quantize::{quantize, QuantizeMethod};
 use crate::fabrication::wrap::{wrap, WrapSpec};
 use crate::grid::Grid;
-use crate::report::{draw_legend, failure_panel, write_png_chart, write_svg_chart, SweepAxis, FONT};
+use crate::report::{
+    draw_failure_key, failure_panel, write_png_chart, write_svg_chart, SweepAxis, FONT, WITHIN,
+};
 
 /// A pose further than this from the truth, in design samples, is wrong.
 pub const WRONG_SHIFT: f64 = 0.5;
@@ -223,37 +225,27 @@ fn chart<DB: DrawingBackend>(
     );
     let root = root.titled(&title, (FONT, 18)).map_err(|x| e(&x))?;
     let panels = root.split_evenly((2, 3));
-    let green = RGBColor(0, 120, 0);
     for (i, (axis, area)) in r.axes.iter().zip(panels.iter()).enumerate() {
         let mut c =
             failure_panel(area, axis, 1e-4..REFUSED_AT * 3.0, "shift error, design samples", r.wrong_shift)?;
         if i == 0 {
             // The key, in the first panel's empty lower right.
-            let none = || std::iter::empty::<Circle<(f64, f64), i32>>();
-            c.draw_series(none())
-                .map_err(|x| e(&x))?
-                .label("registered")
-                .legend(move |(x, y)| Circle::new((x + 8, y), 4, green.filled()));
-            c.draw_series(none())
-                .map_err(|x| e(&x))?
-                .label("accepted but wrong: silent failure")
-                .legend(|(x, y)| Circle::new((x + 8, y), 7, RED.stroke_width(2)));
-            c.draw_series(none())
-                .map_err(|x| e(&x))?
-                .label("refused (drawn at the top)")
-                .legend(|(x, y)| Cross::new((x + 8, y), 6, BLACK.stroke_width(2)));
-            c.draw_series(none())
-                .map_err(|x| e(&x))?
-                .label("past the line a pose counts as wrong")
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], RED.stroke_width(1)));
-            draw_legend(&mut c, SeriesLabelPosition::LowerRight, 11)?;
+            draw_failure_key(
+                &mut c,
+                SeriesLabelPosition::LowerRight,
+                "registered",
+                None,
+                "accepted but wrong: silent failure",
+                None,
+                "past the line a pose counts as wrong",
+            )?;
         }
         let own = r.trials.iter().filter(|t| t.axis == axis.name);
         c.draw_series(own.map(|t| -> DynElement<DB, (f64, f64)> {
             match t.outcome.as_str() {
                 "refused" => Cross::new((t.value, REFUSED_AT), 6, BLACK.stroke_width(2)).into_dyn(),
                 "wrong" => Circle::new((t.value, t.shift_error.max(1e-4)), 7, RED.stroke_width(2)).into_dyn(),
-                _ => Circle::new((t.value, t.shift_error.max(1e-4)), 4, green.filled()).into_dyn(),
+                _ => Circle::new((t.value, t.shift_error.max(1e-4)), 4, WITHIN.filled()).into_dyn(),
             }
         }))
         .map_err(|x| e(&x))?;

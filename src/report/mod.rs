@@ -112,6 +112,64 @@ pub fn failure_panel<'a, DB: DrawingBackend>(
     Ok(c)
 }
 
+/// The colours of a failure map's markers: a trial within its limit (dot), over it and warned
+/// (triangle), and the method's own error estimate (ring).
+pub const WITHIN: RGBColor = RGBColor(0, 120, 0);
+pub const WARNED: RGBColor = RGBColor(220, 140, 0);
+pub const ESTIMATE: RGBColor = RGBColor(150, 150, 150);
+
+/// The key of a failure map, drawn on `panel` at `position`: the dot (`within`), the orange
+/// triangle (`warned`, where the map has warnings), the red ring of a silent failure
+/// (`silent`), the cross of a refusal (drawn at the top), the grey ring (`estimate`, where the
+/// method estimates its own error) and the red line (`line`).
+pub fn draw_failure_key<'a, DB: DrawingBackend + 'a>(
+    panel: &mut ChartContext<'a, DB, Cartesian2d<plotters::coord::types::RangedCoordf64, LogCoord<f64>>>,
+    position: SeriesLabelPosition,
+    within: &str,
+    warned: Option<&str>,
+    silent: &str,
+    estimate: Option<&str>,
+    line: &str,
+) -> std::result::Result<(), String> {
+    let none = || std::iter::empty::<Circle<(f64, f64), i32>>();
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    panel
+        .draw_series(none())
+        .map_err(|x| e(&x))?
+        .label(within)
+        .legend(|(x, y)| Circle::new((x + 8, y), 4, WITHIN.filled()));
+    if let Some(warned) = warned {
+        panel
+            .draw_series(none())
+            .map_err(|x| e(&x))?
+            .label(warned)
+            .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, WARNED.filled()));
+    }
+    panel
+        .draw_series(none())
+        .map_err(|x| e(&x))?
+        .label(silent)
+        .legend(|(x, y)| Circle::new((x + 8, y), 7, RED.stroke_width(2)));
+    panel
+        .draw_series(none())
+        .map_err(|x| e(&x))?
+        .label("refused (drawn at the top)")
+        .legend(|(x, y)| Cross::new((x + 8, y), 6, BLACK.stroke_width(2)));
+    if let Some(estimate) = estimate {
+        panel
+            .draw_series(none())
+            .map_err(|x| e(&x))?
+            .label(estimate)
+            .legend(|(x, y)| Circle::new((x + 8, y), 6, ESTIMATE.stroke_width(1)));
+    }
+    panel
+        .draw_series(none())
+        .map_err(|x| e(&x))?
+        .label(line)
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], RED.stroke_width(1)));
+    draw_legend(panel, position, 11)
+}
+
 /// Draws the legend of `chart`'s labelled series at `position`: labels in the embedded font at
 /// `size` pt on a translucent white box with a black border.
 pub fn draw_legend<'a, DB, CT>(
