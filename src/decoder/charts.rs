@@ -231,11 +231,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                         .draw_series(DashedLineSeries::new([(0.0, v), (last, v)], dash, gap, style))
                         .map_err(|x| e(&x))?
                         .label(label)
-                        .legend(move |(x, y)| {
-                            let piece = |(a, b): (i32, i32)| PathElement::new(vec![(a, 0), (b, 0)], style);
-                            let [p, q, r] = crate::report::legend_dashes(dash, gap, 18);
-                            EmptyElement::at((x, y)) + piece(p) + piece(q) + piece(r)
-                        });
+                        .legend(move |at| crate::report::dashed_legend(at, style, dash, gap, 18));
                 }
             }
             crate::report::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;

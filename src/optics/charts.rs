@@ -424,21 +424,19 @@ fn spectral_chart<DB: DrawingBackend>(
         chart
             .draw_series(series.iter().map(|p| Circle::new((p.0, p.1), 4, colour.filled())))
             .map_err(|x| e(&x))?;
+        // The estimate's dashes, and its legend sample's.
+        const DASH: u32 = 6;
+        const GAP: u32 = 4;
         chart
             .draw_series(DashedLineSeries::new(
                 series.iter().map(|p| (p.0, p.2)),
-                6,
-                4,
+                DASH,
+                GAP,
                 colour.stroke_width(1),
             ))
             .map_err(|x| e(&x))?
             .label(format!("band {band}: plan's estimate"))
-            .legend(move |(x, y)| {
-                let piece =
-                    |(a, b): (i32, i32)| PathElement::new(vec![(a, 0), (b, 0)], colour.stroke_width(1));
-                let [p, q, r] = crate::report::legend_dashes(6, 4, 16);
-                EmptyElement::at((x, y)) + piece(p) + piece(q) + piece(r)
-            });
+            .legend(move |at| crate::report::dashed_legend(at, colour.stroke_width(1), DASH, GAP, 16));
     }
     for p in &report.plans {
         let tol = p.tolerance;

@@ -131,43 +131,39 @@ pub fn draw_failure_key<'a, DB: DrawingBackend + 'a>(
     estimate: Option<&str>,
     line: &str,
 ) -> std::result::Result<(), String> {
-    let none = || std::iter::empty::<Circle<(f64, f64), i32>>();
-    let e = |x: &dyn std::fmt::Display| x.to_string();
-    panel
-        .draw_series(none())
-        .map_err(|x| e(&x))?
-        .label(within)
-        .legend(|(x, y)| Circle::new((x + 8, y), 4, WITHIN.filled()));
+    key_entry(panel, within, |(x, y)| Circle::new((x + 8, y), 4, WITHIN.filled()))?;
     if let Some(warned) = warned {
-        panel
-            .draw_series(none())
-            .map_err(|x| e(&x))?
-            .label(warned)
-            .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, WARNED.filled()));
+        key_entry(panel, warned, |(x, y)| TriangleMarker::new((x + 8, y), 6, WARNED.filled()))?;
     }
-    panel
-        .draw_series(none())
-        .map_err(|x| e(&x))?
-        .label(silent)
-        .legend(|(x, y)| Circle::new((x + 8, y), 7, RED.stroke_width(2)));
-    panel
-        .draw_series(none())
-        .map_err(|x| e(&x))?
-        .label("refused (drawn at the top)")
-        .legend(|(x, y)| Cross::new((x + 8, y), 6, BLACK.stroke_width(2)));
+    key_entry(panel, silent, |(x, y)| Circle::new((x + 8, y), 7, RED.stroke_width(2)))?;
+    key_entry(panel, "refused (drawn at the top)", |(x, y)| {
+        Cross::new((x + 8, y), 6, BLACK.stroke_width(2))
+    })?;
     if let Some(estimate) = estimate {
-        panel
-            .draw_series(none())
-            .map_err(|x| e(&x))?
-            .label(estimate)
-            .legend(|(x, y)| Circle::new((x + 8, y), 6, ESTIMATE.stroke_width(1)));
+        key_entry(panel, estimate, |(x, y)| Circle::new((x + 8, y), 6, ESTIMATE.stroke_width(1)))?;
     }
-    panel
-        .draw_series(none())
-        .map_err(|x| e(&x))?
-        .label(line)
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], RED.stroke_width(1)));
+    key_entry(panel, line, |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], RED.stroke_width(1)))?;
     draw_legend(panel, position, 11)
+}
+
+/// One entry of a chart's legend that stands for no series of its own: `label` with `glyph`
+/// drawn at the entry's position.
+pub fn key_entry<'a, DB, CT, E>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    label: &str,
+    glyph: impl Fn((i32, i32)) -> E + 'a,
+) -> std::result::Result<(), String>
+where
+    DB: DrawingBackend + 'a,
+    CT: plotters::coord::CoordTranslate,
+    E: IntoDynElement<'a, DB, (i32, i32)>,
+{
+    chart
+        .draw_series(std::iter::empty::<Circle<CT::From, i32>>())
+        .map_err(|e| e.to_string())?
+        .label(label)
+        .legend(glyph);
+    Ok(())
 }
 
 /// Draws the legend of `chart`'s labelled series at `position`: labels in the embedded font at
@@ -208,6 +204,20 @@ pub fn log_label(v: f64, f: impl Fn(f64) -> String) -> String {
 /// `v` with at most six decimals and no trailing zeros.
 pub fn short(v: f64) -> String {
     format!("{}", (v * 1e6).round() / 1e6)
+}
+
+/// The legend sample at `at` of a line drawn by `DashedLineSeries` with `dash` and `gap`
+/// (pixels) and `style`: `length` pixels drawn the same way.
+pub fn dashed_legend<'a, DB: DrawingBackend + 'a>(
+    at: (i32, i32),
+    style: ShapeStyle,
+    dash: u32,
+    gap: u32,
+    length: u32,
+) -> impl IntoDynElement<'a, DB, (i32, i32)> {
+    let piece = |(a, b): (i32, i32)| PathElement::new(vec![(a, 0), (b, 0)], style);
+    let [p, q, r] = legend_dashes(dash, gap, length);
+    EmptyElement::at(at) + piece(p) + piece(q) + piece(r)
 }
 
 /// The dashes of a legend sample `length` pixels long for a line drawn by `DashedLineSeries`
