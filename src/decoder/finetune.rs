@@ -442,6 +442,43 @@ impl Adam {
     }
 }
 
+/// `count` simulated training captures of `crop x crop`, their scenes (the crop plus `conv`'s
+/// margins) drawn from `source` with `rng`, flipped at random and simulated with
+/// [`measure`] (seeds drawn in order, the simulations run in parallel, so the result does not
+/// depend on the thread count). All on the CPU.
+pub fn simulate_captures(
+    source: &dyn SceneSource,
+    conv: &Convolver,
+    model: &MeasurementModel,
+    crop: usize,
+    rng: &mut Lcg,
+    count: usize,
+) -> Result<Vec<Measurement>> {
+    let (t, l, b, r) = conv.margins();
+    let (rows, cols) = (crop + t + b, crop + l + r);
+    let seeds: Vec<u64> = (0..count).map(|_| (rng.uniform() * (1u64 << 53) as f64) as u64).collect();
+    seeds
+        .par_iter()
+        .map(|&seed| {
+            let mut g = Lcg(seed);
+            let mut scene = source.scene(&mut g, rows, cols)?.values;
+            if scene.dim() != (rows, cols, 3) {
+                return Err(Error::Data(format!(
+                    "the scene source gave {:?}, not {rows} x {cols} x 3",
+                    scene.dim()
+                )));
+            }
+            if g.uniform() < 0.5 {
+                scene.invert_axis(ndarray::Axis(1));
+            }
+            if g.uniform() < 0.5 {
+                scene.invert_axis(ndarray::Axis(0));
+            }
+            measure(&Image::new(scene.as_standard_layout().to_owned()), conv, model, &mut g)
+        })
+        .collect()
+}
+
 /// A fine-tuning run in memory.
 pub struct Trainer<'a> {
     cfg: FinetuneConfig,
@@ -647,39 +684,14 @@ impl<'a> Trainer<'a> {
         &self.cfg
     }
 
-    /// `count` simulated captures, their scenes drawn from `source` with `rng` (seeds drawn in
-    /// order, the simulations run in parallel, so the result does not depend on the thread
-    /// count).
+    /// `count` simulated captures of this run's crops ([`simulate_captures`]).
     fn simulate_batch(
         &self,
         source: &dyn SceneSource,
         rng: &mut Lcg,
         count: usize,
     ) -> Result<Vec<Measurement>> {
-        let (t, l, b, r) = self.conv.margins();
-        let (rows, cols) = (self.cfg.crop + t + b, self.cfg.crop + l + r);
-        let seeds: Vec<u64> = (0..count).map(|_| (rng.uniform() * (1u64 << 53) as f64) as u64).collect();
-        let model = self.cfg.model();
-        seeds
-            .par_iter()
-            .map(|&seed| {
-                let mut g = Lcg(seed);
-                let mut scene = source.scene(&mut g, rows, cols)?.values;
-                if scene.dim() != (rows, cols, 3) {
-                    return Err(Error::Data(format!(
-                        "the scene source gave {:?}, not {rows} x {cols} x 3",
-                        scene.dim()
-                    )));
-                }
-                if g.uniform() < 0.5 {
-                    scene.invert_axis(ndarray::Axis(1));
-                }
-                if g.uniform() < 0.5 {
-                    scene.invert_axis(ndarray::Axis(0));
-                }
-                measure(&Image::new(scene.as_standard_layout().to_owned()), &self.conv, &model, &mut g)
-            })
-            .collect()
+        simulate_captures(source, &self.conv, &self.cfg.model(), self.cfg.crop, rng, count)
     }
 
     fn tensors(&self, batch: &[Measurement], device: &burn::tensor::Device) -> (Tensor<4>, Tensor<4>) {
