@@ -42,7 +42,7 @@ pub struct ReconstructArgs {
     /// Write negative outputs as they are instead of max(y, 0).
     #[arg(long)]
     pub keep_negative: bool,
-    /// Run on the GPU (builds with the `cuda` feature).
+    /// Run on the GPU (builds with the `gpu` feature: any vendor's GPU; or `cuda`).
     #[arg(long)]
     pub gpu: bool,
 }
@@ -138,7 +138,7 @@ pub struct FinetuneArgs {
     pub validation: usize,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Run on the GPU (builds with the `cuda` feature).
+    /// Run on the GPU (builds with the `gpu` feature: any vendor's GPU; or `cuda`).
     #[arg(long)]
     pub gpu: bool,
 }
@@ -212,8 +212,9 @@ pub fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
         negatives: if *keep_negative { Negatives::Keep } else { Negatives::Clamp },
     };
     let png = png.clone().unwrap_or_else(|| output.with_extension("png"));
-    let device = doefab::decoder::device(*gpu)?;
-    let report = reconstruct_file(capture, decoder, output, &png, *ev, &opts, &device)?;
+    let selected = doefab::decoder::select_device(*gpu)?;
+    let mut report = reconstruct_file(capture, decoder, output, &png, *ev, &opts, &selected.device)?;
+    report.report.warnings.extend(selected.warnings);
     warn(&report.report.warnings);
     print_result(cli, &report, || {
         let r = &report.report;

@@ -1030,7 +1030,8 @@ pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Resul
         job.white_balance,
     )?;
     let (source, validation) = scenes.sources();
-    let device = crate::decoder::device(job.gpu)?;
+    let selected = crate::decoder::select_device(job.gpu)?;
+    let device = selected.device;
     let mut trainer = if job.resume {
         let ckpt = job.output.join(CHECKPOINT);
         let mut t =
@@ -1067,6 +1068,6 @@ pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Resul
         data: source.describe(),
         validation_data: trainer.validation_data.clone(),
         history: trainer.history().to_vec(),
-        warnings: short_run_warning(trainer.step(), best_step).into_iter().collect(),
+        warnings: selected.warnings.into_iter().chain(short_run_warning(trainer.step(), best_step)).collect(),
     })
 }

@@ -7,8 +7,9 @@
 //! ([`tiling_bench`]); fine-tuning's validation PSNR against time ([`finetune_time`]).
 //!
 //! Images here are `(H, W, 3)` `f32` arrays (row-major, channels last, as the paper's NHWC);
-//! the network runs on NCHW burn tensors on the CPU (burn's Flex backend) or, with the `cuda`
-//! feature, on an NVIDIA GPU.
+//! the network runs on NCHW burn tensors on the CPU (burn's Flex backend) or, with the `gpu`
+//! feature, on any vendor's GPU through wgpu, or with the `cuda` feature on an NVIDIA GPU
+//! ([`select_device`]).
 
 pub mod capture_bench;
 pub mod charts;
@@ -30,17 +31,90 @@ use crate::error::Result;
 use crate::image::Image;
 use unet::{tensor_values, UNet};
 
-/// The device the decoder runs on: burn's Flex CPU backend, or with `gpu` the first CUDA GPU,
-/// which needs a build with the `cuda` feature (refused otherwise, rather than running on the
-/// CPU unasked).
-pub fn device(gpu: bool) -> Result<Device> {
+/// The device the decoder runs on, and what its selection has to report.
+#[derive(Debug, Clone)]
+pub struct SelectedDevice {
+    pub device: Device,
+    /// Whether the device is a software rasterizer (Mesa's lavapipe or llvmpipe: a "GPU" that
+    /// runs on the CPU; lavapipe measured 57 to 112 times slower than the CPU backend).
+    pub software: bool,
+    /// Set when `--gpu` found no discrete GPU and took another adapter (it names it).
+    pub warnings: Vec<String>,
+}
+
+/// The device the decoder runs on: burn's Flex CPU backend, or with `gpu`:
+///
+/// * with the `cuda` feature, the first CUDA GPU;
+/// * with the `gpu` feature (burn's wgpu backend: Vulkan on Linux and Windows, with DX12 and
+///   OpenGL after it, Metal on macOS), the first discrete GPU of the first graphics API that
+///   has a GPU adapter; without a discrete one, the adapter wgpu prefers (an integrated GPU,
+///   or a software rasterizer such as Mesa's lavapipe) with a warning naming it; without any
+///   adapter, an error saying what to install.
+///
+/// Without either feature `gpu` is refused rather than run on the CPU unasked. The GPU is
+/// opened once per process (burn's runtime registers it for the process) and reused.
+pub fn select_device(gpu: bool) -> Result<SelectedDevice> {
     if !gpu {
-        return Ok(Device::flex());
+        return Ok(SelectedDevice { device: Device::flex(), software: false, warnings: Vec::new() });
     }
     #[cfg(feature = "cuda")]
-    return Ok(Device::cuda(0));
-    #[cfg(not(feature = "cuda"))]
-    Err(crate::error::Error::param("gpu", "this build has no GPU backend; rebuild with `--features cuda`"))
+    return Ok(SelectedDevice { device: Device::cuda(0), software: false, warnings: Vec::new() });
+    #[cfg(all(feature = "gpu", not(feature = "cuda")))]
+    return wgpu_device();
+    #[cfg(not(any(feature = "cuda", feature = "gpu")))]
+    Err(crate::error::Error::param(
+        "gpu",
+        "this build has no GPU backend; rebuild with `--features gpu` (any vendor's GPU through wgpu) or \
+         `--features cuda`",
+    ))
+}
+
+/// [`select_device`]'s device alone, for callers that run on the CPU or report no warnings
+/// (tests, benchmarks).
+pub fn device(gpu: bool) -> Result<Device> {
+    Ok(select_device(gpu)?.device)
+}
+
+/// The wgpu device of [`select_device`], opened on the first call: `Device::wgpu_options()
+/// .init()` registers a runtime per adapter selector and refuses a second registration, so the
+/// outcome (the device, or why there is none) is kept for the process.
+#[cfg(all(feature = "gpu", not(feature = "cuda")))]
+fn wgpu_device() -> Result<SelectedDevice> {
+    use burn::tensor::wgpu::WgpuInitError;
+    use burn::tensor::DeviceKind;
+    use std::sync::OnceLock;
+
+    static OPENED: OnceLock<std::result::Result<SelectedDevice, String>> = OnceLock::new();
+    let open = || {
+        let init = |kind| Device::wgpu_options().device_kind(kind).init();
+        match init(DeviceKind::DiscreteGpu(0)) {
+            Ok(device) => Ok(SelectedDevice { device, software: false, warnings: Vec::new() }),
+            Err(WgpuInitError::AdapterUnavailable { .. }) => match init(DeviceKind::DefaultDevice) {
+                Ok(device) => {
+                    // cubecl names the card behind an adapter, and none behind a CPU adapter.
+                    let (name, software) = device
+                        .identity()
+                        .map_or(("an unnamed adapter".into(), false), |i| (i.name, i.physical.is_none()));
+                    let warning = match software {
+                        true => format!(
+                            "--gpu found no GPU; the decoder runs on `{name}`, a software rasterizer on the \
+                             CPU, tens of times slower than without --gpu"
+                        ),
+                        false => format!("--gpu found no discrete GPU; the decoder runs on `{name}`"),
+                    };
+                    Ok(SelectedDevice { device, software, warnings: vec![warning] })
+                }
+                Err(WgpuInitError::AdapterUnavailable { .. }) => Err(
+                    "no GPU adapter found (Vulkan, DX12 or OpenGL; Metal on macOS): install the GPU's Vulkan \
+                     driver (or Mesa's lavapipe, `mesa-vulkan-drivers`, a CPU Vulkan driver), or run without --gpu"
+                        .to_string(),
+                ),
+                Err(e) => Err(format!("cannot open the GPU: {e}")),
+            },
+            Err(e) => Err(format!("cannot open the discrete GPU: {e}")),
+        }
+    };
+    OPENED.get_or_init(open).clone().map_err(|reason| crate::error::Error::param("gpu", reason))
 }
 
 /// The paper's decoder trained with the simulated PSF, the default starting point of
