@@ -1,4 +1,6 @@
-"""The paper's decoder U-Net in PyTorch, timed on the CPU for comparison with benches/decoder.rs.
+"""The paper's decoder U-Net in PyTorch, timed for comparison with benches/decoder.rs: on the CPU,
+or with the argument `cuda` on the first CUDA GPU (float32 throughout: TF32 off, as burn computes
+in f32; each timed call waits for the GPU).
 
 Same network as src/decoder/unet.rs (deepoptics-hdr/DECODER.md): five encoder levels of two
 3x3 convs + ReLU with 2x2 max-pooling between them, four decoder levels of a 4x4 stride-2
@@ -8,7 +10,8 @@ depend on them); the loss is the paper's gamma-corrected L2; Adam lr 1e-4.
 
 Prints "name wall_seconds cpu_seconds" lines (median wall time and mean process CPU time of a
 few runs after a warm-up):
-inference_640, train_b2_128, train_b8_320. Exits 1 when torch is missing.
+inference_640, train_b2_128, train_b8_320. Exits 1 when torch is missing, or with `cuda` when
+torch has no CUDA GPU.
 """
 import sys
 import time
@@ -74,14 +77,17 @@ def loss_fn(y, x):
     return torch.sqrt(torch.mean((torch.sqrt(torch.clamp(y, min=0) + e) - torch.sqrt(x + e)) ** 2))
 
 
-def timed(runs, f):
-    """Median wall time and mean process CPU time of `runs` calls after a warm-up, as text."""
+def timed(runs, f, sync):
+    """Median wall time and mean process CPU time of `runs` calls after a warm-up, as text;
+    `sync` waits for the device after each call."""
     f()
+    sync()
     ts = []
     c0 = time.process_time()
     for _ in range(runs):
         t = time.perf_counter()
         f()
+        sync()
         ts.append(time.perf_counter() - t)
     cpu = (time.process_time() - c0) / runs
     ts.sort()
@@ -89,27 +95,41 @@ def timed(runs, f):
 
 
 def main():
+    on = sys.argv[1] if len(sys.argv) > 1 else "cpu"
+    if on == "cuda":
+        if not torch.cuda.is_available():
+            print("torch has no CUDA GPU", file=sys.stderr)
+            sys.exit(1)
+        torch.backends.cuda.matmul.allow_tf32 = False
+        torch.backends.cudnn.allow_tf32 = False
+        sync = torch.cuda.synchronize
+        print(f"device {torch.cuda.get_device_name(0)}")
+    elif on == "cpu":
+        sync = lambda: None
+    else:
+        print(f"unknown device {on!r}: cpu or cuda", file=sys.stderr)
+        sys.exit(2)
     torch.manual_seed(0)
-    net = UNet()
+    net = UNet().to(on)
     opt = torch.optim.Adam(net.parameters(), lr=1e-4, betas=(0.9, 0.999), eps=1e-8)
-    x640 = torch.rand(1, 3, 640, 640)
+    x640 = torch.rand(1, 3, 640, 640, device=on)
 
     def infer():
         with torch.no_grad():
             net(x640)
 
     print(f"threads {torch.get_num_threads()}")
-    print(f"inference_640 {timed(3, infer)}")
+    print(f"inference_640 {timed(3, infer, sync)}")
     for name, b, n, runs in [("train_b2_128", 2, 128, 3), ("train_b8_320", 8, 320, 2)]:
-        x = torch.rand(b, 3, n, n)
-        t = torch.rand(b, 3, n, n) * 4
+        x = torch.rand(b, 3, n, n, device=on)
+        t = torch.rand(b, 3, n, n, device=on) * 4
 
         def step():
             opt.zero_grad()
             loss_fn(net(x), t).backward()
             opt.step()
 
-        print(f"{name} {timed(runs, step)}")
+        print(f"{name} {timed(runs, step, sync)}")
 
 
 if __name__ == "__main__":
