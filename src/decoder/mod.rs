@@ -36,7 +36,7 @@ use unet::{tensor_values, UNet};
 pub struct SelectedDevice {
     pub device: Device,
     /// Whether the device is a software rasterizer (Mesa's lavapipe or llvmpipe: a "GPU" that
-    /// runs on the CPU; lavapipe measured 57 to 112 times slower than the CPU backend).
+    /// runs on the CPU; lavapipe measured 57 to 117 times slower than the CPU backend).
     pub software: bool,
     /// Set when `--gpu` found no discrete GPU and took another adapter (it names it).
     pub warnings: Vec<String>,
