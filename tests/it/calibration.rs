@@ -28,7 +28,11 @@ fn load(list: &doefab::calibration::capture::ExposureList) -> (Vec<Capture>, Vec
 /// (its value over its effective time) to a median relative deviation of 3 % where it sees 50k
 /// or more well-exposed samples (measured: 1.0-2.0 %, the 8-bit step at z = 0.1 alone is 1.1 %),
 /// and to 15 % for the shortest frames, which see only the lamps (measured up to 13 %). The
-/// effective times stay within the 10-30 % drift the data's README states.
+/// effective times stay within 45 % of the listed ones: the data's README states 10-30 % drift,
+/// and with green's clipping at 231 of 255 taken as saturation the chain of time ratios puts
+/// Fruit's 1/30 s frame at -41 % (-35.5 % while its clipped greens counted as light), the
+/// other frames at -25 % or less. Green's clipping leaves fewer samples that do not follow the
+/// exposure: Fruit 118 (1877 before), Kitchen 1733 (15088 before).
 #[test]
 fn real_brackets_merge_into_an_hdr_every_frame_agrees_with() {
     for scene in ["Kitchen", "Fruit"] {
@@ -43,8 +47,10 @@ fn real_brackets_merge_into_an_hdr_every_frame_agrees_with() {
             let median = f.agreement_median.unwrap();
             let limit = if f.agreement_samples >= 50_000 { 0.03 } else { 0.15 };
             assert!(median < limit, "{scene} {}: median deviation {median}", f.file);
-            assert!((f.exposure_used / f.exposure_listed - 1.0).abs() < 0.4, "{scene} {}", f.file);
+            assert!((f.exposure_used / f.exposure_listed - 1.0).abs() < 0.45, "{scene} {}", f.file);
         }
+        assert_eq!(m.report.channel_clipping, vec![1.0, 231.0 / 255.0, 1.0], "{scene}");
+        assert!(m.report.inconsistent.count < if scene == "Fruit" { 200 } else { 2_000 }, "{scene}");
         // The radiance is at the reference exposure: the reference frame's unsaturated values.
         let k = list.frames.iter().position(|f| f.1 == list.reference_exposure.unwrap()).unwrap();
         let scale = m.report.frames[k].exposure_used / times[k];
