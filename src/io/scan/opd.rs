@@ -490,11 +490,11 @@ mod tests {
     /// pitch follow.
     #[test]
     fn scale_entries_of_every_number_type() {
-        let mults: [(Option<(u16, Vec<u8>)>, f64); 5] = [
-            (Some((T_SHORT, 3i16.to_le_bytes().to_vec())), 3.0),
-            (Some((T_LONG, 3i32.to_le_bytes().to_vec())), 3.0),
-            (Some((T_SHORT, 3i32.to_le_bytes().to_vec())), 3.0),
-            (Some((T_FLOAT, f32b(3.0))), 3.0),
+        let mults = [
+            (Some(e("Mult", T_SHORT, 3i16.to_le_bytes())), 3.0),
+            (Some(e("Mult", T_LONG, 3i32.to_le_bytes())), 3.0),
+            (Some(e("Mult", T_SHORT, 3i32.to_le_bytes())), 3.0),
+            (Some(e("Mult", T_FLOAT, f32b(3.0))), 3.0),
             (None, 1.0),
         ];
         for wavelength in
@@ -510,9 +510,7 @@ mod tests {
                     wavelength.clone(),
                     e("Pixel_size", T_DOUBLE, 1.5e-3f64.to_le_bytes()),
                 ];
-                if let Some((kind, data)) = mult {
-                    entries.push(e("Mult", *kind, data.clone()));
-                }
+                entries.extend(mult.iter().cloned());
                 let s = decode(p(), &build(&entries)).unwrap();
                 assert!(s.warnings.is_empty(), "{:?}", s.warnings);
                 assert!(close(s.raw.values[[1, 1]], 9.0 * 600e-9 / m), "Mult {mult:?}");
