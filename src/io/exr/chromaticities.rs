@@ -17,9 +17,12 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-/// Rec. 709 primaries and D65 white (OpenEXR's default chromaticities): red, green, blue,
-/// white, each CIE (x, y).
+/// Rec. 709 primaries and D65 white (ITU-R BT.709; OpenEXR's default chromaticities): red,
+/// green, blue, white, each CIE (x, y), as a file stores them (single precision).
 pub const REC709: [f32; 8] = [0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290];
+
+/// The same, exact: the space converted to.
+const REC709_EXACT: [f64; 8] = [0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290];
 
 /// The Bradford cone-response matrix.
 const BRADFORD: [[f64; 3]; 3] =
@@ -35,9 +38,10 @@ fn xyz(x: f64, y: f64) -> Vector3<f64> {
 
 /// The RGB-to-XYZ matrix of chromaticities `c` (see the module docs); refuses a white or a
 /// primary with `y` = 0 and primaries on one line.
-pub fn rgb_to_xyz(c: &[f32; 8]) -> std::result::Result<Matrix3<f64>, String> {
-    let c: Vec<f64> = c.iter().map(|&v| v as f64).collect();
-    if let Some(k) = (0..4).find(|&k| !(c[2 * k + 1].abs() > 1e-9) || !c[2 * k].is_finite()) {
+pub fn rgb_to_xyz(c: &[f64; 8]) -> std::result::Result<Matrix3<f64>, String> {
+    if let Some(k) =
+        (0..4).find(|&k| !c[2 * k].is_finite() || !c[2 * k + 1].is_finite() || c[2 * k + 1].abs() <= 1e-9)
+    {
         let name = ["red", "green", "blue", "white"][k];
         return Err(format!(
             "the {name} chromaticity ({}, {}) has y = 0 or is not finite",
@@ -65,13 +69,13 @@ pub fn bradford(from: [f64; 2], to: [f64; 2]) -> Matrix3<f64> {
 /// The matrix taking RGB in chromaticities `c` to linear Rec. 709 RGB, or `None` where `c` is
 /// Rec. 709 (within [`SAME`]).
 pub fn to_rec709(c: &[f32; 8]) -> std::result::Result<Option<Matrix3<f64>>, String> {
-    let rec = REC709;
-    if c.iter().zip(rec).all(|(a, b)| (*a as f64 - b as f64).abs() <= SAME) {
+    if c.iter().zip(REC709).all(|(a, b)| (*a as f64 - b as f64).abs() <= SAME) {
         return Ok(None);
     }
-    let to_xyz = rgb_to_xyz(c)?;
-    let from_xyz = rgb_to_xyz(&rec)?.try_inverse().expect("Rec. 709 primaries are independent");
-    let (w, d65) = ([c[6] as f64, c[7] as f64], [rec[6] as f64, rec[7] as f64]);
+    let c = c.map(f64::from);
+    let to_xyz = rgb_to_xyz(&c)?;
+    let from_xyz = rgb_to_xyz(&REC709_EXACT)?.try_inverse().expect("Rec. 709 primaries are independent");
+    let (w, d65) = ([c[6], c[7]], [REC709_EXACT[6], REC709_EXACT[7]]);
     let adapt = match (w[0] - d65[0]).abs() <= SAME && (w[1] - d65[1]).abs() <= SAME {
         true => Matrix3::identity(),
         false => bradford(w, d65),
@@ -86,7 +90,7 @@ mod tests {
     /// Rec. 709's matrix is the one IEC 61966-2-1 (sRGB) publishes, to its 4 decimals.
     #[test]
     fn rec709_to_xyz_is_the_published_srgb_matrix() {
-        let m = rgb_to_xyz(&REC709).unwrap();
+        let m = rgb_to_xyz(&REC709_EXACT).unwrap();
         let srgb = [[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]];
         for i in 0..3 {
             for j in 0..3 {

@@ -282,6 +282,18 @@ pub fn read_channels(path: &Path, bytes: &[u8], header: &Header, names: &[&str])
     })?;
     let [x0, y0, x1, y1] = header.data_window;
     let (w, h) = (header.width(), header.height());
+    // OpenEXR's header check: a subsampled channel's samples tile the window exactly.
+    for c in &header.channels {
+        let (sx, sy) = (c.x_sampling as i64, c.y_sampling as i64);
+        let off = |v: i64, s: i64| v.rem_euclid(s) != 0;
+        if off(x0 as i64, sx) || off(w as i64, sx) || off(y0 as i64, sy) || off(h as i64, sy) {
+            return Err(fail(format!(
+                "channel '{}' is sampled {sx} x {sy}, but the data window starts at ({x0}, {y0}) and is {w} x {h} \
+                 pixels; OpenEXR requires its origin and size to be multiples of the sampling",
+                c.name
+            )));
+        }
+    }
     let chans: Vec<ChunkChannel> = header
         .channels
         .iter()
@@ -603,6 +615,59 @@ mod tests {
         assert_eq!(num_samples(2, -3, 3), 3); // -2, 0, 2
         assert_eq!(num_samples(3, 4, 5), 0);
         assert_eq!(num_samples(2, 5, 4), 0);
+    }
+
+    /// A minimal scan-line file header: channels `(name, x sampling, y sampling)` (half),
+    /// NONE compression, the data window, then an empty offset table.
+    fn header_bytes(channels: &[(&str, i32, i32)], window: [i32; 4]) -> Vec<u8> {
+        let mut b = vec![0x76, 0x2f, 0x31, 0x01, 2, 0, 0, 0];
+        let mut attr = |name: &str, kind: &str, value: &[u8]| {
+            b.extend_from_slice(name.as_bytes());
+            b.push(0);
+            b.extend_from_slice(kind.as_bytes());
+            b.push(0);
+            b.extend_from_slice(&(value.len() as i32).to_le_bytes());
+            b.extend_from_slice(value);
+        };
+        let mut ch = Vec::new();
+        for (n, sx, sy) in channels {
+            ch.extend_from_slice(n.as_bytes());
+            ch.push(0);
+            ch.extend_from_slice(&1i32.to_le_bytes());
+            ch.extend_from_slice(&[0, 0, 0, 0]);
+            ch.extend_from_slice(&sx.to_le_bytes());
+            ch.extend_from_slice(&sy.to_le_bytes());
+        }
+        ch.push(0);
+        attr("channels", "chlist", &ch);
+        attr("compression", "compression", &[0]);
+        attr("dataWindow", "box2i", &window.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>());
+        b.push(0);
+        b
+    }
+
+    /// OpenEXR's rule: a subsampled channel's window starts and spans multiples of its
+    /// sampling; refused on the wrong side, read up to the offset table on the right side.
+    #[test]
+    fn subsampled_windows_must_be_multiples_of_the_sampling() {
+        let p = Path::new("s.exr");
+        let chans = [("BY", 2, 2), ("RY", 2, 2), ("Y", 1, 1)];
+        for (window, ok) in [
+            ([0, 0, 5, 3], true),
+            ([-2, 4, 3, 7], true),
+            ([0, 0, 4, 3], false),
+            ([1, 0, 4, 3], false),
+            ([0, 0, 5, 2], false),
+        ] {
+            let bytes = header_bytes(&chans, window);
+            let h = Header::parse(p, &bytes).unwrap();
+            assert_eq!(h.channel("RY").map(|c| (c.x_sampling, c.y_sampling)), Some((2, 2)));
+            let e = read_channels(p, &bytes, &h, &["Y"]).unwrap_err().to_string();
+            assert_eq!(e.contains("multiples of the sampling"), !ok, "{window:?}: {e}");
+            if ok {
+                assert!(e.contains("offset table"), "{e}");
+            }
+        }
     }
 
     #[test]

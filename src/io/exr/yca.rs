@@ -10,8 +10,7 @@
 //!    the first and the last.
 //! 2. *Chroma, vertically*: on lines without chroma (odd `y`), the same taps weigh lines
 //!    `y +- 1, ..., 13`; lines above the window repeat its first line, lines below it its
-//!    second-to-last (OpenEXR clamps to `y_max - 1`, the last line holding chroma when the
-//!    height is even).
+//!    second-to-last (the last holding chroma).
 //! 3. *YCA to RGB*: `R = (RY + 1) Y`, `B = (BY + 1) Y`, `G = (Y - R w_R - B w_B) / w_G`, or
 //!    `R = G = B = Y` where both chroma are 0. The luminance weights `w` are the middle row
 //!    of the RGB-to-XYZ matrix of the file's chromaticities (Rec. 709 without the attribute),
@@ -20,12 +19,10 @@
 //!    mean saturation of its four diagonal neighbours (capped at 1), is desaturated towards
 //!    its largest component to that bound, its luminance kept (`RgbaYca::fixSaturation`).
 //!
-//! Where OpenEXR's reader reads memory it never wrote (an odd data-window width or height:
-//! its edge padding and its bottom clamp then land on samples without chroma), this reader
-//! repeats the last chroma sample instead; for even widths and heights (all the files that
-//! OpenEXR's own sample images hold) the two agree bit for bit. A window starting at an odd
-//! column or row, chroma sampled other than 2 x 2, or chroma without luminance are refused
-//! (OpenEXR's reader garbles or refuses them).
+//! Chroma sampled other than 2 x 2 or chroma without luminance are refused (OpenEXR's reader
+//! refuses the one and fills the missing luminance with 0.5); so is a data window whose origin
+//! or size is not a multiple of the sampling, as OpenEXR refuses it
+//! ([`super::scanline::read_channels`]).
 
 use std::path::Path;
 
@@ -128,16 +125,6 @@ pub fn read_luma_chroma(path: &Path, bytes: &[u8], header: &Header) -> Result<Lu
             )));
         }
     }
-    let [x0, y0, ..] = header.data_window;
-    if x0 % 2 != 0 || y0 % 2 != 0 {
-        return Err(fail(format!(
-            "the data window starts at ({x0}, {y0}); chroma reconstruction needs an even start \
-             (OpenEXR's own reader reconstructs such a file from samples it never read)"
-        )));
-    }
-    if header.width() < 2 || header.height() < 2 {
-        return Err(fail(format!("{} x {} pixels; at least 2 x 2 needed", header.width(), header.height())));
-    }
     let names: Vec<&str> = ["Y", "RY", "BY"].into_iter().filter(|n| header.channel(n).is_some()).collect();
     let mut planes = read_channels(path, bytes, header, &names)?.into_iter();
     let y = planes.next().expect("Y was asked for");
@@ -189,20 +176,18 @@ pub fn reconstruct_rgb(lc: &LumaChroma) -> Array3<f32> {
             .collect()
     };
     let (ry, by) = (horiz(&lc.ry), horiz(&lc.by));
-    // OpenEXR's readYCAScanLine: the line read for `l` (rows relative to the window), and the
-    // chroma line it carries (an odd line's chroma is never used, except where the clamp below
-    // the window lands on one: then the last chroma line).
+    // OpenEXR's readYCAScanLine: the line read for `l` (rows relative to the window, whose
+    // height is even), and the chroma line it carries (used only where `r` is even).
     let last = hgt as i64 - 1;
     let line = |l: i64| -> (usize, usize) {
         let r = if l < 0 {
             0
         } else if l > last {
-            (last - 1).max(0)
+            last - 1
         } else {
             l
         };
-        let c = if r % 2 == 0 { r / 2 } else { (ry.len() - 1) as i64 };
-        (r as usize, c as usize)
+        (r as usize, (r / 2) as usize)
     };
     // Steps 2 and 3: the RGB of lines -1 ..= hgt (the saturation fix reads one line beyond).
     let rgb_line = |l: i64| -> Vec<[f32; 3]> {
@@ -330,15 +315,15 @@ mod tests {
         }
     }
 
-    /// A uniform colour comes back as itself (the filters' taps sum to 1 within 1e-6), for odd
-    /// and even sizes; grey (zero chroma) exactly.
+    /// A uniform colour comes back as itself (the filters' taps sum to 1 within 1e-6); grey
+    /// (zero chroma) exactly.
     #[test]
     fn uniform_colour_and_grey_come_back() {
         let yw = luminance_weights(&REC709);
         let rgb = [2.0f32, 1.0, 0.5];
         let y = h(rgb[0] * yw[0] + rgb[1] * yw[1] + rgb[2] * yw[2]);
         let (ry, by) = (h((rgb[0] - y) / y), h((rgb[2] - y) / y));
-        for (hgt, w) in [(6, 8), (7, 9), (2, 2), (33, 40)] {
+        for (hgt, w) in [(6, 8), (2, 2), (34, 40)] {
             let out = reconstruct_rgb(&uniform(hgt, w, y, ry, by));
             for (k, v) in out.iter().enumerate() {
                 assert!((v - rgb[k % 3]).abs() <= 2e-3 * rgb[k % 3], "{hgt}x{w}: {v} vs {}", rgb[k % 3]);
@@ -346,17 +331,5 @@ mod tests {
             let grey = reconstruct_rgb(&uniform(hgt, w, 0.75, 0.0, 0.0));
             assert!(grey.iter().all(|&v| v == 0.75));
         }
-    }
-
-    /// Odd-sized windows never read a sample that is not there: a chroma step in the last
-    /// column and row stays finite and bounded.
-    #[test]
-    fn odd_sizes_read_only_real_samples() {
-        let mut lc = uniform(7, 9, 1.0, 0.0, 0.0);
-        let k = lc.ry.values.len() - 1;
-        lc.ry.values[k] = 0.5;
-        let out = reconstruct_rgb(&lc);
-        assert!(out.iter().all(|v| v.is_finite() && *v >= 0.0 && *v <= 1.6), "{out:?}");
-        assert!(out[[6, 8, 0]] > 1.2);
     }
 }
