@@ -64,7 +64,8 @@ pub struct FinetuneArgs {
     #[arg(long)]
     pub init: Option<PathBuf>,
     /// Folder of real HDR images (.exr, .hdr, searched recursively; 2:1 images are taken as
-    /// equirectangular panoramas); without it, seeded procedural HDR scenes.
+    /// equirectangular panoramas; an unreadable one is skipped with a warning); without it,
+    /// seeded procedural HDR scenes.
     #[arg(long)]
     pub data: Option<PathBuf>,
     /// Folder of validation HDR images; without it, 1 in --holdout-every of --data's images,

@@ -245,6 +245,8 @@ pub struct FinetuneReport {
     pub steps: usize,
     pub seconds_per_step: f64,
     pub training_data: String,
+    /// The training images that could not be read and were skipped, each with the reason.
+    pub skipped_images: Vec<String>,
     /// The scores along the run of the decoder it would write if stopped there (best validated,
     /// blended; step 0 = the starting decoder).
     pub curve: Vec<CurvePoint>,
@@ -472,6 +474,7 @@ fn run_finetune(
         steps,
         seconds_per_step: seconds / steps.max(1) as f64,
         training_data: source.describe(),
+        skipped_images: training.warnings(),
         curve,
         history: trainer.history().to_vec(),
     };

@@ -114,6 +114,16 @@ impl TrainingScenes {
         })
     }
 
+    /// Warnings about the images that could not be read (and were skipped).
+    pub fn warnings(&self) -> Vec<String> {
+        match self {
+            TrainingScenes::Real { training, validation } => {
+                training.skipped.iter().chain(&validation.skipped).cloned().collect()
+            }
+            TrainingScenes::Procedural(_) => Vec::new(),
+        }
+    }
+
     /// The training source and, for real images, the validation source ([`Trainer::new`]'s).
     pub fn sources(&self) -> (&dyn SceneSource, Option<&dyn SceneSource>) {
         match self {
@@ -1055,6 +1065,6 @@ pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Resul
         data: source.describe(),
         validation_data: trainer.validation_data.clone(),
         history: trainer.history().to_vec(),
-        warnings: short_run_warning(trainer.step(), best_step).into_iter().collect(),
+        warnings: scenes.warnings().into_iter().chain(short_run_warning(trainer.step(), best_step)).collect(),
     })
 }

@@ -300,7 +300,7 @@ pub struct DecoderBenchOptions {
 pub struct DecoderBenchOutcome {
     /// What [`crate::decoder::capture_bench::run`] reports.
     pub report: BenchReport,
-    /// Scenes whose bracket merged with warnings, and scenes refused.
+    /// Scenes whose bracket merged with warnings, scenes refused, training images skipped.
     #[serde(skip)]
     pub warnings: Vec<String>,
 }
@@ -400,6 +400,7 @@ pub fn bench_decoder(
         }
     }
     if let Some(f) = &report.finetune {
+        warnings.extend(f.skipped_images.iter().cloned());
         warnings.extend(below_start(f));
     }
     Ok(DecoderBenchOutcome { report, warnings })
@@ -440,6 +441,7 @@ mod tests {
             steps,
             seconds_per_step: 1.0,
             training_data: "images".into(),
+            skipped_images: Vec::new(),
             curve: vec![point(0, [39.72, 32.78]), point(steps, end)],
             history: Vec::new(),
         };
