@@ -7,6 +7,6 @@ cd "$(dirname "$0")/.."
 if [ ! -x .venv/bin/python ]; then
   python3 -m venv .venv
 fi
-if ! .venv/bin/python -c "import klayout.db, trimesh, numpy, OpenEXR, colour" 2>/dev/null; then
+if ! .venv/bin/python -c "import klayout.db, trimesh, numpy, OpenEXR, colour, cv2, scipy" 2>/dev/null; then
   .venv/bin/pip install --quiet --disable-pip-version-check -r tests/requirements.txt
 fi
