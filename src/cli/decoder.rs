@@ -131,6 +131,10 @@ pub struct FinetuneArgs {
     /// Bit depth of the simulated captures (0 = not quantised; 8 as the paper's captures).
     #[arg(long, default_value_t = doefab::decoder::finetune::BITS)]
     pub bits: u32,
+    /// Where the simulated captures' R, G and B clip, fractions of full scale (default: as the
+    /// paper's camera, green at 231 of 255; `evaluate` and `merge` report a camera's own).
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = doefab::decoder::finetune::CHANNEL_CLIPPING)]
+    pub channel_clipping: Vec<f64>,
     /// Validate and checkpoint every this many steps.
     #[arg(long, default_value_t = doefab::decoder::finetune::CHECKPOINT_EVERY)]
     pub checkpoint_every: usize,
@@ -194,6 +198,9 @@ pub struct BenchDecoderArgs {
     /// Fine-tune on seeded procedural HDR scenes instead of --train-data.
     #[arg(long)]
     pub procedural: bool,
+    /// Where the fine-tuning's simulated captures clip, R, G, B (finetune's: the paper's camera).
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = doefab::decoder::finetune::CHANNEL_CLIPPING)]
+    pub channel_clipping: Vec<f64>,
     /// Tile side of the registration, pixels.
     #[arg(long, default_value_t = 48)]
     pub tile: usize,
@@ -261,6 +268,7 @@ pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
         read_noise,
         shot_noise,
         bits,
+        channel_clipping,
         checkpoint_every,
         validation,
         seed,
@@ -292,6 +300,7 @@ pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
             noise_sigma: *read_noise,
             shot_noise: *shot_noise,
             bits: (*bits > 0).then_some(*bits),
+            channel_clipping: [channel_clipping[0], channel_clipping[1], channel_clipping[2]],
             checkpoint_every: *checkpoint_every,
             validation: *validation,
             seed: *seed,
@@ -348,6 +357,7 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         evaluate_every,
         train_data,
         procedural,
+        channel_clipping,
         tile,
         output,
     } = a;
@@ -366,6 +376,7 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         evaluate_every: *evaluate_every,
         train_data: (!procedural).then(|| train_data.clone()),
         tile: *tile,
+        channel_clipping: [channel_clipping[0], channel_clipping[1], channel_clipping[2]],
     };
     let pb = progress(cli, 0);
     let outcome = bench_decoder(&opts, output, &mut report_to(&pb))?;

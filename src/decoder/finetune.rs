@@ -186,10 +186,18 @@ pub struct FinetuneConfig {
     /// between (README, fine-tuning table).
     #[serde(default = "one")]
     pub blend: f64,
+    /// Where each channel of the simulated captures clips, fraction of full scale (see
+    /// [`MeasurementModel::channel_clipping`]).
+    #[serde(default = "full_scale")]
+    pub channel_clipping: [f64; 3],
 }
 
 fn one() -> f64 {
     1.0
+}
+
+fn full_scale() -> [f64; 3] {
+    [1.0; 3]
 }
 
 impl Default for FinetuneConfig {
@@ -215,6 +223,7 @@ impl Default for FinetuneConfig {
             patience: 0,
             negative_penalty: 0.0,
             blend: 1.0,
+            channel_clipping: full_scale(),
         }
     }
 }
@@ -250,6 +259,9 @@ pub const READ_NOISE: f64 = 0.001;
 pub const SHOT_NOISE: f64 = 8e-5;
 /// Bit depth of `doefab finetune`'s captures (the paper's captures are 8-bit).
 pub const BITS: u32 = 8;
+/// Where each channel of `doefab finetune`'s captures clips: as the paper's camera, whose green
+/// tops out at 231 of 255 in every frame of both scenes ([`crate::calibration::clipping`]).
+pub const CHANNEL_CLIPPING: [f64; 3] = [1.0, 231.0 / 255.0, 1.0];
 /// `doefab finetune`'s negative-output penalty: with it the fine-tuned decoder scores above
 /// its start on both of the paper's real scenes (README).
 pub const NEGATIVE_PENALTY: f64 = 10.0;
@@ -273,6 +285,7 @@ impl FinetuneConfig {
             bits: Some(BITS),
             negative_penalty: NEGATIVE_PENALTY,
             blend: BLEND,
+            channel_clipping: CHANNEL_CLIPPING,
             ..FinetuneConfig::default()
         }
     }
@@ -312,6 +325,9 @@ impl FinetuneConfig {
                 format!("read {} and shot {} must be >= 0", self.noise_sigma, self.shot_noise),
             );
         }
+        if !self.channel_clipping.iter().all(|c| *c > 0.0 && *c <= 1.0) {
+            return bad("channel_clipping", format!("{:?}: each must lie in (0, 1]", self.channel_clipping));
+        }
         if self.bits.is_some_and(|b| !(1..=16).contains(&b)) {
             return bad("bits", format!("{:?} must lie in 1..=16", self.bits));
         }
@@ -323,6 +339,7 @@ impl FinetuneConfig {
             noise_sigma: self.noise_sigma,
             shot_noise: self.shot_noise,
             bits: self.bits,
+            channel_clipping: self.channel_clipping.map(|c| c as f32),
             ..MeasurementModel::default()
         }
     }

@@ -1,6 +1,8 @@
 //! The paper's measurement model, used to train and fine-tune the decoder:
 //!
-//! `y = clip(h * x + n, 1e-5, 1)`, with `x` the target HDR scene clipped to `[1e-5, 64]`,
+//! `y = clip(h * x + n, 1e-5, c)`, with `c` the channel's clipping level (1, or lower where the
+//! camera clips the channel below full scale: [`MeasurementModel::channel_clipping`]), `x` the
+//! target HDR scene clipped to `[1e-5, 64]`,
 //! `h` the PSF of one colour channel, `*` linear convolution and `n` Gaussian read noise of
 //! standard deviation 0.02 (the paper's fine-tuning value; Metzler et al. 2020, Sec. 4 and the
 //! upstream training code). Optionally, as a real sensor adds: shot noise, `n` of variance
@@ -34,6 +36,11 @@ pub struct MeasurementModel {
     pub target_range: (f32, f32),
     /// Sensor range: the capture is clipped to it.
     pub sensor_range: (f32, f32),
+    /// Where each channel clips, fraction of the sensor range's top: a camera's white balance
+    /// can leave a channel clipping below full scale (the paper's camera clips green at 231 of
+    /// 255; [`crate::calibration::clipping`]), and a decoder that never saw such a channel
+    /// reads its clipped value as light.
+    pub channel_clipping: [f32; 3],
 }
 
 impl Default for MeasurementModel {
@@ -45,6 +52,7 @@ impl Default for MeasurementModel {
             saturation: (0.01, 0.02),
             target_range: (1e-5, 64.0),
             sensor_range: (1e-5, 1.0),
+            channel_clipping: [1.0; 3],
         }
     }
 }
@@ -94,12 +102,16 @@ pub fn measure(
     let saturated_fraction = sensor.iter().filter(|&&y| y >= 1.0).count() as f64 / sensor.len() as f64;
     let (slo, shi) = model.sensor_range;
     let levels = model.bits.map(|b| ((1u64 << b) - 1) as f64);
-    let capture = sensor.mapv(|y| {
+    let mut capture = sensor.mapv(|y| {
         let sd = (model.noise_sigma.powi(2) + model.shot_noise * y.max(0.0)).sqrt();
         let v = y + sd * rng.normal();
         let v = levels.map_or(v, |l| (v * l).round() / l);
-        (v as f32).clamp(slo, shi)
+        v as f32
     });
+    for ((_, _, c), v) in capture.indexed_iter_mut() {
+        let top = shi * model.channel_clipping.get(c).copied().unwrap_or(1.0);
+        *v = v.clamp(slo, top.max(slo));
+    }
     let target = Image::new(scaled.values.slice(s![t..t + ch, l..l + cw, ..]).to_owned());
     Ok(Measurement { target, capture: Image::new(capture), exposure, saturated_fraction })
 }
@@ -128,6 +140,20 @@ mod tests {
             assert!(m.capture.values.iter().all(|&y| (1e-5..=1.0).contains(&y)));
             assert!(m.target.values.iter().all(|&x| (1e-5..=64.0).contains(&x)));
         }
+        // A camera whose green clips at 231 of 255: green piles up there, red and blue at 1.
+        let top = 231.0 / 255.0;
+        let camera = MeasurementModel { channel_clipping: [1.0, top as f32, 1.0], bits: Some(8), ..model };
+        let m = measure(&scene, &conv, &camera, &mut Lcg(7)).unwrap();
+        let at = |c: usize, v: f32| {
+            m.capture.values.index_axis(ndarray::Axis(2), c).iter().filter(|&&y| y == v).count()
+        };
+        assert!(m.capture.values.index_axis(ndarray::Axis(2), 1).iter().all(|&y| y <= top as f32));
+        assert!(
+            at(1, top as f32) > 10 && at(0, 1.0) > 10 && at(1, 1.0) == 0,
+            "{} {}",
+            at(1, top as f32),
+            at(0, 1.0)
+        );
         // A black scene cannot be exposed.
         assert!(measure(&Image::new(Array3::zeros((72, 72, 3))), &conv, &model, &mut Lcg(1)).is_err());
     }

@@ -292,6 +292,9 @@ pub struct DecoderBenchOptions {
     pub train_data: Option<PathBuf>,
     /// Tile side of the registration, pixels.
     pub tile: usize,
+    /// Where the fine-tuning's simulated captures clip, per channel (see
+    /// [`FinetuneConfig::channel_clipping`]).
+    pub channel_clipping: [f64; 3],
 }
 
 /// The benchmark's report (serialised as it is) and the warnings about its scenes.
@@ -351,6 +354,7 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
             crop: o.crop,
             lr: o.lr,
             seed: o.seed,
+            channel_clipping: o.channel_clipping,
             ..FinetuneConfig::recommended()
         },
         evaluate_every,
