@@ -407,6 +407,17 @@ pub fn prepare(
 }
 
 impl Scoring {
+    /// An image in the reference's frame (the reference through a model of the camera, say)
+    /// resampled onto the capture's pixels by the scene's registration, unscaled; 0 where the
+    /// registration does not reach.
+    pub fn warp(&self, image: &Image) -> Result<Image> {
+        match (&self.footing.local_registration, &self.footing.registration) {
+            (Some(l), _) => Ok(l.warp(image).0),
+            (None, Some(r)) => Ok(warp(image, &r.affine, self.footing.rows, self.footing.cols)?.0),
+            (None, None) => Err(Error::Data("no registration was made".into())),
+        }
+    }
+
     /// Scores `image` (a reconstruction, or the capture itself, in units of the capture's
     /// clipping level) against the registered reference over the scene's pixel sets.
     pub fn score(&self, name: &str, image: &Image) -> Result<Score> {

@@ -47,6 +47,8 @@ pub struct BenchScene {
     pub name: String,
     /// The capture through the DOE (RGB), 1 = clipping level.
     pub capture: Image,
+    /// The bracket merged without the DOE, in the bracket's own frame.
+    pub reference: Image,
     pub scoring: Scoring,
     pub report: SceneReport,
 }
@@ -142,7 +144,8 @@ pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<Ben
         footing: Some(scoring.footing.clone()),
         error: None,
     };
-    Ok(BenchScene { name, capture: Image::new(capture.values.mapv(|v| v / clip)), scoring, report })
+    let capture = Image::new(capture.values.mapv(|v| v / clip));
+    Ok(BenchScene { name, capture, reference: merged.radiance, scoring, report })
 }
 
 /// Scores `image` (a reconstruction, or the capture itself) on the scene's footing.

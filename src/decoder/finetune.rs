@@ -28,7 +28,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::decoder::dataset::{training_and_validation, HdrScenes};
-use crate::decoder::measurement::{measure, Measurement, MeasurementModel};
+use crate::decoder::measurement::{measure, Halo, Measurement, MeasurementModel};
 use crate::decoder::unet::{is_trainable, tensor_values, UNet};
 use crate::decoder::weights::{encode_safetensors, read_safetensors, DecoderWeights, NamedTensor};
 use crate::decoder::{to_tensor, weights};
@@ -190,6 +190,10 @@ pub struct FinetuneConfig {
     /// [`MeasurementModel::channel_clipping`]).
     #[serde(default = "full_scale")]
     pub channel_clipping: [f64; 3],
+    /// Light the element spreads beyond its measured PSF's crop (see
+    /// [`MeasurementModel::halo`]); `None`: none.
+    #[serde(default)]
+    pub halo: Option<Halo>,
 }
 
 fn one() -> f64 {
@@ -224,6 +228,7 @@ impl Default for FinetuneConfig {
             negative_penalty: 0.0,
             blend: 1.0,
             channel_clipping: full_scale(),
+            halo: None,
         }
     }
 }
@@ -262,6 +267,8 @@ pub const BITS: u32 = 8;
 /// Where each channel of `doefab finetune`'s captures clips: as the paper's camera, whose green
 /// tops out at 231 of 255 in every frame of both scenes ([`crate::calibration::clipping`]).
 pub const CHANNEL_CLIPPING: [f64; 3] = [1.0, 231.0 / 255.0, 1.0];
+/// `doefab finetune`'s halo: none until measured to help on real captures (README).
+pub const HALO: Halo = Halo { fraction: 0.0, radius_px: 64.0 };
 /// `doefab finetune`'s negative-output penalty: with it the fine-tuned decoder scores above
 /// its start on both of the paper's real scenes (README).
 pub const NEGATIVE_PENALTY: f64 = 10.0;
@@ -328,6 +335,9 @@ impl FinetuneConfig {
         if !self.channel_clipping.iter().all(|c| *c > 0.0 && *c <= 1.0) {
             return bad("channel_clipping", format!("{:?}: each must lie in (0, 1]", self.channel_clipping));
         }
+        if let Some(h) = &self.halo {
+            h.check()?;
+        }
         if self.bits.is_some_and(|b| !(1..=16).contains(&b)) {
             return bad("bits", format!("{:?} must lie in 1..=16", self.bits));
         }
@@ -340,6 +350,7 @@ impl FinetuneConfig {
             shot_noise: self.shot_noise,
             bits: self.bits,
             channel_clipping: self.channel_clipping.map(|c| c as f32),
+            halo: self.halo,
             ..MeasurementModel::default()
         }
     }

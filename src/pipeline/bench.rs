@@ -295,6 +295,8 @@ pub struct DecoderBenchOptions {
     /// Where the fine-tuning's simulated captures clip, per channel (see
     /// [`FinetuneConfig::channel_clipping`]).
     pub channel_clipping: [f64; 3],
+    /// The fine-tuning's halo (see [`FinetuneConfig::halo`]).
+    pub halo: Option<crate::decoder::measurement::Halo>,
 }
 
 /// The benchmark's report (serialised as it is) and the warnings about its scenes.
@@ -355,6 +357,7 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
             lr: o.lr,
             seed: o.seed,
             channel_clipping: o.channel_clipping,
+            halo: o.halo,
             ..FinetuneConfig::recommended()
         },
         evaluate_every,
