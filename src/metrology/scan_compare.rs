@@ -133,7 +133,11 @@ pub fn scan_of(member: Member, mirror: bool, complement: bool) -> String {
         (m, false, false) => m.name().into(),
         (m, true, true) => format!("a cast (mirrored, complemented) of {}", m.name()),
         (m, mirror, _) => {
-            format!("{} {}, which no replication makes", m.name(), if mirror { "mirrored" } else { "complemented" })
+            format!(
+                "{} {}, which no replication makes",
+                m.name(),
+                if mirror { "mirrored" } else { "complemented" }
+            )
         }
     }
 }
@@ -302,7 +306,7 @@ impl FabModel {
             ));
         }
         let (r0, r) = (self.rms_residual_unblurred, self.rms_residual);
-        if !(r0 > RESIDUAL_FLOOR) {
+        if r0.is_nan() || r0 <= RESIDUAL_FLOOR {
             return Some(format!(
                 "the model fits the part without a blur to {:.3} nm RMS: there is no blur to see",
                 r0 * 1e9
@@ -399,7 +403,8 @@ pub fn compare(design: &Grid, scan: &Grid, opts: &CompareOptions) -> Result<Comp
 /// less than the registration's `min_correlation` or than [`check_trust`] allows, is returned
 /// as [`Error::Registration`].
 pub fn compare_family(family: &[Reference], scan: &Grid, opts: &CompareOptions) -> Result<Comparison> {
-    let first = family.first().ok_or_else(|| Error::param("family", "no reference surface to compare with"))?;
+    let first =
+        family.first().ok_or_else(|| Error::param("family", "no reference surface to compare with"))?;
     for (name, g) in family.iter().map(|r| ("design", &r.surface)).chain([("scan", scan)]) {
         if g.unit() != Unit::Metre {
             return Err(Error::param(
@@ -466,10 +471,8 @@ pub fn compare_family(family: &[Reference], scan: &Grid, opts: &CompareOptions) 
     };
     let named = |m: String| {
         if family.len() > 1 {
-            let searched: Vec<String> = tried
-                .iter()
-                .map(|c| format!("{} {:.3}", c.member.name(), c.correlation))
-                .collect();
+            let searched: Vec<String> =
+                tried.iter().map(|c| format!("{} {:.3}", c.member.name(), c.correlation)).collect();
             format!("{m} (best of the design's family: {})", searched.join(", "))
         } else {
             m
@@ -503,11 +506,12 @@ pub fn compare_family(family: &[Reference], scan: &Grid, opts: &CompareOptions) 
             reg.correlation
         )));
     }
-    check_interior(interior_correlation, reg.noise_ceiling, opts.register.min_correlation_ratio)
-        .map_err(|e| match e {
+    check_interior(interior_correlation, reg.noise_ceiling, opts.register.min_correlation_ratio).map_err(
+        |e| match e {
             Error::Registration(m) => Error::Registration(named(m)),
             other => other,
-        })?;
+        },
+    )?;
     let (nr, nc) = design.dim();
     let mut diff = Array2::zeros((nr, nc));
     let mut dvalid = Array2::from_elem((nr, nc), false);
@@ -578,7 +582,11 @@ pub const INTERIOR: f64 = 0.9;
 /// [`check_trust`] on the part's correlation with the reference over the aperture's interior,
 /// against the ceiling the scan's noise sets (`compare`, and `precompensate` on a model it reads
 /// back). The reference is not blurred here, so a blur of many samples lowers the correlation
-/// too: it is refused with the poses the rule exists for.
+/// too: it is refused with the poses the rule exists for. A part blurred by up to 4 pitches
+/// still passes (0.975 on the built-in design, `tests`); against the reference blurred by the
+/// fitted blur a scan of the unwrapped design, blurred by 2 or 4 pitches, would pass as the
+/// wrapped design (0.972, 0.984, where the sharp wrapped design gives 0.931, 0.917): its blur
+/// fit is a compromise that [`FabModel::blur_doubt`] does not always catch.
 pub fn check_interior(correlation: f64, noise_ceiling: f64, fraction: f64) -> Result<()> {
     let what = format!("the part over the central {:.0}% of the aperture", 100.0 * INTERIOR);
     check_trust(&what, correlation, noise_ceiling, fraction)
@@ -1056,8 +1064,8 @@ mod tests {
         let (fit, area) = fit_level_heights(&design, &part, &inside, &level, 8, 2.0 * pitch).unwrap();
         let fit: Vec<f64> = fit.iter().map(|h| h.unwrap()).collect();
         assert!(area.iter().all(|&a| a > 1000), "{area:?}");
-        for l in 0..8 {
-            assert!((fit[l] - h[l]).abs() < 1e-12, "level {l}: {} vs {}", fit[l], h[l]);
+        for (l, (f, h)) in fit.iter().zip(&h).enumerate() {
+            assert!((f - h).abs() < 1e-12, "level {l}: {f} vs {h}");
         }
         let spec = LevelSpec { count: 8, step: 150e-9 };
         let r = level_stats(&design, &part, &inside, spec, 2.0 * pitch).unwrap();
@@ -1074,8 +1082,8 @@ mod tests {
         let part = gaussian_blur(&made, 2.0 * pitch).unwrap();
         let (fit, area) = fit_level_heights(&design, &part, &inside, &lifted, 9, 2.0 * pitch).unwrap();
         assert_eq!((fit[0], area[0]), (None, 0));
-        for l in 1..9 {
-            assert!((fit[l].unwrap() - hl(l)).abs() < 1e-12, "level {l}: {:?} vs {}", fit[l], hl(l));
+        for (l, f) in fit.iter().enumerate().skip(1) {
+            assert!((f.unwrap() - hl(l)).abs() < 1e-12, "level {l}: {f:?} vs {}", hl(l));
         }
     }
 
@@ -1357,6 +1365,24 @@ mod tests {
         let own = simulate_scan(&d, &SimulateParams { noise: 5e-9, ..Default::default() }).unwrap();
         let c = compare(&d, &own, &opts).unwrap();
         assert!(c.interior_correlation > 0.99, "{}", c.interior_correlation);
+    }
+
+    /// The interior is judged against the sharp design: a part blurred by 2 and 4 pitches
+    /// (5 nm of noise) still passes, its correlation falling with the blur (measured: 0.998 and
+    /// 0.975, where the noise allows 0.9994), and the fit recovers the blur.
+    #[test]
+    fn a_part_blurred_by_several_pitches_passes_the_interior_check() {
+        let d = paper(300);
+        let opts = CompareOptions { aperture: Some(0.8 * 300.0 * PAPER_PITCH), ..Default::default() };
+        for (pitches, lo, hi) in [(2.0, 0.99, 0.999), (4.0, 0.96, 0.98)] {
+            let sp = SimulateParams { blur: pitches * PAPER_PITCH, noise: 5e-9, ..Default::default() };
+            let scan = simulate_scan(&d, &sp).unwrap();
+            let c = compare(&d, &scan, &opts).unwrap();
+            assert!(c.model.blur_doubt().is_none(), "{:?}", c.model);
+            assert!((c.model.blur / (pitches * PAPER_PITCH) - 1.0).abs() < 0.05, "{:?}", c.model);
+            let r = c.interior_correlation;
+            assert!(r > lo && r < hi, "{pitches} pitches: {r}");
+        }
     }
 
     /// Different x and y pitches (a stage that steps 3.5 um in x and 5 um in y) are supported.
