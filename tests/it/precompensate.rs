@@ -385,7 +385,15 @@ const FAB_PROCESS: [&str; 14] = [
 /// the RMS of part - design before and after.
 fn loop_from_fab(recipe: &str, dir: &std::path::Path) -> (f64, f64) {
     let p = |name: &str| dir.join(name);
-    crate::common::ok(&["fab", "--recipe", recipe, "--intermediates", "-o", p("fab").to_str().unwrap(), "--quiet"]);
+    crate::common::ok(&[
+        "fab",
+        "--recipe",
+        recipe,
+        "--intermediates",
+        "-o",
+        p("fab").to_str().unwrap(),
+        "--quiet",
+    ]);
     let f = |v: &serde_json::Value, ptr: &str| {
         v.pointer(ptr).and_then(|x| x.as_f64()).unwrap_or_else(|| panic!("{ptr} in {v}"))
     };
@@ -401,6 +409,25 @@ fn loop_from_fab(recipe: &str, dir: &std::path::Path) -> (f64, f64) {
     assert_eq!((c["member"].as_str(), c["scan_of"].as_str()), (Some("replica"), Some("the master")), "{c}");
     assert!(f(&c, "/registration/correlation") > 0.9999, "{c}");
     assert!(f(&c, "/rms_error") < 1e-9, "{c}");
+    // The round trip of the perfect scan: pre-compensated from it, the commanded surface
+    // scanned perfectly registers as the master's cast.
+    crate::common::ok(&[
+        "precompensate",
+        "built-in:paper",
+        "--recipe",
+        recipe,
+        "--scan",
+        p("perfect.x3p").to_str().unwrap(),
+        "-o",
+        p("pc_perfect").to_str().unwrap(),
+        "--quiet",
+    ]);
+    simulate_cli(&p("pc_perfect/commanded.exr"), &p("round_trip.x3p"), &[]);
+    let c = compare_json(&p("round_trip.x3p"), recipe, &p("cmp_round_trip"));
+    assert_eq!(c["scan_of"].as_str(), Some("the cast of the master"), "{c}");
+    let (reg, interior) = (f(&c, "/registration/correlation"), f(&c, "/interior_correlation"));
+    eprintln!("{recipe}: perfect round trip, correlation {reg:.4}, interior {interior:.4}");
+    assert!(reg >= 0.99 && interior >= 0.99, "{c}");
     simulate_cli(&p("fab/surface.exr"), &p("surface.x3p"), &["--scan-pitch", "4.29um"]);
     let c = compare_json(&p("surface.x3p"), recipe, &p("cmp_surface"));
     assert_eq!(c["scan_of"].as_str(), Some("the master"), "{c}");
@@ -431,10 +458,12 @@ fn loop_from_fab(recipe: &str, dir: &std::path::Path) -> (f64, f64) {
     simulate_cli(&p("pc/commanded.exr"), &p("after.x3p"), &[&FAB_PROCESS[..], &["--seed", "4"]].concat());
     let after = compare_json(&p("after.x3p"), recipe, &p("cmp_after"));
     assert_eq!(after["scan_of"].as_str(), Some("the cast of the master"), "{after}");
-    (f(&before, "/rms_error"), f(&after, "/rms_error"))
+    let rms = (f(&before, "/rms_error"), f(&after, "/rms_error"));
+    eprintln!("{recipe}: RMS part - design {:.2} -> {:.2} nm", rms.0 * 1e9, rms.1 * 1e9);
+    rms
 }
 
-/// The grayscale master, 64 levels. Measured: RMS 99.4 -> 5.7 nm. From a perfect scan of the
+/// The grayscale master, 64 levels. Measured: RMS 100.1 -> 12.6 nm. From a perfect scan of the
 /// master, `precompensate` writes the very mask `fab` wrote, byte for byte: the plain
 /// correction of the master's cast commands `fab`'s own master.
 #[test]
@@ -443,23 +472,11 @@ fn the_loop_from_fab_closes_on_the_grayscale_master() {
     let recipe = "built-in:laser-writer-grayscale";
     let (before, after) = loop_from_fab(recipe, dir.path());
     assert!(after * 2.0 < before, "RMS {before} -> {after}");
-    let p = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
-    crate::common::ok(&[
-        "precompensate",
-        "built-in:paper",
-        "--recipe",
-        recipe,
-        "--scan",
-        &p("perfect.x3p"),
-        "-o",
-        &p("pc_perfect"),
-        "--quiet",
-    ]);
     let read = |f: &str| std::fs::read(dir.path().join(f)).unwrap();
     assert!(read("pc_perfect/grayscale_mask.png") == read("fab/grayscale_mask.png"));
 }
 
-/// The two-photon master, a continuous surface (16-bit levels). Measured: RMS 99.2 -> 5.7 nm.
+/// The two-photon master, a continuous surface (16-bit levels). Measured: RMS 99.9 -> 12.7 nm.
 #[test]
 fn the_loop_from_fab_closes_on_the_two_photon_master() {
     let dir = crate::common::tempdir();
@@ -469,21 +486,35 @@ fn the_loop_from_fab_closes_on_the_two_photon_master() {
 
 /// What `compare` refuses, `precompensate` refuses with the same words (exit status 3 both): a
 /// scan of the design unwrapped (the recipe wraps it; it registers to the wrapped design at
-/// 0.977 but its part over the aperture correlates 0.931 where the noise allows 0.999), and a
-/// scan of another design (the built-in Fresnel lens).
+/// 0.977 but its part over the aperture correlates 0.931 where the noise allows 0.999), the same
+/// blurred by two pitches (interior 0.931: its fitted 14.5 um blur passes the model's own check,
+/// so the interior is judged against the sharp design), and a scan of another design (the
+/// built-in Fresnel lens).
 #[test]
 fn precompensate_refuses_what_compare_refuses() {
     let dir = crate::common::tempdir();
     let p = |name: &str| dir.path().join(name);
     let recipe = "built-in:laser-writer-grayscale";
-    let unwrapped = ["--blur", "2.5um", "--depth-scale", "0.82", "--offset", "40nm", "--noise", "5nm"];
-    crate::common::ok(&["simulate-scan", "built-in:paper", "-o", p("unwrapped.x3p").to_str().unwrap(), "--quiet"]
-        .iter()
-        .copied()
-        .chain(unwrapped)
-        .collect::<Vec<_>>());
-    crate::common::ok(&["simulate-scan", "built-in:fresnel", "-o", p("fresnel.x3p").to_str().unwrap(), "--quiet"]);
-    for (scan, says) in [("unwrapped.x3p", "not trusted"), ("fresnel.x3p", "")] {
+    for (name, blur) in [("unwrapped.x3p", "2.5um"), ("unwrapped_blurred.x3p", "8.58um")] {
+        let process = ["--blur", blur, "--depth-scale", "0.82", "--offset", "40nm", "--noise", "5nm"];
+        crate::common::ok(
+            &["simulate-scan", "built-in:paper", "-o", p(name).to_str().unwrap(), "--quiet"]
+                .iter()
+                .copied()
+                .chain(process)
+                .collect::<Vec<_>>(),
+        );
+    }
+    crate::common::ok(&[
+        "simulate-scan",
+        "built-in:fresnel",
+        "-o",
+        p("fresnel.x3p").to_str().unwrap(),
+        "--quiet",
+    ]);
+    for (scan, says) in
+        [("unwrapped.x3p", "not trusted"), ("unwrapped_blurred.x3p", "not trusted"), ("fresnel.x3p", "")]
+    {
         let scan = p(scan);
         let run = |args: &[&str]| {
             let o = crate::common::doefab(args);
