@@ -1,6 +1,8 @@
 //! `doefab compare`: a fabricated part's scan against its design, through the stages: the
-//! reference surface made by the fabrication chain ([`reference_surface`]), the comparison of
-//! [`crate::metrology::scan_compare`], and the design PSF against the as-fabricated PSF
+//! surfaces the fabrication chain makes of the design, its family ([`reference_family`]: the
+//! wrapped design and the cast of the master, from [`reference_surface`]), the comparison of
+//! [`crate::metrology::scan_compare`] with the member the scan shows, and the design PSF
+//! against the as-fabricated PSF
 //! ([`psf_comparison`], by [`crate::optics`]); the outputs written all at once.
 
 use std::path::Path;
@@ -102,7 +104,10 @@ pub fn reference_surface(
 /// ([`cast_of_master`]), the one the recipe makes first (the cast for a master recipe). Without:
 /// the design as given, then wrapped at the optics' period and its master's cast (continuous),
 /// so that a scan of a master is found with no recipe as well.
-pub fn reference_family(design: &LoadedDesign, chain: Option<&ChainParams>) -> Result<(Vec<Reference>, WrapSpec)> {
+pub fn reference_family(
+    design: &LoadedDesign,
+    chain: Option<&ChainParams>,
+) -> Result<(Vec<Reference>, WrapSpec)> {
     let (surface, levels, optics) = reference_surface(design, chain)?;
     let period = optics.period()?;
     let mut family = Vec::with_capacity(3);
