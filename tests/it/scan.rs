@@ -164,6 +164,26 @@ fn x3pio_files_reproduce_the_reference_statistics() {
     check_s3("x3pio S3", &s.grid, REL);
 }
 
+/// doefab's own height maps (OpenEXR with pitch and unit attributes, as `fab`, `wrap` and
+/// `compare` write them) are scans too: S1 written in micrometres as f32 reproduces the
+/// reference statistics, through the library and `scan-info`.
+#[test]
+fn doefab_exr_height_maps_are_read_as_scans() {
+    let dir = common::tempdir();
+    let p = dir.path().join("s1.exr");
+    let v = Array2::from_shape_fn((200, 200), |(i, j)| (s1(i, j) * 1e6) as f32);
+    let meta =
+        doefab::io::heightmap::Metadata { pitch: Some([1e-6, 1e-6]), unit: Some("um".into()), text: vec![] };
+    doefab::io::exr::write_exr(&p, &[("height", &v)], &meta).unwrap();
+    let s = read(&p, &ScanOptions::default());
+    assert_eq!(s.format, ScanFormat::Exr);
+    check_s1("doefab EXR S1", &s.grid, REL);
+    let out = common::ok(&["scan-info", p.to_str().unwrap(), "--json"]);
+    let j: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!((j["format"].as_str(), j["size"][0].as_u64()), (Some("exr"), Some(200)), "{j}");
+    assert!((j["raw"]["sq"].as_f64().unwrap() * 1e9 / S1_RAW.v[1] - 1.0).abs() < 1e-6, "{j}");
+}
+
 #[test]
 fn gsf_and_sur_copies_reproduce_the_reference_statistics() {
     let s = read(&local("s3_spikes_missing_nan.gsffile.gsf"), &ScanOptions::default());
