@@ -319,6 +319,7 @@ pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
                 }
             );
         }
+        println!("silent failures (plans that miss their tolerance): {}", r.silent_failures);
         if !r.skipped.is_empty() {
             println!("left out: {}", r.skipped.join(", "));
         }
@@ -393,9 +394,10 @@ pub fn bench_stability(cli: &Cli, a: &BenchStabilityArgs) -> Result<()> {
         for m in &r.maps {
             let refused = m.cells.iter().filter(|c| !c.violations.is_empty()).count();
             println!(
-                "{} over pupil sampling x {}: {} runs, {} refused by the guard ({} of them within the \
+                "{}{} over pupil sampling x {}: {} runs, {} refused by the guard ({} of them within the \
                  tolerance), silent failures at {:.0e}: {}",
                 m.method,
+                if m.design == "smooth" { String::new() } else { format!(" on the {} DOE", m.design) },
                 m.y_axis.replace('_', " "),
                 m.cells.len(),
                 refused,

@@ -12,7 +12,7 @@ use crate::error::{Error, Result};
 use crate::optics::propagate::Method;
 use crate::optics::psf_bench::{BenchPoint, BenchReport};
 use crate::optics::spectral_bench::SpectralReport;
-use crate::optics::stability::{StabilityMap, StabilityReport};
+use crate::optics::stability::{StabilityMap, StabilityReport, STEPPED_DOE_PITCH};
 use crate::report::{write_png_chart, write_svg_chart, FONT};
 
 /// The series of `points` in their order of appearance, each with its colour: the methods'
@@ -59,10 +59,12 @@ fn speed_chart<DB: DrawingBackend>(
     let points = &report.points;
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let caption = format!(
-        "PSF: error vs run time, {} DOE samples at {:.2} um, F/{:.1} (filled: valid, hollow: guard refuses)",
+        "PSF: error vs run time, {} DOE samples at {:.2} um, F/{:.1} (filled: valid, hollow: guard refuses; \
+         silent failures: {})",
         report.doe_samples,
         report.doe_pitch * 1e6,
-        report.f_number
+        report.f_number,
+        report.silent_failures
     );
     let mut chart = ChartBuilder::on(root)
         .caption(caption, (FONT, 18))
@@ -247,8 +249,9 @@ fn stability_map_chart<DB: DrawingBackend>(
     let (y_lo, y_hi) =
         map.cells.iter().map(y_of).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
     let caption = format!(
-        "{} PSF: error vs pupil sampling and {} (tolerance {:.0e}; silent failures: {})",
+        "{} PSF{}: error vs pupil sampling and {} (tolerance {:.0e}; silent failures: {})",
         map.method,
+        if map.design == "smooth" { String::new() } else { format!(" on the {} DOE", map.design) },
         if by_wavelength { "wavelength" } else { "Fresnel number" },
         report.tolerance,
         map.silent_failures
@@ -302,6 +305,22 @@ fn stability_map_chart<DB: DrawingBackend>(
                 .map_err(|x| e(&x))?;
         }
     }
+    if map.design != "smooth" {
+        // The DOE's own pitch on each row: left of it the pupil nests in the DOE's cells, right
+        // of it the pupil is coarser and reads across the steps.
+        let mut own: Vec<(f64, f64)> = Vec::new();
+        for c in &map.cells {
+            let at = (c.lens_sampling_ratio * STEPPED_DOE_PITCH / c.pupil_pitch, y_of(c));
+            if !own.iter().any(|o| o.1 == at.1) {
+                own.push(at);
+            }
+        }
+        chart
+            .draw_series(LineSeries::new(own, BLUE.stroke_width(1)))
+            .map_err(|x| e(&x))?
+            .label(format!("the DOE's own {:.0} um samples (left: nested in them)", STEPPED_DOE_PITCH * 1e6))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.stroke_width(1)));
+    }
     for class in 0..4 {
         let tol = report.tolerance;
         let probe = [0.001 * tol, 0.05 * tol, 0.5 * tol, 2.0 * tol][class];
@@ -339,7 +358,8 @@ fn stability_map_chart<DB: DrawingBackend>(
     Ok(())
 }
 
-/// Writes one chart per stability map, `stability_<method>_<y axis>.{png,svg}` at `path_for(name)`;
+/// Writes one chart per stability map, `stability_<map name>.{png,svg}` ([`StabilityMap::name`])
+/// at `path_for(name)`;
 /// returns the names.
 pub fn write_stability_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
@@ -348,10 +368,10 @@ pub fn write_stability_charts(
     let mut names = Vec::new();
     for map in &report.maps {
         if map.cells.is_empty() {
-            return Err(Error::Data(format!("the {} {} map has no runs to chart", map.method, map.y_axis)));
+            return Err(Error::Data(format!("the {} map has no runs to chart", map.name())));
         }
         for ext in ["png", "svg"] {
-            let name = format!("stability_{}_{}.{ext}", map.method, map.y_axis);
+            let name = format!("stability_{}.{ext}", map.name());
             let path = path_for(&name);
             if ext == "png" {
                 write_png_chart(&path, 1000, 650, |r| stability_map_chart(r, report, map))?;
@@ -549,6 +569,7 @@ mod tests {
             },
             points: pts,
             plans: vec![plan],
+            silent_failures: 0,
             skipped: vec![],
         };
         let d = tempfile::tempdir().unwrap();

@@ -43,7 +43,7 @@ use super::psf::{Channel, Psf};
 use super::spectrum::{combine, Band};
 use super::system::{sinc, OpticalSystem, PixelRule};
 use crate::error::{Error, Result};
-use crate::grid::Grid;
+use crate::grid::{Grid, Interpolation};
 
 /// The default tolerance of `doefab psf`: relative L2 error per channel.
 pub const DEFAULT_TOLERANCE: f64 = 1e-3;
@@ -254,7 +254,7 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
     let mut refusals: Vec<String> = Vec::new();
     let mut last: Vec<Violation> = Vec::new();
     for k in 1..=MAX_REFINE {
-        let s = OpticalSystem { pupil_pitch: doe_pitch / k as f64, ..base.clone() };
+        let mut s = OpticalSystem { pupil_pitch: doe_pitch / k as f64, ..base.clone() };
         let n = matrix_dft::pupil_grid(&s, doe).0;
         if n > MAX_SIDE {
             refusals.push(format!(
@@ -262,7 +262,14 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
             ));
             break;
         }
-        let v = propagate::check(Method::MatrixDft, &s, doe)?;
+        let mut v = propagate::check(Method::MatrixDft, &s, doe)?;
+        // A stepped DOE is read by nearest interpolation, k x k pupil samples in each of its
+        // samples: the piecewise-constant part, its steps kept.
+        let stepped = v.iter().any(|v| v.condition == "step_resampling");
+        if stepped && s.interpolation != Interpolation::Nearest {
+            s.interpolation = Interpolation::Nearest;
+            v = propagate::check(Method::MatrixDft, &s, doe)?;
+        }
         if v.is_empty() {
             let (n, _) = matrix_dft::pupil_grid(&s, doe);
             let m = s.samples() as f64;
@@ -274,7 +281,12 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
                 )
             } else {
                 format!(
-                    "DOE pitch / {k} (bilinear): at / {} {}",
+                    "DOE pitch / {k} ({}): at / {} {}",
+                    if stepped {
+                        "nearest, the DOE's steps kept: a pixelated part's surface".to_string()
+                    } else {
+                        format!("{:?}", s.interpolation).to_lowercase()
+                    },
                     k - 1,
                     last.iter().map(|v| v.condition.as_str()).collect::<Vec<_>>().join(", ")
                 )

@@ -135,6 +135,9 @@ pub struct BenchReport {
     pub reference: Reference,
     pub points: Vec<BenchPoint>,
     pub plans: Vec<PlanPoint>,
+    /// Plans that miss their tolerance: the plan runs only what its guards accept, so each is a
+    /// silent failure.
+    pub silent_failures: usize,
     /// Configurations the budget left out.
     pub skipped: Vec<String>,
 }
@@ -394,6 +397,7 @@ pub fn run_bench(
         budget_seconds: opts.budget,
         reference: reference_check,
         points,
+        silent_failures: plans.iter().filter(|p| !p.meets_tolerance).count(),
         plans,
         skipped,
     })

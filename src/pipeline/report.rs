@@ -296,7 +296,7 @@ fn stability_csv(r: &StabilityReport) -> String {
             let _ = writeln!(
                 s,
                 "{},{},{},{:e},{:e},{:e},{:e},{:e},{:e},{},{}",
-                m.y_axis,
+                m.name(),
                 m.method,
                 c.subsample,
                 c.pupil_pitch,
@@ -366,6 +366,11 @@ fn page(design: &str, m: Measured, charts: Charts) -> Page {
             })),
         }
     }
+    reading.push(words(
+        " Plans over their tolerance (silent failures: the plan runs only what its guard accepts):",
+    ));
+    reading.push(b.fig("PSF plan silent failures", psf.silent_failures as f64, "1"));
+    reading.push(words("."));
     reading.push(words(" Pick the leftmost point below your tolerance; the plan should sit on it or just right of it. A hollow point is a run its guard refuses: trust only filled ones."));
     let psf_section = Section {
         title: "PSF: speed against accuracy".into(),
@@ -374,13 +379,18 @@ fn page(design: &str, m: Measured, charts: Charts) -> Page {
         reading,
     };
     let mut reading = vec![
-        words("Each PSF method against a truth, over pupil sampling and Fresnel number, and over pupil sampling and wavelength (the two-step Fresnel method against the matrix DFT of the same sampled pupil; the angular spectrum against direct Rayleigh-Sommerfeld integration of the same samples; the matrix DFT against itself on the surface between the DOE's samples); at tolerance"),
+        words("Each PSF method against a truth, over pupil sampling and Fresnel number, and over pupil sampling and wavelength (the two-step Fresnel method against the matrix DFT of the same sampled pupil; the angular spectrum against direct Rayleigh-Sommerfeld integration of the same samples; the matrix DFT against itself on the surface between the DOE's samples, and on a wrapped and a quantized DOE against the piecewise-constant part they are, whose steps away from the wrap's wavelength are real); at tolerance"),
         b.fig("stability tolerance", maps.tolerance, "1"),
         words(":"),
     ];
     for m in &maps.maps {
         let refused = m.cells.iter().filter(|c| !c.violations.is_empty()).count();
-        reading.push(words(&format!(" {} over {},", m.method.replace('_', " "), m.y_axis.replace('_', " "))));
+        let on = if m.design == "smooth" { String::new() } else { format!(" on the {} DOE", m.design) };
+        reading.push(words(&format!(
+            " {}{on} over {},",
+            m.method.replace('_', " "),
+            m.y_axis.replace('_', " ")
+        )));
         reading.push(b.fig("runs", m.cells.len() as f64, "1"));
         reading.push(words("runs,"));
         reading.push(b.fig("silent failures", m.silent_failures as f64, "1"));

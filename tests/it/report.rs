@@ -97,6 +97,7 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
             subsamples: vec![1, 2],
             asm_subsamples: vec![1, 2],
             mdft_pitches: vec![3e-6, 9e-6],
+            stepped_pitches: vec![2e-6, 4.5e-6],
             focal_lengths: vec![2e-3, 4e-3],
             wavelengths: vec![450e-9, 650e-9],
             ..MapOptions::default()
@@ -150,7 +151,7 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
         .collect();
     let in_json: Vec<f64> =
         maps["maps"].as_array().unwrap().iter().map(|m| m["silent_failures"].as_f64().unwrap()).collect();
-    assert_eq!(in_json.len(), 6);
+    assert_eq!(in_json.len(), 8);
     assert_eq!(silent, in_json);
     let psf: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("bench_psf.json")).unwrap()).unwrap();
