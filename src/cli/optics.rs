@@ -418,6 +418,14 @@ pub fn report(cli: &Cli, a: &ReportArgs) -> Result<()> {
     let page = run_report(&opts, &a.on.at.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &page, || {
+        let b = &page.budget;
+        println!("budget {:.0} s, spent {:.0} s", b.budget_seconds, b.spent_seconds);
+        for p in b.left_out() {
+            println!(
+                "left out: {} (predicted {:.0} s, {:.0} s left)",
+                p.name, p.predicted_seconds, p.left_seconds
+            );
+        }
         println!(
             "wrote {} ({} sections, {} figures; open index.html in a browser)",
             a.on.at.output.display(),

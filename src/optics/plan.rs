@@ -110,6 +110,21 @@ impl Plan {
     }
 }
 
+/// The cost of the matrix DFT of `n x n` pupil samples onto `m x m` sensor samples, one
+/// wavelength in f64, real multiply-adds: `n^2 m + n m^2` (its two products).
+pub fn matrix_dft_cost(n: usize, m: usize) -> f64 {
+    let (n, m) = (n as f64, m as f64);
+    n * n * m + n * m * m
+}
+
+/// The cost of a transfer-function method on a `w x w` FFT window, one wavelength, real
+/// multiply-adds: two steps of a forward and an inverse complex FFT, `5 N log2 N` flops each
+/// (about `2.5 N log2 N` multiply-adds, `N = w^2`).
+pub fn fft_cost(w: usize) -> f64 {
+    let n = (w * w) as f64;
+    4.0 * 2.5 * n * n.log2()
+}
+
 /// The estimated pixel-integration error of `s` sub-samples per axis by `rule` for pixels of
 /// `pitch` and an intensity band-limited to `cutoff` cycles/m (see the module docs): the
 /// `OTF_0^2`-weighted RMS of `b_s(f_x) b_s(f_y) - b(f_x) b(f_y)` over that of `b(f_x) b(f_y)`,
@@ -272,8 +287,7 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
         }
         if v.is_empty() {
             let (n, _) = matrix_dft::pupil_grid(&s, doe);
-            let m = s.samples() as f64;
-            let cost = (n as f64).powi(2) * m + n as f64 * m * m;
+            let cost = matrix_dft_cost(n, s.samples());
             let why = if k == 1 {
                 format!(
                     "the DOE's own {:.3} um samples: no interpolation, every condition holds",
@@ -327,11 +341,7 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
         }
         let v = propagate::check(Method::AngularSpectrum, &s, doe)?;
         if v.is_empty() {
-            let (_, _, w) = asm::grid(&s);
-            let w = w as f64;
-            // Two steps of forward and inverse complex FFTs, 5 N log2 N flops each (~ 2.5
-            // multiply-adds).
-            let cost = 4.0 * 2.5 * w * w * w.log2() * 2.0;
+            let cost = fft_cost(asm::grid(&s).2);
             let why = format!(
                 "pupil at the sensor sub-sample pitch {:.3} um{}, 2x padding",
                 s.sample_pitch() * 1e6,

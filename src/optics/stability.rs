@@ -175,11 +175,7 @@ impl StabilityMap {
     /// The map's name in file names and tables: `<method>_<y axis>`, with the design between
     /// them for a stepped DOE (`matrix_dft_wrapped_wavelength`).
     pub fn name(&self) -> String {
-        if self.design == "smooth" {
-            format!("{}_{}", self.method, self.y_axis)
-        } else {
-            format!("{}_{}_{}", self.method, self.design, self.y_axis)
-        }
+        map_name(&self.method, &self.design, &self.y_axis)
     }
 }
 
@@ -201,6 +197,8 @@ pub struct StabilityReport {
     pub sensor_pitch: f64,
     pub crop: usize,
     pub maps: Vec<StabilityMap>,
+    /// The maps a time budget left out ([`MapKind::name`]), with why.
+    pub left_out: Vec<String>,
     pub paper: Vec<PaperMark>,
 }
 
@@ -240,9 +238,7 @@ pub fn stepped_doe(levels: usize) -> Result<(Grid, Grid)> {
 
 /// How many runs [`run_maps`] makes (for a progress bar).
 pub fn steps(opts: &MapOptions) -> usize {
-    (opts.subsamples.len() + opts.asm_subsamples.len() + opts.mdft_pitches.len())
-        * (opts.focal_lengths.len() + opts.wavelengths.len())
-        + 2 * opts.stepped_pitches.len() * opts.wavelengths.len()
+    MAPS.iter().map(|&kind| map_steps(opts, kind)).sum()
 }
 
 /// `base` at focal length `g` with the sensor in focus, one wavelength, `subsample` sub-samples
@@ -461,10 +457,64 @@ fn stepped_row(
     Ok(cells)
 }
 
-/// Runs the eight maps, two per method and one per stepped DOE (module docs), calling `tick`
-/// before each run ([`steps`] in all).
-pub fn run_maps(opts: &MapOptions, mut tick: impl FnMut(&str)) -> Result<StabilityReport> {
-    let tick: &mut dyn FnMut(&str) = &mut tick;
+/// One map of the stability report: the method, the DOE (`smooth`, `wrapped`, `quantized`)
+/// and the y axis (`fresnel_number`, `wavelength`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MapKind {
+    pub method: Method,
+    pub design: &'static str,
+    pub y_axis: &'static str,
+}
+
+impl MapKind {
+    /// The map's name ([`StabilityMap::name`]).
+    pub fn name(self) -> String {
+        map_name(self.method.name(), self.design, self.y_axis)
+    }
+}
+
+/// `<method>_<y axis>`, with the design between them for a stepped DOE.
+fn map_name(method: &str, design: &str, y_axis: &str) -> String {
+    if design == "smooth" {
+        format!("{method}_{y_axis}")
+    } else {
+        format!("{method}_{design}_{y_axis}")
+    }
+}
+
+/// The eight maps, in the order [`run_maps`] runs them: two per method on the smooth DOE, and
+/// the matrix DFT's on the two stepped ones.
+pub const MAPS: [MapKind; 8] = {
+    const fn kind(method: Method, design: &'static str, y_axis: &'static str) -> MapKind {
+        MapKind { method, design, y_axis }
+    }
+    [
+        kind(Method::Fresnel, "smooth", "fresnel_number"),
+        kind(Method::Fresnel, "smooth", "wavelength"),
+        kind(Method::AngularSpectrum, "smooth", "fresnel_number"),
+        kind(Method::AngularSpectrum, "smooth", "wavelength"),
+        kind(Method::MatrixDft, "smooth", "fresnel_number"),
+        kind(Method::MatrixDft, "smooth", "wavelength"),
+        kind(Method::MatrixDft, "wrapped", "wavelength"),
+        kind(Method::MatrixDft, "quantized", "wavelength"),
+    ]
+};
+
+/// How many runs the map `kind` makes.
+pub fn map_steps(opts: &MapOptions, kind: MapKind) -> usize {
+    let per_row = match (kind.method, kind.design) {
+        (_, "wrapped" | "quantized") => opts.stepped_pitches.len(),
+        (Method::Fresnel, _) => opts.subsamples.len(),
+        (Method::AngularSpectrum, _) => opts.asm_subsamples.len(),
+        _ => opts.mdft_pitches.len(),
+    };
+    let rows =
+        if kind.y_axis == "fresnel_number" { opts.focal_lengths.len() } else { opts.wavelengths.len() };
+    per_row * rows
+}
+
+/// Checks the sweeps of `opts`.
+fn check_options(opts: &MapOptions) -> Result<()> {
     let bad = |v: f64| !(v > 0.0 && v.is_finite());
     if bad(opts.tolerance)
         || opts.subsamples.is_empty()
@@ -486,34 +536,47 @@ pub fn run_maps(opts: &MapOptions, mut tick: impl FnMut(&str)) -> Result<Stabili
             "the tolerance, sub-samplings, pupil pitches, focal lengths and wavelengths must be positive and finite",
         ));
     }
-    let (wrapped, quantized) = stepped_doe(opts.levels)?;
+    Ok(())
+}
+
+/// Runs the map `kind` (module docs), calling `tick` before each run ([`map_steps`] in all).
+pub fn run_map(opts: &MapOptions, kind: MapKind, mut tick: impl FnMut(&str)) -> Result<StabilityMap> {
+    check_options(opts)?;
+    let tick: &mut dyn FnMut(&str) = &mut tick;
     let base = scene();
-    let doe = doe()?;
-    let mut maps = Vec::new();
-    for method in [Method::Fresnel, Method::AngularSpectrum, Method::MatrixDft] {
-        let mut by_fresnel = Vec::new();
-        for &g in &opts.focal_lengths {
-            by_fresnel.extend(row(method, opts, (&base, &doe), g, opts.wavelength, tick)?);
+    let mut cells = Vec::new();
+    match kind.design {
+        "smooth" => {
+            let doe = doe()?;
+            if kind.y_axis == "fresnel_number" {
+                for &g in &opts.focal_lengths {
+                    cells.extend(row(kind.method, opts, (&base, &doe), g, opts.wavelength, tick)?);
+                }
+            } else {
+                for &l in &opts.wavelengths {
+                    cells.extend(row(kind.method, opts, (&base, &doe), base.focal_length, l, tick)?);
+                }
+            }
         }
-        maps.push(map((method, "smooth"), "fresnel_number", by_fresnel, opts.tolerance, &base));
-        let mut by_wavelength = Vec::new();
-        for &l in &opts.wavelengths {
-            by_wavelength.extend(row(method, opts, (&base, &doe), base.focal_length, l, tick)?);
+        design => {
+            let (wrapped, quantized) = stepped_doe(opts.levels)?;
+            let stepped = if design == "wrapped" { wrapped } else { quantized };
+            for &l in &opts.wavelengths {
+                cells.extend(stepped_row(opts, (&base, &stepped, design), l, tick)?);
+            }
         }
-        maps.push(map((method, "smooth"), "wavelength", by_wavelength, opts.tolerance, &base));
     }
-    for (design, stepped) in [("wrapped", &wrapped), ("quantized", &quantized)] {
-        let mut cells = Vec::new();
-        for &l in &opts.wavelengths {
-            cells.extend(stepped_row(opts, (&base, stepped, design), l, tick)?);
-        }
-        maps.push(map((Method::MatrixDft, design), "wavelength", cells, opts.tolerance, &base));
-    }
+    Ok(map((kind.method, kind.design), kind.y_axis, cells, opts.tolerance, &base))
+}
+
+/// The report of `maps` run with `opts`, naming the maps `left_out` (by a time budget).
+pub fn report(opts: &MapOptions, maps: Vec<StabilityMap>, left_out: Vec<String>) -> StabilityReport {
+    let base = scene();
     let paper = PAPER_WAVELENGTHS
         .iter()
         .map(|&l| PaperMark { wavelength: l, lens_sampling_ratio: PAPER_PITCH / (l * PAPER_F_NUMBER) })
         .collect();
-    Ok(StabilityReport {
+    StabilityReport {
         units: "lengths in m; errors as relative L2; ratios and Fresnel numbers dimensionless".into(),
         tolerance: opts.tolerance,
         truth: "the same pupil samples to the same sensor points: for fresnel the matrix DFT (exact discrete \
@@ -528,8 +591,16 @@ pub fn run_maps(opts: &MapOptions, mut tick: impl FnMut(&str)) -> Result<Stabili
         sensor_pitch: base.sensor_pitch,
         crop: base.crop,
         maps,
+        left_out,
         paper,
-    })
+    }
+}
+
+/// Runs the eight maps of [`MAPS`] (module docs), calling `tick` before each run ([`steps`] in
+/// all).
+pub fn run_maps(opts: &MapOptions, mut tick: impl FnMut(&str)) -> Result<StabilityReport> {
+    let maps = MAPS.iter().map(|&kind| run_map(opts, kind, &mut tick)).collect::<Result<Vec<_>>>()?;
+    Ok(report(opts, maps, Vec::new()))
 }
 
 #[cfg(test)]
