@@ -58,14 +58,12 @@ fn speed_chart<DB: DrawingBackend>(
     let e = |x: &dyn std::fmt::Display| x.to_string();
     let points = &report.points;
     root.fill(&WHITE).map_err(|x| e(&x))?;
+    // The counts go in the legend: in the caption they ran past the chart's width.
     let caption = format!(
-        "PSF: error vs run time, {} DOE samples at {:.2} um, F/{:.1} (filled: valid, hollow: guard refuses; \
-         silent failures: {}; left out by the budget: {})",
+        "PSF: error vs run time, {} DOE samples at {:.2} um, F/{:.1}",
         report.doe_samples,
         report.doe_pitch * 1e6,
         report.f_number,
-        report.silent_failures,
-        report.skipped.len()
     );
     let mut chart = ChartBuilder::on(root)
         .caption(caption, (FONT, 18))
@@ -131,6 +129,19 @@ fn speed_chart<DB: DrawingBackend>(
         .map_err(|x| e(&x))?
         .label("automatic plan at a tolerance")
         .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, BLACK.filled()));
+    crate::report::key_entry(&mut chart, "hollow: the guard refuses the run", |(x, y)| {
+        Circle::new((x + 8, y), 4, BLACK.stroke_width(1))
+    })?;
+    let silent = format!("silent failures: {} (plans over their tolerance)", report.silent_failures);
+    crate::report::key_entry(&mut chart, &silent, |(x, y)| EmptyElement::at((x, y)))?;
+    let memory = report.skipped.iter().filter(|s| s.ends_with("(memory)")).count();
+    let left_out = format!("left out by the budget: {}", report.skipped.len() - memory);
+    crate::report::key_entry(&mut chart, &left_out, |(x, y)| EmptyElement::at((x, y)))?;
+    if memory > 0 {
+        crate::report::key_entry(&mut chart, &format!("left out for memory: {memory}"), |(x, y)| {
+            EmptyElement::at((x, y))
+        })?;
+    }
     crate::report::draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 13)?;
     Ok(())
 }
@@ -589,9 +600,13 @@ mod tests {
         assert_eq!(labels, ["1", "2"], "{svg}");
         // A budget that left everything out: the charts are still written, and say so.
         report.points.clear();
-        report.skipped = vec!["matrix_dft f32 s=1 (budget: 1.0 s predicted, 0.0 s left)".into()];
+        report.skipped = vec![
+            "matrix_dft f32 s=1 (budget: 1.0 s predicted, 0.0 s left)".into(),
+            "fresnel f64 pad 3 s=5 (memory)".into(),
+        ];
         write_psf_charts(|n| d.path().join(n), &report).unwrap();
         let svg = std::fs::read_to_string(d.path().join("speed_accuracy.svg")).unwrap();
-        assert!(svg.contains("left out by the budget: 1"), "{svg}");
+        assert!(svg.contains("left out by the budget: 1\n"), "{svg}");
+        assert!(svg.contains("left out for memory: 1\n") && svg.contains("silent failures: 0 "), "{svg}");
     }
 }
