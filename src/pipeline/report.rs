@@ -391,23 +391,38 @@ pub fn run_report(
         done += cal_bench::steps() as u64;
     }
     let defaults = MapOptions::default();
+    // The cheapest maps first, so that a short budget leaves out the fewest (on the page they
+    // keep the order of stability::MAPS).
+    let there: Vec<f64> = (stability::MAPS.iter().enumerate())
+        .map(|(k, &kind)| {
+            let runs = stability::map_steps(&opts.maps, kind);
+            COSTS.maps[k] * runs as f64 / stability::map_steps(&defaults, kind).max(1) as f64
+        })
+        .collect();
+    let mut order: Vec<usize> = (0..stability::MAPS.len()).collect();
+    order.sort_by(|&a, &b| there[a].total_cmp(&there[b]));
     let mut maps = Vec::new();
     let mut maps_left_out = Vec::new();
-    for (k, &kind) in stability::MAPS.iter().enumerate() {
-        let runs = stability::map_steps(&opts.maps, kind);
-        let there = COSTS.maps[k] * runs as f64 / stability::map_steps(&defaults, kind).max(1) as f64;
+    for k in order {
+        let kind = stability::MAPS[k];
         let name = format!("stability map {}", kind.name());
-        match plan.run(&name, fixed(&plan, there), |_| {
+        match plan.run(&name, fixed(&plan, there[k]), |_| {
             stability::run_map(&opts.maps, kind, |w| tick(w, &mut done))
         })? {
-            Some(m) => maps.push(m),
+            Some(m) => maps.push((k, m)),
             None => {
-                done += runs as u64;
-                maps_left_out.push(kind.name());
+                done += stability::map_steps(&opts.maps, kind) as u64;
+                maps_left_out.push((k, kind.name()));
             }
         }
     }
-    let maps = stability::report(&opts.maps, maps, maps_left_out);
+    maps.sort_by_key(|m| m.0);
+    maps_left_out.sort_by_key(|m| m.0);
+    let maps = stability::report(
+        &opts.maps,
+        maps.into_iter().map(|m| m.1).collect(),
+        maps_left_out.into_iter().map(|m| m.1).collect(),
+    );
     let least = COSTS.finetune_setup + COSTS.finetune_step * opts.finetune.evaluations as f64;
     let keep = keep_files(&plan) + keep_psf(&plan);
     let finetune = plan.run("decoder fine-tuning", (least, keep, true), |left| {

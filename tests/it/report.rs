@@ -6,9 +6,9 @@ use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
 use doefab::fabrication::chain::DesignSource;
 use doefab::io::heightmap::ReadOptions;
 use doefab::optics::psf_bench::BenchOptions;
-use doefab::optics::stability::MapOptions;
+use doefab::optics::stability::{MapOptions, MAPS};
 use doefab::pipeline::bench::PsfBenchOptions;
-use doefab::pipeline::report::{run_report, shown, ReportOptions};
+use doefab::pipeline::report::{run_report, shown, ReportOptions, COSTS};
 
 /// `html` without the elements from `open` to `close`.
 fn without(html: &str, open: &str, close: &str) -> String {
@@ -226,6 +226,14 @@ fn a_small_budget_leaves_parts_out_and_names_them_on_the_page() {
             }
         }
     }
+    // The stability maps come up cheapest first: a short budget leaves out the costly ones.
+    let maps: Vec<&str> =
+        b.parts.iter().map(|p| p.name.as_str()).filter(|n| n.starts_with("stability map ")).collect();
+    let mut cheapest_first: Vec<usize> = (0..MAPS.len()).collect();
+    cheapest_first.sort_by(|&a, &b| COSTS.maps[a].total_cmp(&COSTS.maps[b]));
+    let expected: Vec<String> =
+        cheapest_first.iter().map(|&k| format!("stability map {}", MAPS[k].name())).collect();
+    assert_eq!(maps, expected);
     // The angular spectrum's maps (the slowest part) cannot fit in 3 s.
     let left_out: Vec<&str> = b.left_out().map(|p| p.name.as_str()).collect();
     assert!(left_out.contains(&"stability map angular_spectrum_fresnel_number"), "{left_out:?}");
