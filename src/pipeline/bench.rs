@@ -69,7 +69,7 @@ pub fn run_psf_bench(
 }
 
 /// The paper's camera fitted to the design, with the material and system file of `opts`.
-fn design_system(opts: &PsfBenchOptions, heights: &crate::grid::Grid) -> Result<OpticalSystem> {
+pub(crate) fn design_system(opts: &PsfBenchOptions, heights: &crate::grid::Grid) -> Result<OpticalSystem> {
     let mut system = system_for(heights);
     system.material = Material::by_name(&opts.material)?;
     if let Some(p) = &opts.system {
