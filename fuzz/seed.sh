@@ -17,7 +17,7 @@ add gsf ../profilometry/*.gsf
 add sdf_binary $S/sdfio/s1_tilt_pedestal.bin.sdf
 add sdf_ascii $S/gwyddion/s1_tilt_pedestal.sdf
 add sur ../profilometry/*.sur
-add opd $S/instruments/wyko.opd
+add opd $S/instruments/wyko.opd ../profilometry/*.opd
 add plu $S/instruments/sensofar.plu
 add al3d ../profilometry/*.al3d
 add tmd ../profilometry/*.tmd

@@ -48,6 +48,7 @@ fn run(cli: &Cli) -> Result<()> {
         Command::Bench { what: BenchCommand::Calibration(a) } => calibration::bench_calibration(cli, a),
         Command::Bench { what: BenchCommand::Tiling(a) } => decoder::bench_tiling(cli, a),
         Command::Bench { what: BenchCommand::Decoder(a) } => decoder::bench_decoder(cli, a),
+        Command::Bench { what: BenchCommand::Forward(a) } => decoder::bench_forward(cli, a),
         Command::Demo(a) => demo::demo(cli, a),
         Command::Fab(a) => fabrication::fab(cli, a),
         Command::Precompensate(a) => fabrication::precompensate(cli, a),

@@ -110,23 +110,50 @@ pub fn write_capture(path: &Path, image: &Image, bits: u8) -> Result<()> {
     write_bytes(path, &bytes)
 }
 
-/// Reads an RGB (or single-channel) OpenEXR image, the file read and decoded once.
+/// Reads an RGB (or single-channel) OpenEXR image as linear Rec. 709 RGB, the file read and
+/// decoded once:
+///
+/// * R, G, B (alpha dropped) or a file's only channel, through the `exr` crate, at the largest
+///   resolution level (level 0 of a tiled mip-map or rip-map);
+/// * luminance/chroma files (`Y`, `RY`, `BY`, the chroma subsampled), through our own decoder,
+///   RGB reconstructed exactly as OpenEXR's `RgbaInputFile` does ([`crate::io::exr::yca`]);
+/// * RGB in other primaries than Rec. 709 (the `chromaticities` attribute) converted to
+///   Rec. 709, the white adapted to D65 by Bradford ([`crate::io::exr::chromaticities`]).
 pub fn read_rgb_exr(path: &Path) -> Result<Image> {
+    use crate::io::exr::{chromaticities, scanline::Header, yca};
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let planes: Vec<_> = match decode_exr_channels(path, &bytes, &["R", "G", "B"]) {
-        Ok(rgb) => rgb.into_iter().map(|m| m.values).collect(),
-        Err(Error::Parameter { .. }) => vec![
-            decode_exr_channels(path, &bytes, &[])
-                .map_err(|e| {
-                    Error::format(path, format!("expected channels R, G, B or a single channel: {e}"))
-                })?
-                .swap_remove(0)
-                .values,
-        ],
-        Err(e) => return Err(e),
+    let header = Header::parse(path, &bytes)?;
+    let mut values = if yca::is_luminance_chroma(&header) {
+        yca::reconstruct_rgb(&yca::read_luma_chroma(path, &bytes, &header)?).mapv(f64::from)
+    } else {
+        let planes: Vec<_> = match decode_exr_channels(path, &bytes, &["R", "G", "B"]) {
+            Ok(rgb) => rgb.into_iter().map(|m| m.values).collect(),
+            Err(Error::Parameter { .. }) => vec![
+                decode_exr_channels(path, &bytes, &[])
+                    .map_err(|e| {
+                        Error::format(path, format!("expected channels R, G, B or a single channel: {e}"))
+                    })?
+                    .swap_remove(0)
+                    .values,
+            ],
+            Err(e) => return Err(e),
+        };
+        let (h, w) = planes[0].dim();
+        Array3::from_shape_fn((h, w, planes.len()), |(i, j, c)| planes[c][[i, j]])
     };
-    let (h, w) = planes[0].dim();
-    Ok(Image::new(Array3::from_shape_fn((h, w, planes.len()), |(i, j, c)| planes[c][[i, j]])))
+    if let (3, Some(c)) = (values.dim().2, header.chromaticities) {
+        let to_709 = chromaticities::to_rec709(&c)
+            .map_err(|e| Error::format(path, format!("attribute 'chromaticities' {c:?}: {e}")))?;
+        if let Some(m) = to_709 {
+            for mut px in values.lanes_mut(ndarray::Axis(2)) {
+                let v = m * nalgebra::Vector3::new(px[0], px[1], px[2]);
+                for c in 0..3 {
+                    px[c] = v[c];
+                }
+            }
+        }
+    }
+    Ok(Image::new(values))
 }
 
 /// Reads a linear image, by extension (the one image reader of calibration and the decoder):

@@ -455,6 +455,8 @@ pub struct LocalRegistration {
     pub node_spacing_px: usize,
     /// Nodes covered by the extension (no kept match within a node) rather than by matches.
     pub extended_nodes: usize,
+    /// Of those, the nodes placed by guided matching (see [`guided`]).
+    pub guided_nodes: usize,
     pub nodes: usize,
     pub tiles_matched: usize,
     pub tiles_used: usize,
@@ -472,9 +474,18 @@ pub struct LocalRegistration {
     covered: Array2<bool>,
     #[serde(skip)]
     origin: f64,
+    /// The first pass's dominant map `A0` (see [`register_local`]).
+    pub prewarp: Affine,
 }
 
 /// Fits a [`LocalRegistration`] of `reference` onto `target` (same size, single-channel).
+///
+/// Two passes: the first matches the target's tiles into the reference and fits their dominant
+/// affine map `A0` (target to reference); the reference resampled through `A0` then differs from
+/// the target by the parallax alone, and the second pass builds the field on it, so that a few
+/// per cent of scale or degrees of rotation, which deform a tile by pixels across its width, do
+/// not cost matches (tile matching assumes each tile moves by a shift). A target pixel `q` lies
+/// in the reference at `A0 (q + d(q))`, `d` the second pass's field.
 pub fn register_local(
     reference: &Array2<f64>,
     target: &Array2<f64>,
@@ -487,6 +498,46 @@ pub fn register_local(
             target.dim()
         )));
     }
+    let (prewarp, _, _) = robust_affine(&match_tiles(target, reference, opts)?, opts.max_shift)?;
+    let to_target =
+        prewarp.inverse().ok_or_else(|| Error::Data("the dominant affine map is singular".into()))?;
+    let (h, w) = target.dim();
+    let (moved, _) = warp(&Image::new(reference.clone().insert_axis(ndarray::Axis(2))), &to_target, h, w)?;
+    let mut reg = field_pass(&moved.values.index_axis_move(ndarray::Axis(2), 0), target, opts)?;
+    reg.prewarp = prewarp;
+    let [p, a] = [prewarp, reg.affine];
+    // The dominant map of the whole registration: q -> A0 (A1 q + b1) + b0.
+    reg.affine = Affine {
+        a: [
+            [p.a[0][0] * a.a[0][0] + p.a[0][1] * a.a[1][0], p.a[0][0] * a.a[0][1] + p.a[0][1] * a.a[1][1]],
+            [p.a[1][0] * a.a[0][0] + p.a[1][1] * a.a[1][0], p.a[1][0] * a.a[0][1] + p.a[1][1] * a.a[1][1]],
+        ],
+        b: {
+            let q = p.apply(a.b);
+            [q[0], q[1]]
+        },
+    };
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for i in 0..h {
+        for j in 0..w {
+            if let Some(d) = reg.at(i, j) {
+                for k in 0..2 {
+                    lo[k] = lo[k].min(d[k]);
+                    hi[k] = hi[k].max(d[k]);
+                }
+            }
+        }
+    }
+    reg.displacement_range_px = [lo, hi];
+    Ok(reg)
+}
+
+/// One pass of [`register_local`]: the field of `reference` onto `target` (the struct docs).
+fn field_pass(
+    reference: &Array2<f64>,
+    target: &Array2<f64>,
+    opts: &RegisterOptions,
+) -> Result<LocalRegistration> {
     let matches = match_tiles(target, reference, opts)?;
     let t = opts.tile.max(16) / 4 * 4;
     let step = t / 2;
@@ -519,6 +570,10 @@ pub fn register_local(
         }
         v
     };
+    // A match is kept when its neighbours' median agrees with it, or when at least
+    // `SURFACE_SUPPORT` of them do: an object nearer or farther than its surroundings (a lamp
+    // before a wall) moves by its own parallax and forms such a cluster of mutual agreement,
+    // while a lone match locked onto a wrong feature has none.
     for _ in 0..10 {
         let next = Array2::from_shape_fn((ny, nx), |(i, j)| {
             let d = u[[i, j]]?;
@@ -531,7 +586,8 @@ pub fn register_local(
                 c.sort_by(f64::total_cmp);
                 c[c.len() / 2]
             };
-            ((d[0] - med(0)).hypot(d[1] - med(1)) <= 3.0).then_some(d)
+            let agree = n.iter().filter(|v| (d[0] - v[0]).hypot(d[1] - v[1]) <= 3.0).count();
+            ((d[0] - med(0)).hypot(d[1] - med(1)) <= 3.0 || agree >= SURFACE_SUPPORT).then_some(d)
         });
         if next == u {
             break;
@@ -547,12 +603,18 @@ pub fn register_local(
             opts.max_shift
         )));
     }
-    // Gaussian-weighted sums over kept matches within 2 nodes: (weight, sum x, sum y).
+    // Gaussian-weighted sums over kept matches within 2 nodes: (weight, sum x, sum y). At a
+    // node with a kept match of its own, only the matches that agree with it (within 3 px)
+    // count, so that the field does not average across a depth edge (an edge-preserving,
+    // bilateral weight; Tomasi and Manduchi 1998).
     let sums = |i: usize, j: usize| {
         let mut s = [0.0; 3];
+        let own = u[[i, j]];
         for a in i.saturating_sub(2)..(i + 3).min(ny) {
             for b in j.saturating_sub(2)..(j + 3).min(nx) {
-                if let Some(d) = u[[a, b]] {
+                if let Some(d) =
+                    u[[a, b]].filter(|d| own.is_none_or(|o| (o[0] - d[0]).hypot(o[1] - d[1]) <= 3.0))
+                {
                     let r2 = (a as f64 - i as f64).powi(2) + (b as f64 - j as f64).powi(2);
                     let g = (-0.5 * r2).exp();
                     s[0] += g;
@@ -624,7 +686,7 @@ pub fn register_local(
     let mut matched_disagreement: Vec<f64> =
         kept.iter().filter_map(|&(i, j)| disagreement(i, j, node_d(&field, i, j))).collect();
     matched_disagreement.sort_by(f64::total_cmp);
-    let mut extended = 0;
+    let (mut extended, mut guided_nodes) = (0, 0);
     if let Some(&limit) = matched_disagreement.get(matched_disagreement.len() * 9 / 10) {
         let wide = |i: usize, j: usize| {
             let mut s = [0.0; 3];
@@ -641,29 +703,41 @@ pub fn register_local(
             }
             s
         };
-        for i in 0..ny {
-            for j in 0..nx {
+        // Each node's decision reads only the kept matches and the images: decided in parallel,
+        // applied in node order.
+        let candidates: Vec<(usize, usize)> = (0..ny)
+            .flat_map(|i| (0..nx).map(move |j| (i, j)))
+            .filter(|&(i, j)| !covered[[i, j]] && wide(i, j)[0] >= (-2.0f64).exp())
+            .collect();
+        let placed: Vec<Option<([f64; 2], bool)>> = candidates
+            .par_iter()
+            .map(|&(i, j)| {
                 let s = wide(i, j);
-                if covered[[i, j]] || s[0] < (-2.0f64).exp() {
-                    continue;
-                }
                 let b = base([origin + (j * step) as f64, origin + (i * step) as f64]);
                 let d = [s[1] / s[0] + b[0], s[2] / s[0] + b[1]];
-                if disagreement(i, j, d).is_some_and(|v| v <= limit) {
-                    covered[[i, j]] = true;
-                    extended += 1;
-                    for k in 0..2 {
-                        field[[i, j, k]] = d[k];
-                        lo[k] = lo[k].min(d[k]);
-                        hi[k] = hi[k].max(d[k]);
-                    }
+                if disagreement(i, j, d)? <= limit {
+                    return Some((d, false));
                 }
+                let e = guided(&|e: [f64; 2]| disagreement(i, j, [d[0] + e[0], d[1] + e[1]]))?;
+                Some(([d[0] + e[0], d[1] + e[1]], true))
+            })
+            .collect();
+        for (&(i, j), placed) in candidates.iter().zip(placed) {
+            let Some((d, by_guide)) = placed else { continue };
+            covered[[i, j]] = true;
+            extended += 1;
+            guided_nodes += usize::from(by_guide);
+            for k in 0..2 {
+                field[[i, j, k]] = d[k];
+                lo[k] = lo[k].min(d[k]);
+                hi[k] = hi[k].max(d[k]);
             }
         }
     }
     let mut reg = LocalRegistration {
         node_spacing_px: step,
         extended_nodes: extended,
+        guided_nodes,
         nodes: ny * nx,
         tiles_matched: matches.len(),
         tiles_used: used,
@@ -671,6 +745,7 @@ pub fn register_local(
         covered_fraction: 0.0,
         displacement_range_px: [lo, hi],
         affine,
+        prewarp: Affine { a: [[1.0, 0.0], [0.0, 1.0]], b: [0.0, 0.0] },
         field,
         covered,
         origin,
@@ -687,6 +762,46 @@ pub fn register_local(
     }
     Ok(reg)
 }
+
+/// Guided matching of a tile the measurement model fits poorly (a saturated lamp whose flare
+/// the measured PSF does not hold; the tile failed the NCC floor or its neighbours' consensus)
+/// around the displacement its neighbours interpolate: the whole-pixel offset within
+/// [`GUIDED_RADIUS`] px that minimises the tile's disagreement `at(offset)`, refined by a
+/// parabola along each axis. `None` when the minimum lies on the window's edge (the tile's
+/// motion is not near its neighbours') or is flat along an axis (nothing pins it there).
+fn guided(at: &dyn Fn([f64; 2]) -> Option<f64>) -> Option<[f64; 2]> {
+    let r = GUIDED_RADIUS;
+    let mut best: Option<(i32, i32, f64)> = None;
+    for dy in -r..=r {
+        for dx in -r..=r {
+            let v = at([dx as f64, dy as f64])?;
+            if best.is_none_or(|b| v < b.2) {
+                best = Some((dy, dx, v));
+            }
+        }
+    }
+    let (dy, dx, v) = best?;
+    if dy.abs() == r || dx.abs() == r {
+        return None;
+    }
+    let value = |y: i32, x: i32| at([x as f64, y as f64]);
+    // A minimum: the second difference is positive, and at least 1 % of the value per px^2.
+    let sub = |m: f64, p: f64| {
+        let c = m + p - 2.0 * v;
+        (c > 0.01 * v).then(|| 0.5 * (m - p) / c)
+    };
+    let fy = sub(value(dy - 1, dx)?, value(dy + 1, dx)?)?;
+    let fx = sub(value(dy, dx - 1)?, value(dy, dx + 1)?)?;
+    Some([dx as f64 + fx, dy as f64 + fy])
+}
+
+/// Agreeing neighbours (within 3 px, within 2 nodes) that keep a match its neighbours' median
+/// does not: an object at its own depth (see [`register_local`]'s consensus).
+const SURFACE_SUPPORT: usize = 3;
+
+/// How far (whole pixels, each axis) [`guided`] matching searches around the interpolated
+/// displacement.
+const GUIDED_RADIUS: i32 = 8;
 
 impl LocalRegistration {
     /// The field's displacement at target pixel `(row, col)`, `None` where it is not covered.
@@ -709,7 +824,9 @@ impl LocalRegistration {
             (1.0 - ty) * ((1.0 - tx) * self.field[[i0, j0, k]] + tx * self.field[[i0, j1, k]])
                 + ty * ((1.0 - tx) * self.field[[i1, j0, k]] + tx * self.field[[i1, j1, k]])
         };
-        Some([v(0), v(1)])
+        let (x, y) = (col as f64, row as f64);
+        let p = self.prewarp.apply([x + v(0), y + v(1)]);
+        Some([p[0] - x, p[1] - y])
     }
 
     /// The reference resampled onto the target's pixels through the field (bilinear), with the

@@ -170,6 +170,9 @@ pub struct Footing {
     pub passes: usize,
     /// The capture's clipping level, fraction of its full scale (1 unless detected lower).
     pub clipping_level: f64,
+    /// Where each channel clips, fraction of the clipping level ([`super::clipping`]): a sample
+    /// at or above `saturation` times it is saturated.
+    pub channel_clipping: Vec<f64>,
     /// Pixels scored, and their fraction of the image.
     pub pixels_scored: usize,
     pub coverage: f64,
@@ -273,6 +276,22 @@ pub fn prepare(
     }
     let mut warnings = Vec::new();
     let clip = clipping_level(capture, opts.saturation, &mut warnings);
+    // Where each channel clips, in units of the capture's clipping level (see `clipping`).
+    let channel_clipping: Vec<f64> = match super::clipping::full_scale_of(capture) {
+        Some(fs) => {
+            super::clipping::channel_clipping(&[capture], fs).iter().map(|l| (l / clip).min(1.0)).collect()
+        }
+        None => vec![1.0; nc],
+    };
+    for (c, &level) in channel_clipping.iter().enumerate() {
+        if level < 1.0 {
+            warnings.push(format!(
+                "the capture's channel {c} clips at {level:.4} of its clipping level: its samples at or above {:.4} \
+                 count as saturated",
+                opts.saturation * level
+            ));
+        }
+    }
     let capture = Image::new(capture.mapv(|v| v / clip));
     let predicted = match psf {
         Some(p) => convolve_psf(reference, p)?,
@@ -285,7 +304,9 @@ pub fn prepare(
     let mut passes = 0;
     let (mask, registration, local_registration, gain_samples) = loop {
         passes += 1;
-        let source = luminance(&Image::new(predicted.values.mapv(|v| (gain * v).clamp(0.0, 1.0))));
+        let mut clipped = predicted.values.clone();
+        Zip::indexed(&mut clipped).for_each(|(_, _, c), v| *v = (gain * *v).clamp(0.0, channel_clipping[c]));
+        let source = luminance(&Image::new(clipped));
         let (warped, mask, reg, local) = match opts.register.model {
             Model::Affine => {
                 let reg = register_affine(&source, &cap_lum, &register)?;
@@ -300,8 +321,9 @@ pub fn prepare(
         };
         let mut ratios = Vec::new();
         Zip::indexed(&mask).for_each(|(i, j), &inside| {
-            let exposed =
-                (0..nc).all(|c| (0.05..=0.9).contains(&capture[[i, j, c]]) && warped[[i, j, c]] > 0.0);
+            let exposed = (0..nc).all(|c| {
+                (0.05..=0.9 * channel_clipping[c]).contains(&capture[[i, j, c]]) && warped[[i, j, c]] > 0.0
+            });
             if inside && exposed {
                 ratios.extend((0..nc).map(|c| capture[[i, j, c]] / warped[[i, j, c]]));
             }
@@ -333,8 +355,9 @@ pub fn prepare(
             px.fill(0.0);
         }
     });
-    let saturated_capture =
-        Array2::from_shape_fn((h, w), |(i, j)| (0..nc).any(|c| capture[[i, j, c]] >= opts.saturation));
+    let saturated_capture = Array2::from_shape_fn((h, w), |(i, j)| {
+        (0..nc).any(|c| capture[[i, j, c]] >= opts.saturation * channel_clipping[c])
+    });
     let saturated = &saturated_capture & &mask;
     let pixels_scored = mask.iter().filter(|v| **v).count();
     let coverage = pixels_scored as f64 / (h * w) as f64;
@@ -372,6 +395,7 @@ pub fn prepare(
         gain_samples,
         passes,
         clipping_level: clip,
+        channel_clipping,
         pixels_scored,
         coverage,
         saturated_in_capture,
@@ -383,6 +407,17 @@ pub fn prepare(
 }
 
 impl Scoring {
+    /// An image in the reference's frame (the reference through a model of the camera, say)
+    /// resampled onto the capture's pixels by the scene's registration, unscaled; 0 where the
+    /// registration does not reach.
+    pub fn warp(&self, image: &Image) -> Result<Image> {
+        match (&self.footing.local_registration, &self.footing.registration) {
+            (Some(l), _) => Ok(l.warp(image).0),
+            (None, Some(r)) => Ok(warp(image, &r.affine, self.footing.rows, self.footing.cols)?.0),
+            (None, None) => Err(Error::Data("no registration was made".into())),
+        }
+    }
+
     /// Scores `image` (a reconstruction, or the capture itself, in units of the capture's
     /// clipping level) against the registered reference over the scene's pixel sets.
     pub fn score(&self, name: &str, image: &Image) -> Result<Score> {
@@ -429,13 +464,20 @@ pub fn evaluate(
     images: &[(String, Image)],
     opts: &ScoringOptions,
 ) -> Result<Evaluation> {
-    let scoring = prepare(reference, capture, psf, opts)?;
-    let clip = scoring.footing.clipping_level;
-    let mut scores = vec![scoring.score("capture as it is", &Image::new(capture.values.mapv(|v| v / clip)))?];
-    for (name, img) in images {
-        scores.push(scoring.score(name, img)?);
+    prepare(reference, capture, psf, opts)?.evaluate(capture, images)
+}
+
+impl Scoring {
+    /// Scores the capture itself (the baseline a decoder must beat) and then each named image.
+    pub fn evaluate(self, capture: &Image, images: &[(String, Image)]) -> Result<Evaluation> {
+        let clip = self.footing.clipping_level;
+        let mut scores =
+            vec![self.score("capture as it is", &Image::new(capture.values.mapv(|v| v / clip)))?];
+        for (name, img) in images {
+            scores.push(self.score(name, img)?);
+        }
+        Ok(Evaluation { footing: self.footing, scores })
     }
-    Ok(Evaluation { footing: scoring.footing, scores })
 }
 
 /// The files of one `doefab evaluate` run.
@@ -454,6 +496,8 @@ pub struct EvaluateFiles {
     /// The reconstructions to score (see [`super::capture::read_image`]).
     pub images: Vec<std::path::PathBuf>,
     pub options: ScoringOptions,
+    /// Where to write what was scored against (see [`write_registered`]), if anywhere.
+    pub registered: Option<std::path::PathBuf>,
 }
 
 /// Reads the files and runs [`evaluate`]; each image is named by its path.
@@ -469,5 +513,40 @@ pub fn evaluate_files(files: &EvaluateFiles) -> Result<Evaluation> {
         .iter()
         .map(|p| Ok((p.display().to_string(), super::capture::read_image(p)?)))
         .collect::<Result<Vec<_>>>()?;
-    evaluate(&reference, &capture, psf.as_ref(), &images, &files.options)
+    let scoring = prepare(&reference, &capture, psf.as_ref(), &files.options)?;
+    if let Some(path) = &files.registered {
+        write_registered(path, &scoring, files.capture_pitch)?;
+    }
+    scoring.evaluate(&capture, &images)
+}
+
+/// Writes what a scene is scored against as OpenEXR (f32): channels `R`, `G`, `B`, the
+/// reference registered onto the capture's pixels and scaled by the gain, in units of the
+/// capture's clipping level (0 where not scored), and the pixel sets `scored` and `saturated`
+/// (1 = in the set, 0 = not), so that another program can score the same pixels or check the
+/// registration.
+pub fn write_registered(path: &std::path::Path, scoring: &Scoring, pitch: f64) -> Result<()> {
+    let planes: Vec<Array2<f32>> = (0..scoring.reference.channels())
+        .map(|c| scoring.reference.index_axis(Axis(2), c).mapv(|v| v as f32))
+        .collect();
+    if planes.len() != 3 {
+        return Err(Error::Data(format!("the reference has {} channels; RGB is written", planes.len())));
+    }
+    let set = |m: &Array2<bool>| m.mapv(|v| f32::from(u8::from(v)));
+    let (scored, saturated) = (set(&scoring.mask), set(&scoring.saturated));
+    let meta = crate::io::heightmap::Metadata { pitch: Some([pitch; 2]), unit: None, text: Vec::new() }
+        .with("quantity", "R, G, B: the reference registered onto the capture and scaled by the gain, 1 = the capture's clipping level; scored, saturated: the pixel sets (1 = in)")
+        .with("registration", format!("{:?}", scoring.footing.model).to_lowercase())
+        .with("gain", format!("{}", scoring.footing.gain));
+    crate::io::exr::write_exr(
+        path,
+        &[
+            ("R", &planes[0]),
+            ("G", &planes[1]),
+            ("B", &planes[2]),
+            ("saturated", &saturated),
+            ("scored", &scored),
+        ],
+        &meta,
+    )
 }

@@ -10,7 +10,9 @@
 //! itself for linear captures, `exp(g(z_k))` through a recovered response), `d` the black
 //! level and `t_k` the exposure time. The hat weight `w(z) = min(z - lo, hi - z)` is zero at and
 //! below the noise floor `lo` and at and above the saturation level `hi`, so neither clipped nor
-//! noise-dominated values contribute.
+//! noise-dominated values contribute. `hi` is the saturation fraction times where the sample's
+//! channel clips ([`super::clipping`], detected over the bracket's frames): the paper's camera
+//! clips green at 231 of 255, and a green 231 weighted as light biases every highlight low.
 //!
 //! *Black level* `d` ([`BlackLevel`]): the mean dark frame when dark frames are given, else, for
 //! linear captures, one level per channel estimated from the histogram of the shortest frame
@@ -49,6 +51,7 @@ use ndarray::{Array2, Array3, Zip};
 use serde::Serialize;
 
 use super::capture::Capture;
+use super::clipping::channel_clipping;
 use super::response::Response;
 use crate::error::{Error, Result};
 use crate::image::Image;
@@ -159,7 +162,11 @@ pub struct MergeReport {
     pub black_level_uncertainty: Vec<f64>,
     pub black_level_source: String,
     pub noise_floor: f64,
+    /// Saturation, fraction of where each channel clips.
     pub saturation: f64,
+    /// Where each channel clips, fraction of full scale ([`channel_clipping`]; 1 = at full
+    /// scale): the paper's camera clips green at 231 of 255.
+    pub channel_clipping: Vec<f64>,
     pub frames: Vec<FrameReport>,
     /// Samples saturated in every frame (their radiance is a lower bound).
     pub saturated_everywhere: PixelSet,
@@ -402,6 +409,20 @@ pub fn merge(
         r.check(frames)?;
     }
     let mut warnings = Vec::new();
+    // Saturation per channel: `saturation` times where the channel clips (see `clipping`).
+    let images: Vec<&Image> = frames.iter().map(|f| &f.image).collect();
+    let channel_clipping = channel_clipping(&images, frames[0].full_scale());
+    for (c, &level) in channel_clipping.iter().enumerate() {
+        if level < 1.0 {
+            warnings.push(format!(
+                "channel {c} clips at {level:.4} of full scale ({:.0} counts): its samples at or above {:.4} are \
+                 taken as saturated",
+                level * frames[0].full_scale(),
+                hi * level
+            ));
+        }
+    }
+    let sat = Array3::from_shape_fn(shape, |(_, _, c)| hi * channel_clipping[c]);
     let Black { level: black, means: black_means, uncertainty: black_uncertainty, source: black_source } =
         black_level(frames, times, dark, response, &opts.black_level, &mut warnings)?;
     // Linear values with the black level removed.
@@ -416,14 +437,14 @@ pub fn merge(
         })
         .collect();
     let used = if opts.estimate_times && frames.len() > 1 {
-        estimate_times(frames, times, &linear, &black, hi, &mut warnings)
+        estimate_times(frames, times, &linear, &black, &sat, &mut warnings)
     } else {
         times.to_vec()
     };
 
     // The noise floor is measured above the black level, saturation on the raw value.
     let dark_at = |i: usize, j: usize, c: usize| black[[i, j, c]];
-    let weight = |z: f64, d: f64| if z - d > lo && z < hi { (z - d - lo).min(hi - z) } else { 0.0 };
+    let weight = |z: f64, d: f64, hi: f64| if z - d > lo && z < hi { (z - d - lo).min(hi - z) } else { 0.0 };
     let mut radiance = Array3::<f64>::zeros(shape);
     let mut saturated_everywhere = PixelSet::default();
     let mut dark_everywhere = PixelSet::default();
@@ -433,11 +454,11 @@ pub fn merge(
     order.sort_by(|&a, &b| used[a].total_cmp(&used[b]));
     for ((i, j, c), e) in radiance.indexed_iter_mut() {
         let (mut num, mut den) = (0.0, 0.0);
-        let d = dark_at(i, j, c);
+        let (d, hi) = (dark_at(i, j, c), sat[[i, j, c]]);
         let (mut lowest, mut highest, mut well) = (f64::INFINITY, 0.0f64, 0);
         for k in 0..n {
             let z = frames[k].image.values[[i, j, c]];
-            let w = weight(z, d);
+            let w = weight(z, d, hi);
             let rate = linear[k][[i, j, c]] / used[k];
             num += w * rate;
             den += w;
@@ -469,14 +490,15 @@ pub fn merge(
         }
     }
 
+    let sat_level: Vec<f64> = channel_clipping.iter().map(|l| hi * l).collect();
     let mut reports = Vec::new();
     for (k, f) in frames.iter().enumerate() {
         let nc = shape.2;
-        let (mut sat, mut floor) = (vec![0; nc], vec![0; nc]);
+        let (mut saturated, mut floor) = (vec![0; nc], vec![0; nc]);
         let mut dev = Vec::new();
         for ((i, j, c), &z) in f.image.values.indexed_iter() {
-            if z >= hi {
-                sat[c] += 1;
+            if z >= sat_level[c] {
+                saturated[c] += 1;
             } else if z - dark_at(i, j, c) <= lo {
                 floor[c] += 1;
             } else if z - dark_at(i, j, c) >= 0.1 {
@@ -494,7 +516,7 @@ pub fn merge(
             file: f.path.display().to_string(),
             exposure_listed: times[k],
             exposure_used: used[k],
-            saturated: sat,
+            saturated,
             noise_floor: floor,
             agreement_rms: rms,
             agreement_median: abs.get(abs.len() / 2).copied(),
@@ -551,6 +573,7 @@ pub fn merge(
             black_level_source: black_source,
             noise_floor: lo,
             saturation: hi,
+            channel_clipping,
             frames: reports,
             saturated_everywhere,
             dark_everywhere,
@@ -569,11 +592,11 @@ fn estimate_times(
     times: &[f64],
     linear: &[Array3<f64>],
     black: &Array3<f64>,
-    hi: f64,
+    sat: &Array3<f64>,
     warnings: &mut Vec<String>,
 ) -> Vec<f64> {
     const MIN_SAMPLES: usize = 50;
-    let well_raw = |z: f64, d: f64| z - d >= 0.1 && z < hi;
+    let well_raw = |z: f64, d: f64, hi: f64| z - d >= 0.1 && z < hi;
     let mut order: Vec<usize> = (0..frames.len()).collect();
     order.sort_by(|&a, &b| times[a].total_cmp(&times[b]));
     // Anchor: the frame with the most well-exposed samples keeps its listed time.
@@ -581,7 +604,8 @@ fn estimate_times(
         .max_by_key(|&p| {
             Zip::from(&frames[order[p]].image.values)
                 .and(black)
-                .fold(0usize, |n, &z, &d| n + well_raw(z, d) as usize)
+                .and(sat)
+                .fold(0usize, |n, &z, &d, &hi| n + well_raw(z, d, hi) as usize)
         })
         .unwrap_or(0);
     // ratio[p] = t(order[p]) / t(order[p + 1]).
@@ -594,8 +618,9 @@ fn estimate_times(
                 .and(&linear[s])
                 .and(&linear[l])
                 .and(black)
-                .fold(Vec::new(), |mut acc, &zs, &zl, &vs, &vl, &d| {
-                    if well_raw(zs, d) && well_raw(zl, d) && vl > 0.0 {
+                .and(sat)
+                .fold(Vec::new(), |mut acc, &zs, &zl, &vs, &vl, &d, &hi| {
+                    if well_raw(zs, d, hi) && well_raw(zl, d, hi) && vl > 0.0 {
                         acc.push(vs / vl);
                     }
                     acc

@@ -7,6 +7,8 @@
 //!
 //! * [`capture`]: 8/16-bit PNG or TIFF captures (RGB or grayscale, linear) and the bracket's
 //!   exposure list (`exposures.json` or times given by the caller).
+//! * [`clipping`]: where each colour channel of a camera clips (the paper's green at 231 of
+//!   255), from where its samples pile up.
 //! * [`hdr_merge`]: the weighted merge of a bracket into radiance, with effective exposure
 //!   times estimated from the pixels and per-frame agreement figures.
 //! * [`response`]: Debevec-Malik recovery of a non-linear 8-bit camera response.
@@ -21,6 +23,7 @@
 pub mod bench;
 pub mod capture;
 pub mod capture_registration;
+pub mod clipping;
 pub mod evaluate;
 pub mod hdr_merge;
 pub mod psf_extract;

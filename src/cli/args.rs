@@ -8,7 +8,7 @@ use doefab::io::heightmap::ReadOptions;
 use doefab::units::{clap_length, length_unit};
 
 use super::calibration::{BenchCalibrationArgs, CalibratePsfArgs, EvaluateArgs, MergeArgs};
-use super::decoder::{BenchDecoderArgs, BenchTilingArgs, FinetuneArgs, ReconstructArgs};
+use super::decoder::{BenchDecoderArgs, BenchForwardArgs, BenchTilingArgs, FinetuneArgs, ReconstructArgs};
 use super::demo::DemoArgs;
 use super::fabrication::{
     BenchFabArgs, FabArgs, GdsArgs, MaskArgs, PrecompensateArgs, QuantizeArgs, StlArgs, WrapArgs,
@@ -142,6 +142,10 @@ pub enum BenchCommand {
     /// pixels (PSNR-L, PSNR-gamma over all and saturated pixels, coverage, smallest output);
     /// optionally a decoder is fine-tuned on the PSF first. JSON report, decoder x scene chart.
     Decoder(BenchDecoderArgs),
+    /// The decoder's measurement model against real captures: each scene's reference through
+    /// the measured PSF, registered onto its capture, and what channel clipping, channel gains,
+    /// a halo beyond the PSF's crop and a blur add, by brightness band: PNG + JSON.
+    Forward(BenchForwardArgs),
 }
 
 /// How to read a height map that does not say everything about itself.

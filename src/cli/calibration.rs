@@ -174,6 +174,10 @@ pub struct EvaluateArgs {
     /// Fewest saturated pixels that must be registered for the saturated figures.
     #[arg(long, default_value_t = 100)]
     pub min_saturated: usize,
+    /// Write what is scored against to this OpenEXR file: the registered reference (R, G, B,
+    /// in units of the capture's clipping level) and the pixel sets (channels scored, saturated).
+    #[arg(long)]
+    pub registered: Option<PathBuf>,
 }
 
 /// `doefab merge`.
@@ -246,6 +250,7 @@ pub fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
         tile,
         min_coverage,
         min_saturated,
+        registered,
     } = a;
     use doefab::calibration::{capture_registration as rg, evaluate as ev};
     let files = ev::EvaluateFiles {
@@ -269,6 +274,7 @@ pub fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
             min_coverage: *min_coverage,
             min_saturated: *min_saturated,
         },
+        registered: registered.clone(),
     };
     let e = ev::evaluate_files(&files)?;
     warn(&e.footing.warnings);

@@ -64,7 +64,8 @@ pub struct FinetuneArgs {
     #[arg(long)]
     pub init: Option<PathBuf>,
     /// Folder of real HDR images (.exr, .hdr, searched recursively; 2:1 images are taken as
-    /// equirectangular panoramas); without it, seeded procedural HDR scenes.
+    /// equirectangular panoramas; an unreadable one is skipped with a warning); without it,
+    /// seeded procedural HDR scenes.
     #[arg(long)]
     pub data: Option<PathBuf>,
     /// Folder of validation HDR images; without it, 1 in --holdout-every of --data's images,
@@ -130,6 +131,12 @@ pub struct FinetuneArgs {
     /// Bit depth of the simulated captures (0 = not quantised; 8 as the paper's captures).
     #[arg(long, default_value_t = doefab::decoder::finetune::BITS)]
     pub bits: u32,
+    /// Where the simulated captures' R, G and B clip, fractions of full scale (default: as the
+    /// paper's camera, green at 231 of 255; `evaluate` and `merge` report a camera's own).
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = doefab::decoder::finetune::CHANNEL_CLIPPING)]
+    pub channel_clipping: Vec<f64>,
+    #[command(flatten)]
+    pub halo: HaloArgs,
     /// Validate and checkpoint every this many steps.
     #[arg(long, default_value_t = doefab::decoder::finetune::CHECKPOINT_EVERY)]
     pub checkpoint_every: usize,
@@ -193,6 +200,11 @@ pub struct BenchDecoderArgs {
     /// Fine-tune on seeded procedural HDR scenes instead of --train-data.
     #[arg(long)]
     pub procedural: bool,
+    /// Where the fine-tuning's simulated captures clip, R, G, B (finetune's: the paper's camera).
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = doefab::decoder::finetune::CHANNEL_CLIPPING)]
+    pub channel_clipping: Vec<f64>,
+    #[command(flatten)]
+    pub halo: HaloArgs,
     /// Tile side of the registration, pixels.
     #[arg(long, default_value_t = 48)]
     pub tile: usize,
@@ -261,6 +273,8 @@ pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
         read_noise,
         shot_noise,
         bits,
+        channel_clipping,
+        halo,
         checkpoint_every,
         validation,
         seed,
@@ -292,6 +306,8 @@ pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
             noise_sigma: *read_noise,
             shot_noise: *shot_noise,
             bits: (*bits > 0).then_some(*bits),
+            channel_clipping: [channel_clipping[0], channel_clipping[1], channel_clipping[2]],
+            halo: halo.halo(),
             checkpoint_every: *checkpoint_every,
             validation: *validation,
             seed: *seed,
@@ -348,6 +364,8 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         evaluate_every,
         train_data,
         procedural,
+        channel_clipping,
+        halo,
         tile,
         output,
     } = a;
@@ -366,6 +384,8 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         evaluate_every: *evaluate_every,
         train_data: (!procedural).then(|| train_data.clone()),
         tile: *tile,
+        channel_clipping: [channel_clipping[0], channel_clipping[1], channel_clipping[2]],
+        halo: halo.halo(),
     };
     let pb = progress(cli, 0);
     let outcome = bench_decoder(&opts, output, &mut report_to(&pb))?;
@@ -415,6 +435,92 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
             );
         }
         println!("-> {}", output.display());
+    })
+}
+
+/// The halo of the simulated captures (`finetune`, `bench decoder`).
+#[derive(Args, Clone)]
+pub struct HaloArgs {
+    /// Fraction of the light the element spreads beyond its measured PSF's crop, in a Gaussian
+    /// of --halo-radius (0 = none; `doefab bench forward` measures it on real captures).
+    #[arg(long, default_value_t = doefab::decoder::finetune::HALO.fraction)]
+    pub halo: f64,
+    /// The halo's Gaussian standard deviation, sensor pixels.
+    #[arg(long, default_value_t = doefab::decoder::finetune::HALO.radius_px)]
+    pub halo_radius: f64,
+}
+
+impl HaloArgs {
+    fn halo(&self) -> Option<doefab::decoder::measurement::Halo> {
+        (self.halo > 0.0).then_some(doefab::decoder::measurement::Halo {
+            fraction: self.halo,
+            radius_px: self.halo_radius,
+        })
+    }
+}
+
+/// Arguments of `doefab bench forward`.
+#[derive(Args)]
+pub struct BenchForwardArgs {
+    /// The paper's data release: the default scenes (captures/<scene>/) and measured_psf.npz.
+    #[arg(long, default_value = "../shared/data/deepoptics-hdr")]
+    pub data: PathBuf,
+    /// A scene folder (exposures.json with one "doe" capture and a bracket); repeat for more
+    /// (default: every folder under <data>/captures).
+    #[arg(long = "scene")]
+    pub scenes: Vec<PathBuf>,
+    /// The measured PSF (default <data>/measured_psf.npz, array psf_val).
+    #[arg(long)]
+    pub psf: Option<PathBuf>,
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+/// `doefab bench forward`.
+pub fn bench_forward(cli: &Cli, a: &BenchForwardArgs) -> Result<()> {
+    use doefab::decoder::forward_check::{run, ForwardOptions};
+    let opts = ForwardOptions {
+        data: a.data.clone(),
+        scenes: a.scenes.clone(),
+        psf: a.psf.clone(),
+        scoring: doefab::calibration::evaluate::ScoringOptions::default(),
+    };
+    let pb = progress(cli, 0);
+    let r = run(&opts, &a.output, &mut report_to(&pb))?;
+    pb.finish_and_clear();
+    print_result(cli, &r, || {
+        for s in &r.scenes {
+            println!(
+                "{}: {:.0} % scored, gain {:.3}; RMS of sqrt(model) - sqrt(capture), unsaturated pixels: darks / mid-tones / brights / flare ring / all; saturated IoU",
+                s.name,
+                100.0 * s.coverage,
+                s.gain
+            );
+            for m in &s.models {
+                let x = &m.residuals;
+                let halo =
+                    m.halo.map_or(String::new(), |h| format!(" eta {} rho {} px", h.fraction, h.radius_px));
+                println!(
+                    "  {:<46} {:.4} {:.4} {:.4} {:.4} {:.4}  {:.2}  gains {:.3} {:.3} {:.3}{halo} blur {} px",
+                    m.model,
+                    x.dark,
+                    x.mid,
+                    x.bright,
+                    x.ring,
+                    x.all,
+                    x.saturated_iou,
+                    m.gains[0],
+                    m.gains[1],
+                    m.gains[2],
+                    m.blur_px
+                );
+            }
+        }
+        for (name, why) in &r.refused {
+            println!("{name} refused: {why}");
+        }
+        println!("wrote {}", a.output.display());
     })
 }
 

@@ -456,7 +456,7 @@ pub fn precompensate(cli: &Cli, a: &PrecompensateArgs) -> Result<()> {
             m.rms_error * 1e9,
             m.model.depth_scale,
             m.model.blur * 1e6,
-            if m.model.blur_resolved { "" } else { " (not resolved)" }
+            if m.model.blur_doubt().is_none() { "" } else { " (not used)" }
         );
         for c in &report.corrected {
             println!("corrected: {c}");

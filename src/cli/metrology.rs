@@ -515,6 +515,9 @@ pub fn warn_comparison(r: &doefab::pipeline::compare::CompareReport) {
 pub fn print_comparison(r: &doefab::pipeline::compare::CompareReport, output: &Path) {
     let c = &r.comparison;
     let g = &c.registration;
+    let searched: Vec<String> =
+        c.candidates.iter().map(|m| format!("{} {:.4}", m.member.name(), m.correlation)).collect();
+    println!("the scan shows {} (registered to {}; {})", c.scan_of, c.member.name(), searched.join(", "));
     println!(
         "registered: shift ({:.3}, {:.3}) um, rotation {:.4} deg, scale {:.5}, mirror {}, complement {}, \
          correlation {:.4}",

@@ -319,6 +319,7 @@ pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
                 }
             );
         }
+        println!("silent failures (plans that miss their tolerance): {}", r.silent_failures);
         if !r.skipped.is_empty() {
             println!("left out: {}", r.skipped.join(", "));
         }
@@ -393,9 +394,10 @@ pub fn bench_stability(cli: &Cli, a: &BenchStabilityArgs) -> Result<()> {
         for m in &r.maps {
             let refused = m.cells.iter().filter(|c| !c.violations.is_empty()).count();
             println!(
-                "{} over pupil sampling x {}: {} runs, {} refused by the guard ({} of them within the \
+                "{}{} over pupil sampling x {}: {} runs, {} refused by the guard ({} of them within the \
                  tolerance), silent failures at {:.0e}: {}",
                 m.method,
+                if m.design == "smooth" { String::new() } else { format!(" on the {} DOE", m.design) },
                 m.y_axis.replace('_', " "),
                 m.cells.len(),
                 refused,
@@ -416,6 +418,14 @@ pub fn report(cli: &Cli, a: &ReportArgs) -> Result<()> {
     let page = run_report(&opts, &a.on.at.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &page, || {
+        let b = &page.budget;
+        println!("budget {:.0} s, spent {:.0} s", b.budget_seconds, b.spent_seconds);
+        for p in b.left_out() {
+            println!(
+                "left out: {} (predicted {:.0} s, {:.0} s left)",
+                p.name, p.predicted_seconds, p.left_seconds
+            );
+        }
         println!(
             "wrote {} ({} sections, {} figures; open index.html in a browser)",
             a.on.at.output.display(),

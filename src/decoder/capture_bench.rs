@@ -47,6 +47,8 @@ pub struct BenchScene {
     pub name: String,
     /// The capture through the DOE (RGB), 1 = clipping level.
     pub capture: Image,
+    /// The bracket merged without the DOE, in the bracket's own frame.
+    pub reference: Image,
     pub scoring: Scoring,
     pub report: SceneReport,
 }
@@ -142,7 +144,8 @@ pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<Ben
         footing: Some(scoring.footing.clone()),
         error: None,
     };
-    Ok(BenchScene { name, capture: Image::new(capture.values.mapv(|v| v / clip)), scoring, report })
+    let capture = Image::new(capture.values.mapv(|v| v / clip));
+    Ok(BenchScene { name, capture, reference: merged.radiance, scoring, report })
 }
 
 /// Scores `image` (a reconstruction, or the capture itself) on the scene's footing.
@@ -245,6 +248,8 @@ pub struct FinetuneReport {
     pub steps: usize,
     pub seconds_per_step: f64,
     pub training_data: String,
+    /// The training images that could not be read and were skipped, each with the reason.
+    pub skipped_images: Vec<String>,
     /// The scores along the run of the decoder it would write if stopped there (best validated,
     /// blended; step 0 = the starting decoder).
     pub curve: Vec<CurvePoint>,
@@ -472,6 +477,7 @@ fn run_finetune(
         steps,
         seconds_per_step: seconds / steps.max(1) as f64,
         training_data: source.describe(),
+        skipped_images: training.warnings(),
         curve,
         history: trainer.history().to_vec(),
     };

@@ -277,3 +277,142 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
         Ok(())
     })
 }
+
+/// Draws `report` (`doefab bench forward`) into `path` (PNG, 1400 x 900), a column per scene:
+/// above, the residual of each model (a colour each, in the order they add to one another) in
+/// each brightness band; below, the halo model's residual over all unsaturated pixels against
+/// the halo's fraction, a line per radius, the paper model's as a dashed line.
+pub fn write_forward_chart(path: &Path, report: &crate::decoder::forward_check::ForwardReport) -> Result<()> {
+    let scenes = &report.scenes;
+    if scenes.is_empty() {
+        return Err(Error::Data("no scene to chart".into()));
+    }
+    let bands = ["darks", "mid-tones", "brights", "flare ring", "all"];
+    write_png_chart(path, 1400, 900, |root| {
+        let e = |e: &dyn std::fmt::Display| e.to_string();
+        let columns = root.split_evenly((2, scenes.len()));
+        for (k, scene) in scenes.iter().enumerate() {
+            let values = |m: &crate::decoder::forward_check::ModelFit| {
+                let r = &m.residuals;
+                [r.dark, r.mid, r.bright, r.ring, r.all]
+            };
+            let top =
+                scene.models.iter().flat_map(|m| values(m)).filter(|v| v.is_finite()).fold(0.0, f64::max)
+                    * 1.15;
+            let mut chart = ChartBuilder::on(&columns[k])
+                .caption(
+                    format!(
+                        "{}: sqrt-domain residual, capture - model ({:.0} % scored)",
+                        scene.name,
+                        100.0 * scene.coverage
+                    ),
+                    (FONT, 16),
+                )
+                .margin(10)
+                .x_label_area_size(30)
+                .y_label_area_size(60)
+                .build_cartesian_2d(0.0..bands.len() as f64, 0.0..top.max(1e-3))
+                .map_err(|x| e(&x))?;
+            chart
+                .configure_mesh()
+                .disable_x_mesh()
+                .x_labels(bands.len() * 2 + 1)
+                .x_label_formatter(&|x| {
+                    let b = x.floor() as usize;
+                    if (x - b as f64 - 0.5).abs() < 1e-6 && b < bands.len() {
+                        bands[b].to_string()
+                    } else {
+                        String::new()
+                    }
+                })
+                .y_desc("RMS of sqrt(model) - sqrt(capture)")
+                .label_style((FONT, 12))
+                .draw()
+                .map_err(|x| e(&x))?;
+            let width = 0.8 / scene.models.len() as f64;
+            for (m, model) in scene.models.iter().enumerate() {
+                let color = COLORS[m % COLORS.len()];
+                let bars: Vec<Rectangle<(f64, f64)>> = values(model)
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, v)| v.is_finite())
+                    .map(|(b, &v)| {
+                        let x0 = b as f64 + 0.1 + m as f64 * width;
+                        Rectangle::new([(x0, 0.0), (x0 + 0.9 * width, v)], color.filled())
+                    })
+                    .collect();
+                let mut label = model.model.clone();
+                if let Some(h) = &model.halo {
+                    label += &format!(" (eta {}, rho {} px", h.fraction, h.radius_px);
+                    label += &if model.model.contains("blur") {
+                        format!(", sigma {} px)", model.blur_px)
+                    } else {
+                        ")".into()
+                    };
+                }
+                chart
+                    .draw_series(bars)
+                    .map_err(|x| e(&x))?
+                    .label(label)
+                    .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled()));
+            }
+            crate::report::draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, 11)?;
+
+            // The halo grid.
+            let grid = &scene.halo_grid;
+            let finite = grid.iter().flatten().copied().filter(|v| v.is_finite());
+            let paper = scene.models.first().map_or(f64::NAN, |m| m.residuals.all);
+            let (lo, hi) = finite
+                .chain([paper])
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+            let pad = 0.1 * (hi - lo).max(1e-4);
+            let fmax = report.halo_fractions.iter().copied().fold(0.0, f64::max);
+            let mut chart = ChartBuilder::on(&columns[scenes.len() + k])
+                .caption(format!("{}: halo model, all unsaturated pixels", scene.name), (FONT, 16))
+                .margin(10)
+                .x_label_area_size(35)
+                .y_label_area_size(60)
+                .build_cartesian_2d(0.0..fmax * 1.05, (lo - pad)..(hi + pad))
+                .map_err(|x| e(&x))?;
+            chart
+                .configure_mesh()
+                .x_desc("halo fraction eta")
+                .y_desc("RMS of sqrt(model) - sqrt(capture)")
+                .label_style((FONT, 12))
+                .draw()
+                .map_err(|x| e(&x))?;
+            for (r, radius) in report.halo_radii_px.iter().enumerate() {
+                let color = COLORS[(r + 1) % COLORS.len()];
+                let points: Vec<(f64, f64)> = report
+                    .halo_fractions
+                    .iter()
+                    .zip(grid)
+                    .map(|(&f, row)| (f, row[r]))
+                    .filter(|p| p.1.is_finite())
+                    .collect();
+                chart
+                    .draw_series(LineSeries::new(points.clone(), color.stroke_width(2)))
+                    .map_err(|x| e(&x))?
+                    .label(format!("rho {radius} px"))
+                    .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], color.stroke_width(2)));
+                chart
+                    .draw_series(points.iter().map(|&p| Circle::new(p, 3, color.filled())))
+                    .map_err(|x| e(&x))?;
+            }
+            if paper.is_finite() {
+                chart
+                    .draw_series(DashedLineSeries::new(
+                        [(0.0, paper), (fmax * 1.05, paper)],
+                        6,
+                        4,
+                        BLACK.stroke_width(1),
+                    ))
+                    .map_err(|x| e(&x))?
+                    .label("paper model")
+                    .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], BLACK.stroke_width(1)));
+            }
+            crate::report::draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 11)?;
+        }
+        Ok(())
+    })
+}

@@ -1,9 +1,13 @@
 //! Real HDR images as training and validation scenes for fine-tuning (`finetune --data`).
 //!
 //! * *Reading*: every `.exr` and `.hdr` file below a folder, recursively, sorted by path, as
-//!   linear RGB (alpha dropped). The negative values of lossy (DWA) compression's ringing are
-//!   set to 0 (see [`NEGATIVE_NOISE`]). Each file keeps its own arbitrary radiance scale: the
-//!   measurement model sets every sample's exposure anyway.
+//!   linear Rec. 709 RGB through the one image reader (alpha dropped; luminance/chroma files
+//!   and other primaries converted, see [`crate::calibration::capture::read_rgb_exr`]). The
+//!   negative values of lossy (DWA) compression's ringing are set to 0 (see
+//!   [`NEGATIVE_NOISE`]). Each file keeps its own arbitrary radiance scale: the measurement
+//!   model sets every sample's exposure anyway. An image that cannot be read is skipped with a
+//!   warning naming it and why; a folder with none readable, or a split that leaves no
+//!   training or no validation image, is refused.
 //! * *Split*: an image belongs to the validation set when the first byte of the SHA-256 of its
 //!   path relative to the folder is below `256 / holdout_every` ([`split`]). The rule looks at
 //!   nothing but the name, so adding images never moves one from validation into training,
@@ -62,8 +66,18 @@ impl HdrImage {
     }
 }
 
-/// Every `.exr` / `.hdr` file below `dir` (recursively), sorted by relative path.
-pub fn read_dir(dir: &Path) -> Result<Vec<HdrImage>> {
+/// The images of a folder that could be read, and why the others could not.
+#[derive(Debug, Clone)]
+pub struct HdrFolder {
+    pub images: Vec<HdrImage>,
+    /// One warning for each image skipped: its path and the reader's reason.
+    pub skipped: Vec<String>,
+}
+
+/// Every `.exr` / `.hdr` file below `dir` (recursively), sorted by relative path; an image
+/// that cannot be read is skipped (see [`HdrFolder::skipped`]). Refuses a folder without such
+/// files or with none readable.
+pub fn read_dir(dir: &Path) -> Result<HdrFolder> {
     let mut paths = Vec::new();
     let mut stack = vec![dir.to_path_buf()];
     while let Some(d) = stack.pop() {
@@ -84,7 +98,24 @@ pub fn read_dir(dir: &Path) -> Result<Vec<HdrImage>> {
     if paths.is_empty() {
         return Err(Error::format(dir, "holds no .exr or .hdr images (searched recursively)"));
     }
-    paths.iter().map(|p| read_hdr_image(dir, p)).collect()
+    let mut folder = HdrFolder { images: Vec::new(), skipped: Vec::new() };
+    for p in &paths {
+        match read_hdr_image(dir, p) {
+            Ok(img) => folder.images.push(img),
+            Err(e) => folder.skipped.push(format!("skipped {}: {e}", p.display())),
+        }
+    }
+    if folder.images.is_empty() {
+        return Err(Error::format(
+            dir,
+            format!(
+                "none of its {} .exr/.hdr images can be read: {}",
+                paths.len(),
+                folder.skipped.join("; ")
+            ),
+        ));
+    }
+    Ok(folder)
 }
 
 /// Reads one HDR image as linear RGB through the one image reader
@@ -164,7 +195,8 @@ pub fn split(images: Vec<HdrImage>, holdout_every: usize) -> Result<(Vec<HdrImag
 /// chosen by name ([`split`]). Panoramas narrower than `min_panorama_width` pixels are left
 /// out of both: a view of one spans too wide an angle per crop (measured: training on the
 /// 512-wide panoramas of the shared set as well lowered the real captures' scores).
-/// Validation views are not colour-jittered.
+/// Validation views are not colour-jittered. Images that cannot be read are skipped, each
+/// with a warning in its side's [`HdrScenes::skipped`] (those of `dir` on the training side).
 pub fn training_and_validation(
     dir: &Path,
     validation_dir: Option<&Path>,
@@ -172,25 +204,45 @@ pub fn training_and_validation(
     min_panorama_width: usize,
 ) -> Result<(HdrScenes, HdrScenes)> {
     let wide_enough = |i: &HdrImage| !i.is_panorama() || i.pixels.dim().1 >= min_panorama_width;
-    let read = |d: &Path| -> Result<Vec<HdrImage>> {
+    let read = |d: &Path| -> Result<HdrFolder> {
         let all = read_dir(d)?;
-        let n = all.len();
-        let kept: Vec<HdrImage> = all.into_iter().filter(wide_enough).collect();
-        if kept.is_empty() {
+        let n = all.images.len();
+        let images: Vec<HdrImage> = all.images.into_iter().filter(wide_enough).collect();
+        if images.is_empty() {
             return Err(Error::format(
                 d,
-                format!("none of its {n} images is a photograph or a panorama at least {min_panorama_width} px wide"),
+                format!(
+                    "none of its {n} readable images is a photograph or a panorama at least {min_panorama_width} px wide"
+                ),
             ));
         }
-        Ok(kept)
+        Ok(HdrFolder { images, skipped: all.skipped })
     };
-    let images = read(dir)?;
-    let (train, val) = match validation_dir {
-        Some(v) => (images, read(v)?),
-        None => split(images, holdout_every)?,
+    let folder = read(dir)?;
+    let (train, val, val_skipped) = match validation_dir {
+        Some(v) => {
+            let v = read(v)?;
+            (folder.images, v.images, v.skipped)
+        }
+        None => {
+            let (t, v) = split(folder.images, holdout_every).map_err(|e| match e {
+                Error::Parameter { name, reason } if !folder.skipped.is_empty() => Error::Parameter {
+                    name,
+                    reason: format!(
+                        "{reason} ({} could not be read: {})",
+                        folder.skipped.len(),
+                        folder.skipped.join("; ")
+                    ),
+                },
+                e => e,
+            })?;
+            (t, v, Vec::new())
+        }
     };
-    let train = HdrScenes::new(&format!("{} (training)", dir.display()), train)?;
+    let mut train = HdrScenes::new(&format!("{} (training)", dir.display()), train)?;
+    train.skipped = folder.skipped;
     let mut val = HdrScenes::new(&format!("{} (validation)", validation_dir.unwrap_or(dir).display()), val)?;
+    val.skipped = val_skipped;
     val.colour_jitter = false;
     Ok((train, val))
 }
@@ -212,6 +264,8 @@ pub struct HdrScenes {
     pub colour_jitter: bool,
     /// Largest white-balance gain `g`: each channel's gain is log-uniform in `[1/g, g]`.
     pub white_balance: f64,
+    /// Warnings about the images of its folder that could not be read (see [`read_dir`]).
+    pub skipped: Vec<String>,
 }
 
 impl HdrScenes {
@@ -220,7 +274,13 @@ impl HdrScenes {
         if images.is_empty() {
             return Err(Error::Data(format!("{name}: no images")));
         }
-        Ok(HdrScenes { name: name.into(), images, colour_jitter: true, white_balance: WHITE_BALANCE })
+        Ok(HdrScenes {
+            name: name.into(),
+            images,
+            colour_jitter: true,
+            white_balance: WHITE_BALANCE,
+            skipped: Vec::new(),
+        })
     }
 
     /// The images' names.
@@ -236,8 +296,12 @@ impl SceneSource for HdrScenes {
             true => format!("; colour jitter, white-balance gains in [1/{0}, {0}]", self.white_balance),
             false => String::new(),
         };
+        let skipped = match self.skipped.len() {
+            0 => String::new(),
+            n => format!("; {n} unreadable image{} skipped", if n == 1 { "" } else { "s" }),
+        };
         format!(
-            "{} ({} real HDR images: {} photographs, {} panoramas as perspective views{jitter})",
+            "{} ({} real HDR images: {} photographs, {} panoramas as perspective views{jitter}{skipped})",
             self.name,
             self.images.len(),
             self.images.len() - panoramas,

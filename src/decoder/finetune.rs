@@ -28,7 +28,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::decoder::dataset::{training_and_validation, HdrScenes};
-use crate::decoder::measurement::{measure, Measurement, MeasurementModel};
+use crate::decoder::measurement::{measure, Halo, Measurement, MeasurementModel};
 use crate::decoder::unet::{is_trainable, tensor_values, UNet};
 use crate::decoder::weights::{encode_safetensors, read_safetensors, DecoderWeights, NamedTensor};
 use crate::decoder::{to_tensor, weights};
@@ -114,6 +114,16 @@ impl TrainingScenes {
         })
     }
 
+    /// Warnings about the images that could not be read (and were skipped).
+    pub fn warnings(&self) -> Vec<String> {
+        match self {
+            TrainingScenes::Real { training, validation } => {
+                training.skipped.iter().chain(&validation.skipped).cloned().collect()
+            }
+            TrainingScenes::Procedural(_) => Vec::new(),
+        }
+    }
+
     /// The training source and, for real images, the validation source ([`Trainer::new`]'s).
     pub fn sources(&self) -> (&dyn SceneSource, Option<&dyn SceneSource>) {
         match self {
@@ -176,10 +186,22 @@ pub struct FinetuneConfig {
     /// between (README, fine-tuning table).
     #[serde(default = "one")]
     pub blend: f64,
+    /// Where each channel of the simulated captures clips, fraction of full scale (see
+    /// [`MeasurementModel::channel_clipping`]).
+    #[serde(default = "full_scale")]
+    pub channel_clipping: [f64; 3],
+    /// Light the element spreads beyond its measured PSF's crop (see
+    /// [`MeasurementModel::halo`]); `None`: none.
+    #[serde(default)]
+    pub halo: Option<Halo>,
 }
 
 fn one() -> f64 {
     1.0
+}
+
+fn full_scale() -> [f64; 3] {
+    [1.0; 3]
 }
 
 impl Default for FinetuneConfig {
@@ -205,6 +227,8 @@ impl Default for FinetuneConfig {
             patience: 0,
             negative_penalty: 0.0,
             blend: 1.0,
+            channel_clipping: full_scale(),
+            halo: None,
         }
     }
 }
@@ -240,6 +264,11 @@ pub const READ_NOISE: f64 = 0.001;
 pub const SHOT_NOISE: f64 = 8e-5;
 /// Bit depth of `doefab finetune`'s captures (the paper's captures are 8-bit).
 pub const BITS: u32 = 8;
+/// Where each channel of `doefab finetune`'s captures clips: as the paper's camera, whose green
+/// tops out at 231 of 255 in every frame of both scenes ([`crate::calibration::clipping`]).
+pub const CHANNEL_CLIPPING: [f64; 3] = [1.0, 231.0 / 255.0, 1.0];
+/// `doefab finetune`'s halo: none until measured to help on real captures (README).
+pub const HALO: Halo = Halo { fraction: 0.0, radius_px: 64.0 };
 /// `doefab finetune`'s negative-output penalty: with it the fine-tuned decoder scores above
 /// its start on both of the paper's real scenes (README).
 pub const NEGATIVE_PENALTY: f64 = 10.0;
@@ -263,6 +292,7 @@ impl FinetuneConfig {
             bits: Some(BITS),
             negative_penalty: NEGATIVE_PENALTY,
             blend: BLEND,
+            channel_clipping: CHANNEL_CLIPPING,
             ..FinetuneConfig::default()
         }
     }
@@ -302,6 +332,12 @@ impl FinetuneConfig {
                 format!("read {} and shot {} must be >= 0", self.noise_sigma, self.shot_noise),
             );
         }
+        if !self.channel_clipping.iter().all(|c| *c > 0.0 && *c <= 1.0) {
+            return bad("channel_clipping", format!("{:?}: each must lie in (0, 1]", self.channel_clipping));
+        }
+        if let Some(h) = &self.halo {
+            h.check()?;
+        }
         if self.bits.is_some_and(|b| !(1..=16).contains(&b)) {
             return bad("bits", format!("{:?} must lie in 1..=16", self.bits));
         }
@@ -313,6 +349,8 @@ impl FinetuneConfig {
             noise_sigma: self.noise_sigma,
             shot_noise: self.shot_noise,
             bits: self.bits,
+            channel_clipping: self.channel_clipping.map(|c| c as f32),
+            halo: self.halo,
             ..MeasurementModel::default()
         }
     }
@@ -1068,6 +1106,11 @@ pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Resul
         data: source.describe(),
         validation_data: trainer.validation_data.clone(),
         history: trainer.history().to_vec(),
-        warnings: selected.warnings.into_iter().chain(short_run_warning(trainer.step(), best_step)).collect(),
+        warnings: selected
+            .warnings
+            .into_iter()
+            .chain(scenes.warnings())
+            .chain(short_run_warning(trainer.step(), best_step))
+            .collect(),
     })
 }

@@ -4,7 +4,8 @@
 //! procedural HDR scenes to train on without a data set ([`scenes`]), and the benchmark of
 //! decoders on real captures against bracket-merged references ([`capture_bench`]), with their charts
 //! ([`charts`], [`training_chart`]); the reconstruction's numerics, tiles and precision
-//! ([`tiling_bench`]); fine-tuning's validation PSNR against time ([`finetune_time`]).
+//! ([`tiling_bench`]); fine-tuning's validation PSNR against time ([`finetune_time`]); the
+//! measurement model against the real captures ([`forward_check`]).
 //!
 //! Images here are `(H, W, 3)` `f32` arrays (row-major, channels last, as the paper's NHWC);
 //! the network runs on NCHW burn tensors on the CPU (burn's Flex backend) or, with the `gpu`
@@ -16,6 +17,7 @@ pub mod charts;
 pub mod dataset;
 pub mod finetune;
 pub mod finetune_time;
+pub mod forward_check;
 pub mod measurement;
 pub mod reconstruct;
 pub mod scenes;

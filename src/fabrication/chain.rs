@@ -24,7 +24,7 @@ use crate::grid::fill::fill_missing;
 use crate::grid::{Grid, Unit};
 use crate::io::atomic::{write_json, StagedDir};
 use crate::io::exr::write_exr;
-use crate::io::heightmap::{read_heightmap_hashed, read_raw, Metadata, ReadOptions};
+use crate::io::heightmap::{heightmap_from_raw, read_raw, read_raw_hashed, Metadata, RawMap, ReadOptions};
 use crate::io::png::{write_png_u16, write_png_u8};
 use crate::io::tiff::{write_tiff_u16, write_tiff_u8};
 use crate::material::{Material, PAPER_WAVELENGTHS};
@@ -89,7 +89,8 @@ pub fn load_design(source: &DesignSource) -> Result<LoadedDesign> {
             })
         }
         DesignSource::File(path, read) => {
-            let (heights, sha256) = read_heightmap_hashed(path, read)?;
+            let (raw, sha256) = read_raw_hashed(path, read.channel.as_deref())?;
+            let heights = surface_from_raw(path, raw, read)?;
             Ok(LoadedDesign { heights, name: path.display().to_string(), sha256 })
         }
     }
@@ -311,7 +312,27 @@ fn meta_get<'a>(path: &Path, meta: &'a [(String, String)], key: &str) -> Result<
 
 /// Reads a level map written by [`write_level_map`].
 pub fn read_level_map(path: &Path) -> Result<LevelMap> {
-    let raw = read_raw(path, None)?;
+    level_map_from_raw(path, read_raw(path, None)?)
+}
+
+/// The heights of a map read from `path`: a level map of doefab's (its `quantity` metadata says
+/// so) as the heights its levels stand for, `l P / N` ([`level_heights`]: what the writer
+/// makes), any other map as [`heightmap_from_raw`] resolves it with `opts`.
+pub fn surface_from_raw(path: &Path, raw: RawMap, opts: &ReadOptions) -> Result<Grid> {
+    if !raw.metadata.iter().any(|(k, v)| k == KEY_QUANTITY && v == "level") {
+        return heightmap_from_raw(path, raw, opts);
+    }
+    if opts.unit.is_some() || opts.z_scale.is_some() || opts.z_offset.is_some() {
+        return Err(Error::format(
+            path,
+            "a level map's heights come from its level count and period: drop --unit, --z-scale and --z-offset",
+        ));
+    }
+    let lm = level_map_from_raw(path, raw)?;
+    level_heights(&lm.levels, lm.level_count, lm.period)
+}
+
+fn level_map_from_raw(path: &Path, raw: RawMap) -> Result<LevelMap> {
     if meta_get(path, &raw.metadata, KEY_QUANTITY)? != "level" {
         return Err(Error::format(path, "metadata 'quantity' is not 'level': expected a level map"));
     }
@@ -541,14 +562,7 @@ pub fn gds_file(
 /// `doefab stl`: the STL of a level map (from `doefab quantize`) or of wrapped heights (from
 /// `doefab wrap`); which one is read from the file's `quantity` metadata.
 pub fn stl_file(input: &Path, opts: &StlOptions, output: &Path) -> Result<StlReport> {
-    let raw = read_raw(input, None)?;
-    let heights = match raw.metadata.iter().find(|(k, _)| k == KEY_QUANTITY).map(|(_, v)| v.as_str()) {
-        Some("level") => {
-            let lm = read_level_map(input)?;
-            level_heights(&lm.levels, lm.level_count, lm.period)?
-        }
-        _ => crate::io::heightmap::heightmap_from_raw(input, raw, &ReadOptions::default())?,
-    };
+    let heights = surface_from_raw(input, read_raw(input, None)?, &ReadOptions::default())?;
     surface_stl(&heights, opts, output)
 }
 

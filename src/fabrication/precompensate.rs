@@ -185,8 +185,9 @@ pub struct DeblurReport {
 pub struct Precompensated {
     /// The surface to command, design frame.
     pub commanded: Grid,
-    /// Commanded height of each design level (`R^-1(l s + p)`), for a quantized design.
-    pub level_commands: Vec<f64>,
+    /// Commanded height of each level `l` of a quantized target (`R^-1(l s + p)`); `None` for a
+    /// level outside the target's heights (the cast of the master holds no level 0).
+    pub level_commands: Vec<Option<f64>>,
     /// The piston added to the target.
     pub piston: f64,
     /// The model's prediction of the part made from `commanded`, and from the target itself
@@ -210,7 +211,7 @@ pub fn rms_without_piston(a: &Grid, b: &Grid) -> f64 {
 }
 
 /// The surface to command so that `model` makes `target` (module docs). `levels`, the
-/// design's `(level_count, step)`, gives the corrected level table.
+/// target's `(level indices, step)` (level `l` at `l step`), gives the corrected level table.
 ///
 /// Errors: a target with non-measured samples, a model or range that is not finite, and a
 /// target whose height span the process cannot make within `0..=max_height` (named with the
@@ -271,7 +272,12 @@ pub fn precompensate(
     };
     let commanded = made.map_values(made.values().mapv(|m| r.commanded_for(m)), Unit::Metre)?;
     let level_commands = match levels {
-        Some((count, step)) => (0..count).map(|l| r.commanded_for(l as f64 * step + tmin + piston)).collect(),
+        Some((count, step)) => (0..count)
+            .map(|l| {
+                let h = l as f64 * step;
+                (h >= tmin - 0.5 * step && h <= tmax + 0.5 * step).then(|| r.commanded_for(h + piston))
+            })
+            .collect(),
         None => Vec::new(),
     };
     let predicted = model.apply(&commanded)?;
@@ -365,7 +371,18 @@ mod tests {
         assert!(p.rms_before > 0.1 * 150e-9 * 2.0, "{}", p.rms_before);
         assert!(p.rms_after < 1e-15, "{}", p.rms_after);
         for (l, c) in p.level_commands.iter().enumerate() {
+            let c = c.unwrap_or(f64::NAN);
             assert!((c - l as f64 * 150e-9 / 0.8).abs() < 1e-15, "level {l}: {c}");
+        }
+        // Of the same staircase lifted by a step (level 0 at 8 steps, as the cast of a master
+        // holds it), level 0 has no command and level l still goes to l s / k, less the piston.
+        let lifted = t.map_values(t.values().mapv(|h| if h == 0.0 { 8.0 * 150e-9 } else { h }), Unit::Metre);
+        let p = precompensate(&lifted.unwrap(), Some((9, 150e-9)), &model, &PrecompensateOptions::default())
+            .unwrap();
+        assert_eq!(p.level_commands[0], None);
+        for (l, c) in p.level_commands.iter().enumerate().skip(1) {
+            let c = c.unwrap_or(f64::NAN);
+            assert!((c - (l - 1) as f64 * 150e-9 / 0.8).abs() < 1e-15, "level {l}: {c}");
         }
         // A part 40 % too shallow needs commands beyond the process's 1.5 um: refused, named.
         let shallow = ProcessModel { response: Response::linear(0.6, 0.0).unwrap(), blur: 0.0 };

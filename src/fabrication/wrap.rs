@@ -242,6 +242,16 @@ pub fn into_master(mut design: Grid, period: f64) -> Result<Grid> {
     Ok(design.into_mirrored_mask(true, false))
 }
 
+/// The cast of the master that [`to_master`] makes of wrapped heights `w`, in the design frame:
+/// `P - master(-x, y)`, a cast being its master's plain complement, mirrored. It is `w` where
+/// `w > 0` and the full period where `w = 0` (the master is 0 there, not `P`): heights in
+/// `(0, P]`, phase-equivalent to `w` at the design wavelength but not linear in it.
+pub fn cast_of_master(wrapped: &Grid, period: f64) -> Result<Grid> {
+    let master = to_master(wrapped, period)?;
+    let cast = master.values().mapv(|m| period - m);
+    Ok(master.map_values(cast, Unit::Metre)?.mirror(true, false))
+}
+
 /// Refuses non-finite valid samples with their count and first location.
 pub fn check_finite(g: &Grid) -> Result<()> {
     match g.non_finite() {
@@ -331,6 +341,25 @@ mod tests {
         assert_eq!(m.values()[[0, 2]], p - d.values()[[0, 1]]);
         assert_eq!(m.values()[[0, 3]], 0.0, "a zero height complements to a full period, i.e. 0");
         assert!(to_master(&grid(Array2::from_elem((1, 1), 2.0 * p)), p).is_err());
+    }
+
+    /// The cast of the master is the wrapped design where it is above 0 and the full period
+    /// where it is 0: the master there is 0 (its complement modulo the period), and the cast is
+    /// the master's plain complement.
+    #[test]
+    fn the_cast_of_the_master_lifts_zero_heights_to_the_period() {
+        let p = 1.2e-6;
+        let v = Array2::from_shape_fn((3, 5), |(i, j)| ((i * 5 + j) % 6) as f64 * 0.2e-6);
+        let w = grid(v);
+        let cast = cast_of_master(&w, p).unwrap();
+        let master = to_master(&w, p).unwrap();
+        for ((i, j), &h) in w.values().indexed_iter() {
+            let c = cast.values()[[i, j]];
+            let want = if h == 0.0 { p } else { h };
+            assert!((c - want).abs() < 1e-18, "({i}, {j}): {c} vs {want}");
+            // The master, mirrored back, plus the cast is the period everywhere.
+            assert!((master.values()[[i, 4 - j]] + c - p).abs() < 1e-18);
+        }
     }
 
     #[test]

@@ -17,12 +17,8 @@ pub fn gaussian_blur(g: &Grid, sigma: f64) -> Result<Grid> {
         return Ok(g.clone());
     }
     let (nr, nc) = g.dim();
-    let kernel = |s: f64| -> Vec<f64> {
-        let r = (4.0 * s).ceil() as isize;
-        (-r..=r).map(|k| (-0.5 * (k as f64 / s).powi(2)).exp()).collect()
-    };
-    let kx = kernel(sigma / g.pitch()[0]);
-    let ky = kernel(sigma / g.pitch()[1]);
+    let kx = gaussian_kernel(sigma / g.pitch()[0]);
+    let ky = gaussian_kernel(sigma / g.pitch()[1]);
     if g.mask().is_none() {
         // Every sample valid: the weight sum factorises, so each axis normalises on its own.
         return g.map_values(blur_separable(g.values(), &kx, &ky)?, g.unit());
@@ -35,6 +31,26 @@ pub fn gaussian_blur(g: &Grid, sigma: f64) -> Result<Grid> {
     let den = blur_separable(&w0, &kx, &ky)?;
     let values = ndarray::Zip::from(&num).and(&den).map_collect(|&n, &d| if d > 0.0 { n / d } else { 0.0 });
     g.map_values(values, g.unit())
+}
+
+/// Separable Gaussian blur of plain samples, standard deviation `sigma` in samples, each axis
+/// normalised by the weights of its taps inside the array (so a constant stays constant up to
+/// the edges). `sigma` 0 returns the values.
+pub fn blur_samples(values: &Array2<f64>, sigma: f64) -> Result<Array2<f64>> {
+    if !(sigma.is_finite() && sigma >= 0.0) {
+        return Err(Error::param("blur", format!("must be finite and >= 0, got {sigma} samples")));
+    }
+    if sigma == 0.0 {
+        return Ok(values.clone());
+    }
+    let k = gaussian_kernel(sigma);
+    blur_separable(values, &k, &k)
+}
+
+/// The taps `exp(-k^2 / 2 s^2)`, `|k| <= ceil(4 s)`, of a Gaussian of `s` samples.
+fn gaussian_kernel(s: f64) -> Vec<f64> {
+    let r = (4.0 * s).ceil() as isize;
+    (-r..=r).map(|k| (-0.5 * (k as f64 / s).powi(2)).exp()).collect()
 }
 
 /// The values convolved with the odd kernels `kx` along rows and `ky` along columns (centres at

@@ -18,6 +18,11 @@
 //! byte offset valid (the header's length does not change) and makes the output deterministic.
 //! No timestamp is written.
 
+pub mod chromaticities;
+mod piz;
+pub mod scanline;
+pub mod yca;
+
 use std::io::Cursor;
 use std::path::Path;
 

@@ -265,13 +265,6 @@ pub fn read_heightmap(path: &Path, opts: &ReadOptions) -> Result<Grid> {
     heightmap_from_raw(path, raw, opts)
 }
 
-/// [`read_heightmap`] together with the hex SHA-256 of the file's bytes, the file read once
-/// (see [`read_raw_hashed`]).
-pub fn read_heightmap_hashed(path: &Path, opts: &ReadOptions) -> Result<(Grid, String)> {
-    let (raw, sha) = read_raw_hashed(path, opts.channel.as_deref())?;
-    Ok((heightmap_from_raw(path, raw, opts)?, sha))
-}
-
 /// Resolves a [`RawMap`] read from `path` into a height grid (the second half of
 /// [`read_heightmap`]).
 pub fn heightmap_from_raw(path: &Path, raw: RawMap, opts: &ReadOptions) -> Result<Grid> {

@@ -39,7 +39,9 @@
 //!    `|r|` wins, its sign gives the sign of `a`. Along the winning offset's row, a second local
 //!    maximum outside the main lobe reaching `max_peak_ratio` of the peak means the shift is
 //!    ambiguous (a periodic design along the line): refused, narrow the search. A peak below
-//!    `min_correlation` (and a fitted model correlating by less) is refused as not matching.
+//!    `min_correlation` (and a fitted model correlating by less) is refused as not matching; a
+//!    fitted model below [`TRUSTED_FRACTION`] of the correlation the profile's own noise allows
+//!    is refused as not trusted ([`check_trust`], the rule of every registration).
 //! 2. *Refinement.* For each `sigma`, Gauss-Newton with Levenberg-Marquardt damping on
 //!    `(s, v, a, b, c)` (Jacobian `a grad H . d`, `a grad H . n`, `H`, `1`, `u - u_mean`);
 //!    `sigma` minimises the residual sum of squares `SSE(sigma)` by golden-section search on
@@ -80,7 +82,7 @@ use crate::grid::blur::gaussian_blur;
 use crate::grid::profile::median;
 pub use crate::grid::profile::Profile;
 use crate::grid::{Grid, Unit};
-use crate::metrology::scan_registration::Sampler;
+use crate::metrology::scan_registration::{check_trust, noise_ceiling, Sampler, TRUSTED_FRACTION};
 
 /// Most distinct design heights for which the reference counts as multi-level.
 pub const MAX_LEVELS: usize = 256;
@@ -371,6 +373,9 @@ pub struct ProfileOptions {
     /// and for the fitted model (a line has few independent features: a quasi-periodic design
     /// correlates by 0.5-0.6 with a profile along another direction).
     pub min_correlation: f64,
+    /// Refuse below this fraction of the correlation the profile's own noise allows (the trust
+    /// rule of every registration, [`check_trust`]).
+    pub min_correlation_ratio: f64,
     /// Most profile points in the fit (a stride thins the rest).
     pub max_points: usize,
 }
@@ -382,6 +387,7 @@ impl Default for ProfileOptions {
             across_search: 10e-6,
             max_peak_ratio: 0.9,
             min_correlation: 0.8,
+            min_correlation_ratio: TRUSTED_FRACTION,
             max_points: 20_000,
         }
     }
@@ -456,8 +462,10 @@ pub struct ProfileComparison {
     /// RMS of the residual, metres; points in the fit.
     pub rms_residual: f64,
     pub points: usize,
-    /// Correlation of the profile and the fitted model; second to first coarse peak.
+    /// Correlation of the profile and the fitted model, and the highest its noise allows
+    /// ([`noise_ceiling`]); second to first coarse peak.
     pub correlation: f64,
+    pub noise_ceiling: f64,
     pub peak_ratio: f64,
     pub levels: Option<LevelSteps>,
     pub warnings: Vec<String>,
@@ -760,7 +768,7 @@ pub fn compare_profile(
         ));
     }
     // Featureless profile: neighbour differences as large as white noise's.
-    {
+    let variance = {
         let zs: Vec<f64> = pts.iter().map(|p| p.1).collect();
         let us: Vec<f64> = pts.iter().map(|p| p.0).collect();
         let (o, t, _) = fit_line(&pts, |_| true)?;
@@ -776,7 +784,8 @@ pub fn compare_profile(
                 sdd * 1e9
             )));
         }
-    }
+        sd * sd
+    };
     // 1. Coarse search.
     let ds = 0.5 * pd[0].min(pd[1]);
     let ns = (along / ds).ceil() as i64;
@@ -966,6 +975,8 @@ pub fn compare_profile(
             (sse / n as f64).sqrt() * 1e9
         )));
     }
+    let noise_ceiling = noise_ceiling(noise_estimate(profile), variance);
+    check_trust("the profile's fit along the line", correlation, noise_ceiling, opts.min_correlation_ratio)?;
     // Per-level step heights.
     let levels = match &design_levels {
         None => None,
@@ -1083,6 +1094,7 @@ pub fn compare_profile(
         rms_residual: (sse / n as f64).sqrt(),
         points: n,
         correlation,
+        noise_ceiling,
         peak_ratio,
         levels,
         warnings,
@@ -1358,6 +1370,26 @@ mod tests {
         let p1 = simulate_profile(&flat, &sp1).unwrap();
         let e = compare_profile(&p1, &flat, &line, &ProfileOptions::default()).unwrap_err().to_string();
         assert!(e.contains("crosses 1 level"), "{e}");
+    }
+
+    /// A part with one level made 180 nm too high (above the next) correlates below 0.95 with
+    /// the design along the line: above the absolute floor of 0.8, below 95% of what its 5 nm
+    /// of noise allow: not trusted, the rule of every registration ([`check_trust`]).
+    #[test]
+    fn a_profile_fitting_worse_than_its_noise_allows_is_not_trusted() {
+        let d = staircase();
+        let wrong = d.values().mapv(|h| if (h - 200e-9).abs() < 1e-12 { 380e-9 } else { h });
+        let wrong = d.map_values(wrong, Unit::Metre).unwrap();
+        let (sp, prof) = sim(&wrong, 0.9, 3.3e-6, 4.1e-6, 3);
+        let e = compare_profile(&prof, &d, &sp.line, &ProfileOptions::default()).unwrap_err();
+        assert!(matches!(e, Error::Registration(_)) && e.to_string().contains("not trusted"), "{e}");
+        let lenient = ProfileOptions { min_correlation_ratio: 0.0, ..Default::default() };
+        let c = compare_profile(&prof, &d, &sp.line, &lenient).unwrap();
+        assert!(c.correlation > 0.8 && c.correlation < 0.95 * c.noise_ceiling, "{c:#?}");
+        // The right design passes the same rule.
+        let (sp, prof) = sim(&d, 0.9, 3.3e-6, 4.1e-6, 3);
+        let c = compare_profile(&prof, &d, &sp.line, &ProfileOptions::default()).unwrap();
+        assert!(c.correlation > 0.99 && c.noise_ceiling > 0.99, "{c:#?}");
     }
 
     #[test]

@@ -49,7 +49,10 @@
 //!    catches: a rotation far beyond the search (20-90 deg), a scale 20 % off, a blur of 10-20
 //!    design samples, each accepted before at correlations of 0.53-0.94 on scans whose noise
 //!    allowed 0.998, with the pose 0.2-14 deg or 1-14 samples off; a right pose on a scan with
-//!    300 nm of noise correlates 0.76 and stays accepted.
+//!    300 nm of noise correlates 0.76 and stays accepted. The rule is [`check_trust`], the one
+//!    every registration of a part to its design answers to: this pose, the part's correlation
+//!    over the aperture's interior in `compare`, a model `precompensate` reads back, a stylus
+//!    profile's fit.
 
 use std::borrow::Cow;
 use std::sync::Arc;
@@ -250,6 +253,34 @@ fn keys(t: f64) -> ([f64; 4], [f64; 4]) {
     ([k2(t + 1.0), k1(t), k1(1.0 - t), k2(2.0 - t)], [d2(t + 1.0), d1(t), -d1(1.0 - t), -d2(2.0 - t)])
 }
 
+/// The fraction of the correlation its own noise allows ([`noise_ceiling`]) below which a
+/// registration is not trusted ([`check_trust`]).
+pub const TRUSTED_FRACTION: f64 = 0.95;
+
+/// The highest correlation coefficient a right registration reaches on data whose white noise
+/// has RMS `noise` and whose total variance (plane removed) is `variance`:
+/// `rho_max = sqrt(1 - noise^2 / variance)` (the design explains everything but the noise).
+pub fn noise_ceiling(noise: f64, variance: f64) -> f64 {
+    (1.0 - noise * noise / variance).max(0.0).sqrt()
+}
+
+/// The trust rule of every registration of a part to its design (module docs, step 5): the
+/// correlation reached must be at least `fraction` of the `ceiling` the data's own noise
+/// allows ([`noise_ceiling`]). `what` names what correlated ("the registration", "the part over
+/// the aperture's interior", ...). Refused as [`Error::Registration`], with the figures.
+pub fn check_trust(what: &str, correlation: f64, ceiling: f64, fraction: f64) -> Result<()> {
+    if correlation >= fraction * ceiling {
+        return Ok(());
+    }
+    Err(Error::Registration(format!(
+        "{what} is not trusted: it correlates {correlation:.3} with the design where the scan's own noise \
+         allows {ceiling:.3} (below {:.0}% of it): the design it was registered to does not describe the part \
+         (another design, or another surface of its family, such as the design unwrapped where the recipe \
+         wraps it) or the pose is wrong (a rotation or scale beyond the search, a blur of many samples)",
+        100.0 * fraction
+    )))
+}
+
 /// Thresholds and search ranges of [`register`].
 #[derive(Debug, Clone, Serialize)]
 pub struct RegisterOptions {
@@ -281,7 +312,7 @@ impl Default for RegisterOptions {
             max_rotation: 3f64.to_radians(),
             try_mirror: true,
             min_correlation: 0.5,
-            min_correlation_ratio: 0.95,
+            min_correlation_ratio: TRUSTED_FRACTION,
             max_peak_ratio: 0.9,
             min_rotation_contrast: 0.01,
             max_points: 100_000,
@@ -307,6 +338,8 @@ pub struct Registration {
     pub correlation: f64,
     /// The highest correlation the scan's white noise allows a right pose (module docs).
     pub noise_ceiling: f64,
+    /// The scan's white noise, RMS metres (`1.4826 MAD / sqrt 2` of its neighbour differences).
+    pub noise: f64,
     /// Second to first peak of the coarse correlation (1 = ambiguous shift).
     pub peak_ratio: f64,
     /// Relative drop of the coarse correlation peak across the rotation search.
@@ -519,9 +552,20 @@ struct Peak {
     value: f64,
 }
 
-/// Registers `scan` (heights, metres) to `design` (heights, metres); see the module docs.
+/// Registers `scan` (heights, metres) to `design` (heights, metres); see the module docs:
+/// [`register_pose`], then [`check_registration`].
 pub fn register(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Registration> {
-    let noise_ceiling = check_observable(design, scan)?;
+    let reg = register_pose(design, scan, opts)?;
+    check_registration(&reg, opts)?;
+    Ok(reg)
+}
+
+/// Steps 1, 2 and 4 of the module docs: the best pose and its figures, without the verdicts of
+/// steps 3 and 5 ([`check_registration`]), so that a caller can register one scan to several
+/// candidate surfaces and judge the best. Refused here: a flat design, a featureless scan, no
+/// overlap.
+pub fn register_pose(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Registration> {
+    let (noise_ceiling, noise) = check_observable(design, scan)?;
     let pd = design.pitch();
     let (dr, dc) = design.dim();
     let mut f = 1usize;
@@ -604,6 +648,7 @@ pub fn register(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Re
         tilt: [p.lin[2], p.lin[3]],
         correlation: fit.correlation,
         noise_ceiling,
+        noise,
         peak_ratio: coarse.peak_ratio,
         rotation_contrast: coarse.rotation_contrast,
         mirror_ratio: coarse.mirror_ratio,
@@ -615,6 +660,13 @@ pub fn register(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Re
         points: fit.points,
         coarse_pitch: pc[0],
     };
+    Ok(reg)
+}
+
+/// The verdicts of steps 3 and 5 of the module docs on a registration [`register_pose`] found:
+/// no match (below `min_correlation`, [`Error::Validity`]), not trusted ([`check_trust`],
+/// [`Error::Registration`]), an ambiguous shift or rotation ([`Error::Validity`]).
+pub fn check_registration(reg: &Registration, opts: &RegisterOptions) -> Result<()> {
     if reg.correlation.is_nan() || reg.correlation < opts.min_correlation {
         return Err(Error::Validity(format!(
             "the scan does not match the design: correlation {:.3} after registration is below {:.2} \
@@ -622,42 +674,32 @@ pub fn register(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Re
             reg.correlation, opts.min_correlation
         )));
     }
-    if reg.correlation < opts.min_correlation_ratio * noise_ceiling {
-        return Err(Error::Validity(format!(
-            "the pose found is not trusted: the registered design correlates {:.3} with the scan where the \
-             scan's own noise allows {:.3} (below {:.0}% of it); a rotation far beyond the +-{:.1} deg \
-             searched, a scale far from 1, a blur of many samples, or not this design",
-            reg.correlation,
-            noise_ceiling,
-            100.0 * opts.min_correlation_ratio,
-            opts.max_rotation.to_degrees()
-        )));
-    }
-    if coarse.peak_ratio > opts.max_peak_ratio {
+    check_trust("the registration", reg.correlation, reg.noise_ceiling, opts.min_correlation_ratio)?;
+    if reg.peak_ratio > opts.max_peak_ratio {
         return Err(Error::Validity(format!(
             "registration is ambiguous: the second correlation peak is {:.1}% of the first \
              (a periodic structure such as a grating fixes the shift only modulo its period); \
              a fiducial or an aperture edge in the scan would fix it",
-            100.0 * coarse.peak_ratio
+            100.0 * reg.peak_ratio
         )));
     }
-    if opts.max_rotation > 0.0 && coarse.rotation_contrast < opts.min_rotation_contrast {
+    if opts.max_rotation > 0.0 && reg.rotation_contrast < opts.min_rotation_contrast {
         return Err(Error::Validity(format!(
             "registration is ambiguous: the correlation changes by only {:.2}% over +-{:.2} deg of \
              rotation (a rotationally symmetric design: rotation is unobservable without a fiducial)",
-            100.0 * coarse.rotation_contrast,
+            100.0 * reg.rotation_contrast,
             opts.max_rotation.to_degrees()
         )));
     }
-    Ok(reg)
+    Ok(())
 }
 
 /// Rows of the scan [`check_observable`] reads at most.
 const OBSERVABLE_ROWS: usize = 256;
 
 /// Refuses a flat design and a scan that is flat or white noise (step 1 of the module docs);
-/// returns the correlation the scan's white noise allows (step 5).
-fn check_observable(design: &Grid, scan: &Grid) -> Result<f64> {
+/// returns the correlation the scan's white noise allows (step 5) and that noise (RMS, metres).
+fn check_observable(design: &Grid, scan: &Grid) -> Result<(f64, f64)> {
     let (lo, hi) = design.min_max().ok_or_else(|| Error::Data("the design has no valid sample".into()))?;
     if hi <= lo {
         return Err(Error::Validity("the design is flat: there is nothing to register against".into()));
@@ -708,7 +750,7 @@ fn check_observable(design: &Grid, scan: &Grid) -> Result<f64> {
     // White noise from the neighbour differences' median absolute deviation (steps at zone
     // edges are outliers to it).
     let noise = 1.4826 * median_abs_deviation(&mut diffs) / std::f64::consts::SQRT_2;
-    Ok((1.0 - noise * noise / var).max(0.0).sqrt())
+    Ok((noise_ceiling(noise, var), noise))
 }
 
 /// The median absolute deviation of `v` from its median (reorders `v`); 0 for no values.

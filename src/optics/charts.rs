@@ -12,7 +12,7 @@ use crate::error::{Error, Result};
 use crate::optics::propagate::Method;
 use crate::optics::psf_bench::{BenchPoint, BenchReport};
 use crate::optics::spectral_bench::SpectralReport;
-use crate::optics::stability::{StabilityMap, StabilityReport};
+use crate::optics::stability::{StabilityMap, StabilityReport, STEPPED_DOE_PITCH};
 use crate::report::{write_png_chart, write_svg_chart, FONT};
 
 /// The series of `points` in their order of appearance, each with its colour: the methods'
@@ -58,11 +58,12 @@ fn speed_chart<DB: DrawingBackend>(
     let e = |x: &dyn std::fmt::Display| x.to_string();
     let points = &report.points;
     root.fill(&WHITE).map_err(|x| e(&x))?;
+    // The counts go in the legend: in the caption they ran past the chart's width.
     let caption = format!(
-        "PSF: error vs run time, {} DOE samples at {:.2} um, F/{:.1} (filled: valid, hollow: guard refuses)",
+        "PSF: error vs run time, {} DOE samples at {:.2} um, F/{:.1}",
         report.doe_samples,
         report.doe_pitch * 1e6,
-        report.f_number
+        report.f_number,
     );
     let mut chart = ChartBuilder::on(root)
         .caption(caption, (FONT, 18))
@@ -128,6 +129,19 @@ fn speed_chart<DB: DrawingBackend>(
         .map_err(|x| e(&x))?
         .label("automatic plan at a tolerance")
         .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, BLACK.filled()));
+    crate::report::key_entry(&mut chart, "hollow: the guard refuses the run", |(x, y)| {
+        Circle::new((x + 8, y), 4, BLACK.stroke_width(1))
+    })?;
+    let silent = format!("silent failures: {} (plans over their tolerance)", report.silent_failures);
+    crate::report::key_entry(&mut chart, &silent, |(x, y)| EmptyElement::at((x, y)))?;
+    let memory = report.skipped.iter().filter(|s| s.ends_with("(memory)")).count();
+    let left_out = format!("left out by the budget: {}", report.skipped.len() - memory);
+    crate::report::key_entry(&mut chart, &left_out, |(x, y)| EmptyElement::at((x, y)))?;
+    if memory > 0 {
+        crate::report::key_entry(&mut chart, &format!("left out for memory: {memory}"), |(x, y)| {
+            EmptyElement::at((x, y))
+        })?;
+    }
     crate::report::draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 13)?;
     Ok(())
 }
@@ -191,15 +205,13 @@ fn stability_chart<DB: DrawingBackend>(
 }
 
 /// Writes `speed_accuracy.{png,svg}` and `stability.{png,svg}`, each at `path_for(name)`;
-/// returns the names.
+/// returns the names. A budget that left every run out gives empty axes (the caption counts
+/// what was left out, the JSON names it).
 pub fn write_psf_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
     report: &BenchReport,
 ) -> Result<Vec<String>> {
     let points = &report.points;
-    if points.is_empty() {
-        return Err(Error::Data("no benchmark runs to chart".into()));
-    }
     write_png_chart(&path_for("speed_accuracy.png"), 1000, 650, |r| speed_chart(r, report))?;
     write_svg_chart(&path_for("speed_accuracy.svg"), 1000, 650, |r| speed_chart(r, report))?;
     write_png_chart(&path_for("stability.png"), 1000, 650, |r| stability_chart(r, points))?;
@@ -247,8 +259,9 @@ fn stability_map_chart<DB: DrawingBackend>(
     let (y_lo, y_hi) =
         map.cells.iter().map(y_of).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
     let caption = format!(
-        "{} PSF: error vs pupil sampling and {} (tolerance {:.0e}; silent failures: {})",
+        "{} PSF{}: error vs pupil sampling and {} (tolerance {:.0e}; silent failures: {})",
         map.method,
+        if map.design == "smooth" { String::new() } else { format!(" on the {} DOE", map.design) },
         if by_wavelength { "wavelength" } else { "Fresnel number" },
         report.tolerance,
         map.silent_failures
@@ -302,6 +315,22 @@ fn stability_map_chart<DB: DrawingBackend>(
                 .map_err(|x| e(&x))?;
         }
     }
+    if map.design != "smooth" {
+        // The DOE's own pitch on each row: left of it the pupil nests in the DOE's cells, right
+        // of it the pupil is coarser and reads across the steps.
+        let mut own: Vec<(f64, f64)> = Vec::new();
+        for c in &map.cells {
+            let at = (c.lens_sampling_ratio * STEPPED_DOE_PITCH / c.pupil_pitch, y_of(c));
+            if !own.iter().any(|o| o.1 == at.1) {
+                own.push(at);
+            }
+        }
+        chart
+            .draw_series(LineSeries::new(own, BLUE.stroke_width(1)))
+            .map_err(|x| e(&x))?
+            .label(format!("the DOE's own {:.0} um samples (left: nested in them)", STEPPED_DOE_PITCH * 1e6))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.stroke_width(1)));
+    }
     for class in 0..4 {
         let tol = report.tolerance;
         let probe = [0.001 * tol, 0.05 * tol, 0.5 * tol, 2.0 * tol][class];
@@ -339,7 +368,8 @@ fn stability_map_chart<DB: DrawingBackend>(
     Ok(())
 }
 
-/// Writes one chart per stability map, `stability_<method>_<y axis>.{png,svg}` at `path_for(name)`;
+/// Writes one chart per stability map, `stability_<map name>.{png,svg}` ([`StabilityMap::name`])
+/// at `path_for(name)`;
 /// returns the names.
 pub fn write_stability_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
@@ -348,10 +378,10 @@ pub fn write_stability_charts(
     let mut names = Vec::new();
     for map in &report.maps {
         if map.cells.is_empty() {
-            return Err(Error::Data(format!("the {} {} map has no runs to chart", map.method, map.y_axis)));
+            return Err(Error::Data(format!("the {} map has no runs to chart", map.name())));
         }
         for ext in ["png", "svg"] {
-            let name = format!("stability_{}_{}.{ext}", map.method, map.y_axis);
+            let name = format!("stability_{}.{ext}", map.name());
             let path = path_for(&name);
             if ext == "png" {
                 write_png_chart(&path, 1000, 650, |r| stability_map_chart(r, report, map))?;
@@ -549,6 +579,7 @@ mod tests {
             },
             points: pts,
             plans: vec![plan],
+            silent_failures: 0,
             skipped: vec![],
         };
         let d = tempfile::tempdir().unwrap();
@@ -567,7 +598,15 @@ mod tests {
             .filter(|t| t.len() == 1 && t.chars().all(|c| c.is_ascii_digit()))
             .collect();
         assert_eq!(labels, ["1", "2"], "{svg}");
+        // A budget that left everything out: the charts are still written, and say so.
         report.points.clear();
-        assert!(write_psf_charts(|n| d.path().join(n), &report).is_err());
+        report.skipped = vec![
+            "matrix_dft f32 s=1 (budget: 1.0 s predicted, 0.0 s left)".into(),
+            "fresnel f64 pad 3 s=5 (memory)".into(),
+        ];
+        write_psf_charts(|n| d.path().join(n), &report).unwrap();
+        let svg = std::fs::read_to_string(d.path().join("speed_accuracy.svg")).unwrap();
+        assert!(svg.contains("left out by the budget: 1\n"), "{svg}");
+        assert!(svg.contains("left out for memory: 1\n") && svg.contains("silent failures: 0 "), "{svg}");
     }
 }

@@ -43,7 +43,7 @@ use super::psf::{Channel, Psf};
 use super::spectrum::{combine, Band};
 use super::system::{sinc, OpticalSystem, PixelRule};
 use crate::error::{Error, Result};
-use crate::grid::Grid;
+use crate::grid::{Grid, Interpolation};
 
 /// The default tolerance of `doefab psf`: relative L2 error per channel.
 pub const DEFAULT_TOLERANCE: f64 = 1e-3;
@@ -108,6 +108,21 @@ impl Plan {
         }
         s
     }
+}
+
+/// The cost of the matrix DFT of `n x n` pupil samples onto `m x m` sensor samples, one
+/// wavelength in f64, real multiply-adds: `n^2 m + n m^2` (its two products).
+pub fn matrix_dft_cost(n: usize, m: usize) -> f64 {
+    let (n, m) = (n as f64, m as f64);
+    n * n * m + n * m * m
+}
+
+/// The cost of a transfer-function method on a `w x w` FFT window, one wavelength, real
+/// multiply-adds: two steps of a forward and an inverse complex FFT, `5 N log2 N` flops each
+/// (about `2.5 N log2 N` multiply-adds, `N = w^2`).
+pub fn fft_cost(w: usize) -> f64 {
+    let n = (w * w) as f64;
+    4.0 * 2.5 * n * n.log2()
 }
 
 /// The estimated pixel-integration error of `s` sub-samples per axis by `rule` for pixels of
@@ -254,7 +269,7 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
     let mut refusals: Vec<String> = Vec::new();
     let mut last: Vec<Violation> = Vec::new();
     for k in 1..=MAX_REFINE {
-        let s = OpticalSystem { pupil_pitch: doe_pitch / k as f64, ..base.clone() };
+        let mut s = OpticalSystem { pupil_pitch: doe_pitch / k as f64, ..base.clone() };
         let n = matrix_dft::pupil_grid(&s, doe).0;
         if n > MAX_SIDE {
             refusals.push(format!(
@@ -262,11 +277,17 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
             ));
             break;
         }
-        let v = propagate::check(Method::MatrixDft, &s, doe)?;
+        let mut v = propagate::check(Method::MatrixDft, &s, doe)?;
+        // A stepped DOE is read by nearest interpolation, k x k pupil samples in each of its
+        // samples: the piecewise-constant part, its steps kept.
+        let stepped = v.iter().any(|v| v.condition == "step_resampling");
+        if stepped && s.interpolation != Interpolation::Nearest {
+            s.interpolation = Interpolation::Nearest;
+            v = propagate::check(Method::MatrixDft, &s, doe)?;
+        }
         if v.is_empty() {
             let (n, _) = matrix_dft::pupil_grid(&s, doe);
-            let m = s.samples() as f64;
-            let cost = (n as f64).powi(2) * m + n as f64 * m * m;
+            let cost = matrix_dft_cost(n, s.samples());
             let why = if k == 1 {
                 format!(
                     "the DOE's own {:.3} um samples: no interpolation, every condition holds",
@@ -274,7 +295,12 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
                 )
             } else {
                 format!(
-                    "DOE pitch / {k} (bilinear): at / {} {}",
+                    "DOE pitch / {k} ({}): at / {} {}",
+                    if stepped {
+                        "nearest, the DOE's steps kept: a pixelated part's surface".to_string()
+                    } else {
+                        format!("{:?}", s.interpolation).to_lowercase()
+                    },
                     k - 1,
                     last.iter().map(|v| v.condition.as_str()).collect::<Vec<_>>().join(", ")
                 )
@@ -315,11 +341,7 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
         }
         let v = propagate::check(Method::AngularSpectrum, &s, doe)?;
         if v.is_empty() {
-            let (_, _, w) = asm::grid(&s);
-            let w = w as f64;
-            // Two steps of forward and inverse complex FFTs, 5 N log2 N flops each (~ 2.5
-            // multiply-adds).
-            let cost = 4.0 * 2.5 * w * w * w.log2() * 2.0;
+            let cost = fft_cost(asm::grid(&s).2);
             let why = format!(
                 "pupil at the sensor sub-sample pitch {:.3} um{}, 2x padding",
                 s.sample_pitch() * 1e6,

@@ -33,6 +33,23 @@
 //!   method on the surface between the DOE's samples, at a 0.4 um pupil pitch (which differs
 //!   from 0.2 um by 4e-4: the truth's uncertainty, tested). Its maps found silent failures, now
 //!   refused: see `pupil_resampling` in [`super::propagate`].
+//! * the matrix DFT on a stepped DOE ([`stepped_doe`]: the same phase sampled at
+//!   [`STEPPED_DOE_PITCH`], wrapped at 550 nm, and that quantized to [`MapOptions::levels`]
+//!   levels, as `fab` makes a part): the part is piecewise constant per sample, so its truth is
+//!   the same method on that piecewise-constant surface, point samples five per DOE sample and
+//!   axis read by nearest interpolation (nested in the cells; against the cells' exact
+//!   envelope, 4.8e-4 at 400 nm, less at longer wavelengths: its uncertainty, tested; the
+//!   runs at the DOE's own pitch differ from it by 2.1e-3 at most, their aperture's edge
+//!   sampled at 2 um against 0.4 um). Its
+//!   runs read the pupil as the plan does for a stepped DOE, by nearest interpolation, at the
+//!   DOE's pitch, at whole fractions of it (`stepped_pitches`) and coarser, in the model of
+//!   such a part: cells of constant height ([`OpticalSystem::cells`]; the point samples the
+//!   paper's model takes differ from the part by the cell envelope `sinc(f dx)`, which the
+//!   maps found 1.1e-2 off at 400 nm at the DOE's own 2 um pitch, for any design, smooth or
+//!   stepped, pixelated at that pitch). Away from 550 nm the wrap's steps are real steps of
+//!   `(n(lambda) - 1) h_2pi k`, over pi in phase: the guard tells them from undersampled
+//!   slopes ([`super::propagate`]'s `phase_changes`), and refuses the coarser pupils, which
+//!   read across them (`step_resampling`).
 //!
 //! **Axes.** x: the pupil pitch over the lens-sampling limit, `dx / (lambda F#)` (the
 //! transfer-function guards' `lens_sampling` boundary is x = 1 on every row; the matrix DFT's
@@ -40,8 +57,9 @@
 //! `D / (crop window)`). Map 1, y: the Fresnel number of the
 //! aperture at the sensor, `N_F = (D/2)^2 / (lambda d_s)`, swept through the focal length
 //! (`d_s = g`, in focus) at one wavelength. Map 2, y: the wavelength, at the scene's focal
-//! length. The paper's own sampling (4.29 um at F/7: x = 0.97, 1.16, 1.36 at 635, 530, 450 nm)
-//! is marked on map 2's x axis.
+//! length (the stepped DOEs have this map only: at 550 nm their steps vanish). The paper's own
+//! sampling (4.29 um at F/7: x = 0.97, 1.16, 1.36 at 635, 530, 450 nm) is marked on map 2's x
+//! axis.
 //!
 //! The error is the relative L2 of the PSF (normalised to sum 1 over the crop) against the
 //! truth's, one wavelength per run.
@@ -55,11 +73,20 @@ use super::psf_bench::scene;
 use super::simulate;
 use super::system::{OpticalSystem, PixelRule};
 use crate::error::{Error, Result};
-use crate::grid::{Grid, Unit};
+use crate::fabrication::quantize::{quantize, QuantizeMethod};
+use crate::fabrication::wrap::{wrap, WrapSpec};
+use crate::grid::{Grid, Interpolation, Unit};
 use crate::material::Material;
 
 /// Pitch of the stability DOE's samples, metres.
 pub const DOE_PITCH: f64 = 0.8e-6;
+/// Pitch of the stepped (wrapped, quantized) DOEs' samples, metres: 0.63 rad per sample at
+/// most at 550 nm, every slope resolved.
+pub const STEPPED_DOE_PITCH: f64 = 2e-6;
+/// Pupil samples per DOE sample and axis of the stepped DOEs' truth (a 0.4 um pupil).
+pub const STEPPED_TRUTH_REFINEMENT: usize = 5;
+/// The wavelength the stepped DOEs are wrapped at, metres.
+pub const STEPPED_WRAP_WAVELENGTH: f64 = 550e-9;
 
 /// The paper's DOE pitch and F-number, and its three wavelengths (metres).
 const PAPER_PITCH: f64 = 4.29e-6;
@@ -84,6 +111,11 @@ pub struct MapOptions {
     pub wavelength: f64,
     /// Wavelengths of map 2, metres (at the scene's 3.5 mm focal length).
     pub wavelengths: Vec<f64>,
+    /// Pupil pitches of the matrix DFT's maps on the stepped DOEs, metres (nearest
+    /// interpolation: whole fractions of [`STEPPED_DOE_PITCH`] nest in its cells).
+    pub stepped_pitches: Vec<f64>,
+    /// Level count of the quantized DOE.
+    pub levels: usize,
 }
 
 impl Default for MapOptions {
@@ -96,6 +128,8 @@ impl Default for MapOptions {
             focal_lengths: vec![1.0e-3, 1.4e-3, 2.0e-3, 2.8e-3, 4.0e-3, 5.6e-3, 8.0e-3],
             wavelength: 550e-9,
             wavelengths: vec![400e-9, 450e-9, 500e-9, 550e-9, 600e-9, 650e-9, 700e-9],
+            stepped_pitches: vec![2e-6 / 3.0, 1e-6, 2e-6, 3e-6, 4.5e-6, 6.5e-6, 9e-6],
+            levels: 4,
         }
     }
 }
@@ -124,6 +158,8 @@ pub struct MapCell {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StabilityMap {
     pub method: String,
+    /// The DOE: `smooth` (the stability DOE), `wrapped` or `quantized` ([`stepped_doe`]).
+    pub design: String,
     /// `fresnel_number` or `wavelength`: the y axis.
     pub y_axis: String,
     /// The guard boundary drawn on the chart: at `limit_x` on the x axis, and its name.
@@ -133,6 +169,14 @@ pub struct StabilityMap {
     pub silent_failures: usize,
     /// Runs the guard refuses whose error is within the tolerance (the guard's caution).
     pub refused_within_tolerance: usize,
+}
+
+impl StabilityMap {
+    /// The map's name in file names and tables: `<method>_<y axis>`, with the design between
+    /// them for a stepped DOE (`matrix_dft_wrapped_wavelength`).
+    pub fn name(&self) -> String {
+        map_name(&self.method, &self.design, &self.y_axis)
+    }
 }
 
 /// Where the paper's sampling sits on the x axis.
@@ -153,6 +197,8 @@ pub struct StabilityReport {
     pub sensor_pitch: f64,
     pub crop: usize,
     pub maps: Vec<StabilityMap>,
+    /// The maps a time budget left out ([`MapKind::name`]), with why.
+    pub left_out: Vec<String>,
     pub paper: Vec<PaperMark>,
 }
 
@@ -170,10 +216,29 @@ pub fn doe() -> Result<Grid> {
     Grid::new(v, [DOE_PITCH; 2], Unit::Metre)
 }
 
+/// The stepped DOEs on a grid covering the scene's pupil window: the stability DOE's phase
+/// sampled at [`STEPPED_DOE_PITCH`], wrapped at [`STEPPED_WRAP_WAVELENGTH`] in PDMS
+/// ([`crate::fabrication::wrap`]), and that quantized to `levels` levels by rounding
+/// ([`crate::fabrication::quantize`]), as `fab` makes them: `(wrapped, quantized)`.
+pub fn stepped_doe(levels: usize) -> Result<(Grid, Grid)> {
+    let l = 550e-9;
+    let k = 2.0 * std::f64::consts::PI / l * (Material::pdms().index(l)? - 1.0);
+    let tau = 2.0 * std::f64::consts::PI;
+    let n = (scene().pupil_window / STEPPED_DOE_PITCH).ceil() as usize + 20;
+    let c = (n as f64 - 1.0) * 0.5;
+    let v = ndarray::Array2::from_shape_fn((n, n), |(i, j)| {
+        let (x, y) = ((j as f64 - c) * STEPPED_DOE_PITCH, (i as f64 - c) * STEPPED_DOE_PITCH);
+        (3.0 * ((tau * x / 60e-6).cos() + (tau * y / 85e-6).cos()) + 6.0) / k
+    });
+    let spec = WrapSpec { wavelength: STEPPED_WRAP_WAVELENGTH, material: Material::pdms(), order: 1 };
+    let (wrapped, _) = wrap(&Grid::new(v, [STEPPED_DOE_PITCH; 2], Unit::Metre)?, &spec)?;
+    let quantized = quantize(&wrapped, spec.period()?, levels, QuantizeMethod::Round)?.heights()?;
+    Ok((wrapped, quantized))
+}
+
 /// How many runs [`run_maps`] makes (for a progress bar).
 pub fn steps(opts: &MapOptions) -> usize {
-    (opts.subsamples.len() + opts.asm_subsamples.len() + opts.mdft_pitches.len())
-        * (opts.focal_lengths.len() + opts.wavelengths.len())
+    MAPS.iter().map(|&kind| map_steps(opts, kind)).sum()
 }
 
 /// `base` at focal length `g` with the sensor in focus, one wavelength, `subsample` sub-samples
@@ -298,7 +363,7 @@ pub(crate) fn pixels(intensity: &Array2<f64>, s: usize) -> Array2<f64> {
 }
 
 fn map(
-    method: Method,
+    (method, design): (Method, &str),
     y_axis: &str,
     cells: Vec<MapCell>,
     tolerance: f64,
@@ -316,6 +381,7 @@ fn map(
     };
     StabilityMap {
         method: method.name().into(),
+        design: design.into(),
         y_axis: y_axis.into(),
         limit_x,
         limit: limit.into(),
@@ -358,17 +424,111 @@ fn row(
     Ok(cells)
 }
 
-/// Runs the six maps, two per method (module docs), calling `tick` before each run ([`steps`]
-/// in all).
-pub fn run_maps(opts: &MapOptions, mut tick: impl FnMut(&str)) -> Result<StabilityReport> {
-    let tick: &mut dyn FnMut(&str) = &mut tick;
+/// One row of a stepped DOE's map: the matrix DFT of cells at every pupil pitch of
+/// `opts.stepped_pitches` by nearest interpolation, at the scene's focal length and
+/// `wavelength`, against the piecewise-constant part (module docs).
+fn stepped_row(
+    opts: &MapOptions,
+    (base, doe, design): (&OpticalSystem, &Grid, &str),
+    wavelength: f64,
+    tick: &mut dyn FnMut(&str),
+) -> Result<Vec<MapCell>> {
+    let sys = OpticalSystem {
+        interpolation: Interpolation::Nearest,
+        cells: true,
+        ..in_focus(base, base.focal_length, wavelength, MDFT_SUBSAMPLE, PixelRule::GaussLegendre)
+    };
+    let truth_system = OpticalSystem {
+        pupil_pitch: STEPPED_DOE_PITCH / STEPPED_TRUTH_REFINEMENT as f64,
+        cells: false,
+        ..sys.clone()
+    };
+    let truth = simulate(&truth_system, doe, Method::MatrixDft, &Options::default())?;
+    let truth = truth.channels[0].grid.values();
+    let mut cells = Vec::new();
+    for &dx in &opts.stepped_pitches {
+        tick(&format!(
+            "matrix_dft on the {design} DOE: {:.0} nm, pupil pitch {:.2} um",
+            wavelength * 1e9,
+            dx * 1e6
+        ));
+        cells.push(mdft_cell(&sys, doe, dx, truth, opts.tolerance)?);
+    }
+    Ok(cells)
+}
+
+/// One map of the stability report: the method, the DOE (`smooth`, `wrapped`, `quantized`)
+/// and the y axis (`fresnel_number`, `wavelength`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MapKind {
+    pub method: Method,
+    pub design: &'static str,
+    pub y_axis: &'static str,
+}
+
+impl MapKind {
+    /// The map's name ([`StabilityMap::name`]).
+    pub fn name(self) -> String {
+        map_name(self.method.name(), self.design, self.y_axis)
+    }
+}
+
+/// `<method>_<y axis>`, with the design between them for a stepped DOE.
+fn map_name(method: &str, design: &str, y_axis: &str) -> String {
+    if design == "smooth" {
+        format!("{method}_{y_axis}")
+    } else {
+        format!("{method}_{design}_{y_axis}")
+    }
+}
+
+/// The eight maps, in the order [`run_maps`] runs them: two per method on the smooth DOE, and
+/// the matrix DFT's on the two stepped ones.
+pub const MAPS: [MapKind; 8] = {
+    const fn kind(method: Method, design: &'static str, y_axis: &'static str) -> MapKind {
+        MapKind { method, design, y_axis }
+    }
+    [
+        kind(Method::Fresnel, "smooth", "fresnel_number"),
+        kind(Method::Fresnel, "smooth", "wavelength"),
+        kind(Method::AngularSpectrum, "smooth", "fresnel_number"),
+        kind(Method::AngularSpectrum, "smooth", "wavelength"),
+        kind(Method::MatrixDft, "smooth", "fresnel_number"),
+        kind(Method::MatrixDft, "smooth", "wavelength"),
+        kind(Method::MatrixDft, "wrapped", "wavelength"),
+        kind(Method::MatrixDft, "quantized", "wavelength"),
+    ]
+};
+
+/// How many runs the map `kind` makes.
+pub fn map_steps(opts: &MapOptions, kind: MapKind) -> usize {
+    let per_row = match (kind.method, kind.design) {
+        (_, "wrapped" | "quantized") => opts.stepped_pitches.len(),
+        (Method::Fresnel, _) => opts.subsamples.len(),
+        (Method::AngularSpectrum, _) => opts.asm_subsamples.len(),
+        _ => opts.mdft_pitches.len(),
+    };
+    let rows =
+        if kind.y_axis == "fresnel_number" { opts.focal_lengths.len() } else { opts.wavelengths.len() };
+    per_row * rows
+}
+
+/// Checks the sweeps of `opts`.
+fn check_options(opts: &MapOptions) -> Result<()> {
     let bad = |v: f64| !(v > 0.0 && v.is_finite());
     if bad(opts.tolerance)
         || opts.subsamples.is_empty()
         || opts.asm_subsamples.is_empty()
         || opts.subsamples.iter().chain(&opts.asm_subsamples).any(|&s| s == 0)
         || opts.mdft_pitches.is_empty()
-        || opts.focal_lengths.iter().chain(&opts.wavelengths).chain(&opts.mdft_pitches).any(|v| bad(*v))
+        || opts.stepped_pitches.is_empty()
+        || opts
+            .focal_lengths
+            .iter()
+            .chain(&opts.wavelengths)
+            .chain(&opts.mdft_pitches)
+            .chain(&opts.stepped_pitches)
+            .any(|v| bad(*v))
         || bad(opts.wavelength)
     {
         return Err(Error::param(
@@ -376,39 +536,71 @@ pub fn run_maps(opts: &MapOptions, mut tick: impl FnMut(&str)) -> Result<Stabili
             "the tolerance, sub-samplings, pupil pitches, focal lengths and wavelengths must be positive and finite",
         ));
     }
+    Ok(())
+}
+
+/// Runs the map `kind` (module docs), calling `tick` before each run ([`map_steps`] in all).
+pub fn run_map(opts: &MapOptions, kind: MapKind, mut tick: impl FnMut(&str)) -> Result<StabilityMap> {
+    check_options(opts)?;
+    let tick: &mut dyn FnMut(&str) = &mut tick;
     let base = scene();
-    let doe = doe()?;
-    let mut maps = Vec::new();
-    for method in [Method::Fresnel, Method::AngularSpectrum, Method::MatrixDft] {
-        let mut by_fresnel = Vec::new();
-        for &g in &opts.focal_lengths {
-            by_fresnel.extend(row(method, opts, (&base, &doe), g, opts.wavelength, tick)?);
+    let mut cells = Vec::new();
+    match kind.design {
+        "smooth" => {
+            let doe = doe()?;
+            if kind.y_axis == "fresnel_number" {
+                for &g in &opts.focal_lengths {
+                    cells.extend(row(kind.method, opts, (&base, &doe), g, opts.wavelength, tick)?);
+                }
+            } else {
+                for &l in &opts.wavelengths {
+                    cells.extend(row(kind.method, opts, (&base, &doe), base.focal_length, l, tick)?);
+                }
+            }
         }
-        maps.push(map(method, "fresnel_number", by_fresnel, opts.tolerance, &base));
-        let mut by_wavelength = Vec::new();
-        for &l in &opts.wavelengths {
-            by_wavelength.extend(row(method, opts, (&base, &doe), base.focal_length, l, tick)?);
+        design => {
+            let (wrapped, quantized) = stepped_doe(opts.levels)?;
+            let stepped = if design == "wrapped" { wrapped } else { quantized };
+            for &l in &opts.wavelengths {
+                cells.extend(stepped_row(opts, (&base, &stepped, design), l, tick)?);
+            }
         }
-        maps.push(map(method, "wavelength", by_wavelength, opts.tolerance, &base));
     }
+    Ok(map((kind.method, kind.design), kind.y_axis, cells, opts.tolerance, &base))
+}
+
+/// The report of `maps` run with `opts`, naming the maps `left_out` (by a time budget).
+pub fn report(opts: &MapOptions, maps: Vec<StabilityMap>, left_out: Vec<String>) -> StabilityReport {
+    let base = scene();
     let paper = PAPER_WAVELENGTHS
         .iter()
         .map(|&l| PaperMark { wavelength: l, lens_sampling_ratio: PAPER_PITCH / (l * PAPER_F_NUMBER) })
         .collect();
-    Ok(StabilityReport {
+    StabilityReport {
         units: "lengths in m; errors as relative L2; ratios and Fresnel numbers dimensionless".into(),
         tolerance: opts.tolerance,
         truth: "the same pupil samples to the same sensor points: for fresnel the matrix DFT (exact discrete \
                 transform in focus), for angular_spectrum direct Rayleigh-Sommerfeld integration of their \
                 band-limited field on a lattice finer than the wavelength; for matrix_dft the matrix DFT of the \
-                same surface at a 0.4 um pupil pitch, at the same Gauss-Legendre sensor points"
+                same surface at a 0.4 um pupil pitch, at the same Gauss-Legendre sensor points; on the wrapped \
+                and quantized DOEs (2 um samples, wrapped at 550 nm; runs in cells of constant height) the \
+                matrix DFT of the piecewise-constant part, 5 x 5 point samples nested in each DOE sample by \
+                nearest interpolation"
             .into(),
         aperture: base.aperture,
         sensor_pitch: base.sensor_pitch,
         crop: base.crop,
         maps,
+        left_out,
         paper,
-    })
+    }
+}
+
+/// Runs the eight maps of [`MAPS`] (module docs), calling `tick` before each run ([`steps`] in
+/// all).
+pub fn run_maps(opts: &MapOptions, mut tick: impl FnMut(&str)) -> Result<StabilityReport> {
+    let maps = MAPS.iter().map(|&kind| run_map(opts, kind, &mut tick)).collect::<Result<Vec<_>>>()?;
+    Ok(report(opts, maps, Vec::new()))
 }
 
 #[cfg(test)]

@@ -338,11 +338,8 @@ impl OpticalSystem {
                 ),
             ));
         }
-        // At the DOE's own pitch, with the same parity and no more samples, the pupil samples
-        // are DOE samples: a centred crop, no interpolation.
         let (r, c) = doe.dim();
-        let same_pitch = doe.pitch().iter().all(|p| (p / pitch - 1.0).abs() < 1e-12);
-        let g = if same_pitch && r >= n && c >= n && (r - n).is_multiple_of(2) && (c - n).is_multiple_of(2) {
+        let g = if takes_doe_samples(doe, n, pitch) {
             let (i0, j0) = ((r - n) / 2, (c - n) / 2);
             doe.crop(i0..i0 + n, j0..j0 + n)?
         } else {
@@ -379,6 +376,36 @@ impl OpticalSystem {
         }
         n
     }
+}
+
+/// Whether the `n x n` pupil of `pitch` (metres) takes the DOE's own samples: at the DOE's
+/// pitch, with the same parity and no more samples, the pupil is a centred crop of the DOE,
+/// with no interpolation.
+pub fn takes_doe_samples(doe: &Grid, n: usize, pitch: f64) -> bool {
+    let (r, c) = doe.dim();
+    let same_pitch = doe.pitch().iter().all(|p| (p / pitch - 1.0).abs() < 1e-12);
+    same_pitch && r >= n && c >= n && (r - n).is_multiple_of(2) && (c - n).is_multiple_of(2)
+}
+
+/// The whole number `k` of pupil samples per DOE sample and axis when the DOE's pitch is `k`
+/// times `pitch` along both axes and `k` times the DOE's rows and columns have one parity:
+/// then a centred pupil of that parity ([`nested_parity`]) puts `k x k` samples symmetric
+/// inside each DOE sample's cell, at least `pitch / 2` from its edges, so that nearest
+/// interpolation reads every pupil sample from the DOE sample whose cell holds it (the
+/// piecewise-constant surface a pixelated part has, without ties).
+pub fn nested_refinement(doe: &Grid, pitch: f64) -> Option<usize> {
+    let [px, py] = doe.pitch();
+    let k = (px / pitch).round();
+    let whole = |p: f64| k >= 1.0 && (p / pitch - k).abs() < 1e-9 * k;
+    let k = k as usize;
+    let (r, c) = doe.dim();
+    (whole(px) && whole(py) && (r * k) % 2 == (c * k) % 2).then_some(k)
+}
+
+/// The parity (0 even, 1 odd) of a centred pupil whose samples nest in the DOE's cells at
+/// `k` samples per DOE sample ([`nested_refinement`]): that of `k` times the DOE's columns.
+pub fn nested_parity(doe: &Grid, k: usize) -> usize {
+    (doe.dim().1 * k) % 2
 }
 
 /// An optical system as written in a TOML file: every length a string with its unit

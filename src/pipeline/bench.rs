@@ -69,7 +69,7 @@ pub fn run_psf_bench(
 }
 
 /// The paper's camera fitted to the design, with the material and system file of `opts`.
-fn design_system(opts: &PsfBenchOptions, heights: &crate::grid::Grid) -> Result<OpticalSystem> {
+pub(crate) fn design_system(opts: &PsfBenchOptions, heights: &crate::grid::Grid) -> Result<OpticalSystem> {
     let mut system = system_for(heights);
     system.material = Material::by_name(&opts.material)?;
     if let Some(p) = &opts.system {
@@ -292,6 +292,11 @@ pub struct DecoderBenchOptions {
     pub train_data: Option<PathBuf>,
     /// Tile side of the registration, pixels.
     pub tile: usize,
+    /// Where the fine-tuning's simulated captures clip, per channel (see
+    /// [`FinetuneConfig::channel_clipping`]).
+    pub channel_clipping: [f64; 3],
+    /// The fine-tuning's halo (see [`FinetuneConfig::halo`]).
+    pub halo: Option<crate::decoder::measurement::Halo>,
 }
 
 /// The benchmark's report (serialised as it is) and the warnings about its scenes.
@@ -300,7 +305,7 @@ pub struct DecoderBenchOptions {
 pub struct DecoderBenchOutcome {
     /// What [`crate::decoder::capture_bench::run`] reports.
     pub report: BenchReport,
-    /// Scenes whose bracket merged with warnings, and scenes refused.
+    /// Scenes whose bracket merged with warnings, scenes refused, training images skipped.
     #[serde(skip)]
     pub warnings: Vec<String>,
 }
@@ -351,6 +356,8 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
             crop: o.crop,
             lr: o.lr,
             seed: o.seed,
+            channel_clipping: o.channel_clipping,
+            halo: o.halo,
             ..FinetuneConfig::recommended()
         },
         evaluate_every,
@@ -400,6 +407,7 @@ pub fn bench_decoder(
         }
     }
     if let Some(f) = &report.finetune {
+        warnings.extend(f.skipped_images.iter().cloned());
         warnings.extend(below_start(f));
     }
     Ok(DecoderBenchOutcome { report, warnings })
@@ -440,6 +448,7 @@ mod tests {
             steps,
             seconds_per_step: 1.0,
             training_data: "images".into(),
+            skipped_images: Vec::new(),
             curve: vec![point(0, [39.72, 32.78]), point(steps, end)],
             history: Vec::new(),
         };

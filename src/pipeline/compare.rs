@@ -1,6 +1,8 @@
 //! `doefab compare`: a fabricated part's scan against its design, through the stages: the
-//! reference surface made by the fabrication chain ([`reference_surface`]), the comparison of
-//! [`crate::metrology::scan_compare`], and the design PSF against the as-fabricated PSF
+//! surfaces the fabrication chain makes of the design, its family ([`reference_family`]: the
+//! wrapped design and the cast of the master, from [`reference_surface`]), the comparison of
+//! [`crate::metrology::scan_compare`] with the member the scan shows, and the design PSF
+//! against the as-fabricated PSF
 //! ([`psf_comparison`], by [`crate::optics`]); the outputs written all at once.
 
 use std::path::Path;
@@ -9,12 +11,14 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::fabrication::chain::{self, ChainParams, DesignSource, LoadedDesign};
-use crate::fabrication::wrap::WrapSpec;
+use crate::fabrication::wrap::{cast_of_master, WrapSpec};
 use crate::fabrication::ReplicaMode;
 use crate::grid::fill::fill_missing;
 use crate::grid::Grid;
 use crate::io::scan::{self, Scan, ScanOptions};
-use crate::metrology::scan_compare::{compare, CompareOptions, Comparison, LevelSpec};
+use crate::metrology::scan_compare::{
+    compare_family, CompareOptions, Comparison, LevelSpec, Member, Reference,
+};
 use crate::metrology::scan_registration::Registration;
 use crate::optics::system::OpticalSystem;
 use crate::optics::{Method, Options};
@@ -93,6 +97,52 @@ pub fn reference_surface(
     }
 }
 
+/// The surfaces of the design's fabrication family a scan is registered to
+/// ([`crate::metrology::scan_compare::compare_family`]), with the optics of the efficiency
+/// prediction. Given the chain's parameters: the design wrapped and quantized as the recipe
+/// makes it ([`reference_surface`]) and the cast of the master written from it
+/// ([`cast_of_master`]), the one the recipe makes first (the cast for a master recipe). Without:
+/// the design as given, then wrapped at the optics' period and its master's cast (continuous),
+/// so that a scan of a master is found with no recipe as well.
+pub fn reference_family(
+    design: &LoadedDesign,
+    chain: Option<&ChainParams>,
+) -> Result<(Vec<Reference>, WrapSpec)> {
+    let (surface, levels, optics) = reference_surface(design, chain)?;
+    let period = optics.period()?;
+    let mut family = Vec::with_capacity(3);
+    let wrapped = match chain {
+        Some(_) => surface,
+        None => {
+            family.push(Reference { member: Member::Design, surface: surface.clone(), levels: None });
+            crate::fabrication::wrap::wrap(&surface, &optics)?.0
+        }
+    };
+    let cast = Reference { member: Member::Replica, surface: cast_of_master(&wrapped, period)?, levels };
+    let wrapped = Reference { member: Member::Wrapped, surface: wrapped, levels };
+    if chain.is_some_and(|p| p.replica_mode == ReplicaMode::Master) {
+        family.extend([cast, wrapped]);
+    } else {
+        family.extend([wrapped, cast]);
+    }
+    Ok((family, optics))
+}
+
+/// The member of `family` named `member`: the surface a comparison found, made again (for a
+/// model read back from its `compare.json`).
+pub fn family_member(family: Vec<Reference>, member: Member) -> Result<Reference> {
+    family.into_iter().find(|r| r.member == member).ok_or_else(|| {
+        Error::param(
+            "member",
+            format!(
+                "the comparison was made against {}, which this recipe's family does not hold; compare the \
+                 scan with --recipe",
+                member.name()
+            ),
+        )
+    })
+}
+
 /// What `doefab compare` reports and writes as `compare.json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct CompareReport {
@@ -124,7 +174,8 @@ struct SurfaceMeta<'a> {
     filled_samples: usize,
 }
 
-/// Compares a scan with a reference surface, computes the PSF comparison (unless `psf` is
+/// Compares a scan with the member of the design's `family` it matches
+/// ([`compare_family`]), computes the PSF comparison against that member (unless `psf` is
 /// `None`; skipped with a warning where the method's validity guard refuses the part's surface
 /// and the options do not force it) and writes the outputs into `out` at once: `compare.json`, `surface.exr` (the part
 /// on the design grid, non-measured samples filled, readable by `doefab psf`) with
@@ -135,7 +186,7 @@ pub fn compare_and_write(
     scan_path: &Path,
     scan: &Scan,
     design: &LoadedDesign,
-    reference: &Grid,
+    family: &[Reference],
     opts: &CompareOptions,
     psf: Option<(Method, &Options)>,
     out: &Path,
@@ -143,7 +194,8 @@ pub fn compare_and_write(
 ) -> Result<CompareReport> {
     use crate::report::metrology_charts::{height_histogram, height_map, profiles, Palette};
     step("register and compare");
-    let mut c = compare(reference, &scan.grid, opts)?;
+    let mut c = compare_family(family, &scan.grid, opts)?;
+    let reference = &c.reference;
     let (filled, filled_samples) = fill_missing(&c.surface)?;
     let psf = match psf {
         Some((method, o)) => {
@@ -244,11 +296,16 @@ pub fn compare_scan_file(
     let scan = scan::read_scan(scan_path, scan_opts)?;
     crate::io::heightmap::check_relief(scan_path, &scan.grid)?;
     let design = chain::load_design(source)?;
-    let (reference, levels, optics) = reference_surface(&design, chain)?;
+    let (family, optics) = reference_family(&design, chain)?;
+    let opts = CompareOptions { aperture: default_aperture(source, aperture), optics, ..Default::default() };
+    compare_and_write(scan_path, &scan, &design, &family, &opts, psf, out, step)
+}
+
+/// The clear aperture of a comparison: `aperture` (metres), else the paper's 5 mm for
+/// `built-in:paper`, else `None` (the largest circle the design grid holds).
+pub fn default_aperture(source: &DesignSource, aperture: Option<f64>) -> Option<f64> {
     let paper = matches!(source, DesignSource::BuiltIn(n) if n == "paper");
-    let aperture = aperture.or(paper.then_some(crate::design::PAPER_APERTURE));
-    let opts = CompareOptions { aperture, levels, optics, ..Default::default() };
-    compare_and_write(scan_path, &scan, &design, &reference, &opts, psf, out, step)
+    aperture.or(paper.then_some(crate::design::PAPER_APERTURE))
 }
 
 #[cfg(test)]

@@ -10,8 +10,14 @@
 //! plain one: a master is the complement of the commanded surface, mirrored, and a grayscale
 //! mask maps each commanded height to a dose through the resist's contrast curve.
 //!
-//! Refused, with the figure: a model from a registration whose part correlates with the design
-//! below 0.9 inside the aperture, a depth scale outside 0.5..1.5 (a wrong unit or a wrong
+//! The scan is registered to the design's family as `compare` does it (the cast of the
+//! master, the wrapped design: [`reference_family`]), and the member it matched is the target:
+//! for a scan of the master or its cast, the cast of the master `fab` writes, so that the plain
+//! correction commands `fab`'s own master.
+//!
+//! Refused, with the figure: every registration `compare` refuses (the one trust rule,
+//! [`check_trust`], on the registration and on the part over the aperture's interior, also for
+//! a model read back from `compare.json`), a depth scale outside 0.5..1.5 (a wrong unit or a wrong
 //! design, not a process error), a compare.json made against another design, a per-level
 //! response that is not monotone, a correction that needs heights beyond what the writer makes
 //! (the contrast curve's range), and a recipe asking for a binary mask set (its level heights
@@ -37,13 +43,13 @@ use crate::io::atomic::{write_json, StagedDir};
 use crate::io::heightmap::Metadata;
 use crate::io::scan::ScanOptions;
 use crate::metrology::scan_compare::{
-    compare, efficiency_loss, CompareOptions, Comparison, EfficiencyLoss, FabModel, LevelReport, LevelSpec,
+    check_interior, compare, compare_family, efficiency_loss, CompareOptions, Comparison, EfficiencyLoss,
+    FabModel, LevelReport, LevelSpec, Member,
 };
+use crate::metrology::scan_registration::{check_trust, TRUSTED_FRACTION};
 use crate::metrology::synthetic_scan::{simulate_scan, SimulateParams};
-use crate::pipeline::compare::reference_surface;
+use crate::pipeline::compare::{default_aperture, family_member, reference_family, reference_surface};
 
-/// Lowest correlation of part and design (inside the aperture) a model is taken from.
-pub const MIN_CORRELATION: f64 = 0.9;
 /// Depth scales outside this range are refused.
 pub const DEPTH_SCALE_RANGE: [f64; 2] = [0.5, 1.5];
 /// Up to this many levels the response goes through every measured level height (each level
@@ -80,6 +86,16 @@ impl Default for Corrections {
     }
 }
 
+/// What a model's registration reached: the fields of `compare.json`'s `registration` that
+/// the trust rule reads.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MeasuredRegistration {
+    /// Correlation of the registered design with the scan.
+    pub correlation: f64,
+    /// The correlation the scan's noise allows a right pose.
+    pub noise_ceiling: f64,
+}
+
 /// The measurement a model is built from (the fields of `compare.json` it needs).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Measured {
@@ -89,6 +105,11 @@ pub struct Measured {
     pub scan_sha256: String,
     /// SHA-256 of the design the scan was compared with (its parameters for a built-in one).
     pub design_sha256: String,
+    /// The member of the design's family the scan matched (a `compare.json` without it was
+    /// compared with the wrapped design).
+    #[serde(default = "wrapped")]
+    pub member: Member,
+    pub registration: MeasuredRegistration,
     /// Correlation of part and design inside the aperture ([`Comparison::interior_correlation`]).
     pub interior_correlation: f64,
     /// RMS of part - design over the aperture, metres.
@@ -99,12 +120,21 @@ pub struct Measured {
     pub levels: Option<LevelReport>,
 }
 
+fn wrapped() -> Member {
+    Member::Wrapped
+}
+
 impl Measured {
     fn of_comparison(c: &Comparison, scan: String, scan_sha256: String, design_sha256: String) -> Measured {
         Measured {
             scan,
             scan_sha256,
             design_sha256,
+            member: c.member,
+            registration: MeasuredRegistration {
+                correlation: c.registration.correlation,
+                noise_ceiling: c.registration.noise_ceiling,
+            },
             interior_correlation: c.interior_correlation,
             rms_error: c.rms_error,
             model: c.model.clone(),
@@ -127,13 +157,17 @@ pub fn process_model(
     c: &Corrections,
     warnings: &mut Vec<String>,
 ) -> Result<(ProcessModel, String)> {
-    if m.interior_correlation.is_nan() || m.interior_correlation < MIN_CORRELATION {
-        return Err(Error::Registration(format!(
-            "{}: the part correlates with the design by {:.3} inside the aperture, below {MIN_CORRELATION}: a model \
-             fitted from such a registration would correct the wrong thing",
-            m.scan, m.interior_correlation
-        )));
-    }
+    // The rule `compare` applies, so that no registration it refuses becomes a correction.
+    let named = |e: Error| match e {
+        Error::Registration(why) => Error::Registration(format!(
+            "{}: {why}; a model fitted from it would correct the wrong thing",
+            m.scan
+        )),
+        other => other,
+    };
+    let ceiling = m.registration.noise_ceiling;
+    check_trust("the registration", m.registration.correlation, ceiling, TRUSTED_FRACTION).map_err(named)?;
+    check_interior(m.interior_correlation, ceiling, TRUSTED_FRACTION).map_err(named)?;
     let k = m.model.depth_scale;
     if !(DEPTH_SCALE_RANGE[0]..=DEPTH_SCALE_RANGE[1]).contains(&k) {
         return Err(Error::Validity(format!(
@@ -181,17 +215,13 @@ pub fn process_model(
         }
         (Response::linear(k, 0.0)?, format!("depth scale {k:.4}"))
     };
-    let blur = if !c.deblur {
-        0.0
-    } else if !m.model.blur_resolved {
-        warnings.push(format!(
-            "the blur is not resolved ({:.2} +- {:.2} um): it is not deconvolved",
-            m.model.blur * 1e6,
-            m.model.blur_sigma * 1e6
-        ));
-        0.0
-    } else {
-        m.model.blur
+    let blur = match (c.deblur, m.model.blur_doubt()) {
+        (false, _) => 0.0,
+        (true, Some(why)) => {
+            warnings.push(format!("{why}: it is not deconvolved"));
+            0.0
+        }
+        (true, None) => m.model.blur,
     };
     Ok((ProcessModel { response, blur }, kind))
 }
@@ -311,8 +341,9 @@ pub struct PrecompensateReport {
     pub corrected: Vec<String>,
     /// The process the correction inverts.
     pub process_model: ProcessModel,
-    /// Commanded height of each design level, metres (design frame).
-    pub level_commands: Vec<f64>,
+    /// Commanded height of each level of the target, metres (design frame; `null` for a level
+    /// it does not hold: level 0 of the cast of the master, which lies at the full period).
+    pub level_commands: Vec<Option<f64>>,
     /// Piston added to the target, metres.
     pub piston: f64,
     /// Highest commanded height allowed, metres.
@@ -380,22 +411,22 @@ pub fn run(job: &PrecompensateJob, out: &Path, step: &mut dyn FnMut(&str)) -> Re
     step("load the design");
     let design = chain::load_design(&job.design)?;
     let params = ChainParams::of_recipe(&job.recipe, false);
-    let (target, levels, optics) = reference_surface(&design, Some(&params))?;
-    let measured = match &job.model {
+    let (family, optics) = reference_family(&design, Some(&params))?;
+    let (measured, target) = match &job.model {
         ModelSource::Scan { path, options } => {
             step("register and compare the scan");
             let scan = crate::io::scan::read_scan(path, options)?;
             crate::io::heightmap::check_relief(path, &scan.grid)?;
-            let paper = matches!(&job.design, DesignSource::BuiltIn(n) if n == "paper");
-            let aperture = job.aperture.or(paper.then_some(crate::design::PAPER_APERTURE));
-            let opts = CompareOptions { aperture, levels, optics, ..Default::default() };
-            let c = compare(&target, &scan.grid, &opts)?;
-            Measured::of_comparison(
+            let aperture = default_aperture(&job.design, job.aperture);
+            let opts = CompareOptions { aperture, optics, ..Default::default() };
+            let c = compare_family(&family, &scan.grid, &opts)?;
+            let m = Measured::of_comparison(
                 &c,
                 path.display().to_string(),
                 crate::io::file_sha256(path)?,
                 design.sha256.clone(),
-            )
+            );
+            (m, family_member(family, c.member)?)
         }
         ModelSource::CompareJson(path) => {
             let m = Measured::read(path)?;
@@ -408,7 +439,8 @@ pub fn run(job: &PrecompensateJob, out: &Path, step: &mut dyn FnMut(&str)) -> Re
                     ),
                 ));
             }
-            m
+            let target = family_member(family, m.member).map_err(|e| Error::format(path, e.to_string()))?;
+            (m, target)
         }
     };
     let curve = match &job.recipe.contrast_curve {
@@ -416,7 +448,14 @@ pub fn run(job: &PrecompensateJob, out: &Path, step: &mut dyn FnMut(&str)) -> Re
         None => None,
     };
     step("pre-compensate");
-    let written = precompensate_design(target, levels, &params, &measured, &job.corrections, curve.as_ref())?;
+    let written = precompensate_design(
+        target.surface,
+        target.levels,
+        &params,
+        &measured,
+        &job.corrections,
+        curve.as_ref(),
+    )?;
     step("write");
     write_outputs(job, &design, &params, curve.as_ref(), measured, written, out)
 }
@@ -455,7 +494,8 @@ pub fn precompensate_design(
         corrections.max_height.unwrap_or_else(|| curve.map_or(2.0 * period, |c| c.depth_range()[1]));
     let opts =
         PrecompensateOptions { deblur: model.blur > 0.0, max_height, iterations: corrections.iterations };
-    let result = precompensate(&target, levels.map(|l| (l.count, l.step)), &model, &opts)?;
+    let top = target.min_max().map_or(0.0, |m| m.1);
+    let result = precompensate(&target, levels.map(|l| (l.indices(top), l.step)), &model, &opts)?;
     warnings.extend(result.warnings.iter().cloned());
     let mut corrected = vec![kind];
     if let Some(d) = &result.deblur {

@@ -5,6 +5,18 @@
 //! Every number the page shows is a [`Figure`] of `report.json` (its value, unit and the text
 //! shown), and the page is written from that list alone: the sentence under each chart, the
 //! reading of what to pick and why, is built from figures, never typed in.
+//!
+//! **The budget is a promise.** Each part (the fabrication sweeps, the registration map, the
+//! calibration trials, the tiling sweep, each stability map, the fine-tuning, the PSF
+//! benchmark) is predicted before it runs: its seconds on the machine that measured them
+//! ([`COSTS`]) times the pace, this run's seconds so far over what the same parts (and a probe
+//! run first) took there. A part runs only where its prediction fits in what is left of the
+//! budget, less what the files need and what the PSF benchmark keeps (a fifth of the budget,
+//! or its reference's predicted time if more); what does not fit is left out, named on the page
+//! and in `report.json` with its prediction and the time it had. The page is always written. A
+//! part that runs longer than predicted takes the time of the parts after it; the budget is
+//! overrun only by the misprediction of a part run, or of the PSF benchmark's reference, which
+//! runs whatever its time.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -41,16 +53,168 @@ pub struct ReportOptions {
 /// The share of the budget [`ReportOptions::new`] gives the fine-tuning run.
 pub const FINETUNE_SHARE: f64 = 0.15;
 
+/// The share of the budget the PSF benchmark keeps from the fixed sweeps.
+pub const PSF_SHARE: f64 = 0.2;
+
 impl ReportOptions {
     /// The default sweeps within `budget` seconds: the stability maps' defaults, fine-tuning
     /// for [`FINETUNE_SHARE`] of the budget, and what is left for the PSF benchmark.
     pub fn new(psf: PsfBenchOptions, budget: f64) -> ReportOptions {
+        let psf = PsfBenchOptions { bench: BenchOptions { budget, ..psf.bench }, ..psf };
         ReportOptions {
             psf,
             budget,
             maps: MapOptions::default(),
             finetune: TimedOptions::new(FINETUNE_SHARE * budget),
         }
+    }
+}
+
+/// The seconds each part of the report took on the machine that measured them (two cores,
+/// shared with other builds), with the default sweeps on the paper's design: a part's
+/// prediction is its figure here times the pace ([`run_report`]). The fabrication sweeps scale
+/// with the design's samples, a stability map with its runs.
+pub struct Costs {
+    /// The probe ([`probe`]).
+    pub probe: f64,
+    /// The fabrication sweeps on the paper's 1306^2 design.
+    pub fabrication: f64,
+    pub registration: f64,
+    pub calibration: f64,
+    pub tiling: f64,
+    /// The stability maps of [`stability::MAPS`], in order.
+    pub maps: [f64; 8],
+    /// The fine-tuning's least run: its setup, then `evaluations` steps each with a validation.
+    pub finetune_setup: f64,
+    pub finetune_step: f64,
+    /// The charts and the files of the page.
+    pub files: f64,
+}
+
+/// The measured [`Costs`]: each part once, on two cores with several builds sharing them (a
+/// load of 8 to 10: the probe took 0.12 s there, the parts two to seven times what the README
+/// gives for an idle machine, each part its own factor, which is why the pace is followed as
+/// the parts run).
+pub const COSTS: Costs = Costs {
+    probe: 0.12,
+    fabrication: 168.0,
+    registration: 32.0,
+    calibration: 54.0,
+    tiling: 26.0,
+    maps: [18.6, 31.8, 246.0, 166.0, 2.0, 2.0, 1.9, 1.9],
+    finetune_setup: 49.0,
+    finetune_step: 13.4,
+    files: 5.0,
+};
+
+/// One part of the report and its place in the budget.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Part {
+    /// What it is (`fabrication sweeps`, `stability map fresnel_wavelength`, ...).
+    pub name: String,
+    /// Its predicted seconds when it came up.
+    pub predicted_seconds: f64,
+    /// The seconds then left for it: the budget less the time spent, the files' share and what
+    /// the parts after it keep.
+    pub left_seconds: f64,
+    /// What it took; `None`: left out.
+    pub seconds: Option<f64>,
+}
+
+/// How the report kept its budget.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BudgetRecord {
+    pub budget_seconds: f64,
+    /// The probe's seconds here and on the machine that measured [`COSTS`].
+    pub probe_seconds: f64,
+    pub probe_measured_seconds: f64,
+    /// Every part, in the order they came up.
+    pub parts: Vec<Part>,
+    /// From the start until the page's last file was staged.
+    pub spent_seconds: f64,
+}
+
+impl BudgetRecord {
+    /// The parts left out.
+    pub fn left_out(&self) -> impl Iterator<Item = &Part> {
+        self.parts.iter().filter(|p| p.seconds.is_none())
+    }
+}
+
+/// The probe: the matrix DFT PSF of the small scene's DOE ([`psf_bench::scene`], f64,
+/// Gauss-Legendre 8 x 8 pixels) ten times (a few tenths of a second); their seconds and work
+/// in the plan's units.
+pub fn probe() -> Result<(f64, f64)> {
+    use crate::optics::system::{OpticalSystem, PixelRule};
+    use crate::optics::{simulate, Method, Options, Precision};
+    let system = OpticalSystem { subsample: 8, pixel_rule: PixelRule::GaussLegendre, ..psf_bench::scene() };
+    let doe = psf_bench::doe()?;
+    let t = Instant::now();
+    for _ in 0..10 {
+        simulate(&system, &doe, Method::MatrixDft, &Options::default())?;
+    }
+    let work = psf_bench::Costs::work(Method::MatrixDft, Precision::F64, &system, &doe);
+    Ok((t.elapsed().as_secs_f64(), 10.0 * work))
+}
+
+/// Keeps the budget (module docs): predicts each part from the pace so far and runs it or
+/// leaves it out, recording both.
+struct Scheduler {
+    start: Instant,
+    budget: f64,
+    /// Seconds here and on the measuring machine of the parts run so far, the probe included.
+    here: f64,
+    there: f64,
+    parts: Vec<Part>,
+}
+
+impl Scheduler {
+    /// This machine's time over the measuring machine's, so far.
+    fn pace(&self) -> f64 {
+        self.here / self.there
+    }
+
+    /// The seconds left less `keep`.
+    fn left(&self, keep: f64) -> f64 {
+        self.budget - self.start.elapsed().as_secs_f64() - keep
+    }
+
+    /// Runs `f` with the seconds left less `keep` when the part's least time, `there` seconds on
+    /// the measuring machine times the pace, fits in them; records it either way. A part that
+    /// takes what it is given (`elastic`: the fine-tuning, the PSF benchmark) does not move
+    /// the pace.
+    fn run<T>(
+        &mut self,
+        name: &str,
+        (there, keep, elastic): (f64, f64, bool),
+        f: impl FnOnce(f64) -> Result<T>,
+    ) -> Result<Option<T>> {
+        let predicted = there * self.pace();
+        let left = self.left(keep);
+        if predicted > left {
+            let left_seconds = left.max(0.0);
+            self.parts.push(Part {
+                name: name.into(),
+                predicted_seconds: predicted,
+                left_seconds,
+                seconds: None,
+            });
+            return Ok(None);
+        }
+        let t = Instant::now();
+        let out = f(left)?;
+        let seconds = t.elapsed().as_secs_f64();
+        if !elastic {
+            self.here += seconds;
+            self.there += there;
+        }
+        self.parts.push(Part {
+            name: name.into(),
+            predicted_seconds: predicted,
+            left_seconds: left,
+            seconds: Some(seconds),
+        });
+        Ok(Some(out))
     }
 }
 
@@ -93,6 +257,9 @@ pub struct Page {
     pub title: String,
     pub design: String,
     pub figures: Vec<Figure>,
+    /// How the budget was kept: every part with its prediction, what it took or that it was
+    /// left out.
+    pub budget: BudgetRecord,
     pub sections: Vec<Section>,
 }
 
@@ -152,13 +319,8 @@ pub fn steps(opts: &ReportOptions) -> usize {
         + psf_bench::steps(&opts.psf.bench)
 }
 
-/// Runs the benchmarks within `opts.budget` and writes the page, its charts and data into the
-/// folder `output`, all or nothing. The fixed sweeps run first (the stability maps, about 2
-/// min on two cores, most of it the angular spectrum's truth; the registration map, about 15
-/// s; the fabrication sweeps on the design, about
-/// 25 s for the paper's; the calibration trials on the paper's measured PSF, about 10 s; the
-/// decoder's tiling sweep, about 10 s; the decoder's fine-tuning for its own seconds, by
-/// default [`FINETUNE_SHARE`] of the budget); the PSF benchmark gets what is left.
+/// Runs the benchmarks within `opts.budget` (module docs) and writes the page, its charts and
+/// data into the folder `output`, all or nothing; the parts left out are named on the page.
 pub fn run_report(
     opts: &ReportOptions,
     output: &Path,
@@ -170,96 +332,169 @@ pub fn run_report(
     let start = Instant::now();
     let total = steps(opts) as u64;
     let mut done = 0u64;
-    let maps = stability::run_maps(&opts.maps, |what| {
-        progress(what, done, total);
-        done += 1;
-    })?;
-    let registration = reg_bench::run(|what| {
-        progress(what, done, total);
-        done += 1;
-    })?;
     let loaded = crate::fabrication::chain::load_design(&opts.psf.design)?;
-    let fab = fab_bench::run_bench(&loaded.heights, &loaded.name, &FabBenchOptions::default(), |what| {
-        progress(what, done, total);
-        done += 1;
-    })?;
-    let measured_psf = crate::optics::Psf::paper_measured()?;
-    let calibration = cal_bench::run(&measured_psf, "built-in:paper-measured-psf", |what| {
-        progress(what, done, total);
-        done += 1;
-    })?;
-    let decoder = std::path::Path::new("built-in:paper-measured-psf");
-    let tiling = tiling_bench::run(decoder, &report_tiling(), |what| {
-        progress(what, done, total);
-        done += 1;
-    })?;
-    let finetune =
-        finetune_time::run(&opts.finetune, &measured_psf, "built-in:paper-measured-psf", |what| {
-            progress(what, done, total);
-            done += 1;
-        })?;
-    let left = opts.budget - start.elapsed().as_secs_f64();
-    if left <= 0.05 * opts.budget {
-        return Err(Error::Limit(format!(
-            "the budget of {:.0} s was spent by the fixed sweeps alone ({:.0} s): give more time",
-            opts.budget,
-            start.elapsed().as_secs_f64()
-        )));
-    }
-    // A few seconds of the budget stay for the charts and files.
-    let left = left - (0.02 * opts.budget).min(5.0);
-    let psf_opts = PsfBenchOptions {
-        bench: BenchOptions { budget: left, ..opts.psf.bench.clone() },
-        ..opts.psf.clone()
+    let (probe_seconds, probe_work) = probe()?;
+    let mut plan =
+        Scheduler { start, budget: opts.budget, here: probe_seconds, there: COSTS.probe, parts: Vec::new() };
+    // The PSF benchmark's least time: its reference, two matrix DFTs (module docs of psf_bench).
+    let system = super::bench::design_system(&opts.psf, &loaded.heights)?;
+    let reference_work: f64 = [2, 4]
+        .map(|extra| {
+            let sys = crate::optics::system::OpticalSystem {
+                subsample: opts.psf.bench.max_subsample + extra,
+                pixel_rule: crate::optics::system::PixelRule::GaussLegendre,
+                ..system.clone()
+            };
+            let f64 = crate::optics::Precision::F64;
+            psf_bench::Costs::work(crate::optics::Method::MatrixDft, f64, &sys, &loaded.heights)
+        })
+        .iter()
+        .sum();
+    let psf_least = reference_work / probe_work * COSTS.probe;
+    let keep_files = |plan: &Scheduler| COSTS.files * plan.pace();
+    let keep_psf = |plan: &Scheduler| (PSF_SHARE * opts.budget).max(psf_least * plan.pace());
+    let fixed = |plan: &Scheduler, there: f64| (there, keep_files(plan) + keep_psf(plan), false);
+    let mut tick = |what: &str, done: &mut u64| {
+        progress(what, *done, total);
+        *done += 1;
     };
-    let psf = run_psf_bench(&psf_opts, &loaded.heights, |what| {
-        progress(what, done, total);
-        done += 1;
+
+    // The tiling sweep first: a short part, whose time sets the pace for the longer ones.
+    let decoder = std::path::Path::new("built-in:paper-measured-psf");
+    let tiling = plan.run("decoder tiling sweep", fixed(&plan, COSTS.tiling), |_| {
+        tiling_bench::run(decoder, &report_tiling(), |w| tick(w, &mut done))
+    })?;
+    if tiling.is_none() {
+        done += tiling_bench::steps(&report_tiling()) as u64;
+    }
+    let (rows, cols) = loaded.heights.dim();
+    let fab_cost = COSTS.fabrication * (rows * cols) as f64 / (1306.0 * 1306.0);
+    let fab = plan.run("fabrication sweeps", fixed(&plan, fab_cost), |_| {
+        fab_bench::run_bench(&loaded.heights, &loaded.name, &FabBenchOptions::default(), |w| {
+            tick(w, &mut done)
+        })
+    })?;
+    if fab.is_none() {
+        done += fab_bench::steps(&FabBenchOptions::default()) as u64;
+    }
+    let registration = plan.run("registration map", fixed(&plan, COSTS.registration), |_| {
+        reg_bench::run(|w| tick(w, &mut done))
+    })?;
+    if registration.is_none() {
+        done += reg_bench::steps() as u64;
+    }
+    let measured_psf = crate::optics::Psf::paper_measured()?;
+    let calibration = plan.run("calibration trials", fixed(&plan, COSTS.calibration), |_| {
+        cal_bench::run(&measured_psf, "built-in:paper-measured-psf", |w| tick(w, &mut done))
+    })?;
+    if calibration.is_none() {
+        done += cal_bench::steps() as u64;
+    }
+    let defaults = MapOptions::default();
+    // The cheapest maps first, so that a short budget leaves out the fewest (on the page they
+    // keep the order of stability::MAPS).
+    let there: Vec<f64> = (stability::MAPS.iter().enumerate())
+        .map(|(k, &kind)| {
+            let runs = stability::map_steps(&opts.maps, kind);
+            COSTS.maps[k] * runs as f64 / stability::map_steps(&defaults, kind).max(1) as f64
+        })
+        .collect();
+    let mut order: Vec<usize> = (0..stability::MAPS.len()).collect();
+    order.sort_by(|&a, &b| there[a].total_cmp(&there[b]));
+    let mut maps = Vec::new();
+    let mut maps_left_out = Vec::new();
+    for k in order {
+        let kind = stability::MAPS[k];
+        let name = format!("stability map {}", kind.name());
+        match plan.run(&name, fixed(&plan, there[k]), |_| {
+            stability::run_map(&opts.maps, kind, |w| tick(w, &mut done))
+        })? {
+            Some(m) => maps.push((k, m)),
+            None => {
+                done += stability::map_steps(&opts.maps, kind) as u64;
+                maps_left_out.push((k, kind.name()));
+            }
+        }
+    }
+    maps.sort_by_key(|m| m.0);
+    maps_left_out.sort_by_key(|m| m.0);
+    let maps = stability::report(
+        &opts.maps,
+        maps.into_iter().map(|m| m.1).collect(),
+        maps_left_out.into_iter().map(|m| m.1).collect(),
+    );
+    let least = COSTS.finetune_setup + COSTS.finetune_step * opts.finetune.evaluations as f64;
+    let keep = keep_files(&plan) + keep_psf(&plan);
+    let finetune = plan.run("decoder fine-tuning", (least, keep, true), |left| {
+        let timed = TimedOptions { seconds: opts.finetune.seconds.min(left), ..opts.finetune.clone() };
+        finetune_time::run(&timed, &measured_psf, "built-in:paper-measured-psf", |w| tick(w, &mut done))
+    })?;
+    if finetune.is_none() {
+        done += finetune_time::steps(&opts.finetune) as u64;
+    }
+    let keep = keep_files(&plan);
+    let psf = plan.run("PSF benchmark", (psf_least, keep, true), |left| {
+        let psf_opts = PsfBenchOptions {
+            bench: BenchOptions { budget: opts.psf.bench.budget.min(left), ..opts.psf.bench.clone() },
+            ..opts.psf.clone()
+        };
+        run_psf_bench(&psf_opts, &loaded.heights, |w| tick(w, &mut done))
     })?;
 
     let mut stage = StagedDir::new(output)?;
     let svg = |names: Vec<String>, prefix: &str| -> Vec<String> {
         names.into_iter().filter(|n| n.ends_with(".svg")).map(|n| format!("{prefix}{n}")).collect()
     };
-    let psf_charts = svg(write_psf_charts(|n| stage.stage_path(&format!("psf_{n}")), &psf)?, "psf_");
-    let map_charts = svg(write_stability_charts(|n| stage.stage_path(n), &maps)?, "");
-    let reg_charts = svg(reg_bench::write_chart(|n| stage.stage_path(n), &registration)?, "");
-    let fab_charts = svg(write_fab_bench_charts(|n| stage.stage_path(&format!("fab_{n}")), &fab)?, "fab_");
-    let cal_charts = svg(cal_bench::write_chart(|n| stage.stage_path(n), &calibration)?, "");
-    atomic::write_json(&stage.stage_path("calibration.json"), &calibration)?;
-    let tiling_charts = svg(tiling_bench::write_chart(|n| stage.stage_path(n), &tiling)?, "");
-    atomic::write_json(&stage.stage_path("tiling.json"), &tiling)?;
-    let finetune_charts = svg(finetune_time::write_chart(|n| stage.stage_path(n), &finetune)?, "");
-    atomic::write_json(&stage.stage_path("finetune_time.json"), &finetune)?;
-    atomic::write_json(&stage.stage_path("register.json"), &registration)?;
-    atomic::write_json(&stage.stage_path("bench_fab.json"), &fab)?;
-    atomic::write_json(&stage.stage_path("bench_psf.json"), &psf)?;
+    let mut charts = Charts::default();
+    if let Some(psf) = &psf {
+        charts.psf = svg(write_psf_charts(|n| stage.stage_path(&format!("psf_{n}")), psf)?, "psf_");
+        atomic::write_json(&stage.stage_path("bench_psf.json"), psf)?;
+        atomic::write_bytes(&stage.stage_path("bench_psf.csv"), psf_csv(psf).as_bytes())?;
+    }
+    charts.maps = svg(write_stability_charts(|n| stage.stage_path(n), &maps)?, "");
     atomic::write_json(&stage.stage_path("stability.json"), &maps)?;
-    atomic::write_bytes(&stage.stage_path("bench_psf.csv"), psf_csv(&psf).as_bytes())?;
     atomic::write_bytes(&stage.stage_path("stability.csv"), stability_csv(&maps).as_bytes())?;
-
-    let charts = Charts {
-        psf: psf_charts,
-        maps: map_charts,
-        registration: reg_charts,
-        fab: fab_charts,
-        calibration: cal_charts,
-        tiling: tiling_charts,
-        finetune: finetune_charts,
-    };
+    if let Some(r) = &registration {
+        charts.registration = svg(reg_bench::write_chart(|n| stage.stage_path(n), r)?, "");
+        atomic::write_json(&stage.stage_path("register.json"), r)?;
+    }
+    if let Some(f) = &fab {
+        charts.fab = svg(write_fab_bench_charts(|n| stage.stage_path(&format!("fab_{n}")), f)?, "fab_");
+        atomic::write_json(&stage.stage_path("bench_fab.json"), f)?;
+    }
+    if let Some(c) = &calibration {
+        charts.calibration = svg(cal_bench::write_chart(|n| stage.stage_path(n), c)?, "");
+        atomic::write_json(&stage.stage_path("calibration.json"), c)?;
+    }
+    if let Some(t) = &tiling {
+        charts.tiling = svg(tiling_bench::write_chart(|n| stage.stage_path(n), t)?, "");
+        atomic::write_json(&stage.stage_path("tiling.json"), t)?;
+    }
+    if let Some(f) = &finetune {
+        charts.finetune = svg(finetune_time::write_chart(|n| stage.stage_path(n), f)?, "");
+        atomic::write_json(&stage.stage_path("finetune_time.json"), f)?;
+    }
     let measured = Measured {
-        psf: &psf,
+        psf: psf.as_ref(),
         maps: &maps,
-        registration: &registration,
-        fab: &fab,
-        calibration: &calibration,
-        tiling: &tiling,
-        finetune: &finetune,
+        registration: registration.as_ref(),
+        fab: fab.as_ref(),
+        calibration: calibration.as_ref(),
+        tiling: tiling.as_ref(),
+        finetune: finetune.as_ref(),
     };
-    let page = page(&loaded.name, measured, charts);
+    let budget = BudgetRecord {
+        budget_seconds: opts.budget,
+        probe_seconds,
+        probe_measured_seconds: COSTS.probe,
+        parts: plan.parts,
+        spent_seconds: start.elapsed().as_secs_f64(),
+    };
+    let page = page(&loaded.name, measured, charts, budget);
     atomic::write_json(&stage.stage_path("report.json"), &page)?;
     atomic::write_bytes(&stage.stage_path("index.html"), html(&page).as_bytes())?;
     stage.commit()?;
+    progress("", total, total);
     Ok(page)
 }
 
@@ -296,7 +531,7 @@ fn stability_csv(r: &StabilityReport) -> String {
             let _ = writeln!(
                 s,
                 "{},{},{},{:e},{:e},{:e},{:e},{:e},{:e},{},{}",
-                m.y_axis,
+                m.name(),
                 m.method,
                 c.subsample,
                 c.pupil_pitch,
@@ -314,6 +549,7 @@ fn stability_csv(r: &StabilityReport) -> String {
 }
 
 /// The chart files of each section.
+#[derive(Default)]
 struct Charts {
     psf: Vec<String>,
     maps: Vec<String>,
@@ -326,19 +562,116 @@ struct Charts {
 
 /// What the benchmarks of the page measured.
 struct Measured<'a> {
-    psf: &'a psf_bench::BenchReport,
+    psf: Option<&'a psf_bench::BenchReport>,
     maps: &'a StabilityReport,
-    registration: &'a RegistrationBench,
-    fab: &'a FabBenchReport,
-    calibration: &'a CalibrationBench,
-    tiling: &'a TilingBench,
-    finetune: &'a TimedFinetune,
+    registration: Option<&'a RegistrationBench>,
+    fab: Option<&'a FabBenchReport>,
+    calibration: Option<&'a CalibrationBench>,
+    tiling: Option<&'a TilingBench>,
+    finetune: Option<&'a TimedFinetune>,
 }
 
-/// The page's sections and figures from the reports.
-fn page(design: &str, m: Measured, charts: Charts) -> Page {
+/// The page's sections and figures from the reports and the budget's record.
+fn page(design: &str, m: Measured, charts: Charts, budget: BudgetRecord) -> Page {
     let Measured { psf, maps, registration, fab, calibration, tiling, finetune } = m;
     let mut b = Builder { figures: Vec::new() };
+    let budget_section = budget_section(&mut b, &budget);
+    let psf_section = match psf {
+        Some(psf) => psf_section(&mut b, psf, charts.psf),
+        None => left_out(&mut b, "PSF: speed against accuracy", &budget, "PSF benchmark"),
+    };
+    let map_section = map_section(&mut b, maps, charts.maps);
+    let registration_section = match registration {
+        Some(r) => registration_section(&mut b, r, charts.registration),
+        None => left_out(&mut b, REGISTRATION_TITLE, &budget, "registration map"),
+    };
+    let fab_section = match fab {
+        Some(f) => fab_section(&mut b, f, charts.fab),
+        None => left_out(&mut b, FAB_TITLE, &budget, "fabrication sweeps"),
+    };
+    let calibration_section = match calibration {
+        Some(c) => calibration_section(&mut b, c, charts.calibration),
+        None => left_out(&mut b, CALIBRATION_TITLE, &budget, "calibration trials"),
+    };
+    let tiling_section = match tiling {
+        Some(t) => tiling_section(&mut b, t, charts.tiling),
+        None => left_out(&mut b, TILING_TITLE, &budget, "decoder tiling sweep"),
+    };
+    let finetune_section = match finetune {
+        Some(f) => finetune_section(&mut b, f, charts.finetune),
+        None => left_out(&mut b, FINETUNE_TITLE, &budget, "decoder fine-tuning"),
+    };
+    Page {
+        title: "doefab report".into(),
+        design: design.into(),
+        figures: b.figures,
+        budget,
+        sections: vec![
+            budget_section,
+            fab_section,
+            registration_section,
+            psf_section,
+            map_section,
+            calibration_section,
+            tiling_section,
+            finetune_section,
+        ],
+    }
+}
+
+const REGISTRATION_TITLE: &str = "Metrology: where scan registration fails";
+const FAB_TITLE: &str = "Fabrication: quantization, STL and GDSII against their truths";
+const CALIBRATION_TITLE: &str = "Calibration: the measured PSF from a pinhole bracket";
+const TILING_TITLE: &str = "Decoder: tiles and precision";
+const FINETUNE_TITLE: &str = "Decoder: fine-tuning against time";
+
+/// The budget's section: what it was, what was spent, and every part left out with its
+/// prediction and the time it had.
+fn budget_section(b: &mut Builder, budget: &BudgetRecord) -> Section {
+    let mut reading = vec![
+        words("The budget:"),
+        b.fig("budget", budget.budget_seconds, "s"),
+        words("s; spent"),
+        b.fig("spent", budget.spent_seconds, "s"),
+        words("s until the page was written. Each part was predicted before it ran, from what it took where it was measured times this machine's pace (the probe took"),
+        b.fig("probe seconds", budget.probe_seconds, "s"),
+        words("s here against"),
+        b.fig("probe seconds where measured", budget.probe_measured_seconds, "s"),
+        words("s there, and the pace follows the parts run), and ran only where that fit."),
+    ];
+    let left_out: Vec<&Part> = budget.left_out().collect();
+    if left_out.is_empty() {
+        reading.push(words(" Every part ran."));
+    } else {
+        reading.push(words(" Left out:"));
+        for (k, p) in left_out.iter().enumerate() {
+            reading.push(words(&format!("{}{} (predicted", if k > 0 { "; " } else { " " }, p.name)));
+            reading.push(b.fig("left out: predicted", p.predicted_seconds, "s"));
+            reading.push(words("s,"));
+            reading.push(b.fig("left out: seconds left", p.left_seconds, "s"));
+            reading.push(words("s left)"));
+        }
+        reading.push(words("."));
+    }
+    Section { title: "Budget".into(), charts: Vec::new(), data: vec!["report.json".into()], reading }
+}
+
+/// A section whose part `part` the budget left out: its title and why.
+fn left_out(b: &mut Builder, title: &str, budget: &BudgetRecord, part: &str) -> Section {
+    let mut reading = vec![words("Left out by the budget")];
+    if let Some(p) = budget.parts.iter().find(|p| p.name == part) {
+        reading.push(words(": predicted"));
+        reading.push(b.fig("left out: predicted", p.predicted_seconds, "s"));
+        reading.push(words("s,"));
+        reading.push(b.fig("left out: seconds left", p.left_seconds, "s"));
+        reading.push(words("s left"));
+    }
+    reading.push(words(". Give more time (--budget) to see it."));
+    Section { title: title.into(), charts: Vec::new(), data: Vec::new(), reading }
+}
+
+/// The PSF benchmark's section.
+fn psf_section(b: &mut Builder, psf: &psf_bench::BenchReport, charts: Vec<String>) -> Section {
     let mut reading = vec![
         words("The PSF of the design by every method, precision, FFT padding and pixel sub-sampling, timed and scored against a reference (matrix DFT, Gauss-Legendre pixels) that differs from its own refinement by"),
         b.fig("reference self-difference", psf.reference.difference, "1"),
@@ -366,21 +699,49 @@ fn page(design: &str, m: Measured, charts: Charts) -> Page {
             })),
         }
     }
+    reading.push(words(
+        " Plans over their tolerance (silent failures: the plan runs only what its guard accepts):",
+    ));
+    reading.push(b.fig("PSF plan silent failures", psf.silent_failures as f64, "1"));
+    reading.push(words("."));
     reading.push(words(" Pick the leftmost point below your tolerance; the plan should sit on it or just right of it. A hollow point is a run its guard refuses: trust only filled ones."));
-    let psf_section = Section {
+    if !psf.skipped.is_empty() {
+        reading.push(words(" The budget left out"));
+        reading.push(b.fig("PSF runs left out", psf.skipped.len() as f64, "1"));
+        reading.push(words("runs and plans (named in bench_psf.json)."));
+    }
+    Section {
         title: "PSF: speed against accuracy".into(),
-        charts: charts.psf,
+        charts,
         data: vec!["bench_psf.json".into(), "bench_psf.csv".into()],
         reading,
-    };
+    }
+}
+
+/// The stability maps' section, naming the maps the budget left out.
+fn map_section(b: &mut Builder, maps: &StabilityReport, charts: Vec<String>) -> Section {
+    if maps.maps.is_empty() {
+        let reading = vec![words(&format!(
+            "Left out by the budget: {} (their predictions and the time they had are in report.json). Give \
+             more time (--budget) to see them.",
+            maps.left_out.join(", ")
+        ))];
+        let data = vec!["stability.json".into()];
+        return Section { title: "PSF: where each method fails".into(), charts, data, reading };
+    }
     let mut reading = vec![
-        words("Each PSF method against a truth, over pupil sampling and Fresnel number, and over pupil sampling and wavelength (the two-step Fresnel method against the matrix DFT of the same sampled pupil; the angular spectrum against direct Rayleigh-Sommerfeld integration of the same samples; the matrix DFT against itself on the surface between the DOE's samples); at tolerance"),
+        words("Each PSF method against a truth, over pupil sampling and Fresnel number, and over pupil sampling and wavelength (the two-step Fresnel method against the matrix DFT of the same sampled pupil; the angular spectrum against direct Rayleigh-Sommerfeld integration of the same samples; the matrix DFT against itself on the surface between the DOE's samples, and on a wrapped and a quantized DOE against the piecewise-constant part they are, whose steps away from the wrap's wavelength are real); at tolerance"),
         b.fig("stability tolerance", maps.tolerance, "1"),
         words(":"),
     ];
     for m in &maps.maps {
         let refused = m.cells.iter().filter(|c| !c.violations.is_empty()).count();
-        reading.push(words(&format!(" {} over {},", m.method.replace('_', " "), m.y_axis.replace('_', " "))));
+        let on = if m.design == "smooth" { String::new() } else { format!(" on the {} DOE", m.design) };
+        reading.push(words(&format!(
+            " {}{on} over {},",
+            m.method.replace('_', " "),
+            m.y_axis.replace('_', " ")
+        )));
         reading.push(b.fig("runs", m.cells.len() as f64, "1"));
         reading.push(words("runs,"));
         reading.push(b.fig("silent failures", m.silent_failures as f64, "1"));
@@ -391,12 +752,19 @@ fn page(design: &str, m: Measured, charts: Charts) -> Page {
         reading.push(words("within the tolerance."));
     }
     reading.push(words(" Trust a dot; a cross names the condition that failed in stability.json. The paper's own sampling is drawn in blue: right of the black line of the transfer-function methods' maps the lens phase is undersampled, so use the matrix DFT there, at the DOE's own pitch (a coarser pupil is refused where it reads the surface too sparsely)."));
-    let map_section = Section {
+    if !maps.left_out.is_empty() {
+        reading.push(words(&format!(" Left out by the budget: {}.", maps.left_out.join(", "))));
+    }
+    Section {
         title: "PSF: where each method fails".into(),
-        charts: charts.maps,
+        charts,
         data: vec!["stability.json".into(), "stability.csv".into()],
         reading,
-    };
+    }
+}
+
+/// The registration map's section.
+fn registration_section(b: &mut Builder, registration: &RegistrationBench, charts: Vec<String>) -> Section {
     let registered = registration.trials.iter().filter(|t| t.outcome == "registered");
     let worst = registered.map(|t| t.shift_error).fold(0.0, f64::max);
     let reading = vec![
@@ -412,12 +780,11 @@ fn page(design: &str, m: Measured, charts: Charts) -> Page {
         b.fig("wrong-pose bound", registration.wrong_shift, "design samples"),
         words(". Read each panel left to right: green dots are poses found, black crosses at the top are refusals (the reason is in register.json); a part beyond the crosses needs a better scan, not a looser registration."),
     ];
-    let registration_section = Section {
-        title: "Metrology: where scan registration fails".into(),
-        charts: charts.registration,
-        data: vec!["register.json".into()],
-        reading,
-    };
+    Section { title: REGISTRATION_TITLE.into(), charts, data: vec!["register.json".into()], reading }
+}
+
+/// The fabrication sweeps' section.
+fn fab_section(b: &mut Builder, fab: &FabBenchReport, charts: Vec<String>) -> Section {
     let stl_bounded = fab.stl.points.iter().filter(|p| p.within_bound).count();
     let reading = vec![
         words("Quantization: the predicted design-order efficiency (Swanson, with detuning) against a simulated grating's, largest difference"),
@@ -430,12 +797,11 @@ fn page(design: &str, m: Measured, charts: Charts) -> Page {
         b.fig("GDS max area difference", fab.gds.max_area_difference as f64, "nm^2"),
         words("square nanometres (exact: zero). Pick the level count where the efficiency curve flattens for your shortest wavelength, the largest max_error your part tolerates (triangles fall fast with it), and any vertex limit your mask shop accepts (size and time level off above the design's largest polygon)."),
     ];
-    let fab_section = Section {
-        title: "Fabrication: quantization, STL and GDSII against their truths".into(),
-        charts: charts.fab,
-        data: vec!["bench_fab.json".into()],
-        reading,
-    };
+    Section { title: FAB_TITLE.into(), charts, data: vec!["bench_fab.json".into()], reading }
+}
+
+/// The calibration trials' section.
+fn calibration_section(b: &mut Builder, calibration: &CalibrationBench, charts: Vec<String>) -> Section {
     let calibrated = calibration.trials.iter().filter(|t| t.outcome == "calibrated");
     let fewest = calibrated.filter(|t| t.axis == "frames").map(|t| t.value).fold(f64::INFINITY, f64::min);
     let mut reading = vec![
@@ -457,12 +823,11 @@ fn page(design: &str, m: Measured, charts: Charts) -> Page {
         reading.push(words("."));
     }
     reading.push(words(" Grey rings are the calibration's own estimate of its error (printed as a warning when over the tolerance): bracket until it is below your tolerance; where it is far above, the bracket cannot give the PSF."));
-    let calibration_section = Section {
-        title: "Calibration: the measured PSF from a pinhole bracket".into(),
-        charts: charts.calibration,
-        data: vec!["calibration.json".into()],
-        reading,
-    };
+    Section { title: CALIBRATION_TITLE.into(), charts, data: vec!["calibration.json".into()], reading }
+}
+
+/// The tiling sweep's section.
+fn tiling_section(b: &mut Builder, tiling: &TilingBench, charts: Vec<String>) -> Section {
     let mut reading = Vec::new();
     if let Some(one) = tiling.runs.iter().find(|r| r.tile.is_none()) {
         reading.push(words("The paper's measured-PSF decoder on a simulated capture of"));
@@ -492,27 +857,7 @@ fn page(design: &str, m: Measured, charts: Charts) -> Page {
         reading.push(b.fig("worst tiled error", worst, "1"));
         reading.push(words(". Keep the overlap at the receptive radius (the default) and pick the largest tile your memory holds; f32 is enough."));
     }
-    let tiling_section = Section {
-        title: "Decoder: tiles and precision".into(),
-        charts: charts.tiling,
-        data: vec!["tiling.json".into()],
-        reading,
-    };
-    let finetune_section = finetune_section(&mut b, finetune, charts.finetune);
-    Page {
-        title: "doefab report".into(),
-        design: design.into(),
-        figures: b.figures,
-        sections: vec![
-            fab_section,
-            registration_section,
-            psf_section,
-            map_section,
-            calibration_section,
-            tiling_section,
-            finetune_section,
-        ],
-    }
+    Section { title: TILING_TITLE.into(), charts, data: vec!["tiling.json".into()], reading }
 }
 
 /// Escapes text for HTML.
@@ -600,12 +945,7 @@ fn finetune_section(b: &mut Builder, r: &TimedFinetune, charts: Vec<String>) -> 
         )),
     }
     reading.push(words(" These are simulated captures of simulated scenes: score the result on real captures with bench decoder before trusting it there, and fine-tune on real HDR images (finetune --data) for a decoder to keep."));
-    Section {
-        title: "Decoder: fine-tuning against time".into(),
-        charts,
-        data: vec!["finetune_time.json".into()],
-        reading,
-    }
+    Section { title: FINETUNE_TITLE.into(), charts, data: vec!["finetune_time.json".into()], reading }
 }
 
 #[cfg(test)]

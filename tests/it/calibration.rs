@@ -28,7 +28,11 @@ fn load(list: &doefab::calibration::capture::ExposureList) -> (Vec<Capture>, Vec
 /// (its value over its effective time) to a median relative deviation of 3 % where it sees 50k
 /// or more well-exposed samples (measured: 1.0-2.0 %, the 8-bit step at z = 0.1 alone is 1.1 %),
 /// and to 15 % for the shortest frames, which see only the lamps (measured up to 13 %). The
-/// effective times stay within the 10-30 % drift the data's README states.
+/// effective times stay within 45 % of the listed ones: the data's README states 10-30 % drift,
+/// and with green's clipping at 231 of 255 taken as saturation the chain of time ratios puts
+/// Fruit's 1/30 s frame at -41 % (-35.5 % while its clipped greens counted as light), the
+/// other frames at -25 % or less. Green's clipping leaves fewer samples that do not follow the
+/// exposure: Fruit 118 (1877 before), Kitchen 1733 (15088 before).
 #[test]
 fn real_brackets_merge_into_an_hdr_every_frame_agrees_with() {
     for scene in ["Kitchen", "Fruit"] {
@@ -43,8 +47,10 @@ fn real_brackets_merge_into_an_hdr_every_frame_agrees_with() {
             let median = f.agreement_median.unwrap();
             let limit = if f.agreement_samples >= 50_000 { 0.03 } else { 0.15 };
             assert!(median < limit, "{scene} {}: median deviation {median}", f.file);
-            assert!((f.exposure_used / f.exposure_listed - 1.0).abs() < 0.4, "{scene} {}", f.file);
+            assert!((f.exposure_used / f.exposure_listed - 1.0).abs() < 0.45, "{scene} {}", f.file);
         }
+        assert_eq!(m.report.channel_clipping, vec![1.0, 231.0 / 255.0, 1.0], "{scene}");
+        assert!(m.report.inconsistent.count < if scene == "Fruit" { 200 } else { 2_000 }, "{scene}");
         // The radiance is at the reference exposure: the reference frame's unsaturated values.
         let k = list.frames.iter().position(|f| f.1 == list.reference_exposure.unwrap()).unwrap();
         let scale = m.report.frames[k].exposure_used / times[k];
@@ -1277,5 +1283,110 @@ fn the_calibration_map_has_no_silent_failure() {
     for t in r.trials.iter().filter(|t| t.outcome == "warned") {
         assert!(t.worst > TOLERANCE && t.estimated > TOLERANCE, "{t:?}");
         assert!(t.messages.iter().any(|m| m.contains("the PSF is uncertain")), "{t:?}");
+    }
+}
+
+/// `evaluate`'s registration against a second, independent one (`tests/independent_scoring.py`:
+/// OpenCV's ECC homography and template matching, no code or method shared), on the paper's two
+/// scenes: the measured- minus simulated-PSF decoder difference in PSNR-gamma, over the pixels
+/// both registrations cover and over those of them that are saturated, agrees within 0.2 dB
+/// (measured: Fruit +0.99 / +1.35 dB by ours, +0.90 / +1.24 by the other; Kitchen +0.04 / +0.08
+/// and -0.01 / +0.05). One affine map, which the parallax of these scenes does not follow (tiles
+/// move by up to 12 px against the best homography), reads them differently.
+///
+/// And the motion a new scene may bring: the reference scaled by 6 % and rotated by 2 degrees
+/// about the centre and shifted, as when the element's mount moves the camera. The registration
+/// still covers over half the image and of its saturated pixels, and the decoder difference
+/// stays within 0.2 dB of the unmoved reference's (measured: within 0.06 dB).
+#[test]
+fn evaluate_agrees_with_an_independent_registration_and_follows_larger_motion() {
+    use doefab::calibration::capture_registration::{warp, Affine};
+    let dir = common::tempdir();
+    let path = |name: &str| dir.path().join(name).to_string_lossy().into_owned();
+    let psf = shared("measured_psf.npz").to_string_lossy().into_owned();
+    let run = |args: &[&str]| {
+        let r = doefab(args);
+        assert!(r.status.success(), "{args:?}: {}", String::from_utf8_lossy(&r.stderr));
+        r.stdout
+    };
+    for scene in ["Fruit", "Kitchen"] {
+        let list = shared(&format!("captures/{scene}/exposures.json"));
+        let capture = list.with_file_name("wPSF_0_stop.png").to_string_lossy().into_owned();
+        let hdr = path(&format!("{scene}.exr"));
+        run(&["merge", "--exposures", list.to_str().unwrap(), "-o", &hdr, "-q"]);
+        let decoders = ["paper-simulated-psf", "paper-measured-psf"];
+        let images: Vec<String> = decoders.iter().map(|d| path(&format!("{scene}-{d}.exr"))).collect();
+        for (d, out) in decoders.iter().zip(&images) {
+            run(&["reconstruct", &capture, "--decoder", &format!("built-in:{d}"), "-o", out, "-q"]);
+        }
+        let evaluate = |reference: &str, registered: &str| -> serde_json::Value {
+            let out = run(&[
+                "evaluate",
+                "--reference",
+                reference,
+                "--capture",
+                &capture,
+                "--psf",
+                &psf,
+                "--psf-key",
+                "psf_val",
+                "--registered",
+                registered,
+                "--json",
+                &images[0],
+                &images[1],
+            ]);
+            serde_json::from_slice(&out).unwrap()
+        };
+        let gamma =
+            |e: &serde_json::Value, k: usize, set: &str| e["scores"][k][set]["gamma_db"].as_f64().unwrap();
+        let difference = |e: &serde_json::Value, set: &str| gamma(e, 2, set) - gamma(e, 1, set);
+        let ours = evaluate(&hdr, &path(&format!("{scene}-registered.exr")));
+
+        // The independent registration, scored with the same formula on the pixels both cover.
+        let out = std::process::Command::new(common::python())
+            .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/independent_scoring.py"))
+            .args(["--reference", &hdr, "--capture", &capture, "--psf", &psf])
+            .args(["--ours", &path(&format!("{scene}-registered.exr"))])
+            .args(["--image", &format!("sim={}", images[0]), "--image", &format!("meas={}", images[1])])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let other: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert!(other["coverage_both"].as_f64().unwrap() > 0.3, "{scene}: {other}");
+        assert_eq!(other["saturated_both"], other["saturated_ours"], "{scene}: {other}");
+        let s = &other["scores"];
+        for (k, set) in ["all", "saturated"].iter().enumerate() {
+            let by = |who: &str| s["meas"][who][k].as_f64().unwrap() - s["sim"][who][k].as_f64().unwrap();
+            let (a, b) = (by("doefab"), by("independent"));
+            assert!(
+                (a - b).abs() <= 0.2,
+                "{scene} {set}: measured - simulated {a:+.2} dB here, {b:+.2} by the other"
+            );
+        }
+
+        // Larger motion: q = s R (p - c) + c + t.
+        let (scale, angle) = (1.06f64, 2f64.to_radians());
+        let (cos, sin) = (scale * angle.cos(), scale * angle.sin());
+        let c = 319.5;
+        let moved_by = Affine {
+            a: [[cos, -sin], [sin, cos]],
+            b: [c - cos * c + sin * c + 6.0, c - sin * c - cos * c - 4.0],
+        };
+        let reference = doefab::calibration::capture::read_image(std::path::Path::new(&hdr)).unwrap();
+        let (rows, cols) = (reference.height(), reference.width());
+        let (moved, _) = warp(&reference, &moved_by, rows, cols).unwrap();
+        let npy = path(&format!("{scene}-moved.npy"));
+        doefab::io::npy::write_npy(std::path::Path::new(&npy), &moved.mapv(|v| v as f32)).unwrap();
+        let e = evaluate(&npy, &path(&format!("{scene}-moved-registered.exr")));
+        let f = &e["footing"];
+        assert!(f["coverage"].as_f64().unwrap() > 0.5, "{scene}: {f}");
+        let (sat, sat_scored) =
+            (f["saturated_in_capture"].as_u64().unwrap(), f["saturated_scored"].as_u64().unwrap());
+        assert!(2 * sat_scored > sat, "{scene}: {sat_scored} of {sat} saturated pixels scored");
+        for set in ["all", "saturated"] {
+            let (a, b) = (difference(&ours, set), difference(&e, set));
+            assert!((a - b).abs() <= 0.2, "{scene} {set}: {a:+.2} dB unmoved, {b:+.2} moved");
+        }
     }
 }

@@ -648,7 +648,8 @@ fn the_folded_real_transform_equals_the_direct_collins_sum_in_f64_and_f32() {
 }
 
 /// The stability maps of the two-step Fresnel method, the angular spectrum and the matrix DFT
-/// (`bench stability`): over pupil sampling x Fresnel number and pupil sampling x wavelength,
+/// (`bench stability`), and of the matrix DFT on a wrapped and a quantized DOE: over pupil
+/// sampling x Fresnel number and pupil sampling x wavelength,
 /// no run its guard accepts is over the tolerance (1e-2; for the transfer-function methods
 /// not over 1e-3 either), runs on both sides of the guard's boundary are there, and the files
 /// say the same. The Fresnel run at 0.97 lambda F# (g = 2.8 mm, s = 1), 1.3e-2 off its exact
@@ -663,7 +664,7 @@ fn the_stability_maps_count_no_silent_failure() {
     let out = d.path().join("stab");
     let r =
         doefab::pipeline::bench::bench_stability(&MapOptions::default(), &out, &mut |_, _, _| {}).unwrap();
-    assert_eq!(r.maps.len(), 6);
+    assert_eq!(r.maps.len(), 8);
     for m in &r.maps {
         assert_eq!(m.silent_failures, 0, "{:?}", m.cells.iter().filter(|c| c.silent).collect::<Vec<_>>());
         // None at a ten times tighter tolerance either, for the transfer-function methods.
@@ -673,7 +674,7 @@ fn the_stability_maps_count_no_silent_failure() {
         }
         assert!(m.cells.iter().any(|c| c.violations.is_empty() && c.error <= r.tolerance), "{}", m.y_axis);
         assert!(m.cells.iter().any(|c| !c.violations.is_empty() && c.error > r.tolerance), "{}", m.y_axis);
-        let name = format!("stability_{}_{}", m.method, m.y_axis);
+        let name = format!("stability_{}", m.name());
         let svg = std::fs::read_to_string(out.join(format!("{name}.svg"))).unwrap();
         assert!(svg.contains("silent failures: 0") && svg.contains(&m.limit), "{name}");
         assert!(out.join(format!("{name}.png")).exists());
@@ -683,6 +684,22 @@ fn the_stability_maps_count_no_silent_failure() {
         let worst = m.cells.iter().filter(|c| c.violations.is_empty()).map(|c| c.error).fold(0.0, f64::max);
         assert!(worst < 4e-4, "{worst}");
     }
+    // On the wrapped and quantized DOEs the matrix DFT of cells at the DOE's own samples and at
+    // 2 x 2 and 3 x 3 nested ones is the part's PSF (within 2.5e-3, measured 2.1e-3: the
+    // aperture's edge sampled at the pupil's pitch against the truth's 0.4 um), at every
+    // wavelength, the steps accepted; every coarser pupil reads across the steps and is
+    // refused (measured 8.2e-3 to 0.34 off).
+    for m in &r.maps[6..] {
+        assert_eq!((m.method.as_str(), m.y_axis.as_str()), ("matrix_dft", "wavelength"));
+        for c in &m.cells {
+            if c.pupil_pitch <= doefab::optics::stability::STEPPED_DOE_PITCH * (1.0 + 1e-9) {
+                assert!(c.violations.is_empty() && c.error < 2.5e-3, "{} {c:?}", m.design);
+            } else {
+                assert!(c.violations.iter().any(|v| v == "step_resampling"), "{} {c:?}", m.design);
+            }
+        }
+    }
+    assert_eq!((r.maps[6].design.as_str(), r.maps[7].design.as_str()), ("wrapped", "quantized"));
     // The matrix DFT's pupils coarser than the DOE's samples with more than pi / 2 per sample
     // are refused (`pupil_resampling`), and were over the tolerance: at 550 nm, g = 3.5 mm, the
     // 6.5 um pupil (2.0 rad per sample) is 1.3e-2 off.
@@ -703,4 +720,121 @@ fn the_stability_maps_count_no_silent_failure() {
         serde_json::from_str(&std::fs::read_to_string(out.join("stability.json")).unwrap()).unwrap();
     assert_eq!(json["maps"][0]["silent_failures"], 0);
     assert!((json["paper"][1]["lens_sampling_ratio"].as_f64().unwrap() - 4.29 / (0.53 * 7.0)).abs() < 1e-12);
+}
+
+/// A wrapped or quantized DOE is piecewise constant per sample, as the part is made: its steps
+/// are no slopes to resolve. On the stability scene's wrapped and quantized DOEs (2 um samples,
+/// wrapped at 550 nm, quantized to 4 levels), at 400, 450 and 650 nm, where every step is real
+/// (the quantized DOE's wraps, three quarters of a period, are 2.3 rad from 2 pi at 650 nm: no
+/// multiple of 2 pi), the guard accepts the DOE's own samples, and the matrix DFT of them as
+/// cells (`cells`) is within 2.5e-3 of the part's truth (its piecewise-constant surface read at
+/// 5 x 5 nested point samples per DOE sample, 5e-4 from its own cells; the rest is the
+/// aperture's edge, sampled at 2 um against 0.4 um), the pupil of 2 x 2 samples nested by
+/// nearest interpolation within 1e-3. As point samples (the paper's model) the DOE's own
+/// samples are further off by the cell envelope: 1.1e-2 at 400 nm.
+/// Bilinear interpolation onto the 2 x 2 pupil puts a ramp across each step, which the part does
+/// not have: refused (`step_resampling`), and over 1e-2 off. Measured in the comments.
+#[test]
+fn a_stepped_pupil_is_exact_for_the_part_it_is() {
+    use doefab::grid::Interpolation;
+    use doefab::optics::psf::relative_l2;
+    use doefab::optics::psf_bench::scene;
+    use doefab::optics::stability::{stepped_doe, STEPPED_DOE_PITCH};
+    use doefab::optics::system::PixelRule;
+    let (wrapped, quantized) = stepped_doe(4).unwrap();
+    let pi = std::f64::consts::PI;
+    for (name, doe) in [("wrapped", &wrapped), ("quantized", &quantized)] {
+        for l in [400e-9, 450e-9, 650e-9] {
+            let at = |pitch: f64, interpolation: Interpolation, cells: bool| OpticalSystem {
+                pupil_pitch: pitch,
+                interpolation,
+                cells,
+                subsample: 3,
+                pixel_rule: PixelRule::GaussLegendre,
+                wavelengths: vec![l],
+                ..scene()
+            };
+            let psf = |s: &OpticalSystem| {
+                let forced = Options { allow_invalid: true, ..Default::default() };
+                simulate(s, doe, Method::MatrixDft, &forced).unwrap().channels[0].grid.values().clone()
+            };
+            let truth = psf(&at(STEPPED_DOE_PITCH / 5.0, Interpolation::Nearest, false));
+            let verdict = |s: &OpticalSystem| -> Vec<String> {
+                propagate::check(Method::MatrixDft, s, doe)
+                    .unwrap()
+                    .into_iter()
+                    .map(|v| v.condition)
+                    .collect()
+            };
+            let points = at(STEPPED_DOE_PITCH, Interpolation::Bilinear, false);
+            let cells = at(STEPPED_DOE_PITCH, Interpolation::Bilinear, true);
+            let nested = at(STEPPED_DOE_PITCH / 2.0, Interpolation::Nearest, true);
+            let ramps = at(STEPPED_DOE_PITCH / 2.0, Interpolation::Bilinear, true);
+            let [e_points, e_cells, e_nested, e_ramps] =
+                [&points, &cells, &nested, &ramps].map(|s| relative_l2(&psf(s), &truth));
+            let envelope = relative_l2(&psf(&points), &psf(&cells));
+            // The truth's own error: its point samples against its cells.
+            let fine_cells = at(STEPPED_DOE_PITCH / 5.0, Interpolation::Nearest, true);
+            let own_error = relative_l2(&psf(&fine_cells), &truth);
+            eprintln!(
+                "{name} at {:.0} nm: truth {own_error:.2e}, cells {e_cells:.2e}, nested 2 x 2 {e_nested:.2e}, \
+                 points {e_points:.2e} (points against cells {envelope:.2e}), bilinear 2 x 2 {e_ramps:.2e}",
+                l * 1e9
+            );
+            for s in [&points, &cells, &nested] {
+                assert_eq!(verdict(s), Vec::<String>::new(), "{name} {l}");
+            }
+            assert!(verdict(&ramps).contains(&"step_resampling".to_string()), "{name} {l}");
+            assert!(own_error < 5e-4 && e_cells <= 2.5e-3 && e_nested <= 1e-3, "{name} {l}");
+            // The point samples' error is the envelope's, and the part's own.
+            assert!(e_points <= 1.05 * (envelope + e_cells), "{name} {l}");
+            assert!(e_ramps > 1e-2, "{name} {l}: {e_ramps}");
+        }
+    }
+    // The quantized DOE's wraps at 650 nm, counted from its heights: 3/4 of a period, no
+    // multiple of 2 pi.
+    let k = 2.0 * pi / 650e-9 * (Material::pdms().index(650e-9).unwrap() - 1.0);
+    let h = quantized.values();
+    let far = h
+        .windows((1, 2))
+        .into_iter()
+        .map(|w| k * (w[[0, 1]] - w[[0, 0]]))
+        .filter(|d| d.abs() > pi && (d.abs() - 2.0 * pi).abs() > 0.5 * pi)
+        .count();
+    assert!(far > 100, "{far}");
+}
+
+/// A smooth surface steeper than pi per sample is undersampled: its samples alias. A tilt of
+/// 0.9 pi per 5 um sample at 550 nm sends the light 0.45 replica periods (`lambda g / dx` =
+/// 770 um at F/7, g = 7 mm) off the axis, where the matrix DFT puts its peak, and the guard
+/// accepts it; at 1.1 pi the surface sends it 0.55 periods off (out of the crop), the samples
+/// read as a tilt of -0.9 pi and the run puts the peak 0.45 periods off on the other side: the
+/// guard refuses (`phase_gradient`).
+#[test]
+fn an_undersampled_slope_is_refused_and_its_light_lands_on_the_wrong_side() {
+    let pi = std::f64::consts::PI;
+    let s = OpticalSystem { sensor_pitch: 5e-6, ..f7(5e-6, 150) };
+    let period = L550 * 7e-3 / 5e-6;
+    for (per_sample, refused) in [(0.9 * pi, false), (1.1 * pi, true)] {
+        let doe = grating(204, 5e-6, L550, move |j| per_sample * j as f64);
+        let v = propagate::check(Method::MatrixDft, &s, &doe).unwrap();
+        assert_eq!(v.iter().any(|v| v.condition == "phase_gradient"), refused, "{v:?}");
+        let forced = Options { allow_invalid: true, ..Default::default() };
+        let psf = simulate(&s, &doe, Method::MatrixDft, &forced).unwrap();
+        let x = psf.peak(0).1[0];
+        // Where the surface sends it: its slope per sample over 2 pi, in replica periods.
+        let want = per_sample / (2.0 * pi) * period;
+        let aliased = want - period;
+        eprintln!(
+            "tilt {:.2} pi per sample: peak at {:.1} um, the surface's {:.1} um",
+            per_sample / pi,
+            x * 1e6,
+            want * 1e6
+        );
+        if refused {
+            assert!((x - aliased).abs() < 5e-6 && (x - want).abs() > 0.9 * period, "{x}");
+        } else {
+            assert!((x - want).abs() < 5e-6, "{x} against {want}");
+        }
+    }
 }

@@ -246,6 +246,45 @@ fn the_plan_refuses_what_it_cannot_meet_and_names_why() {
     assert!(p.explain().contains("output_window"), "{}", p.explain());
 }
 
+/// A stepped DOE whose crop needs a finer pupil than its samples (the wrapped lens of the suite
+/// with a 0.55 mm crop, over the replica period `lambda B / dx` = 0.315 mm of its 5 um samples
+/// at 450 nm): bilinear interpolation would put a ramp across each step (refused), so the plan
+/// reads it by nearest interpolation, 2 x 2 pupil samples nested in each DOE sample, and says
+/// so. Its pupil is the part's piecewise-constant surface: the run equals, to rounding, the same
+/// run on the DOE with each sample repeated 2 x 2 at 2.5 um, taken as it is.
+#[test]
+fn the_plan_refines_a_stepped_doe_by_nearest_interpolation() {
+    use doefab::grid::Interpolation;
+    let tau = 2.0 * std::f64::consts::PI;
+    let lens = heights(|x, y| (-(x * x + y * y) * std::f64::consts::PI / (550e-9 * 40e-3)).rem_euclid(tau));
+    let s = OpticalSystem { crop: (0.55e-3 / 3e-6) as usize, ..scene() };
+    let p = plan(&s, &lens, &[], TOL).unwrap();
+    assert_eq!(
+        (p.method, p.system.pupil_pitch, p.system.interpolation),
+        (Method::MatrixDft, PITCH / 2.0, Interpolation::Nearest),
+        "{}",
+        p.explain()
+    );
+    assert!(p.explain().contains("nearest, the DOE's steps kept"), "{}", p.explain());
+    let bilinear = OpticalSystem { interpolation: Interpolation::Bilinear, ..p.system.clone() };
+    let v = doefab::optics::propagate::check(Method::MatrixDft, &bilinear, &lens).unwrap();
+    assert!(v.iter().any(|v| v.condition == "step_resampling"), "{v:?}");
+    let (psf, _) = run(&p, &lens, &[]).unwrap();
+    let repeated = Grid::new(
+        Array2::from_shape_fn((2 * N, 2 * N), |(i, j)| lens.values()[[i / 2, j / 2]]),
+        [PITCH / 2.0; 2],
+        Unit::Metre,
+    )
+    .unwrap();
+    let own = OpticalSystem { interpolation: Interpolation::Bilinear, ..p.system.clone() };
+    let o = Options { precision: p.precision, ..Default::default() };
+    let want = simulate(&own, &repeated, Method::MatrixDft, &o).unwrap();
+    for (c, w) in psf.channels.iter().zip(&want.channels) {
+        let e = doefab::optics::psf::relative_l2(c.grid.values(), w.grid.values());
+        assert!(e < 1e-12, "{}: {e:e}", c.name);
+    }
+}
+
 #[test]
 fn a_sensor_response_csv_gives_one_band_per_column() {
     let dir = tempfile::tempdir().unwrap();
@@ -413,18 +452,29 @@ fn bench_psf_reference_is_converged_and_the_plan_meets_its_tolerances() {
     assert!(!fresnel_fine.violations.is_empty() && fresnel_fine.error > 1e-2, "{fresnel_fine:?}");
 }
 
-/// A budget already spent by the reference and the plans leaves the whole sweep out, listed.
+/// A budget the reference alone spends leaves the plans and the whole sweep out, each named
+/// with its predicted time and the time left; the charts and the JSON are still written. With
+/// a budget that holds them, every run was predicted to fit.
 #[test]
 fn bench_psf_budget_leaves_configurations_out_by_name() {
     let (system, doe) = (scene(), doefab::optics::psf_bench::doe().unwrap());
     let opts = BenchOptions { budget: 1e-9, max_subsample: 2, tolerances: vec![1e-3] };
     let r = run_bench(&system, &doe, &opts, |_| {}).unwrap();
-    assert!(r.points.is_empty());
-    assert_eq!(r.skipped.len(), 16);
-    assert!(r.skipped.contains(&"matrix_dft f32 s=1 (budget)".to_string()), "{:?}", r.skipped);
-    assert!(r.skipped.contains(&"angular_spectrum f64 pad 3 s=2 (budget)".to_string()), "{:?}", r.skipped);
-    assert_eq!(r.plans.len(), 1);
-    assert!(r.plans[0].cheapest_adequate.is_none() && r.plans[0].meets_tolerance);
+    assert!(r.points.is_empty() && r.plans.is_empty());
+    assert_eq!(r.skipped.len(), 17, "{:?}", r.skipped);
+    for name in
+        ["plan at 1e-3 (budget: ", "matrix_dft f32 s=1 (budget: ", "angular_spectrum f64 pad 3 s=2 (budget: "]
+    {
+        assert!(
+            r.skipped.iter().any(|s| s.starts_with(name) && s.ends_with(" s left)")),
+            "{name}: {:?}",
+            r.skipped
+        );
+    }
+    let d = tempfile::tempdir().unwrap();
+    doefab::optics::charts::write_psf_charts(|n| d.path().join(n), &r).unwrap();
+    let svg = std::fs::read_to_string(d.path().join("speed_accuracy.svg")).unwrap();
+    assert!(svg.contains("left out by the budget: 17"));
     let bad = BenchOptions { budget: 10.0, max_subsample: 0, tolerances: vec![] };
     assert!(run_bench(&system, &doe, &bad, |_| {}).is_err());
 }
@@ -477,6 +527,59 @@ fn bench_psf_command_charts_a_design_in_its_system() {
     let err = crate::common::fails(&["bench", "psf", "--budget", "5", "-o", &path(&out2)]);
     assert!(err.contains("--budget") && err.contains("no unit"), "{err}");
     assert!(!out2.exists());
+}
+
+/// The case of the issue on the bench scene: a wrapped design (the small scene's DOE wrapped at
+/// 530 nm as `wrap` does, mirrored and scaled by 0.9, written as .npy in micrometres). Its
+/// steps at 635 nm are 0.9 of a period, many of them (with the slope beside them) more than
+/// pi/2 from 2 pi, which the guard once took for an undersampled slope, refusing `bench psf`'s
+/// reference. Now `bench psf` runs: the matrix DFT on the DOE's own samples is accepted, every
+/// plan meets its tolerance (no silent failure); and `psf` plans on the DOE's own samples
+/// without a warning (it once refined the pupil by bilinear interpolation, a ramp across each
+/// step that the part does not have).
+#[test]
+fn bench_psf_runs_on_a_wrapped_user_design() {
+    use doefab::fabrication::wrap::{wrap, WrapSpec};
+    let dir = tempfile::tempdir().unwrap();
+    let sys = system_file(dir.path(), "0.5 mm", "3.5 mm");
+    let (wrapped, _) = wrap(&doefab::optics::psf_bench::doe().unwrap(), &WrapSpec::default()).unwrap();
+    let heights = wrapped.values().slice(ndarray::s![.., ..;-1]).mapv(|h| 0.9 * h * 1e6);
+    let pi = std::f64::consts::PI;
+    let k = 2.0 * pi / 635e-9 * (doefab::material::Material::pdms().index(635e-9).unwrap() - 1.0) * 1e-6;
+    let off = heights
+        .windows((1, 2))
+        .into_iter()
+        .map(|w| k * (w[[0, 1]] - w[[0, 0]]))
+        .filter(|d| d.abs() > pi && (d.abs() - 2.0 * pi).abs() > 0.5 * pi)
+        .count();
+    assert!(off > 50, "{off}");
+    let doe = dir.path().join("wrapped.npy");
+    doefab::io::npy::write_npy_f64(&doe, &heights).unwrap();
+    let path = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let (out, psf_out) = (dir.path().join("bench"), dir.path().join("psf"));
+    let (sys, doe, out_arg) = (path(&sys), path(&doe), path(&out));
+    let on = ["--pitch", "5um", "--unit", "um", "--system", &sys];
+    let mut args = vec!["bench", "psf", &doe, "--json", "--budget", "2min", "--max-subsample", "2"];
+    args.extend(["--tolerances", "1e-2,1e-3", "-o", &out_arg]);
+    args.extend(on);
+    let r: serde_json::Value = serde_json::from_str(&crate::common::ok(&args)).unwrap();
+    assert_eq!(r["silent_failures"], 0, "{r}");
+    for p in r["plans"].as_array().unwrap() {
+        assert_eq!(p["meets_tolerance"], true, "{p}");
+        assert!((p["pupil_pitch"].as_f64().unwrap() - 5e-6).abs() < 1e-15, "{p}");
+    }
+    let own = r["points"].as_array().unwrap().iter().find(|p| p["method"] == "matrix_dft").unwrap();
+    assert_eq!(own["violations"], serde_json::json!([]), "{own}");
+    let svg = std::fs::read_to_string(out.join("speed_accuracy.svg")).unwrap();
+    assert!(svg.contains("silent failures: 0"));
+    let mut args = vec!["psf", &doe, "--json", "-o"];
+    let psf_arg = path(&psf_out);
+    args.push(&psf_arg);
+    args.extend(on);
+    let p: serde_json::Value = serde_json::from_str(&crate::common::ok(&args)).unwrap();
+    assert_eq!(p["warnings"], serde_json::json!([]), "{p}");
+    let pitch = p["plan"]["system"]["pupil_pitch"].as_f64().unwrap();
+    assert!((pitch - 5e-6).abs() < 1e-15, "{}", p["plan"]);
 }
 
 /// `bench spectral` on the bench scene with the paper's channels as 80 nm bands: the reference

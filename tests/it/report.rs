@@ -6,9 +6,9 @@ use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
 use doefab::fabrication::chain::DesignSource;
 use doefab::io::heightmap::ReadOptions;
 use doefab::optics::psf_bench::BenchOptions;
-use doefab::optics::stability::MapOptions;
+use doefab::optics::stability::{MapOptions, MAPS};
 use doefab::pipeline::bench::PsfBenchOptions;
-use doefab::pipeline::report::{run_report, shown, ReportOptions};
+use doefab::pipeline::report::{run_report, shown, ReportOptions, COSTS};
 
 /// `html` without the elements from `open` to `close`.
 fn without(html: &str, open: &str, close: &str) -> String {
@@ -66,7 +66,7 @@ fn numbers_in_text(html: &str) -> Vec<String> {
     out
 }
 
-/// On a small design and camera (0.5 mm aperture, 40^2 crop) and a 150 s budget: the page links only files
+/// On a small design and camera (0.5 mm aperture, 40^2 crop) and a budget that holds every part: the page links only files
 /// that exist, every number on it is a figure of report.json shown as [`shown`] writes it, and
 /// the figures hold what the benchmarks' own JSON say.
 #[test]
@@ -89,14 +89,17 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
             design: DesignSource::File(design, read),
             system: Some(sys),
             material: "pdms".into(),
-            bench: BenchOptions { max_subsample: 3, ..Default::default() },
+            bench: BenchOptions { budget: 60.0, max_subsample: 3, ..Default::default() },
         },
-        budget: 150.0,
+        // Room for every part, whatever else shares the machine; the PSF benchmark keeps to
+        // its own minute.
+        budget: 3600.0,
         // Two rows a map, two pupil samplings a row: the page, not the maps, is tested here.
         maps: MapOptions {
             subsamples: vec![1, 2],
             asm_subsamples: vec![1, 2],
             mdft_pitches: vec![3e-6, 9e-6],
+            stepped_pitches: vec![2e-6, 4.5e-6],
             focal_lengths: vec![2e-3, 4e-3],
             wavelengths: vec![450e-9, 650e-9],
             ..MapOptions::default()
@@ -109,6 +112,7 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
     };
     let out = dir.path().join("report");
     let page = run_report(&opts, &out, &mut |_, _, _| {}).unwrap();
+    assert_eq!(page.budget.left_out().count(), 0, "{:?}", page.budget);
     let html = std::fs::read_to_string(out.join("index.html")).unwrap();
     // Every linked file exists, and every chart of the sections is linked.
     let mut linked = 0;
@@ -125,7 +129,7 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
         }
     }
     assert!(linked >= 18, "{linked}");
-    assert_eq!(page.sections.len(), 7);
+    assert_eq!(page.sections.len(), 8);
     // Every number on the page is one of report.json's figures, as shown() writes its value.
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
@@ -150,7 +154,7 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
         .collect();
     let in_json: Vec<f64> =
         maps["maps"].as_array().unwrap().iter().map(|m| m["silent_failures"].as_f64().unwrap()).collect();
-    assert_eq!(in_json.len(), 6);
+    assert_eq!(in_json.len(), 8);
     assert_eq!(silent, in_json);
     let psf: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("bench_psf.json")).unwrap()).unwrap();
@@ -176,6 +180,71 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
     let best = points.iter().map(|p| p["val_psnr"].as_f64().unwrap()).fold(f64::MIN, f64::max);
     assert_eq!(figure("best validation PSNR"), best);
     assert_eq!(figure("fine-tuning steps"), finetune["steps"].as_f64().unwrap());
+}
+
+/// A budget of 3 s on the small design and camera: most parts cannot fit, and the page is
+/// written all the same. Every part is in `report.json`'s budget: each one that ran was
+/// predicted to fit in the time it had, each one left out was not, and the page names each left
+/// out (the recorded plan, not the clock, is what is checked).
+#[test]
+fn a_small_budget_leaves_parts_out_and_names_them_on_the_page() {
+    let dir = tempfile::tempdir().unwrap();
+    let sys = dir.path().join("small.toml");
+    std::fs::write(
+        &sys,
+        "aperture = \"0.5 mm\"\nfocal_length = \"3.5 mm\"\nlens_to_sensor = \"3.5 mm\"\ndoe_to_lens = \"1 mm\"\n\
+         crop = 40\nsensor_pitch = \"3 um\"\npupil_window = \"0.6 mm\"\n",
+    )
+    .unwrap();
+    let design = dir.path().join("design.npy");
+    let p = ExampleParams { samples: 140, aperture: 0.55e-3, ..Default::default() };
+    doefab::io::npy::write_npy_f64(&design, paper_example(&p).unwrap().values()).unwrap();
+    let read = ReadOptions { pitch: Some([PAPER_PITCH; 2]), unit: Some(1.0), ..Default::default() };
+    let psf = PsfBenchOptions {
+        design: DesignSource::File(design, read),
+        system: Some(sys),
+        material: "pdms".into(),
+        bench: BenchOptions { max_subsample: 2, ..Default::default() },
+    };
+    let opts = ReportOptions::new(psf, 3.0);
+    let out = dir.path().join("report");
+    let page = run_report(&opts, &out, &mut |_, _, _| {}).unwrap();
+    let html = std::fs::read_to_string(out.join("index.html")).unwrap();
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let b = &page.budget;
+    // Every part came up: the fabrication sweeps, registration, calibration, tiling, eight maps,
+    // the fine-tuning and the PSF benchmark.
+    assert_eq!(b.parts.len(), 14, "{b:?}");
+    assert_eq!(json["budget"]["parts"].as_array().unwrap().len(), 14);
+    for p in &b.parts {
+        match p.seconds {
+            Some(_) => assert!(p.predicted_seconds <= p.left_seconds, "{p:?}"),
+            None => {
+                assert!(p.predicted_seconds > p.left_seconds, "{p:?}");
+                assert!(html.contains(&p.name), "{} is not named on the page", p.name);
+            }
+        }
+    }
+    // The stability maps come up cheapest first: a short budget leaves out the costly ones.
+    let maps: Vec<&str> =
+        b.parts.iter().map(|p| p.name.as_str()).filter(|n| n.starts_with("stability map ")).collect();
+    let mut cheapest_first: Vec<usize> = (0..MAPS.len()).collect();
+    cheapest_first.sort_by(|&a, &b| COSTS.maps[a].total_cmp(&COSTS.maps[b]));
+    let expected: Vec<String> =
+        cheapest_first.iter().map(|&k| format!("stability map {}", MAPS[k].name())).collect();
+    assert_eq!(maps, expected);
+    // The angular spectrum's maps (the slowest part) cannot fit in 3 s.
+    let left_out: Vec<&str> = b.left_out().map(|p| p.name.as_str()).collect();
+    assert!(left_out.contains(&"stability map angular_spectrum_fresnel_number"), "{left_out:?}");
+    assert_eq!(json["budget"]["budget_seconds"], 3.0);
+    for attr in ["src=\"", "href=\""] {
+        for part in html.split(attr).skip(1) {
+            let name = &part[..part.find('"').unwrap()];
+            assert!(out.join(name).is_file(), "{name} is linked but not written");
+        }
+    }
+    assert_eq!(page.sections.len(), 8);
 }
 
 #[test]

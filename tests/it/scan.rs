@@ -164,6 +164,26 @@ fn x3pio_files_reproduce_the_reference_statistics() {
     check_s3("x3pio S3", &s.grid, REL);
 }
 
+/// doefab's own height maps (OpenEXR with pitch and unit attributes, as `fab`, `wrap` and
+/// `compare` write them) are scans too: S1 written in micrometres as f32 reproduces the
+/// reference statistics, through the library and `scan-info`.
+#[test]
+fn doefab_exr_height_maps_are_read_as_scans() {
+    let dir = common::tempdir();
+    let p = dir.path().join("s1.exr");
+    let v = Array2::from_shape_fn((200, 200), |(i, j)| (s1(i, j) * 1e6) as f32);
+    let meta =
+        doefab::io::heightmap::Metadata { pitch: Some([1e-6, 1e-6]), unit: Some("um".into()), text: vec![] };
+    doefab::io::exr::write_exr(&p, &[("height", &v)], &meta).unwrap();
+    let s = read(&p, &ScanOptions::default());
+    assert_eq!(s.format, ScanFormat::Exr);
+    check_s1("doefab EXR S1", &s.grid, REL);
+    let out = common::ok(&["scan-info", p.to_str().unwrap(), "--json"]);
+    let j: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!((j["format"].as_str(), j["size"][0].as_u64()), (Some("exr"), Some(200)), "{j}");
+    assert!((j["raw"]["sq"].as_f64().unwrap() * 1e9 / S1_RAW.v[1] - 1.0).abs() < 1e-6, "{j}");
+}
+
 #[test]
 fn gsf_and_sur_copies_reproduce_the_reference_statistics() {
     let s = read(&local("s3_spikes_missing_nan.gsffile.gsf"), &ScanOptions::default());
@@ -429,6 +449,8 @@ fn wyko_opd_reproduces_two_programs_statistics() {
     assert_eq!(s.format, ScanFormat::Opd);
     assert_eq!(s.grid.dim(), (480, 736));
     assert!((s.grid.pitch()[0] - 1.634e-6).abs() < 5e-10, "{:?}", s.grid.pitch());
+    // y = Aspect (1.1667) x Pixel_size: SurfaceTopography's 0.9151750398154745 mm over 480 rows.
+    assert!((s.grid.pitch()[1] / (0.9151750398154745e-3 / 480.0) - 1.0).abs() < 1e-9, "{:?}", s.grid.pitch());
     assert_eq!(s.grid.dim().0 * s.grid.dim().1 - s.grid.valid_count(), 809);
     let (lev, _) = level_plane(&s.grid, None).unwrap();
     let p = height_params(&lev).unwrap();
@@ -439,6 +461,59 @@ fn wyko_opd_reproduces_two_programs_statistics() {
     }
     assert!((p.ssk - 0.148677).abs() < 1e-5 && (p.sku - 2.50654).abs() < 1e-5, "{} {}", p.ssk, p.sku);
     assert!(s.metadata.iter().any(|(k, v)| k == "ObjectiveLabel" && v == "5 X"), "{:?}", s.metadata);
+}
+
+/// Wyko `.opd` files built from the layout (profilometry/make_opd_files.py): a later Vision
+/// version's directory (heights in an i16 array named `Raw`, type-15 entries, an `Image` array
+/// before it, entries whose sizes differ from their types'), the layout this reader refused and
+/// surfalize stops on; and f32 wavelengths in an `OPD` array with each non-measured marker.
+/// Against SurfaceTopography 1.27.1's reading of each (profilometry/README.md; 1e-6 relative)
+/// and the injected surface (half a stored count).
+#[test]
+fn wyko_opd_layouts_reproduce_surface_topographys_reading() {
+    const MISSING: [(usize, usize); 6] = [(0, 0), (3, 7), (12, 20), (12, 21), (25, 34), (17, 33)];
+    // name, SurfaceTopography's pitch x, y (mm) and Sq, Sa, Sz (mm), one stored count (m).
+    let files = [
+        (
+            "wave_pedestal.raw.layout.opd",
+            [0.0006500000017695129, 0.0008125000022118911],
+            [0.000356966941, 0.000270245439, 0.00164317887],
+            f64::from(632.8f32) * 1e-9 / 2048.0,
+        ),
+        (
+            "wave_pedestal.opd_f32.layout.opd",
+            [0.0007999999797903001, 0.0007999999797903001],
+            [0.000356966191, 0.000270244907, 0.00164316716],
+            // Two f32 steps of the largest height.
+            2.0 * f64::from(f32::EPSILON) * 1.7e-6,
+        ),
+    ];
+    for (name, pitch_mm, sq_sa_sz_mm, count) in files {
+        let s = read(&local(name), &ScanOptions::default());
+        assert_eq!(s.format, ScanFormat::Opd);
+        assert!(s.warnings.is_empty(), "{name}: {:?}", s.warnings);
+        assert_eq!(s.grid.dim(), (26, 35), "{name}");
+        assert_eq!(26 * 35 - s.grid.valid_count(), 6, "{name}");
+        for (got, want) in s.grid.pitch().into_iter().zip(pitch_mm) {
+            assert!((got / (want * 1e-3) - 1.0).abs() < 1e-12, "{name}: pitch {got} vs {want} mm");
+        }
+        let p = height_params(&s.grid).unwrap();
+        for ((label, got), want) in [("Sq", p.sq), ("Sa", p.sa), ("Sz", p.sz)].into_iter().zip(sq_sa_sz_mm) {
+            let want = want * 1e-3;
+            println!(
+                "{name} {label} {got:.9e} vs SurfaceTopography {want:.9e}, {:.1e} relative",
+                (got - want) / want
+            );
+            assert!((got - want).abs() <= 1e-6 * want, "{name} {label} {got} vs {want}");
+        }
+        check_wave_pedestal(name, &s, 0.0, count, &MISSING);
+    }
+    let s = read(&local("wave_pedestal.raw.layout.opd"), &ScanOptions::default());
+    let md = |k: &str| s.metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
+    assert_eq!(md("Title"), Some("later Vision layout"));
+    assert_eq!(md("AdjustVSI_Gain"), Some("3"));
+    assert_eq!(md("NumFrames"), Some("70000"));
+    assert_eq!(md("ImageModificat~0"), Some("2"));
 }
 
 /// The real Digital Surf file of the shared set (`instruments/digitalsurf.sur`): the statistics

@@ -403,6 +403,22 @@ fn datx_cuts_corruption_and_other_formats() {
     assert!(e.contains("wrong.datx") && e.contains("not a Zygo .datx file: no HDF5 signature"), "{e}");
 }
 
+/// Wyko `.opd` built from the layouts (a later Vision directory with type-15 entries and a
+/// 40-byte `ImageModificat~0` before the heights; f32 heights): cut at every byte of the first
+/// 600 and a spread beyond, and 36 bytes short, where Gwyddion's count for that entry ends (an
+/// error naming the file and the byte offset, never a panic); flipped bytes (no panic).
+#[test]
+fn opd_cuts_and_corruption() {
+    for name in ["wave_pedestal.raw.layout.opd", "wave_pedestal.opd_f32.layout.opd"] {
+        let bytes = std::fs::read(local(name)).unwrap();
+        let short = format!("cut-{name}");
+        check_cuts(&short, &bytes, true);
+        check_corruption(&short, &bytes);
+        let e = decode(&short, &bytes[..bytes.len() - 36], &ScanOptions::default()).unwrap_err().to_string();
+        assert!(e.contains(&short) && e.contains("byte offset"), "{e}");
+    }
+}
+
 /// Bruker Vision64 `.opdx`: cut at every byte of the first 600 and a spread beyond (an error
 /// naming the file and the byte offset, never a panic), flipped bytes (no panic), and files of
 /// other formats (refused naming what was expected).

@@ -25,6 +25,7 @@
 //! | `.png` | 16/8-bit grayscale with a `pCAL` height scale ([`crate::io::png`] + [`png_scale`]) | |
 //! | `.tif`, `.tiff` | grayscale TIFF ([`crate::io::tiff`]) | |
 //! | `.npy` | NumPy array ([`crate::io::npy`]) | |
+//! | `.exr` | OpenEXR height map, as doefab writes them (one float channel, pitch and unit attributes; [`crate::io::exr`]) | |
 //!
 //! Every format reader returns a [`ScanRaw`]: a [`RawMap`] whose non-measured points are NaN,
 //! plus what the file says about its origin and anything worth a warning. The pitch, height
@@ -124,6 +125,7 @@ pub enum ScanFormat {
     Png,
     Tiff,
     Npy,
+    Exr,
 }
 
 impl ScanFormat {
@@ -153,6 +155,7 @@ impl ScanFormat {
             ScanFormat::Png => "PNG",
             ScanFormat::Tiff => "TIFF",
             ScanFormat::Npy => "NumPy NPY",
+            ScanFormat::Exr => "OpenEXR height map",
         }
     }
 }
@@ -222,6 +225,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
         "png" => ScanFormat::Png,
         "tif" | "tiff" => ScanFormat::Tiff,
         "npy" => ScanFormat::Npy,
+        "exr" => ScanFormat::Exr,
         _ => {
             if let Some(why) = unread::refusal(&ext) {
                 return Err(Error::format(path, why));
@@ -230,7 +234,7 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
                 path,
                 format!(
                     "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .opdx, .plu, .plux, .al3d, .tmd, .vk4/.vk6/.vk7, .lext, .frt, .datx, .spm, .dat, .xyz, \
-                     .txt/.csv/.asc, .png, .tif/.tiff or .npy)"
+                     .txt/.csv/.asc, .png, .tif/.tiff, .npy or .exr)"
                 ),
             ));
         }
@@ -295,6 +299,7 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
             };
             Ok(ScanRaw::new(raw, format))
         }
+        ScanFormat::Exr => Ok(ScanRaw::new(crate::io::exr::decode_exr(path, bytes, None)?, format)),
     }
 }
 

@@ -27,16 +27,26 @@ use rustfft::num_complex::Complex64;
 
 use super::{check_fresnel, field_power, pupil_phase, Precision, SensorIntensity, Violation};
 use crate::error::{Error, Result};
-use crate::grid::Grid;
-use crate::optics::system::{sinc, OpticalSystem};
+use crate::grid::{Grid, Interpolation};
+use crate::optics::system::{nested_parity, nested_refinement, sinc, OpticalSystem};
 
 /// The pupil grid of this method: `(n, dx)` with `dx` the system's pupil pitch and `n` just
 /// covering the aperture, with the DOE's parity when the DOE has that pitch (so the samples
-/// coincide and no interpolation happens).
+/// coincide and no interpolation happens), and with nearest interpolation at a whole fraction
+/// of the DOE's pitch the parity that nests the pupil samples in the DOE's cells
+/// ([`nested_refinement`]).
 pub fn pupil_grid(system: &OpticalSystem, doe: &Grid) -> (usize, f64) {
     let dx = system.pupil_pitch;
     let same = doe.pitch().iter().all(|p| (p / dx - 1.0).abs() < 1e-12);
-    let parity = if same { doe.dim().1 % 2 } else { 0 };
+    let nested = match system.interpolation {
+        Interpolation::Nearest => nested_refinement(doe, dx),
+        _ => None,
+    };
+    let parity = match nested {
+        _ if same => doe.dim().1 % 2,
+        Some(k) => nested_parity(doe, k),
+        None => 0,
+    };
     let mut n = (system.aperture / dx).ceil() as usize + 2;
     if n % 2 != parity {
         n += 1;

@@ -25,14 +25,14 @@ pub mod rayleigh;
 use std::f64::consts::PI;
 use std::fmt;
 
-use ndarray::Array2;
+use ndarray::{Array2, ArrayView2};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::psf::{Channel, Psf};
-use super::system::{OpticalSystem, PixelRule};
+use super::system::{nested_parity, nested_refinement, takes_doe_samples, OpticalSystem, PixelRule};
 use crate::error::{Error, Result};
-use crate::grid::{Grid, Unit};
+use crate::grid::{Grid, Interpolation, Unit};
 
 /// The propagation methods.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -259,12 +259,112 @@ pub fn field_power(u: &Array2<rustfft::num_complex::Complex64>, dx: f64) -> f64 
     u.iter().map(|v| v.norm_sqr()).sum::<f64>() * dx * dx
 }
 
-/// Phase-gradient check on pupil heights (metres) at `pitch`, with the DOE's bandwidth.
+/// The phase changes between neighbouring samples of a height map at one wavelength, sorted
+/// (see [`phase_changes`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct PhaseChanges {
+    /// The steepest resolved change, rad per sample: a change within pi, or what a step leaves
+    /// once its period is taken off (the slope across it).
+    pub steepest: f64,
+    /// Pairs that step by about the map's period (module docs of [`phase_changes`]).
+    pub steps: usize,
+    /// Pairs that change by more than pi along a slope, and the worst: (|change| in rad, row,
+    /// column of its first sample).
+    pub slopes: usize,
+    pub worst: (f64, usize, usize),
+}
+
+/// Sorts the phase changes between neighbouring samples (along rows and columns) of heights
+/// `h` (metres), of the samples where `read(i, j)` holds (the aperture), at `k = 2 pi (n - 1) /
+/// lambda` radians per metre of height, into three kinds:
 ///
-/// The phase step between neighbouring samples inside the aperture, `k (n - 1) dh`, must stay
-/// within pi (Nyquist) unless it is a wrap step, i.e. at least 3 pi / 2 in size and within
-/// pi / 2 of a multiple of 2 pi (a phase-wrapped DOE's zone edges, harmless in `exp(i phi)`).
-/// The bandwidth is the largest local frequency of the phase, `|step mod 2 pi| / (2 pi dx)`.
+/// * resolved: `|d| <= pi`, the Nyquist limit of a sampled phase;
+/// * a step: the jump of a wrapped or quantized surface from its top back to its bottom. Such
+///   a surface spans about one period `P` of height (`[0, P)` once wrapped, `(N - 1) P / N` once
+///   quantized to N levels), and a step jumps by that span less the change of the surface
+///   across it, so the step is `|d| >= Phi - pi` with `Phi = k (max h - min h)`: its remainder
+///   `Phi - |d|`, the slope across it, resolved as any change. Its flanks are resolved too: a
+///   climb of more than pi beside it in the same direction would take the surface beyond its
+///   span. At the wrap's design wavelength `Phi` is 2 pi and the step vanishes in `exp(i phi)`;
+///   at another it is a real step of `(n(lambda) - 1) P k`. Either way the part is piecewise
+///   constant per sample (a pixelated part is made so), which the transform of the samples
+///   holds exactly: the jump is no slope to resolve;
+/// * a slope: any other change over pi, a smooth surface steeper than the samples resolve.
+pub(crate) fn phase_changes(h: ArrayView2<f64>, read: &dyn Fn(usize, usize) -> bool, k: f64) -> PhaseChanges {
+    let (rows, cols) = h.dim();
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for ((i, j), &v) in h.indexed_iter() {
+        if read(i, j) {
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+    }
+    let mut out = PhaseChanges::default();
+    if hi < lo {
+        return out;
+    }
+    let period = k * (hi - lo);
+    // Tolerances keep exact changes (pi of a binary grating, a step of exactly the span less
+    // pi) on the resolved side.
+    let limit = PI * (1.0 + 1e-9);
+    for i in 0..rows {
+        for j in 0..cols {
+            if !read(i, j) {
+                continue;
+            }
+            for (di, dj) in [(1, 0), (0, 1)] {
+                let (a, b) = ((i, j), (i + di, j + dj));
+                if b.0 >= rows || b.1 >= cols || !read(b.0, b.1) {
+                    continue;
+                }
+                let d = k * (h[b] - h[a]);
+                if d.abs() <= limit {
+                    out.steepest = out.steepest.max(d.abs());
+                    continue;
+                }
+                let remainder = period - d.abs();
+                if remainder <= limit {
+                    out.steps += 1;
+                    out.steepest = out.steepest.max(remainder.max(0.0));
+                } else {
+                    out.slopes += 1;
+                    if d.abs() > out.worst.0 {
+                        out.worst = (d.abs(), i, j);
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The phase changes ([`phase_changes`]) of the DOE's own samples inside the aperture (valid
+/// and finite ones), at `k` radians per metre of height.
+fn doe_phase_changes(system: &OpticalSystem, doe: &Grid, k: f64) -> PhaseChanges {
+    let (rows, cols) = doe.dim();
+    let [px, py] = doe.pitch();
+    let r2 = (system.aperture * 0.5).powi(2);
+    let (ci, cj) = ((rows as f64 - 1.0) * 0.5, (cols as f64 - 1.0) * 0.5);
+    let h = doe.values();
+    let read = |i: usize, j: usize| {
+        let (x, y) = ((j as f64 - cj) * px, (i as f64 - ci) * py);
+        x * x + y * y <= r2 && doe.is_valid(i, j) && h[[i, j]].is_finite()
+    };
+    phase_changes(h.view(), &read, k)
+}
+
+/// Phase checks on pupil heights (metres) at `pitch`, with the DOE's bandwidth.
+///
+/// The phase change between neighbouring samples inside the aperture, `k (n - 1) dh`, must
+/// stay within pi (Nyquist) unless it is a step of a wrapped or quantized surface
+/// ([`phase_changes`]): a slope over pi is refused (`phase_gradient`), a step is exact. The
+/// bandwidth is the largest local frequency of the phase, its steepest resolved change (across
+/// a step, the step less its period) over `2 pi dx`.
+///
+/// A stepped DOE is piecewise constant per sample, so a pupil that interpolates it (any pupil
+/// but the DOE's own samples, or, with nearest interpolation, `k x k` samples nested in each of
+/// them: [`crate::optics::system::nested_refinement`]) reads a surface the part does not have:
+/// a ramp across each step, or a step moved by up to half a pupil sample (`step_resampling`).
 ///
 /// A pupil coarser than the DOE's own samples reads the surface at fewer points than the
 /// design holds, and `exp(i phi)` spreads beyond its local frequency (Carson's rule: by the
@@ -288,37 +388,33 @@ pub(crate) fn pupil_phase(
         let (x, y) = ((j as f64 - c) * pitch, (i as f64 - c) * pitch);
         x * x + y * y <= r2
     };
-    let mut bad = 0usize;
-    let mut worst = (0.0f64, 0usize, 0usize);
-    let mut steepest = 0.0f64;
-    for i in 0..n {
-        for j in 0..n {
-            if !inside(i, j) {
-                continue;
-            }
-            for (a, b) in [(i + 1, j), (i, j + 1)] {
-                if a >= n || b >= n || !inside(a, b) {
-                    continue;
-                }
-                let d = k * (h[[a, b]] - h[[i, j]]);
-                let r = d - 2.0 * PI * (d / (2.0 * PI)).round();
-                steepest = steepest.max(r.abs());
-                // Tolerances keep exact steps (pi, 3 pi / 2 of a staircase) on the valid side.
-                let ok = d.abs() <= PI * (1.0 + 1e-9)
-                    || (d.abs() >= 1.5 * PI * (1.0 - 1e-9) && r.abs() <= 0.5 * PI * (1.0 + 1e-9));
-                if !ok {
-                    bad += 1;
-                    if d.abs() > worst.0 {
-                        worst = (d.abs(), i, j);
-                    }
-                }
-            }
-        }
-    }
+    let pupil = phase_changes(h.view(), &inside, k);
+    let steepest = pupil.steepest;
     let bandwidth = steepest / (2.0 * PI * pitch);
     let mut out = Vec::new();
+    let doe_pitch = doe.pitch()[0].min(doe.pitch()[1]);
+    let nested = system.interpolation == Interpolation::Nearest
+        && nested_refinement(doe, pitch).is_some_and(|k| nested_parity(doe, k) == n % 2);
+    if !takes_doe_samples(doe, n, pitch) && !nested {
+        let steps = doe_phase_changes(system, doe, k).steps;
+        if steps > 0 {
+            out.push(Violation::new(
+                "step_resampling",
+                wavelength,
+                format!(
+                    "the DOE steps by about its height span between {steps} pairs of neighbouring samples (a \
+                     wrapped or quantized surface, piecewise constant per sample as the part is made): {} \
+                     interpolation onto the {:.3} um pupil reads across its steps; sample the pupil at the \
+                     DOE's {:.3} um pitch, or at a whole fraction of it with nearest interpolation",
+                    format!("{:?}", system.interpolation).to_lowercase(),
+                    pitch * 1e6,
+                    doe_pitch * 1e6
+                ),
+            ));
+        }
+    }
     let coarser = doe.pitch().iter().any(|p| pitch > p * (1.0 + 1e-9));
-    if coarser && bad == 0 && steepest > 0.5 * PI * (1.0 + 1e-9) {
+    if coarser && pupil.slopes == 0 && steepest > 0.5 * PI * (1.0 + 1e-9) {
         out.push(Violation::new(
             "pupil_resampling",
             wavelength,
@@ -327,21 +423,22 @@ pub(crate) fn pupil_phase(
                  {steepest:.2} rad (> pi/2) between neighbouring samples: the surface's spectrum aliases \
                  onto the sensor; sample the pupil at the DOE's pitch",
                 pitch * 1e6,
-                doe.pitch()[0].min(doe.pitch()[1]) * 1e6
+                doe_pitch * 1e6
             ),
         ));
     }
-    out.extend((bad > 0).then(|| {
+    out.extend((pupil.slopes > 0).then(|| {
+        let (worst, i, j) = pupil.worst;
         Violation::new(
             "phase_gradient",
             wavelength,
             format!(
-                "the DOE phase changes by more than pi between {bad} pairs of neighbouring pupil samples \
-                 at {:.3} um pitch (worst {:.2} rad at row {}, column {}): the pupil is undersampled",
+                "the DOE phase changes by more than pi between {} pairs of neighbouring pupil samples \
+                 at {:.3} um pitch (worst {worst:.2} rad at row {i}, column {j}) along a slope, not by a step of \
+                 about the surface's height span ({} such steps, which are exact): the slope is undersampled",
+                pupil.slopes,
                 pitch * 1e6,
-                worst.0,
-                worst.1,
-                worst.2
+                pupil.steps
             ),
         )
     }));
@@ -470,5 +567,77 @@ pub(crate) fn check_window(system: &OpticalSystem, dx: f64, w: f64, wavelength: 
         ))
     } else {
         None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The phase changes of one row of phases (radians: `k = 1`).
+    fn row(phase: &[f64]) -> PhaseChanges {
+        let h = Array2::from_shape_vec((1, phase.len()), phase.to_vec()).unwrap();
+        phase_changes(h.view(), &|_, _| true, 1.0)
+    }
+
+    /// A row spanning 8 rad (its last samples climb to 8 in resolved changes) with one jump of
+    /// `jump` between flat flanks.
+    fn jump_row(jump: f64) -> Vec<f64> {
+        let mut v = vec![0.0, 0.0, jump, jump];
+        while *v.last().unwrap() < 8.0 {
+            v.push((v.last().unwrap() + 1.0).min(8.0));
+        }
+        v
+    }
+
+    #[test]
+    fn a_step_is_the_span_less_a_resolved_change() {
+        // Span 8 rad: a jump of 8 - 0.98 pi is a step, 8 - 1.02 pi a slope.
+        let step = row(&jump_row(8.0 - 0.98 * PI));
+        assert_eq!((step.steps, step.slopes), (1, 0), "{step:?}");
+        assert!((step.steepest - 0.98 * PI).abs() < 1e-12, "{step:?}");
+        let slope = row(&jump_row(8.0 - 1.02 * PI));
+        assert_eq!((slope.steps, slope.slopes), (0, 1), "{slope:?}");
+        assert_eq!(slope.worst.2, 1);
+        // A change of exactly pi is resolved (a binary grating of pi steps).
+        assert_eq!(row(&[0.0, PI, 0.0, PI]), PhaseChanges { steepest: PI, ..Default::default() });
+    }
+
+    #[test]
+    fn a_slope_keeps_climbing_a_terrace_turns_back() {
+        // Over a 7 rad span, a climb of 0.98 pi then a step of the rest (7 - 0.98 pi, within pi
+        // of the span); a climb of 1.02 pi leaves a rest that is not: two slopes.
+        let climb = |c: f64| row(&[0.0, c, 7.0, 7.0]);
+        let r = climb(0.98 * PI);
+        assert_eq!((r.steps, r.slopes), (1, 0), "{r:?}");
+        let r = climb(1.02 * PI);
+        assert_eq!((r.steps, r.slopes), (0, 2), "{r:?}");
+        // A terrace one sample wide turns back: two steps, no slope.
+        let terrace = row(&[0.0, 0.0, 7.0, 0.0, 0.0]);
+        assert_eq!((terrace.steps, terrace.slopes), (2, 0));
+        // A smooth slope of 4 rad per sample is a slope at every pair.
+        let steep = row(&[0.0, 4.0, 8.0, 12.0, 16.0]);
+        assert_eq!((steep.steps, steep.slopes), (0, 4));
+        assert_eq!(steep.worst, (4.0, 0, 0));
+    }
+
+    /// A tilt of 0.3 pi per sample wrapped modulo 2 pi: steps at the design wavelength (2 pi
+    /// less 0.3 pi), and scaled by 0.8 or 1.2 (another wavelength) still steps, one per zone,
+    /// the slope across each (0.3 pi times the scale) the steepest change.
+    #[test]
+    fn a_wrapped_tilt_steps_at_every_wavelength() {
+        let tau = 2.0 * PI;
+        let wrapped: Vec<f64> = (0..60).map(|j| (0.3 * PI * j as f64).rem_euclid(tau)).collect();
+        let zones = wrapped.windows(2).filter(|w| w[1] < w[0]).count();
+        assert!(zones >= 8);
+        for scale in [0.8, 1.0, 1.2] {
+            let v: Vec<f64> = wrapped.iter().map(|p| p * scale).collect();
+            let r = row(&v);
+            assert_eq!((r.steps, r.slopes), (zones, 0), "scale {scale}: {r:?}");
+            assert!((r.steepest - 0.3 * PI * scale).abs() < 1e-9, "scale {scale}: {r:?}");
+        }
+        // Steeper than pi per sample and not wrapped: all slopes.
+        let steep: Vec<f64> = (0..10).map(|j| 1.1 * PI * j as f64).collect();
+        assert_eq!(row(&steep).slopes, 9);
     }
 }
