@@ -297,8 +297,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::decoder::forward_check::
                 [r.dark, r.mid, r.bright, r.ring, r.all]
             };
             let top =
-                scene.models.iter().flat_map(|m| values(m)).filter(|v| v.is_finite()).fold(0.0, f64::max)
-                    * 1.15;
+                scene.models.iter().flat_map(&values).filter(|v| v.is_finite()).fold(0.0, f64::max) * 1.15;
             let mut chart = ChartBuilder::on(&columns[k])
                 .caption(
                     format!(

@@ -73,15 +73,18 @@ pub fn system_for(doe: &Grid) -> OpticalSystem {
 }
 
 /// Simulates the PSF of `doe` in `system` by `method`, with the flat-DOE reference for the
-/// Strehl ratio, and writes the outputs into `out` (see the module docs).
+/// Strehl ratio, and writes the outputs into `out` (see the module docs); `notes` go first
+/// among the warnings.
 pub fn simulate_and_write(
     doe: &Grid,
     system: &OpticalSystem,
     method: Method,
     opts: &Options,
+    notes: &[String],
     out: &Path,
 ) -> Result<PsfReport> {
-    let psf = simulate(system, doe, method, opts)?;
+    let mut psf = simulate(system, doe, method, opts)?;
+    psf.warnings.splice(0..0, notes.iter().cloned());
     // The flat reference on an odd crop, so that its peak pixel sits on the axis.
     let odd = OpticalSystem { crop: system.crop | 1, ..system.clone() };
     let flat = simulate(&odd, &flat_doe(&odd)?, method, &Options { allow_invalid: true, ..opts.clone() })?;

@@ -44,6 +44,8 @@ pub struct PsfOptions {
 pub struct PsfJob {
     heights: Grid,
     how: How,
+    /// Why the plan found no valid method, when `allow_invalid` forced one instead.
+    forced_because: Option<String>,
 }
 
 #[derive(Debug, Clone)]
@@ -73,10 +75,23 @@ pub fn prepare(opts: &PsfOptions) -> Result<PsfJob> {
             Some(p) => spectrum::read_response_csv(p)?,
             None => Vec::new(),
         };
-        let plan = plan::plan(&system, &loaded.heights, &bands, opts.tolerance)?;
-        How::Plan { plan: Box::new(plan), bands }
+        match plan::plan(&system, &loaded.heights, &bands, opts.tolerance) {
+            Ok(plan) => How::Plan { plan: Box::new(plan), bands },
+            // Asked to run where nothing is valid (a measured part's blurred steps are slopes
+            // no pupil sampling resolves): the matrix DFT at the DOE's own samples, the plan's
+            // refusal kept as a warning beside the method's violations.
+            Err(Error::Validity(why)) if opts.allow_invalid && bands.is_empty() => {
+                system.subsample = opts.subsample;
+                let options = Options { allow_invalid: true, ..Default::default() };
+                let how = How::Method { system: Box::new(system), method: Method::MatrixDft, options };
+                let forced_because =
+                    Some(format!("the plan found no valid method, matrix_dft forced: {why}"));
+                return Ok(PsfJob { heights: loaded.heights, how, forced_because });
+            }
+            Err(e) => return Err(e),
+        }
     };
-    Ok(PsfJob { heights: loaded.heights, how })
+    Ok(PsfJob { heights: loaded.heights, how, forced_because: None })
 }
 
 impl PsfJob {
@@ -103,7 +118,8 @@ impl PsfJob {
     pub fn run(&self, output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<PsfReport> {
         match &self.how {
             How::Method { system, method, options } => {
-                output::simulate_and_write(&self.heights, system, *method, options, output)
+                let notes: Vec<String> = self.forced_because.iter().cloned().collect();
+                output::simulate_and_write(&self.heights, system, *method, options, &notes, output)
             }
             How::Plan { plan, bands } => {
                 output::plan_and_write(&self.heights, plan, bands, output, &mut |what| progress(what, 0, 1))
