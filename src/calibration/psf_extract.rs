@@ -88,7 +88,8 @@ const HOT_RATIO: f64 = 100.0;
 const TAIL_HOT_RATIO: f64 = 20.0;
 
 /// What is put at the crop centre (see the module docs).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "snake_case")]
 pub enum Centre {
     /// The optical axis: the sub-pixel maximum of the principal (brightest) peak, by a

@@ -22,7 +22,8 @@ use crate::fabrication::Provenance;
 use crate::grid::{par, Grid, Interpolation, Unit};
 
 /// Resist polarity.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "snake_case")]
 pub enum Polarity {
     /// Exposed resist dissolves: depth grows with dose.
