@@ -511,7 +511,7 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
                 "the PSF at row {ci:.1}, col {cj:.1} of the {w} x {h} capture is off the crop window: a \
                  {0} x {0} crop at the sensor pitch needs {1:.0} px of capture on every side (it has \
                  {2:.0} above, {3:.0} below, {4:.0} left, {5:.0} right); centre the pinhole or choose a \
-                 smaller --crop",
+                 smaller `crop`",
                 opts.crop,
                 half,
                 ci,
