@@ -40,6 +40,7 @@ pub struct Channel {
 /// A PSF: channels of one shape and pitch, the method that made it and its warnings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Psf {
+    /// One per wavelength or colour band, of one shape and pitch.
     pub channels: Vec<Channel>,
     /// The method (propagation method name, or "measured"/"file").
     pub method: String,
