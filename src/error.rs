@@ -34,7 +34,7 @@ pub enum Error {
     Limit(String),
     /// Options given together that cannot all be honoured (a value refused before any work
     /// starts, two options that exclude each other, two outputs naming the same file); the
-    /// message names the options as the command line spells them.
+    /// message names the options as their fields are named, in backticks.
     #[error("{0}")]
     Options(String),
 }

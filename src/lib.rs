@@ -54,3 +54,8 @@ pub mod units;
 
 pub use error::{Error, Result};
 pub use grid::{Grid, Interpolation, Unit};
+
+/// The README, whose Rust blocks (its "Library use" example) run as doc tests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

@@ -112,11 +112,6 @@ pub fn parse_duration(text: &str) -> Result<f64> {
     Err(Error::param("duration", format!("'{text}' has no unit (expected s, min or h, e.g. \"5min\")")))
 }
 
-/// clap value parser for durations (seconds).
-pub fn clap_duration(s: &str) -> std::result::Result<f64, String> {
-    parse_duration(s).map_err(|e| e.to_string())
-}
-
 /// Formats metres with an SI prefix chosen for readability: 4.29e-6 -> "4.29 um".
 pub fn format_length(metres: f64) -> String {
     let a = metres.abs();
@@ -138,11 +133,6 @@ fn trim_float(v: f64) -> String {
     let s = format!("{v:.6}");
     let s = s.trim_end_matches('0').trim_end_matches('.');
     s.to_string()
-}
-
-/// clap value parser for lengths.
-pub fn clap_length(s: &str) -> std::result::Result<f64, String> {
-    parse_length(s).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]

@@ -300,7 +300,7 @@ pub fn resolve_bracket(spec: &BracketSpec) -> Result<ExposureList> {
         (Some(_), Some(_)) => {
             return Err(Error::param(
                 "bracket",
-                "an exposure list was given twice (as a file and with --exposures); give one",
+                "an exposure list was given twice (as a file and as `exposures`); give one",
             ))
         }
         (Some(json), None) | (None, Some(json)) => {
@@ -308,7 +308,7 @@ pub fn resolve_bracket(spec: &BracketSpec) -> Result<ExposureList> {
                 return Err(Error::param(
                     "bracket",
                     format!(
-                        "{} capture files and the exposure list {}: give the files with --times, or \
+                        "{} capture files and the exposure list {}: give the files with `times`, or \
                          the list alone",
                         spec.files.len(),
                         json.display()
@@ -319,7 +319,7 @@ pub fn resolve_bracket(spec: &BracketSpec) -> Result<ExposureList> {
                 return Err(Error::param(
                     "times",
                     format!(
-                        "the exposure list {} gives the times; --times is not used with it",
+                        "the exposure list {} gives the times; `times` is not used with it",
                         json.display()
                     ),
                 ));
@@ -331,7 +331,7 @@ pub fn resolve_bracket(spec: &BracketSpec) -> Result<ExposureList> {
                 return Err(Error::param(
                     "bracket",
                     format!(
-                        "{} is an exposure list; give it alone (or with --exposures), not among capture \
+                        "{} is an exposure list; give it alone (or as `exposures`), not among capture \
                          files",
                         j.display()
                     ),
@@ -340,7 +340,7 @@ pub fn resolve_bracket(spec: &BracketSpec) -> Result<ExposureList> {
             if spec.files.is_empty() {
                 return Err(Error::param(
                     "bracket",
-                    "no captures: give FILES with --times, or an exposure list (LIST.json or --exposures)",
+                    "no captures: give `files` with `times`, or an exposure list (LIST.json or `exposures`)",
                 ));
             }
             exposures_from_times(&spec.files, &spec.times)?
@@ -358,8 +358,8 @@ pub fn exposures_from_times(files: &[PathBuf], times: &[String]) -> Result<Expos
         return Err(Error::param(
             "times",
             format!(
-                "{} exposure times for {} files: expected one time per file (--times 1/60,1/30,...), or \
-                 an exposure list (LIST.json or --exposures)",
+                "{} exposure times for {} files: expected one time per file (`times` 1/60,1/30,...), or \
+                 an exposure list (LIST.json or `exposures`)",
                 times.len(),
                 files.len()
             ),

@@ -742,14 +742,14 @@ pub fn write_tone_mapped(path: &Path, merged: &Merged, ev: f64, pitch: Option<f6
     let mut warnings = Vec::new();
     if let (true, Some(e)) = (clipped_fraction > 0.25, ev_p99) {
         warnings.push(format!(
-            "{}: at EV {ev}, {:.1} % of the samples are white; --ev {e:.1} puts the 99th percentile at white",
+            "{}: at EV {ev}, {:.1} % of the samples are white; `ev` {e:.1} puts the 99th percentile at white",
             path.display(),
             100.0 * clipped_fraction
         ));
     }
     if let (true, Some(e)) = (max * gain < 0.05, ev_max) {
         warnings.push(format!(
-            "{}: at EV {ev}, the brightest sample is at {:.4} of white; --ev {e:.1} puts it at white",
+            "{}: at EV {ev}, the brightest sample is at {:.4} of white; `ev` {e:.1} puts it at white",
             path.display(),
             max * gain
         ));

@@ -88,7 +88,8 @@ const HOT_RATIO: f64 = 100.0;
 const TAIL_HOT_RATIO: f64 = 20.0;
 
 /// What is put at the crop centre (see the module docs).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "snake_case")]
 pub enum Centre {
     /// The optical axis: the sub-pixel maximum of the principal (brightest) peak, by a
@@ -510,7 +511,7 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
                 "the PSF at row {ci:.1}, col {cj:.1} of the {w} x {h} capture is off the crop window: a \
                  {0} x {0} crop at the sensor pitch needs {1:.0} px of capture on every side (it has \
                  {2:.0} above, {3:.0} below, {4:.0} left, {5:.0} right); centre the pinhole or choose a \
-                 smaller --crop",
+                 smaller `crop`",
                 opts.crop,
                 half,
                 ci,

@@ -5,7 +5,7 @@ use anyhow::Result;
 use clap::{Args, Parser, Subcommand};
 
 use doefab::io::heightmap::ReadOptions;
-use doefab::units::{clap_length, length_unit};
+use doefab::units::{length_unit, parse_duration, parse_length};
 
 use super::calibration::{BenchCalibrationArgs, CalibratePsfArgs, EvaluateArgs, MergeArgs};
 use super::decoder::{BenchDecoderArgs, BenchForwardArgs, BenchTilingArgs, FinetuneArgs, ReconstructArgs};
@@ -185,4 +185,14 @@ pub struct OpticsArgs {
     /// Multi-order factor p (wrap modulo p * 2 pi).
     #[arg(long, default_value_t = 1)]
     pub order: u32,
+}
+
+/// clap value parser for lengths.
+pub fn clap_length(s: &str) -> std::result::Result<f64, String> {
+    parse_length(s).map_err(|e| e.to_string())
+}
+
+/// clap value parser for durations (seconds).
+pub fn clap_duration(s: &str) -> std::result::Result<f64, String> {
+    parse_duration(s).map_err(|e| e.to_string())
 }

@@ -5,9 +5,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use clap::Args;
 
-use doefab::units::clap_length;
-
-use super::args::Cli;
+use super::args::{clap_length, Cli};
 use crate::{print_result, progress, report_to, warn};
 
 /// An exposure bracket on the command line.

@@ -6,9 +6,7 @@ use anyhow::Result;
 use clap::Args;
 use indicatif::ProgressStyle;
 
-use doefab::units::clap_length;
-
-use super::args::Cli;
+use super::args::{clap_length, Cli};
 use crate::{print_result, progress, report_to, warn};
 
 /// Arguments of `doefab reconstruct`.

@@ -11,9 +11,8 @@ use doefab::fabrication::quantize::QuantizeMethod;
 use doefab::fabrication::recipe::Recipe;
 use doefab::fabrication::stl::{StlOptions, StlUnit, SurfaceChoice};
 use doefab::fabrication::ReplicaMode;
-use doefab::units::clap_length;
 
-use super::args::{Cli, OpticsArgs, ReadArgs};
+use super::args::{clap_length, Cli, OpticsArgs, ReadArgs};
 use crate::{print_result, progress, report_to, warn};
 
 /// Mesher choice on the command line.

@@ -9,9 +9,9 @@ use doefab::fabrication::chain::{self, ChainParams, DesignSource};
 use doefab::fabrication::quantize::QuantizeMethod;
 use doefab::fabrication::recipe::Recipe;
 use doefab::fabrication::ReplicaMode;
-use doefab::units::{clap_length, length_unit};
+use doefab::units::length_unit;
 
-use super::args::{Cli, OpticsArgs, ReadArgs};
+use super::args::{clap_length, Cli, OpticsArgs, ReadArgs};
 use super::fabrication::chain_params;
 use crate::{print_result, progress, report_to, warn};
 

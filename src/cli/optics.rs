@@ -8,9 +8,8 @@ use clap::Args;
 use doefab::fabrication::chain::DesignSource;
 use doefab::optics::psf_bench::BenchOptions;
 use doefab::pipeline::bench::PsfBenchOptions;
-use doefab::units::{clap_duration, clap_length};
 
-use super::args::{Cli, ReadArgs};
+use super::args::{clap_duration, clap_length, Cli, ReadArgs};
 use crate::{print_result, progress, report_to, warn};
 
 /// Arguments of `doefab psf`.

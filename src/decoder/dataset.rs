@@ -181,7 +181,7 @@ pub fn split(images: Vec<HdrImage>, holdout_every: usize) -> Result<(Vec<HdrImag
             "data",
             format!(
                 "holding out 1 in {holdout_every} of {n} images by name leaves {} for training and {} for \
-                 validation; give more images, or a separate --validation-data folder",
+                 validation; give more images, or a separate validation folder (`validation_data`)",
                 train.len(),
                 val.len()
             ),

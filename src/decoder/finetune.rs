@@ -245,7 +245,7 @@ pub fn short_run_warning(steps: usize, best_step: usize) -> Option<String> {
             "the decoder comes from a run of {steps} steps, fewer than the {STEPS} measured to lift the paper's \
              simulated-PSF decoder above its start on the paper's real captures: after 20 steps two seeds wrote \
              decoders 0.2 to 0.7 dB below their start on both scenes while their simulated validation rose; score it \
-             on real captures (doefab bench decoder --steps 0 --decoder FILE) before use"
+             on real captures with the decoder benchmark, without fine-tuning, before use"
         )
     })
 }

@@ -99,10 +99,10 @@ fn wgpu_device() -> Result<SelectedDevice> {
                         .map_or(("an unnamed adapter".into(), false), |i| (i.name, i.physical.is_none()));
                     let warning = match software {
                         true => format!(
-                            "--gpu found no GPU; the decoder runs on `{name}`, a software rasterizer on the \
-                             CPU, tens of times slower than without --gpu"
+                            "`gpu` found no GPU; the decoder runs on `{name}`, a software rasterizer on the \
+                             CPU, tens of times slower than on the CPU backend"
                         ),
-                        false => format!("--gpu found no discrete GPU; the decoder runs on `{name}`"),
+                        false => format!("`gpu` found no discrete GPU; the decoder runs on `{name}`"),
                     };
                     Ok(SelectedDevice { device, software, warnings: vec![warning] })
                 }

@@ -188,7 +188,7 @@ pub fn shape(design: LoadedDesign, p: &ChainParams) -> Result<Shaped> {
             let (i, j) = mask.indexed_iter().find(|(_, v)| !**v).map(|(ix, _)| ix).unwrap_or_default();
             return Err(Error::Data(format!(
                 "{}: {missing} samples are NaN, infinite or not measured (first at row {i}, column {j}); \
-                 pass --fill to fill them from their neighbours",
+                 set `fill` to fill them from their neighbours",
                 design.name
             )));
         }
@@ -325,7 +325,7 @@ pub fn surface_from_raw(path: &Path, raw: RawMap, opts: &ReadOptions) -> Result<
     if opts.unit.is_some() || opts.z_scale.is_some() || opts.z_offset.is_some() {
         return Err(Error::format(
             path,
-            "a level map's heights come from its level count and period: drop --unit, --z-scale and --z-offset",
+            "a level map's heights come from its level count and period: drop `unit`, `z_scale` and `z_offset`",
         ));
     }
     let lm = level_map_from_raw(path, raw)?;

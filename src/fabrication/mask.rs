@@ -22,7 +22,8 @@ use crate::fabrication::Provenance;
 use crate::grid::{par, Grid, Interpolation, Unit};
 
 /// Resist polarity.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "snake_case")]
 pub enum Polarity {
     /// Exposed resist dissolves: depth grows with dose.
@@ -216,7 +217,7 @@ pub fn render_levels(
     if w.saturating_mul(h) > opts.max_pixels && !opts.force {
         return Err(Error::Limit(format!(
             "the mask would be {w} x {h} = {:.0} Mpx at a {:.3} um writer grid, above the limit of {:.0} Mpx; \
-             pass --force to write it anyway",
+             set `force` to write it anyway",
             (w * h) as f64 / 1e6,
             opts.writer_pitch * 1e6,
             opts.max_pixels as f64 / 1e6
@@ -309,7 +310,7 @@ pub fn render_levels(
             if cell >= 1.0 {
                 canvas.text(bf, h as f32 - 0.5 * bf - 3.5 * cell, cell.floor(), &opts.label)?;
             } else {
-                return Err(Error::param("label", "the frame is too narrow for the label: widen --border"));
+                return Err(Error::param("label", "the frame is too narrow for the label: widen `border`"));
             }
         }
         // Only the frame can be covered: rows above and below the pattern, and the columns
@@ -449,7 +450,7 @@ mod tests {
         let big = MaskOptions { writer_pitch: 0.01e-6, max_pixels: 1_000_000, ..Default::default() };
         let e =
             render(&levels(4), 4, period, &linear_curve(period), &big, &Provenance::default()).unwrap_err();
-        assert!(e.to_string().contains("--force"), "{e}");
+        assert!(e.to_string().contains("set `force`"), "{e}");
         let bad = MaskOptions { bits: 12, ..Default::default() };
         assert!(render(&levels(4), 4, period, &linear_curve(period), &bad, &Provenance::default()).is_err());
         let narrow = MaskOptions { border: 2e-6, label: "TOO LONG A LABEL".into(), ..Default::default() };

@@ -31,7 +31,8 @@ pub mod wrap;
 use serde::{Deserialize, Serialize};
 
 /// Whether outputs describe the design itself or the master whose PDMS cast is the design.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "snake_case")]
 pub enum ReplicaMode {
     /// Outputs are the design surface as given.

@@ -9,7 +9,8 @@ use crate::float;
 use crate::grid::{par, Grid, Unit};
 
 /// How heights are mapped onto levels.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "snake_case")]
 pub enum QuantizeMethod {
     /// Nearest level.

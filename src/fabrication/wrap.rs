@@ -258,7 +258,7 @@ pub fn check_finite(g: &Grid) -> Result<()> {
         None => Ok(()),
         Some((count, (i, j))) => Err(Error::Data(format!(
             "{count} height values are NaN or infinite (first at row {i}, column {j}); \
-             pass --fill to fill them from their neighbours"
+             set `fill` to fill them from their neighbours"
         ))),
     }
 }

@@ -118,7 +118,7 @@ pub fn decode_exr_channels(path: &Path, bytes: &[u8], channels: &[&str]) -> Resu
             return Err(Error::param(
                 "channel",
                 format!(
-                    "{} has {} channels ({}): choose one with --channel",
+                    "{} has {} channels ({}): choose one with `channel`",
                     path.display(),
                     names.len(),
                     names.join(", ")
@@ -387,7 +387,7 @@ mod tests {
         let bytes = encode_exr(Path::new("m.exr"), &[("Z", &a), ("mask", &b)], &Metadata::default()).unwrap();
         let e = decode_exr(Path::new("m.exr"), &bytes, None).unwrap_err().to_string();
         assert!(
-            e.contains("2 channels") && e.contains("Z") && e.contains("mask") && e.contains("--channel"),
+            e.contains("2 channels") && e.contains("Z") && e.contains("mask") && e.contains("with `channel`"),
             "{e}"
         );
         let r = decode_exr(Path::new("m.exr"), &bytes, Some("mask")).unwrap();

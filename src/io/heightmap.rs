@@ -273,7 +273,7 @@ pub fn heightmap_from_raw(path: &Path, raw: RawMap, opts: &ReadOptions) -> Resul
     let k = resolve_scale(&file, &raw, opts)?;
     let offset = opts.z_offset.unwrap_or(0.0);
     if !offset.is_finite() {
-        return Err(Error::param("z-offset", format!("must be finite, got {offset}")));
+        return Err(Error::param("z_offset", format!("must be finite, got {offset}")));
     }
     // One pass: the range of the finite stored values (for the plausibility check), the
     // heights `v k + offset` in place (kept as stored when that is the identity), and whether
@@ -352,7 +352,7 @@ fn resolve_pitch(file: &str, from_file: Option<[f64; 2]>, given: Option<[f64; 2]
         (Some(f), Some(g)) if !(same(f[0], g[0]) && same(f[1], g[1])) => Err(Error::param(
             "pitch",
             format!(
-                "{file} states a pitch of {} (x by y) but --pitch gives {}; drop --pitch to use \
+                "{file} states a pitch of {} (x by y) but `pitch` gives {}; drop `pitch` to use \
                  the file's, or correct the file",
                 fmt_pitch(f),
                 fmt_pitch(g)
@@ -361,7 +361,7 @@ fn resolve_pitch(file: &str, from_file: Option<[f64; 2]>, given: Option<[f64; 2]
         (_, Some(g)) => Ok(g),
         (Some(f), None) => Ok(f),
         (None, None) => {
-            Err(Error::param("pitch", format!("{file} carries no pitch: pass --pitch (e.g. --pitch 4.29um)")))
+            Err(Error::param("pitch", format!("{file} carries no pitch: pass `pitch` (e.g. 4.29 um)")))
         }
     }
 }
@@ -371,10 +371,10 @@ fn resolve_scale(file: &str, raw: &RawMap, opts: &ReadOptions) -> Result<f64> {
         SampleKind::Float => {
             if opts.z_scale.is_some() {
                 return Err(Error::param(
-                    "z-scale",
+                    "z_scale",
                     format!(
-                        "{file} holds numeric values, not integer image counts; --z-scale applies to \
-                         PNG and 8/16-bit TIFF counts only: give the values' unit with --unit"
+                        "{file} holds numeric values, not integer image counts; `z_scale` applies to \
+                         PNG and 8/16-bit TIFF counts only: give the values' unit with `unit`"
                     ),
                 ));
             }
@@ -387,7 +387,7 @@ fn resolve_scale(file: &str, raw: &RawMap, opts: &ReadOptions) -> Result<f64> {
                 (Some(f), Some(g)) if !same(f, g) => Err(Error::param(
                     "unit",
                     format!(
-                        "{file} states its values are in units of {} but --unit gives {}; drop --unit \
+                        "{file} states its values are in units of {} but `unit` gives {}; drop `unit` \
                          to use the file's, or correct the file",
                         format_length(f),
                         format_length(g)
@@ -397,9 +397,7 @@ fn resolve_scale(file: &str, raw: &RawMap, opts: &ReadOptions) -> Result<f64> {
                 (Some(f), None) => Ok(f),
                 (None, None) => Err(Error::param(
                     "unit",
-                    format!(
-                        "{file} carries no height unit: pass --unit (e.g. --unit um, --unit nm or --unit m)"
-                    ),
+                    format!("{file} carries no height unit: pass `unit` (e.g. um, nm or m)"),
                 )),
             }
         }
@@ -408,22 +406,21 @@ fn resolve_scale(file: &str, raw: &RawMap, opts: &ReadOptions) -> Result<f64> {
                 return Err(Error::param(
                     "unit",
                     format!(
-                        "{file} holds {bits}-bit integer counts: their scale is --z-scale (metres per \
-                         count), --unit does not apply"
+                        "{file} holds {bits}-bit integer counts: their scale is `z_scale` (metres per \
+                         count), `unit` does not apply"
                     ),
                 ));
             }
             match opts.z_scale {
                 Some(s) if s.is_finite() && s != 0.0 => Ok(s),
-                Some(s) => Err(Error::param("z-scale", format!("must be finite and non-zero, got {s}"))),
+                Some(s) => Err(Error::param("z_scale", format!("must be finite and non-zero, got {s}"))),
                 None => {
                     let hint = raw.scale_hint.as_deref().map(|h| format!(" ({h})")).unwrap_or_default();
                     Err(Error::param(
-                        "z-scale",
+                        "z_scale",
                         format!(
                             "{file} holds {bits}-bit counts and states no usable height scale: pass \
-                             --z-scale (metres per count, e.g. --z-scale 0.1nm) and optionally \
-                             --z-offset{hint}"
+                             `z_scale` (metres per count, e.g. 0.1 nm) and optionally `z_offset`{hint}"
                         ),
                     ))
                 }
@@ -477,9 +474,9 @@ fn check_plausible_range(file: &str, raw: &RawMap, k: f64, lo: f64, hi: f64) -> 
                 format_length(pv)
             );
             let tail = match best(1.0) {
-                Some(("m", _)) => "; the values look like metres already: did you mean --unit m?".to_string(),
+                Some(("m", _)) => "; the values look like metres already: did you mean `unit` m?".to_string(),
                 Some((name, s)) => format!(
-                    "; in {name} they would span {}: did you mean --unit {name}?",
+                    "; in {name} they would span {}: did you mean `unit` {name}?",
                     format_length(pv_raw * s)
                 ),
                 None => "; no length unit makes them plausible: check the file".to_string(),
@@ -488,20 +485,20 @@ fn check_plausible_range(file: &str, raw: &RawMap, k: f64, lo: f64, hi: f64) -> 
         }
         SampleKind::Counts { .. } => {
             let head = format!(
-                "{file}: with --z-scale {k:e} m per count the heights span {} peak-to-valley, \
+                "{file}: with `z_scale` {k:e} m per count the heights span {} peak-to-valley, \
                  implausible ({range})",
                 format_length(pv)
             );
             let tail = match best(k.abs()) {
                 Some(("m", _)) | None => "; check the scale: it is metres per count".to_string(),
                 Some((name, s)) => format!(
-                    "; if the scale was meant in {name} per count, pass --z-scale {:e} (heights would \
+                    "; if the scale was meant in {name} per count, pass `z_scale` {:e}m (heights would \
                      span {})",
                     k * s,
                     format_length(pv * s)
                 ),
             };
-            Err(Error::param("z-scale", head + &tail))
+            Err(Error::param("z_scale", head + &tail))
         }
     }
 }
@@ -519,10 +516,10 @@ mod tests {
         let p = Path::new("map.npy");
         let r = raw(Array2::from_shape_fn((2, 2), |(i, j)| (i + j) as f64), SampleKind::Float);
         let e = heightmap_from_raw(p, r.clone(), &ReadOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("map.npy carries no pitch: pass --pitch"), "{e}");
+        assert!(e.contains("map.npy carries no pitch: pass `pitch` (e.g. 4.29 um)"), "{e}");
         let o = ReadOptions { pitch: Some([1e-6, 1e-6]), ..Default::default() };
         let e = heightmap_from_raw(p, r.clone(), &o).unwrap_err().to_string();
-        assert!(e.contains("no height unit: pass --unit"), "{e}");
+        assert!(e.contains("no height unit: pass `unit`"), "{e}");
         let o = ReadOptions { pitch: Some([1e-6, 2e-6]), unit: Some(1e-6), ..Default::default() };
         let g = heightmap_from_raw(p, r.clone(), &o).unwrap();
         assert_eq!(g.pitch(), [1e-6, 2e-6]);
@@ -534,7 +531,7 @@ mod tests {
         assert!(e.contains("1 um x 1 um") && e.contains("1 um x 2 um"), "{e}");
         let o = ReadOptions { unit: Some(1e-6), ..Default::default() };
         let e = heightmap_from_raw(p, r2.clone(), &o).unwrap_err().to_string();
-        assert!(e.contains("1 nm") && e.contains("1 um") && e.contains("--unit"), "{e}");
+        assert!(e.contains("1 nm") && e.contains("1 um") && e.contains("drop `unit`"), "{e}");
         // Agreeing options are fine.
         let o = ReadOptions { unit: Some(1e-9), pitch: Some([1e-6, 1e-6]), ..Default::default() };
         assert!(heightmap_from_raw(p, r2, &o).is_ok());
@@ -548,18 +545,18 @@ mod tests {
         r.pitch = Some([1e-6; 2]);
         r.scale_hint = Some("hint here".into());
         let e = heightmap_from_raw(p, r.clone(), &ReadOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("--z-scale") && e.contains("hint here"), "{e}");
+        assert!(e.contains("pass `z_scale`") && e.contains("hint here"), "{e}");
         let o = ReadOptions { unit: Some(1e-9), ..Default::default() };
         assert!(heightmap_from_raw(p, r.clone(), &o)
             .unwrap_err()
             .to_string()
-            .contains("--unit does not apply"));
+            .contains("`unit` does not apply"));
         let o = ReadOptions { z_scale: Some(1e-9), z_offset: Some(5e-9), ..Default::default() };
         let g = heightmap_from_raw(p, r.clone(), &o).unwrap();
         assert!((g.values()[[1, 1]] - 8e-9).abs() < 1e-20);
         let o = ReadOptions { z_scale: Some(0.5), ..Default::default() };
         let e = heightmap_from_raw(p, r, &o).unwrap_err().to_string();
-        assert!(e.contains("implausible") && e.contains("--z-scale 5e-7"), "{e}");
+        assert!(e.contains("implausible") && e.contains("`z_scale` 5e-7m"), "{e}");
     }
 
     #[test]
@@ -570,13 +567,13 @@ mod tests {
         r.pitch = Some([1e-6; 2]);
         r.unit = Some(1e-6);
         let e = heightmap_from_raw(p, r.clone(), &ReadOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("look like metres already: did you mean --unit m?"), "{e}");
+        assert!(e.contains("look like metres already: did you mean `unit` m?"), "{e}");
         let g =
             heightmap_from_raw(p, r.clone(), &ReadOptions { allow_implausible: true, ..Default::default() });
         assert!(g.is_ok());
         r.values.mapv_inplace(|v| v * 1e9); // 0..1600 "um" = 1.6 mm: nm intended
         let e = heightmap_from_raw(p, r.clone(), &ReadOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("did you mean --unit nm?"), "{e}");
+        assert!(e.contains("did you mean `unit` nm?"), "{e}");
         r.values.fill(3.0);
         assert!(heightmap_from_raw(p, r.clone(), &ReadOptions::default()).is_ok());
         r.values.fill(f64::NAN);

@@ -120,7 +120,7 @@ pub fn decode_png(path: &Path, bytes: &[u8]) -> Result<RawMap> {
         if let (Some(lo), Some(hi), Some("m")) = (num("Gwy::ZMin"), num("Gwy::ZMax"), get("Gwy::ZUnit")) {
             hints.push(format!(
                 "its Gwyddion text says ZMin = {lo:e} m, ZMax = {hi:e} m: if the counts span the full \
-                 range, that is --z-scale {:e} --z-offset {lo:e}",
+                 range, that is `z_scale` {:e}m, `z_offset` {lo:e}m",
                 (hi - lo) / full
             ));
         }

@@ -279,7 +279,7 @@ pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Re
     // Units: the caller's, the column header's, the header pairs'.
     let mut resolved: [(f64, String); 2] = Default::default();
     for (col, (name, given, flag)) in
-        [("position", opts.x_unit, "--x-unit"), ("height", opts.z_unit, "--z-unit")].into_iter().enumerate()
+        [("position", opts.x_unit, "x_unit"), ("height", opts.z_unit, "z_unit")].into_iter().enumerate()
     {
         let from_file = header_units
             .as_ref()
@@ -291,7 +291,7 @@ pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Re
             (Some((s, src)), Some(g)) if (s / g - 1.0).abs() > 1e-9 => {
                 return Err(Error::format(
                     path,
-                    format!("the {name} unit is {src} ({s:e} m) but {flag} says {g:e} m"),
+                    format!("the {name} unit is {src} ({s:e} m) but `{flag}` says {g:e} m"),
                 ))
             }
             (Some(f), _) => f,
@@ -301,7 +301,7 @@ pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Re
                     path,
                     format!(
                         "no {name} unit found (expected a column header such as 'Lateral (um), Height (nm)' \
-                         before the data on line {}, or a header pair such as '{} units, um'); pass {flag}",
+                         before the data on line {}, or a header pair such as '{} units, um'); pass `{flag}`",
                         first + 1,
                         if col == 0 { "X" } else { "Z" }
                     ),
@@ -437,19 +437,22 @@ mod tests {
     fn missing_units_need_the_callers_and_conflicts_are_refused() {
         let t = b"0,1\n1,2\n";
         let e = read(t).unwrap_err().to_string();
-        assert!(e.contains("scan01.csv") && e.contains("no position unit") && e.contains("--x-unit"), "{e}");
+        assert!(
+            e.contains("scan01.csv") && e.contains("no position unit") && e.contains("pass `x_unit`"),
+            "{e}"
+        );
         let o = ProfileReadOptions { x_unit: Some(1e-6), z_unit: None };
         let e = parse_profile(p(), t, &o).unwrap_err().to_string();
-        assert!(e.contains("no height unit") && e.contains("--z-unit"), "{e}");
+        assert!(e.contains("no height unit") && e.contains("pass `z_unit`"), "{e}");
         let o = ProfileReadOptions { x_unit: Some(1e-6), z_unit: Some(1e-9) };
         let f = parse_profile(p(), t, &o).unwrap();
-        assert_eq!((f.profile.x()[1], f.z_unit_source.as_str()), (1e-6, "--z-unit"));
+        assert_eq!((f.profile.x()[1], f.z_unit_source.as_str()), (1e-6, "z_unit"));
         let e = parse_profile(p(), b"x (um),z (nm)\n0,1\n1,2\n", &o.clone())
             .map(|_| ())
             .and_then(|_| parse_profile(p(), b"x (mm),z (nm)\n0,1\n1,2\n", &o).map(|_| ()))
             .unwrap_err()
             .to_string();
-        assert!(e.contains("position unit") && e.contains("--x-unit"), "{e}");
+        assert!(e.contains("position unit") && e.contains("but `x_unit` says"), "{e}");
     }
 
     #[test]

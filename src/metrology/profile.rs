@@ -763,8 +763,8 @@ pub fn compare_profile(
         }
     } else {
         warnings.push(format!(
-            "the design has more than {MAX_LEVELS} distinct heights: no per-level step heights (pass --recipe to \
-             compare with the design quantized as the recipe makes it)"
+            "the design has more than {MAX_LEVELS} distinct heights: no per-level step heights (compare with \
+             the design quantized as a recipe makes it)"
         ));
     }
     // Featureless profile: neighbour differences as large as white noise's.
@@ -843,7 +843,7 @@ pub fn compare_profile(
     if peak_ratio > opts.max_peak_ratio {
         return Err(Error::Registration(format!(
             "the shift along the line is ambiguous: a second correlation peak reaches {:.3} of the first within \
-             +-{:.1} um (the design repeats along the line); narrow the search (--along-search) or choose another line",
+             +-{:.1} um (the design repeats along the line); narrow the search (`along_search`) or choose another line",
             peak_ratio,
             along * 1e6
         )));

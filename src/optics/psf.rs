@@ -40,6 +40,7 @@ pub struct Channel {
 /// A PSF: channels of one shape and pitch, the method that made it and its warnings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Psf {
+    /// One per wavelength or colour band, of one shape and pitch.
     pub channels: Vec<Channel>,
     /// The method (propagation method name, or "measured"/"file").
     pub method: String,
@@ -393,14 +394,14 @@ fn resolve_pitch(path: &Path, file: Option<[f64; 2]>, given: Option<f64>) -> Res
     match (file, given) {
         (Some(p), Some(g)) if p.iter().any(|&q| ((q - g) / g).abs() > PITCH_TOLERANCE) => Err(Error::format(
             path,
-            format!("states pitch [{:e}, {:e}] m, but --pitch is {g:e} m", p[0], p[1]),
+            format!("states pitch [{:e}, {:e}] m, but `pitch` is {g:e} m", p[0], p[1]),
         )),
         (Some(p), _) => Ok(p),
         (None, Some(g)) if g.is_finite() && g > 0.0 => Ok([g, g]),
         (None, Some(g)) => Err(Error::param("pitch", format!("must be a positive length, got {g} m"))),
         (None, None) => Err(Error::format(
             path,
-            "states no pixel pitch (no metadata with 'sensor_pitch' or 'pitch_x'/'pitch_y'): give --pitch",
+            "states no pixel pitch (no metadata with 'sensor_pitch' or 'pitch_x'/'pitch_y'): give `pitch`",
         )),
     }
 }
@@ -512,9 +513,9 @@ mod tests {
     #[test]
     fn a_pitch_comes_from_the_file_or_the_caller_and_must_agree() {
         let e = resolve_pitch(Path::new("m.npz"), None, None).unwrap_err().to_string();
-        assert!(e.contains("m.npz") && e.contains("--pitch"), "{e}");
+        assert!(e.contains("m.npz") && e.contains("give `pitch`"), "{e}");
         let e = resolve_pitch(Path::new("p.exr"), Some([4.29e-6; 2]), Some(5e-6)).unwrap_err().to_string();
-        assert!(e.contains("p.exr") && e.contains("--pitch"), "{e}");
+        assert!(e.contains("p.exr") && e.contains("`pitch` is 5e-6 m"), "{e}");
         assert_eq!(resolve_pitch(Path::new("p.exr"), Some([4.29e-6; 2]), None).unwrap(), [4.29e-6; 2]);
         assert_eq!(resolve_pitch(Path::new("m.npz"), None, Some(5e-6)).unwrap(), [5e-6; 2]);
     }

@@ -136,7 +136,7 @@ pub fn family_member(family: Vec<Reference>, member: Member) -> Result<Reference
             "member",
             format!(
                 "the comparison was made against {}, which this recipe's family does not hold; compare the \
-                 scan with --recipe",
+                 scan with this recipe",
                 member.name()
             ),
         )

@@ -153,19 +153,19 @@ pub struct MergeOutcome {
 pub fn merge(opts: &MergeOptions, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<MergeOutcome> {
     if opts.response_out.is_some() && opts.response != ResponseModel::Debevec {
         return Err(Error::Options(
-            "--response-out saves the curve that --response debevec recovers; a linear merge \
-             (the default --response linear) has none"
+            "`response_out` saves the curve that `response` debevec recovers; a linear merge \
+             (the default `response` linear) has none"
                 .into(),
         ));
     }
     if !opts.ev.is_finite() {
-        return Err(Error::Options(format!("--ev must be a finite number of stops, got {}", opts.ev)));
+        return Err(Error::Options(format!("`ev` must be a finite number of stops, got {}", opts.ev)));
     }
     let output = &opts.output;
     let png = opts.png.clone().unwrap_or_else(|| output.with_extension("png"));
     if png == *output || opts.response_out.as_ref().is_some_and(|r| r == output || *r == png) {
         return Err(Error::Options(format!(
-            "the EXR ({}), the PNG ({}) and --response-out must be different files",
+            "the EXR ({}), the PNG ({}) and `response_out` must be different files",
             output.display(),
             png.display()
         )));

@@ -201,7 +201,7 @@ pub fn process_model(
         };
         let r = r.map_err(|e| {
             Error::Validity(format!(
-                "{}: the per-level heights of the part: {e}; pass --no-levels to correct the depth scale alone",
+                "{}: the per-level heights of the part: {e}; set `levels` to false to correct the depth scale alone",
                 m.scan
             ))
         })?;

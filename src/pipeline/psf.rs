@@ -65,7 +65,7 @@ pub fn prepare(opts: &PsfOptions) -> Result<PsfJob> {
     }
     let how = if let Some(method) = &opts.method {
         if opts.response.is_some() {
-            return Err(Error::Options("--response needs the automatic plan: leave out --method".into()));
+            return Err(Error::Options("`response` needs the automatic plan: leave out `method`".into()));
         }
         system.subsample = opts.subsample;
         let options = Options { allow_invalid: opts.allow_invalid, ..Default::default() };

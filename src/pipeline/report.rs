@@ -666,7 +666,7 @@ fn left_out(b: &mut Builder, title: &str, budget: &BudgetRecord, part: &str) -> 
         reading.push(b.fig("left out: seconds left", p.left_seconds, "s"));
         reading.push(words("s left"));
     }
-    reading.push(words(". Give more time (--budget) to see it."));
+    reading.push(words(". Give more time (a larger budget) to see it."));
     Section { title: title.into(), charts: Vec::new(), data: Vec::new(), reading }
 }
 
@@ -723,7 +723,7 @@ fn map_section(b: &mut Builder, maps: &StabilityReport, charts: Vec<String>) -> 
     if maps.maps.is_empty() {
         let reading = vec![words(&format!(
             "Left out by the budget: {} (their predictions and the time they had are in report.json). Give \
-             more time (--budget) to see them.",
+             more time (a larger budget) to see them.",
             maps.left_out.join(", ")
         ))];
         let data = vec!["stability.json".into()];
@@ -940,11 +940,10 @@ fn finetune_section(b: &mut Builder, r: &TimedFinetune, charts: Vec<String>) -> 
             reading.push(b.fig("training time to half the gain", s, "s"));
             reading.push(words("s. Stop where the curve flattens: later minutes buy less."));
         }
-        None => reading.push(words(
-            ": no gain in this time; give the run more minutes or real images (finetune --data).",
-        )),
+        None => reading
+            .push(words(": no gain in this time; give the run more minutes or real HDR images to train on.")),
     }
-    reading.push(words(" These are simulated captures of simulated scenes: score the result on real captures with bench decoder before trusting it there, and fine-tune on real HDR images (finetune --data) for a decoder to keep."));
+    reading.push(words(" These are simulated captures of simulated scenes: score the result on real captures with bench decoder before trusting it there, and fine-tune on real HDR images for a decoder to keep."));
     Section { title: FINETUNE_TITLE.into(), charts, data: vec!["finetune_time.json".into()], reading }
 }
 

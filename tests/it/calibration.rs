@@ -611,7 +611,7 @@ fn calibrate_psf_and_merge_run_end_to_end() {
     let r = doefab(&args);
     assert_eq!(r.status.code(), Some(2));
     let err = String::from_utf8_lossy(&r.stderr);
-    assert!(err.contains("0 exposure times for 11 files") && err.contains("--times"), "{err}");
+    assert!(err.contains("0 exposure times for 11 files") && err.contains("`times`"), "{err}");
     let r = doefab(&["merge", "-o", &hdr, &j, &files[0]]);
     assert_eq!(r.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&r.stderr).contains("is an exposure list"));
@@ -703,7 +703,7 @@ fn merge_writes_a_tone_mapped_png_of_its_exr() {
         let r = doefab(&args);
         assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
         let err = String::from_utf8_lossy(&r.stderr);
-        assert!(err.contains(&format!("--ev {want:.1} puts")), "EV {ev}: {err}");
+        assert!(err.contains(&format!("`ev` {want:.1} puts")), "EV {ev}: {err}");
         let report: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
         let key = if ev == "6" { "ev_p99" } else { "ev_max" };
         assert!((report["tone_map"][key].as_f64().unwrap() - want).abs() < 1e-9, "{report}");
@@ -714,7 +714,7 @@ fn merge_writes_a_tone_mapped_png_of_its_exr() {
     args.extend(files.iter().map(|s| s.as_str()));
     let r = doefab(&args);
     assert_eq!(r.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&r.stderr).contains("--ev must be a finite number"));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("`ev` must be a finite number"));
     assert!(!exr.exists());
 }
 
@@ -768,7 +768,7 @@ fn merge_saves_the_recovered_response_curve() {
     // Measured: 0.032 (at z = 17) and 0.007; one count at z = 12 is 2.2 ln(13/12) = 0.18.
     assert!(worst[0] < 0.05 && worst[1] < 0.01, "worst deviations {worst:?}");
 
-    // --response-out needs a recovered curve; the refusal comes before any output.
+    // `response_out` needs a recovered curve; the refusal comes before any output.
     std::fs::remove_file(&csv).unwrap();
     std::fs::remove_file(&exr).unwrap();
     let mut args = base.clone();
@@ -777,7 +777,7 @@ fn merge_saves_the_recovered_response_curve() {
     let r = doefab(&args);
     assert_eq!(r.status.code(), Some(2));
     let err = String::from_utf8_lossy(&r.stderr);
-    assert!(err.contains("--response-out") && err.contains("--response debevec"), "{err}");
+    assert!(err.contains("`response_out`") && err.contains("`response` debevec"), "{err}");
     assert!(!csv.exists() && !exr.exists());
     // The PNG may not overwrite the EXR.
     let mut args = base.clone();

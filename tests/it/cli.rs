@@ -185,13 +185,13 @@ fn bad_input_gets_a_clear_error_and_leaves_nothing_behind() {
     let recipe = masks("binary-3mask-8level.toml");
     let out = d.path().join("out");
     let out_s = out.display().to_string();
-    // No pitch in an .npy file: refuse, suggest the option.
+    // No pitch in an .npy file: refuse, name the parameter.
     let e = fails(&["fab", &design_s, "--unit", "m", "--recipe", &recipe, "-o", &out_s]);
-    assert!(e.contains("--pitch") && e.contains("design.npy"), "{e}");
+    assert!(e.contains("pass `pitch`") && e.contains("design.npy"), "{e}");
     // Heights ~1e-6 declared in um: implausible, suggest metres.
     let e =
         fails(&["fab", &design_s, "--pitch", "4.29um", "--unit", "um", "--recipe", &recipe, "-o", &out_s]);
-    assert!(e.contains("--unit m"), "{e}");
+    assert!(e.contains("did you mean `unit` m?"), "{e}");
     // Level count out of range.
     let e = fails(&[
         "fab", &design_s, "--pitch", "4.29um", "--unit", "m", "--recipe", &recipe, "--levels", "300", "-o",
@@ -215,7 +215,7 @@ fn bad_input_gets_a_clear_error_and_leaves_nothing_behind() {
         &out_s,
     ]);
     assert!(e.contains("cut.npy"), "{e}");
-    // NaN heights: count and first location, or --fill.
+    // NaN heights: count and first location, or `fill`.
     let mut v = doefab::io::npy::read_npy_2d(&design).unwrap();
     v[[3, 7]] = f64::NAN;
     v[[90, 2]] = f64::NAN;
@@ -223,7 +223,7 @@ fn bad_input_gets_a_clear_error_and_leaves_nothing_behind() {
     write_npy_f64(&nan, &v).unwrap();
     let nan_s = nan.display().to_string();
     let e = fails(&["fab", &nan_s, "--pitch", "4.29um", "--unit", "m", "--recipe", &recipe, "-o", &out_s]);
-    assert!(e.contains("2 samples") && e.contains("row 3, column 7") && e.contains("--fill"), "{e}");
+    assert!(e.contains("2 samples") && e.contains("row 3, column 7") && e.contains("set `fill`"), "{e}");
     assert!(!out.exists(), "a failed run left {out:?}");
     // A contrast curve too shallow for the design: fails late, after files were staged.
     let shallow = d.path().join("shallow.csv");
@@ -317,7 +317,7 @@ fn a_mask_above_the_size_limit_needs_force() {
         "--border",
         "0um",
     ]);
-    assert!(e.contains("above the limit") && e.contains("--force"), "{e}");
+    assert!(e.contains("above the limit") && e.contains("set `force`"), "{e}");
     assert!(!Path::new(&mask).exists());
     ok(&["mask", &levels, "--curve", &curve, "-o", &mask, "--writer-pitch", "0.5um", "-q"]);
     assert!(Path::new(&mask).exists());

@@ -106,9 +106,9 @@ print(np.load(os.path.join(d, 'be_f32.npy')).dtype.str, np.load(os.path.join(d, 
     // Through the entry point: NPY carries neither pitch nor unit.
     let p = d.join("c_f64.npy");
     let e = err(read_heightmap(&p, &ReadOptions::default()));
-    assert!(e.contains("c_f64.npy carries no pitch: pass --pitch (e.g. --pitch 4.29um)"), "{e}");
+    assert!(e.contains("c_f64.npy carries no pitch: pass `pitch` (e.g. 4.29 um)"), "{e}");
     let e = err(read_heightmap(&p, &ReadOptions { pitch: Some([1e-6; 2]), ..Default::default() }));
-    assert!(e.contains("c_f64.npy carries no height unit: pass --unit"), "{e}");
+    assert!(e.contains("c_f64.npy carries no height unit: pass `unit`"), "{e}");
     let g = read_heightmap(&p, &opts(4.29e-6, 1.0)).unwrap();
     assert_eq!(g.values(), &want);
     assert_eq!(g.pitch(), [4.29e-6, 4.29e-6]);
@@ -122,7 +122,7 @@ print(np.load(os.path.join(d, 'be_f32.npy')).dtype.str, np.load(os.path.join(d, 
     // Values ~1e-7 stated in um are ~1e-13 m: refused, metres suggested.
     let e = err(read_heightmap(&p, &opts(1e-6, 1e-6)));
     assert!(e.contains("c_f64.npy") && e.contains("implausible"), "{e}");
-    assert!(e.contains("the values look like metres already: did you mean --unit m?"), "{e}");
+    assert!(e.contains("the values look like metres already: did you mean `unit` m?"), "{e}");
     // A level map in nm is plausible.
     let g = read_heightmap(&d.join("u1.npy"), &opts(1e-6, 100e-9)).unwrap();
     assert!((g.values()[[H - 1, W - 1]] - ((H * W - 1) % 16) as f64 * 100e-9).abs() < 1e-20);
@@ -242,17 +242,17 @@ print('ok')
     assert_eq!(r.pitch, Some([1e-6f32 as f64; 2]));
     assert_eq!(r.unit, None);
     let e = err(read_heightmap(&d.join("f16.exr"), &ReadOptions::default()));
-    assert!(e.contains("f16.exr carries no height unit: pass --unit"), "{e}");
+    assert!(e.contains("f16.exr carries no height unit: pass `unit`"), "{e}");
 
-    // No attributes: pitch None, so the caller must demand --pitch.
+    // No attributes: pitch None, so the caller must give `pitch`.
     let r = exr::read_exr(&d.join("bare.exr"), None).unwrap();
     assert_eq!((r.pitch, r.unit), (None, None));
     let e = err(read_heightmap(&d.join("bare.exr"), &ReadOptions::default()));
-    assert!(e.contains("bare.exr carries no pitch: pass --pitch"), "{e}");
+    assert!(e.contains("bare.exr carries no pitch: pass `pitch`"), "{e}");
 
     // Two channels need a choice.
     let e = err(read_heightmap(&d.join("two.exr"), &opts(1e-6, 1e-6)));
-    assert!(e.contains("2 channels (Z, mask): choose one with --channel"), "{e}");
+    assert!(e.contains("2 channels (Z, mask): choose one with `channel`"), "{e}");
     let o = ReadOptions { channel: Some("Z".into()), ..opts(1e-6, 1e-6) };
     assert_eq!(read_heightmap(&d.join("two.exr"), &o).unwrap().dim(), (H, W));
 }
@@ -274,7 +274,7 @@ fn exr_round_trip_and_deterministic_bytes() {
     // The same map without pitch metadata must be given a pitch.
     exr::write_exr(&p2, &[("Z", &a)], &Metadata { unit: Some("m".into()), ..Default::default() }).unwrap();
     assert_eq!(exr::read_exr(&p2, None).unwrap().pitch, None);
-    assert!(err(read_heightmap(&p2, &ReadOptions::default())).contains("--pitch"));
+    assert!(err(read_heightmap(&p2, &ReadOptions::default())).contains("pass `pitch`"));
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -340,9 +340,9 @@ print('ok')
         &d.join("c16.tif"),
         &ReadOptions { pitch: Some([1e-6; 2]), ..Default::default() },
     ));
-    assert!(e.contains("c16.tif holds 16-bit counts") && e.contains("--z-scale"), "{e}");
+    assert!(e.contains("c16.tif holds 16-bit counts") && e.contains("pass `z_scale`"), "{e}");
     let e = err(read_heightmap(&d.join("c16.tif"), &opts(1e-6, 1e-9)));
-    assert!(e.contains("--unit does not apply"), "{e}");
+    assert!(e.contains("`unit` does not apply"), "{e}");
     let o = ReadOptions {
         pitch: Some([1e-6; 2]),
         z_scale: Some(1e-11),
@@ -414,7 +414,7 @@ print('ok')
     assert_eq!(r.values, counts);
     assert_eq!(r.pitch, Some([2e-6, 3e-6]));
     let e = err(read_heightmap(&d.join("c.png"), &ReadOptions::default()));
-    assert!(e.contains("c.png holds 16-bit counts") && e.contains("pass --z-scale (metres per count"), "{e}");
+    assert!(e.contains("c.png holds 16-bit counts") && e.contains("pass `z_scale` (metres per count"), "{e}");
     let o = ReadOptions { z_scale: Some(2e-11), z_offset: Some(1e-7), ..Default::default() };
     let g = read_heightmap(&d.join("c.png"), &o).unwrap();
     assert_eq!(g.values(), &counts.mapv(|c| c * 2e-11 + 1e-7));
@@ -424,7 +424,7 @@ print('ok')
     // A scale given in nm by mistake: 0.5 "m" per count is implausible, suggestion in nm or um.
     let o = ReadOptions { z_scale: Some(0.5), pitch: Some([1e-6; 2]), ..Default::default() };
     let e = err(read_heightmap(&d.join("bare.png"), &o));
-    assert!(e.contains("implausible") && e.contains("per count, pass --z-scale"), "{e}");
+    assert!(e.contains("implausible") && e.contains("per count, pass `z_scale`"), "{e}");
 }
 
 #[test]
@@ -495,7 +495,7 @@ fn csv_round_trip_and_bad_text() {
     let bare = d.join("bare.txt");
     std::fs::write(&bare, "# heights in nm\n1 2 3\n4 5 6\n").unwrap();
     assert!(err(read_heightmap(&bare, &ReadOptions { pitch: Some([1e-6; 2]), ..Default::default() }))
-        .contains("bare.txt carries no height unit: pass --unit"));
+        .contains("bare.txt carries no height unit: pass `unit`"));
     let g = read_heightmap(&bare, &opts(1e-6, 1e-9)).unwrap();
     assert!((g.values()[[1, 2]] - 6e-9).abs() < 1e-24);
     let ragged = d.join("ragged.csv");
@@ -641,7 +641,7 @@ fn gwyddion_png_reads_with_an_explicit_scale() {
     assert!((pitch[0] - 1e-6).abs() < 1e-15 && (pitch[1] - 1e-6).abs() < 1e-15);
     // Refused without a scale; the error quotes what Gwyddion's text keys suggest.
     let e = err(read_heightmap(&p, &ReadOptions::default()));
-    assert!(e.contains("--z-scale") && e.contains("ZMin = -1.49") && e.contains("ZMax = 1.708e-6"), "{e}");
+    assert!(e.contains("`z_scale`") && e.contains("ZMin = -1.49") && e.contains("ZMax = 1.708e-6"), "{e}");
     // With the scale the file declares (counts 0..65535 span ZMin..ZMax) the heights reproduce
     // S1 within one count.
     let (zmin, zmax) = (-149e-9, 1708e-9);
@@ -672,7 +672,7 @@ fn gwyddion_tiff_without_scale_is_refused_and_reads_with_one() {
     );
     // Never guessed: no scale, no pitch.
     let e = err(read_heightmap(&p, &ReadOptions { pitch: Some([1e-6; 2]), ..Default::default() }));
-    assert!(e.contains("s1_tilt_pedestal.grey16.tiff holds 16-bit counts") && e.contains("--z-scale"), "{e}");
+    assert!(e.contains("s1_tilt_pedestal.grey16.tiff holds 16-bit counts") && e.contains("`z_scale`"), "{e}");
     let e = err(read_heightmap(&p, &ReadOptions { z_scale: Some(1e-11), ..Default::default() }));
     assert!(e.contains("carries no pitch"), "{e}");
     // The counts are those of the PNG export.

@@ -215,7 +215,7 @@ fn the_complement_is_detected_and_bad_lines_and_files_are_refused() {
     let bare = dir.path().join("bare.txt");
     std::fs::write(&bare, "0 10\n1 12\n2 11\n").unwrap();
     let e = fails(&["compare-profile", bare.to_str().unwrap()]);
-    assert!(e.contains("bare.txt") && e.contains("no position unit") && e.contains("--x-unit"), "{e}");
+    assert!(e.contains("bare.txt") && e.contains("no position unit") && e.contains("pass `x_unit`"), "{e}");
 }
 
 /// Row 100 of Gwyddion's S1 surface (1 um pitch; 1.0 um pedestal over columns 50..150, a

@@ -81,10 +81,10 @@ fn the_measured_psf_compares_against_a_simulated_one() {
     assert!(r["warnings"].as_array().unwrap().iter().any(|w| w.as_str().unwrap().contains("band-limited")));
     // The archive states no pitch.
     let e = fails(&["psf-compare", a, b, "--key", "psf_val"]);
-    assert!(e.contains("measured_psf.npz") && e.contains("give --pitch"), "{e}");
+    assert!(e.contains("measured_psf.npz") && e.contains("give `pitch`"), "{e}");
     // A pitch that contradicts the file's metadata is refused.
     let e = fails(&["psf-compare", a, b, "--key", "psf_val", "--pitch", "5um"]);
-    assert!(e.contains("psf.npy") && e.contains("--pitch is"), "{e}");
+    assert!(e.contains("psf.npy") && e.contains("`pitch` is"), "{e}");
 }
 
 #[test]
@@ -101,7 +101,7 @@ fn bad_input_is_refused_with_the_reason() {
     let e = fails(&["psf-compare", npy.to_str().unwrap(), mono.to_str().unwrap(), "--pitch", "4.29um"]);
     assert!(e.contains("has 3 channels") && e.contains("has 1") && e.contains("mono.npy"), "{e}");
     let e = fails(&["psf-compare", npy.to_str().unwrap(), mono.to_str().unwrap()]);
-    assert!(e.contains("mono.npy") && e.contains("give --pitch"), "{e}");
+    assert!(e.contains("mono.npy") && e.contains("give `pitch`"), "{e}");
     // A summary beside the .npy without the pitch field.
     std::fs::write(d.path().join("mono.json"), "{\"channels\": [{\"name\": \"G\"}]}").unwrap();
     let e = fails(&["psf-compare", mono.to_str().unwrap(), mono.to_str().unwrap()]);

@@ -219,11 +219,11 @@ fn png_pcal_scale_is_applied_within_one_count() {
     // The TIFF export carries no scale: refused, and the option is named.
     let tiff = local("s1_tilt_pedestal.grey16.tiff");
     let e = read_scan(&tiff, &ScanOptions::default()).unwrap_err().to_string();
-    assert!(e.contains("carries no pitch: pass --pitch"), "{e}");
+    assert!(e.contains("carries no pitch: pass `pitch`"), "{e}");
     let e = read_scan(&tiff, &ScanOptions { pitch: Some([1e-6; 2]), ..Default::default() })
         .unwrap_err()
         .to_string();
-    assert!(e.contains("16-bit counts") && e.contains("--z-scale"), "{e}");
+    assert!(e.contains("16-bit counts") && e.contains("pass `z_scale`"), "{e}");
     let o = ScanOptions {
         pitch: Some([1e-6; 2]),
         z_scale: Some(step),
@@ -347,7 +347,7 @@ fn scan_info_command_prints_the_statistics() {
     let out = std::process::Command::new(exe).arg("scan-info").arg(&p).output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2));
-    assert!(err.contains("--pitch"), "{err}");
+    assert!(err.contains("pass `pitch`"), "{err}");
     let out = std::process::Command::new(exe)
         .args(["scan-info", "--pitch", "1um", "--z-unit", "nm"])
         .arg(&p)

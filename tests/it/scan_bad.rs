@@ -149,10 +149,10 @@ fn metropro_file_built_byte_by_byte() {
     .unwrap_err()
     .to_string();
     assert!(e.contains("byte offset 218"), "{e}");
-    // No lateral resolution in the file: --pitch is required.
+    // No lateral resolution in the file: `pitch` is required.
     let nores = zygo::encode(&MetroProFields { camera_res: 0.0, ..f }, &phase);
     let e = decode("p.dat", &nores, &ScanOptions::default()).unwrap_err().to_string();
-    assert!(e.contains("--pitch"), "{e}");
+    assert!(e.contains("pass `pitch`"), "{e}");
     let s = decode("p.dat", &nores, &ScanOptions { pitch: Some([1e-6; 2]), ..Default::default() }).unwrap();
     assert_eq!(s.grid.pitch(), [1e-6; 2]);
 }
@@ -181,17 +181,17 @@ fn missing_pitch_or_unit_is_refused_with_the_option_to_pass() {
     let v = Array2::from_shape_fn((5, 6), |(i, j)| (i + j) as f64 * 10.0);
     doefab::io::npy::write_npy_f64(&p, &v).unwrap();
     let e = read_scan(&p, &ScanOptions::default()).unwrap_err().to_string();
-    assert!(e.contains("carries no pitch: pass --pitch"), "{e}");
+    assert!(e.contains("carries no pitch: pass `pitch`"), "{e}");
     let o = ScanOptions { pitch: Some([1e-6; 2]), ..Default::default() };
     let e = read_scan(&p, &o).unwrap_err().to_string();
-    assert!(e.contains("no height unit: pass --unit"), "{e}");
+    assert!(e.contains("invalid z_unit: ") && e.contains("no height unit: pass `z_unit`"), "{e}");
     let o = ScanOptions { pitch: Some([1e-6; 2]), z_unit: Some(1e-9), ..Default::default() };
     let s = read_scan(&p, &o).unwrap();
     assert!((s.grid.values()[[4, 5]] - 90e-9).abs() < 1e-20);
     // A point list states no unit for its columns.
     let e =
         decode("p.xyz", b"0 0 1\n1 0 2\n0 1 3\n1 1 4\n", &ScanOptions::default()).unwrap_err().to_string();
-    assert!(e.contains("--z-unit"), "{e}");
+    assert!(e.contains("pass `z_unit`"), "{e}");
     // A GSF without units: the field and heights need the caller's pitch and unit.
     let head = b"Gwyddion Simple Field 1.0\nXRes = 2\nYRes = 1\n";
     let mut g = head.to_vec();
@@ -199,7 +199,7 @@ fn missing_pitch_or_unit_is_refused_with_the_option_to_pass() {
     g.extend_from_slice(&1.0f32.to_le_bytes());
     g.extend_from_slice(&2.0f32.to_le_bytes());
     let e = decode("u.gsf", &g, &ScanOptions::default()).unwrap_err().to_string();
-    assert!(e.contains("--pitch"), "{e}");
+    assert!(e.contains("pass `pitch`"), "{e}");
     let o = ScanOptions { pitch: Some([1e-6; 2]), z_unit: Some(1e-9), ..Default::default() };
     assert!(decode("u.gsf", &g, &o).is_ok());
 }
@@ -226,14 +226,16 @@ fn different_x_and_y_pitches_are_supported() {
 /// A file's own stated unit is trusted: heights written as nanometre numbers into a file whose
 /// unit is metres (a 150 m relief) read with a warning naming the unit that would fit, and
 /// only a comparison with a design refuses them, naming the figure. A unit the caller states
-/// (`--z-unit`) is still refused when implausible.
+/// (`z_unit`) is still refused when implausible.
 #[test]
 fn implausible_heights_of_a_stated_unit_warn_and_compare_refuses() {
     let v = Array2::from_shape_fn((4, 4), |(i, j)| (i * 4 + j) as f64 * 10.0);
     let bytes = doefab::io::scan::x3p::encode(&v, [1e-6; 2]).unwrap();
     let s = decode("nm.x3p", &bytes, &ScanOptions::default()).unwrap();
     assert!(
-        s.warnings.iter().any(|w| w.contains("implausible") && w.contains("nm") && w.contains("kept")),
+        s.warnings
+            .iter()
+            .any(|w| w.contains("implausible") && w.contains("`z_unit` nm?") && w.contains("kept")),
         "{:?}",
         s.warnings
     );

@@ -216,7 +216,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         (Some(x), Some(y)) if x.is_finite() && x > 0.0 && y.is_finite() && y > 0.0 => Some([x, y]),
         _ => {
             warnings.push(format!(
-                "PixelSizeXMeter / PixelSizeYMeter ({dx:?}, {dy:?}) give no usable pitch: pass --pitch"
+                "PixelSizeXMeter / PixelSizeYMeter ({dx:?}, {dy:?}) give no usable pitch: pass `pitch`"
             ));
             None
         }
@@ -451,7 +451,7 @@ mod tests {
         assert!(err(&set("DepthImageOffset", "12")).contains("points into the header"));
         assert!(err(&set("Rows", "99999999999")).contains("beyond any profilometer scan"));
         let r = read(&set("PixelSizeXMeter", "0")).unwrap();
-        assert!(r.raw.pitch.is_none() && r.warnings[0].contains("pass --pitch"), "{:?}", r.warnings);
+        assert!(r.raw.pitch.is_none() && r.warnings[0].contains("pass `pitch`"), "{:?}", r.warnings);
         let mut comment = good;
         let end = tag_at(2 + 8) + COMMENT;
         comment[end - 1] = 0;

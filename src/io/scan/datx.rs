@@ -528,7 +528,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         (Some(x), Some(y)) => Some([x, y]),
         _ => {
             warnings.push(format!(
-                "no usable lateral pitch in the X / Y Converter (x {px:?}, y {py:?} m): pass --pitch"
+                "no usable lateral pitch in the X / Y Converter (x {px:?}, y {py:?} m): pass `pitch`"
             ));
             None
         }

@@ -245,12 +245,12 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
             if scale.is_finite() && scale != 0.0 {
                 Some(scale)
             } else {
-                warnings.push(format!("the z scale {scale} m per count is not usable: pass --z-unit"));
+                warnings.push(format!("the z scale {scale} m per count is not usable: pass `z_unit`"));
                 None
             }
         }
         None => {
-            warnings.push("no block 0x006c gives the z scale: pass --z-unit (metres per count)".into());
+            warnings.push("no block 0x006c gives the z scale: pass `z_unit` (metres per count)".into());
             None
         }
     };
@@ -269,12 +269,12 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
             if xr.is_finite() && xr > 0.0 && yr.is_finite() && yr > 0.0 {
                 Some([xr / image.cols as f64, yr / image.rows as f64])
             } else {
-                warnings.push(format!("the ranges {xr} x {yr} m give no usable pitch: pass --pitch"));
+                warnings.push(format!("the ranges {xr} x {yr} m give no usable pitch: pass `pitch`"));
                 None
             }
         }
         None => {
-            warnings.push("no block 0x0067 gives the scan ranges: pass --pitch".into());
+            warnings.push("no block 0x0067 gives the scan ranges: pass `pitch`".into());
             None
         }
     };

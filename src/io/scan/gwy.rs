@@ -328,7 +328,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     }
     let values = shape(path, data.rows, data.cols, values)?;
     let unit = if data.unit_z.is_empty() {
-        warnings.push("the channel states no height unit: pass --z-unit".into());
+        warnings.push("the channel states no height unit: pass `z_unit`".into());
         None
     } else {
         Some(scan_length_unit(&data.unit_z).ok_or_else(|| {
@@ -343,7 +343,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         }
         _ => {
             warnings.push(format!(
-                "the channel's extent {} x {} '{}' gives no pitch: pass --pitch",
+                "the channel's extent {} x {} '{}' gives no pitch: pass `pitch`",
                 data.xreal, data.yreal, data.unit_xy
             ));
             None

@@ -573,7 +573,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         (Some(x), Some(y)) => Some([x * cal[0] * PM, y * cal[1] * PM]),
         _ => {
             warnings.push(
-                "HeightInfo/HeightDataPerPixelX and Y are not both positive numbers: no pitch, pass --pitch"
+                "HeightInfo/HeightDataPerPixelX and Y are not both positive numbers: no pitch, pass `pitch`"
                     .into(),
             );
             None
@@ -583,7 +583,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         Some(z) => Some(z * cal[2] * PM),
         None => {
             warnings.push(
-                "HeightInfo/HeightDataPerPixelZ is not a positive number: pass --z-unit (metres per count)"
+                "HeightInfo/HeightDataPerPixelZ is not a positive number: pass `z_unit` (metres per count)"
                     .into(),
             );
             None

@@ -337,6 +337,22 @@ pub fn read_scan(path: &Path, opts: &ScanOptions) -> Result<Scan> {
     scan_from_raw(path, raw, opts)
 }
 
+/// A height map's message about its `unit` ([`ReadOptions`]) as the scan's: `z_unit`.
+fn as_z_unit(reason: String) -> String {
+    reason.replace("`unit`", "`z_unit`")
+}
+
+/// [`as_z_unit`] on a parameter error of the height-map reader.
+fn z_unit_error(e: Error) -> Error {
+    match e {
+        Error::Parameter { name, reason } => {
+            let name = if name == "unit" { "z_unit".to_string() } else { name };
+            Error::Parameter { name, reason: as_z_unit(reason) }
+        }
+        e => e,
+    }
+}
+
 /// Resolves a [`ScanRaw`] into a [`Scan`] (the second half of [`read_scan`]).
 pub fn scan_from_raw(path: &Path, sr: ScanRaw, opts: &ScanOptions) -> Result<Scan> {
     let ScanRaw { raw, format, origin, mut warnings } = sr;
@@ -356,14 +372,14 @@ pub fn scan_from_raw(path: &Path, sr: ScanRaw, opts: &ScanOptions) -> Result<Sca
     if stated && !read.allow_implausible {
         match crate::io::heightmap::check_plausibility(path, &raw, &read) {
             Err(Error::Parameter { name, reason }) if name == "unit" => {
-                warnings.push(format!("{reason} (kept: the file states its unit)"));
+                warnings.push(format!("{} (kept: the file states its unit)", as_z_unit(reason)));
             }
-            other => other?,
+            other => other.map_err(z_unit_error)?,
         }
         // Checked once, here.
         read.allow_implausible = true;
     }
-    let mut grid = heightmap_from_raw(path, raw, &read)?;
+    let mut grid = heightmap_from_raw(path, raw, &read).map_err(z_unit_error)?;
     if let Some(o) = origin {
         if o.iter().all(|v| v.is_finite()) {
             grid = grid.with_origin(o);

@@ -382,11 +382,11 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let pitch = match size.map(|p| (scan_size(&p.value), p)) {
         Some((Some((sx, sy)), _)) if sx > 0.0 && sy > 0.0 => Some([sx / cols as f64, sy / rows as f64]),
         Some((_, p)) => {
-            warnings.push(format!("'Scan Size: {}' gives no usable pitch: pass --pitch", clip(&p.value)));
+            warnings.push(format!("'Scan Size: {}' gives no usable pitch: pass `pitch`", clip(&p.value)));
             None
         }
         None => {
-            warnings.push("the file states no Scan Size: pass --pitch".to_string());
+            warnings.push("the file states no Scan Size: pass `pitch`".to_string());
             None
         }
     };

@@ -278,7 +278,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         }
     }
     if pitch.is_none() {
-        warnings.push("the file states no usable Pixel_size: pass --pitch".to_string());
+        warnings.push("the file states no usable Pixel_size: pass `pitch`".to_string());
     }
     let raw = RawMap { values, kind: SampleKind::Float, pitch, unit: Some(1.0), metadata, scale_hint: None };
     let mut sr = ScanRaw::new(raw, ScanFormat::Opd);
@@ -472,7 +472,7 @@ mod tests {
             [
                 "entry 'ImageModificat~0' declares 40 bytes and holds 4: the file ends where that count \
                  (Gwyddion's) puts its end",
-                "the file states no usable Pixel_size: pass --pitch"
+                "the file states no usable Pixel_size: pass `pitch`"
             ]
         );
         for ((i, j), v) in s.raw.values.indexed_iter() {

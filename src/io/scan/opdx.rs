@@ -379,7 +379,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let pitch = match (px, py) {
         (Some(x), Some(y)) => Some([x, y]),
         _ => {
-            warnings.push("no usable pitch: pass --pitch".to_string());
+            warnings.push("no usable pitch: pass `pitch`".to_string());
             None
         }
     };

@@ -83,7 +83,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let raw = RawMap { values, kind: SampleKind::Float, pitch, unit: Some(1.0), metadata, scale_hint: None };
     let mut sr = ScanRaw::new(raw, ScanFormat::Plu);
     if pitch.is_none() {
-        sr.warnings.push("the file states no usable pitch: pass --pitch".to_string());
+        sr.warnings.push("the file states no usable pitch: pass `pitch`".to_string());
     }
     Ok(sr)
 }

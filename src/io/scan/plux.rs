@@ -120,7 +120,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         (Some(x), Some(y)) if x.is_finite() && x > 0.0 && y.is_finite() && y > 0.0 => Some([x * UM, y * UM]),
         (x, y) => {
             warnings
-                .push(format!("GENERAL/FOV_X, FOV_Y ({x:?}, {y:?} um) give no usable pitch: pass --pitch"));
+                .push(format!("GENERAL/FOV_X, FOV_Y ({x:?}, {y:?} um) give no usable pitch: pass `pitch`"));
             None
         }
     };

@@ -93,7 +93,7 @@ pub fn decode(path: &Path, bytes: &[u8], explicit_scale: bool) -> Result<ScanRaw
     let mut warnings = Vec::new();
     match (pcal, explicit_scale) {
         (Some(_), true) => {
-            warnings.push("the pCAL height scale is ignored in favour of --z-scale".to_string())
+            warnings.push("the pCAL height scale is ignored in favour of `z_scale`".to_string())
         }
         (None, _) => {}
         (Some(c), false) => {
@@ -102,9 +102,9 @@ pub fn decode(path: &Path, bytes: &[u8], explicit_scale: bool) -> Result<ScanRaw
             };
             if c.equation != 0 || c.params.len() != 2 {
                 return Err(Error::param(
-                    "z-scale",
+                    "z_scale",
                     format!(
-                        "{}: pCAL equation type {} is not the linear one (0) this reader applies: pass --z-scale",
+                        "{}: pCAL equation type {} is not the linear one (0) this reader applies: pass `z_scale`",
                         path.display(),
                         c.equation
                     ),

@@ -85,7 +85,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let pitch = if lx.is_finite() && lx > 0.0 && ly.is_finite() && ly > 0.0 {
         Some([lx / cols as f64 * MM, ly / rows as f64 * MM])
     } else {
-        warnings.push(format!("the lengths {lx} x {ly} mm give no usable pitch: pass --pitch"));
+        warnings.push(format!("the lengths {lx} x {ly} mm give no usable pitch: pass `pitch`"));
         None
     };
     let extra = bytes.len() - (start + need);
@@ -192,6 +192,6 @@ mod tests {
         let mut flat = good;
         flat[h0 + 8..h0 + 12].copy_from_slice(&0f32.to_le_bytes());
         let r = read(&flat).unwrap();
-        assert!(r.raw.pitch.is_none() && r.warnings[0].contains("pass --pitch"));
+        assert!(r.raw.pitch.is_none() && r.warnings[0].contains("pass `pitch`"));
     }
 }

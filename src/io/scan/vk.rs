@@ -260,13 +260,13 @@ fn decode_vk4(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let pitch = if px > 0 && py > 0 {
         Some([px as f64 * PM, py as f64 * PM])
     } else {
-        warnings.push(format!("the length per pixel {px} x {py} pm gives no usable pitch: pass --pitch"));
+        warnings.push(format!("the length per pixel {px} x {py} pm gives no usable pitch: pass `pitch`"));
         None
     };
     let unit = if pz > 0 {
         Some(pz as f64 * PM)
     } else {
-        warnings.push("the z length per digit is 0: pass --z-unit (metres per count)".to_string());
+        warnings.push("the z length per digit is 0: pass `z_unit` (metres per count)".to_string());
         None
     };
 
@@ -474,7 +474,11 @@ mod tests {
         let parts = Vk4Parts { pm: [0, 1, 0], date: ([2024, 1, 2, 3, 4, 5], -90), ..Default::default() };
         let r = read(&encode(&counts(), &parts)).unwrap();
         assert!(r.raw.pitch.is_none() && r.raw.unit.is_none());
-        assert!(r.warnings[0].contains("--pitch") && r.warnings[1].contains("--z-unit"), "{:?}", r.warnings);
+        assert!(
+            r.warnings[0].contains("pass `pitch`") && r.warnings[1].contains("pass `z_unit`"),
+            "{:?}",
+            r.warnings
+        );
         assert!(r.raw.metadata.iter().any(|(k, v)| k == "date" && v == "2024-01-02T03:04:05-01:30"));
     }
 

@@ -73,9 +73,9 @@ pub fn parse(path: &Path, text: &str, unit: Option<f64>) -> Result<ScanRaw> {
     };
     let s = file_unit.or(unit).ok_or_else(|| {
         Error::param(
-            "z-unit",
+            "z_unit",
             format!(
-                "{} states no length unit for its x, y, z columns: pass --z-unit (e.g. --z-unit m; \
+                "{} states no length unit for its x, y, z columns: pass `z_unit` (e.g. m; \
                  the three columns share it)",
                 path.display()
             ),
@@ -148,7 +148,7 @@ mod tests {
         assert!(r.raw.values[[1, 1]].is_nan());
         assert_eq!(r.raw.values[[1, 2]], 6.0);
         let e = parse(Path::new("p.xyz"), "0 0 1\n1 0 1\n", None).unwrap_err().to_string();
-        assert!(e.contains("--z-unit"), "{e}");
+        assert!(e.contains("pass `z_unit`"), "{e}");
         let e = parse(Path::new("p.xyz"), "0 0 1\n1 0 1\n1 0 2\n0 1 1\n", Some(1.0)).unwrap_err().to_string();
         assert!(e.contains("line 3") && e.contains("twice"), "{e}");
         let e =
