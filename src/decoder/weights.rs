@@ -205,8 +205,11 @@ pub fn decode_safetensors(
 ///
 /// Written here rather than by `safetensors::serialize`, which takes the metadata as a
 /// `HashMap` and writes it in that map's random order: twenty writes of the same six-key
-/// metadata gave twenty different files (safetensors 0.8.0). Sorted keys keep equal content
-/// equal bytes; the reference crate reads these files back in the tests.
+/// metadata gave twenty different files (safetensors 0.8.0; `benches/codecs`: seven keys, a
+/// fresh map each write, 0 of 20 writes equal). Sorted keys keep equal content equal bytes;
+/// the reference crate reads these files back in the tests. Speed (`benches/codecs`): the
+/// paper's 2.5 MB decoder in 0.24 ms, the crate's `serialize` 0.21 ms. Reading goes through
+/// the crate's own parser ([`decode_safetensors`], 1.03x of the crate alone).
 pub fn encode_safetensors(tensors: &[(&str, &NamedTensor)], metadata: &BTreeMap<String, String>) -> Vec<u8> {
     let mut sorted: Vec<&(&str, &NamedTensor)> = tensors.iter().collect();
     sorted.sort_by_key(|(n, _)| *n);
@@ -231,8 +234,10 @@ pub fn encode_safetensors(tensors: &[(&str, &NamedTensor)], metadata: &BTreeMap<
     out.extend((text.len() as u64).to_le_bytes());
     out.extend(text);
     for (_, t) in sorted {
-        for v in &t.values {
-            out.extend(v.to_le_bytes());
+        let start = out.len();
+        out.resize(start + 4 * t.values.len(), 0);
+        for (b, v) in out[start..].chunks_exact_mut(4).zip(&t.values) {
+            b.copy_from_slice(&v.to_le_bytes());
         }
     }
     out

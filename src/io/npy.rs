@@ -18,7 +18,11 @@
 //! `<f2` ("incorrect descriptor"), reads an integer array only into the matching Rust integer
 //! type (an `<i2` level map or scan cannot be asked for as `f64`), writes `{'descr': ...,
 //! 'shape': (3, 4)}` where NumPy writes `(3, 4), }` (so its files are not NumPy's bytes), and
-//! would compile a third version of `zip` (2.6) beside the two already in the build.
+//! would compile a third version of `zip` (2.6) beside the two already in the build. Speed
+//! (`benches/codecs`, best of 30, from memory): a 4.9 MB `<f4` file in 0.77 ms here (to
+//! `f64`) against 0.58 ms for `ndarray-npy` 0.10 (to `f32`, half the bytes written), 1.3x; the
+//! measured PSF's `.npz` 0.69 ms against 0.38 ms (the same inflate, then our copy to `f64`).
+//! Milliseconds per file, against the seconds the stages spend on the data: ours is kept.
 
 use std::io::Write;
 use std::path::Path;
@@ -295,35 +299,43 @@ pub fn parse_header(path: &Path, bytes: &[u8]) -> Result<NpyHeader> {
 
 /// Decodes `n` elements of type `elem` from `data` into `f64`.
 fn decode(path: &Path, data: &[u8], elem: Elem, big: bool) -> Result<Vec<f64>> {
-    let sz = elem.size();
-    let mut out = Vec::with_capacity(data.len() / sz);
-    const EXACT: f64 = 9_007_199_254_740_992.0; // 2^53
-    for (k, c) in data.chunks_exact(sz).enumerate() {
-        let mut b = [0u8; 8];
-        b[..sz].copy_from_slice(c);
-        if big {
-            b[..sz].reverse();
-        }
-        let v = match elem {
-            Elem::F2 => f16_to_f64(u16::from_le_bytes([b[0], b[1]])),
-            Elem::F4 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
-            Elem::F8 => f64::from_le_bytes(b),
-            Elem::I1 => b[0] as i8 as f64,
-            Elem::U1 => b[0] as f64,
-            Elem::I2 => i16::from_le_bytes([b[0], b[1]]) as f64,
-            Elem::U2 => u16::from_le_bytes([b[0], b[1]]) as f64,
-            Elem::I4 => i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
-            Elem::U4 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
-            Elem::I8 => i64::from_le_bytes(b) as f64,
-            Elem::U8 => u64::from_le_bytes(b) as f64,
-        };
-        if !elem.is_float() && v.abs() > EXACT {
+    /// `f` on each `N`-byte element, its bytes in little-endian order; one loop per element
+    /// type, so the compiler vectorises it (a match per element ran 6x slower than
+    /// `ndarray-npy` on a 4.9 MB `<f4` file, `benches/codecs`).
+    fn each<const N: usize>(data: &[u8], big: bool, f: impl Fn([u8; N]) -> f64) -> Vec<f64> {
+        data.chunks_exact(N)
+            .map(|c| {
+                let mut b = [0u8; N];
+                b.copy_from_slice(c);
+                if big {
+                    b.reverse();
+                }
+                f(b)
+            })
+            .collect()
+    }
+    let out = match elem {
+        Elem::F2 => each(data, big, |b| f16_to_f64(u16::from_le_bytes(b))),
+        Elem::F4 => each(data, big, |b| f64::from(f32::from_le_bytes(b))),
+        Elem::F8 => each(data, big, f64::from_le_bytes),
+        Elem::I1 => each(data, big, |b: [u8; 1]| f64::from(b[0] as i8)),
+        Elem::U1 => each(data, big, |b: [u8; 1]| f64::from(b[0])),
+        Elem::I2 => each(data, big, |b| f64::from(i16::from_le_bytes(b))),
+        Elem::U2 => each(data, big, |b| f64::from(u16::from_le_bytes(b))),
+        Elem::I4 => each(data, big, |b| f64::from(i32::from_le_bytes(b))),
+        Elem::U4 => each(data, big, |b| f64::from(u32::from_le_bytes(b))),
+        Elem::I8 => each(data, big, |b| i64::from_le_bytes(b) as f64),
+        Elem::U8 => each(data, big, |b| u64::from_le_bytes(b) as f64),
+    };
+    // Only 64-bit integers can exceed 2^53, beyond which not every integer is a double.
+    const EXACT: f64 = 9_007_199_254_740_992.0;
+    if matches!(elem, Elem::I8 | Elem::U8) {
+        if let Some(k) = out.iter().position(|v| v.abs() > EXACT) {
             return Err(Error::format(
                 path,
                 format!("integer element {k} exceeds 2^53 and cannot be represented exactly"),
             ));
         }
-        out.push(v);
     }
     Ok(out)
 }
