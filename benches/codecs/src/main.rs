@@ -30,7 +30,8 @@ fn row(what: &str, ours: f64, theirs: f64) {
 }
 
 fn main() {
-    let data = std::env::args().nth(1).map_or_else(|| PathBuf::from("../shared/data/deepoptics-hdr"), PathBuf::from);
+    let data =
+        std::env::args().nth(1).map_or_else(|| PathBuf::from("../shared/data/deepoptics-hdr"), PathBuf::from);
     let runs = 30;
     println!("| file and operation | doefab (ms) | crate (ms) | doefab / crate |");
     println!("| --- | --- | --- | --- |");
@@ -43,7 +44,11 @@ fn main() {
     assert_eq!(ours.shape(), theirs.shape());
     assert!(ours.iter().zip(theirs.iter()).all(|(a, b)| *a == f64::from(*b)), "the two readers differ");
     row(
-        &format!("read {} ({} bytes, <f4) to f64 / f32", npy.file_name().unwrap().to_string_lossy(), bytes.len()),
+        &format!(
+            "read {} ({} bytes, <f4) to f64 / f32",
+            npy.file_name().unwrap().to_string_lossy(),
+            bytes.len()
+        ),
         best_ms(runs, || drop(decode_npy(&npy, &bytes).unwrap())),
         best_ms(runs, || drop(ArrayD::<f32>::read_npy(Cursor::new(&bytes)).unwrap())),
     );
@@ -58,7 +63,12 @@ fn main() {
         entry.read_to_end(&mut b).unwrap();
         decode_npy(p, &b).unwrap().1
     };
-    let theirs_npz = || NpzReader::new(Cursor::new(&zbytes)).unwrap().by_name::<ndarray::OwnedRepr<f64>, ndarray::IxDyn>("psf_val").unwrap();
+    let theirs_npz = || {
+        NpzReader::new(Cursor::new(&zbytes))
+            .unwrap()
+            .by_name::<ndarray::OwnedRepr<f64>, ndarray::IxDyn>("psf_val")
+            .unwrap()
+    };
     let (a, b) = (ours_npz(&npz), theirs_npz());
     assert!(a.iter().zip(b.iter()).all(|(x, y)| *x == *y), "the two npz readers differ");
     row(
@@ -79,7 +89,9 @@ fn main() {
         .collect();
     let views: Vec<(&str, safetensors::tensor::TensorView)> = raw
         .iter()
-        .map(|(k, b, s)| (k.as_str(), safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b).unwrap()))
+        .map(|(k, b, s)| {
+            (k.as_str(), safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b).unwrap())
+        })
         .collect();
     let meta: HashMap<String, String> = metadata.clone().into_iter().collect();
     let ours_bytes = encode_safetensors(&named, &metadata);
@@ -98,7 +110,9 @@ fn main() {
         let v: BTreeMap<String, Vec<f32>> = t
             .tensors()
             .into_iter()
-            .map(|(k, v)| (k, v.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()))
+            .map(|(k, v)| {
+                (k, v.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+            })
             .collect();
         drop(v)
     });
