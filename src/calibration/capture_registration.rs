@@ -539,26 +539,103 @@ fn field_pass(
     opts: &RegisterOptions,
 ) -> Result<LocalRegistration> {
     let matches = match_tiles(target, reference, opts)?;
-    let t = opts.tile.max(16) / 4 * 4;
-    let step = t / 2;
-    let origin = (t / 2) as f64 + (t as f64 - 1.0) * 0.5;
     let (h, w) = target.dim();
-    let (ny, nx) = ((h - 2 * (t / 2) - t) / step + 1, (w - 2 * (t / 2) - t) / step + 1);
-    let node = |p: [f64; 2]| {
-        (((p[1] - origin) / step as f64).round() as usize, ((p[0] - origin) / step as f64).round() as usize)
-    };
+    let nodes = Nodes::new(opts.tile, h, w);
     // The consensus test runs on the departures from the dominant affine map, so that a few
     // per cent of scale (pixels per node) does not read as disagreement between neighbours.
     let (affine, _, _) = robust_affine(&matches, opts.max_shift)?;
-    let base = |q: [f64; 2]| {
-        let p = affine.apply(q);
-        [p[0] - q[0], p[1] - q[1]]
-    };
-    let mut u: Array2<Option<[f64; 2]>> = Array2::from_elem((ny, nx), None);
+    let mut u: Array2<Option<[f64; 2]>> = Array2::from_elem((nodes.ny, nodes.nx), None);
     for (q, p) in &matches {
-        let b = base(*q);
-        u[node(*q)] = Some([p[0] - q[0] - b[0], p[1] - q[1] - b[1]]);
+        let b = affine_shift(&affine, *q);
+        u[nodes.node(*q)] = Some([p[0] - q[0] - b[0], p[1] - q[1] - b[1]]);
     }
+    let u = consensus(u);
+    let used = u.iter().filter(|v| v.is_some()).count();
+    if used < 6 {
+        return Err(Error::Data(format!(
+            "only {used} of {} matched tiles agree with their neighbours (6 needed): the images do not \
+             show the same scene, or move by more than {} px",
+            matches.len(),
+            opts.max_shift
+        )));
+    }
+    let mut nf = bilateral_field(&u, &nodes, &affine);
+    let (extended, guided_nodes) = extend_field(&mut nf, &u, &nodes, &affine, (reference, target));
+    let NodeField { field, covered, lo, hi, loo } = nf;
+    let mut reg = LocalRegistration {
+        node_spacing_px: nodes.step,
+        extended_nodes: extended,
+        guided_nodes,
+        nodes: nodes.ny * nodes.nx,
+        tiles_matched: matches.len(),
+        tiles_used: used,
+        residual_rms_px: (loo / used as f64).sqrt(),
+        covered_fraction: 0.0,
+        displacement_range_px: [lo, hi],
+        affine,
+        prewarp: Affine { a: [[1.0, 0.0], [0.0, 1.0]], b: [0.0, 0.0] },
+        field,
+        covered,
+        origin: nodes.origin,
+    };
+    let inside =
+        (0..h).flat_map(|i| (0..w).map(move |j| (i, j))).filter(|&(i, j)| reg.at(i, j).is_some()).count();
+    reg.covered_fraction = inside as f64 / (h * w) as f64;
+    if reg.covered_fraction < opts.min_coverage {
+        return Err(Error::Validity(format!(
+            "the field covers only {:.1} % of the image ({:.0} % needed): too little texture to follow the motion",
+            100.0 * reg.covered_fraction,
+            100.0 * opts.min_coverage
+        )));
+    }
+    Ok(reg)
+}
+
+/// The nodes of a field pass: tiles of `t` px every `step = t / 2` px (as [`match_tiles`] lays
+/// them), node `(i, j)` at the centre of tile `(i, j)`, pixel `origin + (j, i) step`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Nodes {
+    t: usize,
+    step: usize,
+    origin: f64,
+    ny: usize,
+    nx: usize,
+}
+
+impl Nodes {
+    /// The nodes of tiles of about `tile` px (at least 16, a multiple of 4) in an `h x w` image.
+    fn new(tile: usize, h: usize, w: usize) -> Nodes {
+        let t = tile.max(16) / 4 * 4;
+        let step = t / 2;
+        let origin = (t / 2) as f64 + (t as f64 - 1.0) * 0.5;
+        let (ny, nx) = ((h - 2 * (t / 2) - t) / step + 1, (w - 2 * (t / 2) - t) / step + 1);
+        Nodes { t, step, origin, ny, nx }
+    }
+
+    /// The node `(i, j)` nearest to pixel position `p = (x, y)`.
+    fn node(&self, p: [f64; 2]) -> (usize, usize) {
+        let step = self.step as f64;
+        (((p[1] - self.origin) / step).round() as usize, ((p[0] - self.origin) / step).round() as usize)
+    }
+
+    /// The pixel position `(x, y)` of node `(i, j)`.
+    fn position(&self, i: usize, j: usize) -> [f64; 2] {
+        [self.origin + (j * self.step) as f64, self.origin + (i * self.step) as f64]
+    }
+}
+
+/// The displacement `A q + b - q` of `affine` at pixel position `q`.
+fn affine_shift(affine: &Affine, q: [f64; 2]) -> [f64; 2] {
+    let p = affine.apply(q);
+    [p[0] - q[0], p[1] - q[1]]
+}
+
+/// The consensus of the matches' departures `u` (per node, from the dominant map): a match
+/// is kept when the median of its neighbours (within 2 nodes, at least 3 of them) agrees with
+/// it within 3 px, or when at least [`SURFACE_SUPPORT`] of them do; repeated until nothing
+/// changes (at most 10 times).
+fn consensus(mut u: Array2<Option<[f64; 2]>>) -> Array2<Option<[f64; 2]>> {
+    let (ny, nx) = u.dim();
     let neighbours = |u: &Array2<Option<[f64; 2]>>, i: usize, j: usize| -> Vec<[f64; 2]> {
         let mut v = Vec::new();
         for a in i.saturating_sub(2)..(i + 3).min(ny) {
@@ -594,15 +671,28 @@ fn field_pass(
         }
         u = next;
     }
-    let used = u.iter().filter(|v| v.is_some()).count();
-    if used < 6 {
-        return Err(Error::Data(format!(
-            "only {used} of {} matched tiles agree with their neighbours (6 needed): the images do not \
-             show the same scene, or move by more than {} px",
-            matches.len(),
-            opts.max_shift
-        )));
-    }
+    u
+}
+
+/// The displacement field on the nodes while it is built.
+struct NodeField {
+    /// Displacement `(x, y)` per node, pixels, and whether the node is covered.
+    field: Array3<f64>,
+    covered: Array2<bool>,
+    /// Range of the covered nodes' displacements.
+    lo: [f64; 2],
+    hi: [f64; 2],
+    /// Sum of the squared leave-one-out errors at the kept matches.
+    loo: f64,
+}
+
+/// The field from the kept departures `u`: at each node the Gaussian-weighted mean (sigma 1
+/// node, within 2 nodes) of the kept departures that agree with the node's own (within 3 px;
+/// all where it has none: a bilateral weight, Tomasi and Manduchi 1998) plus the dominant
+/// map's displacement; a node is covered when the weight reaches `exp(-1/2)`. Each kept match
+/// adds its squared error against the mean made without it.
+fn bilateral_field(u: &Array2<Option<[f64; 2]>>, nodes: &Nodes, affine: &Affine) -> NodeField {
+    let (ny, nx) = (nodes.ny, nodes.nx);
     // Gaussian-weighted sums over kept matches within 2 nodes: (weight, sum x, sum y). At a
     // node with a kept match of its own, only the matches that agree with it (within 3 px)
     // count, so that the field does not average across a depth edge (an edge-preserving,
@@ -634,7 +724,7 @@ fn field_pass(
             let s = sums(i, j);
             if s[0] >= min_weight {
                 covered[[i, j]] = true;
-                let b = base([origin + (j * step) as f64, origin + (i * step) as f64]);
+                let b = affine_shift(affine, nodes.position(i, j));
                 for k in 0..2 {
                     field[[i, j, k]] = s[k + 1] / s[0] + b[k];
                     lo[k] = lo[k].min(field[[i, j, k]]);
@@ -650,9 +740,22 @@ fn field_pass(
             }
         }
     }
-    // Extension (see the struct docs): uncovered nodes with kept matches within 3 nodes take
-    // their Gaussian-weighted mean departure (sigma 1.5 nodes) when the reference, moved by it,
-    // agrees with the target over the node's tile as well as at 90 % of the matched nodes.
+    NodeField { field, covered, lo, hi, loo }
+}
+
+/// The extension (see the struct docs): uncovered nodes with kept matches within 3 nodes take
+/// their Gaussian-weighted mean departure (sigma 1.5 nodes) when the reference, moved by it,
+/// agrees with the target over the node's tile as well as at 90 % of the matched nodes, else
+/// the displacement [`guided`] matching finds near it. Returns the nodes extended and, of
+/// those, the guided ones.
+fn extend_field(
+    nf: &mut NodeField,
+    u: &Array2<Option<[f64; 2]>>,
+    nodes: &Nodes,
+    affine: &Affine,
+    (reference, target): (&Array2<f64>, &Array2<f64>),
+) -> (usize, usize) {
+    let Nodes { t, step, ny, nx, .. } = *nodes;
     let ref3 = reference.clone().insert_axis(ndarray::Axis(2));
     let tile_pairs = |i: usize, j: usize, d: [f64; 2]| -> Vec<(f64, f64)> {
         let (r0, c0) = (t / 2 + i * step, t / 2 + j * step);
@@ -671,7 +774,7 @@ fn field_pass(
         (0..ny).flat_map(|i| (0..nx).map(move |j| (i, j))).filter(|&(i, j)| u[[i, j]].is_some()).collect();
     let (mut stt, mut srr) = (0.0, 0.0);
     for &(i, j) in &kept {
-        for (tv, rv) in tile_pairs(i, j, node_d(&field, i, j)) {
+        for (tv, rv) in tile_pairs(i, j, node_d(&nf.field, i, j)) {
             stt += tv * rv;
             srr += rv * rv;
         }
@@ -684,83 +787,58 @@ fn field_pass(
         })
     };
     let mut matched_disagreement: Vec<f64> =
-        kept.iter().filter_map(|&(i, j)| disagreement(i, j, node_d(&field, i, j))).collect();
+        kept.iter().filter_map(|&(i, j)| disagreement(i, j, node_d(&nf.field, i, j))).collect();
     matched_disagreement.sort_by(f64::total_cmp);
     let (mut extended, mut guided_nodes) = (0, 0);
-    if let Some(&limit) = matched_disagreement.get(matched_disagreement.len() * 9 / 10) {
-        let wide = |i: usize, j: usize| {
-            let mut s = [0.0; 3];
-            for a in i.saturating_sub(3)..(i + 4).min(ny) {
-                for b in j.saturating_sub(3)..(j + 4).min(nx) {
-                    if let Some(d) = u[[a, b]] {
-                        let r2 = (a as f64 - i as f64).powi(2) + (b as f64 - j as f64).powi(2);
-                        let g = (-r2 / (2.0 * 1.5 * 1.5)).exp();
-                        s[0] += g;
-                        s[1] += g * d[0];
-                        s[2] += g * d[1];
-                    }
+    let Some(&limit) = matched_disagreement.get(matched_disagreement.len() * 9 / 10) else {
+        return (extended, guided_nodes);
+    };
+    let wide = |i: usize, j: usize| {
+        let mut s = [0.0; 3];
+        for a in i.saturating_sub(3)..(i + 4).min(ny) {
+            for b in j.saturating_sub(3)..(j + 4).min(nx) {
+                if let Some(d) = u[[a, b]] {
+                    let r2 = (a as f64 - i as f64).powi(2) + (b as f64 - j as f64).powi(2);
+                    let g = (-r2 / (2.0 * 1.5 * 1.5)).exp();
+                    s[0] += g;
+                    s[1] += g * d[0];
+                    s[2] += g * d[1];
                 }
-            }
-            s
-        };
-        // Each node's decision reads only the kept matches and the images: decided in parallel,
-        // applied in node order.
-        let candidates: Vec<(usize, usize)> = (0..ny)
-            .flat_map(|i| (0..nx).map(move |j| (i, j)))
-            .filter(|&(i, j)| !covered[[i, j]] && wide(i, j)[0] >= (-2.0f64).exp())
-            .collect();
-        let placed: Vec<Option<([f64; 2], bool)>> = candidates
-            .par_iter()
-            .map(|&(i, j)| {
-                let s = wide(i, j);
-                let b = base([origin + (j * step) as f64, origin + (i * step) as f64]);
-                let d = [s[1] / s[0] + b[0], s[2] / s[0] + b[1]];
-                if disagreement(i, j, d)? <= limit {
-                    return Some((d, false));
-                }
-                let e = guided(&|e: [f64; 2]| disagreement(i, j, [d[0] + e[0], d[1] + e[1]]))?;
-                Some(([d[0] + e[0], d[1] + e[1]], true))
-            })
-            .collect();
-        for (&(i, j), placed) in candidates.iter().zip(placed) {
-            let Some((d, by_guide)) = placed else { continue };
-            covered[[i, j]] = true;
-            extended += 1;
-            guided_nodes += usize::from(by_guide);
-            for k in 0..2 {
-                field[[i, j, k]] = d[k];
-                lo[k] = lo[k].min(d[k]);
-                hi[k] = hi[k].max(d[k]);
             }
         }
-    }
-    let mut reg = LocalRegistration {
-        node_spacing_px: step,
-        extended_nodes: extended,
-        guided_nodes,
-        nodes: ny * nx,
-        tiles_matched: matches.len(),
-        tiles_used: used,
-        residual_rms_px: (loo / used as f64).sqrt(),
-        covered_fraction: 0.0,
-        displacement_range_px: [lo, hi],
-        affine,
-        prewarp: Affine { a: [[1.0, 0.0], [0.0, 1.0]], b: [0.0, 0.0] },
-        field,
-        covered,
-        origin,
+        s
     };
-    let inside =
-        (0..h).flat_map(|i| (0..w).map(move |j| (i, j))).filter(|&(i, j)| reg.at(i, j).is_some()).count();
-    reg.covered_fraction = inside as f64 / (h * w) as f64;
-    if reg.covered_fraction < opts.min_coverage {
-        return Err(Error::Validity(format!(
-            "the field covers only {:.1} % of the image ({:.0} % needed): too little texture to follow the motion",
-            100.0 * reg.covered_fraction,
-            100.0 * opts.min_coverage
-        )));
+    // Each node's decision reads only the kept matches and the images: decided in parallel,
+    // applied in node order.
+    let candidates: Vec<(usize, usize)> = (0..ny)
+        .flat_map(|i| (0..nx).map(move |j| (i, j)))
+        .filter(|&(i, j)| !nf.covered[[i, j]] && wide(i, j)[0] >= (-2.0f64).exp())
+        .collect();
+    let placed: Vec<Option<([f64; 2], bool)>> = candidates
+        .par_iter()
+        .map(|&(i, j)| {
+            let s = wide(i, j);
+            let b = affine_shift(affine, nodes.position(i, j));
+            let d = [s[1] / s[0] + b[0], s[2] / s[0] + b[1]];
+            if disagreement(i, j, d)? <= limit {
+                return Some((d, false));
+            }
+            let e = guided(&|e: [f64; 2]| disagreement(i, j, [d[0] + e[0], d[1] + e[1]]))?;
+            Some(([d[0] + e[0], d[1] + e[1]], true))
+        })
+        .collect();
+    for (&(i, j), placed) in candidates.iter().zip(placed) {
+        let Some((d, by_guide)) = placed else { continue };
+        nf.covered[[i, j]] = true;
+        extended += 1;
+        guided_nodes += usize::from(by_guide);
+        for (k, &dk) in d.iter().enumerate() {
+            nf.field[[i, j, k]] = dk;
+            nf.lo[k] = nf.lo[k].min(dk);
+            nf.hi[k] = nf.hi[k].max(dk);
+        }
     }
-    Ok(reg)
+    (extended, guided_nodes)
 }
 
 /// Guided matching of a tile the measurement model fits poorly (a saturated lamp whose flare
@@ -849,5 +927,49 @@ impl LocalRegistration {
             }
         }
         (Image::new(out), inside)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A lone departure among agreeing neighbours is dropped; a 3 x 3 cluster moving by its
+    /// own parallax (each of its nodes has at least 3 agreeing neighbours) is kept.
+    #[test]
+    fn the_consensus_drops_a_lone_match_and_keeps_a_cluster() {
+        let mut u = Array2::from_elem((9, 9), Some([0.5, -0.2]));
+        u[[6, 2]] = Some([10.0, 0.0]);
+        for i in 1..4 {
+            for j in 4..7 {
+                u[[i, j]] = Some([8.0, 3.0]);
+            }
+        }
+        let kept = consensus(u.clone());
+        let mut want = u;
+        want[[6, 2]] = None;
+        assert_eq!(kept, want);
+    }
+
+    /// Equal departures give a field of those departures plus the dominant map's shift at each
+    /// node, covering every node, with no leave-one-out error.
+    #[test]
+    fn equal_departures_make_a_flat_field() {
+        let nodes = Nodes::new(48, 240, 288);
+        assert_eq!((nodes.ny, nodes.nx, nodes.step, nodes.position(1, 2)), (7, 9, 24, [95.5, 71.5]));
+        assert_eq!(nodes.node([95.5 + 11.0, 71.5 - 11.0]), (1, 2));
+        let affine = Affine { a: [[1.01, 0.0], [0.0, 1.0]], b: [2.0, -3.0] };
+        let u = Array2::from_elem((nodes.ny, nodes.nx), Some([1.5, -0.5]));
+        let nf = bilateral_field(&u, &nodes, &affine);
+        assert!(nf.covered.iter().all(|&c| c) && nf.loo < 1e-20, "{}", nf.loo);
+        for i in 0..nodes.ny {
+            for j in 0..nodes.nx {
+                let x = nodes.position(i, j)[0];
+                let want = [1.5 + 0.01 * x + 2.0, -0.5 - 3.0];
+                for (k, w) in want.iter().enumerate() {
+                    assert!((nf.field[[i, j, k]] - w).abs() < 1e-12, "({i}, {j}): {:?}", nf.field);
+                }
+            }
+        }
     }
 }

@@ -442,87 +442,17 @@ pub fn merge(
         times.to_vec()
     };
 
-    // The noise floor is measured above the black level, saturation on the raw value.
-    let dark_at = |i: usize, j: usize, c: usize| black[[i, j, c]];
-    let weight = |z: f64, d: f64, hi: f64| if z - d > lo && z < hi { (z - d - lo).min(hi - z) } else { 0.0 };
-    let mut radiance = Array3::<f64>::zeros(shape);
-    let mut saturated_everywhere = PixelSet::default();
-    let mut dark_everywhere = PixelSet::default();
-    let mut inconsistent = PixelSet::default();
-    let (mut saturated_samples, mut inconsistent_samples) = (Vec::new(), Vec::new());
-    let (mut order, n) = ((0..frames.len()).collect::<Vec<_>>(), frames.len());
-    order.sort_by(|&a, &b| used[a].total_cmp(&used[b]));
-    for ((i, j, c), e) in radiance.indexed_iter_mut() {
-        let (mut num, mut den) = (0.0, 0.0);
-        let (d, hi) = (dark_at(i, j, c), sat[[i, j, c]]);
-        let (mut lowest, mut highest, mut well) = (f64::INFINITY, 0.0f64, 0);
-        for k in 0..n {
-            let z = frames[k].image.values[[i, j, c]];
-            let w = weight(z, d, hi);
-            let rate = linear[k][[i, j, c]] / used[k];
-            num += w * rate;
-            den += w;
-            if z - d >= 0.1 && z < hi {
-                lowest = lowest.min(rate);
-                highest = highest.max(rate);
-                well += 1;
-            }
-        }
-        if well >= 2 && highest > INCONSISTENT_RATIO * lowest {
-            inconsistent.add(i, j, c);
-            inconsistent_samples.push([i, j, c]);
-        }
-        if den > 0.0 {
-            *e = num / den;
-            continue;
-        }
-        // No usable frame: the longest unsaturated frame's value over its time (one frame, so
-        // that the dark frame's error is not multiplied by the frame count), or a lower bound
-        // from the shortest frame.
-        if let Some(&k) = order.iter().rev().find(|&&k| frames[k].image.values[[i, j, c]] < hi) {
-            *e = linear[k][[i, j, c]] / used[k];
-            dark_everywhere.add(i, j, c);
-        } else {
-            let k = order[0];
-            *e = linear[k][[i, j, c]] / used[k];
-            saturated_everywhere.add(i, j, c);
-            saturated_samples.push([i, j, c]);
-        }
-    }
-
+    let bracket = Bracket { frames, linear: &linear, used: &used, black: &black, lo };
+    let Radiance {
+        mut radiance,
+        saturated_everywhere,
+        dark_everywhere,
+        inconsistent,
+        saturated_samples,
+        inconsistent_samples,
+    } = merge_radiance(&bracket, &sat);
     let sat_level: Vec<f64> = channel_clipping.iter().map(|l| hi * l).collect();
-    let mut reports = Vec::new();
-    for (k, f) in frames.iter().enumerate() {
-        let nc = shape.2;
-        let (mut saturated, mut floor) = (vec![0; nc], vec![0; nc]);
-        let mut dev = Vec::new();
-        for ((i, j, c), &z) in f.image.values.indexed_iter() {
-            if z >= sat_level[c] {
-                saturated[c] += 1;
-            } else if z - dark_at(i, j, c) <= lo {
-                floor[c] += 1;
-            } else if z - dark_at(i, j, c) >= 0.1 {
-                let e = radiance[[i, j, c]];
-                if e > 0.0 {
-                    dev.push((linear[k][[i, j, c]] / used[k] - e) / e);
-                }
-            }
-        }
-        let rms =
-            (!dev.is_empty()).then(|| (dev.iter().map(|d| d * d).sum::<f64>() / dev.len() as f64).sqrt());
-        let mut abs: Vec<f64> = dev.iter().map(|d| d.abs()).collect();
-        abs.sort_by(f64::total_cmp);
-        reports.push(FrameReport {
-            file: f.path.display().to_string(),
-            exposure_listed: times[k],
-            exposure_used: used[k],
-            saturated,
-            noise_floor: floor,
-            agreement_rms: rms,
-            agreement_median: abs.get(abs.len() / 2).copied(),
-            agreement_samples: dev.len(),
-        });
-    }
+    let reports = frame_reports(&bracket, times, &radiance, &sat_level);
     if saturated_everywhere.count > 0 {
         warnings.push(format!(
             "{} samples are saturated in every frame (first at row {}, col {}, channel {}); their \
@@ -584,6 +514,132 @@ pub fn merge(
         saturated_samples,
         inconsistent_samples,
     })
+}
+
+/// The bracket as the merge weighs it: the frames (raw values), their linear values with the
+/// black level removed, the exposure times used, the black level and the noise floor.
+struct Bracket<'a> {
+    frames: &'a [Capture],
+    linear: &'a [Array3<f64>],
+    used: &'a [f64],
+    black: &'a Array3<f64>,
+    lo: f64,
+}
+
+/// The merged radiance and the samples it could not merge as the others (module docs).
+struct Radiance {
+    radiance: Array3<f64>,
+    saturated_everywhere: PixelSet,
+    dark_everywhere: PixelSet,
+    inconsistent: PixelSet,
+    saturated_samples: Vec<[usize; 3]>,
+    inconsistent_samples: Vec<[usize; 3]>,
+}
+
+/// The radiance of every sample, `E = sum_k w(z_k) (v_k - d) / t_k / sum_k w(z_k)` with the hat
+/// weight `w(z) = min(z - d - lo, hi - z)` between the noise floor and the saturation level
+/// `sat` (module docs); a sample no frame sees between them takes the longest unsaturated
+/// frame's value over its time, or, saturated everywhere, the shortest frame's. Samples whose
+/// well-exposed frames differ by more than [`INCONSISTENT_RATIO`] are listed.
+fn merge_radiance(b: &Bracket, sat: &Array3<f64>) -> Radiance {
+    let Bracket { frames, linear, used, black, lo } = *b;
+    let shape = frames[0].image.values.dim();
+    // The noise floor is measured above the black level, saturation on the raw value.
+    let dark_at = |i: usize, j: usize, c: usize| black[[i, j, c]];
+    let weight = |z: f64, d: f64, hi: f64| if z - d > lo && z < hi { (z - d - lo).min(hi - z) } else { 0.0 };
+    let mut radiance = Array3::<f64>::zeros(shape);
+    let mut saturated_everywhere = PixelSet::default();
+    let mut dark_everywhere = PixelSet::default();
+    let mut inconsistent = PixelSet::default();
+    let (mut saturated_samples, mut inconsistent_samples) = (Vec::new(), Vec::new());
+    let (mut order, n) = ((0..frames.len()).collect::<Vec<_>>(), frames.len());
+    order.sort_by(|&a, &b| used[a].total_cmp(&used[b]));
+    for ((i, j, c), e) in radiance.indexed_iter_mut() {
+        let (mut num, mut den) = (0.0, 0.0);
+        let (d, hi) = (dark_at(i, j, c), sat[[i, j, c]]);
+        let (mut lowest, mut highest, mut well) = (f64::INFINITY, 0.0f64, 0);
+        for k in 0..n {
+            let z = frames[k].image.values[[i, j, c]];
+            let w = weight(z, d, hi);
+            let rate = linear[k][[i, j, c]] / used[k];
+            num += w * rate;
+            den += w;
+            if z - d >= 0.1 && z < hi {
+                lowest = lowest.min(rate);
+                highest = highest.max(rate);
+                well += 1;
+            }
+        }
+        if well >= 2 && highest > INCONSISTENT_RATIO * lowest {
+            inconsistent.add(i, j, c);
+            inconsistent_samples.push([i, j, c]);
+        }
+        if den > 0.0 {
+            *e = num / den;
+            continue;
+        }
+        // No usable frame: the longest unsaturated frame's value over its time (one frame, so
+        // that the dark frame's error is not multiplied by the frame count), or a lower bound
+        // from the shortest frame.
+        if let Some(&k) = order.iter().rev().find(|&&k| frames[k].image.values[[i, j, c]] < hi) {
+            *e = linear[k][[i, j, c]] / used[k];
+            dark_everywhere.add(i, j, c);
+        } else {
+            let k = order[0];
+            *e = linear[k][[i, j, c]] / used[k];
+            saturated_everywhere.add(i, j, c);
+            saturated_samples.push([i, j, c]);
+        }
+    }
+    Radiance {
+        radiance,
+        saturated_everywhere,
+        dark_everywhere,
+        inconsistent,
+        saturated_samples,
+        inconsistent_samples,
+    }
+}
+
+/// Each frame's report: its saturated samples (at or above `sat_level`, per channel) and
+/// those in the noise floor, and the RMS and median of `(v_k / t_k - E) / E` over the samples
+/// it sees well exposed (module docs); `times` as listed.
+fn frame_reports(b: &Bracket, times: &[f64], radiance: &Array3<f64>, sat_level: &[f64]) -> Vec<FrameReport> {
+    let Bracket { frames, linear, used, black, lo } = *b;
+    let dark_at = |i: usize, j: usize, c: usize| black[[i, j, c]];
+    let mut reports = Vec::new();
+    for (k, f) in frames.iter().enumerate() {
+        let nc = radiance.dim().2;
+        let (mut saturated, mut floor) = (vec![0; nc], vec![0; nc]);
+        let mut dev = Vec::new();
+        for ((i, j, c), &z) in f.image.values.indexed_iter() {
+            if z >= sat_level[c] {
+                saturated[c] += 1;
+            } else if z - dark_at(i, j, c) <= lo {
+                floor[c] += 1;
+            } else if z - dark_at(i, j, c) >= 0.1 {
+                let e = radiance[[i, j, c]];
+                if e > 0.0 {
+                    dev.push((linear[k][[i, j, c]] / used[k] - e) / e);
+                }
+            }
+        }
+        let rms =
+            (!dev.is_empty()).then(|| (dev.iter().map(|d| d * d).sum::<f64>() / dev.len() as f64).sqrt());
+        let mut abs: Vec<f64> = dev.iter().map(|d| d.abs()).collect();
+        abs.sort_by(f64::total_cmp);
+        reports.push(FrameReport {
+            file: f.path.display().to_string(),
+            exposure_listed: times[k],
+            exposure_used: used[k],
+            saturated,
+            noise_floor: floor,
+            agreement_rms: rms,
+            agreement_median: abs.get(abs.len() / 2).copied(),
+            agreement_samples: dev.len(),
+        });
+    }
+    reports
 }
 
 /// Effective exposure times from neighbouring frames' value ratios (see the module docs).

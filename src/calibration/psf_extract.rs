@@ -298,30 +298,20 @@ fn estimated_error(
     }
 }
 
-/// Extracts the PSF from a merged pinhole bracket (see the module docs).
-pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCalibration)> {
-    let (h, w, nc) = merged.radiance.dim();
-    for (name, v) in [("capture_pitch", opts.capture_pitch), ("sensor_pitch", opts.sensor_pitch)] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(Error::param(name, format!("must be a positive length, got {v} m")));
-        }
-    }
-    if opts.crop < 3 {
-        return Err(Error::param("crop", format!("must be at least 3 pixels, got {}", opts.crop)));
-    }
-    if let Some(wl) = &opts.wavelengths {
-        if wl.len() != nc {
-            return Err(Error::param("wavelengths", format!("{} given for {nc} channels", wl.len())));
-        }
-    }
-    let border = opts.border.max(1);
-    if 2 * border >= h.min(w) {
-        return Err(Error::param("border", format!("{border} px leaves no interior in {w} x {h}")));
-    }
-    let mut warnings = merged.report.warnings.clone();
+/// Each channel's background (module docs, step 1), already subtracted from the image.
+struct Background {
+    /// The mean over the border strip, merged units.
+    level: Vec<f64>,
+    /// Its noise, never below the quantization noise.
+    sigma: Vec<f64>,
+    /// The strip is quieter than one count's rounding: the counts are not dithered.
+    undithered: Vec<bool>,
+}
 
-    // Background from the border strip.
-    let mut img = merged.radiance.values.clone();
+/// Step 1: each channel's clipped mean and RMS ([`clipped_mean_rms`]) over the strip of
+/// `border` pixels along the image's edges, the mean subtracted from `img`.
+fn subtract_background(img: &mut Array3<f64>, border: usize, report: &MergeReport) -> Background {
+    let (h, w, nc) = img.dim();
     let (mut background, mut sigma, mut undithered) = (Vec::new(), Vec::new(), Vec::new());
     for c in 0..nc {
         let mut strip: Vec<f64> = img
@@ -333,29 +323,42 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
             .collect();
         let (b, s) = clipped_mean_rms(&mut strip);
         background.push(b);
-        let q = quantization_noise(&merged.report);
+        let q = quantization_noise(report);
         // A background quieter than one count's rounding: the counts are not dithered by noise,
         // so every sample's rounding is a bias, not noise.
         undithered.push(s < q);
         sigma.push(s.max(q));
         img.index_axis_mut(ndarray::Axis(2), c).mapv_inplace(|v| v - b);
     }
-    let neighbours = |i: usize, j: usize| {
-        (i.saturating_sub(1)..=(i + 1).min(h - 1))
-            .flat_map(move |a| (j.saturating_sub(1)..=(j + 1).min(w - 1)).map(move |b| (a, b)))
-            .filter(move |&p| p != (i, j))
-    };
+    Background { level: background, sigma, undithered }
+}
 
-    // Saturated in every frame: a lone one on the background is stuck; any other is refused.
-    let mut flagged = Array3::from_elem((h, w, nc), false);
+/// The 8-neighbourhood of `(i, j)` within an `h x w` image, row by row.
+fn neighbours(i: usize, j: usize, h: usize, w: usize) -> impl Iterator<Item = (usize, usize)> {
+    (i.saturating_sub(1)..=(i + 1).min(h - 1))
+        .flat_map(move |a| (j.saturating_sub(1)..=(j + 1).min(w - 1)).map(move |b| (a, b)))
+        .filter(move |&p| p != (i, j))
+}
+
+/// Step 2: the samples saturated in every frame, flagged, and those of them that are stuck
+/// pixels (their 8 neighbours unsaturated and below `hot_neighbours` sigmas); any other one
+/// is refused with where they lie.
+fn stuck_pixels(
+    merged: &Merged,
+    img: &Array3<f64>,
+    sigma: &[f64],
+    hot_neighbours: f64,
+) -> Result<(Array3<bool>, Vec<[usize; 3]>)> {
+    let (h, w, _) = img.dim();
+    let mut flagged = Array3::from_elem(img.dim(), false);
     for &[i, j, c] in &merged.saturated_samples {
         flagged[[i, j, c]] = true;
     }
     let mut hot_list: Vec<[usize; 3]> = Vec::new();
     let mut refused: Vec<[usize; 3]> = Vec::new();
     for &[i, j, c] in &merged.saturated_samples {
-        let lone = neighbours(i, j)
-            .all(|(a, b)| !flagged[[a, b, c]] && img[[a, b, c]] < opts.hot_pixel_neighbours * sigma[c]);
+        let lone = neighbours(i, j, h, w)
+            .all(|(a, b)| !flagged[[a, b, c]] && img[[a, b, c]] < hot_neighbours * sigma[c]);
         if lone {
             hot_list.push([i, j, c]);
         } else {
@@ -379,26 +382,36 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
             b[3]
         )));
     }
-    // Samples that do not follow the exposure, and the stuck saturated ones: replaced by the
-    // median of their unflagged neighbours.
-    hot_list.extend_from_slice(&merged.inconsistent_samples);
-    hot_list.sort_unstable();
-    hot_list.dedup();
-    for &[i, j, c] in &hot_list {
+    Ok((flagged, hot_list))
+}
+
+/// Step 3: the `hot` samples flagged and replaced by the median of their unflagged neighbours
+/// (0 where none is).
+fn replace_by_neighbours(img: &mut Array3<f64>, flagged: &mut Array3<bool>, hot: &[[usize; 3]]) {
+    let (h, w, _) = img.dim();
+    for &[i, j, c] in hot {
         flagged[[i, j, c]] = true;
     }
     let source = img.clone();
-    for &[i, j, c] in &hot_list {
-        let mut nb: Vec<f64> =
-            neighbours(i, j).filter(|&(a, b)| !flagged[[a, b, c]]).map(|(a, b)| source[[a, b, c]]).collect();
+    for &[i, j, c] in hot {
+        let mut nb: Vec<f64> = neighbours(i, j, h, w)
+            .filter(|&(a, b)| !flagged[[a, b, c]])
+            .map(|(a, b)| source[[a, b, c]])
+            .collect();
         img[[i, j, c]] = if nb.is_empty() { 0.0 } else { median(&mut nb) };
     }
+}
 
-    // Coarse location on the box-filtered channel sum.
-    let sum = |img: &Array3<f64>| {
-        Array2::from_shape_fn((h, w), |(i, j)| (0..nc).map(|c| img[[i, j, c]]).sum::<f64>())
-    };
-    let total = sum(&img);
+/// The sum of the channels at each pixel.
+fn channel_sum(img: &Array3<f64>) -> Array2<f64> {
+    let (h, w, nc) = img.dim();
+    Array2::from_shape_fn((h, w), |(i, j)| (0..nc).map(|c| img[[i, j, c]]).sum::<f64>())
+}
+
+/// Step 4: the interior pixel where the 3 x 3 box sum of `total` is largest (the first in
+/// row-major order on a tie).
+fn coarse_location(total: &Array2<f64>) -> (usize, usize) {
+    let (h, w) = total.dim();
     let mut coarse = (0, 0, f64::NEG_INFINITY);
     for i in 1..h - 1 {
         for j in 1..w - 1 {
@@ -409,8 +422,21 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
             }
         }
     }
+    (coarse.0, coarse.1)
+}
 
-    // Isolated hot pixels away from the PSF core.
+/// Step 5: the isolated hot pixels farther than 3 px from `coarse` (module docs; `sigma` the
+/// background noise per channel, `hot_neighbours` the neighbours' ceiling in sigmas) that are
+/// not `flagged`, replaced by the median of their neighbours; returns them in scan order.
+fn remove_isolated_hot_pixels(
+    img: &mut Array3<f64>,
+    flagged: &Array3<bool>,
+    coarse: (usize, usize),
+    sigma: &[f64],
+    hot_neighbours: f64,
+) -> Vec<[usize; 3]> {
+    let (h, w, nc) = img.dim();
+    let mut hot = Vec::new();
     let source = img.clone();
     for c in 0..nc {
         for i in 1..h - 1 {
@@ -426,21 +452,25 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
                     .collect();
                 let max8 = nb.iter().fold(f64::NEG_INFINITY, |m, &x| m.max(x));
                 let level = median(&mut nb);
-                let floor = opts.hot_pixel_neighbours * sigma[c];
+                let floor = hot_neighbours * sigma[c];
                 let isolated = max8 < floor
                     || (max8 - level < floor && v > TAIL_HOT_RATIO * max8)
                     || v > HOT_RATIO * max8;
                 if v - level > 10.0 * sigma[c] && isolated && !flagged[[i, j, c]] {
                     img[[i, j, c]] = level;
-                    hot_list.push([i, j, c]);
+                    hot.push([i, j, c]);
                 }
             }
         }
     }
+    hot
+}
 
-    // Peak, then the centroid over the crop window.
-    let total = sum(&img);
-    let mut peak = (coarse.0, coarse.1);
+/// Step 6: the brightest pixel of `total` within 5 px of `coarse` (the first in row-major
+/// order on a tie, `coarse` itself unless another is brighter).
+fn peak_near(total: &Array2<f64>, coarse: (usize, usize)) -> (usize, usize) {
+    let (h, w) = total.dim();
+    let mut peak = coarse;
     for i in coarse.0.saturating_sub(5)..(coarse.0 + 6).min(h) {
         for j in coarse.1.saturating_sub(5)..(coarse.1 + 6).min(w) {
             if total[[i, j]] > total[peak] {
@@ -448,22 +478,30 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
             }
         }
     }
-    hot_list.sort_unstable();
-    // The axis: the sub-pixel maximum of the principal peak (see the module docs).
-    let vertex = |a: f64, b: f64, c: f64| {
-        let gauss = (a > 0.0 && b > 0.0 && c > 0.0).then(|| {
-            let (la, lb, lc) = (a.ln(), b.ln(), c.ln());
-            (la - 2.0 * lb + lc, 0.5 * (la - lc))
-        });
-        let (curv, slope) = gauss.unwrap_or((a - 2.0 * b + c, 0.5 * (a - c)));
-        if curv < 0.0 {
-            (slope / curv).clamp(-0.5, 0.5)
-        } else {
-            0.0
-        }
-    };
+    peak
+}
+
+/// The vertex offset of the parabola through `ln a, ln b, ln c` at -1, 0, 1 (through `a, b, c`
+/// where one is not positive), within half a pixel; 0 where it is not a maximum.
+fn vertex(a: f64, b: f64, c: f64) -> f64 {
+    let gauss = (a > 0.0 && b > 0.0 && c > 0.0).then(|| {
+        let (la, lb, lc) = (a.ln(), b.ln(), c.ln());
+        (la - 2.0 * lb + lc, 0.5 * (la - lc))
+    });
+    let (curv, slope) = gauss.unwrap_or((a - 2.0 * b + c, 0.5 * (a - c)));
+    if curv < 0.0 {
+        (slope / curv).clamp(-0.5, 0.5)
+    } else {
+        0.0
+    }
+}
+
+/// The axis: the sub-pixel maximum of `total` at `peak` by [`vertex`] along each axis (module
+/// docs, step 7); whole pixels on the image's first row or column.
+fn subpixel_axis(total: &Array2<f64>, peak: (usize, usize)) -> [f64; 2] {
+    let (h, w) = total.dim();
     let at = |i: usize, j: usize| total[[i.min(h - 1), j.min(w - 1)]];
-    let axis = [
+    [
         peak.0 as f64
             + if peak.0 > 0 {
                 vertex(at(peak.0 - 1, peak.1), total[peak], at(peak.0 + 1, peak.1))
@@ -476,9 +514,14 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
             } else {
                 0.0
             },
-    ];
-    // A second peak nearly as bright makes the principal one, and the axis, ambiguous.
-    let boxed = |i: usize, j: usize| neighbours(i, j).map(|p| total[p]).sum::<f64>() + total[[i, j]];
+    ]
+}
+
+/// The warning when the 3 x 3 box sum of `total` farther than 10 px from `coarse` reaches
+/// 80 % of its value at `coarse`: a second peak makes the axis ambiguous.
+fn second_peak_warning(total: &Array2<f64>, coarse: (usize, usize)) -> Option<String> {
+    let (h, w) = total.dim();
+    let boxed = |i: usize, j: usize| neighbours(i, j, h, w).map(|p| total[p]).sum::<f64>() + total[[i, j]];
     let mut second = (0, 0, f64::NEG_INFINITY);
     for i in 1..h - 1 {
         for j in 1..w - 1 {
@@ -491,8 +534,8 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
         }
     }
     let principal = boxed(coarse.0, coarse.1);
-    if principal > 0.0 && second.2 > 0.8 * principal {
-        warnings.push(format!(
+    (principal > 0.0 && second.2 > 0.8 * principal).then(|| {
+        format!(
             "a second peak at row {}, col {} reaches {:.0} % of the principal one at row {}, col {}: \
              the axis (the brightest peak) is ambiguous",
             second.0,
@@ -500,8 +543,143 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
             100.0 * second.2 / principal,
             coarse.0,
             coarse.1
-        ));
+        )
+    })
+}
+
+/// Per channel, the fraction of its energy outside the crop `window` (rows, columns), with a
+/// warning above `opts.max_outside`.
+fn energy_outside(
+    img: &Array3<f64>,
+    (ri, rj): (std::ops::RangeInclusive<usize>, std::ops::RangeInclusive<usize>),
+    opts: &PsfOptions,
+    warnings: &mut Vec<String>,
+) -> Vec<f64> {
+    let mut energy_outside = Vec::new();
+    for c in 0..img.dim().2 {
+        let all: f64 = img.index_axis(ndarray::Axis(2), c).sum();
+        let inside: f64 =
+            ri.clone().flat_map(|i| rj.clone().map(move |j| (i, j))).map(|(i, j)| img[[i, j, c]]).sum();
+        let out = if all > 0.0 { 1.0 - inside / all } else { 1.0 };
+        if out > opts.max_outside {
+            warnings.push(format!(
+                "channel {c}: {:.1} % of the energy lies outside the {}-px crop window",
+                100.0 * out,
+                opts.crop
+            ));
+        }
+        energy_outside.push(out);
     }
+    energy_outside
+}
+
+/// Steps 7-9 for channel `c`: the capture resampled (Keys bicubic) with `target` at the crop
+/// centre, onto the sensor pitch, the samples outside the support ([`support`], `noise` the
+/// channel's background sigma and whether it is undithered) zeroed and the negative ones
+/// clamped; with the signed fraction of the energy zeroed and the estimated error
+/// ([`estimated_error`]).
+fn centred_channel(
+    img: &Array3<f64>,
+    c: usize,
+    target: [f64; 2],
+    (sigma, undithered): (f64, bool),
+    merged: &Merged,
+    opts: &PsfOptions,
+) -> Result<(Channel, f64, f64)> {
+    let nc = img.dim().2;
+    let n = opts.crop;
+    let ratio = opts.sensor_pitch / opts.capture_pitch;
+    let same_pitch = (ratio - 1.0).abs() < 1e-9;
+    let m = if same_pitch { n } else { (n as f64 * ratio).ceil() as usize + 4 };
+    let plane = Grid::new(
+        img.index_axis(ndarray::Axis(2), c).to_owned(),
+        [opts.capture_pitch; 2],
+        Unit::Dimensionless,
+    )?;
+    let off = (m as f64 - 1.0) * 0.5;
+    let mut shifted = Array2::<f64>::zeros((m, m));
+    for ((a, b), v) in shifted.indexed_iter_mut() {
+        let (fi, fj) = (target[0] + a as f64 - off, target[1] + b as f64 - off);
+        *v = plane.sample_index(fi, fj, Interpolation::Bicubic).ok_or_else(|| {
+            Error::Data(format!("the crop window leaves the capture at row {fi:.1}, col {fj:.1}"))
+        })?;
+    }
+    let mut grid = Grid::new(shifted, [opts.capture_pitch; 2], Unit::Dimensionless)?;
+    if !same_pitch {
+        let method = if ratio > 1.0 { Interpolation::Area } else { Interpolation::Bicubic };
+        grid = grid.resample_to(n, n, [opts.sensor_pitch; 2], method)?;
+    }
+    let values = grid.values();
+    let support = support(values, opts.noise_threshold * sigma);
+    let all: f64 = values.sum();
+    let zeroed: f64 = values.iter().zip(&support).filter(|(_, s)| !**s).map(|(v, _)| v).sum();
+    let below_floor = if all > 0.0 { zeroed / all } else { 1.0 };
+    let full = if merged.report.bits == 8 { 255.0 } else { 65535.0 };
+    let black_uncertainty = merged.report.black_level_uncertainty.get(c).copied().unwrap_or(0.0)
+        + if undithered { 0.5 / full } else { 0.0 };
+    let e = estimated_error(values, &support, sigma, black_uncertainty, below_floor, &merged.report);
+    let clamped = Array2::from_shape_fn(values.dim(), |p| if support[p] { values[p].max(0.0) } else { 0.0 });
+    let origin = -(n as f64 - 1.0) * 0.5 * opts.sensor_pitch;
+    let name = if nc == 3 { ["R", "G", "B"][c].to_string() } else { format!("C{c}") };
+    let channel = Channel {
+        name,
+        wavelength: opts.wavelengths.as_ref().map(|wl| wl[c]),
+        grid: Grid::new(clamped, [opts.sensor_pitch; 2], Unit::Dimensionless)?.with_origin([origin, origin]),
+        captured: None,
+    };
+    Ok((channel, below_floor, e))
+}
+
+/// Extracts the PSF from a merged pinhole bracket (see the module docs).
+pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCalibration)> {
+    let (h, w, nc) = merged.radiance.dim();
+    for (name, v) in [("capture_pitch", opts.capture_pitch), ("sensor_pitch", opts.sensor_pitch)] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(Error::param(name, format!("must be a positive length, got {v} m")));
+        }
+    }
+    if opts.crop < 3 {
+        return Err(Error::param("crop", format!("must be at least 3 pixels, got {}", opts.crop)));
+    }
+    if let Some(wl) = &opts.wavelengths {
+        if wl.len() != nc {
+            return Err(Error::param("wavelengths", format!("{} given for {nc} channels", wl.len())));
+        }
+    }
+    let border = opts.border.max(1);
+    if 2 * border >= h.min(w) {
+        return Err(Error::param("border", format!("{border} px leaves no interior in {w} x {h}")));
+    }
+    let mut warnings = merged.report.warnings.clone();
+
+    // 1. Background from the border strip.
+    let mut img = merged.radiance.values.clone();
+    let Background { level: background, sigma, undithered } =
+        subtract_background(&mut img, border, &merged.report);
+    // 2. Saturated in every frame: a lone one on the background is stuck; any other is refused.
+    let (mut flagged, mut hot_list) = stuck_pixels(merged, &img, &sigma, opts.hot_pixel_neighbours)?;
+    // 3. Samples that do not follow the exposure, and the stuck saturated ones.
+    hot_list.extend_from_slice(&merged.inconsistent_samples);
+    hot_list.sort_unstable();
+    hot_list.dedup();
+    replace_by_neighbours(&mut img, &mut flagged, &hot_list);
+    // 4. Coarse location on the box-filtered channel sum.
+    let coarse = coarse_location(&channel_sum(&img));
+    // 5. Isolated hot pixels away from the PSF core.
+    hot_list.extend(remove_isolated_hot_pixels(
+        &mut img,
+        &flagged,
+        coarse,
+        &sigma,
+        opts.hot_pixel_neighbours,
+    ));
+
+    // 6. Peak, then the centroid over the crop window.
+    let total = channel_sum(&img);
+    let peak = peak_near(&total, coarse);
+    hot_list.sort_unstable();
+    let axis = subpixel_axis(&total, peak);
+    warnings.extend(second_peak_warning(&total, coarse));
     let ratio = opts.sensor_pitch / opts.capture_pitch;
     let half = ((opts.crop as f64 - 1.0) * 0.5 * ratio).max(0.5) + 2.0; // + bicubic support
     let fits = |ci: f64, cj: f64| -> Result<()> {
@@ -557,61 +735,13 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
         Centre::Peak => [peak.0 as f64, peak.1 as f64],
     };
     fits(target[0], target[1])?;
+    let energy_outside = energy_outside(&img, window(target[0], target[1]), opts, &mut warnings);
 
-    // Energy outside the window, per channel.
-    let (ri, rj) = window(target[0], target[1]);
-    let mut energy_outside = Vec::new();
-    for c in 0..nc {
-        let all: f64 = img.index_axis(ndarray::Axis(2), c).sum();
-        let inside: f64 =
-            ri.clone().flat_map(|i| rj.clone().map(move |j| (i, j))).map(|(i, j)| img[[i, j, c]]).sum();
-        let out = if all > 0.0 { 1.0 - inside / all } else { 1.0 };
-        if out > opts.max_outside {
-            warnings.push(format!(
-                "channel {c}: {:.1} % of the energy lies outside the {}-px crop window",
-                100.0 * out,
-                opts.crop
-            ));
-        }
-        energy_outside.push(out);
-    }
-
-    // Centre, resample, clamp, normalise.
+    // 7-9. Centre, resample, clamp, normalise; each channel's own error.
     let n = opts.crop;
-    let same_pitch = (ratio - 1.0).abs() < 1e-9;
-    let m = if same_pitch { n } else { (n as f64 * ratio).ceil() as usize + 4 };
-    let mut channels = Vec::new();
-    let mut below_floor = Vec::new();
-    let mut estimated = Vec::new();
+    let (mut channels, mut below_floor, mut estimated) = (Vec::new(), Vec::new(), Vec::new());
     for c in 0..nc {
-        let plane = Grid::new(
-            img.index_axis(ndarray::Axis(2), c).to_owned(),
-            [opts.capture_pitch; 2],
-            Unit::Dimensionless,
-        )?;
-        let off = (m as f64 - 1.0) * 0.5;
-        let mut shifted = Array2::<f64>::zeros((m, m));
-        for ((a, b), v) in shifted.indexed_iter_mut() {
-            let (fi, fj) = (target[0] + a as f64 - off, target[1] + b as f64 - off);
-            *v = plane.sample_index(fi, fj, Interpolation::Bicubic).ok_or_else(|| {
-                Error::Data(format!("the crop window leaves the capture at row {fi:.1}, col {fj:.1}"))
-            })?;
-        }
-        let mut grid = Grid::new(shifted, [opts.capture_pitch; 2], Unit::Dimensionless)?;
-        if !same_pitch {
-            let method = if ratio > 1.0 { Interpolation::Area } else { Interpolation::Bicubic };
-            grid = grid.resample_to(n, n, [opts.sensor_pitch; 2], method)?;
-        }
-        let values = grid.values();
-        let support = support(values, opts.noise_threshold * sigma[c]);
-        let all: f64 = values.sum();
-        let zeroed: f64 = values.iter().zip(&support).filter(|(_, s)| !**s).map(|(v, _)| v).sum();
-        below_floor.push(if all > 0.0 { zeroed / all } else { 1.0 });
-        let full = if merged.report.bits == 8 { 255.0 } else { 65535.0 };
-        let black_uncertainty = merged.report.black_level_uncertainty.get(c).copied().unwrap_or(0.0)
-            + if undithered[c] { 0.5 / full } else { 0.0 };
-        let e =
-            estimated_error(values, &support, sigma[c], black_uncertainty, below_floor[c], &merged.report);
+        let (channel, lost, e) = centred_channel(&img, c, target, (sigma[c], undithered[c]), merged, opts)?;
         if e > opts.max_error {
             warnings.push(format!(
                 "channel {c}: the PSF is uncertain: its estimated relative L2 error is {:.1} % (over {:.1} %), \
@@ -621,18 +751,9 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
                 100.0 * opts.max_error
             ));
         }
+        channels.push(channel);
+        below_floor.push(lost);
         estimated.push(e);
-        let clamped =
-            Array2::from_shape_fn(values.dim(), |p| if support[p] { values[p].max(0.0) } else { 0.0 });
-        let origin = -(n as f64 - 1.0) * 0.5 * opts.sensor_pitch;
-        let name = if nc == 3 { ["R", "G", "B"][c].to_string() } else { format!("C{c}") };
-        channels.push(Channel {
-            name,
-            wavelength: opts.wavelengths.as_ref().map(|wl| wl[c]),
-            grid: Grid::new(clamped, [opts.sensor_pitch; 2], Unit::Dimensionless)?
-                .with_origin([origin, origin]),
-            captured: None,
-        });
     }
     let mut psf = Psf::new(channels, "measured")?;
     psf.warnings = warnings.clone();
@@ -713,4 +834,117 @@ pub fn simulate_pinhole_bracket(
         .collect();
     let dark_frame = Image::new(Array3::from_shape_fn((h, w, nc), |_| quant(dark + noise * rng.normal())));
     (values, times, dark_frame)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The three-point Gaussian fit is exact on a Gaussian; the plain parabola, where a value is
+    /// not positive, exact on a parabola; a minimum gives 0 and a far vertex half a pixel.
+    #[test]
+    fn the_vertex_is_exact_on_a_gaussian_and_on_a_parabola() {
+        let g = |x: f64| (-(x - 0.3f64).powi(2) / (2.0 * 0.8 * 0.8)).exp();
+        assert!((vertex(g(-1.0), g(0.0), g(1.0)) - 0.3).abs() < 1e-12);
+        let p = |x: f64| 1.0 - (x - 0.2f64).powi(2);
+        assert!(p(-1.0) < 0.0 && (vertex(p(-1.0), p(0.0), p(1.0)) - 0.2).abs() < 1e-12);
+        assert_eq!(vertex(2.0, 1.0, 2.0), 0.0);
+        assert_eq!(vertex(1.0, 2.0, 3.0), 0.5);
+    }
+
+    /// A separable Gaussian spot centred at row 10.3, column 7.6: its brightest pixel (10, 8)
+    /// is found from a coarse location 3 px off, and the axis is the spot's centre.
+    #[test]
+    fn the_peak_and_axis_of_a_gaussian_spot() {
+        let spot = |i: usize, j: usize| {
+            (-((i as f64 - 10.3).powi(2) + (j as f64 - 7.6).powi(2)) / (2.0 * 1.5 * 1.5)).exp()
+        };
+        let total = Array2::from_shape_fn((24, 20), |(i, j)| spot(i, j));
+        assert_eq!(peak_near(&total, (12, 10)), (10, 8));
+        let axis = subpixel_axis(&total, (10, 8));
+        assert!((axis[0] - 10.3).abs() < 1e-9 && (axis[1] - 7.6).abs() < 1e-9, "{axis:?}");
+    }
+
+    /// A lone bright pixel loses 8/9 of its height in the 3 x 3 box sum: the coarse location is
+    /// the spread spot, and a second spot as bright 20 px away is warned about.
+    #[test]
+    fn the_coarse_location_prefers_a_spot_to_a_hot_pixel() {
+        let mut total = Array2::<f64>::zeros((40, 40));
+        total[[3, 3]] = 5.0;
+        for i in 9..12 {
+            for j in 9..12 {
+                total[[i, j]] = 1.0;
+            }
+        }
+        assert_eq!(coarse_location(&total), (10, 10));
+        assert_eq!(second_peak_warning(&total, (10, 10)), None);
+        for i in 29..32 {
+            for j in 9..12 {
+                total[[i, j]] = 0.9;
+            }
+        }
+        let w = second_peak_warning(&total, (10, 10)).unwrap();
+        assert!(w.contains("row 30, col 10 reaches 90 %"), "{w}");
+    }
+
+    /// Replaced samples take the (upper) median of their unflagged neighbours; isolated spikes
+    /// on the background are removed away from the core only.
+    #[test]
+    fn hot_samples_take_their_neighbours_median() {
+        let mut img = Array3::from_shape_fn((5, 5, 1), |(i, j, _)| (i * 5 + j) as f64);
+        let mut flagged = Array3::from_elem((5, 5, 1), false);
+        flagged[[1, 1, 0]] = true;
+        replace_by_neighbours(&mut img, &mut flagged, &[[2, 2, 0]]);
+        // Unflagged neighbours of (2, 2): 7, 8, 11, 13, 16, 17, 18 (6 is flagged): median 13.
+        assert_eq!(img[[2, 2, 0]], 13.0);
+        assert!(flagged[[2, 2, 0]]);
+        let mut img = Array3::<f64>::zeros((30, 30, 1));
+        img[[5, 5, 0]] = 100.0;
+        img[[20, 21, 0]] = 100.0;
+        let flagged = Array3::from_elem((30, 30, 1), false);
+        let hot = remove_isolated_hot_pixels(&mut img, &flagged, (20, 20), &[1.0], 3.0);
+        assert_eq!(hot, vec![[5, 5, 0]]);
+        assert_eq!((img[[5, 5, 0]], img[[20, 21, 0]]), (0.0, 100.0));
+    }
+
+    /// The border strip alternates 0.09 and 0.11 (mean 0.1, RMS 0.01) around a bright interior:
+    /// 0.1 is the background and is subtracted everywhere.
+    #[test]
+    fn the_background_is_the_border_strips_mean() {
+        let mut img = Array3::from_shape_fn((20, 20, 2), |(i, j, c)| {
+            let edge = i < 3 || j < 3 || i >= 17 || j >= 17;
+            if edge {
+                if (i + j) % 2 == 0 {
+                    0.09
+                } else {
+                    0.11
+                }
+            } else {
+                1.0 + c as f64
+            }
+        });
+        let report = MergeReport {
+            shape: [20, 20, 2],
+            unit: String::new(),
+            reference_exposure_s: None,
+            bits: 8,
+            black_level: vec![0.0; 2],
+            black_level_uncertainty: vec![0.0; 2],
+            black_level_source: String::new(),
+            noise_floor: 0.0,
+            saturation: 1.0,
+            channel_clipping: vec![1.0; 2],
+            frames: Vec::new(),
+            saturated_everywhere: Default::default(),
+            dark_everywhere: Default::default(),
+            inconsistent: Default::default(),
+            warnings: Vec::new(),
+        };
+        let b = subtract_background(&mut img, 3, &report);
+        for c in 0..2 {
+            assert!((b.level[c] - 0.1).abs() < 1e-12 && (b.sigma[c] - 0.01).abs() < 1e-12, "{c}");
+            assert!((img[[10, 10, c]] - (0.9 + c as f64)).abs() < 1e-12);
+        }
+        assert_eq!(b.undithered, vec![false; 2]);
+    }
 }

@@ -209,11 +209,8 @@ pub fn render_levels(
         ));
     }
     // Size check before any large allocation.
-    let ext = levels.extent();
-    let pw = (ext[0] / opts.writer_pitch).round() as usize;
-    let ph = (ext[1] / opts.writer_pitch).round() as usize;
-    let b = (opts.border / opts.writer_pitch).round() as usize;
-    let (w, h) = (pw + 2 * b, ph + 2 * b);
+    let layout = Layout::new(levels.extent(), opts);
+    let Layout { w, h, pw, ph, b } = layout;
     if w.saturating_mul(h) > opts.max_pixels && !opts.force {
         return Err(Error::Limit(format!(
             "the mask would be {w} x {h} = {:.0} Mpx at a {:.3} um writer grid, above the limit of {:.0} Mpx; \
@@ -223,66 +220,9 @@ pub fn render_levels(
             opts.max_pixels as f64 / 1e6
         )));
     }
-    // Level -> gray table through the inverted contrast curve, computed once per level (in
-    // parallel; the first failing level in order is the one reported).
-    use rayon::prelude::*;
-    let top = heights[level_count - 1];
-    let rows: Vec<Result<LevelDose>> = (0..level_count)
-        .into_par_iter()
-        .map(|l| {
-            let target = match opts.polarity {
-                Polarity::Positive => top - heights[l],
-                Polarity::Negative => heights[l],
-            };
-            let dose = curve.dose_for(target)?;
-            Ok(LevelDose {
-                level: l,
-                height_m: heights[l],
-                curve_depth_m: target,
-                dose,
-                gray: (dose * full_scale as f64).round() as u32,
-            })
-        })
-        .collect();
-    let table: Vec<LevelDose> = rows.into_iter().collect::<Result<_>>()?;
+    let table = dose_table(heights, curve, opts.polarity, full_scale)?;
     let gray_of: Vec<u16> = table.iter().map(|t| t.gray as u16).collect();
-
-    // A design already on the writer grid is taken as it is.
-    let same =
-        levels.dim() == (ph, pw) && levels.pitch().iter().all(|p| (p - opts.writer_pitch).abs() <= 1e-12 * p);
-    let resampled;
-    let on_writer = if same {
-        levels
-    } else {
-        resampled = levels.resample_to(ph, pw, [opts.writer_pitch; 2], Interpolation::Nearest)?;
-        &resampled
-    };
-    let mirrored;
-    let on_writer = if opts.mirror {
-        mirrored = on_writer.mirror(true, false);
-        &mirrored
-    } else {
-        on_writer
-    };
-    let mut gray = Array2::<u16>::zeros((h, w));
-    // The pattern, row blocks in parallel; the first level out of range in row-major order is
-    // the one reported.
-    let src = on_writer.values();
-    let bad = par::map_blocks_mut(&mut gray, |r0, mut block| {
-        for (k, mut out) in block.rows_mut().into_iter().enumerate() {
-            let Some(i) = (r0 + k).checked_sub(b).filter(|&i| i < ph) else { continue };
-            for (j, (o, &l)) in out.slice_mut(s![b..b + pw]).iter_mut().zip(src.row(i)).enumerate() {
-                match gray_of.get(l as usize) {
-                    Some(&g) => *o = g,
-                    None => return Some((l as usize, i, j)),
-                }
-            }
-        }
-        None
-    });
-    if let Some((l, i, j)) = bad.into_iter().flatten().next() {
-        return Err(Error::Data(format!("level {l} at row {i}, column {j} is outside 0..{level_count}")));
-    }
+    let mut gray = paint_pattern(levels, opts, &layout, &gray_of)?;
     let mut marks_px = Vec::new();
     if b > 0 && (opts.marks || !opts.label.is_empty()) {
         let mut canvas = Canvas::new(w, h)?;
@@ -368,6 +308,105 @@ pub fn render_levels(
         precompensation: None,
     };
     Ok(GrayscaleMask { gray, meta })
+}
+
+/// The mask's layout on the writer grid, pixels: the pattern `pw x ph` inside a frame of `b`
+/// on every side, `w x h` in all.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Layout {
+    w: usize,
+    h: usize,
+    pw: usize,
+    ph: usize,
+    b: usize,
+}
+
+impl Layout {
+    /// The layout of a design of extent `ext` (metres, `[x, y]`) on the writer grid of `opts`.
+    fn new(ext: [f64; 2], opts: &MaskOptions) -> Layout {
+        let pw = (ext[0] / opts.writer_pitch).round() as usize;
+        let ph = (ext[1] / opts.writer_pitch).round() as usize;
+        let b = (opts.border / opts.writer_pitch).round() as usize;
+        Layout { w: pw + 2 * b, h: ph + 2 * b, pw, ph, b }
+    }
+}
+
+/// The level -> gray table (module docs): level `l` at `heights[l]` needs the curve's depth
+/// `max(heights) - heights[l]` (positive resist) or `heights[l]` (negative), the dose for it
+/// from the inverted contrast curve and `gray = round(dose full_scale)`. Computed once per
+/// level, in parallel; the first failing level in order is the one reported.
+fn dose_table(
+    heights: &[f64],
+    curve: &ContrastCurve,
+    polarity: Polarity,
+    full_scale: u32,
+) -> Result<Vec<LevelDose>> {
+    use rayon::prelude::*;
+    let top = heights[heights.len() - 1];
+    let rows: Vec<Result<LevelDose>> = (0..heights.len())
+        .into_par_iter()
+        .map(|l| {
+            let target = match polarity {
+                Polarity::Positive => top - heights[l],
+                Polarity::Negative => heights[l],
+            };
+            let dose = curve.dose_for(target)?;
+            Ok(LevelDose {
+                level: l,
+                height_m: heights[l],
+                curve_depth_m: target,
+                dose,
+                gray: (dose * full_scale as f64).round() as u32,
+            })
+        })
+        .collect();
+    rows.into_iter().collect()
+}
+
+/// The mask with the pattern painted: the level map on the writer grid (as it is when already
+/// there, else by nearest resampling; mirrored when `opts.mirror`), each level's gray
+/// `gray_of[l]` inside the frame, the frame 0. Row blocks in parallel; the first level out of
+/// range in row-major order is the one reported.
+fn paint_pattern(levels: &Grid, opts: &MaskOptions, layout: &Layout, gray_of: &[u16]) -> Result<Array2<u16>> {
+    let Layout { w, h, pw, ph, b } = *layout;
+    // A design already on the writer grid is taken as it is.
+    let same =
+        levels.dim() == (ph, pw) && levels.pitch().iter().all(|p| (p - opts.writer_pitch).abs() <= 1e-12 * p);
+    let resampled;
+    let on_writer = if same {
+        levels
+    } else {
+        resampled = levels.resample_to(ph, pw, [opts.writer_pitch; 2], Interpolation::Nearest)?;
+        &resampled
+    };
+    let mirrored;
+    let on_writer = if opts.mirror {
+        mirrored = on_writer.mirror(true, false);
+        &mirrored
+    } else {
+        on_writer
+    };
+    let mut gray = Array2::<u16>::zeros((h, w));
+    // The pattern, row blocks in parallel; the first level out of range in row-major order is
+    // the one reported.
+    let src = on_writer.values();
+    let bad = par::map_blocks_mut(&mut gray, |r0, mut block| {
+        for (k, mut out) in block.rows_mut().into_iter().enumerate() {
+            let Some(i) = (r0 + k).checked_sub(b).filter(|&i| i < ph) else { continue };
+            for (j, (o, &l)) in out.slice_mut(s![b..b + pw]).iter_mut().zip(src.row(i)).enumerate() {
+                match gray_of.get(l as usize) {
+                    Some(&g) => *o = g,
+                    None => return Some((l as usize, i, j)),
+                }
+            }
+        }
+        None
+    });
+    if let Some((l, i, j)) = bad.into_iter().flatten().next() {
+        let level_count = gray_of.len();
+        return Err(Error::Data(format!("level {l} at row {i}, column {j} is outside 0..{level_count}")));
+    }
+    Ok(gray)
 }
 
 #[cfg(test)]
@@ -457,5 +496,28 @@ mod tests {
         assert!(
             render(&levels(4), 4, period, &linear_curve(period), &narrow, &Provenance::default()).is_err()
         );
+    }
+
+    /// Through a linear curve (depth = dose x 1.2 um) level `l` takes the dose
+    /// `(h_max - h_l) / 1.2 um` (positive resist) or `h_l / 1.2 um` (negative) and the gray
+    /// `round(dose 255)`; a height beyond the curve is refused.
+    #[test]
+    fn the_dose_table_inverts_the_contrast_curve() {
+        let heights = [0.0, 0.25e-6, 0.5e-6, 0.9e-6];
+        for polarity in [Polarity::Positive, Polarity::Negative] {
+            let t = dose_table(&heights, &linear_curve(1.2e-6), polarity, 255).unwrap();
+            for (l, row) in t.iter().enumerate() {
+                let depth = if polarity == Polarity::Positive { 0.9e-6 - heights[l] } else { heights[l] };
+                let dose = depth / 1.2e-6;
+                assert!((row.dose - dose).abs() < 1e-12, "{polarity:?} {row:?}");
+                assert_eq!((row.level, row.gray), (l, (dose * 255.0).round() as u32), "{polarity:?}");
+            }
+        }
+        assert!(dose_table(&[0.0, 2e-6], &linear_curve(1.2e-6), Polarity::Negative, 255).is_err());
+        let layout = Layout::new(
+            [40e-6, 48e-6],
+            &MaskOptions { writer_pitch: 2e-6, border: 10e-6, ..Default::default() },
+        );
+        assert_eq!(layout, Layout { w: 30, h: 34, pw: 20, ph: 24, b: 5 });
     }
 }

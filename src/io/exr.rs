@@ -69,24 +69,7 @@ pub fn decode_exr(path: &Path, bytes: &[u8], channel: Option<&str>) -> Result<Ra
 /// the file's only channel), each with the file's pitch, unit and attributes.
 pub fn decode_exr_channels(path: &Path, bytes: &[u8], channels: &[&str]) -> Result<Vec<RawMap>> {
     let headers = read_headers(path, bytes)?;
-    // The decoder reserves every layer's samples from the header's data window: refuse a window
-    // the file cannot hold. Deflate compresses at most 1032:1 (RFC 1951); the lossy DWA codecs
-    // keep at least one coefficient per 8 x 8 block on top of it, hence 1032 x 64.
-    for h in &headers {
-        let (w, hgt) = (h.layer_size.width(), h.layer_size.height());
-        let raw = w.saturating_mul(hgt).saturating_mul(h.channels.bytes_per_pixel);
-        if w.saturating_mul(hgt) > 1 << 28 || raw / (1032 * 64) > bytes.len() {
-            return Err(Error::format(
-                path,
-                format!(
-                    "OpenEXR: the data window is {w} x {hgt} pixels of {} bytes, more than a {}-byte \
-                     file can hold (and above the 2^28-sample limit for a height map)",
-                    h.channels.bytes_per_pixel,
-                    bytes.len()
-                ),
-            ));
-        }
-    }
+    check_data_windows(path, &headers, bytes.len())?;
     let decoded = std::panic::catch_unwind(|| {
         read()
             .no_deep_data()
@@ -165,9 +148,56 @@ pub fn decode_exr_channels(path: &Path, bytes: &[u8], channels: &[&str]) -> Resu
         })?);
     }
 
+    let Attributes { pitch, unit, metadata } = attributes(path, &layer.attributes, &image.attributes)?;
+    Ok(planes
+        .into_iter()
+        .map(|values| RawMap {
+            values,
+            kind: SampleKind::Float,
+            pitch,
+            unit,
+            metadata: metadata.clone(),
+            scale_hint: None,
+        })
+        .collect())
+}
+
+/// Refuses a data window the file cannot hold (see the comment), `len` the file's bytes.
+fn check_data_windows(path: &Path, headers: &[exr::meta::header::Header], len: usize) -> Result<()> {
+    // The decoder reserves every layer's samples from the header's data window: refuse a window
+    // the file cannot hold. Deflate compresses at most 1032:1 (RFC 1951); the lossy DWA codecs
+    // keep at least one coefficient per 8 x 8 block on top of it, hence 1032 x 64.
+    for h in headers {
+        let (w, hgt) = (h.layer_size.width(), h.layer_size.height());
+        let raw = w.saturating_mul(hgt).saturating_mul(h.channels.bytes_per_pixel);
+        if w.saturating_mul(hgt) > 1 << 28 || raw / (1032 * 64) > len {
+            return Err(Error::format(
+                path,
+                format!(
+                    "OpenEXR: the data window is {w} x {hgt} pixels of {} bytes, more than a {}-byte \
+                     file can hold (and above the 2^28-sample limit for a height map)",
+                    h.channels.bytes_per_pixel, len
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Pitch, value unit and every attribute as text, from a layer's attributes and the image's.
+struct Attributes {
+    pitch: Option<[f64; 2]>,
+    unit: Option<f64>,
+    metadata: Vec<(String, String)>,
+}
+
+/// Our attributes (module docs) of a layer, else of the whole image: `pitch_x` and `pitch_y`
+/// (or `pitch`), metres, and `unit`; one of `pitch_x` and `pitch_y` alone, or an attribute of
+/// the wrong kind, is refused.
+fn attributes(path: &Path, layer: &LayerAttributes, image: &ImageAttributes) -> Result<Attributes> {
     // Attributes of the layer first, then those of the whole image; each list sorted by name.
     let mut attrs: Vec<(String, &AttributeValue)> = Vec::new();
-    for other in [&layer.attributes.other, &image.attributes.other] {
+    for other in [&layer.other, &image.other] {
         let mut list: Vec<_> = other.iter().map(|(k, v)| (k.to_string(), v)).collect();
         list.sort_by(|a, b| a.0.cmp(&b.0));
         for (k, v) in list {
@@ -224,17 +254,7 @@ pub fn decode_exr_channels(path: &Path, bytes: &[u8], channels: &[&str]) -> Resu
             (k.clone(), text)
         })
         .collect::<Vec<_>>();
-    Ok(planes
-        .into_iter()
-        .map(|values| RawMap {
-            values,
-            kind: SampleKind::Float,
-            pitch,
-            unit,
-            metadata: metadata.clone(),
-            scale_hint: None,
-        })
-        .collect())
+    Ok(Attributes { pitch, unit, metadata })
 }
 
 /// Writes f32 channels (all of one shape, row 0 at the top) with our attributes (pitch, unit,

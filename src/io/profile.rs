@@ -158,23 +158,24 @@ fn unit_key_column(key: &str) -> Option<usize> {
     }
 }
 
-/// Parses the bytes of a profile export (see [`read_profile`]); `path` names it in errors.
-pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Result<ProfileFile> {
-    let text = decode(bytes);
-    let lines: Vec<&str> = text.lines().collect();
-    let Some((first, delim)) =
-        lines.iter().enumerate().find_map(|(n, l)| data_delimiter(l.trim()).map(|d| (n, d)))
-    else {
-        return Err(Error::format(
-            path,
-            "holds no data rows (expected rows of two numbers, position and height, after the header)",
-        ));
-    };
-    // Header: key/value pairs and the column header (the last line naming two units).
+/// A profile export's header (the lines before the data).
+struct Header {
+    /// Key/value pairs, in file order.
+    metadata: Vec<(String, String)>,
+    /// The last line naming two units (position, height): its line number and the units.
+    header_units: Option<(usize, [(f64, String); 2])>,
+    /// Units named by key/value pairs (`X units, um`), per column, with their line numbers.
+    key_units: [Option<(f64, String, usize)>; 2],
+}
+
+/// Reads the header `lines` (from the file's first line): each line split at its first
+/// delimiter among tab, `;`, `,`, `:`, `=` (else at spaces) into a key and value, and the units
+/// it names.
+fn read_header(lines: &[&str]) -> Header {
     let mut metadata = Vec::new();
     let mut header_units: Option<(usize, [(f64, String); 2])> = None;
     let mut key_units: [Option<(f64, String, usize)>; 2] = [None, None];
-    for (n, line) in lines[..first].iter().enumerate() {
+    for (n, line) in lines.iter().enumerate() {
         let t = line.trim().trim_start_matches('#').trim();
         if t.is_empty() {
             continue;
@@ -218,6 +219,25 @@ pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Re
             metadata.push((k, v));
         }
     }
+    Header { metadata, header_units, key_units }
+}
+
+/// The data rows of a profile export, as stored.
+struct Rows {
+    x: Vec<f64>,
+    z: Vec<f64>,
+    /// False where the height is missing (empty or NaN).
+    valid: Vec<bool>,
+    /// Each row's line number (from 1).
+    lineno_of: Vec<usize>,
+    /// Lines after the data that were not read as data.
+    footer_lines: usize,
+}
+
+/// Reads the data rows from line index `first` (split at `delim`) until the first line that
+/// does not start with a number (the footer); a row without a height, a height that is no
+/// number, or fewer than 2 rows is refused naming the line.
+fn read_rows(path: &Path, lines: &[&str], first: usize, delim: Delim) -> Result<Rows> {
     let mut x = Vec::new();
     let mut z = Vec::new();
     let mut valid = Vec::new();
@@ -276,6 +296,24 @@ pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Re
             format!("holds {} data row(s): a profile needs at least 2", x.len()),
         ));
     }
+    Ok(Rows { x, z, valid, lineno_of, footer_lines })
+}
+
+/// Parses the bytes of a profile export (see [`read_profile`]); `path` names it in errors.
+pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Result<ProfileFile> {
+    let text = decode(bytes);
+    let lines: Vec<&str> = text.lines().collect();
+    let Some((first, delim)) =
+        lines.iter().enumerate().find_map(|(n, l)| data_delimiter(l.trim()).map(|d| (n, d)))
+    else {
+        return Err(Error::format(
+            path,
+            "holds no data rows (expected rows of two numbers, position and height, after the header)",
+        ));
+    };
+    // Header: key/value pairs and the column header (the last line naming two units).
+    let Header { metadata, header_units, key_units } = read_header(&lines[..first]);
+    let Rows { x, z, mut valid, lineno_of, footer_lines } = read_rows(path, &lines, first, delim)?;
     // Units: the caller's, the column header's, the header pairs'.
     let mut resolved: [(f64, String); 2] = Default::default();
     for (col, (name, given, flag)) in

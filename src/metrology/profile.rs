@@ -659,178 +659,40 @@ pub fn compare_profile(
     let length = profile.length();
     let (start, dir) = line.frame(length);
     let nrm = [-dir[1], dir[0]];
-    if let LineSpec::Points { start: s, end: e } = line {
-        let l = (e[0] - s[0]).hypot(e[1] - s[1]);
-        if (l - length).abs() > 0.05 * length.max(l) {
-            warnings.push(format!(
-                "the line is {:.1} um long but the profile {:.1} um: the profile is placed from the line's first point",
-                l * 1e6,
-                length * 1e6
-            ));
-        }
-    }
-    // Points (thinned by a stride), u from the first point.
-    let all = profile.points();
-    let stride = all.len().div_ceil(opts.max_points.max(1)).max(1);
-    let pts: Vec<(f64, f64)> = all.iter().step_by(stride).copied().collect();
-    if pts.len() < 10 {
-        return Err(Error::Data(format!(
-            "the profile has {} measured points: too few to compare",
-            pts.len()
-        )));
-    }
+    warnings.extend(line_length_warning(line, length));
+    let pts = fit_points(profile, opts.max_points)?;
     let u_mean = pts.iter().map(|p| p.0).sum::<f64>() / pts.len() as f64;
     let pd = design.pitch();
     let pmax = pd[0].max(pd[1]);
     let along = opts.along_search.max(0.0);
     let across = opts.across_search.max(0.0);
     let sigma_max = 3.0 * pmax;
+    let index = DesignIndex::new(design);
     // Crop of the design around the line (all shifts and offsets searched, plus the blur's reach).
-    let margin = 4.0 * sigma_max + 3.0 * pmax;
-    let (nr, nc) = design.dim();
-    let mut lo = [f64::INFINITY; 2];
-    let mut hi = [f64::NEG_INFINITY; 2];
-    for u in [-along, length + along] {
-        for v in [-across, across] {
-            let p = [start[0] + u * dir[0] + v * nrm[0], start[1] + u * dir[1] + v * nrm[1]];
-            for a in 0..2 {
-                lo[a] = lo[a].min(p[a] - margin);
-                hi[a] = hi[a].max(p[a] + margin);
-            }
-        }
-    }
-    let half = [(nc as f64 - 1.0) * 0.5, (nr as f64 - 1.0) * 0.5];
-    let idx = |x: f64, a: usize| x / pd[a] + half[a];
-    let c0 = idx(lo[0], 0).floor().max(0.0) as usize;
-    let c1 = (idx(hi[0], 0).ceil().max(0.0) as usize + 1).min(nc);
-    let r0 = idx(lo[1], 1).floor().max(0.0) as usize;
-    let r1 = (idx(hi[1], 1).ceil().max(0.0) as usize + 1).min(nr);
-    if c0 + 4 > c1 || r0 + 4 > r1 {
-        return Err(Error::Data(format!(
-            "the line from ({:.1}, {:.1}) um along ({:.3}, {:.3}) lies outside the {:.1} x {:.1} um design",
-            start[0] * 1e6,
-            start[1] * 1e6,
-            dir[0],
-            dir[1],
-            design.extent()[0] * 1e6,
-            design.extent()[1] * 1e6
-        )));
-    }
-    let crop = design.crop(r0..r1, c0..c1)?;
-    let crop_centre =
-        [((c0 + c1 - 1) as f64 * 0.5 - half[0]) * pd[0], ((r0 + r1 - 1) as f64 * 0.5 - half[1]) * pd[1]];
+    let reach = [-along, length + along, -across, across];
+    let (crop, crop_centre) = index.crop_around_line(start, dir, reach, 4.0 * sigma_max + 3.0 * pmax)?;
     let ctx = Ctx { crop: &crop, crop_centre, pts: &pts, u_mean, start, dir, nrm };
     let sharp = ctx.blurred(0.0)?;
-    // Levels of the design (distinct heights).
-    let design_levels = {
-        let mut v: Vec<f64> = Vec::new();
-        for (k, &h) in design.values().iter().enumerate() {
-            let (i, j) = (k / nc, k % nc);
-            if design.is_valid(i, j) && !v.contains(&h) {
-                v.push(h);
-                if v.len() > MAX_LEVELS {
-                    break;
-                }
-            }
-        }
-        (v.len() <= MAX_LEVELS).then(|| {
-            v.sort_unstable_by(f64::total_cmp);
-            v
-        })
-    };
-    let level_at = |p: [f64; 2]| -> Option<usize> {
-        let levels = design_levels.as_ref()?;
-        let j = (p[0] / pd[0] + half[0]).round();
-        let i = (p[1] / pd[1] + half[1]).round();
-        if i < 0.0 || j < 0.0 || i >= nr as f64 || j >= nc as f64 || !design.is_valid(i as usize, j as usize)
-        {
-            return None;
-        }
-        let h = design.values()[[i as usize, j as usize]];
-        levels.iter().position(|l| *l == h)
-    };
-    if design_levels.is_some() {
-        let mut seen: Vec<usize> = pts.iter().filter_map(|&(u, _)| level_at(ctx.pos(u, 0.0, 0.0))).collect();
-        seen.sort_unstable();
-        seen.dedup();
-        if seen.len() < 2 {
-            return Err(Error::Data(format!(
-                "the line crosses {} level(s) of the design ({}): step heights need at least 2; choose a line \
-                 across the structure",
-                seen.len(),
-                seen.iter().map(|l| l.to_string()).collect::<Vec<_>>().join(", ")
-            )));
-        }
+    if index.levels.is_some() {
+        index.check_levels_on_line(&ctx)?;
     } else {
         warnings.push(format!(
             "the design has more than {MAX_LEVELS} distinct heights: no per-level step heights (compare with \
              the design quantized as a recipe makes it)"
         ));
     }
-    // Featureless profile: neighbour differences as large as white noise's.
-    let variance = {
-        let zs: Vec<f64> = pts.iter().map(|p| p.1).collect();
-        let us: Vec<f64> = pts.iter().map(|p| p.0).collect();
-        let (o, t, _) = fit_line(&pts, |_| true)?;
-        let r: Vec<f64> = us.iter().zip(&zs).map(|(u, z)| z - o - t * u).collect();
-        let sd = (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
-        let dd: Vec<f64> = r.windows(2).map(|w| w[1] - w[0]).collect();
-        let sdd = (dd.iter().map(|v| v * v).sum::<f64>() / dd.len() as f64).sqrt();
-        if sd.is_nan() || sd <= 0.0 || sdd > 0.8 * std::f64::consts::SQRT_2 * sd {
-            return Err(Error::Data(format!(
-                "the profile is featureless: {:.3} nm RMS about its line, with neighbour differences of {:.3} nm RMS \
-                 (white noise has sqrt 2 times its RMS)",
-                sd * 1e9,
-                sdd * 1e9
-            )));
-        }
-        sd * sd
-    };
+    let variance = profile_variance(&pts)?;
     // 1. Coarse search.
     let ds = 0.5 * pd[0].min(pd[1]);
     let ns = (along / ds).ceil() as i64;
-    let nv = (across / ds).ceil() as i64;
-    let cstride = pts.len().div_ceil(4000).max(1);
-    let cpts: Vec<(f64, f64)> = pts.iter().step_by(cstride).copied().collect();
-    let mut vs: Vec<i64> = (-nv..=nv).collect();
-    vs.sort_by_key(|v| v.abs());
-    let mut best = (f64::NEG_INFINITY, 0i64, 0i64, 0.0f64);
-    let mut rows: Vec<(i64, Vec<f64>)> = Vec::new();
-    let mut design_flat = true;
-    for &iv in &vs {
-        let mut row = Vec::with_capacity((2 * ns + 1) as usize);
-        for is in -ns..=ns {
-            let (s, v) = (is as f64 * ds, iv as f64 * ds);
-            let mut u = Vec::with_capacity(cpts.len());
-            let (mut za, mut hb) = (Vec::with_capacity(cpts.len()), Vec::with_capacity(cpts.len()));
-            for &(pu, z) in &cpts {
-                if let Some((h, _, _)) = sharp.at(ctx.pos(pu, s, v)) {
-                    u.push(pu);
-                    za.push(z);
-                    hb.push(h);
-                }
-            }
-            let r = if u.len() * 2 >= cpts.len() { detrended_correlation(&u, &za, &hb) } else { f64::NAN };
-            if r.is_finite() {
-                design_flat = false;
-            }
-            let score = if r.is_finite() { r.abs() } else { 0.0 };
-            if score > best.0 * (1.0 + 1e-9) {
-                best = (score, is, iv, r.signum());
-            }
-            row.push(score);
-        }
-        rows.push((iv, row));
-    }
-    if design_flat || best.0 <= 0.0 {
+    let coarse = coarse_search(&ctx, &sharp, ds, ns, (across / ds).ceil() as i64);
+    if coarse.design_flat || coarse.peak <= 0.0 {
         return Err(Error::Data(
             "the design is flat along the line (or the line leaves the design): nothing to register".into(),
         ));
     }
-    let (peak, is0, iv0, sign) = best;
-    let row = &rows.iter().find(|(v, _)| *v == iv0).map(|r| r.1.clone()).unwrap_or_default();
-    let k0 = (is0 + ns) as usize;
-    let peak_ratio = second_peak(row, k0) / peak;
+    let CoarseMatch { peak, along: is0, across: iv0, sign, .. } = coarse;
+    let peak_ratio = second_peak(&coarse.row, (is0 + ns) as usize) / peak;
     if peak < opts.min_correlation {
         return Err(Error::Registration(format!(
             "the profile does not match the design along the line: best correlation {peak:.3} (below {:.2}) \
@@ -849,16 +711,7 @@ pub fn compare_profile(
         )));
     }
     let (s0, v0) = (is0 as f64 * ds, iv0 as f64 * ds);
-    // Linear (a, b, c) at the coarse match.
-    let mut p = [s0, v0, sign, 0.0, 0.0];
-    {
-        let nm = normal(&ctx, &sharp, &p);
-        if let Some(x) = damped_solve(&nm.jtj, &nm.jtr, 0.0, &[2, 3, 4]) {
-            for i in 2..5 {
-                p[i] += x[i];
-            }
-        }
-    }
+    let p = linear_start(&ctx, &sharp, [s0, v0, sign, 0.0, 0.0]);
     // Observability of the across-line offset.
     let nm = normal(&ctx, &sharp, &p);
     let across_fixed = nm.col2[1] < 0.02 * 0.02 * nm.col2[0];
@@ -877,34 +730,7 @@ pub fn compare_profile(
     };
     let mut p_best = p;
     eval(0.0, &mut p_best)?;
-    let g = 0.5 * (5f64.sqrt() - 1.0);
-    let (mut a, mut bnd) = (0.0, sigma_max);
-    let mut x1 = bnd - g * (bnd - a);
-    let mut x2 = a + g * (bnd - a);
-    let (mut p1, mut p2) = (p_best, p_best);
-    let mut f1 = eval(x1, &mut p1)?.0;
-    let mut f2 = eval(x2, &mut p2)?.0;
-    while bnd - a > 0.01 * pmax {
-        if f1 <= f2 {
-            bnd = x2;
-            x2 = x1;
-            f2 = f1;
-            p2 = p1;
-            x1 = bnd - g * (bnd - a);
-            p1 = p2;
-            f1 = eval(x1, &mut p1)?.0;
-        } else {
-            a = x1;
-            x1 = x2;
-            f1 = f2;
-            p1 = p2;
-            x2 = a + g * (bnd - a);
-            p2 = p1;
-            f2 = eval(x2, &mut p2)?.0;
-        }
-    }
-    let sigma = 0.5 * (a + bnd);
-    let mut p = if f1 <= f2 { p1 } else { p2 };
+    let (sigma, mut p) = golden_section(sigma_max, 0.01 * pmax, p_best, |s, q| Ok(eval(s, q)?.0))?;
     let (sse, n) = eval(sigma, &mut p)?;
     if n < 10 {
         return Err(Error::Data(format!("only {n} profile points fall on the design once registered")));
@@ -916,51 +742,16 @@ pub fn compare_profile(
         let mut q = p;
         Ok(eval(s, &mut q)?.0)
     };
-    let curv = if sigma > h {
-        (sse_at(sigma + h)? - 2.0 * sse + sse_at(sigma - h)?) / (h * h)
-    } else {
-        (sse_at(sigma + 2.0 * h)? - 2.0 * sse_at(sigma + h)? + sse) / (h * h)
-    };
     let np = free.len() + 1;
     let s2 = sse / (n as f64 - np as f64).max(1.0);
-    let profile_blur_sigma = if curv > 0.0 { (2.0 * s2 / curv).sqrt() } else { f64::INFINITY };
+    let profile_blur_sigma = profile_likelihood_sigma(sse_at, sigma, h, sse, s2)?;
     // Jacobian with the blur column (central differences) where sigma allows it.
     let (errors, blur_sigma) = covariance(&ctx, &blurred, &p, &free, sigma, h, s2, profile_blur_sigma)?;
     let blur_resolved = blur_sigma < 0.25 * sigma;
-    if !blur_resolved {
-        let err = if blur_sigma < sigma_max {
-            format!("+- {:.2} um", blur_sigma * 1e6)
-        } else {
-            format!("with a standard error beyond the {:.2} um search range", sigma_max * 1e6)
-        };
-        warnings.push(format!(
-            "the lateral blur is not resolved: {:.2} um {err} against the design's {:.2} um pitch",
-            sigma * 1e6,
-            pmax * 1e6
-        ));
-    }
-    if sigma >= 0.98 * sigma_max {
-        warnings.push(format!(
-            "the fitted blur sits at the end of its search range ({:.2} um): the part is blurred more than the model \
-             can follow, or does not match the design along the line",
-            sigma_max * 1e6
-        ));
-    }
-    if !across_fixed && errors[1] > pmax {
-        warnings.push(format!(
-            "the across-line offset is poorly determined: {:.2} +- {:.2} um",
-            p[1] * 1e6,
-            errors[1] * 1e6
-        ));
-    }
+    let across = (!across_fixed).then_some((p[1], errors[1]));
+    warnings.extend(fit_warnings(sigma, blur_sigma, blur_resolved, sigma_max, pmax, across));
     // Fit table and correlation.
-    let x0 = profile.x()[0];
-    let mut fit = Vec::with_capacity(pts.len());
-    for &(u, z) in &pts {
-        if let Some((hh, _, _)) = blurred.at(ctx.pos(u, p[0], p[1])) {
-            fit.push([u + x0, z, p[2] * hh + p[3] + p[4] * (u - u_mean)]);
-        }
-    }
+    let fit = fit_table(&ctx, &blurred, &p, profile.x()[0]);
     let correlation = {
         let u: Vec<f64> = fit.iter().map(|f| f[0]).collect();
         let zz: Vec<f64> = fit.iter().map(|f| f[1]).collect();
@@ -978,97 +769,12 @@ pub fn compare_profile(
     let noise_ceiling = noise_ceiling(noise_estimate(profile), variance);
     check_trust("the profile's fit along the line", correlation, noise_ceiling, opts.min_correlation_ratio)?;
     // Per-level step heights.
-    let levels = match &design_levels {
+    let levels = match &index.levels {
         None => None,
         Some(dl) => {
             let r = 2.0 * sigma + 1.5 * pmax;
-            let interior = |q: [f64; 2]| -> Option<usize> {
-                let l = level_at(q)?;
-                let (fi, fj) = (q[1] / pd[1] + half[1], q[0] / pd[0] + half[0]);
-                let (ri, rj) = ((r / pd[1]).ceil() as i64, (r / pd[0]).ceil() as i64);
-                for di in -ri..=ri {
-                    for dj in -rj..=rj {
-                        let (i, j) = (fi.round() as i64 + di, fj.round() as i64 + dj);
-                        let dx = (j as f64 - fj) * pd[0];
-                        let dy = (i as f64 - fi) * pd[1];
-                        if dx * dx + dy * dy > r * r {
-                            continue;
-                        }
-                        if i < 0
-                            || j < 0
-                            || i >= nr as i64
-                            || j >= nc as i64
-                            || !design.is_valid(i as usize, j as usize)
-                        {
-                            return None;
-                        }
-                        if design.values()[[i as usize, j as usize]] != dl[l] {
-                            return None;
-                        }
-                    }
-                }
-                Some(l)
-            };
-            let sgn = p[2].signum();
-            let mut acc: Vec<(f64, f64, usize)> = vec![(0.0, 0.0, 0); dl.len()];
-            let mut heights: Vec<Vec<f64>> = vec![Vec::new(); dl.len()];
-            for &(u, z) in &pts {
-                if let Some(l) = interior(ctx.pos(u, p[0], p[1])) {
-                    heights[l].push(sgn * (z - p[3] - p[4] * (u - u_mean)));
-                }
-            }
-            for (l, hs) in heights.iter().enumerate() {
-                if !hs.is_empty() {
-                    let m = hs.iter().sum::<f64>() / hs.len() as f64;
-                    let sd = (hs.iter().map(|v| (v - m).powi(2)).sum::<f64>()
-                        / (hs.len() as f64 - 1.0).max(1.0))
-                    .sqrt();
-                    acc[l] = (m, sd, hs.len());
-                }
-            }
-            let present: Vec<usize> = (0..dl.len()).filter(|&l| acc[l].2 >= 3).collect();
-            if present.len() < 2 {
-                return Err(Error::Data(format!(
-                    "the line holds terrace interiors (points {:.1} um or more from any other level) of {} level(s): \
-                     step heights need at least 2",
-                    r * 1e6,
-                    present.len()
-                )));
-            }
-            let l0 = present[0];
-            let (m0, sd0, n0) = acc[l0];
-            let se0 = sd0 * sd0 / n0 as f64;
-            let steps = present
-                .iter()
-                .map(|&l| {
-                    let (m, sd, n) = acc[l];
-                    let design_step = dl[l] - dl[l0];
-                    let (sh, shs, ds, dss) = if l == l0 {
-                        (None, None, None, None)
-                    } else {
-                        let hgt = m - m0;
-                        let se = (sd * sd / n as f64 + se0).sqrt();
-                        (Some(hgt), Some(se), Some(hgt / design_step), Some(se / design_step.abs()))
-                    };
-                    LevelStep {
-                        level: l,
-                        design_step,
-                        points: n,
-                        mean: m,
-                        std: sd,
-                        step_height: sh,
-                        step_height_sigma: shs,
-                        depth_scale: ds,
-                        depth_scale_sigma: dss,
-                    }
-                })
-                .collect();
-            Some(LevelSteps {
-                design_levels: dl.clone(),
-                reference_level: l0,
-                interior_radius: r,
-                levels: steps,
-            })
+            let heights = index.interior_heights(&ctx, &p, r);
+            Some(step_heights(dl, &heights, r)?)
         }
     };
     Ok(ProfileComparison {
@@ -1100,6 +806,451 @@ pub fn compare_profile(
         warnings,
         fit,
     })
+}
+
+/// The warning when a line given by two points is not as long as the profile (by more than
+/// 5 %): the profile is placed from the line's first point.
+fn line_length_warning(line: &LineSpec, length: f64) -> Option<String> {
+    let LineSpec::Points { start: s, end: e } = line else { return None };
+    let l = (e[0] - s[0]).hypot(e[1] - s[1]);
+    ((l - length).abs() > 0.05 * length.max(l)).then(|| {
+        format!(
+            "the line is {:.1} um long but the profile {:.1} um: the profile is placed from the line's first point",
+            l * 1e6,
+            length * 1e6
+        )
+    })
+}
+
+/// The profile's measured points `(u, z)` for the fit, thinned by a stride to at most
+/// `max_points`; fewer than 10 are refused.
+fn fit_points(profile: &Profile, max_points: usize) -> Result<Vec<(f64, f64)>> {
+    let all = profile.points();
+    let stride = all.len().div_ceil(max_points.max(1)).max(1);
+    let pts: Vec<(f64, f64)> = all.iter().step_by(stride).copied().collect();
+    if pts.len() < 10 {
+        return Err(Error::Data(format!(
+            "the profile has {} measured points: too few to compare",
+            pts.len()
+        )));
+    }
+    Ok(pts)
+}
+
+/// The design's distinct heights, sorted, over its valid samples; `None` when there are more
+/// than [`MAX_LEVELS`] (not a multi-level design).
+fn distinct_levels(design: &Grid) -> Option<Vec<f64>> {
+    let nc = design.dim().1;
+    let mut v: Vec<f64> = Vec::new();
+    for (k, &h) in design.values().iter().enumerate() {
+        let (i, j) = (k / nc, k % nc);
+        if design.is_valid(i, j) && !v.contains(&h) {
+            v.push(h);
+            if v.len() > MAX_LEVELS {
+                break;
+            }
+        }
+    }
+    (v.len() <= MAX_LEVELS).then(|| {
+        v.sort_unstable_by(f64::total_cmp);
+        v
+    })
+}
+
+/// The design with its sample index of a position (metres from its centre: fractional index
+/// `x / pitch + (n - 1) / 2` along each axis) and its levels ([`distinct_levels`]).
+struct DesignIndex<'a> {
+    design: &'a Grid,
+    /// `(n - 1) / 2` along x (columns) and y (rows).
+    half: [f64; 2],
+    levels: Option<Vec<f64>>,
+}
+
+impl<'a> DesignIndex<'a> {
+    fn new(design: &'a Grid) -> Self {
+        let (nr, nc) = design.dim();
+        let half = [(nc as f64 - 1.0) * 0.5, (nr as f64 - 1.0) * 0.5];
+        DesignIndex { design, half, levels: distinct_levels(design) }
+    }
+
+    /// The crop of the design holding the line from `start` along `dir` over `u` in
+    /// `reach[0]..reach[1]` and offsets across it in `reach[2]..reach[3]`, with `margin` metres
+    /// around, and the position of the crop's centre; a line outside the design is refused.
+    fn crop_around_line(
+        &self,
+        start: [f64; 2],
+        dir: [f64; 2],
+        reach: [f64; 4],
+        margin: f64,
+    ) -> Result<(Grid, [f64; 2])> {
+        let (design, half) = (self.design, self.half);
+        let pd = design.pitch();
+        let nrm = [-dir[1], dir[0]];
+        let (nr, nc) = design.dim();
+        let mut lo = [f64::INFINITY; 2];
+        let mut hi = [f64::NEG_INFINITY; 2];
+        for u in [reach[0], reach[1]] {
+            for v in [reach[2], reach[3]] {
+                let p = [start[0] + u * dir[0] + v * nrm[0], start[1] + u * dir[1] + v * nrm[1]];
+                for a in 0..2 {
+                    lo[a] = lo[a].min(p[a] - margin);
+                    hi[a] = hi[a].max(p[a] + margin);
+                }
+            }
+        }
+        let idx = |x: f64, a: usize| x / pd[a] + half[a];
+        let c0 = idx(lo[0], 0).floor().max(0.0) as usize;
+        let c1 = (idx(hi[0], 0).ceil().max(0.0) as usize + 1).min(nc);
+        let r0 = idx(lo[1], 1).floor().max(0.0) as usize;
+        let r1 = (idx(hi[1], 1).ceil().max(0.0) as usize + 1).min(nr);
+        if c0 + 4 > c1 || r0 + 4 > r1 {
+            return Err(Error::Data(format!(
+                "the line from ({:.1}, {:.1}) um along ({:.3}, {:.3}) lies outside the {:.1} x {:.1} um design",
+                start[0] * 1e6,
+                start[1] * 1e6,
+                dir[0],
+                dir[1],
+                design.extent()[0] * 1e6,
+                design.extent()[1] * 1e6
+            )));
+        }
+        let crop = design.crop(r0..r1, c0..c1)?;
+        let crop_centre =
+            [((c0 + c1 - 1) as f64 * 0.5 - half[0]) * pd[0], ((r0 + r1 - 1) as f64 * 0.5 - half[1]) * pd[1]];
+        Ok((crop, crop_centre))
+    }
+
+    /// The level of the design sample nearest to `p` (metres from the centre); `None` off the
+    /// design, on an invalid sample, or for a design that is not multi-level.
+    fn level_at(&self, p: [f64; 2]) -> Option<usize> {
+        let levels = self.levels.as_ref()?;
+        let (design, half, pd) = (self.design, self.half, self.design.pitch());
+        let (nr, nc) = design.dim();
+        let j = (p[0] / pd[0] + half[0]).round();
+        let i = (p[1] / pd[1] + half[1]).round();
+        if i < 0.0 || j < 0.0 || i >= nr as f64 || j >= nc as f64 || !design.is_valid(i as usize, j as usize)
+        {
+            return None;
+        }
+        let h = design.values()[[i as usize, j as usize]];
+        levels.iter().position(|l| *l == h)
+    }
+
+    /// Refuses a line (at zero shift and offset) that crosses fewer than 2 of the levels.
+    fn check_levels_on_line(&self, ctx: &Ctx) -> Result<()> {
+        let mut seen: Vec<usize> =
+            ctx.pts.iter().filter_map(|&(u, _)| self.level_at(ctx.pos(u, 0.0, 0.0))).collect();
+        seen.sort_unstable();
+        seen.dedup();
+        if seen.len() < 2 {
+            return Err(Error::Data(format!(
+                "the line crosses {} level(s) of the design ({}): step heights need at least 2; choose a line \
+                 across the structure",
+                seen.len(),
+                seen.iter().map(|l| l.to_string()).collect::<Vec<_>>().join(", ")
+            )));
+        }
+        Ok(())
+    }
+
+    /// The level of `q` when every design sample within `r` of it is on that level (the
+    /// terrace interior of the module docs), else `None`.
+    fn interior(&self, q: [f64; 2], r: f64) -> Option<usize> {
+        let (design, half, pd) = (self.design, self.half, self.design.pitch());
+        let (nr, nc) = design.dim();
+        let dl = self.levels.as_ref()?;
+        let l = self.level_at(q)?;
+        let (fi, fj) = (q[1] / pd[1] + half[1], q[0] / pd[0] + half[0]);
+        let (ri, rj) = ((r / pd[1]).ceil() as i64, (r / pd[0]).ceil() as i64);
+        for di in -ri..=ri {
+            for dj in -rj..=rj {
+                let (i, j) = (fi.round() as i64 + di, fj.round() as i64 + dj);
+                let dx = (j as f64 - fj) * pd[0];
+                let dy = (i as f64 - fi) * pd[1];
+                if dx * dx + dy * dy > r * r {
+                    continue;
+                }
+                if i < 0
+                    || j < 0
+                    || i >= nr as i64
+                    || j >= nc as i64
+                    || !design.is_valid(i as usize, j as usize)
+                {
+                    return None;
+                }
+                if design.values()[[i as usize, j as usize]] != dl[l] {
+                    return None;
+                }
+            }
+        }
+        Some(l)
+    }
+
+    /// Per level, the measured heights `y_k = sign(a) (z_k - b - c (u_k - u_mean))` of the
+    /// points at their registered positions (parameters `p`) inside its terraces ([`Self::interior`]).
+    fn interior_heights(&self, ctx: &Ctx, p: &[f64; 5], r: f64) -> Vec<Vec<f64>> {
+        let count = self.levels.as_ref().map_or(0, Vec::len);
+        let sgn = p[2].signum();
+        let mut heights: Vec<Vec<f64>> = vec![Vec::new(); count];
+        for &(u, z) in ctx.pts {
+            if let Some(l) = self.interior(ctx.pos(u, p[0], p[1]), r) {
+                heights[l].push(sgn * (z - p[3] - p[4] * (u - ctx.u_mean)));
+            }
+        }
+        heights
+    }
+}
+
+/// The variance of the profile's points about their least-squares line; a profile whose
+/// neighbour differences are as large as white noise's (`sqrt 2` times its RMS, here over
+/// `0.8 sqrt 2`) is refused as featureless.
+fn profile_variance(pts: &[(f64, f64)]) -> Result<f64> {
+    let zs: Vec<f64> = pts.iter().map(|p| p.1).collect();
+    let us: Vec<f64> = pts.iter().map(|p| p.0).collect();
+    let (o, t, _) = fit_line(pts, |_| true)?;
+    let r: Vec<f64> = us.iter().zip(&zs).map(|(u, z)| z - o - t * u).collect();
+    let sd = (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
+    let dd: Vec<f64> = r.windows(2).map(|w| w[1] - w[0]).collect();
+    let sdd = (dd.iter().map(|v| v * v).sum::<f64>() / dd.len() as f64).sqrt();
+    if sd.is_nan() || sd <= 0.0 || sdd > 0.8 * std::f64::consts::SQRT_2 * sd {
+        return Err(Error::Data(format!(
+            "the profile is featureless: {:.3} nm RMS about its line, with neighbour differences of {:.3} nm RMS \
+             (white noise has sqrt 2 times its RMS)",
+            sd * 1e9,
+            sdd * 1e9
+        )));
+    }
+    Ok(sd * sd)
+}
+
+/// The best match of the coarse search (module docs, step 1), in steps of `ds`.
+struct CoarseMatch {
+    /// The largest `|r|`, at `along` steps along and `across` steps across; the sign of `r`.
+    peak: f64,
+    along: i64,
+    across: i64,
+    sign: f64,
+    /// `|r|` along the line (shifts `-ns..=ns`) at the winning offset.
+    row: Vec<f64>,
+    /// No shift and offset gave a correlation: the design is flat along the line.
+    design_flat: bool,
+}
+
+/// The coarse search: the detrended correlation ([`detrended_correlation`]) of the profile
+/// (at most 4000 points, by a stride) with the sharp design along the line, for shifts
+/// `is ds` (`|is| <= ns`) and offsets `iv ds` (`|iv| <= nv`, the smallest offsets first: a tie
+/// goes to them); positions where less than half the points fall on the design score 0.
+fn coarse_search(ctx: &Ctx, sharp: &Blurred, ds: f64, ns: i64, nv: i64) -> CoarseMatch {
+    let cstride = ctx.pts.len().div_ceil(4000).max(1);
+    let cpts: Vec<(f64, f64)> = ctx.pts.iter().step_by(cstride).copied().collect();
+    let mut vs: Vec<i64> = (-nv..=nv).collect();
+    vs.sort_by_key(|v| v.abs());
+    let mut best = (f64::NEG_INFINITY, 0i64, 0i64, 0.0f64);
+    let mut rows: Vec<(i64, Vec<f64>)> = Vec::new();
+    let mut design_flat = true;
+    for &iv in &vs {
+        let mut row = Vec::with_capacity((2 * ns + 1) as usize);
+        for is in -ns..=ns {
+            let (s, v) = (is as f64 * ds, iv as f64 * ds);
+            let mut u = Vec::with_capacity(cpts.len());
+            let (mut za, mut hb) = (Vec::with_capacity(cpts.len()), Vec::with_capacity(cpts.len()));
+            for &(pu, z) in &cpts {
+                if let Some((h, _, _)) = sharp.at(ctx.pos(pu, s, v)) {
+                    u.push(pu);
+                    za.push(z);
+                    hb.push(h);
+                }
+            }
+            let r = if u.len() * 2 >= cpts.len() { detrended_correlation(&u, &za, &hb) } else { f64::NAN };
+            if r.is_finite() {
+                design_flat = false;
+            }
+            let score = if r.is_finite() { r.abs() } else { 0.0 };
+            if score > best.0 * (1.0 + 1e-9) {
+                best = (score, is, iv, r.signum());
+            }
+            row.push(score);
+        }
+        rows.push((iv, row));
+    }
+    let (peak, along, across, sign) = best;
+    let row = rows.iter().find(|(v, _)| *v == across).map(|r| r.1.clone()).unwrap_or_default();
+    CoarseMatch { peak, along, across, sign, row, design_flat }
+}
+
+/// The starting parameters: `p` (the coarse shift, offset and sign) with `a, b, c` moved to
+/// their linear least-squares values on the sharp design (one undamped Gauss-Newton step over
+/// them alone, exact for a model linear in them).
+fn linear_start(ctx: &Ctx, sharp: &Blurred, mut p: [f64; 5]) -> [f64; 5] {
+    let nm = normal(ctx, sharp, &p);
+    if let Some(x) = damped_solve(&nm.jtj, &nm.jtr, 0.0, &[2, 3, 4]) {
+        for i in 2..5 {
+            p[i] += x[i];
+        }
+    }
+    p
+}
+
+/// Golden-section search of `f` over `[0, hi]` to a bracket narrower than `tol`: the bracket's
+/// centre and the parameters of its better end. `f(x, p)` refines the parameters `p` it is
+/// given (each new point starts from its neighbour's) and returns the value to minimise.
+fn golden_section(
+    hi: f64,
+    tol: f64,
+    start: [f64; 5],
+    mut f: impl FnMut(f64, &mut [f64; 5]) -> Result<f64>,
+) -> Result<(f64, [f64; 5])> {
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut a, mut bnd) = (0.0, hi);
+    let mut x1 = bnd - g * (bnd - a);
+    let mut x2 = a + g * (bnd - a);
+    let (mut p1, mut p2) = (start, start);
+    let mut f1 = f(x1, &mut p1)?;
+    let mut f2 = f(x2, &mut p2)?;
+    while bnd - a > tol {
+        if f1 <= f2 {
+            bnd = x2;
+            x2 = x1;
+            f2 = f1;
+            p2 = p1;
+            x1 = bnd - g * (bnd - a);
+            p1 = p2;
+            f1 = f(x1, &mut p1)?;
+        } else {
+            a = x1;
+            x1 = x2;
+            f1 = f2;
+            p1 = p2;
+            x2 = a + g * (bnd - a);
+            p2 = p1;
+            f2 = f(x2, &mut p2)?;
+        }
+    }
+    Ok((0.5 * (a + bnd), if f1 <= f2 { p1 } else { p2 }))
+}
+
+/// The blur's standard error from the profile likelihood, `sqrt(2 s2 / SSE''(sigma))`, with
+/// `SSE''` by central differences of step `h` (forward ones where `sigma <= h`) of `sse_at`,
+/// `sse` its value at `sigma`; infinite where `SSE''` is not positive.
+fn profile_likelihood_sigma(
+    sse_at: impl Fn(f64) -> Result<f64>,
+    sigma: f64,
+    h: f64,
+    sse: f64,
+    s2: f64,
+) -> Result<f64> {
+    let curv = if sigma > h {
+        (sse_at(sigma + h)? - 2.0 * sse + sse_at(sigma - h)?) / (h * h)
+    } else {
+        (sse_at(sigma + 2.0 * h)? - 2.0 * sse_at(sigma + h)? + sse) / (h * h)
+    };
+    Ok(if curv > 0.0 { (2.0 * s2 / curv).sqrt() } else { f64::INFINITY })
+}
+
+/// The warnings on the fitted blur `sigma` (its standard error `blur_sigma`, whether that
+/// resolves it, the search's end `sigma_max`, the design's pitch `pmax`) and, when observable,
+/// on the across-line offset and its standard error.
+fn fit_warnings(
+    sigma: f64,
+    blur_sigma: f64,
+    blur_resolved: bool,
+    sigma_max: f64,
+    pmax: f64,
+    across: Option<(f64, f64)>,
+) -> Vec<String> {
+    let mut warnings = Vec::new();
+    if !blur_resolved {
+        let err = if blur_sigma < sigma_max {
+            format!("+- {:.2} um", blur_sigma * 1e6)
+        } else {
+            format!("with a standard error beyond the {:.2} um search range", sigma_max * 1e6)
+        };
+        warnings.push(format!(
+            "the lateral blur is not resolved: {:.2} um {err} against the design's {:.2} um pitch",
+            sigma * 1e6,
+            pmax * 1e6
+        ));
+    }
+    if sigma >= 0.98 * sigma_max {
+        warnings.push(format!(
+            "the fitted blur sits at the end of its search range ({:.2} um): the part is blurred more than the model \
+             can follow, or does not match the design along the line",
+            sigma_max * 1e6
+        ));
+    }
+    if let Some((v, error)) = across.filter(|a| a.1 > pmax) {
+        warnings.push(format!(
+            "the across-line offset is poorly determined: {:.2} +- {:.2} um",
+            v * 1e6,
+            error * 1e6
+        ));
+    }
+    warnings
+}
+
+/// The fit table: per point on the blurred design at its registered position (parameters
+/// `p`), the position as in the file (`u + x0`), the measured height and the model's.
+fn fit_table(ctx: &Ctx, blurred: &Blurred, p: &[f64; 5], x0: f64) -> Vec<[f64; 3]> {
+    let mut fit = Vec::with_capacity(ctx.pts.len());
+    for &(u, z) in ctx.pts {
+        if let Some((hh, _, _)) = blurred.at(ctx.pos(u, p[0], p[1])) {
+            fit.push([u + x0, z, p[2] * hh + p[3] + p[4] * (u - ctx.u_mean)]);
+        }
+    }
+    fit
+}
+
+/// The step heights of the module docs from each level's interior heights `heights[l]`
+/// (`dl` the design's levels, `r` the interior radius): levels with at least 3 points, steps
+/// against the lowest of them; fewer than two such levels are refused.
+fn step_heights(dl: &[f64], heights: &[Vec<f64>], r: f64) -> Result<LevelSteps> {
+    let mut acc: Vec<(f64, f64, usize)> = vec![(0.0, 0.0, 0); dl.len()];
+    for (l, hs) in heights.iter().enumerate() {
+        if !hs.is_empty() {
+            let m = hs.iter().sum::<f64>() / hs.len() as f64;
+            let sd =
+                (hs.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (hs.len() as f64 - 1.0).max(1.0)).sqrt();
+            acc[l] = (m, sd, hs.len());
+        }
+    }
+    let present: Vec<usize> = (0..dl.len()).filter(|&l| acc[l].2 >= 3).collect();
+    if present.len() < 2 {
+        return Err(Error::Data(format!(
+            "the line holds terrace interiors (points {:.1} um or more from any other level) of {} level(s): \
+             step heights need at least 2",
+            r * 1e6,
+            present.len()
+        )));
+    }
+    let l0 = present[0];
+    let (m0, sd0, n0) = acc[l0];
+    let se0 = sd0 * sd0 / n0 as f64;
+    let steps = present
+        .iter()
+        .map(|&l| {
+            let (m, sd, n) = acc[l];
+            let design_step = dl[l] - dl[l0];
+            let (sh, shs, ds, dss) = if l == l0 {
+                (None, None, None, None)
+            } else {
+                let hgt = m - m0;
+                let se = (sd * sd / n as f64 + se0).sqrt();
+                (Some(hgt), Some(se), Some(hgt / design_step), Some(se / design_step.abs()))
+            };
+            LevelStep {
+                level: l,
+                design_step,
+                points: n,
+                mean: m,
+                std: sd,
+                step_height: sh,
+                step_height_sigma: shs,
+                depth_scale: ds,
+                depth_scale_sigma: dss,
+            }
+        })
+        .collect();
+    Ok(LevelSteps { design_levels: dl.to_vec(), reference_level: l0, interior_radius: r, levels: steps })
 }
 
 /// The second-highest local maximum of `row` outside the main lobe around `k0` (where the
@@ -1445,5 +1596,143 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("featureless"), "{e}");
+    }
+
+    #[test]
+    fn distinct_levels_are_sorted_and_capped() {
+        assert_eq!(distinct_levels(&staircase()), Some(vec![0.0, 100e-9, 200e-9, 300e-9]));
+        let ramp = |n: usize| {
+            Grid::new(Array2::from_shape_fn((1, n), |(_, j)| (n - j) as f64 * 1e-9), [1e-6; 2], Unit::Metre)
+                .unwrap()
+        };
+        let levels = distinct_levels(&ramp(MAX_LEVELS)).unwrap();
+        assert_eq!(
+            (levels.len(), levels[0], levels[MAX_LEVELS - 1]),
+            (MAX_LEVELS, 1e-9, MAX_LEVELS as f64 * 1e-9)
+        );
+        assert_eq!(distinct_levels(&ramp(MAX_LEVELS + 1)), None);
+    }
+
+    /// `H_l = m_l - m_l0 +- sqrt(s_l^2 / n_l + s_l0^2 / n_l0)` on heights whose means and
+    /// spreads are known: level 0 (1.0 +- 0.2, 3 points), level 1 too few points, level 2
+    /// (3.0, spread sqrt(0.02 / 3), 4 points).
+    #[test]
+    fn step_heights_follow_the_module_docs() {
+        let dl = [0.0, 0.5, 1.0];
+        let heights = vec![vec![1.0, 1.2, 0.8], vec![2.0, 2.0], vec![3.0, 3.1, 2.9, 3.0]];
+        let s = step_heights(&dl, &heights, 1e-6).unwrap();
+        assert_eq!((s.reference_level, s.levels.len(), s.levels[1].level), (0, 2, 2));
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        let (l0, l2) = (&s.levels[0], &s.levels[1]);
+        assert!(close(l0.mean, 1.0) && close(l0.std, 0.2) && l0.step_height.is_none(), "{l0:?}");
+        let se = (0.04 / 3.0 + 0.02 / 3.0 / 4.0f64).sqrt();
+        assert!(close(l2.step_height.unwrap(), 2.0) && close(l2.step_height_sigma.unwrap(), se), "{l2:?}");
+        assert!(close(l2.depth_scale.unwrap(), 2.0) && close(l2.depth_scale_sigma.unwrap(), se), "{l2:?}");
+        let e = step_heights(&dl, &heights[..2], 1e-6).unwrap_err().to_string();
+        assert!(e.contains("of 1 level(s)"), "{e}");
+    }
+
+    #[test]
+    fn golden_section_finds_a_parabola_minimum_and_keeps_its_parameters() {
+        let (x, p) = golden_section(1.0, 1e-7, [0.0; 5], |x, p| {
+            p[0] = x;
+            Ok((x - 0.37).powi(2))
+        })
+        .unwrap();
+        assert!((x - 0.37).abs() < 1e-7 && (p[0] - x).abs() < 1e-7, "{x} {p:?}");
+        // A minimum at the end of the range.
+        let (x, _) = golden_section(2.0, 1e-6, [0.0; 5], |x, _| Ok(-x)).unwrap();
+        assert!((x - 2.0).abs() < 1e-6, "{x}");
+    }
+
+    /// A ripple `c cos(2 pi m (k - (N - 1) / 2) / N)`, even about the profile's middle, on a
+    /// tilted line: its least-squares line is the tilted line, so the variance is `c^2 / 2`.
+    #[test]
+    fn profile_variance_is_the_ripple_about_its_line() {
+        let (n, c) = (400usize, 30e-9);
+        let pts: Vec<(f64, f64)> = (0..n)
+            .map(|k| {
+                let u = k as f64 * 1e-6;
+                let t = 2.0 * std::f64::consts::PI * 5.0 * (k as f64 - (n as f64 - 1.0) * 0.5) / n as f64;
+                (u, 1e-7 + 3e-4 * u + c * t.cos())
+            })
+            .collect();
+        let v = profile_variance(&pts).unwrap();
+        assert!((v / (0.5 * c * c) - 1.0).abs() < 1e-9, "{v}");
+        let mut rng = crate::rng::Lcg(2);
+        let noise: Vec<(f64, f64)> = (0..n).map(|k| (k as f64 * 1e-6, c * rng.normal())).collect();
+        assert!(profile_variance(&noise).unwrap_err().to_string().contains("featureless"));
+    }
+
+    #[test]
+    fn the_crop_holds_every_searched_position_of_the_line() {
+        let d = staircase();
+        let index = DesignIndex::new(&d);
+        let (start, dir) = LineSpec::Angle { angle: 0.4 }.frame(300e-6);
+        let reach = [-20e-6, 320e-6, -10e-6, 10e-6];
+        let (crop, centre) = index.crop_around_line(start, dir, reach, 5e-6).unwrap();
+        let half = [0.5 * crop.extent()[0], 0.5 * crop.extent()[1]];
+        for u in [reach[0], reach[1]] {
+            for v in [reach[2], reach[3]] {
+                let p = [start[0] + u * dir[0] - v * dir[1], start[1] + u * dir[1] + v * dir[0]];
+                for a in 0..2 {
+                    assert!(
+                        (p[a] - centre[a]).abs() + 5e-6 <= half[a],
+                        "{p:?} outside {centre:?} +- {half:?}"
+                    );
+                }
+            }
+        }
+        let far = index.crop_around_line([1e-3, 1e-3], [1.0, 0.0], reach, 5e-6).unwrap_err().to_string();
+        assert!(far.contains("lies outside"), "{far}");
+        assert!(line_length_warning(&LineSpec::Angle { angle: 0.0 }, 1e-4).is_none());
+        let line = LineSpec::Points { start: [0.0, 0.0], end: [100e-6, 0.0] };
+        assert!(line_length_warning(&line, 104e-6).is_none() && line_length_warning(&line, 200e-6).is_some());
+    }
+
+    /// A noise-free complemented profile of the sharp design, 3 steps along the line from its
+    /// nominal start: the coarse search finds the shift and the sign, correlating by 1.
+    #[test]
+    fn the_coarse_search_finds_a_known_shift_and_sign() {
+        let d = staircase();
+        let ds = 1e-6;
+        let sp = SimulateProfile {
+            line: LineSpec::Angle { angle: 0.0 },
+            length: 300e-6,
+            step: 0.5e-6,
+            x_origin: 0.0,
+            along_shift: 3.0 * ds,
+            across_offset: 0.0,
+            depth_scale: -1.0,
+            offset: 0.0,
+            tilt: 0.0,
+            blur: 0.0,
+            noise: 0.0,
+            seed: 1,
+        };
+        let prof = simulate_profile(&d, &sp).unwrap();
+        let pts = fit_points(&prof, 20_000).unwrap();
+        let (start, dir) = sp.line.frame(prof.length());
+        let (crop, crop_centre) =
+            DesignIndex::new(&d).crop_around_line(start, dir, [-10e-6, 310e-6, -4e-6, 4e-6], 10e-6).unwrap();
+        let u_mean = pts.iter().map(|p| p.0).sum::<f64>() / pts.len() as f64;
+        let ctx = Ctx { crop: &crop, crop_centre, pts: &pts, u_mean, start, dir, nrm: [-dir[1], dir[0]] };
+        let m = coarse_search(&ctx, &ctx.blurred(0.0).unwrap(), ds, 10, 2);
+        assert_eq!((m.along, m.sign, m.row.len(), m.design_flat), (3, -1.0, 21, false));
+        assert!(m.peak > 0.999 && m.row[13] == m.peak, "{}", m.peak);
+    }
+
+    /// On `SSE(x) = c (x - x0)^2 + m`, `SSE'' = 2 c` on either difference, so the error is
+    /// `sqrt(s2 / c)`; a flat or concave SSE gives an infinite error.
+    #[test]
+    fn the_profile_likelihood_error_of_a_parabolic_sse() {
+        let (c, x0, m, s2) = (4.0e12, 1.1e-6, 3e-15, 2e-17);
+        let sse = |x: f64| -> Result<f64> { Ok(c * (x - x0).powi(2) + m) };
+        for sigma in [2e-6, 0.05e-6] {
+            let got = profile_likelihood_sigma(sse, sigma, 0.1e-6, sse(sigma).unwrap(), s2).unwrap();
+            assert!((got / (s2 / c).sqrt() - 1.0).abs() < 1e-6, "{sigma}: {got}");
+        }
+        let flat = |_: f64| -> Result<f64> { Ok(m) };
+        assert_eq!(profile_likelihood_sigma(flat, 2e-6, 0.1e-6, m, s2).unwrap(), f64::INFINITY);
     }
 }

@@ -445,25 +445,7 @@ pub fn compare_family(family: &[Reference], scan: &Grid, opts: &CompareOptions) 
         Error::Validity(m) => Error::Registration(m),
         other => other,
     };
-    // Every member registered; the best correlation kept (the first on a tie), and the first
-    // member's refusal reported when none found a pose.
-    let mut tried = Vec::with_capacity(family.len());
-    let mut best: Option<(usize, Registration)> = None;
-    let mut first_error = None;
-    for (k, r) in family.iter().enumerate() {
-        match register_pose(&r.surface, scan, &opts.register) {
-            Ok(reg) => {
-                tried.push(Candidate { member: r.member, correlation: reg.correlation });
-                if best.as_ref().is_none_or(|(_, b)| reg.correlation > b.correlation) {
-                    best = Some((k, reg));
-                }
-            }
-            Err(e) => {
-                tried.push(Candidate { member: r.member, correlation: f64::NAN });
-                first_error.get_or_insert(e);
-            }
-        }
-    }
+    let (tried, best, first_error) = register_family(family, scan, &opts.register);
     let Some((k, reg)) = best else {
         return Err(as_registration(
             first_error.unwrap_or_else(|| Error::Data("no reference surface was registered".into())),
@@ -512,6 +494,88 @@ pub fn compare_family(family: &[Reference], scan: &Grid, opts: &CompareOptions) 
             other => other,
         },
     )?;
+    let errors = aperture_errors(design, &surface, &inside)?;
+    let model = fit_model(design, scan, &reg, opts)?;
+    warnings.extend(model.blur_doubt());
+    let levels = levels.map(|l| level_stats(design, &surface, &inside, l, model.blur)).transpose()?;
+    if let Some(l) = &levels {
+        if l.design_off_level > 0.05 {
+            warnings.push(format!(
+                "the design is not quantized to {} levels of {:.2} nm (a height lies {:.2} steps from its \
+                 level): the level statistics bin a continuous design",
+                l.count,
+                l.step * 1e9,
+                l.design_off_level
+            ));
+        }
+    }
+    let efficiency = efficiency_loss(&opts.optics, levels.as_ref().map(|l| l.count), model.depth_scale)?;
+    Ok(Comparison {
+        member,
+        scan_of: scan_of(member, reg.pose.mirror, reg.complement),
+        candidates: tried,
+        registration: reg,
+        interior_correlation,
+        surface,
+        difference: errors.difference,
+        aperture,
+        coverage,
+        measured_fraction: errors.measured_fraction,
+        mean_error: errors.mean,
+        rms_error: errors.rms,
+        pv_error: errors.pv,
+        levels,
+        model,
+        efficiency,
+        warnings,
+        reference,
+    })
+}
+
+/// Every member of `family` registered onto `scan` (module docs): the candidates with their
+/// correlations (NaN where refused), the member with the best correlation (the first on a
+/// tie) and its registration, and the first refusal.
+fn register_family(
+    family: &[Reference],
+    scan: &Grid,
+    opts: &RegisterOptions,
+) -> (Vec<Candidate>, Option<(usize, Registration)>, Option<Error>) {
+    let mut tried = Vec::with_capacity(family.len());
+    let mut best: Option<(usize, Registration)> = None;
+    let mut first_error = None;
+    for (k, r) in family.iter().enumerate() {
+        match register_pose(&r.surface, scan, opts) {
+            Ok(reg) => {
+                tried.push(Candidate { member: r.member, correlation: reg.correlation });
+                if best.as_ref().is_none_or(|(_, b)| reg.correlation > b.correlation) {
+                    best = Some((k, reg));
+                }
+            }
+            Err(e) => {
+                tried.push(Candidate { member: r.member, correlation: f64::NAN });
+                first_error.get_or_insert(e);
+            }
+        }
+    }
+    (tried, best, first_error)
+}
+
+/// The part's error over the aperture: `surface - design` where the surface is measured inside
+/// the aperture (`inside`), and its statistics.
+struct ApertureErrors {
+    /// The difference, metres (invalid outside the aperture and where not measured).
+    difference: Grid,
+    /// Measured samples over the aperture's samples.
+    measured_fraction: f64,
+    /// Mean, RMS and peak-to-valley of the difference, metres.
+    mean: f64,
+    rms: f64,
+    pv: f64,
+}
+
+/// The difference of `surface` and `design` over the measured samples `inside` the aperture
+/// (module docs); none measured there is refused.
+fn aperture_errors(design: &Grid, surface: &Grid, inside: &Array2<bool>) -> Result<ApertureErrors> {
     let (nr, nc) = design.dim();
     let mut diff = Array2::zeros((nr, nc));
     let mut dvalid = Array2::from_elem((nr, nc), false);
@@ -539,40 +603,12 @@ pub fn compare_family(family: &[Reference], scan: &Grid, opts: &CompareOptions) 
         return Err(Error::Data("no measured scan sample falls inside the aperture".into()));
     }
     let difference = design.map_values(diff, Unit::Metre)?.with_mask(dvalid)?;
-    let model = fit_model(design, scan, &reg, opts)?;
-    warnings.extend(model.blur_doubt());
-    let levels = levels.map(|l| level_stats(design, &surface, &inside, l, model.blur)).transpose()?;
-    if let Some(l) = &levels {
-        if l.design_off_level > 0.05 {
-            warnings.push(format!(
-                "the design is not quantized to {} levels of {:.2} nm (a height lies {:.2} steps from its \
-                 level): the level statistics bin a continuous design",
-                l.count,
-                l.step * 1e9,
-                l.design_off_level
-            ));
-        }
-    }
-    let efficiency = efficiency_loss(&opts.optics, levels.as_ref().map(|l| l.count), model.depth_scale)?;
-    Ok(Comparison {
-        member,
-        scan_of: scan_of(member, reg.pose.mirror, reg.complement),
-        candidates: tried,
-        registration: reg,
-        interior_correlation,
-        surface,
+    Ok(ApertureErrors {
         difference,
-        aperture,
-        coverage,
         measured_fraction: n / n_ap,
-        mean_error: s / n,
-        rms_error: (ss / n).sqrt(),
-        pv_error: hi - lo,
-        levels,
-        model,
-        efficiency,
-        warnings,
-        reference,
+        mean: s / n,
+        rms: (ss / n).sqrt(),
+        pv: hi - lo,
     })
 }
 
@@ -1399,5 +1435,38 @@ mod tests {
         assert!((r.pose.rotation.to_degrees() - 0.3).abs() <= 0.01, "{r:?}");
         assert!((c.model.depth_scale / 0.95 - 1.0).abs() <= 0.005, "{:?}", c.model);
         assert!((c.model.blur - 2e-6).abs() <= 0.15e-6, "{:?}", c.model);
+    }
+
+    /// Over a 4 x 4 aperture less one corner, one sample not measured: the difference of the
+    /// other 14 (`i - j` nm on a flat design) has mean -2/14 nm, RMS sqrt(30/14) nm and a
+    /// peak-to-valley of 5 nm.
+    #[test]
+    fn aperture_errors_are_the_measured_differences_statistics() {
+        let design = Grid::new(Array2::from_elem((4, 4), 1e-7), [1e-6; 2], Unit::Metre).unwrap();
+        let mut valid = Array2::from_elem((4, 4), true);
+        valid[[0, 1]] = false;
+        let surface = design
+            .map_values(
+                Array2::from_shape_fn((4, 4), |(i, j)| 1e-7 + (i as f64 - j as f64) * 1e-9),
+                Unit::Metre,
+            )
+            .unwrap()
+            .with_mask(valid)
+            .unwrap();
+        let mut inside = Array2::from_elem((4, 4), true);
+        inside[[3, 0]] = false;
+        let e = aperture_errors(&design, &surface, &inside).unwrap();
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-20;
+        assert!(
+            close(e.mean, -2e-9 / 14.0) && close(e.rms, (30.0f64 / 14.0).sqrt() * 1e-9),
+            "{} {}",
+            e.mean,
+            e.rms
+        );
+        assert!(close(e.pv, 5e-9), "{}", e.pv);
+        assert_eq!(e.measured_fraction, 14.0 / 15.0);
+        assert!(!e.difference.is_valid(0, 1) && !e.difference.is_valid(3, 0) && e.difference.is_valid(3, 3));
+        let nothing = Array2::from_elem((4, 4), false);
+        assert!(aperture_errors(&design, &surface, &nothing).is_err());
     }
 }

@@ -229,10 +229,123 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
     }
     system.validate()?;
     let mut choices = Vec::new();
-    let mut say = |what: &str, value: String, because: String| {
-        choices.push(Choice { what: what.into(), value, because });
-    };
     // Shortest and longest wavelength: every validity condition is monotone in the wavelength.
+    let (lmin, lmax) = wavelength_range(system, bands)?;
+    let extremes = OpticalSystem { wavelengths: vec![lmin, lmax], ..system.clone() };
+    let b = extremes.abcd().b.abs();
+    let cutoff = system.aperture / (lmin * b);
+
+    // Pixel sub-sampling: the smallest s per rule whose estimate takes at most half the
+    // tolerance (Gauss-Legendre for the matrix DFT, the midpoint rule for the FFT methods).
+    let subsample = |rule: PixelRule| least_subsample(rule, system.sensor_pitch, cutoff, tolerance);
+    let (s_gl, s_mid) = (subsample(PixelRule::GaussLegendre)?, subsample(PixelRule::Midpoint));
+
+    // Method and pupil sampling.
+    let (matrix, mut refusals) = matrix_dft_candidate(&extremes, doe, s_gl)?;
+    // The angular spectrum samples the pupil at the sensor sub-sample pitch, the midpoint rule.
+    let s_mid = match s_mid {
+        Ok(s) => s,
+        Err(e) => {
+            refusals.push(format!("angular_spectrum: {e}"));
+            usize::MAX
+        }
+    };
+    let (asm, asm_refusals) = angular_spectrum_candidate(&extremes, doe, s_mid)?;
+    refusals.extend(asm_refusals);
+    let mut candidates: Vec<Candidate> = matrix.into_iter().chain(asm).collect();
+    candidates.sort_by(|a, b| a.2.total_cmp(&b.2));
+    let Some((method, chosen, mut cost, why)) = candidates.first().cloned() else {
+        return Err(Error::Validity(format!(
+            "no method is valid for this system:\n  {}",
+            refusals.join("\n  ")
+        )));
+    };
+    let others: Vec<String> = candidates[1..]
+        .iter()
+        .map(|c| format!("{} costs {:.1e}", c.0, c.2))
+        .chain(refusals.iter().cloned())
+        .collect();
+    choices.push(choice(
+        "method",
+        method.name().into(),
+        format!(
+            "cheapest valid ({:.1e} multiply-adds per wavelength){}",
+            cost,
+            if others.is_empty() { String::new() } else { format!("; {}", others.join("; ")) }
+        ),
+    ));
+    choices.push(choice(
+        "pupil pitch",
+        format!(
+            "{:.4} um",
+            if method == Method::MatrixDft { chosen.pupil_pitch } else { chosen.sample_pitch() } * 1e6
+        ),
+        why,
+    ));
+    let (e_pix, pixels) = pixel_choice(&chosen, system.sensor_pitch, cutoff, lmin);
+    choices.push(pixels);
+    let padding = if method == Method::MatrixDft { 1.0 } else { 2.0 };
+    choices.push(choice(
+        "padding",
+        if padding == 1.0 { "none".into() } else { "2x".into() },
+        if padding == 1.0 {
+            "the matrix DFT evaluates the sensor samples directly: no FFT window to wrap".into()
+        } else {
+            "band-limited angular spectrum: Q = 2 keeps the linear convolution (Matsushima and Shimobaba 2009)".into()
+        },
+    ));
+
+    // Precision.
+    let (n, m) = (matrix_dft::pupil_grid(&chosen, doe).0, chosen.samples());
+    let (precision, e_prec, because) = choose_precision(method, n, m, tolerance);
+    choices.push(choice("precision", precision.name().into(), because));
+    if precision == Precision::F32 {
+        cost *= 0.5;
+    }
+
+    // Spectral samples: what remains of the tolerance.
+    let remaining = tolerance - e_pix - e_prec;
+    let (samples, e_spec, wavelengths) = if bands.is_empty() {
+        choices.push(choice("spectral samples", "1 per channel".into(), "monochromatic channels".into()));
+        (1, 0.0, system.wavelengths.clone())
+    } else {
+        let (n, estimate, because) = spectral_choice(&chosen, doe, bands, method, precision, remaining)?;
+        choices.push(choice("spectral samples", format!("{n} per band (to start)"), because));
+        let wl = bands.iter().flat_map(|b| b.samples(n)).map(|s| s.0).collect();
+        (n, estimate, wl)
+    };
+    cost *= wavelengths.len() as f64;
+    let system = OpticalSystem { wavelengths, ..chosen };
+    Ok(Plan {
+        tolerance,
+        method,
+        precision,
+        system,
+        spectral_samples: samples,
+        padding,
+        estimate: Estimate {
+            pixel_integration: e_pix,
+            precision: e_prec,
+            spectral: e_spec,
+            total: e_pix + e_prec + e_spec,
+        },
+        cost,
+        choices,
+    })
+}
+
+/// A [`Choice`] from its parts.
+fn choice(what: &str, value: String, because: String) -> Choice {
+    Choice { what: what.into(), value, because }
+}
+
+/// A method the plan found valid: the method, the system it runs (pupil pitch, sub-sampling,
+/// pixel rule at the extreme wavelengths), its cost per wavelength and why that sampling.
+type Candidate = (Method, OpticalSystem, f64, String);
+
+/// The shortest and longest wavelength the plan must hold: the bands' edges (each checked
+/// against the material's dispersion formula), or the system's wavelengths without bands.
+fn wavelength_range(system: &OpticalSystem, bands: &[Band]) -> Result<(f64, f64)> {
     let mut edges: Vec<f64> = system.wavelengths.clone();
     for b in bands {
         let (lo, hi) = b.range();
@@ -246,26 +359,31 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
     }
     let lmin = edges.iter().copied().fold(f64::INFINITY, f64::min);
     let lmax = edges.iter().copied().fold(0.0, f64::max);
-    let extremes = OpticalSystem { wavelengths: vec![lmin, lmax], ..system.clone() };
-    let b = extremes.abcd().b.abs();
-    let cutoff = system.aperture / (lmin * b);
+    Ok((lmin, lmax))
+}
 
-    // Pixel sub-sampling: the smallest s per rule whose estimate takes at most half the
-    // tolerance (Gauss-Legendre for the matrix DFT, the midpoint rule for the FFT methods).
+/// The smallest pixel sub-sampling by `rule` whose estimated error ([`pixel_error`], pixels of
+/// `pitch`, intensity band limit `cutoff`) takes at most half the `tolerance`, up to
+/// [`MAX_SUBSAMPLE`].
+fn least_subsample(rule: PixelRule, pitch: f64, cutoff: f64, tolerance: f64) -> Result<usize> {
     let share = 0.5 * tolerance;
-    let subsample = |rule: PixelRule| {
-        (1..=MAX_SUBSAMPLE).find(|&s| pixel_error(rule, system.sensor_pitch, s, cutoff) <= share).ok_or_else(|| {
-            Error::Validity(format!(
-                "pixel integration by {rule:?} would need more than {MAX_SUBSAMPLE} sub-samples per pixel for a tolerance of {tolerance:e}"
-            ))
-        })
-    };
-    let (s_gl, s_mid) = (subsample(PixelRule::GaussLegendre)?, subsample(PixelRule::Midpoint));
+    (1..=MAX_SUBSAMPLE).find(|&s| pixel_error(rule, pitch, s, cutoff) <= share).ok_or_else(|| {
+        Error::Validity(format!(
+            "pixel integration by {rule:?} would need more than {MAX_SUBSAMPLE} sub-samples per pixel for a tolerance of {tolerance:e}"
+        ))
+    })
+}
 
-    // Method and pupil sampling.
+/// The matrix DFT at the DOE's pitch divided by the smallest `k <= MAX_REFINE` at which every
+/// sampling condition holds (a stepped DOE read by nearest interpolation), `s_gl`
+/// Gauss-Legendre sub-samples per pixel; else the reasons it is refused.
+fn matrix_dft_candidate(
+    extremes: &OpticalSystem,
+    doe: &Grid,
+    s_gl: usize,
+) -> Result<(Option<Candidate>, Vec<String>)> {
     let doe_pitch = doe.pitch()[0].min(doe.pitch()[1]);
     let base = OpticalSystem { subsample: s_gl, pixel_rule: PixelRule::GaussLegendre, ..extremes.clone() };
-    let mut candidates: Vec<(Method, OpticalSystem, f64, String)> = Vec::new();
     let mut refusals: Vec<String> = Vec::new();
     let mut last: Vec<Violation> = Vec::new();
     for k in 1..=MAX_REFINE {
@@ -305,8 +423,7 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
                     last.iter().map(|v| v.condition.as_str()).collect::<Vec<_>>().join(", ")
                 )
             };
-            candidates.push((Method::MatrixDft, s, cost, why));
-            break;
+            return Ok((Some((Method::MatrixDft, s, cost, why)), refusals));
         }
         // Conditions no pupil refinement fixes.
         if v.iter().any(|v| v.condition == "fresnel_approximation" || v.condition == "imaging_condition") {
@@ -315,20 +432,24 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
         }
         last = v;
     }
-    if candidates.is_empty() && refusals.is_empty() {
+    if refusals.is_empty() {
         refusals.push(format!(
             "matrix_dft: still invalid at DOE pitch / {MAX_REFINE}: {}",
             last.first().map_or(String::new(), |v| v.to_string())
         ));
     }
-    // The angular spectrum samples the pupil at the sensor sub-sample pitch, the midpoint rule.
-    let s_mid = match s_mid {
-        Ok(s) => s,
-        Err(e) => {
-            refusals.push(format!("angular_spectrum: {e}"));
-            usize::MAX
-        }
-    };
+    Ok((None, refusals))
+}
+
+/// The band-limited angular spectrum with the pupil at the sensor sub-sample pitch, `s_mid`
+/// midpoint sub-samples per pixel (none: `usize::MAX`) times the smallest factor up to
+/// [`MAX_REFINE`] at which its conditions hold; else the reasons it is refused.
+fn angular_spectrum_candidate(
+    extremes: &OpticalSystem,
+    doe: &Grid,
+    s_mid: usize,
+) -> Result<(Option<Candidate>, Vec<String>)> {
+    let mut refusals = Vec::new();
     for extra in (1..=MAX_REFINE).take_while(|_| s_mid != usize::MAX) {
         let s =
             OpticalSystem { subsample: s_mid * extra, pixel_rule: PixelRule::Midpoint, ..extremes.clone() };
@@ -351,49 +472,26 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
                     String::new()
                 }
             );
-            candidates.push((Method::AngularSpectrum, s, cost, why));
-            break;
+            return Ok((Some((Method::AngularSpectrum, s, cost, why)), refusals));
         }
         if extra == MAX_REFINE || v.iter().all(|v| v.condition == "phase_gradient" && extra > 4) {
             refusals.push(format!("angular_spectrum: {}", v[0]));
             break;
         }
     }
-    candidates.sort_by(|a, b| a.2.total_cmp(&b.2));
-    let Some((method, chosen, mut cost, why)) = candidates.first().cloned() else {
-        return Err(Error::Validity(format!(
-            "no method is valid for this system:\n  {}",
-            refusals.join("\n  ")
-        )));
-    };
-    let others: Vec<String> = candidates[1..]
-        .iter()
-        .map(|c| format!("{} costs {:.1e}", c.0, c.2))
-        .chain(refusals.iter().cloned())
-        .collect();
-    say(
-        "method",
-        method.name().into(),
-        format!(
-            "cheapest valid ({:.1e} multiply-adds per wavelength){}",
-            cost,
-            if others.is_empty() { String::new() } else { format!("; {}", others.join("; ")) }
-        ),
-    );
-    say(
-        "pupil pitch",
-        format!(
-            "{:.4} um",
-            if method == Method::MatrixDft { chosen.pupil_pitch } else { chosen.sample_pitch() } * 1e6
-        ),
-        why,
-    );
-    let e_pix = pixel_error(chosen.pixel_rule, system.sensor_pitch, chosen.subsample, cutoff);
+    Ok((None, refusals))
+}
+
+/// The pixel integration of the `chosen` system: its estimated error (pixels of `pitch`,
+/// intensity band limit `cutoff` at the shortest wavelength `lmin`) and the choice, naming
+/// every cheaper sub-sampling rejected with its estimate.
+fn pixel_choice(chosen: &OpticalSystem, pitch: f64, cutoff: f64, lmin: f64) -> (f64, Choice) {
+    let e_pix = pixel_error(chosen.pixel_rule, pitch, chosen.subsample, cutoff);
     // Every cheaper sub-sampling, rejected, with its estimate.
     let rejected: Vec<String> = (1..chosen.subsample)
-        .map(|s| format!("{s} x {s}: {:.1e}", pixel_error(chosen.pixel_rule, system.sensor_pitch, s, cutoff)))
+        .map(|s| format!("{s} x {s}: {:.1e}", pixel_error(chosen.pixel_rule, pitch, s, cutoff)))
         .collect();
-    say(
+    let c = choice(
         "pixel integration",
         format!("{:?} {} x {}", chosen.pixel_rule, chosen.subsample, chosen.subsample),
         format!(
@@ -408,101 +506,70 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
             }
         ),
     );
-    let padding = if method == Method::MatrixDft { 1.0 } else { 2.0 };
-    say(
-        "padding",
-        if padding == 1.0 { "none".into() } else { "2x".into() },
-        if padding == 1.0 {
-            "the matrix DFT evaluates the sensor samples directly: no FFT window to wrap".into()
-        } else {
-            "band-limited angular spectrum: Q = 2 keeps the linear convolution (Matsushima and Shimobaba 2009)".into()
-        },
-    );
+    (e_pix, c)
+}
 
-    // Precision.
-    let (n, m) = (matrix_dft::pupil_grid(&chosen, doe).0, chosen.samples());
+/// The precision of a run by `method` with `n` pupil and `m` sensor samples per side: `f32`
+/// for the matrix DFT when its rounding estimate ([`f32_error`]) is within a tenth of the
+/// `tolerance`, else `f64` (whose error is not counted); with the estimate and why.
+fn choose_precision(method: Method, n: usize, m: usize, tolerance: f64) -> (Precision, f64, String) {
     let e32 = f32_error(n, m);
     let (precision, e_prec) = if method == Method::MatrixDft && e32 <= 0.1 * tolerance {
         (Precision::F32, e32)
     } else {
         (Precision::F64, 0.0)
     };
-    say(
-        "precision",
-        precision.name().into(),
-        if method != Method::MatrixDft {
-            format!("{method} computes in f64")
-        } else {
-            format!(
-                "f32 rounding estimate u sqrt(n + M) = {e32:.1e} {} tolerance / 10",
-                if precision == Precision::F32 { "<=" } else { ">" }
-            )
-        },
-    );
-    if precision == Precision::F32 {
-        cost *= 0.5;
-    }
-
-    // Spectral samples: what remains of the tolerance.
-    let remaining = tolerance - e_pix - e_prec;
-    let (samples, e_spec, wavelengths) = if bands.is_empty() {
-        say("spectral samples", "1 per channel".into(), "monochromatic channels".into());
-        (1, 0.0, system.wavelengths.clone())
+    let because = if method != Method::MatrixDft {
+        format!("{method} computes in f64")
     } else {
-        let mut pilots = Vec::new();
-        for b in bands {
-            let (lo, hi) = b.range();
-            let pilot_system = OpticalSystem { wavelengths: vec![lo, 0.5 * (lo + hi), hi], ..chosen.clone() };
-            let opts = Options { allow_invalid: false, precision };
-            let pilot = propagate::simulate(&pilot_system, doe, method, &opts)?;
-            let f: Vec<ndarray::Array2<f64>> = pilot
-                .channels
-                .iter()
-                .zip(&pilot_system.wavelengths)
-                .map(|(c, &l)| c.grid.values() * (c.captured.unwrap_or(1.0) * b.response_at(l)))
-                .collect();
-            pilots.push(f);
-        }
-        let count = spectral_count(
-            bands.iter().zip(&pilots).map(|(b, f)| (b.name.as_str(), [&f[0], &f[1], &f[2]])),
-            remaining,
-        )?;
-        let n = count.start();
-        say(
-            "spectral samples",
-            format!("{n} per band (to start)"),
-            format!(
-                "midpoint rule, band '{}' (pilot at its edges and centre): estimate {:.1e} at {} <= the remaining {:.1e}{}; \
-                 rounded up to a multiple of 3, checked by the run against its own middle thirds and tripled until \
-                 they agree",
-                count.band,
-                count.estimate,
-                count.needed,
-                remaining,
-                if count.rejected.is_empty() { String::new() } else { format!(" (cheaper, rejected: {})", count.rejected) }
-            ),
-        );
-        let wl = bands.iter().flat_map(|b| b.samples(n)).map(|s| s.0).collect();
-        (n, count.estimate, wl)
+        format!(
+            "f32 rounding estimate u sqrt(n + M) = {e32:.1e} {} tolerance / 10",
+            if precision == Precision::F32 { "<=" } else { ">" }
+        )
     };
-    cost *= wavelengths.len() as f64;
-    let system = OpticalSystem { wavelengths, ..chosen };
-    Ok(Plan {
-        tolerance,
-        method,
-        precision,
-        system,
-        spectral_samples: samples,
-        padding,
-        estimate: Estimate {
-            pixel_integration: e_pix,
-            precision: e_prec,
-            spectral: e_spec,
-            total: e_pix + e_prec + e_spec,
-        },
-        cost,
-        choices,
-    })
+    (precision, e_prec, because)
+}
+
+/// The spectral samples per band to start a run with: a pilot run of the `chosen` system at
+/// each band's edges and centre, the count of [`spectral_count`] within the `remaining`
+/// tolerance rounded up to a multiple of 3; the count, its estimate and why.
+fn spectral_choice(
+    chosen: &OpticalSystem,
+    doe: &Grid,
+    bands: &[Band],
+    method: Method,
+    precision: Precision,
+    remaining: f64,
+) -> Result<(usize, f64, String)> {
+    let mut pilots = Vec::new();
+    for b in bands {
+        let (lo, hi) = b.range();
+        let pilot_system = OpticalSystem { wavelengths: vec![lo, 0.5 * (lo + hi), hi], ..chosen.clone() };
+        let opts = Options { allow_invalid: false, precision };
+        let pilot = propagate::simulate(&pilot_system, doe, method, &opts)?;
+        let f: Vec<ndarray::Array2<f64>> = pilot
+            .channels
+            .iter()
+            .zip(&pilot_system.wavelengths)
+            .map(|(c, &l)| c.grid.values() * (c.captured.unwrap_or(1.0) * b.response_at(l)))
+            .collect();
+        pilots.push(f);
+    }
+    let count = spectral_count(
+        bands.iter().zip(&pilots).map(|(b, f)| (b.name.as_str(), [&f[0], &f[1], &f[2]])),
+        remaining,
+    )?;
+    let because = format!(
+        "midpoint rule, band '{}' (pilot at its edges and centre): estimate {:.1e} at {} <= the remaining {:.1e}{}; \
+         rounded up to a multiple of 3, checked by the run against its own middle thirds and tripled until \
+         they agree",
+        count.band,
+        count.estimate,
+        count.needed,
+        remaining,
+        if count.rejected.is_empty() { String::new() } else { format!(" (cheaper, rejected: {})", count.rejected) }
+    );
+    Ok((count.start(), count.estimate, because))
 }
 
 /// The most spectral samples per band [`run`] refines to.
@@ -750,5 +817,105 @@ pub fn run_reporting(
             }
         }
         n *= 3;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::Unit;
+
+    /// F/7 at 635 and 450 nm: 0.5 mm aperture, 3.5 mm to the sensor, 3 um pixels, 40 x 40.
+    fn scene() -> OpticalSystem {
+        OpticalSystem {
+            aperture: 0.5e-3,
+            doe_to_lens: 1e-3,
+            focal_length: 3.5e-3,
+            lens_to_sensor: 3.5e-3,
+            sensor_pitch: 3e-6,
+            crop: 40,
+            pupil_pitch: 5e-6,
+            pupil_window: 112.0 * 5e-6,
+            wavelengths: vec![635e-9, 450e-9],
+            ..Default::default()
+        }
+    }
+
+    /// A flat DOE of 112 x 112 samples at 5 um.
+    fn flat() -> Grid {
+        Grid::new(ndarray::Array2::zeros((112, 112)), [5e-6; 2], Unit::Metre).unwrap()
+    }
+
+    #[test]
+    fn the_wavelength_range_is_the_bands_edges_or_the_systems_wavelengths() {
+        let s = scene();
+        assert_eq!(wavelength_range(&s, &[]).unwrap(), (450e-9, 635e-9));
+        let bands = [Band::flat("A", 500e-9, 520e-9).unwrap(), Band::flat("B", 600e-9, 690e-9).unwrap()];
+        assert_eq!(wavelength_range(&s, &bands).unwrap(), (500e-9, 690e-9));
+        let uv = Band::flat("UV", 350e-9, 450e-9).unwrap();
+        let e = wavelength_range(&s, &[uv]).unwrap_err().to_string();
+        assert!(e.contains("band 'UV'") && e.contains("400-700 nm"), "{e}");
+    }
+
+    /// The least sub-sampling meets half the tolerance and the one below it does not; a
+    /// tolerance no sub-sampling meets (the midpoint rule's error falls as `s^-2`) is refused
+    /// naming the rule.
+    #[test]
+    fn the_least_subsample_is_the_first_within_half_the_tolerance() {
+        let (pitch, cutoff) = (3e-6, 0.5e-3 / (450e-9 * 3.5e-3));
+        for (rule, tolerances) in
+            [(PixelRule::GaussLegendre, [1e-2, 1e-3, 1e-4]), (PixelRule::Midpoint, [1e-1, 1e-2, 1e-3])]
+        {
+            for tolerance in tolerances {
+                let s = least_subsample(rule, pitch, cutoff, tolerance).unwrap();
+                assert!(pixel_error(rule, pitch, s, cutoff) <= 0.5 * tolerance, "{rule:?} {tolerance}");
+                assert!(
+                    s == 1 || pixel_error(rule, pitch, s - 1, cutoff) > 0.5 * tolerance,
+                    "{rule:?} {tolerance}"
+                );
+            }
+        }
+        let e = least_subsample(PixelRule::Midpoint, pitch, cutoff, 1e-4).unwrap_err().to_string();
+        assert!(e.contains("Midpoint") && e.contains("more than 32 sub-samples"), "{e}");
+    }
+
+    /// `f32` only for the matrix DFT, and only while `2^-24 sqrt(n + M)` is within a tenth of
+    /// the tolerance: `sqrt(140) 2^-24 = 7.05e-7`.
+    #[test]
+    fn f32_is_chosen_for_the_matrix_dft_within_a_tenth_of_the_tolerance() {
+        let e = 140f64.sqrt() / 16_777_216.0;
+        let (p, err, why) = choose_precision(Method::MatrixDft, 100, 40, 1e-3);
+        assert_eq!((p, err), (Precision::F32, e));
+        assert!(why.contains("7.1e-7 <="), "{why}");
+        let (p, err, why) = choose_precision(Method::MatrixDft, 100, 40, 1e-6);
+        assert_eq!((p, err), (Precision::F64, 0.0));
+        assert!(why.contains("7.1e-7 >"), "{why}");
+        let (p, err, why) = choose_precision(Method::AngularSpectrum, 100, 40, 1e-3);
+        assert_eq!((p, err), (Precision::F64, 0.0));
+        assert!(why.contains("computes in f64"), "{why}");
+    }
+
+    /// The DOE's own 5 um samples suffice for a 40-pixel crop; a 183-pixel one (0.55 mm) exceeds
+    /// the replica period `lambda |B| / dx` = 0.315 mm at 450 nm, which half the pitch lifts
+    /// over it; a 1000-pixel one (3 mm) no refinement up to 8 reaches (2.5 mm at 450 nm).
+    #[test]
+    fn the_matrix_dft_refines_the_pupil_until_the_replicas_clear_the_crop() {
+        let doe = flat();
+        let at = |crop: usize| {
+            let s = OpticalSystem { crop, wavelengths: vec![450e-9, 635e-9], ..scene() };
+            matrix_dft_candidate(&s, &doe, 4).unwrap()
+        };
+        let (c, refusals) = at(40);
+        let c = c.unwrap();
+        assert_eq!((c.0, c.1.pupil_pitch, c.1.subsample, refusals.len()), (Method::MatrixDft, 5e-6, 4, 0));
+        let n = matrix_dft::pupil_grid(&c.1, &doe).0;
+        assert_eq!(c.2, matrix_dft_cost(n, 160));
+        let (c, _) = at(183);
+        let c = c.unwrap();
+        assert!(c.1.pupil_pitch == 2.5e-6 && c.3.starts_with("DOE pitch / 2"), "{}", c.3);
+        let (c, refusals) = at(1000);
+        assert!(c.is_none() && refusals.len() == 1, "{refusals:?}");
+        assert!(refusals[0].starts_with("matrix_dft: still invalid at DOE pitch / 8"), "{refusals:?}");
+        assert_eq!(angular_spectrum_candidate(&scene(), &doe, usize::MAX).unwrap(), (None, Vec::new()));
     }
 }

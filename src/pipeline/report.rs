@@ -337,20 +337,7 @@ pub fn run_report(
     let mut plan =
         Scheduler { start, budget: opts.budget, here: probe_seconds, there: COSTS.probe, parts: Vec::new() };
     // The PSF benchmark's least time: its reference, two matrix DFTs (module docs of psf_bench).
-    let system = super::bench::design_system(&opts.psf, &loaded.heights)?;
-    let reference_work: f64 = [2, 4]
-        .map(|extra| {
-            let sys = crate::optics::system::OpticalSystem {
-                subsample: opts.psf.bench.max_subsample + extra,
-                pixel_rule: crate::optics::system::PixelRule::GaussLegendre,
-                ..system.clone()
-            };
-            let f64 = crate::optics::Precision::F64;
-            psf_bench::Costs::work(crate::optics::Method::MatrixDft, f64, &sys, &loaded.heights)
-        })
-        .iter()
-        .sum();
-    let psf_least = reference_work / probe_work * COSTS.probe;
+    let psf_least = psf_reference_work(opts, &loaded.heights)? / probe_work * COSTS.probe;
     let keep_files = |plan: &Scheduler| COSTS.files * plan.pace();
     let keep_psf = |plan: &Scheduler| (PSF_SHARE * opts.budget).max(psf_least * plan.pace());
     let fixed = |plan: &Scheduler, there: f64| (there, keep_files(plan) + keep_psf(plan), false);
@@ -442,38 +429,6 @@ pub fn run_report(
     })?;
 
     let mut stage = StagedDir::new(output)?;
-    let svg = |names: Vec<String>, prefix: &str| -> Vec<String> {
-        names.into_iter().filter(|n| n.ends_with(".svg")).map(|n| format!("{prefix}{n}")).collect()
-    };
-    let mut charts = Charts::default();
-    if let Some(psf) = &psf {
-        charts.psf = svg(write_psf_charts(|n| stage.stage_path(&format!("psf_{n}")), psf)?, "psf_");
-        atomic::write_json(&stage.stage_path("bench_psf.json"), psf)?;
-        atomic::write_bytes(&stage.stage_path("bench_psf.csv"), psf_csv(psf).as_bytes())?;
-    }
-    charts.maps = svg(write_stability_charts(|n| stage.stage_path(n), &maps)?, "");
-    atomic::write_json(&stage.stage_path("stability.json"), &maps)?;
-    atomic::write_bytes(&stage.stage_path("stability.csv"), stability_csv(&maps).as_bytes())?;
-    if let Some(r) = &registration {
-        charts.registration = svg(reg_bench::write_chart(|n| stage.stage_path(n), r)?, "");
-        atomic::write_json(&stage.stage_path("register.json"), r)?;
-    }
-    if let Some(f) = &fab {
-        charts.fab = svg(write_fab_bench_charts(|n| stage.stage_path(&format!("fab_{n}")), f)?, "fab_");
-        atomic::write_json(&stage.stage_path("bench_fab.json"), f)?;
-    }
-    if let Some(c) = &calibration {
-        charts.calibration = svg(cal_bench::write_chart(|n| stage.stage_path(n), c)?, "");
-        atomic::write_json(&stage.stage_path("calibration.json"), c)?;
-    }
-    if let Some(t) = &tiling {
-        charts.tiling = svg(tiling_bench::write_chart(|n| stage.stage_path(n), t)?, "");
-        atomic::write_json(&stage.stage_path("tiling.json"), t)?;
-    }
-    if let Some(f) = &finetune {
-        charts.finetune = svg(finetune_time::write_chart(|n| stage.stage_path(n), f)?, "");
-        atomic::write_json(&stage.stage_path("finetune_time.json"), f)?;
-    }
     let measured = Measured {
         psf: psf.as_ref(),
         maps: &maps,
@@ -483,6 +438,7 @@ pub fn run_report(
         tiling: tiling.as_ref(),
         finetune: finetune.as_ref(),
     };
+    let charts = stage_parts(&mut stage, &measured)?;
     let budget = BudgetRecord {
         budget_seconds: opts.budget,
         probe_seconds,
@@ -546,6 +502,63 @@ fn stability_csv(r: &StabilityReport) -> String {
         }
     }
     s
+}
+
+/// The PSF benchmark's least work, real multiply-adds: its reference, two matrix DFTs of the
+/// design in its system at the bench's largest sub-sampling plus 2 and plus 4 (module docs of
+/// psf_bench).
+fn psf_reference_work(opts: &ReportOptions, heights: &crate::grid::Grid) -> Result<f64> {
+    let system = super::bench::design_system(&opts.psf, heights)?;
+    Ok([2, 4]
+        .map(|extra| {
+            let sys = crate::optics::system::OpticalSystem {
+                subsample: opts.psf.bench.max_subsample + extra,
+                pixel_rule: crate::optics::system::PixelRule::GaussLegendre,
+                ..system.clone()
+            };
+            let f64 = crate::optics::Precision::F64;
+            psf_bench::Costs::work(crate::optics::Method::MatrixDft, f64, &sys, heights)
+        })
+        .iter()
+        .sum())
+}
+
+/// Writes each measured part's charts and data into `stage` (the parts left out write none);
+/// returns the SVG charts by section.
+fn stage_parts(stage: &mut StagedDir, m: &Measured) -> Result<Charts> {
+    let svg = |names: Vec<String>, prefix: &str| -> Vec<String> {
+        names.into_iter().filter(|n| n.ends_with(".svg")).map(|n| format!("{prefix}{n}")).collect()
+    };
+    let mut charts = Charts::default();
+    if let Some(psf) = m.psf {
+        charts.psf = svg(write_psf_charts(|n| stage.stage_path(&format!("psf_{n}")), psf)?, "psf_");
+        atomic::write_json(&stage.stage_path("bench_psf.json"), psf)?;
+        atomic::write_bytes(&stage.stage_path("bench_psf.csv"), psf_csv(psf).as_bytes())?;
+    }
+    charts.maps = svg(write_stability_charts(|n| stage.stage_path(n), m.maps)?, "");
+    atomic::write_json(&stage.stage_path("stability.json"), m.maps)?;
+    atomic::write_bytes(&stage.stage_path("stability.csv"), stability_csv(m.maps).as_bytes())?;
+    if let Some(r) = m.registration {
+        charts.registration = svg(reg_bench::write_chart(|n| stage.stage_path(n), r)?, "");
+        atomic::write_json(&stage.stage_path("register.json"), r)?;
+    }
+    if let Some(f) = m.fab {
+        charts.fab = svg(write_fab_bench_charts(|n| stage.stage_path(&format!("fab_{n}")), f)?, "fab_");
+        atomic::write_json(&stage.stage_path("bench_fab.json"), f)?;
+    }
+    if let Some(c) = m.calibration {
+        charts.calibration = svg(cal_bench::write_chart(|n| stage.stage_path(n), c)?, "");
+        atomic::write_json(&stage.stage_path("calibration.json"), c)?;
+    }
+    if let Some(t) = m.tiling {
+        charts.tiling = svg(tiling_bench::write_chart(|n| stage.stage_path(n), t)?, "");
+        atomic::write_json(&stage.stage_path("tiling.json"), t)?;
+    }
+    if let Some(f) = m.finetune {
+        charts.finetune = svg(finetune_time::write_chart(|n| stage.stage_path(n), f)?, "");
+        atomic::write_json(&stage.stage_path("finetune_time.json"), f)?;
+    }
+    Ok(charts)
 }
 
 /// The chart files of each section.

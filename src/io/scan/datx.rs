@@ -373,43 +373,17 @@ fn datasets_in(ctx: &Ctx, file: &Hdf5File, group: &str) -> Result<Vec<String>> {
     Ok(names.into_iter().map(|n| format!("{}/{n}", group.trim_end_matches('/'))).collect())
 }
 
-/// Decodes a `.datx` file (see the module docs).
-pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
-    let ctx = Ctx { path, len: bytes.len() };
-    if signature_offset(bytes).is_none() {
-        return Err(ctx.err(format!(
-            "byte offset 0: not a Zygo .datx file: no HDF5 signature (\\x89HDF\\r\\n\\x1a\\n) at byte offset 0, 512, 1024, ... \
-             (the file is {} bytes)",
-            bytes.len()
-        )));
-    }
-    let budget = bytes.len().saturating_mul(INFLATE).max(1 << 16);
-    let opts = OpenOptions::default()
-        .with_max_chunk_bytes(budget.min(1 << 28))
-        .with_max_read_bytes(budget)
-        .with_max_object_header_bytes(bytes.len().max(1 << 12))
-        .with_chunk_cache_bytes(budget.min(1 << 26));
-    let file = Hdf5File::from_bytes_with_options(bytes, opts).map_err(ctx.h5("the superblock"))?;
-    let sb = file.superblock();
-    let vref = 4 + sb.offset_size as usize + 4;
-    let end = sb.base_address.saturating_add(sb.eof_address);
-    if end > bytes.len() as u64 {
-        return Err(ctx.err(format!(
-            "truncated at byte offset {}: the HDF5 superblock says the file ends at byte offset {end}",
-            bytes.len()
-        )));
-    }
-    let mut warnings = Vec::new();
-
-    // Where the surface is: the link table, else the places Mx 7 and older Mx write it.
-    let from_table = metadata_path(&ctx, &file, vref)?;
-    let surface_path = match from_table {
+/// Where the surface is: the `/MetaData` link table's path, else `/Measurement/Surface`
+/// (Mx 7), else the first dataset of `/Data/Surface` (older Mx; more than one warned about).
+fn surface_path(ctx: &Ctx, file: &Hdf5File, vref: usize, warnings: &mut Vec<String>) -> Result<String> {
+    let from_table = metadata_path(ctx, file, vref)?;
+    Ok(match from_table {
         Some(p) => p,
         None => {
-            if find_dataset(&ctx, &file, "/Measurement/Surface")?.is_some() {
+            if find_dataset(ctx, file, "/Measurement/Surface")?.is_some() {
                 "/Measurement/Surface".to_string()
             } else {
-                let found = datasets_in(&ctx, &file, "/Data/Surface")?;
+                let found = datasets_in(ctx, file, "/Data/Surface")?;
                 match found.as_slice() {
                     [] => return Err(ctx.err(
                         "not a Zygo .datx file: an HDF5 file with no surface map (no /MetaData link to one, \
@@ -427,37 +401,19 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
                 }
             }
         }
-    };
-    let ds = find_dataset(&ctx, &file, &surface_path)?.ok_or_else(|| {
-        ctx.err(format!("/MetaData names the surface map {surface_path}, which is not in the file"))
-    })?;
-    let (rows, cols) = match ds.shape() {
-        [r, c] => (
-            usize::try_from(*r).map_err(|_| ctx.err("the surface map's row count overflows"))?,
-            usize::try_from(*c).map_err(|_| ctx.err("the surface map's column count overflows"))?,
-        ),
-        other => return Err(ctx.err(format!("the surface map {surface_path} has shape {other:?}, not 2-D"))),
-    };
-    if rows == 0 || cols == 0 {
-        return Err(ctx.err(format!("the surface map {surface_path} is empty ({cols} x {rows} points)")));
-    }
-    let dtype = ds.dtype().clone();
-    let elem = match &dtype {
-        Datatype::FloatingPoint { size: s @ (4 | 8), .. } => *s as usize,
-        Datatype::FixedPoint { size: s @ (1 | 2 | 4 | 8), .. } => *s as usize,
-        other => return Err(ctx.err(format!("the surface map {surface_path} holds {other:?}, not numbers"))),
-    };
-    let need = data_len(path, rows, cols, elem)?;
-    if need > budget {
-        return Err(ctx.err(format!(
-            "the surface map {surface_path} claims {cols} x {rows} points ({need} bytes), more than a {} byte file can hold",
-            bytes.len()
-        )));
-    }
+    })
+}
 
-    // Attributes of the surface.
-    let attrs: Vec<(String, Value)> =
-        ds.attributes().iter().map(|a| (a.name.clone(), attr_value(a, vref, &ds))).collect();
+/// The surface's height unit (its `Unit` attribute or the Z Converter's base unit, which must
+/// agree) and metres per stored value: the unit's length, or for fringes the wavelength times
+/// the interferometric scale factor and the obliquity factor (attributes, else the Z
+/// Converter's parameters).
+fn height_scale(
+    ctx: &Ctx,
+    attrs: &[(String, Value)],
+    surface_path: &str,
+    warnings: &mut Vec<String>,
+) -> Result<(String, f64)> {
     let attr = |name: &str| attrs.iter().find(|(n, _)| n == name).map(|(_, v)| v);
     let unit_attr = attr("Unit").and_then(Value::text).map(str::to_string).filter(|s| !s.is_empty());
     let zconv = attr("Z Converter");
@@ -504,6 +460,71 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
             ctx.err(format!("{surface_path}: height unit '{unit}' is not a length nor Fringes"))
         })?
     };
+    Ok((unit, metres))
+}
+
+/// Decodes a `.datx` file (see the module docs).
+pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
+    let ctx = Ctx { path, len: bytes.len() };
+    if signature_offset(bytes).is_none() {
+        return Err(ctx.err(format!(
+            "byte offset 0: not a Zygo .datx file: no HDF5 signature (\\x89HDF\\r\\n\\x1a\\n) at byte offset 0, 512, 1024, ... \
+             (the file is {} bytes)",
+            bytes.len()
+        )));
+    }
+    let budget = bytes.len().saturating_mul(INFLATE).max(1 << 16);
+    let opts = OpenOptions::default()
+        .with_max_chunk_bytes(budget.min(1 << 28))
+        .with_max_read_bytes(budget)
+        .with_max_object_header_bytes(bytes.len().max(1 << 12))
+        .with_chunk_cache_bytes(budget.min(1 << 26));
+    let file = Hdf5File::from_bytes_with_options(bytes, opts).map_err(ctx.h5("the superblock"))?;
+    let sb = file.superblock();
+    let vref = 4 + sb.offset_size as usize + 4;
+    let end = sb.base_address.saturating_add(sb.eof_address);
+    if end > bytes.len() as u64 {
+        return Err(ctx.err(format!(
+            "truncated at byte offset {}: the HDF5 superblock says the file ends at byte offset {end}",
+            bytes.len()
+        )));
+    }
+    let mut warnings = Vec::new();
+
+    // Where the surface is: the link table, else the places Mx 7 and older Mx write it.
+    let surface_path = surface_path(&ctx, &file, vref, &mut warnings)?;
+    let ds = find_dataset(&ctx, &file, &surface_path)?.ok_or_else(|| {
+        ctx.err(format!("/MetaData names the surface map {surface_path}, which is not in the file"))
+    })?;
+    let (rows, cols) = match ds.shape() {
+        [r, c] => (
+            usize::try_from(*r).map_err(|_| ctx.err("the surface map's row count overflows"))?,
+            usize::try_from(*c).map_err(|_| ctx.err("the surface map's column count overflows"))?,
+        ),
+        other => return Err(ctx.err(format!("the surface map {surface_path} has shape {other:?}, not 2-D"))),
+    };
+    if rows == 0 || cols == 0 {
+        return Err(ctx.err(format!("the surface map {surface_path} is empty ({cols} x {rows} points)")));
+    }
+    let dtype = ds.dtype().clone();
+    let elem = match &dtype {
+        Datatype::FloatingPoint { size: s @ (4 | 8), .. } => *s as usize,
+        Datatype::FixedPoint { size: s @ (1 | 2 | 4 | 8), .. } => *s as usize,
+        other => return Err(ctx.err(format!("the surface map {surface_path} holds {other:?}, not numbers"))),
+    };
+    let need = data_len(path, rows, cols, elem)?;
+    if need > budget {
+        return Err(ctx.err(format!(
+            "the surface map {surface_path} claims {cols} x {rows} points ({need} bytes), more than a {} byte file can hold",
+            bytes.len()
+        )));
+    }
+
+    // Attributes of the surface.
+    let attrs: Vec<(String, Value)> =
+        ds.attributes().iter().map(|a| (a.name.clone(), attr_value(a, vref, &ds))).collect();
+    let attr = |name: &str| attrs.iter().find(|(n, _)| n == name).map(|(_, v)| v);
+    let (unit, metres) = height_scale(&ctx, &attrs, &surface_path, &mut warnings)?;
     let no_data = attr("No Data").and_then(Value::first);
 
     let pitch_of = |name: &str, warnings: &mut Vec<String>| -> Option<f64> {
@@ -535,7 +556,38 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     };
 
     // The heights.
-    let values: Vec<f64> = match &dtype {
+    let values = read_numbers(&ds, &dtype).map_err(ctx.h5(&format!("the surface map {surface_path}")))?;
+    if values.len() != rows * cols {
+        return Err(ctx.err(format!(
+            "the surface map {surface_path} gave {} values for {cols} x {rows}",
+            values.len()
+        )));
+    }
+    let values: Vec<f64> = values
+        .into_iter()
+        .map(|v| if !v.is_finite() || Some(v) == no_data { f64::NAN } else { v * metres })
+        .collect();
+    let values = shape(path, rows, cols, values)?;
+
+    // Other channels beside the surface.
+    let others = other_channels(&ctx, &file, &surface_path)?;
+    if !others.is_empty() {
+        warnings.push(format!(
+            "the height map {surface_path} is read; other channels skipped: {}",
+            others.join(", ")
+        ));
+    }
+    let metadata = datx_metadata(&ctx, &file, vref, &surface_path, &unit, metres, &attrs)?;
+
+    let raw = RawMap { values, kind: SampleKind::Float, pitch, unit: Some(1.0), metadata, scale_hint: None };
+    let mut sr = ScanRaw::new(raw, ScanFormat::Datx);
+    sr.warnings = warnings;
+    Ok(sr)
+}
+
+/// The surface map's stored numbers as f64, row-major, whatever their integer or float type.
+fn read_numbers(ds: &Dataset, dtype: &Datatype) -> std::result::Result<Vec<f64>, hdf5_reader::error::Error> {
+    match dtype {
         Datatype::FloatingPoint { size: 4, .. } => {
             ds.read_array::<f32>().map(|a| a.iter().map(|&v| v as f64).collect())
         }
@@ -563,43 +615,45 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         }
         _ => ds.read_array::<u64>().map(|a| a.iter().map(|&v| v as f64).collect()),
     }
-    .map_err(ctx.h5(&format!("the surface map {surface_path}")))?;
-    if values.len() != rows * cols {
-        return Err(ctx.err(format!(
-            "the surface map {surface_path} gave {} values for {cols} x {rows}",
-            values.len()
-        )));
-    }
-    let values: Vec<f64> = values
-        .into_iter()
-        .map(|v| if !v.is_finite() || Some(v) == no_data { f64::NAN } else { v * metres })
-        .collect();
-    let values = shape(path, rows, cols, values)?;
+}
 
-    // Other channels beside the surface.
-    let parent =
-        surface_path.rsplit_once('/').map(|(p, _)| if p.is_empty() { "/" } else { p }).unwrap_or("/");
+/// The group holding `path` (`/` at the root).
+fn parent_group(path: &str) -> &str {
+    path.rsplit_once('/').map(|(p, _)| if p.is_empty() { "/" } else { p }).unwrap_or("/")
+}
+
+/// The datasets beside the surface at `surface_path` (in its group, and in the groups of
+/// `/Data` but `Surface`), the link table left out.
+fn other_channels(ctx: &Ctx, file: &Hdf5File, surface_path: &str) -> Result<Vec<String>> {
+    let parent = parent_group(surface_path);
     let mut others: Vec<String> =
-        datasets_in(&ctx, &file, parent)?.into_iter().filter(|p| *p != surface_path).collect();
-    if let Some(data) = find_group(&ctx, &file, "/Data")? {
+        datasets_in(ctx, file, parent)?.into_iter().filter(|p| *p != surface_path).collect();
+    if let Some(data) = find_group(ctx, file, "/Data")? {
         let (groups, _) = data.member_names().map_err(ctx.h5("/Data"))?;
         for g in groups {
             if g != "Surface" {
-                others.extend(datasets_in(&ctx, &file, &format!("/Data/{g}"))?);
+                others.extend(datasets_in(ctx, file, &format!("/Data/{g}"))?);
             }
         }
     }
     others.retain(|p| p != "/MetaData");
-    if !others.is_empty() {
-        warnings.push(format!(
-            "the height map {surface_path} is read; other channels skipped: {}",
-            others.join(", ")
-        ));
-    }
+    Ok(others)
+}
 
-    // Metadata: the surface's attributes, its groups', then /Attributes/*.
+/// The metadata: the surface's path and height unit (`unit`, `metres` per stored value), its
+/// attributes `attrs`, its groups', then those of `/Attributes/*` (the first of a name kept).
+fn datx_metadata(
+    ctx: &Ctx,
+    file: &Hdf5File,
+    vref: usize,
+    surface_path: &str,
+    unit: &str,
+    metres: f64,
+    attrs: &[(String, Value)],
+) -> Result<Vec<(String, String)>> {
+    let parent = parent_group(surface_path);
     let mut metadata = vec![
-        ("surface_path".to_string(), surface_path.clone()),
+        ("surface_path".to_string(), surface_path.to_string()),
         ("height_unit".to_string(), format!("{unit} ({} m per stored value)", num_text(metres))),
     ];
     let mut push = |k: &str, v: &Value| {
@@ -609,7 +663,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
             }
         }
     };
-    for (k, v) in &attrs {
+    for (k, v) in attrs {
         push(k, v);
     }
     let mut groups = Vec::new();
@@ -618,22 +672,18 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         groups.push(p.clone());
         p = p.rsplit_once('/').map(|(a, _)| a.to_string()).unwrap_or_default();
     }
-    if let Some(attr_root) = find_group(&ctx, &file, "/Attributes")? {
+    if let Some(attr_root) = find_group(ctx, file, "/Attributes")? {
         let (names, _) = attr_root.member_names().map_err(ctx.h5("/Attributes"))?;
         groups.extend(names.into_iter().map(|n| format!("/Attributes/{n}")));
     }
     for g in groups {
-        if let Some(group) = find_group(&ctx, &file, &g)? {
+        if let Some(group) = find_group(ctx, file, &g)? {
             for a in &group.attributes().map_err(ctx.h5(&format!("the attributes of {g}")))? {
                 push(&a.name, &attr_value(a, vref, &group));
             }
         }
     }
-
-    let raw = RawMap { values, kind: SampleKind::Float, pitch, unit: Some(1.0), metadata, scale_hint: None };
-    let mut sr = ScanRaw::new(raw, ScanFormat::Datx);
-    sr.warnings = warnings;
-    Ok(sr)
+    Ok(metadata)
 }
 
 #[cfg(test)]

@@ -109,90 +109,17 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         _ => return Err(b.bad(12, format!("version '{version}' is not read (1.00 and 1.01 are)"))),
     };
     let count = b.u16le(16, "the number of blocks")?;
-    let head = if wide { 10 } else { 6 };
-    let mut at = 18;
-    let mut seen: Vec<(u16, usize, usize)> = Vec::new(); // (type, payload offset, payload size)
     let mut warnings = Vec::new();
-    while at < bytes.len() {
-        if bytes.len() - at < head {
-            warnings.push(format!(
-                "{} bytes after the last block (from byte offset {at}) left unread",
-                bytes.len() - at
-            ));
-            break;
-        }
-        let kind = b.u16le(at, "a block's type")?;
-        let size = if wide {
-            let lo = b.u32le(at + 2, "a block's size")? as u64;
-            let hi = b.u32le(at + 6, "a block's size")? as u64;
-            usize::try_from(hi << 32 | lo).unwrap_or(usize::MAX)
-        } else {
-            b.u32le(at + 2, "a block's size")? as usize
-        };
-        let payload = at + head;
-        b.take(payload, size, &format!("block {kind:#06x}"))?;
-        if seen.iter().any(|&(k, _, _)| k == kind) {
-            return Err(b.bad(at, format!("block {kind:#06x} is given twice")));
-        }
-        seen.push((kind, payload, size));
-        at = payload + size;
-    }
+    let blocks = Blocks { b: &b, seen: read_blocks(&b, wide, &mut warnings)? };
+    let seen = &blocks.seen;
     if seen.len() != count as usize {
         warnings.push(format!("the header announces {count} blocks, the file holds {}", seen.len()));
     }
-    let block = |kind: u16| seen.iter().find(|&&(k, _, _)| k == kind).map(|&(_, off, size)| (off, size));
-    // A fixed-size block: its payload offset, after checking it holds `need` bytes.
-    let fixed = |kind: u16, need: usize, what: &str| -> Result<Option<usize>> {
-        match block(kind) {
-            Some((off, size)) if size < need => {
-                Err(b.bad(off, format!("block {kind:#06x} ({what}) holds {size} bytes, {need} expected")))
-            }
-            Some((off, _)) => Ok(Some(off)),
-            None => Ok(None),
-        }
-    };
+    let block = |kind: u16| blocks.find(kind);
+    let fixed = |kind: u16, need: usize, what: &str| blocks.fixed(kind, need, what);
 
     // The images the file holds.
-    let mut images: Vec<Image> = Vec::new();
-    if let Some((off, size)) = block(0x000b) {
-        let Some(s) = fixed(0x0066, 12, "the image size")? else {
-            return Err(b.bad(off, "block 0x000b holds an image but no block 0x0066 gives its size"));
-        };
-        let image = Image {
-            kind: TOPOGRAPHY,
-            cols: b.u32le(s, "the number of columns")? as usize,
-            rows: b.u32le(s + 4, "the number of rows")? as usize,
-            bits: b.u32le(s + 8, "the bits per count")?,
-            at: off,
-        };
-        check(&b, &image, size, s)?;
-        images.push(image);
-    }
-    if let Some((off, size)) = block(0x007d) {
-        if size < 8 {
-            return Err(b.bad(off, format!("block 0x007d (images) holds {size} bytes, at least 8 expected")));
-        }
-        let end = off + size;
-        let mut p = off + 8;
-        while end - p > 16 {
-            let image = Image {
-                kind: b.u32le(p, "an image's type")?,
-                cols: b.u32le(p + 4, "an image's columns")? as usize,
-                rows: b.u32le(p + 8, "an image's rows")? as usize,
-                bits: b.u32le(p + 12, "an image's bits per count")?,
-                at: p + 16,
-            };
-            let len = check(&b, &image, end - image.at, p)?;
-            images.push(image);
-            p = image.at + len;
-        }
-        if p != end {
-            warnings.push(format!(
-                "{} bytes at the end of block 0x007d (from byte offset {p}) left unread",
-                end - p
-            ));
-        }
-    }
+    let images = list_images(&blocks, &mut warnings)?;
     let single = block(0x000b).is_some();
     let base = |i: &Image| i.kind & TYPE_MASK;
     let chosen = images
@@ -294,6 +221,113 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let mut sr = ScanRaw::new(raw, ScanFormat::Frt);
     sr.warnings = warnings;
     Ok(sr)
+}
+
+/// The file's blocks, `(type, payload offset, payload size)` in file order.
+struct Blocks<'a> {
+    b: &'a Bin<'a>,
+    seen: Vec<(u16, usize, usize)>,
+}
+
+impl Blocks<'_> {
+    /// The payload offset and size of the block of type `kind`.
+    fn find(&self, kind: u16) -> Option<(usize, usize)> {
+        self.seen.iter().find(|&&(k, _, _)| k == kind).map(|&(_, off, size)| (off, size))
+    }
+
+    /// A fixed-size block: its payload offset, after checking it holds `need` bytes.
+    fn fixed(&self, kind: u16, need: usize, what: &str) -> Result<Option<usize>> {
+        match self.find(kind) {
+            Some((off, size)) if size < need => Err(self
+                .b
+                .bad(off, format!("block {kind:#06x} ({what}) holds {size} bytes, {need} expected"))),
+            Some((off, _)) => Ok(Some(off)),
+            None => Ok(None),
+        }
+    }
+}
+
+/// The chain of blocks after the 18-byte header (headers of 6 bytes, or 10 with 64-bit sizes
+/// in version 1.01 (`wide`)); a type given twice is refused, bytes too few for a block header
+/// at the end are warned about.
+fn read_blocks(b: &Bin, wide: bool, warnings: &mut Vec<String>) -> Result<Vec<(u16, usize, usize)>> {
+    let bytes = b.bytes;
+    let head = if wide { 10 } else { 6 };
+    let mut at = 18;
+    let mut seen: Vec<(u16, usize, usize)> = Vec::new(); // (type, payload offset, payload size)
+    while at < bytes.len() {
+        if bytes.len() - at < head {
+            warnings.push(format!(
+                "{} bytes after the last block (from byte offset {at}) left unread",
+                bytes.len() - at
+            ));
+            break;
+        }
+        let kind = b.u16le(at, "a block's type")?;
+        let size = if wide {
+            let lo = b.u32le(at + 2, "a block's size")? as u64;
+            let hi = b.u32le(at + 6, "a block's size")? as u64;
+            usize::try_from(hi << 32 | lo).unwrap_or(usize::MAX)
+        } else {
+            b.u32le(at + 2, "a block's size")? as usize
+        };
+        let payload = at + head;
+        b.take(payload, size, &format!("block {kind:#06x}"))?;
+        if seen.iter().any(|&(k, _, _)| k == kind) {
+            return Err(b.bad(at, format!("block {kind:#06x} is given twice")));
+        }
+        seen.push((kind, payload, size));
+        at = payload + size;
+    }
+    Ok(seen)
+}
+
+/// The images of block 0x000b (one topography, its size in block 0x0066) and of block 0x007d
+/// (each with its own header), in that order; bytes left at the end of block 0x007d are warned
+/// about.
+fn list_images(blocks: &Blocks, warnings: &mut Vec<String>) -> Result<Vec<Image>> {
+    let b = blocks.b;
+    let mut images: Vec<Image> = Vec::new();
+    if let Some((off, size)) = blocks.find(0x000b) {
+        let Some(s) = blocks.fixed(0x0066, 12, "the image size")? else {
+            return Err(b.bad(off, "block 0x000b holds an image but no block 0x0066 gives its size"));
+        };
+        let image = Image {
+            kind: TOPOGRAPHY,
+            cols: b.u32le(s, "the number of columns")? as usize,
+            rows: b.u32le(s + 4, "the number of rows")? as usize,
+            bits: b.u32le(s + 8, "the bits per count")?,
+            at: off,
+        };
+        check(b, &image, size, s)?;
+        images.push(image);
+    }
+    if let Some((off, size)) = blocks.find(0x007d) {
+        if size < 8 {
+            return Err(b.bad(off, format!("block 0x007d (images) holds {size} bytes, at least 8 expected")));
+        }
+        let end = off + size;
+        let mut p = off + 8;
+        while end - p > 16 {
+            let image = Image {
+                kind: b.u32le(p, "an image's type")?,
+                cols: b.u32le(p + 4, "an image's columns")? as usize,
+                rows: b.u32le(p + 8, "an image's rows")? as usize,
+                bits: b.u32le(p + 12, "an image's bits per count")?,
+                at: p + 16,
+            };
+            let len = check(b, &image, end - image.at, p)?;
+            images.push(image);
+            p = image.at + len;
+        }
+        if p != end {
+            warnings.push(format!(
+                "{} bytes at the end of block 0x007d (from byte offset {p}) left unread",
+                end - p
+            ));
+        }
+    }
+    Ok(images)
 }
 
 /// Checks an image's size and bits against the `room` bytes after its header (`head`: where

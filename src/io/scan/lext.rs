@@ -443,25 +443,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         }
     };
     let t = Tiff { b: Bin::new(path, bytes), big };
-    // The chain of pages.
-    let mut pages: Vec<Page> = Vec::new();
-    let mut next = t.u32(4, "the first IFD offset")? as usize;
-    while next != 0 {
-        if pages.len() == MAX_PAGES || pages.iter().any(|p| p.at == next) {
-            return Err(t.b.bad(next, format!("the chain of IFDs loops or passes {MAX_PAGES} pages")));
-        }
-        let index = pages.len();
-        let (entries, n) = t.ifd(next, &format!("page {index}'s IFD"))?;
-        let mut p = Page { at: next, entries, description: None };
-        if let Some(e) = p.get(IMAGE_DESCRIPTION).copied() {
-            p.description = Some(t.text(&e, &format!("page {index}'s ImageDescription"))?);
-        }
-        pages.push(p);
-        next = n;
-    }
-    if pages.is_empty() {
-        return Err(t.b.bad(4, "the TIFF file has no page"));
-    }
+    let pages = read_pages(&t)?;
     let images: Vec<Image> = pages.iter().enumerate().map(|(i, p)| image(&t, p, i)).collect::<Result<_>>()?;
 
     // Page 0's measurement XML.
@@ -477,42 +459,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         t.b.bad(pages[0].at, format!("the first page's <TiffTagDescData> XML does not parse: {e}"))
     })?;
 
-    // The EXIF device settings (calibration factors, objective).
-    let mut exif_read = false;
-    if let Some(e) = pages[0].get(EXIF_IFD).copied() {
-        let off = *t.uints(&e, "page 0's ExifIFD offset")?.first().unwrap_or(&0) as usize;
-        if off != 0 {
-            let (entries, _) = t.ifd(off, "EXIF IFD")?;
-            if let Some(d) = entries.iter().find(|e| e.tag == DEVICE_SETTING_DESCRIPTION) {
-                let text = t.text(d, "the EXIF DeviceSettingDescription")?;
-                match text.find(EXIF_XML).map(|s| flatten(&text[s..])) {
-                    Some(Ok(m)) => {
-                        xml.extend(m);
-                        exif_read = true;
-                    }
-                    Some(Err(err)) => warnings.push(format!(
-                        "the EXIF <ExifTagDescData> XML does not parse ({err}): no calibration factors applied"
-                    )),
-                    None => {}
-                }
-            }
-        }
-    }
-    let mut cal = [1.0f64; 3];
-    let mut cal_text = Vec::new();
-    for (k, axis) in ["X", "Y", "Z"].iter().enumerate() {
-        let key = format!("ImageCommonSettingsInfo/MakerCalibrationValue{axis}");
-        if let Some(v) = lookup(&xml, &key) {
-            match v.parse::<f64>().ok().map(|x| x * 1e-6).filter(|x| x.is_finite() && *x > 0.0) {
-                Some(f) => {
-                    cal[k] = f;
-                    cal_text.push(format!("{axis} {f}"));
-                }
-                None => warnings
-                    .push(format!("MakerCalibrationValue{axis} '{v}' is not a positive number: not applied")),
-            }
-        }
-    }
+    let (cal, cal_text, exif_read) = device_calibration(&t, &pages[0], &mut xml, &mut warnings)?;
 
     // The height page: the first titled HEIGHT after page 0.
     let titles: Vec<String> =
@@ -537,29 +484,10 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     // The invalid mask.
     let mask_page =
         (1..pages.len()).find(|&i| titles[i] == "INVALID").or((guessed == Some("INVALID")).then_some(0));
-    let mut invalid = 0usize;
-    if let Some(mp) = mask_page {
-        let m = &images[mp];
-        if m.bits != 1 || m.spp != 1 || m.compression != 1 {
-            warnings.push(format!(
-                "the INVALID page {mp} ({} samples of {} bits, Compression {}) is not an uncompressed \
-                 1-bit mask: not applied",
-                m.spp, m.bits, m.compression
-            ));
-        } else if (m.rows, m.cols) != (rows, cols) {
-            warnings.push(format!(
-                "the INVALID page {mp} is {} x {}, the heights {cols} x {rows}: not applied",
-                m.cols, m.rows
-            ));
-        } else {
-            for (v, bad) in values.iter_mut().zip(mask(&t, m, mp)?) {
-                if bad && !v.is_nan() {
-                    *v = f64::NAN;
-                    invalid += 1;
-                }
-            }
-        }
-    }
+    let invalid = match mask_page {
+        Some(mp) => apply_invalid_mask(&t, &images[mp], mp, &mut values, &mut warnings)?,
+        None => 0,
+    };
 
     let num = |key: &str| {
         lookup(&xml, key).and_then(|v| v.parse::<f64>().ok()).filter(|v| v.is_finite() && *v > 0.0)
@@ -601,35 +529,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     }
 
     // Metadata.
-    let tag_text = |tag: u16, name: &str| -> Result<Option<String>> {
-        match pages[0].get(tag) {
-            Some(e) => Ok(Some(t.text(e, &format!("page 0's {name}"))?).filter(|s| !s.is_empty())),
-            None => Ok(None),
-        }
-    };
-    let make = tag_text(MAKE, "Make")?;
-    let model = tag_text(MODEL, "Model")?;
-    let mut metadata: Vec<(String, String)> = Vec::new();
-    let instrument = match (&make, &model) {
-        (Some(a), Some(b)) => format!("{a} {b}"),
-        (Some(a), None) | (None, Some(a)) => a.clone(),
-        (None, None) => "Olympus LEXT".into(),
-    };
-    metadata.push(("instrument".into(), instrument));
-    if let Some(s) = tag_text(SOFTWARE, "Software")? {
-        metadata.push(("software".into(), s));
-    }
-    if let Some(d) = tag_text(DATE_TIME, "DateTime")? {
-        metadata.push(("date".into(), tiff_date(&d).unwrap_or(d)));
-    }
-    let by_name =
-        |name: &str| xml.iter().find(|(k, _)| k.rsplit('/').next() == Some(name)).map(|(_, v)| v.clone());
-    if let Some(o) = by_name("ObjectiveLenseType") {
-        metadata.push(("objective".into(), o));
-    }
-    if let Some(m) = by_name("ObjectiveLenseMagnification") {
-        metadata.push(("magnification".into(), m));
-    }
+    let mut metadata = instrument_metadata(&t, &pages[0], &xml)?;
     metadata.push((
         "calibration".into(),
         if cal_text.is_empty() {
@@ -678,6 +578,146 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let mut sr = ScanRaw::new(raw, ScanFormat::Lext);
     sr.warnings = warnings;
     Ok(sr)
+}
+
+/// The chain of pages (IFDs) from the header's first offset, each with its ImageDescription;
+/// a loop, more than [`MAX_PAGES`] pages or none at all is refused.
+fn read_pages(t: &Tiff) -> Result<Vec<Page>> {
+    let mut pages: Vec<Page> = Vec::new();
+    let mut next = t.u32(4, "the first IFD offset")? as usize;
+    while next != 0 {
+        if pages.len() == MAX_PAGES || pages.iter().any(|p| p.at == next) {
+            return Err(t.b.bad(next, format!("the chain of IFDs loops or passes {MAX_PAGES} pages")));
+        }
+        let index = pages.len();
+        let (entries, n) = t.ifd(next, &format!("page {index}'s IFD"))?;
+        let mut p = Page { at: next, entries, description: None };
+        if let Some(e) = p.get(IMAGE_DESCRIPTION).copied() {
+            p.description = Some(t.text(&e, &format!("page {index}'s ImageDescription"))?);
+        }
+        pages.push(p);
+        next = n;
+    }
+    if pages.is_empty() {
+        return Err(t.b.bad(4, "the TIFF file has no page"));
+    }
+    Ok(pages)
+}
+
+/// The maker's calibration factors of x, y and z (`MakerCalibrationValue` times `1e-6`, 1 where
+/// absent or unusable, with a warning), page 0's EXIF device settings XML added to `xml`:
+/// the factors, their text and whether the EXIF settings were read.
+fn device_calibration(
+    t: &Tiff,
+    page0: &Page,
+    xml: &mut Vec<(String, String)>,
+    warnings: &mut Vec<String>,
+) -> Result<([f64; 3], Vec<String>, bool)> {
+    let mut exif_read = false;
+    if let Some(e) = page0.get(EXIF_IFD).copied() {
+        let off = *t.uints(&e, "page 0's ExifIFD offset")?.first().unwrap_or(&0) as usize;
+        if off != 0 {
+            let (entries, _) = t.ifd(off, "EXIF IFD")?;
+            if let Some(d) = entries.iter().find(|e| e.tag == DEVICE_SETTING_DESCRIPTION) {
+                let text = t.text(d, "the EXIF DeviceSettingDescription")?;
+                match text.find(EXIF_XML).map(|s| flatten(&text[s..])) {
+                    Some(Ok(m)) => {
+                        xml.extend(m);
+                        exif_read = true;
+                    }
+                    Some(Err(err)) => warnings.push(format!(
+                        "the EXIF <ExifTagDescData> XML does not parse ({err}): no calibration factors applied"
+                    )),
+                    None => {}
+                }
+            }
+        }
+    }
+    let mut cal = [1.0f64; 3];
+    let mut cal_text = Vec::new();
+    for (k, axis) in ["X", "Y", "Z"].iter().enumerate() {
+        let key = format!("ImageCommonSettingsInfo/MakerCalibrationValue{axis}");
+        if let Some(v) = lookup(xml, &key) {
+            match v.parse::<f64>().ok().map(|x| x * 1e-6).filter(|x| x.is_finite() && *x > 0.0) {
+                Some(f) => {
+                    cal[k] = f;
+                    cal_text.push(format!("{axis} {f}"));
+                }
+                None => warnings
+                    .push(format!("MakerCalibrationValue{axis} '{v}' is not a positive number: not applied")),
+            }
+        }
+    }
+    Ok((cal, cal_text, exif_read))
+}
+
+/// Applies the INVALID page `m` (page `mp`) to the heights `values`: NaN where its bit is set;
+/// a mask that is not an uncompressed 1-bit page of the heights' size is not applied, with a
+/// warning. Returns the points it marked.
+fn apply_invalid_mask(
+    t: &Tiff,
+    m: &Image,
+    mp: usize,
+    values: &mut ndarray::Array2<f64>,
+    warnings: &mut Vec<String>,
+) -> Result<usize> {
+    let (rows, cols) = values.dim();
+    let mut invalid = 0usize;
+    if m.bits != 1 || m.spp != 1 || m.compression != 1 {
+        warnings.push(format!(
+            "the INVALID page {mp} ({} samples of {} bits, Compression {}) is not an uncompressed \
+             1-bit mask: not applied",
+            m.spp, m.bits, m.compression
+        ));
+    } else if (m.rows, m.cols) != (rows, cols) {
+        warnings.push(format!(
+            "the INVALID page {mp} is {} x {}, the heights {cols} x {rows}: not applied",
+            m.cols, m.rows
+        ));
+    } else {
+        for (v, bad) in values.iter_mut().zip(mask(t, m, mp)?) {
+            if bad && !v.is_nan() {
+                *v = f64::NAN;
+                invalid += 1;
+            }
+        }
+    }
+    Ok(invalid)
+}
+
+/// The instrument (page 0's Make and Model, else "Olympus LEXT"), software, date and the
+/// objective and its magnification from the XML, where given.
+fn instrument_metadata(t: &Tiff, page0: &Page, xml: &[(String, String)]) -> Result<Vec<(String, String)>> {
+    let tag_text = |tag: u16, name: &str| -> Result<Option<String>> {
+        match page0.get(tag) {
+            Some(e) => Ok(Some(t.text(e, &format!("page 0's {name}"))?).filter(|s| !s.is_empty())),
+            None => Ok(None),
+        }
+    };
+    let make = tag_text(MAKE, "Make")?;
+    let model = tag_text(MODEL, "Model")?;
+    let mut metadata: Vec<(String, String)> = Vec::new();
+    let instrument = match (&make, &model) {
+        (Some(a), Some(b)) => format!("{a} {b}"),
+        (Some(a), None) | (None, Some(a)) => a.clone(),
+        (None, None) => "Olympus LEXT".into(),
+    };
+    metadata.push(("instrument".into(), instrument));
+    if let Some(s) = tag_text(SOFTWARE, "Software")? {
+        metadata.push(("software".into(), s));
+    }
+    if let Some(d) = tag_text(DATE_TIME, "DateTime")? {
+        metadata.push(("date".into(), tiff_date(&d).unwrap_or(d)));
+    }
+    let by_name =
+        |name: &str| xml.iter().find(|(k, _)| k.rsplit('/').next() == Some(name)).map(|(_, v)| v.clone());
+    if let Some(o) = by_name("ObjectiveLenseType") {
+        metadata.push(("objective".into(), o));
+    }
+    if let Some(m) = by_name("ObjectiveLenseMagnification") {
+        metadata.push(("magnification".into(), m));
+    }
+    Ok(metadata)
 }
 
 fn sample_name(format: u64) -> &'static str {

@@ -250,9 +250,10 @@ fn height_rank(s: &Section) -> Option<u8> {
     }
 }
 
-/// Decodes a binary Nanoscope file (see the module docs).
-pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
-    let b = Bin::new(path, bytes);
+/// Refuses what is not a binary Nanoscope file, naming what it is where known: an ISO 28600
+/// transfer, a Nanoscope text export or force-curve file, or no Nanoscope magic at all.
+fn refuse_other_files(b: &Bin) -> Result<()> {
+    let bytes = b.bytes;
     if bytes.starts_with(ISO28600) {
         return Err(b.bad(
             0,
@@ -276,6 +277,13 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     if bytes[..n] != MAGIC[..n] && bytes[..m] != MAGIC_EC[..m] {
         return Err(b.bad(0, "not a Bruker Nanoscope file: it does not start with '\\*File list' CR LF"));
     }
+    Ok(())
+}
+
+/// Decodes a binary Nanoscope file (see the module docs).
+pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
+    let b = Bin::new(path, bytes);
+    refuse_other_files(&b)?;
     let (sections, header_end) = parse_header(&b)?;
     let file_list = &sections[0];
     let version_text = file_list.get("Version").map(|p| p.value.clone());

@@ -105,53 +105,8 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     if !has_magic(bytes) {
         return Err(b.bad(0, "not a Wyko OPD file: it does not start with 01 00 'Directory'"));
     }
-    let dir_type = b.u16le(18, "the directory's type")?;
-    let dir_size = b.u32le(20, "the directory's size")? as usize;
-    let flags = b.u16le(24, "the directory's flags")?;
-    if dir_type != T_DIRECTORY || flags != 0xffff || dir_size < ENTRY || !dir_size.is_multiple_of(ENTRY) {
-        return Err(b.bad(
-            18,
-            format!(
-                "directory entry of type {dir_type}, size {dir_size}, flags {flags:#06x}: expected type 1, a \
-                 multiple of 24 bytes, flags 0xffff"
-            ),
-        ));
-    }
-    b.take(2, dir_size, "the directory")?;
-    let mut listed = Vec::with_capacity(dir_size / ENTRY - 1);
-    for k in 1..dir_size / ENTRY {
-        let at = 2 + k * ENTRY;
-        let name = b.text(at, 16, "an entry's name")?;
-        let kind = b.u16le(at + 16, "an entry's type")?;
-        let size = b.u32le(at + 18, "an entry's size")? as usize;
-        if kind == T_DIRECTORY && size > 0 {
-            return Err(b.bad(at + 16, format!("entry '{name}' is a nested directory")));
-        }
-        listed.push((name, kind, at, size));
-    }
-    // Where the data end with the declared sizes and with Gwyddion's count (u64: no overflow).
-    let end = |count: &dyn Fn(&str, u16, usize) -> usize| -> u64 {
-        listed.iter().map(|(n, k, _, s)| count(n, *k, *s) as u64).sum::<u64>() + (2 + dir_size) as u64
-    };
-    let len = bytes.len() as u64;
-    let gwyddion = end(&|_, _, s| s) != len && end(&gwyddion_size) == len;
     let mut warnings = Vec::new();
-    let mut entries = Vec::new();
-    let mut offset = 2 + dir_size;
-    for (name, kind, at, declared) in listed {
-        let size = if gwyddion { gwyddion_size(&name, kind, declared) } else { declared };
-        if size != declared {
-            warnings.push(format!(
-                "entry '{name}' declares {declared} bytes and holds {size}: the file ends where that count \
-                 (Gwyddion's) puts its end"
-            ));
-        }
-        b.take(offset, size, &format!("the data of entry '{name}'"))?;
-        if size > 0 {
-            entries.push(Entry { name, kind, at, offset, size });
-        }
-        offset += size;
-    }
+    let entries = read_directory(&b, &mut warnings)?;
     let find = |name: &str| entries.iter().find(|e| e.name == name);
     // A scale entry's value; `None` when absent, an error when it holds no number.
     let scale = |name: &str| -> Result<Option<f64>> {
@@ -284,6 +239,60 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let mut sr = ScanRaw::new(raw, ScanFormat::Opd);
     sr.warnings = warnings;
     Ok(sr)
+}
+
+/// The directory (module docs): its entries with their data's offsets, in file order, those
+/// without data left out; where the declared sizes do not end at the file's end but
+/// Gwyddion's count does, that count is used, with a warning per entry it changes.
+fn read_directory(b: &Bin, warnings: &mut Vec<String>) -> Result<Vec<Entry>> {
+    let bytes = b.bytes;
+    let dir_type = b.u16le(18, "the directory's type")?;
+    let dir_size = b.u32le(20, "the directory's size")? as usize;
+    let flags = b.u16le(24, "the directory's flags")?;
+    if dir_type != T_DIRECTORY || flags != 0xffff || dir_size < ENTRY || !dir_size.is_multiple_of(ENTRY) {
+        return Err(b.bad(
+            18,
+            format!(
+                "directory entry of type {dir_type}, size {dir_size}, flags {flags:#06x}: expected type 1, a \
+                 multiple of 24 bytes, flags 0xffff"
+            ),
+        ));
+    }
+    b.take(2, dir_size, "the directory")?;
+    let mut listed = Vec::with_capacity(dir_size / ENTRY - 1);
+    for k in 1..dir_size / ENTRY {
+        let at = 2 + k * ENTRY;
+        let name = b.text(at, 16, "an entry's name")?;
+        let kind = b.u16le(at + 16, "an entry's type")?;
+        let size = b.u32le(at + 18, "an entry's size")? as usize;
+        if kind == T_DIRECTORY && size > 0 {
+            return Err(b.bad(at + 16, format!("entry '{name}' is a nested directory")));
+        }
+        listed.push((name, kind, at, size));
+    }
+    // Where the data end with the declared sizes and with Gwyddion's count (u64: no overflow).
+    let end = |count: &dyn Fn(&str, u16, usize) -> usize| -> u64 {
+        listed.iter().map(|(n, k, _, s)| count(n, *k, *s) as u64).sum::<u64>() + (2 + dir_size) as u64
+    };
+    let len = bytes.len() as u64;
+    let gwyddion = end(&|_, _, s| s) != len && end(&gwyddion_size) == len;
+    let mut entries = Vec::new();
+    let mut offset = 2 + dir_size;
+    for (name, kind, at, declared) in listed {
+        let size = if gwyddion { gwyddion_size(&name, kind, declared) } else { declared };
+        if size != declared {
+            warnings.push(format!(
+                "entry '{name}' declares {declared} bytes and holds {size}: the file ends where that count \
+                 (Gwyddion's) puts its end"
+            ));
+        }
+        b.take(offset, size, &format!("the data of entry '{name}'"))?;
+        if size > 0 {
+            entries.push(Entry { name, kind, at, offset, size });
+        }
+        offset += size;
+    }
+    Ok(entries)
 }
 
 #[cfg(test)]

@@ -271,57 +271,8 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         ));
     }
 
-    let text = |k: &str| match r.get(k) {
-        Some((Item::Text(s), _)) => Some(s.clone()),
-        _ => None,
-    };
-    let kind = text("/MetaData/DataKind");
-    let has_2d =
-        r.items.iter().any(|(p, i, _)| p.starts_with("/2D_Data/") && matches!(i, Item::Matrix { .. }));
-    if !has_2d {
-        let what = kind.as_deref().unwrap_or("no 2-D data");
-        let profile = r.items.iter().any(|(p, _, _)| p.starts_with("/1D_Data/"));
-        return Err(b.bad(
-            MAGIC.len(),
-            if profile {
-                format!("a stylus profile ('{what}', 1-D data), not a surface map: profiles are not read by scan-info")
-            } else {
-                format!("no 2-D height map in the file (data kind '{what}')")
-            },
-        ));
-    }
-    let mut heights: Vec<String> = match r.get("/MetaData/2D_Channels/Height") {
-        Some((Item::List(l), _)) => l.clone(),
-        _ => Vec::new(),
-    };
-    if let Some(primary) = text("/MetaData/PrimaryData2D") {
-        heights.retain(|h| *h != primary);
-        heights.insert(0, primary);
-    }
-    let with_matrix: std::collections::HashSet<&str> = r
-        .items
-        .iter()
-        .filter(|(_, i, _)| matches!(i, Item::Matrix { .. }))
-        .filter_map(|(p, _, _)| p.strip_prefix("/2D_Data/")?.strip_suffix("/Matrix"))
-        .collect();
-    let channel = heights.iter().find(|h| with_matrix.contains(h.as_str())).cloned().ok_or_else(|| {
-        b.bad(MAGIC.len(), format!("no height channel with a matrix (height channels listed: {heights:?})"))
-    })?;
+    let channel = height_channel(&r, &b, &mut warnings)?;
     let pre = format!("/2D_Data/{channel}");
-    let others: Vec<String> = r
-        .items
-        .iter()
-        .filter_map(|(p, i, _)| {
-            let name = p.strip_prefix("/2D_Data/")?.strip_suffix("/Matrix")?;
-            (matches!(i, Item::Matrix { .. }) && name != channel).then(|| name.to_string())
-        })
-        .collect();
-    if !others.is_empty() {
-        warnings.push(format!(
-            "the height channel '{channel}' is read; other 2-D channels skipped: {}",
-            others.join(", ")
-        ));
-    }
     let Some((&Item::Matrix { rows, cols, offset, len: mlen }, moff)) = r.get(&format!("{pre}/Matrix"))
     else {
         return Err(b.bad(MAGIC.len(), format!("{pre}/Matrix is missing")));
@@ -396,8 +347,75 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         .collect();
     let values = shape(path, rows, cols, values)?;
 
+    let metadata = opdx_metadata(&r, &channel, scale, &zsym);
+    let raw = RawMap { values, kind: SampleKind::Float, pitch, unit: Some(1.0), metadata, scale_hint: None };
+    let mut sr = ScanRaw::new(raw, ScanFormat::Opdx);
+    sr.warnings = warnings;
+    Ok(sr)
+}
+
+/// The height channel read: the primary 2-D data when it is a height channel with a matrix,
+/// else the first listed height channel with one; a profile (1-D data) or a file without a
+/// height matrix is refused, and the other 2-D channels are warned about as skipped.
+fn height_channel(r: &Reader, b: &Bin, warnings: &mut Vec<String>) -> Result<String> {
+    let text = |k: &str| match r.get(k) {
+        Some((Item::Text(s), _)) => Some(s.clone()),
+        _ => None,
+    };
+    let kind = text("/MetaData/DataKind");
+    let has_2d =
+        r.items.iter().any(|(p, i, _)| p.starts_with("/2D_Data/") && matches!(i, Item::Matrix { .. }));
+    if !has_2d {
+        let what = kind.as_deref().unwrap_or("no 2-D data");
+        let profile = r.items.iter().any(|(p, _, _)| p.starts_with("/1D_Data/"));
+        return Err(b.bad(
+            MAGIC.len(),
+            if profile {
+                format!("a stylus profile ('{what}', 1-D data), not a surface map: profiles are not read by scan-info")
+            } else {
+                format!("no 2-D height map in the file (data kind '{what}')")
+            },
+        ));
+    }
+    let mut heights: Vec<String> = match r.get("/MetaData/2D_Channels/Height") {
+        Some((Item::List(l), _)) => l.clone(),
+        _ => Vec::new(),
+    };
+    if let Some(primary) = text("/MetaData/PrimaryData2D") {
+        heights.retain(|h| *h != primary);
+        heights.insert(0, primary);
+    }
+    let with_matrix: std::collections::HashSet<&str> = r
+        .items
+        .iter()
+        .filter(|(_, i, _)| matches!(i, Item::Matrix { .. }))
+        .filter_map(|(p, _, _)| p.strip_prefix("/2D_Data/")?.strip_suffix("/Matrix"))
+        .collect();
+    let channel = heights.iter().find(|h| with_matrix.contains(h.as_str())).cloned().ok_or_else(|| {
+        b.bad(MAGIC.len(), format!("no height channel with a matrix (height channels listed: {heights:?})"))
+    })?;
+    let others: Vec<String> = r
+        .items
+        .iter()
+        .filter_map(|(p, i, _)| {
+            let name = p.strip_prefix("/2D_Data/")?.strip_suffix("/Matrix")?;
+            (matches!(i, Item::Matrix { .. }) && name != channel).then(|| name.to_string())
+        })
+        .collect();
+    if !others.is_empty() {
+        warnings.push(format!(
+            "the height channel '{channel}' is read; other 2-D channels skipped: {}",
+            others.join(", ")
+        ));
+    }
+    Ok(channel)
+}
+
+/// The metadata: the channel, the height unit (`scale` `zsym` per stored value) and every
+/// item under `/MetaData/`.
+fn opdx_metadata(r: &Reader, channel: &str, scale: f64, zsym: &str) -> Vec<(String, String)> {
     let mut metadata = vec![
-        ("channel".to_string(), channel.clone()),
+        ("channel".to_string(), channel.to_string()),
         ("height_unit".to_string(), format!("{scale} {zsym} per stored value (f32)")),
     ];
     for (p, item, _) in &r.items {
@@ -411,10 +429,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         };
         metadata.push((key.to_string(), v));
     }
-    let raw = RawMap { values, kind: SampleKind::Float, pitch, unit: Some(1.0), metadata, scale_hint: None };
-    let mut sr = ScanRaw::new(raw, ScanFormat::Opdx);
-    sr.warnings = warnings;
-    Ok(sr)
+    metadata
 }
 
 #[cfg(test)]

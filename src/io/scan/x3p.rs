@@ -73,79 +73,176 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let xml = std::str::from_utf8(&xml_bytes)
         .map_err(|e| Error::format(path, format!("main.xml: byte offset {}: not UTF-8", e.valid_up_to())))?;
     let doc = roxmltree::Document::parse(xml).map_err(|e| Error::format(path, format!("main.xml: {e}")))?;
-    let find = |route: &[&str]| -> Option<roxmltree::Node<'_, '_>> {
-        let mut node = doc.root_element();
+    let main = MainXml { path, doc };
+    let metadata = main.metadata();
+    let axes = main.axes()?;
+    let Axes { nx, ny, .. } = axes;
+    let nbytes = data_len(path, ny, nx, axes.size)?;
+    let mut warnings = Vec::new();
+    let mut raw = point_data(&main, &mut zip, &axes, nbytes, &mut warnings)?;
+    mask_invalid_points(&main, &mut zip, &axes, &mut raw)?;
+    match entry(path, &mut zip, "md5checksum.hex", 4096)? {
+        None => warnings.push("the archive holds no md5checksum.hex".to_string()),
+        Some(c) => {
+            let t = String::from_utf8_lossy(&c);
+            let want = t.split_whitespace().next().unwrap_or("").to_string();
+            let got = hex_md5(&xml_bytes);
+            if !want.eq_ignore_ascii_case(&got) {
+                warnings
+                    .push(format!("md5checksum.hex holds '{}', not the MD5 of main.xml ({got})", t.trim()));
+            }
+        }
+    }
+    let values = shape(path, ny, nx, raw.into_iter().map(|v| axes.zoff + axes.zinc * v).collect())?;
+    let raw = RawMap {
+        values,
+        kind: SampleKind::Float,
+        pitch: Some([axes.px, axes.py]),
+        unit: Some(1.0),
+        metadata,
+        scale_hint: None,
+    };
+    let mut sr = ScanRaw::new(raw, ScanFormat::X3p);
+    sr.origin = Some([axes.ox, axes.oy]);
+    sr.warnings = warnings;
+    Ok(sr)
+}
+
+/// `main.xml`, read by element routes from its root; `path` names the file in errors.
+struct MainXml<'a, 'input> {
+    path: &'a Path,
+    doc: roxmltree::Document<'input>,
+}
+
+impl<'input> MainXml<'_, 'input> {
+    fn find(&self, route: &[&str]) -> Option<roxmltree::Node<'_, 'input>> {
+        let mut node = self.doc.root_element();
         for part in route {
             node = node.children().find(|c| c.is_element() && c.tag_name().name() == *part)?;
         }
         Some(node)
-    };
-    let text = |route: &[&str]| find(route).and_then(|n| n.text()).map(|t| t.trim().to_string());
-    let need = |route: &[&str]| {
-        text(route).ok_or_else(|| Error::format(path, format!("main.xml lacks {}", route.join("/"))))
-    };
-    let num = |route: &[&str], default: Option<f64>| -> Result<f64> {
-        match (text(route), default) {
+    }
+
+    fn text(&self, route: &[&str]) -> Option<String> {
+        self.find(route).and_then(|n| n.text()).map(|t| t.trim().to_string())
+    }
+
+    fn need(&self, route: &[&str]) -> Result<String> {
+        self.text(route)
+            .ok_or_else(|| Error::format(self.path, format!("main.xml lacks {}", route.join("/"))))
+    }
+
+    /// A finite number, or `default` when the element is absent.
+    fn num(&self, route: &[&str], default: Option<f64>) -> Result<f64> {
+        let path = self.path;
+        match (self.text(route), default) {
             (Some(t), _) => t.parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| {
                 Error::format(path, format!("main.xml {} = '{t}' is not a finite number", route.join("/")))
             }),
             (None, Some(d)) => Ok(d),
             (None, None) => Err(Error::format(path, format!("main.xml lacks {}", route.join("/")))),
         }
-    };
-    let count = |route: &[&str]| -> Result<usize> {
-        let t = need(route)?;
-        t.parse::<usize>().ok().filter(|&n| n > 0).ok_or_else(|| {
-            Error::format(path, format!("main.xml {} = '{t}' is not a positive integer", route.join("/")))
-        })
-    };
-    let mut metadata = Vec::new();
-    for route in [
-        &["Record1", "Revision"][..],
-        &["Record1", "FeatureType"],
-        &["Record2", "Date"],
-        &["Record2", "Instrument", "Manufacturer"],
-        &["Record2", "Instrument", "Model"],
-        &["Record2", "Instrument", "Version"],
-        &["Record2", "Comment"],
-    ] {
-        if let Some(t) = text(route) {
-            metadata.push((route.join("/"), t));
-        }
     }
-    for ax in ["CX", "CY"] {
-        let t = need(&["Record1", "Axes", ax, "AxisType"])?;
-        if t != "I" {
+
+    /// A positive integer.
+    fn count(&self, route: &[&str]) -> Result<usize> {
+        let t = self.need(route)?;
+        t.parse::<usize>().ok().filter(|&n| n > 0).ok_or_else(|| {
+            Error::format(
+                self.path,
+                format!("main.xml {} = '{t}' is not a positive integer", route.join("/")),
+            )
+        })
+    }
+
+    /// The revision, feature type, date, instrument and comment, where given.
+    fn metadata(&self) -> Vec<(String, String)> {
+        let mut metadata = Vec::new();
+        for route in [
+            &["Record1", "Revision"][..],
+            &["Record1", "FeatureType"],
+            &["Record2", "Date"],
+            &["Record2", "Instrument", "Manufacturer"],
+            &["Record2", "Instrument", "Model"],
+            &["Record2", "Instrument", "Version"],
+            &["Record2", "Comment"],
+        ] {
+            if let Some(t) = self.text(route) {
+                metadata.push((route.join("/"), t));
+            }
+        }
+        metadata
+    }
+
+    /// The axes and the matrix size (module docs); anything but an incremental x and y axis
+    /// and a single layer is refused.
+    fn axes(&self) -> Result<Axes> {
+        let path = self.path;
+        for ax in ["CX", "CY"] {
+            let t = self.need(&["Record1", "Axes", ax, "AxisType"])?;
+            if t != "I" {
+                return Err(Error::format(
+                    path,
+                    format!("axis {ax} has AxisType '{t}': only incremental (I) x and y axes are supported"),
+                ));
+            }
+        }
+        let px = self.num(&["Record1", "Axes", "CX", "Increment"], None)?;
+        let py = self.num(&["Record1", "Axes", "CY", "Increment"], None)?;
+        if px <= 0.0 || py <= 0.0 {
+            return Err(Error::format(path, format!("x/y increments {px}, {py} must be positive")));
+        }
+        let ox = self.num(&["Record1", "Axes", "CX", "Offset"], Some(0.0))?;
+        let oy = self.num(&["Record1", "Axes", "CY", "Offset"], Some(0.0))?;
+        let dt = self.need(&["Record1", "Axes", "CZ", "DataType"])?;
+        let size = match dt.as_str() {
+            "I" => 2,
+            "L" | "F" => 4,
+            "D" => 8,
+            _ => return Err(Error::format(path, format!("CZ DataType '{dt}' is not I, L, F or D"))),
+        };
+        let zinc = self.num(&["Record1", "Axes", "CZ", "Increment"], Some(1.0))?;
+        let zoff = self.num(&["Record1", "Axes", "CZ", "Offset"], Some(0.0))?;
+        let (nx, ny) = (
+            self.count(&["Record3", "MatrixDimension", "SizeX"])?,
+            self.count(&["Record3", "MatrixDimension", "SizeY"])?,
+        );
+        let nz = self.count(&["Record3", "MatrixDimension", "SizeZ"])?;
+        if nz != 1 {
             return Err(Error::format(
                 path,
-                format!("axis {ax} has AxisType '{t}': only incremental (I) x and y axes are supported"),
+                format!("SizeZ = {nz}: only single-layer surfaces are supported"),
             ));
         }
+        Ok(Axes { px, py, ox, oy, dt, size, zinc, zoff, nx, ny })
     }
-    let px = num(&["Record1", "Axes", "CX", "Increment"], None)?;
-    let py = num(&["Record1", "Axes", "CY", "Increment"], None)?;
-    if px <= 0.0 || py <= 0.0 {
-        return Err(Error::format(path, format!("x/y increments {px}, {py} must be positive")));
-    }
-    let ox = num(&["Record1", "Axes", "CX", "Offset"], Some(0.0))?;
-    let oy = num(&["Record1", "Axes", "CY", "Offset"], Some(0.0))?;
-    let dt = need(&["Record1", "Axes", "CZ", "DataType"])?;
-    let size = match dt.as_str() {
-        "I" => 2,
-        "L" | "F" => 4,
-        "D" => 8,
-        _ => return Err(Error::format(path, format!("CZ DataType '{dt}' is not I, L, F or D"))),
-    };
-    let zinc = num(&["Record1", "Axes", "CZ", "Increment"], Some(1.0))?;
-    let zoff = num(&["Record1", "Axes", "CZ", "Offset"], Some(0.0))?;
-    let (nx, ny) =
-        (count(&["Record3", "MatrixDimension", "SizeX"])?, count(&["Record3", "MatrixDimension", "SizeY"])?);
-    let nz = count(&["Record3", "MatrixDimension", "SizeZ"])?;
-    if nz != 1 {
-        return Err(Error::format(path, format!("SizeZ = {nz}: only single-layer surfaces are supported")));
-    }
-    let nbytes = data_len(path, ny, nx, size)?;
-    let mut warnings = Vec::new();
+}
+
+/// What `main.xml` says of the axes: the pitch and the first sample's position (metres), the
+/// data type and its size in bytes, the height scale and offset, points per row and rows.
+struct Axes {
+    px: f64,
+    py: f64,
+    ox: f64,
+    oy: f64,
+    dt: String,
+    size: usize,
+    zinc: f64,
+    zoff: f64,
+    nx: usize,
+    ny: usize,
+}
+
+/// The stored values, from the linked binary entry (`nbytes` long; an MD5 mismatch is a
+/// warning) or the inline `DataList` (empty: not measured).
+fn point_data(
+    main: &MainXml,
+    zip: &mut zip::ZipArchive<Cursor<&[u8]>>,
+    axes: &Axes,
+    nbytes: usize,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<f64>> {
+    let (path, size, dt, nx, ny) = (main.path, axes.size, &axes.dt, axes.nx, axes.ny);
     let decode_one = |c: &[u8]| -> f64 {
         match size {
             2 => i16::from_le_bytes([c[0], c[1]]) as f64,
@@ -154,9 +251,9 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
             _ => f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]),
         }
     };
-    let mut raw: Vec<f64> = match text(&["Record3", "DataLink", "PointDataLink"]) {
+    Ok(match main.text(&["Record3", "DataLink", "PointDataLink"]) {
         Some(link) => {
-            let data = entry(path, &mut zip, &link, nbytes)?.ok_or_else(|| {
+            let data = entry(path, zip, &link, nbytes)?.ok_or_else(|| {
                 Error::format(path, format!("main.xml links '{link}', which the archive lacks"))
             })?;
             if data.len() != nbytes {
@@ -168,7 +265,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
                     ),
                 ));
             }
-            if let Some(want) = text(&["Record3", "DataLink", "MD5ChecksumPointData"]) {
+            if let Some(want) = main.text(&["Record3", "DataLink", "MD5ChecksumPointData"]) {
                 let got = hex_md5(&data);
                 if !want.eq_ignore_ascii_case(&got) {
                     warnings.push(format!(
@@ -179,7 +276,8 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
             data.chunks_exact(size).map(decode_one).collect()
         }
         None => {
-            let list = find(&["Record3", "DataList"])
+            let list = main
+                .find(&["Record3", "DataList"])
                 .ok_or_else(|| Error::format(path, "main.xml has neither a PointDataLink nor a DataList"))?;
             let mut v = Vec::with_capacity(nx * ny);
             for d in list.children().filter(|c| c.is_element() && c.tag_name().name() == "Datum") {
@@ -199,12 +297,23 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
             }
             v
         }
-    };
-    if let Some(link) =
-        text(&["Record3", "ValidPointsLink"]).or_else(|| text(&["Record3", "DataLink", "ValidPointsLink"]))
+    })
+}
+
+/// NaN where the linked valid-points bit array (if any) clears a point's bit.
+fn mask_invalid_points(
+    main: &MainXml,
+    zip: &mut zip::ZipArchive<Cursor<&[u8]>>,
+    axes: &Axes,
+    raw: &mut [f64],
+) -> Result<()> {
+    let (path, nx, ny) = (main.path, axes.nx, axes.ny);
+    if let Some(link) = main
+        .text(&["Record3", "ValidPointsLink"])
+        .or_else(|| main.text(&["Record3", "DataLink", "ValidPointsLink"]))
     {
         let need = (nx * ny).div_ceil(8);
-        let bits = entry(path, &mut zip, &link, need)?.ok_or_else(|| {
+        let bits = entry(path, zip, &link, need)?.ok_or_else(|| {
             Error::format(path, format!("main.xml links '{link}', which the archive lacks"))
         })?;
         if bits.len() != need {
@@ -219,31 +328,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
             }
         }
     }
-    match entry(path, &mut zip, "md5checksum.hex", 4096)? {
-        None => warnings.push("the archive holds no md5checksum.hex".to_string()),
-        Some(c) => {
-            let t = String::from_utf8_lossy(&c);
-            let want = t.split_whitespace().next().unwrap_or("").to_string();
-            let got = hex_md5(&xml_bytes);
-            if !want.eq_ignore_ascii_case(&got) {
-                warnings
-                    .push(format!("md5checksum.hex holds '{}', not the MD5 of main.xml ({got})", t.trim()));
-            }
-        }
-    }
-    let values = shape(path, ny, nx, raw.into_iter().map(|v| zoff + zinc * v).collect())?;
-    let raw = RawMap {
-        values,
-        kind: SampleKind::Float,
-        pitch: Some([px, py]),
-        unit: Some(1.0),
-        metadata,
-        scale_hint: None,
-    };
-    let mut sr = ScanRaw::new(raw, ScanFormat::X3p);
-    sr.origin = Some([ox, oy]);
-    sr.warnings = warnings;
-    Ok(sr)
+    Ok(())
 }
 
 /// Writes an `.x3p` archive in memory (f64 data, NaN for non-measured points, correct
