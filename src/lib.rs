@@ -7,7 +7,7 @@
 //! * [`grid`]: the shared physical data model, a sampled grid with pitch, origin, unit and
 //!   validity mask; resampling, crop, pad, mirror, rotate; filling of non-measured samples.
 //! * [`image`]: multi-channel images (`(H, W, C)`, linear), the data model of calibration and
-//!   the decoder.
+//!   the decoder; their tone-mapped pictures.
 //! * [`units`]: "550nm", "4.29 um" <-> metres at the edges.
 //! * [`material`]: refractive index n(lambda) of the DOE materials.
 //! * [`design`]: the built-in example designs (grating-like DOE, Fresnel lens).
@@ -25,7 +25,7 @@
 //!   psf, psf-compare, compare, precompensate, the benchmarks), from typed options to typed
 //!   results.
 //! * [`demo`]: every stage on the built-in design (`doefab demo`), no input needed.
-//! * [`report`]: charts and false-colour maps (plotters, embedded font), tone mapping.
+//! * [`report`]: charts and false-colour maps (plotters, embedded font).
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`linalg`]: dense linear solves (nalgebra LU) for the least-squares fits.
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.

@@ -199,7 +199,7 @@ fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(String, &Image<f32>
     for (name, image) in std::iter::once(("reference".to_string(), &reference)).chain(images.iter().cloned())
     {
         let path = dir.join(format!("{name}.png"));
-        crate::io::png::write_png_image_u8(&path, &crate::report::tone::tone_map(image, PICTURE_EV), &meta)?;
+        crate::io::png::write_png_image_u8(&path, &crate::image::tone::tone_map(image, PICTURE_EV), &meta)?;
     }
     Ok(())
 }

@@ -36,7 +36,7 @@ use crate::decoder::infer;
 use crate::decoder::unet::{UNet, SIZE_MULTIPLE};
 use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::report::tone::tone_map;
+use crate::image::tone::tone_map;
 
 /// An upper bound of the U-Net's receptive-field radius, pixels (see the module docs),
 /// rounded up to a multiple of 16.

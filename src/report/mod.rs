@@ -1,5 +1,4 @@
-//! Reports for people: charts and false-colour maps, drawn with `plotters`; tone-mapped
-//! pictures of HDR images ([`tone`]).
+//! Reports for people: charts and false-colour maps, drawn with `plotters`.
 //!
 //! Every chart is drawn twice from one drawing function, once into an RGB buffer written as
 //! PNG (through [`crate::io::png`], atomically) and once as SVG. Text uses DejaVu Sans,
@@ -8,7 +7,6 @@
 
 pub mod fabrication_charts;
 pub mod metrology_charts;
-pub mod tone;
 
 use std::path::Path;
 
