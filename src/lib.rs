@@ -21,6 +21,8 @@
 //!   (`calibrate-psf`); PSNR of reconstructions against references, affine registration.
 //! * [`decoder`]: the paper's U-Net decoder: weights, measurement model, reconstruction of
 //!   captures, fine-tuning for a fabricated part's PSF.
+//! * [`bench`](mod@bench): the benchmarks, one module each, calling the stages' public
+//!   functions (no stage uses them).
 //! * [`pipeline`]: the commands that take more than one library call (merge, calibrate-psf,
 //!   psf, psf-compare, compare, precompensate, the benchmarks), from typed options to typed
 //!   results.
@@ -32,6 +34,7 @@
 //! * [`float`]: exact inlined `round` and `floor` for the per-sample passes.
 //! * [`error`]: the library's error type.
 
+pub mod bench;
 pub mod calibration;
 pub mod decoder;
 pub mod demo;

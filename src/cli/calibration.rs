@@ -416,7 +416,7 @@ pub struct BenchCalibrationArgs {
 
 /// `doefab bench calibration`.
 pub fn bench_calibration(cli: &Cli, a: &BenchCalibrationArgs) -> Result<()> {
-    let pb = progress(cli, doefab::calibration::bench::steps() as u64);
+    let pb = progress(cli, doefab::bench::calibration::steps() as u64);
     let r = doefab::pipeline::bench::bench_calibration(a.psf.as_deref(), &a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {

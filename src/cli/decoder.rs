@@ -478,7 +478,7 @@ pub struct BenchForwardArgs {
 
 /// `doefab bench forward`.
 pub fn bench_forward(cli: &Cli, a: &BenchForwardArgs) -> Result<()> {
-    use doefab::decoder::forward_check::{run, ForwardOptions};
+    use doefab::bench::forward::{run, ForwardOptions};
     let opts = ForwardOptions {
         data: a.data.clone(),
         scenes: a.scenes.clone(),
@@ -548,7 +548,7 @@ pub struct BenchTilingArgs {
 
 /// `doefab bench tiling`.
 pub fn bench_tiling(cli: &Cli, a: &BenchTilingArgs) -> Result<()> {
-    use doefab::decoder::tiling_bench::{steps, TilingOptions};
+    use doefab::bench::tiling::{steps, TilingOptions};
     let opts =
         TilingOptions { size: a.size, tiles: a.tiles.clone(), overlaps: a.overlaps.clone(), seed: a.seed };
     let pb = progress(cli, steps(&opts) as u64);

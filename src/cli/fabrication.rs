@@ -487,7 +487,7 @@ pub fn precompensate(cli: &Cli, a: &PrecompensateArgs) -> Result<()> {
 /// `doefab bench fab`.
 pub fn bench_fab(cli: &Cli, a: &BenchFabArgs) -> Result<()> {
     let BenchFabArgs { design, output, gds_pitch, repeats, optics, read } = a;
-    use doefab::fabrication::bench::{steps, FabBenchOptions};
+    use doefab::bench::fab::{steps, FabBenchOptions};
     let opts = FabBenchOptions {
         wavelength: optics.wavelength,
         material: optics.material.clone(),

@@ -585,7 +585,7 @@ pub struct BenchRegisterArgs {
 
 /// `doefab bench register`.
 pub fn bench_register(cli: &Cli, a: &BenchRegisterArgs) -> Result<()> {
-    let pb = progress(cli, doefab::metrology::registration_bench::steps() as u64);
+    let pb = progress(cli, doefab::bench::register::steps() as u64);
     let r = doefab::pipeline::bench::bench_register(&a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {

@@ -12,7 +12,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use crate::decoder::capture_bench::{BenchReport, Score};
+use crate::bench::decoder::{BenchReport, Score};
 use crate::error::{Error, Result};
 use crate::report::{write_png_chart, FONT};
 
@@ -282,7 +282,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
 /// above, the residual of each model (a colour each, in the order they add to one another) in
 /// each brightness band; below, the halo model's residual over all unsaturated pixels against
 /// the halo's fraction, a line per radius, the paper model's as a dashed line.
-pub fn write_forward_chart(path: &Path, report: &crate::decoder::forward_check::ForwardReport) -> Result<()> {
+pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardReport) -> Result<()> {
     let scenes = &report.scenes;
     if scenes.is_empty() {
         return Err(Error::Data("no scene to chart".into()));
@@ -292,7 +292,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::decoder::forward_check::
         let e = |e: &dyn std::fmt::Display| e.to_string();
         let columns = root.split_evenly((2, scenes.len()));
         for (k, scene) in scenes.iter().enumerate() {
-            let values = |m: &crate::decoder::forward_check::ModelFit| {
+            let values = |m: &crate::bench::forward::ModelFit| {
                 let r = &m.residuals;
                 [r.dark, r.mid, r.bright, r.ring, r.all]
             };

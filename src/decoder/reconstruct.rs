@@ -35,8 +35,8 @@ use serde::Serialize;
 use crate::decoder::infer;
 use crate::decoder::unet::{UNet, SIZE_MULTIPLE};
 use crate::error::{Error, Result};
-use crate::image::Image;
 use crate::image::tone::tone_map;
+use crate::image::Image;
 
 /// An upper bound of the U-Net's receptive-field radius, pixels (see the module docs),
 /// rounded up to a multiple of 16.

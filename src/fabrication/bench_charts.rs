@@ -1,4 +1,4 @@
-//! Charts of `doefab bench fab` ([`super::bench`]): efficiency against level count (predicted
+//! Charts of `doefab bench fab` ([`crate::bench::fab`]): efficiency against level count (predicted
 //! lines, simulated circles), STL triangles, time and measured error against `max_error`, GDSII
 //! file size and time against the vertex limit.
 
@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use plotters::prelude::*;
 
-use super::bench::{FabBenchReport, GdsSweep, QuantizationSweep, StlPoint, StlSweep};
+use crate::bench::fab::{FabBenchReport, GdsSweep, QuantizationSweep, StlPoint, StlSweep};
 use crate::error::{Error, Result};
 use crate::report::{draw_legend, log_label, short, write_png_chart, write_svg_chart, FONT};
 

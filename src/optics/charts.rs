@@ -1,18 +1,18 @@
 //! Charts of `doefab bench psf`: error against run time for every method, precision and
 //! sub-sampling, with the Pareto front of the valid runs; and the stability chart, error
 //! against sub-sampling (the FFT methods' pupil grid) per method, with the runs its guard refuses marked by crosses;
-//! and the stability maps of [`crate::optics::stability`].
+//! and the stability maps of [`crate::bench::stability`].
 
 use std::path::PathBuf;
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+use crate::bench::psf::{BenchPoint, BenchReport};
+use crate::bench::spectral::SpectralReport;
+use crate::bench::stability::{StabilityMap, StabilityReport, STEPPED_DOE_PITCH};
 use crate::error::{Error, Result};
 use crate::optics::propagate::Method;
-use crate::optics::psf_bench::{BenchPoint, BenchReport};
-use crate::optics::spectral_bench::SpectralReport;
-use crate::optics::stability::{StabilityMap, StabilityReport, STEPPED_DOE_PITCH};
 use crate::report::{write_png_chart, write_svg_chart, FONT};
 
 /// The series of `points` in their order of appearance, each with its colour: the methods'
@@ -243,7 +243,7 @@ fn stability_map_chart<DB: DrawingBackend>(
     let e = |x: &dyn std::fmt::Display| x.to_string();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let by_wavelength = map.y_axis == "wavelength";
-    let y_of = |c: &crate::optics::stability::MapCell| {
+    let y_of = |c: &crate::bench::stability::MapCell| {
         if by_wavelength {
             c.wavelength * 1e9
         } else {
@@ -550,7 +550,7 @@ mod tests {
             point("fresnel", 1, 0.05, 1e-1, false),
             point("fresnel", 2, 0.1, 1e-4, true),
         ];
-        let plan = crate::optics::psf_bench::PlanPoint {
+        let plan = crate::bench::psf::PlanPoint {
             tolerance: 1e-3,
             method: "matrix_dft".into(),
             precision: "f32".into(),
@@ -572,11 +572,7 @@ mod tests {
             wavelengths: vec![635e-9],
             crop: 40,
             budget_seconds: 10.0,
-            reference: crate::optics::psf_bench::Reference {
-                subsamples: [7, 9],
-                difference: 1e-9,
-                seconds: 0.1,
-            },
+            reference: crate::bench::psf::Reference { subsamples: [7, 9], difference: 1e-9, seconds: 0.1 },
             points: pts,
             plans: vec![plan],
             silent_failures: 0,

@@ -6,21 +6,21 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use crate::bench::decoder::{self as capture_bench, scene_dirs, BenchConfig, BenchReport, FinetuneBench};
+use crate::bench::fab::{self as fab_bench, FabBenchOptions, FabBenchReport};
+use crate::bench::psf::{self as psf_bench, run_bench, steps, BenchOptions};
+use crate::bench::spectral::{self as spectral_bench, SpectralOptions, SpectralReport};
+use crate::bench::stability::{self, MapOptions, StabilityReport};
 use crate::calibration::capture_registration::{Model, RegisterOptions};
 use crate::calibration::evaluate::ScoringOptions;
-use crate::decoder::capture_bench::{self, scene_dirs, BenchConfig, BenchReport, FinetuneBench};
 use crate::decoder::finetune::FinetuneConfig;
 use crate::error::Result;
-use crate::fabrication::bench::{self as fab_bench, FabBenchOptions, FabBenchReport};
 use crate::fabrication::bench_charts::write_fab_bench_charts;
 use crate::fabrication::chain::{self, DesignSource};
 use crate::io::atomic::{self, StagedDir};
 use crate::material::Material;
 use crate::optics::charts::{write_psf_charts, write_spectral_charts, write_stability_charts};
 use crate::optics::output::system_for;
-use crate::optics::psf_bench::{self, run_bench, steps, BenchOptions};
-use crate::optics::spectral_bench::{self, SpectralOptions, SpectralReport};
-use crate::optics::stability::{self, MapOptions, StabilityReport};
 use crate::optics::system::OpticalSystem;
 
 /// `bench psf` as the command line states it.
@@ -36,7 +36,7 @@ pub struct PsfBenchOptions {
     pub bench: BenchOptions,
 }
 
-/// Runs the PSF methods' benchmark ([`crate::optics::psf_bench`]) on a design in its system and
+/// Runs the PSF methods' benchmark ([`crate::bench::psf`]) on a design in its system and
 /// writes its charts (PNG, SVG) and `bench_psf.json` into the folder `output`, all or nothing.
 /// Progress: one step per run or skipped configuration.
 pub fn bench_psf(
@@ -78,7 +78,7 @@ pub(crate) fn design_system(opts: &PsfBenchOptions, heights: &crate::grid::Grid)
     Ok(system)
 }
 
-/// Runs the spectral-sampling sweep ([`crate::optics::spectral_bench`]) on a design in its
+/// Runs the spectral-sampling sweep ([`crate::bench::spectral`]) on a design in its
 /// system (the design, system file and material of `on`; its budget is not used) and writes
 /// `spectral.{png,svg}` and `spectral.json` into the folder `output`, all or nothing. Progress:
 /// one step per monochromatic run.
@@ -103,7 +103,7 @@ pub fn bench_spectral(
     Ok(report)
 }
 
-/// Runs the stability maps ([`crate::optics::stability`]) and writes their charts (PNG, SVG)
+/// Runs the stability maps ([`crate::bench::stability`]) and writes their charts (PNG, SVG)
 /// and `stability.json` into the folder `output`, all or nothing. Progress: one step per run.
 pub fn bench_stability(
     opts: &MapOptions,
@@ -123,14 +123,14 @@ pub fn bench_stability(
     Ok(report)
 }
 
-/// Runs the registration trials ([`crate::metrology::registration_bench`]) and writes their
+/// Runs the registration trials ([`crate::bench::register`]) and writes their
 /// chart (PNG, SVG), `register.json` and `register.csv` into the folder `output`, all or
 /// nothing. Progress: one step per trial.
 pub fn bench_register(
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<crate::metrology::registration_bench::RegistrationBench> {
-    use crate::metrology::registration_bench as rb;
+) -> Result<crate::bench::register::RegistrationBench> {
+    use crate::bench::register as rb;
     let total = rb::steps() as u64;
     let mut done = 0;
     let report = rb::run(|what| {
@@ -152,7 +152,7 @@ pub fn bench_register(
     Ok(report)
 }
 
-/// Runs the PSF calibration trials ([`crate::calibration::bench`]) on the PSF file `psf` (any
+/// Runs the PSF calibration trials ([`crate::bench::calibration`]) on the PSF file `psf` (any
 /// file `psf` writes or `calibrate-psf` reads; `None`: the paper's measured PSF, compiled in)
 /// and writes their chart (PNG, SVG), `calibration.json` and `calibration.csv` into the folder
 /// `output`, all or nothing. Progress: one step per trial.
@@ -160,8 +160,8 @@ pub fn bench_calibration(
     psf: Option<&Path>,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<crate::calibration::bench::CalibrationBench> {
-    use crate::calibration::bench as cb;
+) -> Result<crate::bench::calibration::CalibrationBench> {
+    use crate::bench::calibration as cb;
     let (truth, name) = match psf {
         Some(p) => (crate::optics::Psf::read(p, None, None)?, p.display().to_string()),
         None => (crate::optics::Psf::paper_measured()?, "built-in:paper-measured-psf".to_string()),
@@ -187,17 +187,17 @@ pub fn bench_calibration(
     Ok(report)
 }
 
-/// Runs the reconstruction's tiling and precision sweep ([`crate::decoder::tiling_bench`]) with
+/// Runs the reconstruction's tiling and precision sweep ([`crate::bench::tiling`]) with
 /// the decoder file `decoder` (or a built-in name) and writes its chart (PNG, SVG),
 /// `tiling.json` and `tiling.csv` into the folder `output`, all or nothing. Progress: one step
 /// per reconstruction.
 pub fn bench_tiling(
     decoder: &Path,
-    opts: &crate::decoder::tiling_bench::TilingOptions,
+    opts: &crate::bench::tiling::TilingOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<crate::decoder::tiling_bench::TilingBench> {
-    use crate::decoder::tiling_bench as tb;
+) -> Result<crate::bench::tiling::TilingBench> {
+    use crate::bench::tiling as tb;
     let total = tb::steps(opts) as u64;
     let mut done = 0;
     let report = tb::run(decoder, opts, |what| {
@@ -226,7 +226,7 @@ pub fn bench_tiling(
     Ok(report)
 }
 
-/// Runs the fabrication stage's sweeps ([`crate::fabrication::bench`]) on a design (any height
+/// Runs the fabrication stage's sweeps ([`crate::bench::fab`]) on a design (any height
 /// map `fab` takes) and writes their charts (PNG, SVG), `bench_fab.json` and one CSV per sweep
 /// (`quantization.csv`, `stl_heightfield.csv`, `gds.csv`) into the folder `output`, all or
 /// nothing. Progress: one step per sweep point ([`fab_bench::steps`]).
@@ -303,7 +303,7 @@ pub struct DecoderBenchOptions {
 #[derive(Debug, Serialize)]
 #[serde(transparent)]
 pub struct DecoderBenchOutcome {
-    /// What [`crate::decoder::capture_bench::run`] reports.
+    /// What [`crate::bench::decoder::run`] reports.
     pub report: BenchReport,
     /// Scenes whose bracket merged with warnings, scenes refused, training images skipped.
     #[serde(skip)]
@@ -377,7 +377,7 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
     })
 }
 
-/// Runs the decoders' benchmark ([`crate::decoder::capture_bench::run`]) with the defaults filled in,
+/// Runs the decoders' benchmark ([`crate::bench::decoder::run`]) with the defaults filled in,
 /// writing into the folder `output`. Progress: the fine-tuning steps and two steps a scene.
 pub fn bench_decoder(
     o: &DecoderBenchOptions,
@@ -416,8 +416,8 @@ pub fn bench_decoder(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bench::decoder::{CurvePoint, FinetuneReport, Score};
     use crate::calibration::evaluate::Psnr;
-    use crate::decoder::capture_bench::{CurvePoint, FinetuneReport, Score};
 
     fn point(step: usize, db: [f64; 2]) -> CurvePoint {
         let score = |scene: &str, gamma_db: f64| Score {

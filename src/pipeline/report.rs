@@ -25,17 +25,17 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::bench::{run_psf_bench, PsfBenchOptions};
-use crate::calibration::bench::{self as cal_bench, CalibrationBench};
-use crate::decoder::finetune_time::{self, TimedFinetune, TimedOptions};
-use crate::decoder::tiling_bench::{self as tiling_bench, TilingBench, TilingOptions};
+use crate::bench::calibration::{self as cal_bench, CalibrationBench};
+use crate::bench::fab::{self as fab_bench, FabBenchOptions, FabBenchReport};
+use crate::bench::finetune_time::{self, TimedFinetune, TimedOptions};
+use crate::bench::psf::{self as psf_bench, BenchOptions};
+use crate::bench::register::{self as reg_bench, RegistrationBench};
+use crate::bench::stability::{self, MapOptions, StabilityReport};
+use crate::bench::tiling::{self as tiling_bench, TilingBench, TilingOptions};
 use crate::error::{Error, Result};
-use crate::fabrication::bench::{self as fab_bench, FabBenchOptions, FabBenchReport};
 use crate::fabrication::bench_charts::write_fab_bench_charts;
 use crate::io::atomic::{self, StagedDir};
-use crate::metrology::registration_bench::{self as reg_bench, RegistrationBench};
 use crate::optics::charts::{write_psf_charts, write_stability_charts};
-use crate::optics::psf_bench::{self, BenchOptions};
-use crate::optics::stability::{self, MapOptions, StabilityReport};
 
 /// What `doefab report` runs.
 #[derive(Debug, Clone)]

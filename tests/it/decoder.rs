@@ -972,7 +972,7 @@ fn the_negative_penalty_lifts_negative_outputs() {
 /// (over 1e-3). The chart and data are written all or nothing.
 #[test]
 fn tiles_with_enough_overlap_equal_one_pass_and_f32_is_within_1e_5_of_f64() {
-    use doefab::decoder::tiling_bench::TilingOptions;
+    use doefab::bench::tiling::TilingOptions;
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("tiling");
     let opts = TilingOptions { size: 512, tiles: vec![384], overlaps: vec![0, 96], seed: 1 };

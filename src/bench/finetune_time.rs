@@ -47,7 +47,7 @@ impl TimedOptions {
     /// views, within `seconds`.
     pub fn new(seconds: f64) -> TimedOptions {
         TimedOptions {
-            init: super::default_init(),
+            init: crate::decoder::default_init(),
             seconds,
             evaluations: 8,
             config: FinetuneConfig { validation: 8, ..FinetuneConfig::recommended() },
@@ -125,7 +125,7 @@ pub fn run(
         return Err(Error::param("evaluations", "must be at least 1"));
     }
     let clock = Instant::now();
-    let device = super::device(false)?;
+    let device = crate::decoder::device(false)?;
     let start = DecoderWeights::read(&opts.init)?;
     let init = format!("{} (sha256 {})", opts.init.display(), decoder_sha256(&opts.init)?);
     let source = procedural_scenes();

@@ -3,7 +3,7 @@
 //!
 //! The part is the paper's DOE on 320 samples of 4.29 um, wrapped at 530 nm in PDMS and
 //! quantized to 8 levels (the surface `compare` registers a scan to). A scan of it is
-//! simulated ([`super::synthetic_scan`]) at 2.7 um with a known pose, and
+//! simulated ([`crate::metrology::synthetic_scan`]) at 2.7 um with a known pose, and
 //! [`register`] must find that pose without being told
 //! anything of it (it searches rotation, mirror and height sign). The baseline scan: 20 nm of
 //! noise, a 2 um blur, 10 % of samples missing, a rotation of 0.3 deg, scale 1, a shift of
@@ -23,13 +23,13 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::scan_registration::{register, Pose, RegisterOptions};
-use super::synthetic_scan::{simulate_scan, SimulateParams};
 use crate::design::{paper_example, ExampleParams, PAPER_PITCH};
 use crate::error::Result;
 use crate::fabrication::quantize::{quantize, QuantizeMethod};
 use crate::fabrication::wrap::{wrap, WrapSpec};
 use crate::grid::Grid;
+use crate::metrology::scan_registration::{register, Pose, RegisterOptions};
+use crate::metrology::synthetic_scan::{simulate_scan, SimulateParams};
 use crate::report::{
     draw_failure_key, failure_panel, write_png_chart, write_svg_chart, SweepAxis, FONT, WITHIN,
 };

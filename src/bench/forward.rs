@@ -34,9 +34,9 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array2, Array3, Axis, Zip};
 use serde::Serialize;
 
-use super::capture_bench::{prepare_scene, scene_dirs, BenchScene, SENSOR_PITCH};
-use super::measurement::{halo_blur, Halo};
+use super::decoder::{prepare_scene, scene_dirs, BenchScene, SENSOR_PITCH};
 use crate::calibration::evaluate::{convolve_psf, ScoringOptions};
+use crate::decoder::measurement::{halo_blur, Halo};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::optics::psf::Psf;
@@ -172,7 +172,7 @@ pub fn run(
         &out.join("forward.json"),
         serde_json::to_string_pretty(&report).map_err(|e| Error::Data(e.to_string()))?.as_bytes(),
     )?;
-    super::charts::write_forward_chart(&out.join("forward.png"), &report)?;
+    crate::decoder::charts::write_forward_chart(&out.join("forward.png"), &report)?;
     Ok(report)
 }
 

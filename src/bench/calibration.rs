@@ -27,9 +27,11 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::capture::Capture;
-use super::hdr_merge::{merge, MergeOptions};
-use super::psf_extract::{calibrate_psf, simulate_pinhole_bracket, Centre, PsfCalibration, PsfOptions};
+use crate::calibration::capture::Capture;
+use crate::calibration::hdr_merge::{merge, MergeOptions};
+use crate::calibration::psf_extract::{
+    calibrate_psf, simulate_pinhole_bracket, Centre, PsfCalibration, PsfOptions,
+};
 use crate::error::Result;
 use crate::optics::Psf;
 use crate::report::{
