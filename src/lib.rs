@@ -23,11 +23,12 @@
 //!   captures, fine-tuning for a fabricated part's PSF.
 //! * [`bench`](mod@bench): the benchmarks, one module each, calling the stages' public
 //!   functions (no stage uses them).
+//! * [`charts`]: every chart, one file per family, with their shared style (fonts, axes, legends;
+//!   the only drawing code); above the stages and the benchmarks, whose results they draw.
 //! * [`pipeline`]: the commands that take more than one library call (merge, calibrate-psf,
 //!   psf, psf-compare, compare, precompensate, the benchmarks), from typed options to typed
 //!   results.
 //! * [`demo`]: every stage on the built-in design (`doefab demo`), no input needed.
-//! * [`report`]: charts and false-colour maps (plotters, embedded font).
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`linalg`]: dense linear solves (nalgebra LU) for the least-squares fits.
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
@@ -36,6 +37,7 @@
 
 pub mod bench;
 pub mod calibration;
+pub mod charts;
 pub mod decoder;
 pub mod demo;
 pub mod design;
@@ -50,7 +52,6 @@ pub mod material;
 pub mod metrology;
 pub mod optics;
 pub mod pipeline;
-pub mod report;
 pub mod rng;
 pub mod table;
 pub mod units;

@@ -300,11 +300,12 @@ fn picture_name(decoder: &Path, taken: &mut Vec<String>) -> String {
 
 /// Runs the benchmark: prepares every scene (a scene that fails is reported with its reason),
 /// scores the capture and every decoder on each scene, and with `finetune` fine-tunes its
-/// initial decoder on the PSF, scoring it along the run. Writes into `out`: `report.json`,
-/// `decoders.png` (decoder x scene chart), per scene `<scene>/*.png` (the registered
-/// reference, the capture and each reconstruction tone-mapped at [`PICTURE_EV`]) and, with
-/// fine-tuning, `finetuned/` (decoder, training record) and `psnr_vs_time.png`. `progress`
-/// is told what is happening and each unit of work done. Refuses when no scene can be scored.
+/// initial decoder on the PSF, scoring it along the run. Writes into `out`: `report.json`, per
+/// scene `<scene>/*.png` (the registered reference, the capture and each reconstruction
+/// tone-mapped at [`PICTURE_EV`]) and, with fine-tuning, `finetuned/` (decoder, training
+/// record); the charts are the command's ([`crate::pipeline::bench::bench_decoder`]).
+/// `progress` is told what is happening and each unit of work done. Refuses when no scene can
+/// be scored.
 pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -> Result<BenchReport> {
     if cfg.scenes.is_empty() {
         return Err(Error::param("scenes", "no scene folder given"));
@@ -399,10 +400,6 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
         finetune,
     };
     crate::io::atomic::write_json(&out.join("report.json"), &report)?;
-    crate::decoder::charts::write_decoder_scene_chart(&out.join("decoders.png"), &report)?;
-    if report.finetune.is_some() {
-        crate::decoder::charts::write_bench_chart(&out.join("psnr_vs_time.png"), &report)?;
-    }
     Ok(report)
 }
 

@@ -123,7 +123,8 @@ struct Bands {
     saturated: Array2<bool>,
 }
 
-/// Runs the check on every scene and writes `forward.json` and `forward.png` into `out`.
+/// Runs the check on every scene and writes `forward.json` into `out` (its chart is the
+/// command's, [`crate::pipeline::bench::bench_forward`]).
 /// `progress(message, done, total)` counts two steps a scene.
 pub fn run(
     opts: &ForwardOptions,
@@ -172,7 +173,6 @@ pub fn run(
         &out.join("forward.json"),
         serde_json::to_string_pretty(&report).map_err(|e| Error::Data(e.to_string()))?.as_bytes(),
     )?;
-    crate::decoder::charts::write_forward_chart(&out.join("forward.png"), &report)?;
     Ok(report)
 }
 

@@ -1,7 +1,8 @@
 //! The benchmarks: each runs the stages' public functions on known inputs and reports speed
 //! against accuracy, or where a method fails, as typed, serialisable data. They sit above the
-//! stages (no stage uses them); the commands that write their files are in
-//! [`crate::pipeline::bench`] and [`crate::pipeline::report`].
+//! stages (no stage uses them) and below the charts ([`crate::charts`] draws their reports);
+//! the commands that write their files, data and charts, are [`crate::pipeline::bench`] and
+//! [`crate::pipeline::report`].
 //!
 //! * [`fab`]: quantization, the STL heightfield and the GDSII tracing, each against a truth
 //!   computed another way (`doefab bench fab`).
@@ -31,3 +32,18 @@ pub mod register;
 pub mod spectral;
 pub mod stability;
 pub mod tiling;
+
+/// One axis of a failure map's sweep (`bench register`, `bench calibration`): its name, unit and
+/// the values tried, in that unit.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SweepAxis {
+    pub name: String,
+    pub unit: String,
+    pub values: Vec<f64>,
+}
+
+impl SweepAxis {
+    pub fn new(name: &str, unit: &str, values: &[f64]) -> SweepAxis {
+        SweepAxis { name: name.into(), unit: unit.into(), values: values.to_vec() }
+    }
+}

@@ -954,8 +954,9 @@ impl<'a> Trainer<'a> {
 
     /// Writes the final outputs into `out`: [`DECODER`] (the blended best validated decoder,
     /// see [`Trainer::written_decoder`]; the start decoder itself when no step validated
-    /// better, with its training record), `training.json` (configuration and curve) and
-    /// `training_curve.png`.
+    /// better, with its training record) and `training.json` (configuration and curve); the
+    /// curve's chart, `training_curve.png`, is drawn by the commands
+    /// ([`crate::charts::training::write_training_chart`]).
     pub fn write_outputs(&self, out: &Path) -> Result<Written> {
         let (decoder, written) = self.written_decoder()?;
         decoder.write(&out.join(DECODER))?;
@@ -976,7 +977,6 @@ impl<'a> Trainer<'a> {
             "history": self.history,
         });
         crate::io::atomic::write_json(&out.join("training.json"), &record)?;
-        crate::decoder::training_chart::write_training_chart(&out.join("training_curve.png"), &self.history)?;
         Ok(written)
     }
 }

@@ -1,20 +1,18 @@
 //! The image decoder of the paper: its U-Net ([`unet`]), the weights format ([`weights`]),
 //! the measurement model used to train it ([`measurement`]), reconstruction of captures
 //! ([`reconstruct`]), fine-tuning for one fabricated part's PSF ([`finetune`]) and seeded
-//! procedural HDR scenes to train on without a data set ([`scenes`]), with their charts
-//! ([`charts`], [`training_chart`]). Its benchmarks are in [`crate::bench`].
+//! procedural HDR scenes to train on without a data set ([`scenes`]). Its benchmarks are in
+//! [`crate::bench`], its charts in [`crate::charts`].
 //!
 //! Images here are `(H, W, 3)` `f32` arrays (row-major, channels last, as the paper's NHWC);
 //! the network runs on NCHW burn tensors on the CPU (burn's Flex backend) or, with the `cuda`
 //! feature, on an NVIDIA GPU.
 
-pub mod charts;
 pub mod dataset;
 pub mod finetune;
 pub mod measurement;
 pub mod reconstruct;
 pub mod scenes;
-pub mod training_chart;
 pub mod unet;
 pub mod weights;
 

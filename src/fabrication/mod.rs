@@ -10,7 +10,6 @@
 //! * [`recipe`]: process recipes ([`bundled`]: those of `masks/`, compiled in); [`chain`]: the
 //!   whole chain behind `doefab fab`.
 
-pub mod bench_charts;
 pub mod bundled;
 pub mod chain;
 pub mod contrast;

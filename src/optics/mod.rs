@@ -13,7 +13,6 @@
 //! * [`spectrum`]: spectral bands weighted by a sensor response.
 //! * [`fft`]: planned square 2-D FFTs of this stage.
 
-pub mod charts;
 pub mod convolve;
 pub mod fft;
 pub mod output;

@@ -1,6 +1,6 @@
 //! `doefab bench psf`, `doefab bench spectral`, `doefab bench stability`, `doefab bench register`, `doefab bench fab`,
-//! `doefab bench calibration`, `doefab bench tiling` and `doefab bench decoder`: the benchmarks with their defaults and
-//! outputs.
+//! `doefab bench calibration`, `doefab bench tiling`, `doefab bench decoder` and `doefab bench forward`: the benchmarks
+//! ([`crate::bench`]) with their defaults and outputs, data and charts ([`crate::charts`]).
 
 use std::path::{Path, PathBuf};
 
@@ -8,18 +8,23 @@ use serde::Serialize;
 
 use crate::bench::decoder::{self as capture_bench, scene_dirs, BenchConfig, BenchReport, FinetuneBench};
 use crate::bench::fab::{self as fab_bench, FabBenchOptions, FabBenchReport};
+use crate::bench::forward::{ForwardOptions, ForwardReport};
 use crate::bench::psf::{self as psf_bench, run_bench, steps, BenchOptions};
 use crate::bench::spectral::{self as spectral_bench, SpectralOptions, SpectralReport};
 use crate::bench::stability::{self, MapOptions, StabilityReport};
 use crate::calibration::capture_registration::{Model, RegisterOptions};
 use crate::calibration::evaluate::ScoringOptions;
+use crate::charts::decoder::{write_bench_chart, write_decoder_scene_chart, write_forward_chart};
+use crate::charts::fabrication::write_fab_bench_charts;
+use crate::charts::failure_maps::{write_calibration_chart, write_registration_chart};
+use crate::charts::optics::{write_psf_charts, write_spectral_charts, write_stability_charts};
+use crate::charts::tiling::write_tiling_chart;
+use crate::charts::training::write_training_chart;
 use crate::decoder::finetune::FinetuneConfig;
 use crate::error::Result;
-use crate::fabrication::bench_charts::write_fab_bench_charts;
 use crate::fabrication::chain::{self, DesignSource};
 use crate::io::atomic::{self, StagedDir};
 use crate::material::Material;
-use crate::optics::charts::{write_psf_charts, write_spectral_charts, write_stability_charts};
 use crate::optics::output::system_for;
 use crate::optics::system::OpticalSystem;
 
@@ -138,7 +143,7 @@ pub fn bench_register(
         done += 1;
     })?;
     let mut stage = StagedDir::new(output)?;
-    rb::write_chart(|n| stage.stage_path(n), &report)?;
+    write_registration_chart(|n| stage.stage_path(n), &report)?;
     atomic::write_json(&stage.stage_path("register.json"), &report)?;
     let mut csv = String::from("axis,value,seed,outcome,shift_error_samples,rotation_error_deg,seconds\n");
     for t in &report.trials {
@@ -173,7 +178,7 @@ pub fn bench_calibration(
         done += 1;
     })?;
     let mut stage = StagedDir::new(output)?;
-    cb::write_chart(|n| stage.stage_path(n), &report)?;
+    write_calibration_chart(|n| stage.stage_path(n), &report)?;
     atomic::write_json(&stage.stage_path("calibration.json"), &report)?;
     let mut csv = String::from("axis,value,seed,outcome,worst_relative_l2,estimated_relative_l2,seconds\n");
     for t in &report.trials {
@@ -205,7 +210,7 @@ pub fn bench_tiling(
         done += 1;
     })?;
     let mut stage = StagedDir::new(output)?;
-    tb::write_chart(|n| stage.stage_path(n), &report)?;
+    write_tiling_chart(|n| stage.stage_path(n), &report)?;
     atomic::write_json(&stage.stage_path("tiling.json"), &report)?;
     let mut csv = String::from("precision,tile,overlap,passes,seconds,relative_l2,max_abs\n");
     for r in &report.runs {
@@ -378,7 +383,9 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
 }
 
 /// Runs the decoders' benchmark ([`crate::bench::decoder::run`]) with the defaults filled in,
-/// writing into the folder `output`. Progress: the fine-tuning steps and two steps a scene.
+/// writing into the folder `output` its files and charts: `decoders.png` (decoder x scene) and,
+/// with fine-tuning, `psnr_vs_time.png` and `finetuned/training_curve.png`. Progress: the
+/// fine-tuning steps and two steps a scene.
 pub fn bench_decoder(
     o: &DecoderBenchOptions,
     output: &Path,
@@ -396,6 +403,11 @@ pub fn bench_decoder(
         done += n;
         progress(&message, done, total);
     })?;
+    write_decoder_scene_chart(&output.join("decoders.png"), &report)?;
+    if let Some(f) = &report.finetune {
+        write_training_chart(&output.join("finetuned").join("training_curve.png"), &f.history)?;
+        write_bench_chart(&output.join("psnr_vs_time.png"), &report)?;
+    }
     let mut warnings = Vec::new();
     for s in report.scenes.iter().filter(|s| !s.merge_warnings.is_empty()) {
         let n = s.merge_warnings.len();
@@ -411,6 +423,19 @@ pub fn bench_decoder(
         warnings.extend(below_start(f));
     }
     Ok(DecoderBenchOutcome { report, warnings })
+}
+
+/// Runs the check of the decoder's measurement model against the real captures
+/// ([`crate::bench::forward::run`]) and writes `forward.json` and its chart `forward.png` into
+/// the folder `output`. Progress: two steps a scene.
+pub fn bench_forward(
+    opts: &ForwardOptions,
+    output: &Path,
+    progress: &mut dyn FnMut(&str, u64, u64),
+) -> Result<ForwardReport> {
+    let report = crate::bench::forward::run(opts, output, progress)?;
+    write_forward_chart(&output.join("forward.png"), &report)?;
+    Ok(report)
 }
 
 #[cfg(test)]

@@ -192,7 +192,7 @@ pub fn compare_and_write(
     out: &Path,
     step: &mut dyn FnMut(&str),
 ) -> Result<CompareReport> {
-    use crate::report::metrology_charts::{height_histogram, height_map, profiles, Palette};
+    use crate::charts::metrology::{height_histogram, height_map, profiles, Palette};
     step("register and compare");
     let mut c = compare_family(family, &scan.grid, opts)?;
     let reference = &c.reference;

@@ -32,10 +32,13 @@ use crate::bench::psf::{self as psf_bench, BenchOptions};
 use crate::bench::register::{self as reg_bench, RegistrationBench};
 use crate::bench::stability::{self, MapOptions, StabilityReport};
 use crate::bench::tiling::{self as tiling_bench, TilingBench, TilingOptions};
+use crate::charts::fabrication::write_fab_bench_charts;
+use crate::charts::failure_maps::{write_calibration_chart, write_registration_chart};
+use crate::charts::optics::{write_psf_charts, write_stability_charts};
+use crate::charts::tiling::write_tiling_chart;
+use crate::charts::training::write_finetune_time_chart;
 use crate::error::{Error, Result};
-use crate::fabrication::bench_charts::write_fab_bench_charts;
 use crate::io::atomic::{self, StagedDir};
-use crate::optics::charts::{write_psf_charts, write_stability_charts};
 
 /// What `doefab report` runs.
 #[derive(Debug, Clone)]
@@ -455,7 +458,7 @@ pub fn run_report(
     atomic::write_json(&stage.stage_path("stability.json"), &maps)?;
     atomic::write_bytes(&stage.stage_path("stability.csv"), stability_csv(&maps).as_bytes())?;
     if let Some(r) = &registration {
-        charts.registration = svg(reg_bench::write_chart(|n| stage.stage_path(n), r)?, "");
+        charts.registration = svg(write_registration_chart(|n| stage.stage_path(n), r)?, "");
         atomic::write_json(&stage.stage_path("register.json"), r)?;
     }
     if let Some(f) = &fab {
@@ -463,15 +466,15 @@ pub fn run_report(
         atomic::write_json(&stage.stage_path("bench_fab.json"), f)?;
     }
     if let Some(c) = &calibration {
-        charts.calibration = svg(cal_bench::write_chart(|n| stage.stage_path(n), c)?, "");
+        charts.calibration = svg(write_calibration_chart(|n| stage.stage_path(n), c)?, "");
         atomic::write_json(&stage.stage_path("calibration.json"), c)?;
     }
     if let Some(t) = &tiling {
-        charts.tiling = svg(tiling_bench::write_chart(|n| stage.stage_path(n), t)?, "");
+        charts.tiling = svg(write_tiling_chart(|n| stage.stage_path(n), t)?, "");
         atomic::write_json(&stage.stage_path("tiling.json"), t)?;
     }
     if let Some(f) = &finetune {
-        charts.finetune = svg(finetune_time::write_chart(|n| stage.stage_path(n), f)?, "");
+        charts.finetune = svg(write_finetune_time_chart(|n| stage.stage_path(n), f)?, "");
         atomic::write_json(&stage.stage_path("finetune_time.json"), f)?;
     }
     let measured = Measured {

@@ -1,14 +1,20 @@
 //! Data flows one way, design to decoder: no stage module names a later stage, and the shared
-//! modules below the stages (grid, io, report, ...) name none. Read from the source, so a new
-//! `use` that closes a cycle fails here with the file and the line.
+//! modules below the stages (grid, io, image, ...) name none. Above the stages sit the
+//! benchmarks (`bench`, which call the stages), then the charts (`charts`, which draw the
+//! stages' results and the benchmarks' reports: `plotters` is named nowhere else), then the
+//! commands (`pipeline`, `demo`), which run them and write their files. Read from the source,
+//! so a new `use` that closes a cycle fails here with the file and the line.
 
 use std::fs;
 use std::path::{Path, PathBuf};
 
 /// The stages in the order data flows through them.
 const STAGES: [&str; 6] = ["design", "fabrication", "metrology", "optics", "calibration", "decoder"];
-/// Modules every stage may use; they use no stage (nor the orchestration above the stages).
-const SHARED: [&str; 9] = ["error", "grid", "units", "material", "table", "rng", "linalg", "io", "report"];
+/// Modules every stage may use; they use no stage (nor the layers above the stages).
+const SHARED: [&str; 10] =
+    ["error", "grid", "units", "material", "table", "rng", "linalg", "io", "image", "float"];
+/// The layers above the stages, lowest first: each names none above it.
+const ABOVE: [&str; 4] = ["bench", "charts", "pipeline", "demo"];
 
 /// The `.rs` files of module `name`: `src/name.rs` and everything below `src/name/`.
 fn sources(name: &str) -> Vec<PathBuf> {
@@ -43,13 +49,14 @@ fn names(line: &str, module: &str) -> bool {
     })
 }
 
-/// Lines of `name`'s sources that name `crate::<other>` for any of `others`.
+/// Lines of `name`'s sources that name `crate::<other>` for any of `others` (comments, where docs
+/// link to the layers above, left out).
 fn imports(name: &str, others: &[&str]) -> Vec<String> {
     let mut found = vec![];
     for file in sources(name) {
         let text = fs::read_to_string(&file).unwrap();
         for (i, line) in text.lines().enumerate() {
-            if others.iter().any(|other| names(line, other)) {
+            if !line.trim_start().starts_with("//") && others.iter().any(|other| names(line, other)) {
                 found.push(format!("{}:{}: {}", file.display(), i + 1, line.trim()));
             }
         }
@@ -58,16 +65,40 @@ fn imports(name: &str, others: &[&str]) -> Vec<String> {
 }
 
 #[test]
-fn no_stage_imports_a_later_stage_and_shared_modules_import_none() {
+fn no_module_imports_a_later_one() {
     let mut wrong = vec![];
     for (k, stage) in STAGES.iter().enumerate() {
-        wrong.extend(imports(stage, &STAGES[k + 1..]));
+        let later: Vec<&str> = STAGES[k + 1..].iter().chain(&ABOVE).copied().collect();
+        wrong.extend(imports(stage, &later));
     }
-    let above: Vec<&str> = STAGES.iter().copied().chain(["pipeline", "demo"]).collect();
+    for (k, layer) in ABOVE.iter().enumerate() {
+        wrong.extend(imports(layer, &ABOVE[k + 1..]));
+    }
+    let above: Vec<&str> = STAGES.iter().chain(&ABOVE).copied().collect();
     for shared in SHARED {
         wrong.extend(imports(shared, &above));
     }
     assert!(wrong.is_empty(), "imports against the flow:\n{}", wrong.join("\n"));
+}
+
+/// `plotters` is named in the charts and nowhere else in the sources.
+#[test]
+fn only_the_charts_draw() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let (mut drawing, mut dirs) = (vec![], vec![src.clone()]);
+    while let Some(d) = dirs.pop() {
+        for p in fs::read_dir(&d).unwrap().flatten().map(|e| e.path()) {
+            if p.is_dir() {
+                dirs.push(p);
+            } else if !p.starts_with(src.join("charts"))
+                && fs::read_to_string(&p).unwrap().contains("plotters")
+            {
+                drawing.push(p.display().to_string());
+            }
+        }
+    }
+    assert!(drawing.is_empty(), "plotters named outside src/charts: {drawing:?}");
+    assert!(fs::read_to_string(src.join("charts/style.rs")).unwrap().contains("plotters"));
 }
 
 #[test]

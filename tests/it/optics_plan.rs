@@ -472,7 +472,7 @@ fn bench_psf_budget_leaves_configurations_out_by_name() {
         );
     }
     let d = tempfile::tempdir().unwrap();
-    doefab::optics::charts::write_psf_charts(|n| d.path().join(n), &r).unwrap();
+    doefab::charts::optics::write_psf_charts(|n| d.path().join(n), &r).unwrap();
     let svg = std::fs::read_to_string(d.path().join("speed_accuracy.svg")).unwrap();
     assert!(svg.contains("left out by the budget: 17"));
     let bad = BenchOptions { budget: 10.0, max_subsample: 0, tolerances: vec![] };
