@@ -314,8 +314,8 @@ mod tests {
 
     use super::*;
     use crate::design::PAPER_PITCH;
+    use crate::grid::blur::gaussian_blur;
     use crate::grid::Unit;
-    use crate::metrology::synthetic_scan::gaussian_blur;
 
     /// Piston does not change a PSF; a small random height error lowers the peak by Marechal's
     /// `exp(-sigma_phi^2)`.
