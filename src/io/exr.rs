@@ -19,6 +19,7 @@
 //! No timestamp is written.
 
 pub mod chromaticities;
+mod chunk;
 mod piz;
 pub mod scanline;
 pub mod yca;
