@@ -187,7 +187,7 @@ fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(String, &Image<f32>
             }
         },
     );
-    let meta = crate::io::heightmap::Metadata {
+    let meta = crate::io::raw_map::Metadata {
         pitch: None,
         unit: None,
         text: vec![

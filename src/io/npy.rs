@@ -27,7 +27,7 @@ use ndarray::{Array2, ArrayBase, ArrayD, Data, Dimension, IxDyn, ShapeBuilder};
 
 use crate::error::{Error, Result};
 use crate::io::atomic::write_atomic;
-use crate::io::heightmap::{RawMap, SampleKind};
+use crate::io::raw_map::{RawMap, SampleKind};
 
 const MAGIC: &[u8; 6] = b"\x93NUMPY";
 

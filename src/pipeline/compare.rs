@@ -229,7 +229,7 @@ pub fn compare_and_write(
         filled_samples,
     };
     let json = serde_json::to_string(&meta).map_err(|e| Error::Data(e.to_string()))?;
-    let exr_meta = crate::io::heightmap::Metadata::heights(reference.pitch())
+    let exr_meta = crate::io::raw_map::Metadata::heights(reference.pitch())
         .with("quantity", "height")
         .with("surface", json);
     crate::io::exr::write_exr(
