@@ -23,7 +23,9 @@ use ndarray::{s, Array2};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 
-use super::{check_lens_sampling, content_bandwidth, field_power, pupil_phase, SensorIntensity, Violation};
+use super::shared::{
+    check_lens_sampling, content_bandwidth, field_power, pupil_phase, SensorIntensity, Violation,
+};
 use crate::error::{Error, Result};
 use crate::grid::Grid;
 use crate::optics::fft::{good_size, Plan2d};
