@@ -29,6 +29,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::decoder::dataset::{training_and_validation, HdrScenes};
 use crate::decoder::measurement::{measure, Halo, Measurement, MeasurementModel};
+use crate::decoder::scenes::{GeneratedScenes, SceneSource};
 use crate::decoder::unet::{is_trainable, tensor_values, UNet};
 use crate::decoder::weights::{encode_safetensors, read_safetensors, DecoderWeights, NamedTensor};
 use crate::decoder::{to_tensor, weights};
@@ -38,39 +39,6 @@ use crate::io::atomic::write_bytes;
 use crate::optics::convolve::Convolver;
 use crate::optics::psf::Psf;
 use crate::rng::Lcg;
-
-/// Where training scenes come from: linear HDR RGB images, drawn with `rng`.
-pub trait SceneSource: Sync {
-    /// A short description for the decoder's metadata.
-    fn describe(&self) -> String;
-    /// One scene of exactly `rows x cols`.
-    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Image<f32>>;
-}
-
-/// Scenes from a generator `f(seed, rows, cols)` (such as a procedural scene generator), each
-/// with a seed drawn from the run's generator.
-pub struct GeneratedScenes<F> {
-    pub name: &'static str,
-    pub generate: F,
-}
-
-impl<F> SceneSource for GeneratedScenes<F>
-where
-    F: Fn(u64, usize, usize) -> Image<f32> + Sync,
-{
-    fn describe(&self) -> String {
-        self.name.to_string()
-    }
-
-    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Image<f32>> {
-        let seed = (rng.uniform() * (1u64 << 53) as f64) as u64;
-        let scene = (self.generate)(seed, rows, cols);
-        if let Some(v) = scene.values.iter().find(|v| !v.is_finite() || **v < 0.0) {
-            return Err(Error::Data(format!("{} (seed {seed}) made the value {v}", self.name)));
-        }
-        Ok(scene)
-    }
-}
 
 /// A scene generator `f(seed, rows, cols)`.
 pub type SceneGenerator = fn(u64, usize, usize) -> Image<f32>;

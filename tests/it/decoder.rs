@@ -495,7 +495,7 @@ fn resume_continues_exactly_and_divergence_keeps_the_last_good_checkpoint() {
 
 #[test]
 fn generated_scenes_feed_a_run_and_bad_values_are_refused() {
-    use doefab::decoder::finetune::GeneratedScenes;
+    use doefab::decoder::scenes::GeneratedScenes;
     let dev = device(false).unwrap();
     // A stand-in generator: a seeded log-normal texture.
     let texture = GeneratedScenes {
@@ -541,7 +541,7 @@ fn write_hdr_images(dir: &std::path::Path) {
 #[test]
 fn unreadable_training_images_are_skipped_and_an_empty_side_refused() {
     use doefab::decoder::dataset::{is_validation, read_dir, training_and_validation};
-    use doefab::decoder::finetune::SceneSource;
+    use doefab::decoder::scenes::SceneSource;
     let t = common::tempdir();
     let data = t.path().join("data");
     write_hdr_images(&data);
@@ -807,7 +807,7 @@ fn bench_decoder_scores_every_decoder_on_one_pixel_set_and_carries_on_past_a_bad
 /// so the test tells the orientation apart.
 #[test]
 fn the_measured_psf_decoder_wins_on_captures_simulated_with_the_measured_psf() {
-    use doefab::decoder::finetune::GeneratedScenes;
+    use doefab::decoder::scenes::GeneratedScenes;
     use doefab::optics::Psf;
     let data = data_dir();
     let dev = device(false).unwrap();
