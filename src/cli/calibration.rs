@@ -7,8 +7,8 @@ use clap::Args;
 
 use doefab::units::clap_length;
 
-use super::args::Cli;
-use crate::{print_result, progress, report_to, warn};
+use super::shared::Cli;
+use super::shared::{print_result, progress, report_to, warn};
 
 /// An exposure bracket on the command line.
 #[derive(Args, Clone)]

@@ -8,8 +8,8 @@ use indicatif::ProgressStyle;
 
 use doefab::units::clap_length;
 
-use super::args::Cli;
-use crate::{print_result, progress, report_to, warn};
+use super::shared::Cli;
+use super::shared::{print_result, progress, report_to, warn};
 
 /// Arguments of `doefab reconstruct`.
 #[derive(Args)]

@@ -13,8 +13,8 @@ use doefab::fabrication::stl::{StlOptions, StlUnit, SurfaceChoice};
 use doefab::fabrication::ReplicaMode;
 use doefab::units::clap_length;
 
-use super::args::{Cli, OpticsArgs, ReadArgs};
-use crate::{print_result, progress, report_to, warn};
+use super::shared::{print_result, progress, report_to, warn};
+use super::shared::{Cli, OpticsArgs, ReadArgs};
 
 /// Mesher choice on the command line.
 #[derive(Clone, Copy, clap::ValueEnum)]

@@ -11,9 +11,9 @@ use doefab::fabrication::recipe::Recipe;
 use doefab::fabrication::ReplicaMode;
 use doefab::units::{clap_length, length_unit};
 
-use super::args::{Cli, OpticsArgs, ReadArgs};
 use super::fabrication::chain_params;
-use crate::{print_result, progress, report_to, warn};
+use super::shared::{print_result, progress, report_to, warn};
+use super::shared::{Cli, OpticsArgs, ReadArgs};
 
 /// Levelling choice on the command line (`scan-info --level`).
 #[derive(Clone, Copy, PartialEq, clap::ValueEnum)]

@@ -10,8 +10,8 @@ use doefab::fabrication::chain::DesignSource;
 use doefab::pipeline::bench::PsfBenchOptions;
 use doefab::units::{clap_duration, clap_length};
 
-use super::args::{Cli, ReadArgs};
-use crate::{print_result, progress, report_to, warn};
+use super::shared::{print_result, progress, report_to, warn};
+use super::shared::{Cli, ReadArgs};
 
 /// Arguments of `doefab psf`.
 #[derive(Args)]
