@@ -24,8 +24,8 @@ use doefab::fabrication::mask::{render, MaskOptions};
 use doefab::fabrication::quantize::{quantize, QuantizeMethod};
 use doefab::fabrication::wrap::{wrap, WrapSpec};
 use doefab::fabrication::Provenance;
-use doefab::io::heightmap::Metadata;
 use doefab::io::png::write_png_u16;
+use doefab::io::raw_map::Metadata;
 use doefab::{Grid, Interpolation, Result};
 
 const LEVELS: usize = 65536;

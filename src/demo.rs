@@ -318,10 +318,10 @@ fn close_the_loop(
     out: &Path,
     p: &mut Progress,
 ) -> Result<LoopStage> {
+    use crate::charts::metrology::{height_map, Palette};
     use crate::metrology::scan_compare::{compare, CompareOptions, Comparison};
     use crate::metrology::synthetic_scan::{simulate_scan, write_scan};
     use crate::pipeline::precompensate::{self as pc, blur_sweep, ModelSource, PrecompensateJob};
-    use crate::report::metrology_charts::{height_map, Palette};
     let params = ChainParams::of_recipe(recipe, false);
     let (target, levels, optics) = crate::pipeline::compare::reference_surface(design, Some(&params))?;
     let process = loop_process(params.wrap_spec()?.period()?, design.heights.pitch()[0])?;
@@ -395,15 +395,15 @@ fn close_the_loop(
     let aperture = Some(0.85 * n as f64 * pitch);
     let small_opts = CompareOptions { aperture, levels, optics: opts.optics.clone(), ..Default::default() };
     let sweep = blur_sweep(&small, &params, &process, &small_opts, &SWEEP_BLURS, &mut |s: &str| p.step(s))?;
-    let points: Vec<crate::report::fabrication_charts::GainPoint> = sweep
+    let points: Vec<crate::charts::fabrication::GainPoint> = sweep
         .iter()
-        .map(|s| crate::report::fabrication_charts::GainPoint {
+        .map(|s| crate::charts::fabrication::GainPoint {
             blur_samples: s.blur_samples,
             rms: [s.rms_before, s.rms_after],
             psf: [s.psf_before, s.psf_after],
         })
         .collect();
-    crate::report::fabrication_charts::precompensation_gain(&out.join("gain.png"), &points)?;
+    crate::charts::fabrication::precompensation_gain(&out.join("gain.png"), &points)?;
     let process = describe_process(&process, design.heights.pitch()[0]);
     let stage = LoopStage { process, precompensate: report, before, after, sweep };
     crate::io::atomic::write_json(&out.join("loop.json"), &stage)?;
@@ -506,6 +506,7 @@ fn fine_tune(init: &Path, psf_path: &Path, out: &Path, p: &mut Progress) -> Resu
     let ft_dir = out.join("finetune");
     trainer.run(&ft_dir, &mut |_| p.step(&message))?;
     trainer.write_outputs(&ft_dir)?;
+    crate::charts::training::write_training_chart(&ft_dir.join("training_curve.png"), trainer.history())?;
     p.show("reconstructing a simulated capture");
     let (kh, kw) = psf.dim();
     let size = 256;

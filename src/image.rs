@@ -8,6 +8,9 @@
 //! element type is `f64` where images are measured and compared (calibration) and `f32` where
 //! they feed the network (the decoder); [`Image::to_f32`] and [`Image::to_f64`] convert.
 //! A [`crate::Grid`] is one channel with a physical pitch; an image's pixels are the sensor's.
+//! Pictures of them for people (exposure, sRGB) are in [`tone`].
+
+pub mod tone;
 
 use ndarray::{Array2, Array3};
 

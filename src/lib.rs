@@ -7,7 +7,7 @@
 //! * [`grid`]: the shared physical data model, a sampled grid with pitch, origin, unit and
 //!   validity mask; resampling, crop, pad, mirror, rotate; filling of non-measured samples.
 //! * [`image`]: multi-channel images (`(H, W, C)`, linear), the data model of calibration and
-//!   the decoder.
+//!   the decoder; their tone-mapped pictures.
 //! * [`units`]: "550nm", "4.29 um" <-> metres at the edges.
 //! * [`material`]: refractive index n(lambda) of the DOE materials.
 //! * [`design`]: the built-in example designs (grating-like DOE, Fresnel lens).
@@ -21,18 +21,23 @@
 //!   (`calibrate-psf`); PSNR of reconstructions against references, affine registration.
 //! * [`decoder`]: the paper's U-Net decoder: weights, measurement model, reconstruction of
 //!   captures, fine-tuning for a fabricated part's PSF.
+//! * [`bench`](mod@bench): the benchmarks, one module each, calling the stages' public
+//!   functions (no stage uses them).
+//! * [`charts`]: every chart, one file per family, with their shared style (fonts, axes, legends;
+//!   the only drawing code); above the stages and the benchmarks, whose results they draw.
 //! * [`pipeline`]: the commands that take more than one library call (merge, calibrate-psf,
 //!   psf, psf-compare, compare, precompensate, the benchmarks), from typed options to typed
 //!   results.
 //! * [`demo`]: every stage on the built-in design (`doefab demo`), no input needed.
-//! * [`report`]: charts and false-colour maps (plotters, embedded font), tone mapping.
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`linalg`]: dense linear solves (nalgebra LU) for the least-squares fits.
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
 //! * [`float`]: exact inlined `round` and `floor` for the per-sample passes.
 //! * [`error`]: the library's error type.
 
+pub mod bench;
 pub mod calibration;
+pub mod charts;
 pub mod decoder;
 pub mod demo;
 pub mod design;
@@ -47,7 +52,6 @@ pub mod material;
 pub mod metrology;
 pub mod optics;
 pub mod pipeline;
-pub mod report;
 pub mod rng;
 pub mod table;
 pub mod units;

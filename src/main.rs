@@ -7,17 +7,16 @@ use std::process::ExitCode;
 
 use anyhow::Result;
 use clap::Parser;
-use indicatif::{ProgressBar, ProgressStyle};
 
-use cli::args::{BenchCommand, Cli, Command};
+use cli::args::{BenchCommand, Command, CommandLine};
 use cli::{calibration, decoder, demo, fabrication, metrology, optics};
 
 /// Exit status of a scan that cannot be registered to its design (`doefab compare`).
 const EXIT_UNREGISTERED: u8 = 3;
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    match run(&cli) {
+    let line = CommandLine::parse();
+    match run(&line) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
@@ -32,8 +31,9 @@ fn main() -> ExitCode {
     }
 }
 
-fn run(cli: &Cli) -> Result<()> {
-    match &cli.command {
+fn run(line: &CommandLine) -> Result<()> {
+    let cli = &line.cli;
+    match &line.command {
         Command::Psf(a) => optics::psf(cli, a),
         Command::Merge(a) => calibration::merge(cli, a),
         Command::CalibratePsf(a) => calibration::calibrate_psf(cli, a),
@@ -63,43 +63,5 @@ fn run(cli: &Cli) -> Result<()> {
         Command::ScanInfo(a) => metrology::scan_info(cli, a),
         Command::Reconstruct(a) => decoder::reconstruct(cli, a),
         Command::Finetune(a) => decoder::finetune(cli, a),
-    }
-}
-
-/// A progress bar over `steps` named steps (hidden with --quiet or --json).
-fn progress(cli: &Cli, steps: u64) -> ProgressBar {
-    if cli.quiet || cli.json {
-        return ProgressBar::hidden();
-    }
-    let pb = ProgressBar::new(steps);
-    if let Ok(style) = ProgressStyle::with_template("{bar:30} {pos}/{len} {elapsed_precise} {msg}") {
-        pb.set_style(style);
-    }
-    pb
-}
-
-/// Shows a library progress callback `(message, done, total)` on a progress bar.
-fn report_to(pb: &ProgressBar) -> impl FnMut(&str, u64, u64) + '_ {
-    move |message, done, total| {
-        pb.set_length(total);
-        pb.set_position(done);
-        pb.set_message(message.to_string());
-    }
-}
-
-/// Prints `value` as JSON with --json, else the human-readable `human` unless --quiet.
-fn print_result<T: serde::Serialize>(cli: &Cli, value: &T, human: impl FnOnce()) -> Result<()> {
-    if cli.json {
-        println!("{}", serde_json::to_string_pretty(value)?);
-    } else if !cli.quiet {
-        human();
-    }
-    Ok(())
-}
-
-/// Prints each warning to stderr.
-fn warn(warnings: &[String]) {
-    for w in warnings {
-        eprintln!("warning: {w}");
     }
 }

@@ -534,7 +534,7 @@ pub fn write_registered(path: &std::path::Path, scoring: &Scoring, pitch: f64) -
     }
     let set = |m: &Array2<bool>| m.mapv(|v| f32::from(u8::from(v)));
     let (scored, saturated) = (set(&scoring.mask), set(&scoring.saturated));
-    let meta = crate::io::heightmap::Metadata { pitch: Some([pitch; 2]), unit: None, text: Vec::new() }
+    let meta = crate::io::raw_map::Metadata { pitch: Some([pitch; 2]), unit: None, text: Vec::new() }
         .with("quantity", "R, G, B: the reference registered onto the capture and scaled by the gain, 1 = the capture's clipping level; scored, saturated: the pixel sets (1 = in)")
         .with("registration", format!("{:?}", scoring.footing.model).to_lowercase())
         .with("gain", format!("{}", scoring.footing.gain));

@@ -54,11 +54,11 @@ use super::capture::Capture;
 use super::clipping::channel_clipping;
 use super::response::Response;
 use crate::error::{Error, Result};
+use crate::image::tone::tone_map;
 use crate::image::Image;
 use crate::io::exr::write_exr;
-use crate::io::heightmap::Metadata;
 use crate::io::png::write_png_image_u8;
-use crate::report::tone::tone_map;
+use crate::io::raw_map::Metadata;
 
 /// Values over time of one sample that differ by more than this factor between well-exposed
 /// frames mark it as not following the exposure (see the module docs).

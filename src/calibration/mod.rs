@@ -15,12 +15,9 @@
 //! * [`psf_extract`]: `calibrate-psf`, the measured PSF from a merged pinhole bracket.
 //! * [`evaluate`]: PSNR (linear and gamma) of a reconstruction against a reference, over all
 //!   pixels and over those saturated in the capture.
-//! * [`bench`](mod@bench): `doefab bench calibration`, the calibrated PSF's error against the frame
-//!   count, read noise and black level of simulated brackets, and where it warns.
 //! * [`capture_registration`]: the affine map between two views of one scene (tile matching with outlier
 //!   rejection, then least squares).
 
-pub mod bench;
 pub mod capture;
 pub mod capture_registration;
 pub mod clipping;

@@ -27,7 +27,7 @@ use super::capture::Capture;
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::io::csv::write_csv;
-use crate::io::heightmap::Metadata;
+use crate::io::raw_map::Metadata;
 use crate::linalg::solve;
 
 /// The recovered `g(z) = ln f^-1(z)` per channel, 256 values each.

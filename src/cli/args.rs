@@ -1,11 +1,7 @@
-//! The command line's grammar: the commands, and the arguments several commands share (each
-//! command's own arguments are in its stage's module).
+//! The command line's grammar: the commands (each command's own arguments are in its stage's
+//! module, what several share in [`super::shared`]).
 
-use anyhow::Result;
-use clap::{Args, Parser, Subcommand};
-
-use doefab::io::heightmap::ReadOptions;
-use doefab::units::{length_unit, parse_duration, parse_length};
+use clap::{Parser, Subcommand};
 
 use super::calibration::{BenchCalibrationArgs, CalibratePsfArgs, EvaluateArgs, MergeArgs};
 use super::decoder::{BenchDecoderArgs, BenchForwardArgs, BenchTilingArgs, FinetuneArgs, ReconstructArgs};
@@ -18,18 +14,15 @@ use super::metrology::{CompareArgs, CompareProfileArgs, ScanInfoArgs, SimulateSc
 use super::optics::{
     BenchPsfArgs, BenchSpectralArgs, BenchStabilityArgs, PsfArgs, PsfCompareArgs, ReportArgs,
 };
+use super::shared::Cli;
 
 #[derive(Parser)]
 #[command(name = "doefab", version, about = "From a learned DOE design to a fabricated part", long_about = None)]
-pub struct Cli {
+pub struct CommandLine {
     #[command(subcommand)]
     pub command: Command,
-    /// No progress bars and no summaries; errors and warnings still go to stderr.
-    #[arg(long, short, global = true)]
-    pub quiet: bool,
-    /// Print the result as JSON on stdout.
-    #[arg(long, global = true)]
-    pub json: bool,
+    #[command(flatten)]
+    pub cli: Cli,
 }
 
 #[derive(Subcommand)]
@@ -146,53 +139,4 @@ pub enum BenchCommand {
     /// the measured PSF, registered onto its capture, and what channel clipping, channel gains,
     /// a halo beyond the PSF's crop and a blur add, by brightness band: PNG + JSON.
     Forward(BenchForwardArgs),
-}
-
-/// How to read a height map that does not say everything about itself.
-#[derive(Args, Clone, Default)]
-pub struct ReadArgs {
-    /// Sample pitch, e.g. "4.29um" (required when the file carries none).
-    #[arg(long, value_parser = clap_length)]
-    pitch: Option<f64>,
-    /// Unit of the stored heights, e.g. "um" or "nm" (required when the file carries none).
-    #[arg(long)]
-    unit: Option<String>,
-    /// Height per count for integer images (16-bit PNG/TIFF), e.g. "0.1nm".
-    #[arg(long, value_parser = clap_length)]
-    z_scale: Option<f64>,
-}
-
-impl ReadArgs {
-    pub fn options(&self) -> Result<ReadOptions> {
-        Ok(ReadOptions {
-            pitch: self.pitch.map(|p| [p, p]),
-            unit: self.unit.as_deref().map(length_unit).transpose()?,
-            z_scale: self.z_scale,
-            ..Default::default()
-        })
-    }
-}
-
-/// Design wavelength, material, multi-order factor.
-#[derive(Args, Clone)]
-pub struct OpticsArgs {
-    /// Design wavelength.
-    #[arg(long, value_parser = clap_length, default_value = "530nm")]
-    pub wavelength: f64,
-    /// Material of the part (pdms, fused_silica).
-    #[arg(long, default_value = "pdms")]
-    pub material: String,
-    /// Multi-order factor p (wrap modulo p * 2 pi).
-    #[arg(long, default_value_t = 1)]
-    pub order: u32,
-}
-
-/// clap value parser for lengths.
-pub fn clap_length(s: &str) -> std::result::Result<f64, String> {
-    parse_length(s).map_err(|e| e.to_string())
-}
-
-/// clap value parser for durations (seconds).
-pub fn clap_duration(s: &str) -> std::result::Result<f64, String> {
-    parse_duration(s).map_err(|e| e.to_string())
 }

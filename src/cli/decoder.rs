@@ -6,8 +6,8 @@ use anyhow::Result;
 use clap::Args;
 use indicatif::ProgressStyle;
 
-use super::args::{clap_length, Cli};
-use crate::{print_result, progress, report_to, warn};
+use super::shared::{clap_length, Cli};
+use super::shared::{print_result, progress, report_to, warn};
 
 /// Arguments of `doefab reconstruct`.
 #[derive(Args)]
@@ -245,7 +245,8 @@ pub fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
 
 /// `doefab finetune`.
 pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
-    use doefab::decoder::finetune::{run_job, FinetuneConfig, FinetuneJob};
+    use doefab::decoder::finetune::{FinetuneConfig, FinetuneJob};
+    use doefab::pipeline::finetune::finetune;
     let FinetuneArgs {
         psf,
         psf_key,
@@ -320,7 +321,7 @@ pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
         pb.set_style(style);
     }
     let mut last_psnr = None;
-    let outcome = run_job(&job, &mut |r| {
+    let outcome = finetune(&job, &mut |r| {
         last_psnr = r.val_psnr.or(last_psnr);
         let val = last_psnr.map_or(String::new(), |p: f64| format!(", validation {p:.2} dB"));
         pb.set_message(format!("loss {:.5}{val}", r.loss));
@@ -477,7 +478,8 @@ pub struct BenchForwardArgs {
 
 /// `doefab bench forward`.
 pub fn bench_forward(cli: &Cli, a: &BenchForwardArgs) -> Result<()> {
-    use doefab::decoder::forward_check::{run, ForwardOptions};
+    use doefab::bench::forward::ForwardOptions;
+    use doefab::pipeline::bench::bench_forward;
     let opts = ForwardOptions {
         data: a.data.clone(),
         scenes: a.scenes.clone(),
@@ -485,7 +487,7 @@ pub fn bench_forward(cli: &Cli, a: &BenchForwardArgs) -> Result<()> {
         scoring: doefab::calibration::evaluate::ScoringOptions::default(),
     };
     let pb = progress(cli, 0);
-    let r = run(&opts, &a.output, &mut report_to(&pb))?;
+    let r = bench_forward(&opts, &a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         for s in &r.scenes {
@@ -547,7 +549,7 @@ pub struct BenchTilingArgs {
 
 /// `doefab bench tiling`.
 pub fn bench_tiling(cli: &Cli, a: &BenchTilingArgs) -> Result<()> {
-    use doefab::decoder::tiling_bench::{steps, TilingOptions};
+    use doefab::bench::tiling::{steps, TilingOptions};
     let opts =
         TilingOptions { size: a.size, tiles: a.tiles.clone(), overlaps: a.overlaps.clone(), seed: a.seed };
     let pb = progress(cli, steps(&opts) as u64);

@@ -5,9 +5,9 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 
-use super::args::Cli;
 use super::metrology::{print_comparison, warn_comparison};
-use crate::{print_result, progress, report_to, warn};
+use super::shared::Cli;
+use super::shared::{print_result, progress, report_to, warn};
 
 /// Arguments of `doefab demo`.
 #[derive(Args)]

@@ -12,8 +12,8 @@ use doefab::fabrication::recipe::Recipe;
 use doefab::fabrication::stl::{StlOptions, StlUnit, SurfaceChoice};
 use doefab::fabrication::ReplicaMode;
 
-use super::args::{clap_length, Cli, OpticsArgs, ReadArgs};
-use crate::{print_result, progress, report_to, warn};
+use super::shared::{clap_length, Cli, OpticsArgs, ReadArgs};
+use super::shared::{print_result, progress, report_to, warn};
 
 /// Mesher choice on the command line.
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -486,7 +486,7 @@ pub fn precompensate(cli: &Cli, a: &PrecompensateArgs) -> Result<()> {
 /// `doefab bench fab`.
 pub fn bench_fab(cli: &Cli, a: &BenchFabArgs) -> Result<()> {
     let BenchFabArgs { design, output, gds_pitch, repeats, optics, read } = a;
-    use doefab::fabrication::bench::{steps, FabBenchOptions};
+    use doefab::bench::fab::{steps, FabBenchOptions};
     let opts = FabBenchOptions {
         wavelength: optics.wavelength,
         material: optics.material.clone(),

@@ -11,9 +11,9 @@ use doefab::fabrication::recipe::Recipe;
 use doefab::fabrication::ReplicaMode;
 use doefab::units::length_unit;
 
-use super::args::{clap_length, Cli, OpticsArgs, ReadArgs};
 use super::fabrication::chain_params;
-use crate::{print_result, progress, report_to, warn};
+use super::shared::{clap_length, Cli, OpticsArgs, ReadArgs};
+use super::shared::{print_result, progress, report_to, warn};
 
 /// Levelling choice on the command line (`scan-info --level`).
 #[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
@@ -585,7 +585,7 @@ pub struct BenchRegisterArgs {
 
 /// `doefab bench register`.
 pub fn bench_register(cli: &Cli, a: &BenchRegisterArgs) -> Result<()> {
-    let pb = progress(cli, doefab::metrology::registration_bench::steps() as u64);
+    let pb = progress(cli, doefab::bench::register::steps() as u64);
     let r = doefab::pipeline::bench::bench_register(&a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {

@@ -1,5 +1,6 @@
-//! The command line's parts: its grammar ([`args`]) and, one module per stage, each command's
-//! arguments, its run (options to the library, result to the printer) and its printing.
+//! The command line's parts: its grammar ([`args`]), what the commands share ([`shared`]) and,
+//! one module per stage, each command's arguments, its run (options to the library, result to
+//! the printer) and its printing.
 
 pub mod args;
 pub mod calibration;
@@ -8,3 +9,4 @@ pub mod demo;
 pub mod fabrication;
 pub mod metrology;
 pub mod optics;
+pub mod shared;

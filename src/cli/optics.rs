@@ -5,12 +5,12 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 
+use doefab::bench::psf::BenchOptions;
 use doefab::fabrication::chain::DesignSource;
-use doefab::optics::psf_bench::BenchOptions;
 use doefab::pipeline::bench::PsfBenchOptions;
 
-use super::args::{clap_duration, clap_length, Cli, ReadArgs};
-use crate::{print_result, progress, report_to, warn};
+use super::shared::{clap_duration, clap_length, Cli, ReadArgs};
+use super::shared::{print_result, progress, report_to, warn};
 
 /// Arguments of `doefab psf`.
 #[derive(Args)]
@@ -268,7 +268,7 @@ pub fn psf_compare(cli: &Cli, a: &PsfCompareArgs) -> Result<()> {
 
 /// `doefab bench psf`.
 pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
-    use doefab::optics::psf_bench::steps;
+    use doefab::bench::psf::steps;
     use doefab::pipeline::bench::bench_psf;
     let bench = BenchOptions {
         max_subsample: a.max_subsample,
@@ -328,10 +328,10 @@ pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
 
 /// `doefab bench spectral`.
 pub fn bench_spectral(cli: &Cli, a: &BenchSpectralArgs) -> Result<()> {
-    use doefab::optics::spectral_bench::{steps, SpectralOptions};
+    use doefab::bench::spectral::{steps, SpectralOptions};
     let bands = match &a.response {
         Some(p) => doefab::optics::spectrum::read_response_csv(p)?,
-        None => doefab::optics::spectral_bench::paper_bands()?,
+        None => doefab::bench::spectral::paper_bands()?,
     };
     let opts =
         SpectralOptions { bands, reference_power: a.reference_power, tolerances: a.tolerances.clone() };
@@ -383,7 +383,7 @@ pub fn bench_spectral(cli: &Cli, a: &BenchSpectralArgs) -> Result<()> {
 
 /// `doefab bench stability`.
 pub fn bench_stability(cli: &Cli, a: &BenchStabilityArgs) -> Result<()> {
-    use doefab::optics::stability::{steps, MapOptions};
+    use doefab::bench::stability::{steps, MapOptions};
     let opts = MapOptions { tolerance: a.tolerance, ..MapOptions::default() };
     let pb = progress(cli, steps(&opts) as u64);
     let r = doefab::pipeline::bench::bench_stability(&opts, &a.output, &mut report_to(&pb))?;

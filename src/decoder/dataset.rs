@@ -39,7 +39,7 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array3, Axis};
 use sha2::{Digest, Sha256};
 
-use super::finetune::SceneSource;
+use super::scenes::SceneSource;
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::rng::Lcg;

@@ -29,6 +29,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::decoder::dataset::{training_and_validation, HdrScenes};
 use crate::decoder::measurement::{measure, Halo, Measurement, MeasurementModel};
+use crate::decoder::scenes::{GeneratedScenes, SceneSource};
 use crate::decoder::unet::{is_trainable, tensor_values, UNet};
 use crate::decoder::weights::{encode_safetensors, read_safetensors, DecoderWeights, NamedTensor};
 use crate::decoder::{to_tensor, weights};
@@ -38,39 +39,6 @@ use crate::io::atomic::write_bytes;
 use crate::optics::convolve::Convolver;
 use crate::optics::psf::Psf;
 use crate::rng::Lcg;
-
-/// Where training scenes come from: linear HDR RGB images, drawn with `rng`.
-pub trait SceneSource: Sync {
-    /// A short description for the decoder's metadata.
-    fn describe(&self) -> String;
-    /// One scene of exactly `rows x cols`.
-    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Image<f32>>;
-}
-
-/// Scenes from a generator `f(seed, rows, cols)` (such as a procedural scene generator), each
-/// with a seed drawn from the run's generator.
-pub struct GeneratedScenes<F> {
-    pub name: &'static str,
-    pub generate: F,
-}
-
-impl<F> SceneSource for GeneratedScenes<F>
-where
-    F: Fn(u64, usize, usize) -> Image<f32> + Sync,
-{
-    fn describe(&self) -> String {
-        self.name.to_string()
-    }
-
-    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Image<f32>> {
-        let seed = (rng.uniform() * (1u64 << 53) as f64) as u64;
-        let scene = (self.generate)(seed, rows, cols);
-        if let Some(v) = scene.values.iter().find(|v| !v.is_finite() || **v < 0.0) {
-            return Err(Error::Data(format!("{} (seed {seed}) made the value {v}", self.name)));
-        }
-        Ok(scene)
-    }
-}
 
 /// A scene generator `f(seed, rows, cols)`.
 pub type SceneGenerator = fn(u64, usize, usize) -> Image<f32>;
@@ -970,8 +938,9 @@ impl<'a> Trainer<'a> {
 
     /// Writes the final outputs into `out`: [`DECODER`] (the blended best validated decoder,
     /// see [`Trainer::written_decoder`]; the start decoder itself when no step validated
-    /// better, with its training record), `training.json` (configuration and curve) and
-    /// `training_curve.png`.
+    /// better, with its training record) and `training.json` (configuration and curve); the
+    /// curve's chart, `training_curve.png`, is drawn by the commands
+    /// ([`crate::charts::training::write_training_chart`]).
     pub fn write_outputs(&self, out: &Path) -> Result<Written> {
         let (decoder, written) = self.written_decoder()?;
         decoder.write(&out.join(DECODER))?;
@@ -992,7 +961,6 @@ impl<'a> Trainer<'a> {
             "history": self.history,
         });
         crate::io::atomic::write_json(&out.join("training.json"), &record)?;
-        crate::decoder::training_chart::write_training_chart(&out.join("training_curve.png"), &self.history)?;
         Ok(written)
     }
 }

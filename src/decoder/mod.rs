@@ -1,28 +1,19 @@
 //! The image decoder of the paper: its U-Net ([`unet`]), the weights format ([`weights`]),
 //! the measurement model used to train it ([`measurement`]), reconstruction of captures
 //! ([`reconstruct`]), fine-tuning for one fabricated part's PSF ([`finetune`]) and seeded
-//! procedural HDR scenes to train on without a data set ([`scenes`]), and the benchmark of
-//! decoders on real captures against bracket-merged references ([`capture_bench`]), with their charts
-//! ([`charts`], [`training_chart`]); the reconstruction's numerics, tiles and precision
-//! ([`tiling_bench`]); fine-tuning's validation PSNR against time ([`finetune_time`]); the
-//! measurement model against the real captures ([`forward_check`]).
+//! procedural HDR scenes to train on without a data set ([`scenes`]). Its benchmarks are in
+//! [`crate::bench`], its charts in [`crate::charts`].
 //!
 //! Images here are `(H, W, 3)` `f32` arrays (row-major, channels last, as the paper's NHWC);
 //! the network runs on NCHW burn tensors on the CPU (burn's Flex backend) or, with the `gpu`
 //! feature, on any vendor's GPU through wgpu, or with the `cuda` feature on an NVIDIA GPU
 //! ([`select_device`]).
 
-pub mod capture_bench;
-pub mod charts;
 pub mod dataset;
 pub mod finetune;
-pub mod finetune_time;
-pub mod forward_check;
 pub mod measurement;
 pub mod reconstruct;
 pub mod scenes;
-pub mod tiling_bench;
-pub mod training_chart;
 pub mod unet;
 pub mod weights;
 

@@ -35,8 +35,8 @@ use serde::Serialize;
 use crate::decoder::infer;
 use crate::decoder::unet::{UNet, SIZE_MULTIPLE};
 use crate::error::{Error, Result};
+use crate::image::tone::tone_map;
 use crate::image::Image;
-use crate::report::tone::tone_map;
 
 /// An upper bound of the U-Net's receptive-field radius, pixels (see the module docs),
 /// rounded up to a multiple of 16.
@@ -276,7 +276,7 @@ pub fn reconstruct_file(
     ];
     let channels: Vec<ndarray::Array2<f32>> =
         (0..3).map(|c| y.values.slice(s![.., .., c]).to_owned()).collect();
-    let meta = crate::io::heightmap::Metadata { pitch: None, unit: None, text };
+    let meta = crate::io::raw_map::Metadata { pitch: None, unit: None, text };
     crate::io::exr::write_exr(exr, &[("R", &channels[0]), ("G", &channels[1]), ("B", &channels[2])], &meta)?;
     let png_meta = meta.with("tone_map", format!("sRGB of clip(y * 2^{ev}, 0, 1)"));
     crate::io::png::write_png_image_u8(png_path, &tone_map(&y, ev), &png_meta)?;

@@ -16,9 +16,13 @@
 //! six stops above, so that scaling a scene to saturate 1-2 % of its pixels (the paper's
 //! exposure rule) leaves detail in the saturated parts. The same seed and size give the same
 //! values on every platform.
+//!
+//! Fine-tuning draws its scenes from a [`SceneSource`]; [`GeneratedScenes`] makes one of a
+//! generator such as [`procedural_scene`].
 
 use ndarray::{Array2, Array3};
 
+use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::rng::Lcg;
 
@@ -157,6 +161,39 @@ fn value_noise(rng: &mut Lcg, h: usize, w: usize, cell: f64) -> Array2<f64> {
         amp_sum += amp;
     }
     out / amp_sum
+}
+
+/// Where training scenes come from: linear HDR RGB images, drawn with `rng`.
+pub trait SceneSource: Sync {
+    /// A short description for the decoder's metadata.
+    fn describe(&self) -> String;
+    /// One scene of exactly `rows x cols`.
+    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Image<f32>>;
+}
+
+/// Scenes from a generator `f(seed, rows, cols)` (such as a procedural scene generator), each
+/// with a seed drawn from the run's generator.
+pub struct GeneratedScenes<F> {
+    pub name: &'static str,
+    pub generate: F,
+}
+
+impl<F> SceneSource for GeneratedScenes<F>
+where
+    F: Fn(u64, usize, usize) -> Image<f32> + Sync,
+{
+    fn describe(&self) -> String {
+        self.name.to_string()
+    }
+
+    fn scene(&self, rng: &mut Lcg, rows: usize, cols: usize) -> Result<Image<f32>> {
+        let seed = (rng.uniform() * (1u64 << 53) as f64) as u64;
+        let scene = (self.generate)(seed, rows, cols);
+        if let Some(v) = scene.values.iter().find(|v| !v.is_finite() || **v < 0.0) {
+            return Err(Error::Data(format!("{} (seed {seed}) made the value {v}", self.name)));
+        }
+        Ok(scene)
+    }
 }
 
 #[cfg(test)]

@@ -24,8 +24,9 @@ use crate::grid::fill::fill_missing;
 use crate::grid::{Grid, Unit};
 use crate::io::atomic::{write_json, StagedDir};
 use crate::io::exr::write_exr;
-use crate::io::heightmap::{heightmap_from_raw, read_raw, read_raw_hashed, Metadata, RawMap, ReadOptions};
+use crate::io::heightmap::{heightmap_from_raw, read_raw, read_raw_hashed, ReadOptions};
 use crate::io::png::{write_png_u16, write_png_u8};
+use crate::io::raw_map::{Metadata, RawMap};
 use crate::io::tiff::{write_tiff_u16, write_tiff_u8};
 use crate::material::{Material, PAPER_WAVELENGTHS};
 

@@ -8,13 +8,8 @@
 //! * [`gds`]: the multi-level binary mask set as GDSII, polygons from [`trace`];
 //! * [`stl`]: watertight STL of the surface, exact terraces or an error-bounded height field;
 //! * [`recipe`]: process recipes ([`bundled`]: those of `masks/`, compiled in); [`chain`]: the
-//!   whole chain behind `doefab fab`;
-//! * [`bench`](mod@bench): speed against accuracy of quantization, the STL heightfield and the GDSII
-//!   tracing, each against a truth computed another way (`doefab bench fab`); [`bench_charts`]
-//!   draws them.
+//!   whole chain behind `doefab fab`.
 
-pub mod bench;
-pub mod bench_charts;
 pub mod bundled;
 pub mod chain;
 pub mod contrast;

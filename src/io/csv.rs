@@ -18,7 +18,7 @@ use ndarray::Array2;
 
 use crate::error::{Error, Result};
 use crate::io::atomic::write_atomic;
-use crate::io::heightmap::{pitch_unit_from_text, unit_from_text, Metadata, RawMap, SampleKind};
+use crate::io::raw_map::{pitch_unit_from_text, unit_from_text, Metadata, RawMap, SampleKind};
 use crate::units::parse_length;
 
 /// Reads a text matrix (see the module docs).

@@ -19,6 +19,7 @@
 //! No timestamp is written.
 
 pub mod chromaticities;
+mod chunk;
 mod piz;
 pub mod scanline;
 pub mod yca;
@@ -31,7 +32,7 @@ use ndarray::Array2;
 
 use crate::error::{Error, Result};
 use crate::io::atomic::write_bytes;
-use crate::io::heightmap::{unit_from_text, Metadata, RawMap, SampleKind};
+use crate::io::raw_map::{unit_from_text, Metadata, RawMap, SampleKind};
 
 /// Reads an OpenEXR height map; `channel` picks a channel by name (required when the file has
 /// several).

@@ -10,6 +10,7 @@ pub mod heightmap;
 pub mod npy;
 pub mod png;
 pub mod profile;
+pub mod raw_map;
 pub mod scan;
 pub mod tiff;
 

@@ -31,7 +31,7 @@ use ndarray::{Array2, ArrayBase, ArrayD, Data, Dimension, IxDyn, ShapeBuilder};
 
 use crate::error::{Error, Result};
 use crate::io::atomic::write_atomic;
-use crate::io::heightmap::{RawMap, SampleKind};
+use crate::io::raw_map::{RawMap, SampleKind};
 
 const MAGIC: &[u8; 6] = b"\x93NUMPY";
 
@@ -74,9 +74,6 @@ impl Elem {
             Elem::F4 | Elem::I4 | Elem::U4 => 4,
             Elem::F8 | Elem::I8 | Elem::U8 => 8,
         }
-    }
-    fn is_float(self) -> bool {
-        matches!(self, Elem::F2 | Elem::F4 | Elem::F8)
     }
 }
 

@@ -21,7 +21,7 @@ use ndarray::{Array2, Array3};
 
 use crate::error::{Error, Result};
 use crate::io::atomic::write_bytes;
-use crate::io::heightmap::{pitch_unit_from_text, Metadata, RawMap, SampleKind};
+use crate::io::raw_map::{pitch_unit_from_text, Metadata, RawMap, SampleKind};
 
 const SIGNATURE: [u8; 8] = [0x89, b'P', b'N', b'G', 0x0d, 0x0a, 0x1a, 0x0a];
 

@@ -28,7 +28,7 @@ use tiff::ColorType;
 
 use crate::error::{Error, Result};
 use crate::io::atomic::write_bytes;
-use crate::io::heightmap::{pitch_unit_from_text, Metadata, RawMap, SampleKind};
+use crate::io::raw_map::{pitch_unit_from_text, Metadata, RawMap, SampleKind};
 
 /// First line of the `ImageDescription` of TIFF files this module writes.
 pub const DESCRIPTION_MARK: &str = "doefab";

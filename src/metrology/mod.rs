@@ -11,7 +11,6 @@ pub mod info;
 pub mod level;
 pub mod outliers;
 pub mod profile;
-pub mod registration_bench;
 pub mod scan_compare;
 pub mod scan_registration;
 pub mod stats;

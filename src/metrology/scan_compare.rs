@@ -53,12 +53,12 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::fabrication::quantize::{continuous_efficiency, detuning, order_efficiency};
 use crate::fabrication::wrap::WrapSpec;
+use crate::grid::blur::gaussian_blur;
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::material::PAPER_WAVELENGTHS;
 use crate::metrology::scan_registration::{
     check_registration, check_trust, register_pose, RegisterOptions, Registration, Sampler,
 };
-use crate::metrology::synthetic_scan::gaussian_blur;
 
 /// NaN: a figure a file written before it existed does not hold.
 fn nan() -> f64 {

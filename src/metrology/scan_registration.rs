@@ -605,7 +605,7 @@ pub fn register_pose(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Resu
             }
             blur2 = s2;
             p.lin[4] = 0.0;
-            Cow::Owned(crate::metrology::synthetic_scan::gaussian_blur(design, s2.sqrt())?)
+            Cow::Owned(crate::grid::blur::gaussian_blur(design, s2.sqrt())?)
         } else if g == 1 {
             Cow::Borrowed(design)
         } else {
@@ -1414,7 +1414,7 @@ mod tests {
         let mut rng = crate::rng::Lcg(11);
         let v = ndarray::Array2::from_shape_fn((200, 200), |_| 0.3e-6 * rng.normal());
         let other = Grid::new(v, [PAPER_PITCH, PAPER_PITCH], crate::grid::Unit::Metre).unwrap();
-        let other = crate::metrology::synthetic_scan::gaussian_blur(&other, 3.0 * PAPER_PITCH).unwrap();
+        let other = crate::grid::blur::gaussian_blur(&other, 3.0 * PAPER_PITCH).unwrap();
         let s = simulate_scan(&other, &SimulateParams { noise: 5e-9, ..Default::default() }).unwrap();
         match register(&paper(200), &s, &RegisterOptions::default()) {
             Err(Error::Validity(m)) => assert!(m.contains("does not match"), "{m}"),

@@ -22,7 +22,7 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::fabrication::precompensate::Response;
-pub use crate::grid::blur::gaussian_blur;
+use crate::grid::blur::gaussian_blur;
 use crate::grid::{Grid, Unit};
 use crate::metrology::scan_registration::{Pose, Sampler};
 use crate::rng::Lcg;

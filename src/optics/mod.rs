@@ -5,31 +5,22 @@
 //!   and the DOE's transmission on a pupil grid.
 //! * [`psf`]: the PSF type (one grid per channel), its measures, the `.npz` reader.
 //! * [`propagate`]: the propagation methods, one file each, with their validity checks.
-//! * [`psf_bench`]: speed against accuracy of the methods on a design at its geometry, with
-//!   the automatic plan placed on the chart.
 //! * [`convolve`]: images convolved with a PSF (FFT, linear), `y = h * x`.
-//! * [`charts`]: the speed-against-accuracy and stability charts of [`psf_bench`].
 //! * [`psf_compare`]: two PSFs compared (summary numbers, L2 after centroid alignment).
 //! * [`output`]: the PSF written as EXR, NPY, log-scale PNG and a JSON summary.
 //! * [`plan`]: the automatic plan (method, sampling, precision, spectral samples for a
 //!   tolerance).
 //! * [`spectrum`]: spectral bands weighted by a sensor response.
-//! * [`stability`]: stability maps of the transfer-function method across its guard, with the
-//!   silent failures counted.
 //! * [`fft`]: planned square 2-D FFTs of this stage.
 
-pub mod charts;
 pub mod convolve;
 pub mod fft;
 pub mod output;
 pub mod plan;
 pub mod propagate;
 pub mod psf;
-pub mod psf_bench;
 pub mod psf_compare;
-pub mod spectral_bench;
 pub mod spectrum;
-pub mod stability;
 pub mod system;
 
 pub use propagate::{simulate, Method, Options, Precision, Violation};

@@ -19,9 +19,9 @@ use crate::error::Result;
 use crate::grid::Grid;
 use crate::io::atomic::{write_json, StagedDir};
 use crate::io::exr::write_exr;
-use crate::io::heightmap::Metadata;
 use crate::io::npy::write_npy_f32_4d;
 use crate::io::png::write_png_u8;
+use crate::io::raw_map::Metadata;
 
 /// Peaks listed per channel in the summary (the paper's design: a central peak and six
 /// copies).

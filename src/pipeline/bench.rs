@@ -1,26 +1,31 @@
 //! `doefab bench psf`, `doefab bench spectral`, `doefab bench stability`, `doefab bench register`, `doefab bench fab`,
-//! `doefab bench calibration`, `doefab bench tiling` and `doefab bench decoder`: the benchmarks with their defaults and
-//! outputs.
+//! `doefab bench calibration`, `doefab bench tiling`, `doefab bench decoder` and `doefab bench forward`: the benchmarks
+//! ([`crate::bench`]) with their defaults and outputs, data and charts ([`crate::charts`]).
 
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
+use crate::bench::decoder::{self as capture_bench, scene_dirs, BenchConfig, BenchReport, FinetuneBench};
+use crate::bench::fab::{self as fab_bench, FabBenchOptions, FabBenchReport};
+use crate::bench::forward::{ForwardOptions, ForwardReport};
+use crate::bench::psf::{self as psf_bench, run_bench, steps, BenchOptions};
+use crate::bench::spectral::{self as spectral_bench, SpectralOptions, SpectralReport};
+use crate::bench::stability::{self, MapOptions, StabilityReport};
 use crate::calibration::capture_registration::{Model, RegisterOptions};
 use crate::calibration::evaluate::ScoringOptions;
-use crate::decoder::capture_bench::{self, scene_dirs, BenchConfig, BenchReport, FinetuneBench};
+use crate::charts::decoder::{write_bench_chart, write_decoder_scene_chart, write_forward_chart};
+use crate::charts::fabrication::write_fab_bench_charts;
+use crate::charts::failure_maps::{write_calibration_chart, write_registration_chart};
+use crate::charts::optics::{write_psf_charts, write_spectral_charts, write_stability_charts};
+use crate::charts::tiling::write_tiling_chart;
+use crate::charts::training::write_training_chart;
 use crate::decoder::finetune::FinetuneConfig;
 use crate::error::Result;
-use crate::fabrication::bench::{self as fab_bench, FabBenchOptions, FabBenchReport};
-use crate::fabrication::bench_charts::write_fab_bench_charts;
 use crate::fabrication::chain::{self, DesignSource};
 use crate::io::atomic::{self, StagedDir};
 use crate::material::Material;
-use crate::optics::charts::{write_psf_charts, write_spectral_charts, write_stability_charts};
 use crate::optics::output::system_for;
-use crate::optics::psf_bench::{self, run_bench, steps, BenchOptions};
-use crate::optics::spectral_bench::{self, SpectralOptions, SpectralReport};
-use crate::optics::stability::{self, MapOptions, StabilityReport};
 use crate::optics::system::OpticalSystem;
 
 /// `bench psf` as the command line states it.
@@ -36,7 +41,7 @@ pub struct PsfBenchOptions {
     pub bench: BenchOptions,
 }
 
-/// Runs the PSF methods' benchmark ([`crate::optics::psf_bench`]) on a design in its system and
+/// Runs the PSF methods' benchmark ([`crate::bench::psf`]) on a design in its system and
 /// writes its charts (PNG, SVG) and `bench_psf.json` into the folder `output`, all or nothing.
 /// Progress: one step per run or skipped configuration.
 pub fn bench_psf(
@@ -78,7 +83,7 @@ pub(crate) fn design_system(opts: &PsfBenchOptions, heights: &crate::grid::Grid)
     Ok(system)
 }
 
-/// Runs the spectral-sampling sweep ([`crate::optics::spectral_bench`]) on a design in its
+/// Runs the spectral-sampling sweep ([`crate::bench::spectral`]) on a design in its
 /// system (the design, system file and material of `on`; its budget is not used) and writes
 /// `spectral.{png,svg}` and `spectral.json` into the folder `output`, all or nothing. Progress:
 /// one step per monochromatic run.
@@ -103,7 +108,7 @@ pub fn bench_spectral(
     Ok(report)
 }
 
-/// Runs the stability maps ([`crate::optics::stability`]) and writes their charts (PNG, SVG)
+/// Runs the stability maps ([`crate::bench::stability`]) and writes their charts (PNG, SVG)
 /// and `stability.json` into the folder `output`, all or nothing. Progress: one step per run.
 pub fn bench_stability(
     opts: &MapOptions,
@@ -123,14 +128,14 @@ pub fn bench_stability(
     Ok(report)
 }
 
-/// Runs the registration trials ([`crate::metrology::registration_bench`]) and writes their
+/// Runs the registration trials ([`crate::bench::register`]) and writes their
 /// chart (PNG, SVG), `register.json` and `register.csv` into the folder `output`, all or
 /// nothing. Progress: one step per trial.
 pub fn bench_register(
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<crate::metrology::registration_bench::RegistrationBench> {
-    use crate::metrology::registration_bench as rb;
+) -> Result<crate::bench::register::RegistrationBench> {
+    use crate::bench::register as rb;
     let total = rb::steps() as u64;
     let mut done = 0;
     let report = rb::run(|what| {
@@ -138,7 +143,7 @@ pub fn bench_register(
         done += 1;
     })?;
     let mut stage = StagedDir::new(output)?;
-    rb::write_chart(|n| stage.stage_path(n), &report)?;
+    write_registration_chart(|n| stage.stage_path(n), &report)?;
     atomic::write_json(&stage.stage_path("register.json"), &report)?;
     let mut csv = String::from("axis,value,seed,outcome,shift_error_samples,rotation_error_deg,seconds\n");
     for t in &report.trials {
@@ -152,7 +157,7 @@ pub fn bench_register(
     Ok(report)
 }
 
-/// Runs the PSF calibration trials ([`crate::calibration::bench`]) on the PSF file `psf` (any
+/// Runs the PSF calibration trials ([`crate::bench::calibration`]) on the PSF file `psf` (any
 /// file `psf` writes or `calibrate-psf` reads; `None`: the paper's measured PSF, compiled in)
 /// and writes their chart (PNG, SVG), `calibration.json` and `calibration.csv` into the folder
 /// `output`, all or nothing. Progress: one step per trial.
@@ -160,8 +165,8 @@ pub fn bench_calibration(
     psf: Option<&Path>,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<crate::calibration::bench::CalibrationBench> {
-    use crate::calibration::bench as cb;
+) -> Result<crate::bench::calibration::CalibrationBench> {
+    use crate::bench::calibration as cb;
     let (truth, name) = match psf {
         Some(p) => (crate::optics::Psf::read(p, None, None)?, p.display().to_string()),
         None => (crate::optics::Psf::paper_measured()?, "built-in:paper-measured-psf".to_string()),
@@ -173,7 +178,7 @@ pub fn bench_calibration(
         done += 1;
     })?;
     let mut stage = StagedDir::new(output)?;
-    cb::write_chart(|n| stage.stage_path(n), &report)?;
+    write_calibration_chart(|n| stage.stage_path(n), &report)?;
     atomic::write_json(&stage.stage_path("calibration.json"), &report)?;
     let mut csv = String::from("axis,value,seed,outcome,worst_relative_l2,estimated_relative_l2,seconds\n");
     for t in &report.trials {
@@ -187,17 +192,17 @@ pub fn bench_calibration(
     Ok(report)
 }
 
-/// Runs the reconstruction's tiling and precision sweep ([`crate::decoder::tiling_bench`]) with
+/// Runs the reconstruction's tiling and precision sweep ([`crate::bench::tiling`]) with
 /// the decoder file `decoder` (or a built-in name) and writes its chart (PNG, SVG),
 /// `tiling.json` and `tiling.csv` into the folder `output`, all or nothing. Progress: one step
 /// per reconstruction.
 pub fn bench_tiling(
     decoder: &Path,
-    opts: &crate::decoder::tiling_bench::TilingOptions,
+    opts: &crate::bench::tiling::TilingOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<crate::decoder::tiling_bench::TilingBench> {
-    use crate::decoder::tiling_bench as tb;
+) -> Result<crate::bench::tiling::TilingBench> {
+    use crate::bench::tiling as tb;
     let total = tb::steps(opts) as u64;
     let mut done = 0;
     let report = tb::run(decoder, opts, |what| {
@@ -205,7 +210,7 @@ pub fn bench_tiling(
         done += 1;
     })?;
     let mut stage = StagedDir::new(output)?;
-    tb::write_chart(|n| stage.stage_path(n), &report)?;
+    write_tiling_chart(|n| stage.stage_path(n), &report)?;
     atomic::write_json(&stage.stage_path("tiling.json"), &report)?;
     let mut csv = String::from("precision,tile,overlap,passes,seconds,relative_l2,max_abs\n");
     for r in &report.runs {
@@ -226,7 +231,7 @@ pub fn bench_tiling(
     Ok(report)
 }
 
-/// Runs the fabrication stage's sweeps ([`crate::fabrication::bench`]) on a design (any height
+/// Runs the fabrication stage's sweeps ([`crate::bench::fab`]) on a design (any height
 /// map `fab` takes) and writes their charts (PNG, SVG), `bench_fab.json` and one CSV per sweep
 /// (`quantization.csv`, `stl_heightfield.csv`, `gds.csv`) into the folder `output`, all or
 /// nothing. Progress: one step per sweep point ([`fab_bench::steps`]).
@@ -303,7 +308,7 @@ pub struct DecoderBenchOptions {
 #[derive(Debug, Serialize)]
 #[serde(transparent)]
 pub struct DecoderBenchOutcome {
-    /// What [`crate::decoder::capture_bench::run`] reports.
+    /// What [`crate::bench::decoder::run`] reports.
     pub report: BenchReport,
     /// Scenes whose bracket merged with warnings, scenes refused, training images skipped.
     #[serde(skip)]
@@ -377,8 +382,10 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
     })
 }
 
-/// Runs the decoders' benchmark ([`crate::decoder::capture_bench::run`]) with the defaults filled in,
-/// writing into the folder `output`. Progress: the fine-tuning steps and two steps a scene.
+/// Runs the decoders' benchmark ([`crate::bench::decoder::run`]) with the defaults filled in,
+/// writing into the folder `output` its files and charts: `decoders.png` (decoder x scene) and,
+/// with fine-tuning, `psnr_vs_time.png` and `finetuned/training_curve.png`. Progress: the
+/// fine-tuning steps and two steps a scene.
 pub fn bench_decoder(
     o: &DecoderBenchOptions,
     output: &Path,
@@ -396,6 +403,11 @@ pub fn bench_decoder(
         done += n;
         progress(&message, done, total);
     })?;
+    write_decoder_scene_chart(&output.join("decoders.png"), &report)?;
+    if let Some(f) = &report.finetune {
+        write_training_chart(&output.join("finetuned").join("training_curve.png"), &f.history)?;
+        write_bench_chart(&output.join("psnr_vs_time.png"), &report)?;
+    }
     let mut warnings = Vec::new();
     for s in report.scenes.iter().filter(|s| !s.merge_warnings.is_empty()) {
         let n = s.merge_warnings.len();
@@ -413,11 +425,24 @@ pub fn bench_decoder(
     Ok(DecoderBenchOutcome { report, warnings })
 }
 
+/// Runs the check of the decoder's measurement model against the real captures
+/// ([`crate::bench::forward::run`]) and writes `forward.json` and its chart `forward.png` into
+/// the folder `output`. Progress: two steps a scene.
+pub fn bench_forward(
+    opts: &ForwardOptions,
+    output: &Path,
+    progress: &mut dyn FnMut(&str, u64, u64),
+) -> Result<ForwardReport> {
+    let report = crate::bench::forward::run(opts, output, progress)?;
+    write_forward_chart(&output.join("forward.png"), &report)?;
+    Ok(report)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bench::decoder::{CurvePoint, FinetuneReport, Score};
     use crate::calibration::evaluate::Psnr;
-    use crate::decoder::capture_bench::{CurvePoint, FinetuneReport, Score};
 
     fn point(step: usize, db: [f64; 2]) -> CurvePoint {
         let score = |scene: &str, gamma_db: f64| Score {

@@ -192,7 +192,7 @@ pub fn compare_and_write(
     out: &Path,
     step: &mut dyn FnMut(&str),
 ) -> Result<CompareReport> {
-    use crate::report::metrology_charts::{height_histogram, height_map, profiles, Palette};
+    use crate::charts::metrology::{height_histogram, height_map, profiles, Palette};
     step("register and compare");
     let mut c = compare_family(family, &scan.grid, opts)?;
     let reference = &c.reference;
@@ -229,7 +229,7 @@ pub fn compare_and_write(
         filled_samples,
     };
     let json = serde_json::to_string(&meta).map_err(|e| Error::Data(e.to_string()))?;
-    let exr_meta = crate::io::heightmap::Metadata::heights(reference.pitch())
+    let exr_meta = crate::io::raw_map::Metadata::heights(reference.pitch())
         .with("quantity", "height")
         .with("surface", json);
     crate::io::exr::write_exr(
@@ -314,8 +314,8 @@ mod tests {
 
     use super::*;
     use crate::design::PAPER_PITCH;
+    use crate::grid::blur::gaussian_blur;
     use crate::grid::Unit;
-    use crate::metrology::synthetic_scan::gaussian_blur;
 
     /// Piston does not change a PSF; a small random height error lowers the peak by Marechal's
     /// `exp(-sigma_phi^2)`.

@@ -159,7 +159,7 @@ pub fn compare_profile_file(
         Some(d) => format!("{} against {d}", path.display()),
         None => format!("{} (levelled), terraces", path.display()),
     };
-    crate::report::metrology_charts::profile_chart(
+    crate::charts::metrology::profile_chart(
         &stage.stage_path("profile.svg"),
         &measured,
         &model,

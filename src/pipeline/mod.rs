@@ -14,12 +14,12 @@
 //!   optics (`doefab compare`).
 //! * [`compare_profile`]: a stylus profile against its design along a line, or measured by its
 //!   own terraces (`doefab compare-profile`).
+//! * [`finetune`]: a decoder fine-tuned for a PSF, with its training curve (`doefab
+//!   finetune`).
 //! * [`precompensate`]: the next mask set corrected for the process a scan of the last part
 //!   measured (`doefab precompensate`), and the loop closed in simulation.
-//! * [`bench`](mod@bench): the PSF methods' benchmark, the stability maps, the registration
-//!   map, the fabrication stage's sweeps and the decoders' benchmark on real captures (`doefab
-//!   bench psf`, `doefab bench stability`, `doefab bench register`, `doefab bench fab`, `doefab
-//!   bench decoder`).
+//! * [`bench`](mod@bench): the benchmarks of [`crate::bench`] run with their defaults, their
+//!   data and charts written (`doefab bench ...`).
 //! * [`report`]: the benchmarks of a design within one time budget, gathered into one static
 //!   HTML page with its charts and data (`doefab report`).
 
@@ -27,6 +27,7 @@ pub mod bench;
 pub mod calibrate_psf;
 pub mod compare;
 pub mod compare_profile;
+pub mod finetune;
 pub mod merge;
 pub mod precompensate;
 pub mod psf;

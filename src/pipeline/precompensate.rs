@@ -40,7 +40,7 @@ use crate::fabrication::stl::{surface_mesh, write_stl_part};
 use crate::fabrication::ReplicaMode;
 use crate::grid::{Grid, Unit};
 use crate::io::atomic::{write_json, StagedDir};
-use crate::io::heightmap::Metadata;
+use crate::io::raw_map::Metadata;
 use crate::io::scan::ScanOptions;
 use crate::metrology::scan_compare::{
     check_interior, compare, compare_family, efficiency_loss, CompareOptions, Comparison, EfficiencyLoss,

@@ -25,17 +25,20 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::bench::{run_psf_bench, PsfBenchOptions};
-use crate::calibration::bench::{self as cal_bench, CalibrationBench};
-use crate::decoder::finetune_time::{self, TimedFinetune, TimedOptions};
-use crate::decoder::tiling_bench::{self as tiling_bench, TilingBench, TilingOptions};
+use crate::bench::calibration::{self as cal_bench, CalibrationBench};
+use crate::bench::fab::{self as fab_bench, FabBenchOptions, FabBenchReport};
+use crate::bench::finetune_time::{self, TimedFinetune, TimedOptions};
+use crate::bench::psf::{self as psf_bench, BenchOptions};
+use crate::bench::register::{self as reg_bench, RegistrationBench};
+use crate::bench::stability::{self, MapOptions, StabilityReport};
+use crate::bench::tiling::{self as tiling_bench, TilingBench, TilingOptions};
+use crate::charts::fabrication::write_fab_bench_charts;
+use crate::charts::failure_maps::{write_calibration_chart, write_registration_chart};
+use crate::charts::optics::{write_psf_charts, write_stability_charts};
+use crate::charts::tiling::write_tiling_chart;
+use crate::charts::training::write_finetune_time_chart;
 use crate::error::{Error, Result};
-use crate::fabrication::bench::{self as fab_bench, FabBenchOptions, FabBenchReport};
-use crate::fabrication::bench_charts::write_fab_bench_charts;
 use crate::io::atomic::{self, StagedDir};
-use crate::metrology::registration_bench::{self as reg_bench, RegistrationBench};
-use crate::optics::charts::{write_psf_charts, write_stability_charts};
-use crate::optics::psf_bench::{self, BenchOptions};
-use crate::optics::stability::{self, MapOptions, StabilityReport};
 
 /// What `doefab report` runs.
 #[derive(Debug, Clone)]
@@ -539,7 +542,7 @@ fn stage_parts(stage: &mut StagedDir, m: &Measured) -> Result<Charts> {
     atomic::write_json(&stage.stage_path("stability.json"), m.maps)?;
     atomic::write_bytes(&stage.stage_path("stability.csv"), stability_csv(m.maps).as_bytes())?;
     if let Some(r) = m.registration {
-        charts.registration = svg(reg_bench::write_chart(|n| stage.stage_path(n), r)?, "");
+        charts.registration = svg(write_registration_chart(|n| stage.stage_path(n), r)?, "");
         atomic::write_json(&stage.stage_path("register.json"), r)?;
     }
     if let Some(f) = m.fab {
@@ -547,15 +550,15 @@ fn stage_parts(stage: &mut StagedDir, m: &Measured) -> Result<Charts> {
         atomic::write_json(&stage.stage_path("bench_fab.json"), f)?;
     }
     if let Some(c) = m.calibration {
-        charts.calibration = svg(cal_bench::write_chart(|n| stage.stage_path(n), c)?, "");
+        charts.calibration = svg(write_calibration_chart(|n| stage.stage_path(n), c)?, "");
         atomic::write_json(&stage.stage_path("calibration.json"), c)?;
     }
     if let Some(t) = m.tiling {
-        charts.tiling = svg(tiling_bench::write_chart(|n| stage.stage_path(n), t)?, "");
+        charts.tiling = svg(write_tiling_chart(|n| stage.stage_path(n), t)?, "");
         atomic::write_json(&stage.stage_path("tiling.json"), t)?;
     }
     if let Some(f) = m.finetune {
-        charts.finetune = svg(finetune_time::write_chart(|n| stage.stage_path(n), f)?, "");
+        charts.finetune = svg(write_finetune_time_chart(|n| stage.stage_path(n), f)?, "");
         atomic::write_json(&stage.stage_path("finetune_time.json"), f)?;
     }
     Ok(charts)

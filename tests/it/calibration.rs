@@ -1250,7 +1250,7 @@ fn the_merge_is_at_the_reference_exposure_and_says_so() {
 /// and data are written all or nothing.
 #[test]
 fn the_calibration_map_has_no_silent_failure() {
-    use doefab::calibration::bench::TOLERANCE;
+    use doefab::bench::calibration::TOLERANCE;
     assert_eq!(Psf::paper_measured().unwrap().relative_l2(&measured_truth()).unwrap(), vec![0.0; 3]);
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("bench");

@@ -85,7 +85,7 @@ fn compare_recovers_a_simulated_cast_and_its_surface_feeds_psf() {
     let surface = read_heightmap(&out.join("surface.exr"), &ReadOptions::default()).unwrap();
     let design = load_design(&DesignSource::BuiltIn("paper".into())).unwrap().heights;
     assert_eq!((surface.dim(), surface.pitch()), (design.dim(), design.pitch()));
-    let blurred = doefab::metrology::synthetic_scan::gaussian_blur(&design, 2e-6).unwrap();
+    let blurred = doefab::grid::blur::gaussian_blur(&design, 2e-6).unwrap();
     let (mut n, mut s2) = (0.0, 0.0);
     for i in (400..900).step_by(7) {
         for j in (400..900).step_by(7) {
@@ -136,7 +136,7 @@ fn a_scan_of_another_part_exits_with_status_3() {
     let mut rng = doefab::rng::Lcg(11);
     let v = ndarray::Array2::from_shape_fn((1306, 1306), |_| 0.3e-6 * rng.normal());
     let g = doefab::Grid::new(v, [PAPER_PITCH; 2], doefab::Unit::Metre).unwrap();
-    let g = doefab::metrology::synthetic_scan::gaussian_blur(&g, 3.0 * PAPER_PITCH).unwrap();
+    let g = doefab::grid::blur::gaussian_blur(&g, 3.0 * PAPER_PITCH).unwrap();
     doefab::metrology::synthetic_scan::write_scan(&scan, &g).unwrap();
     let err = compare_refused(&scan, 3);
     assert!(err.contains("registration refused") && err.contains("does not match"), "{err}");

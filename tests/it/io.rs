@@ -7,7 +7,9 @@ use crate::common;
 
 use std::path::{Path, PathBuf};
 
-use doefab::io::heightmap::{read_heightmap, read_raw, Metadata, ReadOptions, SampleKind};
+use doefab::io::heightmap::{read_heightmap, read_raw, ReadOptions};
+
+use doefab::io::raw_map::{Metadata, SampleKind};
 use doefab::io::{csv, exr, npy, png, tiff};
 use ndarray::{Array2, Array4};
 

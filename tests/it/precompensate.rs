@@ -166,7 +166,7 @@ fn a_blur_is_deconvolved_as_far_as_the_bounds_allow() {
 fn the_command_closes_the_loop_through_its_files() {
     use crate::common::{ok, tempdir};
     use doefab::fabrication::recipe::Recipe;
-    use doefab::io::heightmap::Metadata;
+    use doefab::io::raw_map::Metadata;
     use doefab::metrology::synthetic_scan::{simulate_scan, write_scan};
     let dir = tempdir();
     let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();

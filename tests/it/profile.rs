@@ -283,7 +283,7 @@ fn a_line_of_a_real_surface_file_gives_its_known_step_heights() {
     doefab::io::csv::write_csv(
         &dfile,
         design.values(),
-        &doefab::io::heightmap::Metadata::heights([1e-6, 1e-6]),
+        &doefab::io::raw_map::Metadata::heights([1e-6, 1e-6]),
     )
     .unwrap();
     let json = ok(&[

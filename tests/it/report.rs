@@ -1,12 +1,12 @@
 //! `doefab report`: one static page from the benchmarks, within its budget.
 
+use doefab::bench::finetune_time::TimedOptions;
+use doefab::bench::psf::BenchOptions;
+use doefab::bench::stability::{MapOptions, MAPS};
 use doefab::decoder::finetune::FinetuneConfig;
-use doefab::decoder::finetune_time::TimedOptions;
 use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
 use doefab::fabrication::chain::DesignSource;
 use doefab::io::heightmap::ReadOptions;
-use doefab::optics::psf_bench::BenchOptions;
-use doefab::optics::stability::{MapOptions, MAPS};
 use doefab::pipeline::bench::PsfBenchOptions;
 use doefab::pipeline::report::{run_report, shown, ReportOptions, COSTS};
 

@@ -173,7 +173,7 @@ fn doefab_exr_height_maps_are_read_as_scans() {
     let p = dir.path().join("s1.exr");
     let v = Array2::from_shape_fn((200, 200), |(i, j)| (s1(i, j) * 1e6) as f32);
     let meta =
-        doefab::io::heightmap::Metadata { pitch: Some([1e-6, 1e-6]), unit: Some("um".into()), text: vec![] };
+        doefab::io::raw_map::Metadata { pitch: Some([1e-6, 1e-6]), unit: Some("um".into()), text: vec![] };
     doefab::io::exr::write_exr(&p, &[("height", &v)], &meta).unwrap();
     let s = read(&p, &ScanOptions::default());
     assert_eq!(s.format, ScanFormat::Exr);

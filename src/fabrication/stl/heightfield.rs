@@ -20,7 +20,7 @@ use ndarray::Array2;
 use spade::handles::FixedVertexHandle;
 use spade::{DelaunayTriangulation, Point2, Triangulation};
 
-use super::{Frame, Mesh, SurfaceKind};
+use super::mesh::{Frame, Mesh, SurfaceKind};
 use crate::error::{Error, Result};
 use crate::grid::Grid;
 

@@ -40,7 +40,7 @@ use std::collections::HashMap;
 
 use spade::{ConstrainedDelaunayTriangulation, Point2, Triangulation};
 
-use super::{Frame, Mesh, SurfaceKind};
+use super::mesh::{Frame, Mesh, SurfaceKind};
 use crate::error::{Error, Result};
 use crate::grid::Grid;
 

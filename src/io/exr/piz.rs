@@ -9,7 +9,7 @@
 //! as two words), wavelet-transformed (a 2D Haar transform, 14-bit or 16-bit arithmetic) and
 //! mapped through the bitmap's dense numbering.
 
-use super::scanline::{num_samples, planar_to_lines, ChunkChannel};
+use super::chunk::{num_samples, planar_to_lines, ChunkChannel};
 
 type Res<T> = std::result::Result<T, String>;
 

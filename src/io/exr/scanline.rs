@@ -19,6 +19,7 @@
 
 use std::path::Path;
 
+use super::chunk::{num_samples, planar_to_lines, ChunkChannel};
 use crate::error::{Error, Result};
 
 /// How a channel's samples are stored.
@@ -82,21 +83,6 @@ const COMPRESSION_NAMES: [&str; 10] =
 /// The name of an OpenEXR compression code.
 pub fn compression_name(code: u8) -> String {
     COMPRESSION_NAMES.get(code as usize).map_or_else(|| format!("unknown ({code})"), |s| s.to_string())
-}
-
-/// Floor division (OpenEXR's `divp`) for a positive divisor.
-fn divp(a: i64, s: i64) -> i64 {
-    a.div_euclid(s)
-}
-
-/// How many multiples of `s` lie in `[a, b]` (OpenEXR's `numSamples`).
-pub fn num_samples(s: i32, a: i32, b: i32) -> usize {
-    let (s, a, b) = (s as i64, a as i64, b as i64);
-    if b < a {
-        return 0;
-    }
-    let (a1, b1) = (divp(a, s), divp(b, s));
-    (b1 - a1 + if a1 * s < a { 0 } else { 1 }) as usize
 }
 
 /// A little-endian reader over a byte slice that names the file in its errors.
@@ -413,19 +399,6 @@ pub fn read_channels(path: &Path, bytes: &[u8], header: &Header, names: &[&str])
     Ok(wanted.iter().map(|&k| planes[k].take().expect("each channel asked once")).collect())
 }
 
-/// What the decompressors need to know of a channel.
-pub(super) struct ChunkChannel {
-    /// Bytes per sample.
-    pub bytes: usize,
-    /// Samples per line.
-    pub nx: usize,
-    /// y sampling.
-    pub ys: i32,
-    pub half: bool,
-    /// B44 stores it on a log scale.
-    pub linear: bool,
-}
-
 /// OpenEXR's run-length decoding (`rleUncompress`): a signed count byte `n`; `n < 0`: `-n`
 /// literal bytes follow; `n >= 0`: the next byte repeats `n + 1` times.
 fn unrle(data: &[u8], max: usize) -> std::result::Result<Vec<u8>, String> {
@@ -511,26 +484,6 @@ fn unb44(data: &[u8], chans: &[ChunkChannel], first: i32, last: i32) -> std::res
         planar.push(v);
     }
     Ok(planar_to_lines(&planar, chans, first, last))
-}
-
-/// Lays per-channel planar `u16` words (the chunk's lines of one channel after another) out
-/// as the chunk's line layout, little-endian.
-pub(super) fn planar_to_lines(planar: &[Vec<u16>], chans: &[ChunkChannel], first: i32, last: i32) -> Vec<u8> {
-    let mut next = vec![0usize; chans.len()];
-    let mut out = Vec::new();
-    for y in first..=last {
-        for (c, ch) in chans.iter().enumerate() {
-            if y.rem_euclid(ch.ys) != 0 {
-                continue;
-            }
-            let words = ch.nx * ch.bytes / 2;
-            for &w in &planar[c][next[c]..next[c] + words] {
-                out.extend_from_slice(&w.to_le_bytes());
-            }
-            next[c] += words;
-        }
-    }
-    out
 }
 
 /// Decodes a 14-byte B44 block: the first sample `t0` (16 bits), a shift `e`, and 15 six-bit

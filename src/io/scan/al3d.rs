@@ -30,8 +30,8 @@
 use std::path::Path;
 
 use crate::error::Result;
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, decode_text, shape, Bin, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, decode_text, shape, Bin, ScanFormat, ScanRaw};
 
 /// The magic at the start of every AL3D file.
 pub const MAGIC: &[u8; 17] = b"AliconaImaging\0\r\n";

@@ -31,8 +31,8 @@ use std::path::Path;
 use hdf5_reader::{Attribute, Dataset, Datatype, Hdf5File, OpenOptions};
 
 use crate::error::{Error, Result};
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, scan_length_unit, shape, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, scan_length_unit, shape, ScanFormat, ScanRaw};
 
 /// The HDF5 signature, at byte offset 0 (or 512, 1024, ... after a user block).
 pub const MAGIC: &[u8; 8] = b"\x89HDF\r\n\x1a\n";
@@ -225,7 +225,7 @@ fn num_text(x: f64) -> String {
 
 /// Text from the bytes of a string (up to the first NUL, trimmed; Latin-1 when not UTF-8).
 fn text(b: &[u8]) -> String {
-    crate::io::scan::decode_text(b)
+    crate::io::scan::raw::decode_text(b)
 }
 
 /// The byte size of one element of `dtype` in its stored form (vlen references: 16 bytes with

@@ -33,8 +33,8 @@
 use std::path::Path;
 
 use crate::error::Result;
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, shape, Bin, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, shape, Bin, ScanFormat, ScanRaw};
 
 /// The part of the magic before the version.
 pub const MAGIC: &[u8; 12] = b"FRTM_GLIDERV";

@@ -11,8 +11,8 @@
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, scan_length_unit, shape, Bin, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, scan_length_unit, shape, Bin, ScanFormat, ScanRaw};
 
 /// First line of a GSF file.
 pub const MAGIC: &str = "Gwyddion Simple Field 1.0";

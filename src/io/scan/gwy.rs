@@ -31,8 +31,8 @@
 use std::path::Path;
 
 use crate::error::Result;
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, scan_length_unit, shape, Bin, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, scan_length_unit, shape, Bin, ScanFormat, ScanRaw};
 
 /// Objects nested deeper than this are refused (a container of fields of units is 3 deep).
 const MAX_DEPTH: usize = 16;

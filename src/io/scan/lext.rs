@@ -42,8 +42,8 @@
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, decode_text, shape, Bin, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, decode_text, shape, Bin, ScanFormat, ScanRaw};
 
 /// Picometres, the unit of the pitch and of the height per count.
 const PM: f64 = 1e-12;

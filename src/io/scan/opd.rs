@@ -43,8 +43,8 @@
 use std::path::Path;
 
 use crate::error::Result;
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, shape, Bin, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, shape, Bin, ScanFormat, ScanRaw};
 
 const ENTRY: usize = 24;
 const T_DIRECTORY: u16 = 1;
@@ -215,7 +215,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let mut metadata = Vec::new();
     for e in &entries {
         let text = match e.kind {
-            T_TEXT => Some(crate::io::scan::decode_text(&bytes[e.offset..e.offset + e.size])),
+            T_TEXT => Some(crate::io::scan::raw::decode_text(&bytes[e.offset..e.offset + e.size])),
             T_SHORT | T_LONG | T_FLOAT | T_DOUBLE => {
                 let v = number(bytes, e);
                 if v.is_none() {

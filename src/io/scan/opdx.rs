@@ -34,8 +34,8 @@
 use std::path::Path;
 
 use crate::error::Result;
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, scan_length_unit, shape, Bin, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, scan_length_unit, shape, Bin, ScanFormat, ScanRaw};
 
 /// The 12-byte magic.
 pub const MAGIC: &[u8; 12] = b"VCA DATA\x01\x00\x00\x55";
@@ -148,7 +148,10 @@ impl Reader<'_> {
                 0x0d => (Item::Number(self.b.f64le(p, &what)?), p + 8),
                 0x12 => {
                     let (len, start) = self.length(p, &what)?;
-                    (Item::Text(crate::io::scan::decode_text(&self.b.bytes[start..start + len])), start + len)
+                    (
+                        Item::Text(crate::io::scan::raw::decode_text(&self.b.bytes[start..start + len])),
+                        start + len,
+                    )
                 }
                 0x13 => {
                     let (len, start) = self.length(p, &what)?;

@@ -25,8 +25,8 @@
 use std::path::Path;
 
 use crate::error::Result;
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, shape, Bin, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, shape, Bin, ScanFormat, ScanRaw};
 
 const HEADER: usize = 500;
 const NOT_MEASURED: f32 = 1_000_001.0;

@@ -19,9 +19,9 @@ use std::io::Cursor;
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::io::heightmap::{RawMap, SampleKind};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, shape, ScanFormat, ScanRaw};
 use crate::io::scan::x3p::entry;
-use crate::io::scan::{data_len, shape, ScanFormat, ScanRaw};
 
 const INDEX: &str = "index.xml";
 const UM: f64 = 1e-6;

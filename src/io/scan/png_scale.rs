@@ -18,8 +18,8 @@
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::io::heightmap::SampleKind;
-use crate::io::scan::{scan_length_unit, ScanFormat, ScanRaw};
+use crate::io::raw_map::SampleKind;
+use crate::io::scan::raw::{scan_length_unit, ScanFormat, ScanRaw};
 
 /// The fields of a `pCAL` chunk.
 #[derive(Debug, Clone, PartialEq)]

@@ -23,8 +23,8 @@
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, decode_text, shape, Bin, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, decode_text, shape, Bin, ScanFormat, ScanRaw};
 
 fn type_size(t: u8) -> Option<usize> {
     match t {

@@ -28,8 +28,8 @@
 use std::path::Path;
 
 use crate::error::Result;
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, scan_length_unit, shape, Bin, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, scan_length_unit, shape, Bin, ScanFormat, ScanRaw};
 
 /// Size of the fixed header.
 pub const HEADER: usize = 512;

@@ -19,8 +19,8 @@
 use std::path::Path;
 
 use crate::error::Result;
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, decode_text, shape, Bin, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, decode_text, shape, Bin, ScanFormat, ScanRaw};
 
 /// The 32-byte magic of version 2.0.
 pub const MAGIC: &[u8; 32] = b"Binary TrueMap Data File v2.0\r\n\0";

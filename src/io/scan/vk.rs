@@ -37,8 +37,8 @@ use std::io::{Cursor, Read};
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, shape, Bin, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, shape, Bin, ScanFormat, ScanRaw};
 
 /// The magic of a VK4 byte stream.
 pub const MAGIC: &[u8; 4] = b"VK4_";

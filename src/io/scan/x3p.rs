@@ -20,8 +20,8 @@ use std::path::Path;
 use md5::{Digest, Md5};
 
 use crate::error::{Error, Result};
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{data_len, shape, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, shape, ScanFormat, ScanRaw};
 
 fn hex_md5(b: &[u8]) -> String {
     Md5::digest(b).iter().map(|x| format!("{x:02x}")).collect()

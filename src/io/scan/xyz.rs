@@ -12,8 +12,8 @@
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::io::heightmap::{unit_from_text, RawMap, SampleKind};
-use crate::io::scan::{data_len, ScanFormat, ScanRaw};
+use crate::io::raw_map::{unit_from_text, RawMap, SampleKind};
+use crate::io::scan::raw::{data_len, ScanFormat, ScanRaw};
 
 /// Distinct values of a sorted list, merging those closer than `tol`.
 fn distinct(sorted: &[f64], tol: f64) -> usize {

@@ -30,8 +30,8 @@
 use std::path::Path;
 
 use crate::error::Result;
-use crate::io::heightmap::{RawMap, SampleKind};
-use crate::io::scan::{shape, Bin, ScanFormat, ScanRaw};
+use crate::io::raw_map::{RawMap, SampleKind};
+use crate::io::scan::raw::{shape, Bin, ScanFormat, ScanRaw};
 
 const MAGICS: [u32; 3] = [0x881B_036F, 0x881B_0370, 0x881B_0371];
 /// Phase values at or above this mark non-measured pixels.

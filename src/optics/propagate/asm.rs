@@ -21,8 +21,8 @@ use ndarray::Array2;
 use rustfft::num_complex::Complex64;
 
 use super::fresnel::{crop_too_large, two_step};
-use super::{check_lens_sampling, check_window, field_power, pupil_phase};
-use super::{SensorIntensity, Violation};
+use super::shared::{check_lens_sampling, check_window, field_power, pupil_phase};
+use super::shared::{SensorIntensity, Violation};
 use crate::error::Result;
 use crate::grid::Grid;
 use crate::optics::fft::{fft_freq, good_size};
@@ -33,7 +33,9 @@ use crate::optics::system::{sinc, OpticalSystem};
 pub fn grid(system: &OpticalSystem) -> (usize, f64, usize) {
     let dx = system.sample_pitch();
     let n = system.pupil_samples(dx, system.samples() % 2);
-    let own = super::Method::AngularSpectrum.default_padding().expect("an FFT method has a default padding");
+    let own = super::shared::Method::AngularSpectrum
+        .default_padding()
+        .expect("an FFT method has a default padding");
     let p = system.padding.unwrap_or(own);
     let w = (p * n as f64).ceil() as usize;
     (n, dx, good_size(w.max(n), n % 2))

@@ -21,7 +21,7 @@ use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 use rustfft::FftPlanner;
 
-use super::{
+use super::shared::{
     check_fresnel, check_lens_sampling, check_window, field_power, pupil_phase, SensorIntensity, Violation,
 };
 use crate::error::{Error, Result};

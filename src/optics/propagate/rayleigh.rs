@@ -23,7 +23,9 @@ use ndarray::{s, Array2};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 
-use super::{check_lens_sampling, content_bandwidth, field_power, pupil_phase, SensorIntensity, Violation};
+use super::shared::{
+    check_lens_sampling, content_bandwidth, field_power, pupil_phase, SensorIntensity, Violation,
+};
 use crate::error::{Error, Result};
 use crate::grid::Grid;
 use crate::optics::fft::{good_size, Plan2d};
@@ -341,24 +343,51 @@ fn band_limited_intensity_with(
     Ok(Array2::from_shape_fn((m, m), |(a, b)| out[[a * r, b * r]].norm_sqr()))
 }
 
+/// Midpoint sub-samples summed into pixels (`s x s` blocks), normalised to sum 1.
+pub fn pixels(intensity: &Array2<f64>, s: usize) -> Array2<f64> {
+    let c = intensity.dim().0 / s;
+    let mut px = Array2::<f64>::zeros((c, c));
+    for ((i, j), v) in intensity.indexed_iter() {
+        px[[i / s, j / s]] += v;
+    }
+    let total = px.sum();
+    px / total
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::material::Material;
     use crate::optics::propagate::{asm, check, Method};
     use crate::optics::psf::relative_l2;
-    use crate::optics::stability::pixels;
+    use crate::Unit;
 
-    /// The stability maps' scene at g = d_s = 2 mm, 2 sub-samples per 3 um pixel, 550 nm: a
-    /// run the angular-spectrum guard accepts.
+    /// The stability maps' scene (0.5 mm aperture, 3 um pixels, a 40 x 40 crop, its smooth DOE
+    /// of two cosine gratings at 0.8 um samples) at g = d_s = 2 mm, 2 sub-samples per pixel,
+    /// 550 nm: a run the angular-spectrum guard accepts.
     fn cell() -> (OpticalSystem, Grid) {
         let sys = OpticalSystem {
+            aperture: 0.5e-3,
+            doe_to_lens: 1e-3,
             focal_length: 2e-3,
             lens_to_sensor: 2e-3,
+            sensor_pitch: 3e-6,
+            crop: 40,
+            pupil_pitch: 5e-6,
+            pupil_window: 112.0 * 5e-6,
             subsample: 2,
             wavelengths: vec![550e-9],
-            ..crate::optics::psf_bench::scene()
+            ..Default::default()
         };
-        (sys, crate::optics::stability::doe().unwrap())
+        let (pitch, tau) = (0.8e-6, 2.0 * PI);
+        let k = tau / 550e-9 * (Material::pdms().index(550e-9).unwrap() - 1.0);
+        let n = (sys.pupil_window / pitch).ceil() as usize + 40;
+        let c = (n as f64 - 1.0) * 0.5;
+        let v = Array2::from_shape_fn((n, n), |(i, j)| {
+            let (x, y) = ((j as f64 - c) * pitch, (i as f64 - c) * pitch);
+            3.0 * ((tau * x / 60e-6).cos() + (tau * y / 85e-6).cos()) / k
+        });
+        (sys, Grid::new(v, [pitch; 2], Unit::Metre).unwrap())
     }
 
     /// Two independent ways to the same answer: the angular spectrum (periodic, in the

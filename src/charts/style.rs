@@ -1,14 +1,9 @@
-//! Reports for people: charts and false-colour maps, drawn with `plotters`; tone-mapped
-//! pictures of HDR images ([`tone`]).
-//!
-//! Every chart is drawn twice from one drawing function, once into an RGB buffer written as
-//! PNG (through [`crate::io::png`], atomically) and once as SVG. Text uses DejaVu Sans,
-//! embedded in the binary (`assets/fonts/`, Bitstream Vera licence), so charts look the same
-//! on every machine and need no system fonts.
-
-pub mod fabrication_charts;
-pub mod metrology_charts;
-pub mod tone;
+//! The charts' shared style: every chart is drawn twice from one drawing function, once into
+//! an RGB buffer written as PNG (atomically) and once as SVG; text uses DejaVu Sans, embedded
+//! in the binary (`assets/fonts/`, Bitstream Vera licence), so charts look the same on every
+//! machine and need no system fonts. Log axes ([`log_span`], [`log_label`]), legends
+//! ([`draw_legend`], [`key_entry`], [`dashed_legend`]) and the error of a failed drawing are
+//! here.
 
 use std::path::Path;
 
@@ -57,93 +52,6 @@ pub fn log_span(
     } else {
         empty
     }
-}
-
-/// One axis of a failure map's sweep (`bench register`, `bench calibration`): its name, unit and
-/// the values tried, in that unit.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct SweepAxis {
-    pub name: String,
-    pub unit: String,
-    pub values: Vec<f64>,
-}
-
-impl SweepAxis {
-    pub fn new(name: &str, unit: &str, values: &[f64]) -> SweepAxis {
-        SweepAxis { name: name.into(), unit: unit.into(), values: values.to_vec() }
-    }
-}
-
-/// A chart of a failure map's panel: x the values swept along `axis` (padded 6 % each way,
-/// captioned with its name and unit), y logarithmic over `y` with `y_desc`, and a red horizontal
-/// line at `limit` (the error past which a trial fails). The trials are drawn on the returned
-/// chart.
-pub fn failure_panel<'a, DB: DrawingBackend>(
-    area: &'a DrawingArea<DB, plotters::coord::Shift>,
-    axis: &SweepAxis,
-    y: std::ops::Range<f64>,
-    y_desc: &str,
-    limit: f64,
-) -> std::result::Result<
-    ChartContext<'a, DB, Cartesian2d<plotters::coord::types::RangedCoordf64, LogCoord<f64>>>,
-    String,
-> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
-    let (lo, hi) =
-        axis.values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
-    let pad = 0.06 * (hi - lo).max(1e-12);
-    let mut c = ChartBuilder::on(area)
-        .caption(format!("{} ({})", axis.name, axis.unit), (FONT, 15))
-        .margin(8)
-        .x_label_area_size(28)
-        .y_label_area_size(52)
-        .build_cartesian_2d(lo - pad..hi + pad, y.log_scale())
-        .map_err(|x| e(&x))?;
-    c.configure_mesh()
-        .y_desc(y_desc)
-        .y_label_formatter(&|v| format!("{v:.0e}"))
-        .x_labels(6)
-        .light_line_style(WHITE)
-        .label_style((FONT, 11))
-        .draw()
-        .map_err(|x| e(&x))?;
-    c.draw_series(LineSeries::new([(lo - pad, limit), (hi + pad, limit)], RED.stroke_width(1)))
-        .map_err(|x| e(&x))?;
-    Ok(c)
-}
-
-/// The colours of a failure map's markers: a trial within its limit (dot), over it and warned
-/// (triangle), and the method's own error estimate (ring).
-pub const WITHIN: RGBColor = RGBColor(0, 120, 0);
-pub const WARNED: RGBColor = RGBColor(220, 140, 0);
-pub const ESTIMATE: RGBColor = RGBColor(150, 150, 150);
-
-/// The key of a failure map, drawn on `panel` at `position`: the dot (`within`), the orange
-/// triangle (`warned`, where the map has warnings), the red ring of a silent failure
-/// (`silent`), the cross of a refusal (drawn at the top), the grey ring (`estimate`, where the
-/// method estimates its own error) and the red line (`line`).
-pub fn draw_failure_key<'a, DB: DrawingBackend + 'a>(
-    panel: &mut ChartContext<'a, DB, Cartesian2d<plotters::coord::types::RangedCoordf64, LogCoord<f64>>>,
-    position: SeriesLabelPosition,
-    within: &str,
-    warned: Option<&str>,
-    silent: &str,
-    estimate: Option<&str>,
-    line: &str,
-) -> std::result::Result<(), String> {
-    key_entry(panel, within, |(x, y)| Circle::new((x + 8, y), 4, WITHIN.filled()))?;
-    if let Some(warned) = warned {
-        key_entry(panel, warned, |(x, y)| TriangleMarker::new((x + 8, y), 6, WARNED.filled()))?;
-    }
-    key_entry(panel, silent, |(x, y)| Circle::new((x + 8, y), 7, RED.stroke_width(2)))?;
-    key_entry(panel, "refused (drawn at the top)", |(x, y)| {
-        Cross::new((x + 8, y), 6, BLACK.stroke_width(2))
-    })?;
-    if let Some(estimate) = estimate {
-        key_entry(panel, estimate, |(x, y)| Circle::new((x + 8, y), 6, ESTIMATE.stroke_width(1)))?;
-    }
-    key_entry(panel, line, |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], RED.stroke_width(1)))?;
-    draw_legend(panel, position, 11)
 }
 
 /// One entry of a chart's legend that stands for no series of its own: `label` with `glyph`

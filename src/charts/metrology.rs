@@ -7,7 +7,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::{draw_legend, write_png_chart, write_svg_chart, FONT};
+use super::style::{draw_legend, write_png_chart, write_svg_chart, FONT};
 use crate::error::Result;
 use crate::grid::Grid;
 
@@ -199,7 +199,7 @@ pub fn profiles(path: &Path, design: &Grid, surface: &Grid) -> Result<()> {
                         .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RED));
                 }
             }
-            crate::report::draw_legend(&mut ch, SeriesLabelPosition::MiddleRight, 13)?;
+            super::style::draw_legend(&mut ch, SeriesLabelPosition::MiddleRight, 13)?;
         }
         Ok(())
     })
@@ -270,7 +270,7 @@ pub fn height_histogram(
         .map_err(err)?
         .label("measured level means")
         .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RED));
-        crate::report::draw_legend(&mut ch, SeriesLabelPosition::MiddleRight, 13)?;
+        super::style::draw_legend(&mut ch, SeriesLabelPosition::MiddleRight, 13)?;
         Ok(())
     })
 }
@@ -294,7 +294,7 @@ pub fn profile_chart(
     let pad = 0.05 * (hi - lo);
     let line = |pts: &[(f64, f64)]| pts.iter().map(|p| (p.0 * 1e6, p.1 * 1e9)).collect::<Vec<_>>();
     let (m, f) = (line(measured), line(model));
-    super::write_svg_chart(path, 1000, 420, |root| {
+    write_svg_chart(path, 1000, 420, |root| {
         let mut ch = ChartBuilder::on(root)
             .caption(title, (FONT, 16))
             .margin(12)
@@ -327,7 +327,7 @@ pub fn profile_chart(
                 s.label("levels").legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLUE));
             }
         }
-        crate::report::draw_legend(&mut ch, SeriesLabelPosition::UpperRight, 13)
+        super::style::draw_legend(&mut ch, SeriesLabelPosition::UpperRight, 13)
     })
 }
 

@@ -12,9 +12,9 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use crate::decoder::capture_bench::{BenchReport, Score};
+use super::style::{write_png_chart, FONT};
+use crate::bench::decoder::{BenchReport, Score};
 use crate::error::{Error, Result};
-use crate::report::{write_png_chart, FONT};
 
 const COLORS: [RGBColor; 8] = [
     RGBColor(127, 127, 127),
@@ -114,7 +114,7 @@ pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()
                     .label(short)
                     .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled()));
             }
-            crate::report::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;
+            super::style::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;
         }
         Ok(())
     })
@@ -231,10 +231,10 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                         .draw_series(DashedLineSeries::new([(0.0, v), (last, v)], dash, gap, style))
                         .map_err(|x| e(&x))?
                         .label(label)
-                        .legend(move |at| crate::report::dashed_legend(at, style, dash, gap, 18));
+                        .legend(move |at| super::style::dashed_legend(at, style, dash, gap, 18));
                 }
             }
-            crate::report::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;
+            super::style::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;
         }
         let validation: Vec<(f64, f64)> = run
             .history
@@ -272,7 +272,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
             chart
                 .draw_series(validation.iter().map(|&p| Circle::new(p, 3, RED.filled())))
                 .map_err(|x| e(&x))?;
-            crate::report::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;
+            super::style::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;
         }
         Ok(())
     })
@@ -282,7 +282,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
 /// above, the residual of each model (a colour each, in the order they add to one another) in
 /// each brightness band; below, the halo model's residual over all unsaturated pixels against
 /// the halo's fraction, a line per radius, the paper model's as a dashed line.
-pub fn write_forward_chart(path: &Path, report: &crate::decoder::forward_check::ForwardReport) -> Result<()> {
+pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardReport) -> Result<()> {
     let scenes = &report.scenes;
     if scenes.is_empty() {
         return Err(Error::Data("no scene to chart".into()));
@@ -292,7 +292,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::decoder::forward_check::
         let e = |e: &dyn std::fmt::Display| e.to_string();
         let columns = root.split_evenly((2, scenes.len()));
         for (k, scene) in scenes.iter().enumerate() {
-            let values = |m: &crate::decoder::forward_check::ModelFit| {
+            let values = |m: &crate::bench::forward::ModelFit| {
                 let r = &m.residuals;
                 [r.dark, r.mid, r.bright, r.ring, r.all]
             };
@@ -355,7 +355,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::decoder::forward_check::
                     .label(label)
                     .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled()));
             }
-            crate::report::draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, 11)?;
+            super::style::draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, 11)?;
 
             // The halo grid.
             let grid = &scene.halo_grid;
@@ -410,7 +410,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::decoder::forward_check::
                     .label("paper model")
                     .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], BLACK.stroke_width(1)));
             }
-            crate::report::draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 11)?;
+            super::style::draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 11)?;
         }
         Ok(())
     })

@@ -4,7 +4,7 @@
 //! pair of maps per method: the two-step Fresnel method, the angular spectrum and the matrix
 //! DFT (direct Rayleigh-Sommerfeld is the angular spectrum's truth).
 //!
-//! The scene is [`super::psf_bench::scene`] (0.5 mm aperture, 3 um pixels, a 40 x 40 crop) with a DOE
+//! The scene is [`super::psf::scene`] (0.5 mm aperture, 3 um pixels, a 40 x 40 crop) with a DOE
 //! that has one truth at every pupil pitch swept: the phase `3 (cos(2 pi x / 60 um) +
 //! cos(2 pi y / 85 um))` rad at 550 nm, sampled at 0.8 um (0.25 rad per sample at most), so the
 //! pupil samples of every pitch are read from a well-resolved surface. 0.8 um is none of the
@@ -17,7 +17,7 @@
 //! **Truths.** Each method's truth takes the same pupil samples (pitch `dx`) to the same sensor
 //! points (midpoint rule, `s` per pixel), so pupil sampling and pixel integration cancel and
 //! what is left is the method's own error:
-//! * the two-step Fresnel method (paraxial): the matrix DFT ([`super::propagate::matrix_dft`]),
+//! * the two-step Fresnel method (paraxial): the matrix DFT ([`crate::optics::propagate::matrix_dft`]),
 //!   in focus the exact discrete transform of that pupil, with no window, replicas or chirp to
 //!   sample;
 //! * the angular spectrum (non-paraxial, hyperbolic lens): no paraxial result can be its truth
@@ -32,7 +32,7 @@
 //!   Gauss-Legendre pixels at 3 sub-samples in run and truth alike), and its truth is the same
 //!   method on the surface between the DOE's samples, at a 0.4 um pupil pitch (which differs
 //!   from 0.2 um by 4e-4: the truth's uncertainty, tested). Its maps found silent failures, now
-//!   refused: see `pupil_resampling` in [`super::propagate`].
+//!   refused: see `pupil_resampling` in [`crate::optics::propagate`].
 //! * the matrix DFT on a stepped DOE ([`stepped_doe`]: the same phase sampled at
 //!   [`STEPPED_DOE_PITCH`], wrapped at 550 nm, and that quantized to [`MapOptions::levels`]
 //!   levels, as `fab` makes a part): the part is piecewise constant per sample, so its truth is
@@ -48,7 +48,7 @@
 //!   maps found 1.1e-2 off at 400 nm at the DOE's own 2 um pitch, for any design, smooth or
 //!   stepped, pixelated at that pitch). Away from 550 nm the wrap's steps are real steps of
 //!   `(n(lambda) - 1) h_2pi k`, over pi in phase: the guard tells them from undersampled
-//!   slopes ([`super::propagate`]'s `phase_changes`), and refuses the coarser pupils, which
+//!   slopes ([`crate::optics::propagate`]'s `phase_changes`), and refuses the coarser pupils, which
 //!   read across them (`step_resampling`).
 //!
 //! **Axes.** x: the pupil pitch over the lens-sampling limit, `dx / (lambda F#)` (the
@@ -67,16 +67,16 @@
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
-use super::propagate::{asm, check, rayleigh, Method, Options, Precision};
-use super::psf::relative_l2;
-use super::psf_bench::scene;
-use super::simulate;
-use super::system::{OpticalSystem, PixelRule};
+use super::psf::scene;
 use crate::error::{Error, Result};
 use crate::fabrication::quantize::{quantize, QuantizeMethod};
 use crate::fabrication::wrap::{wrap, WrapSpec};
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::material::Material;
+use crate::optics::propagate::{asm, check, rayleigh, Method, Options, Precision};
+use crate::optics::psf::relative_l2;
+use crate::optics::simulate;
+use crate::optics::system::{OpticalSystem, PixelRule};
 
 /// Pitch of the stability DOE's samples, metres.
 pub const DOE_PITCH: f64 = 0.8e-6;
@@ -279,7 +279,7 @@ fn cell(
             let u0 = sys.pupil_field(doe, n, dx, wavelength, false)?;
             let truth = rayleigh::band_limited_intensity(&sys, &u0, dx, wavelength)?;
             let run = asm::sensor_intensity(&sys, doe, wavelength)?.intensity;
-            relative_l2(&pixels(&run, s), &pixels(&truth, s))
+            relative_l2(&rayleigh::pixels(&run, s), &rayleigh::pixels(&truth, s))
         }
         _ => {
             // The Fresnel method against the matrix DFT of the same pupil.
@@ -349,17 +349,6 @@ fn mdft_cell(
     let run = simulate(&sys, doe, Method::MatrixDft, &forced)?;
     let error = relative_l2(run.channels[0].grid.values(), truth);
     verdict(Method::MatrixDft, &sys, doe, dx, error, tolerance)
-}
-
-/// Midpoint sub-samples summed into pixels (`s x s` blocks), normalised to sum 1.
-pub(crate) fn pixels(intensity: &Array2<f64>, s: usize) -> Array2<f64> {
-    let c = intensity.dim().0 / s;
-    let mut px = Array2::<f64>::zeros((c, c));
-    for ((i, j), v) in intensity.indexed_iter() {
-        px[[i / s, j / s]] += v;
-    }
-    let total = px.sum();
-    px / total
 }
 
 fn map(

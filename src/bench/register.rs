@@ -3,7 +3,7 @@
 //!
 //! The part is the paper's DOE on 320 samples of 4.29 um, wrapped at 530 nm in PDMS and
 //! quantized to 8 levels (the surface `compare` registers a scan to). A scan of it is
-//! simulated ([`super::synthetic_scan`]) at 2.7 um with a known pose, and
+//! simulated ([`crate::metrology::synthetic_scan`]) at 2.7 um with a known pose, and
 //! [`register`] must find that pose without being told
 //! anything of it (it searches rotation, mirror and height sign). The baseline scan: 20 nm of
 //! noise, a 2 um blur, 10 % of samples missing, a rotation of 0.3 deg, scale 1, a shift of
@@ -19,20 +19,16 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use plotters::coord::Shift;
-use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::scan_registration::{register, Pose, RegisterOptions};
-use super::synthetic_scan::{simulate_scan, SimulateParams};
+use super::SweepAxis;
 use crate::design::{paper_example, ExampleParams, PAPER_PITCH};
 use crate::error::Result;
 use crate::fabrication::quantize::{quantize, QuantizeMethod};
 use crate::fabrication::wrap::{wrap, WrapSpec};
 use crate::grid::Grid;
-use crate::report::{
-    draw_failure_key, failure_panel, write_png_chart, write_svg_chart, SweepAxis, FONT, WITHIN,
-};
+use crate::metrology::scan_registration::{register, Pose, RegisterOptions};
+use crate::metrology::synthetic_scan::{simulate_scan, SimulateParams};
 
 /// A pose further than this from the truth, in design samples, is wrong.
 pub const WRONG_SHIFT: f64 = 0.5;
@@ -208,60 +204,4 @@ pub fn run(mut tick: impl FnMut(&str)) -> Result<RegistrationBench> {
         axes,
         trials,
     })
-}
-
-/// The shift error drawn for a refused trial (above every accepted one).
-const REFUSED_AT: f64 = 30.0;
-
-fn chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    r: &RegistrationBench,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
-    root.fill(&WHITE).map_err(|x| e(&x))?;
-    let title = format!(
-        "Scan registration: shift error against each trouble, two seeds (silent failures: {}; refused: {})",
-        r.silent_failures, r.refused
-    );
-    let root = root.titled(&title, (FONT, 18)).map_err(|x| e(&x))?;
-    let panels = root.split_evenly((2, 3));
-    for (i, (axis, area)) in r.axes.iter().zip(panels.iter()).enumerate() {
-        let mut c =
-            failure_panel(area, axis, 1e-4..REFUSED_AT * 3.0, "shift error, design samples", r.wrong_shift)?;
-        if i == 0 {
-            // The key, in the first panel's empty lower right.
-            draw_failure_key(
-                &mut c,
-                SeriesLabelPosition::LowerRight,
-                "registered",
-                None,
-                "accepted but wrong: silent failure",
-                None,
-                "past the line a pose counts as wrong",
-            )?;
-        }
-        let own = r.trials.iter().filter(|t| t.axis == axis.name);
-        c.draw_series(own.map(|t| -> DynElement<DB, (f64, f64)> {
-            match t.outcome.as_str() {
-                "refused" => Cross::new((t.value, REFUSED_AT), 6, BLACK.stroke_width(2)).into_dyn(),
-                "wrong" => Circle::new((t.value, t.shift_error.max(1e-4)), 7, RED.stroke_width(2)).into_dyn(),
-                _ => Circle::new((t.value, t.shift_error.max(1e-4)), 4, WITHIN.filled()).into_dyn(),
-            }
-        }))
-        .map_err(|x| e(&x))?;
-    }
-    Ok(())
-}
-
-/// Writes `register.{png,svg}` at `path_for(name)`: one panel per axis, the shift error of each
-/// trial (green dot: registered; red ring: accepted but wrong, a silent failure; black cross at
-/// the top: refused), the red line the error past which a pose counts as wrong. Returns the
-/// names.
-pub fn write_chart(
-    mut path_for: impl FnMut(&str) -> std::path::PathBuf,
-    r: &RegistrationBench,
-) -> Result<Vec<String>> {
-    write_png_chart(&path_for("register.png"), 1200, 700, |root| chart(root, r))?;
-    write_svg_chart(&path_for("register.svg"), 1200, 700, |root| chart(root, r))?;
-    Ok(vec!["register.png".into(), "register.svg".into()])
 }

@@ -34,9 +34,9 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array2, Array3, Axis, Zip};
 use serde::Serialize;
 
-use super::capture_bench::{prepare_scene, scene_dirs, BenchScene, SENSOR_PITCH};
-use super::measurement::{halo_blur, Halo};
+use super::decoder::{prepare_scene, scene_dirs, BenchScene, SENSOR_PITCH};
 use crate::calibration::evaluate::{convolve_psf, ScoringOptions};
+use crate::decoder::measurement::{halo_blur, Halo};
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::optics::psf::Psf;
@@ -123,7 +123,8 @@ struct Bands {
     saturated: Array2<bool>,
 }
 
-/// Runs the check on every scene and writes `forward.json` and `forward.png` into `out`.
+/// Runs the check on every scene and writes `forward.json` into `out` (its chart is the
+/// command's, [`crate::pipeline::bench::bench_forward`]).
 /// `progress(message, done, total)` counts two steps a scene.
 pub fn run(
     opts: &ForwardOptions,
@@ -172,7 +173,6 @@ pub fn run(
         &out.join("forward.json"),
         serde_json::to_string_pretty(&report).map_err(|e| Error::Data(e.to_string()))?.as_bytes(),
     )?;
-    super::charts::write_forward_chart(&out.join("forward.png"), &report)?;
     Ok(report)
 }
 

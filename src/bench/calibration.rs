@@ -23,19 +23,16 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use plotters::coord::Shift;
-use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::capture::Capture;
-use super::hdr_merge::{merge, MergeOptions};
-use super::psf_extract::{calibrate_psf, simulate_pinhole_bracket, Centre, PsfCalibration, PsfOptions};
+use super::SweepAxis;
+use crate::calibration::capture::Capture;
+use crate::calibration::hdr_merge::{merge, MergeOptions};
+use crate::calibration::psf_extract::{
+    calibrate_psf, simulate_pinhole_bracket, Centre, PsfCalibration, PsfOptions,
+};
 use crate::error::Result;
 use crate::optics::Psf;
-use crate::report::{
-    draw_failure_key, failure_panel, write_png_chart, write_svg_chart, SweepAxis, ESTIMATE, FONT, WARNED,
-    WITHIN,
-};
 
 /// The largest relative L2 error (per channel) of a usable calibrated PSF: the accuracy the
 /// calibration tests hold it to (2 %).
@@ -186,67 +183,4 @@ pub fn run(truth: &Psf, name: &str, mut tick: impl FnMut(&str)) -> Result<Calibr
         axes,
         trials,
     })
-}
-
-/// The error drawn for a refused trial (above every other).
-const REFUSED_AT: f64 = 3.0;
-
-fn chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    r: &CalibrationBench,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
-    root.fill(&WHITE).map_err(|x| e(&x))?;
-    let title = format!(
-        "PSF calibration from a pinhole bracket: error against each trouble, two seeds (silent failures: {}; warned: {}; refused: {})",
-        r.silent_failures, r.warned, r.refused
-    );
-    let root = root.titled(&title, (FONT, 17)).map_err(|x| e(&x))?;
-    let panels = root.split_evenly((1, r.axes.len()));
-    let floor = 1e-4;
-    for (i, (axis, area)) in r.axes.iter().zip(panels.iter()).enumerate() {
-        let mut c =
-            failure_panel(area, axis, floor..REFUSED_AT * 3.0, "relative L2 error of the PSF", r.tolerance)?;
-        if i == 0 {
-            // The key, in the first panel's empty upper right.
-            draw_failure_key(
-                &mut c,
-                SeriesLabelPosition::UpperRight,
-                "within the tolerance",
-                Some("over it, warned"),
-                "over it, not warned: silent failure",
-                Some("the calibration's own estimate"),
-                "the tolerance",
-            )?;
-        }
-        let own: Vec<&Trial> = r.trials.iter().filter(|t| t.axis == axis.name).collect();
-        // The calibration's own estimate, as grey rings.
-        c.draw_series(
-            own.iter()
-                .filter(|t| t.estimated.is_finite())
-                .map(|t| Circle::new((t.value, t.estimated.max(floor)), 6, ESTIMATE.stroke_width(1))),
-        )
-        .map_err(|x| e(&x))?;
-        c.draw_series(own.iter().map(|t| -> DynElement<DB, (f64, f64)> {
-            let at = (t.value, t.worst.max(floor));
-            match t.outcome.as_str() {
-                "refused" => Cross::new((t.value, REFUSED_AT), 6, BLACK.stroke_width(2)).into_dyn(),
-                "silent" => Circle::new(at, 7, RED.stroke_width(2)).into_dyn(),
-                "warned" => TriangleMarker::new(at, 6, WARNED.filled()).into_dyn(),
-                _ => Circle::new(at, 4, WITHIN.filled()).into_dyn(),
-            }
-        }))
-        .map_err(|x| e(&x))?;
-    }
-    Ok(())
-}
-
-/// Writes `calibration.{png,svg}` at `path_for(name)`: one panel per axis, the error of each
-/// trial (green dot: within the tolerance; orange triangle: over it and warned; red ring: over
-/// it and silent; black cross at the top: refused), the calibration's own estimate as a grey
-/// ring, the red line the tolerance. Returns the names.
-pub fn write_chart(mut path_for: impl FnMut(&str) -> PathBuf, r: &CalibrationBench) -> Result<Vec<String>> {
-    write_png_chart(&path_for("calibration.png"), 1400, 520, |root| chart(root, r))?;
-    write_svg_chart(&path_for("calibration.svg"), 1400, 520, |root| chart(root, r))?;
-    Ok(vec!["calibration.png".into(), "calibration.svg".into()])
 }

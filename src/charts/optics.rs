@@ -1,19 +1,19 @@
 //! Charts of `doefab bench psf`: error against run time for every method, precision and
 //! sub-sampling, with the Pareto front of the valid runs; and the stability chart, error
 //! against sub-sampling (the FFT methods' pupil grid) per method, with the runs its guard refuses marked by crosses;
-//! and the stability maps of [`crate::optics::stability`].
+//! and the stability maps of [`crate::bench::stability`].
 
 use std::path::PathBuf;
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+use super::style::{write_png_chart, write_svg_chart, FONT};
+use crate::bench::psf::{BenchPoint, BenchReport};
+use crate::bench::spectral::SpectralReport;
+use crate::bench::stability::{StabilityMap, StabilityReport, STEPPED_DOE_PITCH};
 use crate::error::{Error, Result};
 use crate::optics::propagate::Method;
-use crate::optics::psf_bench::{BenchPoint, BenchReport};
-use crate::optics::spectral_bench::SpectralReport;
-use crate::optics::stability::{StabilityMap, StabilityReport, STEPPED_DOE_PITCH};
-use crate::report::{write_png_chart, write_svg_chart, FONT};
 
 /// The series of `points` in their order of appearance, each with its colour: the methods'
 /// own hues (matrix DFT blue and green, Fresnel red, angular spectrum magenta), the FFT
@@ -48,7 +48,7 @@ fn series(points: &[BenchPoint]) -> Vec<(String, RGBColor)> {
 
 /// Log range covering `values` (positive ones), padded by a factor of 2.
 fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
-    crate::report::log_span(values, 2.0, 1e-6..1.0)
+    super::style::log_span(values, 2.0, 1e-6..1.0)
 }
 
 fn speed_chart<DB: DrawingBackend>(
@@ -129,20 +129,20 @@ fn speed_chart<DB: DrawingBackend>(
         .map_err(|x| e(&x))?
         .label("automatic plan at a tolerance")
         .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, BLACK.filled()));
-    crate::report::key_entry(&mut chart, "hollow: the guard refuses the run", |(x, y)| {
+    super::style::key_entry(&mut chart, "hollow: the guard refuses the run", |(x, y)| {
         Circle::new((x + 8, y), 4, BLACK.stroke_width(1))
     })?;
     let silent = format!("silent failures: {} (plans over their tolerance)", report.silent_failures);
-    crate::report::key_entry(&mut chart, &silent, |(x, y)| EmptyElement::at((x, y)))?;
+    super::style::key_entry(&mut chart, &silent, |(x, y)| EmptyElement::at((x, y)))?;
     let memory = report.skipped.iter().filter(|s| s.ends_with("(memory)")).count();
     let left_out = format!("left out by the budget: {}", report.skipped.len() - memory);
-    crate::report::key_entry(&mut chart, &left_out, |(x, y)| EmptyElement::at((x, y)))?;
+    super::style::key_entry(&mut chart, &left_out, |(x, y)| EmptyElement::at((x, y)))?;
     if memory > 0 {
-        crate::report::key_entry(&mut chart, &format!("left out for memory: {memory}"), |(x, y)| {
+        super::style::key_entry(&mut chart, &format!("left out for memory: {memory}"), |(x, y)| {
             EmptyElement::at((x, y))
         })?;
     }
-    crate::report::draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 13)?;
+    super::style::draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 13)?;
     Ok(())
 }
 
@@ -200,7 +200,7 @@ fn stability_chart<DB: DrawingBackend>(
             }))
             .map_err(|x| e(&x))?;
     }
-    crate::report::draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 13)?;
+    super::style::draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 13)?;
     Ok(())
 }
 
@@ -243,7 +243,7 @@ fn stability_map_chart<DB: DrawingBackend>(
     let e = |x: &dyn std::fmt::Display| x.to_string();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let by_wavelength = map.y_axis == "wavelength";
-    let y_of = |c: &crate::optics::stability::MapCell| {
+    let y_of = |c: &crate::bench::stability::MapCell| {
         if by_wavelength {
             c.wavelength * 1e9
         } else {
@@ -364,7 +364,7 @@ fn stability_map_chart<DB: DrawingBackend>(
         .map_err(|x| e(&x))?
         .label("dot: guard accepts; cross: guard refuses")
         .legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
-    crate::report::draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, 12)?;
+    super::style::draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, 12)?;
     Ok(())
 }
 
@@ -466,7 +466,7 @@ fn spectral_chart<DB: DrawingBackend>(
             ))
             .map_err(|x| e(&x))?
             .label(format!("band {band}: plan's estimate"))
-            .legend(move |at| crate::report::dashed_legend(at, colour.stroke_width(1), DASH, GAP, 16));
+            .legend(move |at| super::style::dashed_legend(at, colour.stroke_width(1), DASH, GAP, 16));
     }
     for p in &report.plans {
         let tol = p.tolerance;
@@ -503,7 +503,7 @@ fn spectral_chart<DB: DrawingBackend>(
         .map_err(|x| e(&x))?
         .label("cross: the plan's run at a tolerance (N it settled on, worst band)")
         .legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
-    crate::report::draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 12)?;
+    super::style::draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 12)?;
     Ok(())
 }
 
@@ -550,7 +550,7 @@ mod tests {
             point("fresnel", 1, 0.05, 1e-1, false),
             point("fresnel", 2, 0.1, 1e-4, true),
         ];
-        let plan = crate::optics::psf_bench::PlanPoint {
+        let plan = crate::bench::psf::PlanPoint {
             tolerance: 1e-3,
             method: "matrix_dft".into(),
             precision: "f32".into(),
@@ -572,11 +572,7 @@ mod tests {
             wavelengths: vec![635e-9],
             crop: 40,
             budget_seconds: 10.0,
-            reference: crate::optics::psf_bench::Reference {
-                subsamples: [7, 9],
-                difference: 1e-9,
-                seconds: 0.1,
-            },
+            reference: crate::bench::psf::Reference { subsamples: [7, 9], difference: 1e-9, seconds: 0.1 },
             points: pts,
             plans: vec![plan],
             silent_failures: 0,

@@ -17,8 +17,6 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use plotters::coord::Shift;
-use plotters::prelude::*;
 use serde::Serialize;
 
 use crate::decoder::finetune::{procedural_scenes, psnr_of_loss, FinetuneConfig, Trainer};
@@ -26,7 +24,6 @@ use crate::decoder::unet::UNet;
 use crate::decoder::weights::{decoder_sha256, DecoderWeights};
 use crate::error::{Error, Result};
 use crate::optics::Psf;
-use crate::report::{write_png_chart, write_svg_chart, FONT};
 
 /// What [`run`] runs.
 #[derive(Debug, Clone, PartialEq)]
@@ -47,7 +44,7 @@ impl TimedOptions {
     /// views, within `seconds`.
     pub fn new(seconds: f64) -> TimedOptions {
         TimedOptions {
-            init: super::default_init(),
+            init: crate::decoder::default_init(),
             seconds,
             evaluations: 8,
             config: FinetuneConfig { validation: 8, ..FinetuneConfig::recommended() },
@@ -125,7 +122,7 @@ pub fn run(
         return Err(Error::param("evaluations", "must be at least 1"));
     }
     let clock = Instant::now();
-    let device = super::device(false)?;
+    let device = crate::decoder::device(false)?;
     let start = DecoderWeights::read(&opts.init)?;
     let init = format!("{} (sha256 {})", opts.init.display(), decoder_sha256(&opts.init)?);
     let source = procedural_scenes();
@@ -192,76 +189,6 @@ fn psnr_from(trainer: &Trainer) -> Result<f64> {
         .ok_or_else(|| Error::Data("the fine-tuning run logged no validation".into()))
 }
 
-fn chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    r: &TimedFinetune,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
-    root.fill(&WHITE).map_err(|x| e(&x))?;
-    let minutes = |s: f64| s / 60.0;
-    let last = r.points.iter().map(|p| minutes(p.seconds)).fold(0.0, f64::max).max(1e-3);
-    let (lo, hi) = r
-        .points
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.val_psnr), b.max(p.val_psnr)));
-    if !lo.is_finite() {
-        return Err("no validation to chart".into());
-    }
-    let pad = ((hi - lo) * 0.15).max(0.1);
-    let mut c = ChartBuilder::on(root)
-        .caption(
-            format!(
-                "Fine-tuning {} on {}: held-out validation PSNR against training time",
-                r.init.split(' ').next().unwrap_or(""),
-                r.training_data
-            ),
-            (FONT, 16),
-        )
-        .margin(12)
-        .x_label_area_size(44)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.0..last * 1.05, (lo - pad)..(hi + pad))
-        .map_err(|x| e(&x))?;
-    let x_desc = format!(
-        "training time, minutes of wall clock on {} threads ({} steps of {} x {}^2, {:.2} s a step)",
-        r.threads, r.steps, r.batch, r.crop, r.seconds_per_step
-    );
-    c.configure_mesh()
-        .x_desc(x_desc)
-        .y_desc("validation PSNR, dB")
-        .label_style((FONT, 12))
-        .draw()
-        .map_err(|x| e(&x))?;
-    let (start, best) = r.start_and_best();
-    c.draw_series(LineSeries::new([(0.0, start), (last * 1.05, start)], BLACK.stroke_width(1)))
-        .map_err(|x| e(&x))?
-        .label(format!("the start, {start:.2} dB"))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
-    let line: Vec<(f64, f64)> = r.points.iter().map(|p| (minutes(p.seconds), p.val_psnr)).collect();
-    c.draw_series(LineSeries::new(line.clone(), BLUE.stroke_width(2)))
-        .map_err(|x| e(&x))?
-        .label(format!("fine-tuned, best {best:.2} dB"))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.stroke_width(2)));
-    c.draw_series(line.iter().map(|&p| Circle::new(p, 4, BLUE.filled()))).map_err(|x| e(&x))?;
-    if let Some(s) = r.half_gain_seconds() {
-        let at = minutes(s);
-        c.draw_series(LineSeries::new([(at, lo - pad), (at, hi + pad)], RED.stroke_width(1)))
-            .map_err(|x| e(&x))?
-            .label(format!("half the gain, {s:.0} s"))
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED));
-    }
-    crate::report::draw_legend(&mut c, SeriesLabelPosition::LowerRight, 12)?;
-    Ok(())
-}
-
-/// Writes `finetune_time.{png,svg}` at `path_for(name)`: validation PSNR against training
-/// minutes, the start and the time of half the gain drawn. Returns the names.
-pub fn write_chart(mut path_for: impl FnMut(&str) -> PathBuf, r: &TimedFinetune) -> Result<Vec<String>> {
-    write_png_chart(&path_for("finetune_time.png"), 1000, 520, |root| chart(root, r))?;
-    write_svg_chart(&path_for("finetune_time.svg"), 1000, 520, |root| chart(root, r))?;
-    Ok(vec!["finetune_time.png".into(), "finetune_time.svg".into()])
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -302,7 +229,7 @@ mod tests {
 
     /// A budget too small for a step still runs one step a leg; the start's PSNR is the
     /// starting decoder's validation PSNR as a trainer of its own scores it, each later point
-    /// is a validation after its leg, and the chart is written.
+    /// is a validation after its leg.
     #[test]
     fn a_timed_run_scores_its_legs_and_the_start_matches_an_independent_trainer() {
         let psf = Psf::paper_measured().unwrap();
@@ -322,11 +249,6 @@ mod tests {
         let source = procedural_scenes();
         let t = Trainer::new(net, &psf, "x", &source, None, config, "start").unwrap();
         assert_eq!(r.points[0].val_psnr, psnr_of_loss(t.validation_loss().unwrap()));
-        let dir = tempfile::tempdir().unwrap();
-        let names = write_chart(|n| dir.path().join(n), &r).unwrap();
-        for n in names {
-            assert!(std::fs::metadata(dir.path().join(n)).unwrap().len() > 1000);
-        }
         let bad = TimedOptions { seconds: 0.0, ..opts };
         assert!(run(&bad, &psf, "p", |_| {}).unwrap_err().to_string().contains("seconds"));
     }

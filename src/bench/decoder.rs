@@ -10,27 +10,27 @@
 //! 2. The reference is registered onto the *capture* once, through the measured PSF, and the
 //!    gain and the pixels scored are fixed ([`crate::calibration::evaluate::prepare`]): every
 //!    decoder of the scene is scored against the same warped reference over the same pixels.
-//! 3. Each decoder reconstructs the capture ([`super::reconstruct::reconstruct`]) with its
+//! 3. Each decoder reconstructs the capture ([`crate::decoder::reconstruct::reconstruct`]) with its
 //!    negative outputs *kept*, so that PSNR-L charges them (module docs of
 //!    [`crate::calibration::evaluate`]); the smallest output is reported. The capture itself is
 //!    scored the same way, as the baseline a decoder must beat.
 //!
 //! A scene that cannot be merged, registered or scored (too little coverage, a missing file)
 //! is reported with its reason and the others go on. Optionally the first decoder is
-//! fine-tuned on the measured PSF ([`super::finetune`]) and scored along the run.
+//! fine-tuned on the measured PSF ([`crate::decoder::finetune`]) and scored along the run.
 
 use std::path::{Path, PathBuf};
 
 use ndarray::Zip;
 use serde::Serialize;
 
-use super::finetune::{FinetuneConfig, HistoryEntry, Trainer, TrainingScenes};
-use super::reconstruct::{reconstruct, Negatives, ReconstructOptions};
-use super::unet::UNet;
-use super::weights::DecoderWeights;
 use crate::calibration::capture::{read_capture, read_exposures};
 use crate::calibration::evaluate::{prepare, Footing, Psnr, Scoring, ScoringOptions};
 use crate::calibration::hdr_merge::{merge, MergeOptions};
+use crate::decoder::finetune::{FinetuneConfig, HistoryEntry, Trainer, TrainingScenes};
+use crate::decoder::reconstruct::{reconstruct, Negatives, ReconstructOptions};
+use crate::decoder::unet::UNet;
+use crate::decoder::weights::DecoderWeights;
 use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::optics::psf::Psf;
@@ -187,7 +187,7 @@ fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(String, &Image<f32>
             }
         },
     );
-    let meta = crate::io::heightmap::Metadata {
+    let meta = crate::io::raw_map::Metadata {
         pitch: None,
         unit: None,
         text: vec![
@@ -199,7 +199,7 @@ fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(String, &Image<f32>
     for (name, image) in std::iter::once(("reference".to_string(), &reference)).chain(images.iter().cloned())
     {
         let path = dir.join(format!("{name}.png"));
-        crate::io::png::write_png_image_u8(&path, &crate::report::tone::tone_map(image, PICTURE_EV), &meta)?;
+        crate::io::png::write_png_image_u8(&path, &crate::image::tone::tone_map(image, PICTURE_EV), &meta)?;
     }
     Ok(())
 }
@@ -300,11 +300,12 @@ fn picture_name(decoder: &Path, taken: &mut Vec<String>) -> String {
 
 /// Runs the benchmark: prepares every scene (a scene that fails is reported with its reason),
 /// scores the capture and every decoder on each scene, and with `finetune` fine-tunes its
-/// initial decoder on the PSF, scoring it along the run. Writes into `out`: `report.json`,
-/// `decoders.png` (decoder x scene chart), per scene `<scene>/*.png` (the registered
-/// reference, the capture and each reconstruction tone-mapped at [`PICTURE_EV`]) and, with
-/// fine-tuning, `finetuned/` (decoder, training record) and `psnr_vs_time.png`. `progress`
-/// is told what is happening and each unit of work done. Refuses when no scene can be scored.
+/// initial decoder on the PSF, scoring it along the run. Writes into `out`: `report.json`, per
+/// scene `<scene>/*.png` (the registered reference, the capture and each reconstruction
+/// tone-mapped at [`PICTURE_EV`]) and, with fine-tuning, `finetuned/` (decoder, training
+/// record); the charts are the command's ([`crate::pipeline::bench::bench_decoder`]).
+/// `progress` is told what is happening and each unit of work done. Refuses when no scene can
+/// be scored.
 pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -> Result<BenchReport> {
     if cfg.scenes.is_empty() {
         return Err(Error::param("scenes", "no scene folder given"));
@@ -314,7 +315,7 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
             return Err(Error::param("evaluate_every", "must be at least 1 step"));
         }
     }
-    let device = super::device(false)?;
+    let device = crate::decoder::device(false)?;
     let nets = cfg
         .decoders
         .iter()
@@ -399,10 +400,6 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
         finetune,
     };
     crate::io::atomic::write_json(&out.join("report.json"), &report)?;
-    crate::decoder::charts::write_decoder_scene_chart(&out.join("decoders.png"), &report)?;
-    if report.finetune.is_some() {
-        crate::decoder::charts::write_bench_chart(&out.join("psnr_vs_time.png"), &report)?;
-    }
     Ok(report)
 }
 
@@ -424,13 +421,13 @@ fn run_finetune(
     let training = TrainingScenes::new(
         f.train_data.as_deref(),
         None,
-        super::dataset::HOLDOUT_EVERY,
-        super::dataset::MIN_PANORAMA_WIDTH,
-        super::dataset::WHITE_BALANCE,
+        crate::decoder::dataset::HOLDOUT_EVERY,
+        crate::decoder::dataset::MIN_PANORAMA_WIDTH,
+        crate::decoder::dataset::WHITE_BALANCE,
     )?;
     let (source, validation) = training.sources();
     let init = f.init.display().to_string();
-    let desc = format!("{init} (sha256 {})", super::weights::decoder_sha256(&f.init)?);
+    let desc = format!("{init} (sha256 {})", crate::decoder::weights::decoder_sha256(&f.init)?);
     let mut trainer = Trainer::new(
         UNet::from_weights(&start, device),
         psf,

@@ -1,7 +1,7 @@
 //! Spectral sampling against accuracy (`doefab bench spectral`): a colour channel is a band of
-//! wavelengths weighted by the sensor's response ([`super::spectrum`]), integrated by the
+//! wavelengths weighted by the sensor's response ([`crate::optics::spectrum`]), integrated by the
 //! midpoint rule over `N` sub-bands; how many does a design need, and does the plan's estimate
-//! ([`super::plan::spectral_error`]) pick enough?
+//! ([`crate::optics::plan::spectral_error`]) pick enough?
 //!
 //! **Runs.** The design in its system, by the method the plan picks for it (at 1e-2, without
 //! bands), in f64, with one sample per pixel: the pixel integration is the same in every run of
@@ -15,10 +15,10 @@
 //! difference between the two (reported) bounds the reference's own error by 1/8 of itself.
 //!
 //! **The plan.** For each band the pilot runs at its edges and centre give the estimate
-//! `e(N) = ||D2|| / (6 N^2 ||f_mean||)` of the plan ([`super::plan::spectral_error`]); its rule
+//! `e(N) = ||D2|| / (6 N^2 ||f_mean||)` of the plan ([`crate::optics::plan::spectral_error`]); its rule
 //! takes the smallest `N` with `e(N) <= tolerance` (the whole tolerance: in the plan the
 //! spectral term gets what the pixel and precision terms leave, never more), rounded up to a
-//! multiple of 3, and the plan's run ([`super::plan::run`]) checks that `N` against its own
+//! multiple of 3, and the plan's run ([`crate::optics::plan::run`]) checks that `N` against its own
 //! middle thirds and triples it until they agree. Each tolerance's plan is run and scored: the
 //! estimate alone and the `N` the run settled on are both reported, and a run whose measured
 //! error is over the tolerance is a silent failure.
@@ -28,13 +28,13 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::plan::{plan, run, spectral_count, spectral_error, Estimate, Plan};
-use super::propagate::{simulate, Options, Precision};
-use super::psf::{relative_l2, Channel, Psf};
-use super::spectrum::{combine, Band};
-use super::system::{OpticalSystem, PixelRule};
 use crate::error::{Error, Result};
 use crate::grid::Grid;
+use crate::optics::plan::{plan, run, spectral_count, spectral_error, Estimate, Plan};
+use crate::optics::propagate::{simulate, Options, Precision};
+use crate::optics::psf::{relative_l2, Channel, Psf};
+use crate::optics::spectrum::{combine, Band};
+use crate::optics::system::{OpticalSystem, PixelRule};
 
 /// What `bench spectral` sweeps.
 #[derive(Debug, Clone, PartialEq)]
@@ -90,7 +90,7 @@ pub struct SpectralPoint {
 pub struct SpectralPlanPoint {
     pub tolerance: f64,
     /// The `N` the pilot's estimate asks for (the largest over the bands, as the plan takes
-    /// it); `None` where it refuses (more than [`super::plan::MAX_SPECTRAL`] sub-bands).
+    /// it); `None` where it refuses (more than [`crate::optics::plan::MAX_SPECTRAL`] sub-bands).
     pub rule_samples: Option<usize>,
     /// The `N` the run settled on after checking itself against its middle thirds.
     pub samples: Option<usize>,

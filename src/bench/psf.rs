@@ -17,7 +17,7 @@
 //! intensity. Times are the fastest of up to three wall-clock runs after a warm-up run of the
 //! same configuration.
 //!
-//! The automatic plan ([`super::plan`]) is placed on the same chart for each tolerance: its
+//! The automatic plan ([`crate::optics::plan`]) is placed on the same chart for each tolerance: its
 //! run's time and error, whether it meets the tolerance, and its time over that of the cheapest
 //! valid run of the sweep that meets it.
 
@@ -26,13 +26,13 @@ use std::time::Instant;
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
-use super::plan::MAX_SIDE;
-use super::propagate::{asm, check, fresnel};
-use super::system::{OpticalSystem, PixelRule};
-use super::{simulate, Method, Options, Precision, Psf};
 use crate::error::Result;
 use crate::grid::{Grid, Unit};
 use crate::material::Material;
+use crate::optics::plan::MAX_SIDE;
+use crate::optics::propagate::{asm, check, fresnel};
+use crate::optics::system::{OpticalSystem, PixelRule};
+use crate::optics::{simulate, Method, Options, Precision, Psf};
 
 /// Samples across the small scene's DOE grid.
 pub const N: usize = 112;
@@ -82,7 +82,7 @@ pub fn timed_wall(t: f64) -> f64 {
 }
 
 /// The cost model the budget is kept with: a run's work in the plan's units (real
-/// multiply-adds, [`super::plan::matrix_dft_cost`] and [`super::plan::fft_cost`], half for the
+/// multiply-adds, [`crate::optics::plan::matrix_dft_cost`] and [`crate::optics::plan::fft_cost`], half for the
 /// matrix DFT in f32) over a rate in work per second per method, taken from that method's last
 /// run. Before a method has run, its rate is the reference's for the matrix DFT and, for the
 /// FFT methods, that of one 2-D FFT of the method's window timed on the spot, a third of it
@@ -100,13 +100,13 @@ impl Costs {
         let one = match method {
             Method::MatrixDft => {
                 let half = if precision == Precision::F32 { 0.5 } else { 1.0 };
-                half * super::plan::matrix_dft_cost(
-                    super::propagate::matrix_dft::pupil_grid(sys, doe).0,
+                half * crate::optics::plan::matrix_dft_cost(
+                    crate::optics::propagate::matrix_dft::pupil_grid(sys, doe).0,
                     sys.samples(),
                 )
             }
-            Method::Fresnel => super::plan::fft_cost(fresnel::grid(sys).2),
-            _ => super::plan::fft_cost(asm::grid(sys).2),
+            Method::Fresnel => crate::optics::plan::fft_cost(fresnel::grid(sys).2),
+            _ => crate::optics::plan::fft_cost(asm::grid(sys).2),
         };
         one * wavelengths
     }
@@ -138,14 +138,14 @@ impl Costs {
 }
 
 /// Work per second of one forward 2-D FFT of `w x w` complex samples (a quarter of
-/// [`super::plan::fft_cost`]), timed once.
+/// [`crate::optics::plan::fft_cost`]), timed once.
 fn fft_rate(w: usize) -> f64 {
     let mut planner = rustfft::FftPlanner::new();
-    let plan = super::fft::Plan2d::new(&mut planner, w);
+    let plan = crate::optics::fft::Plan2d::new(&mut planner, w);
     let mut field = Array2::<rustfft::num_complex::Complex64>::zeros((w, w));
     let t = Instant::now();
     plan.transform(&mut field, false);
-    0.25 * super::plan::fft_cost(w) / t.elapsed().as_secs_f64().max(1e-9)
+    0.25 * crate::optics::plan::fft_cost(w) / t.elapsed().as_secs_f64().max(1e-9)
 }
 
 /// What [`run_bench`] sweeps and how long it may take.
@@ -331,7 +331,7 @@ fn worst_error(psf: &Psf, reference: &[Array2<f64>]) -> f64 {
     psf.channels
         .iter()
         .zip(reference)
-        .map(|(c, r)| super::psf::relative_l2(c.grid.values(), r))
+        .map(|(c, r)| crate::optics::psf::relative_l2(c.grid.values(), r))
         .fold(0.0, f64::max)
 }
 
@@ -390,13 +390,13 @@ pub fn run_bench(
     let mut skipped = Vec::new();
     for &tolerance in &opts.tolerances {
         tick(&format!("automatic plan at tolerance {tolerance:e}"));
-        let p = super::plan::plan(system, doe, &[], tolerance)?;
+        let p = crate::optics::plan::plan(system, doe, &[], tolerance)?;
         let predicted = timed_wall(costs.seconds(p.method, p.precision, &p.system, doe));
         if let Err(why) = fits(predicted, end) {
             skipped.push(format!("plan at {tolerance:e} ({why})"));
             continue;
         }
-        let ((psf, _), seconds) = timed(|| super::plan::run(&p, doe, &[]))?;
+        let ((psf, _), seconds) = timed(|| crate::optics::plan::run(&p, doe, &[]))?;
         costs.observe(p.method, Costs::work(p.method, p.precision, &p.system, doe), seconds);
         let error = worst_error(&psf, &reference);
         plans.push(PlanPoint {

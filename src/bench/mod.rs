@@ -1,0 +1,49 @@
+//! The benchmarks: each runs the stages' public functions on known inputs and reports speed
+//! against accuracy, or where a method fails, as typed, serialisable data. They sit above the
+//! stages (no stage uses them) and below the charts ([`crate::charts`] draws their reports);
+//! the commands that write their files, data and charts, are [`crate::pipeline::bench`] and
+//! [`crate::pipeline::report`].
+//!
+//! * [`fab`]: quantization, the STL heightfield and the GDSII tracing, each against a truth
+//!   computed another way (`doefab bench fab`).
+//! * [`register`]: where scan registration fails (`doefab bench register`).
+//! * [`psf`]: speed against accuracy of the PSF methods on a design at its geometry, with the
+//!   automatic plan placed at each tolerance (`doefab bench psf`).
+//! * [`stability`]: stability maps of the transfer-function methods across their guards, with
+//!   the silent failures counted (`doefab bench stability`).
+//! * [`spectral`]: sub-bands per colour band against error, the plan's rule scored
+//!   (`doefab bench spectral`).
+//! * [`calibration`]: where the measured PSF fails (`doefab bench calibration`).
+//! * [`tiling`]: the decoder's output against tile, overlap and precision (`doefab bench
+//!   tiling`).
+//! * [`decoder`]: decoders scored on real captures against bracket-merged references, with an
+//!   optional fine-tuning (`doefab bench decoder`).
+//! * [`forward`]: the decoder's measurement model against the real captures (`doefab bench
+//!   forward`).
+//! * [`finetune_time`]: fine-tuning's validation PSNR against its time (`doefab report`).
+
+pub mod calibration;
+pub mod decoder;
+pub mod fab;
+pub mod finetune_time;
+pub mod forward;
+pub mod psf;
+pub mod register;
+pub mod spectral;
+pub mod stability;
+pub mod tiling;
+
+/// One axis of a failure map's sweep (`bench register`, `bench calibration`): its name, unit and
+/// the values tried, in that unit.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SweepAxis {
+    pub name: String,
+    pub unit: String,
+    pub values: Vec<f64>,
+}
+
+impl SweepAxis {
+    pub fn new(name: &str, unit: &str, values: &[f64]) -> SweepAxis {
+        SweepAxis { name: name.into(), unit: unit.into(), values: values.to_vec() }
+    }
+}
