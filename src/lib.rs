@@ -26,8 +26,8 @@
 //! * [`charts`]: every chart, one file per family, with their shared style (fonts, axes, legends;
 //!   the only drawing code); above the stages and the benchmarks, whose results they draw.
 //! * [`pipeline`]: the commands that take more than one library call (merge, calibrate-psf,
-//!   psf, psf-compare, compare, precompensate, the benchmarks), from typed options to typed
-//!   results.
+//!   psf, psf-compare, compare, precompensate, finetune, the benchmarks with their files and
+//!   charts), from typed options to typed results.
 //! * [`demo`]: every stage on the built-in design (`doefab demo`), no input needed.
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`linalg`]: dense linear solves (nalgebra LU) for the least-squares fits.
