@@ -752,12 +752,7 @@ pub fn compare_profile(
     warnings.extend(fit_warnings(sigma, blur_sigma, blur_resolved, sigma_max, pmax, across));
     // Fit table and correlation.
     let fit = fit_table(&ctx, &blurred, &p, profile.x()[0]);
-    let correlation = {
-        let u: Vec<f64> = fit.iter().map(|f| f[0]).collect();
-        let zz: Vec<f64> = fit.iter().map(|f| f[1]).collect();
-        let mm: Vec<f64> = fit.iter().map(|f| f[2]).collect();
-        detrended_correlation(&u, &zz, &mm)
-    };
+    let correlation = fit_correlation(&fit);
     if correlation.is_nan() || correlation < opts.min_correlation {
         return Err(Error::Registration(format!(
             "the profile does not match the design along the line: the fitted model correlates by {correlation:.3} \
@@ -1198,6 +1193,15 @@ fn fit_table(ctx: &Ctx, blurred: &Blurred, p: &[f64; 5], x0: f64) -> Vec<[f64; 3
         }
     }
     fit
+}
+
+/// The correlation of the measured and the model heights of the fit table, each with its
+/// least-squares line in the position removed ([`detrended_correlation`]).
+fn fit_correlation(fit: &[[f64; 3]]) -> f64 {
+    let u: Vec<f64> = fit.iter().map(|f| f[0]).collect();
+    let zz: Vec<f64> = fit.iter().map(|f| f[1]).collect();
+    let mm: Vec<f64> = fit.iter().map(|f| f[2]).collect();
+    detrended_correlation(&u, &zz, &mm)
 }
 
 /// The step heights of the module docs from each level's interior heights `heights[l]`
