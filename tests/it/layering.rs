@@ -353,27 +353,18 @@ struct Module {
     test: bool,
 }
 
-/// The file-level import graph of one crate (from its root file, `lib.rs` or `main.rs`,
-/// following `mod` declarations): which file names an item of which other file, through a
-/// `use` (`pub use` re-exports included) or a path in the code (`crate::a::b::f`, `super::x`,
-/// a child module's `child::f`, a module a `use` brought in). A `mod` declaration is not an
-/// import, and a `#[cfg(test)]` module, compiled only for the unit tests, is left out.
-struct ImportGraph {
-    /// The files, relative to the source folder.
+/// Pass 1 of [`ImportGraph::build`]: the module tree of a crate, each declared file loaded.
+struct ModuleTree {
+    /// The files, relative to the source folder, and their texts.
     files: Vec<String>,
-    /// For each file, the files it imports, each with the first line that does.
-    imports: Vec<BTreeMap<usize, usize>>,
+    texts: Vec<String>,
+    modules: Vec<Module>,
+    /// Per file: the module of each token (index into `modules`).
+    at_token: Vec<Vec<usize>>,
 }
 
-impl ImportGraph {
-    /// The graph of the crate whose root file is `root` (relative to `src`) in the folder `src`.
-    fn read(src: &Path, root: &str) -> ImportGraph {
-        ImportGraph::build(root, |rel| fs::read_to_string(src.join(rel)).ok())
-    }
-
-    /// The graph of the crate whose root is the file `root`, with `read` giving a file's text by
-    /// its path relative to the source folder (`None`: no such file).
-    fn build(root: &str, read: impl Fn(&str) -> Option<String>) -> ImportGraph {
+impl ModuleTree {
+    fn read(root: &str, read: impl Fn(&str) -> Option<String>) -> ModuleTree {
         let mut files = vec![root.to_string()];
         let mut texts = vec![read(root).unwrap_or_else(|| panic!("no crate root {root}"))];
         let mut modules = vec![Module { file: 0, children: BTreeMap::new(), test: false }];
@@ -463,6 +454,32 @@ impl ImportGraph {
             at_token.push(owners);
             f += 1;
         }
+        ModuleTree { files, texts, modules, at_token }
+    }
+}
+
+/// The file-level import graph of one crate (from its root file, `lib.rs` or `main.rs`,
+/// following `mod` declarations): which file names an item of which other file, through a
+/// `use` (`pub use` re-exports included) or a path in the code (`crate::a::b::f`, `super::x`,
+/// a child module's `child::f`, a module a `use` brought in). A `mod` declaration is not an
+/// import, and a `#[cfg(test)]` module, compiled only for the unit tests, is left out.
+struct ImportGraph {
+    /// The files, relative to the source folder.
+    files: Vec<String>,
+    /// For each file, the files it imports, each with the first line that does.
+    imports: Vec<BTreeMap<usize, usize>>,
+}
+
+impl ImportGraph {
+    /// The graph of the crate whose root file is `root` (relative to `src`) in the folder `src`.
+    fn read(src: &Path, root: &str) -> ImportGraph {
+        ImportGraph::build(root, |rel| fs::read_to_string(src.join(rel)).ok())
+    }
+
+    /// The graph of the crate whose root is the file `root`, with `read` giving a file's text by
+    /// its path relative to the source folder (`None`: no such file).
+    fn build(root: &str, read: impl Fn(&str) -> Option<String>) -> ImportGraph {
+        let ModuleTree { files, texts, modules, at_token } = ModuleTree::read(root, read);
         // The path of each module from the root.
         let mut paths: Vec<Vec<String>> = vec![vec![]; modules.len()];
         let mut todo = vec![0];
