@@ -5,7 +5,8 @@
 
 use std::path::Path;
 
-use doefab::io::heightmap::{heightmap_from_raw, RawMap, ReadOptions};
+use doefab::io::heightmap::{heightmap_from_raw, ReadOptions};
+use doefab::io::raw_map::RawMap;
 use doefab::io::scan::{decode_scan_raw, scan_from_raw, ScanOptions};
 use doefab::metrology::level::LevelMethod;
 
