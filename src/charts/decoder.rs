@@ -13,7 +13,7 @@ use std::path::Path;
 use plotters::prelude::*;
 
 use super::style::{write_png_chart, FONT};
-use crate::bench::decoder::{BenchReport, Score};
+use crate::bench::decoder::{DecoderBenchResults, Score};
 use crate::error::{Error, Result};
 
 const COLORS: [RGBColor; 8] = [
@@ -31,7 +31,7 @@ const COLORS: [RGBColor; 8] = [
 type Metric = (&'static str, &'static str, fn(&Score) -> Option<f64>);
 
 /// Draws `report`'s decoder x scene scores into `path` (PNG, 1400 x 900).
-pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()> {
+pub fn write_decoder_scene_chart(path: &Path, report: &DecoderBenchResults) -> Result<()> {
     let scenes: Vec<(String, f64)> = report
         .scenes
         .iter()
@@ -124,7 +124,7 @@ pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()
 /// the training time in minutes (wall clock on the machine's threads, scoring excluded), the
 /// step count in the captions. The validation points' times are their steps times the run's
 /// mean seconds per step.
-pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
+pub fn write_bench_chart(path: &Path, report: &DecoderBenchResults) -> Result<()> {
     let Some(run) = &report.finetune else {
         return Err(Error::Data("no fine-tuning run to chart".into()));
     };
@@ -282,7 +282,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
 /// above, the residual of each model (a colour each, in the order they add to one another) in
 /// each brightness band; below, the halo model's residual over all unsaturated pixels against
 /// the halo's fraction, a line per radius, the paper model's as a dashed line.
-pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardReport) -> Result<()> {
+pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardBenchResults) -> Result<()> {
     let scenes = &report.scenes;
     if scenes.is_empty() {
         return Err(Error::Data("no scene to chart".into()));

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use plotters::prelude::*;
 
 use super::style::{draw_legend, log_label, short, write_png_chart, write_svg_chart, FONT};
-use crate::bench::fab::{FabBenchReport, GdsSweep, QuantizationSweep, StlPoint, StlSweep};
+use crate::bench::fab::{FabBenchResults, GdsSweep, QuantizationSweep, StlPoint, StlSweep};
 use crate::error::{Error, Result};
 
 /// Log range covering `values` (positive ones), widened by `pad` each way.
@@ -316,7 +316,7 @@ fn gds_chart<DB: DrawingBackend>(
 /// the names.
 pub fn write_fab_bench_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    report: &FabBenchReport,
+    report: &FabBenchResults,
 ) -> Result<Vec<String>> {
     if report.quantization.points.is_empty() || report.stl.points.is_empty() || report.gds.points.is_empty() {
         return Err(Error::Data("a fabrication benchmark sweep has no points to chart".into()));

@@ -9,9 +9,9 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::style::{write_png_chart, write_svg_chart, FONT};
-use crate::bench::psf::{BenchPoint, BenchReport};
-use crate::bench::spectral::SpectralReport;
-use crate::bench::stability::{StabilityMap, StabilityReport, STEPPED_DOE_PITCH};
+use crate::bench::psf::{BenchPoint, PsfBenchResults};
+use crate::bench::spectral::SpectralBenchResults;
+use crate::bench::stability::{StabilityBenchResults, StabilityMap, STEPPED_DOE_PITCH};
 use crate::error::{Error, Result};
 use crate::optics::propagate::Method;
 
@@ -53,7 +53,7 @@ fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
 
 fn speed_chart<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
-    report: &BenchReport,
+    report: &PsfBenchResults,
 ) -> std::result::Result<(), String> {
     let e = |x: &dyn std::fmt::Display| x.to_string();
     let points = &report.points;
@@ -209,7 +209,7 @@ fn stability_chart<DB: DrawingBackend>(
 /// what was left out, the JSON names it).
 pub fn write_psf_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    report: &BenchReport,
+    report: &PsfBenchResults,
 ) -> Result<Vec<String>> {
     let points = &report.points;
     write_png_chart(&path_for("speed_accuracy.png"), 1000, 650, |r| speed_chart(r, report))?;
@@ -237,7 +237,7 @@ fn error_class(error: f64, tolerance: f64) -> (RGBColor, &'static str) {
 
 fn stability_map_chart<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
-    report: &StabilityReport,
+    report: &StabilityBenchResults,
     map: &StabilityMap,
 ) -> std::result::Result<(), String> {
     let e = |x: &dyn std::fmt::Display| x.to_string();
@@ -373,7 +373,7 @@ fn stability_map_chart<DB: DrawingBackend>(
 /// returns the names.
 pub fn write_stability_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    report: &StabilityReport,
+    report: &StabilityBenchResults,
 ) -> Result<Vec<String>> {
     let mut names = Vec::new();
     for map in &report.maps {
@@ -396,7 +396,7 @@ pub fn write_stability_charts(
 
 fn spectral_chart<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
-    report: &SpectralReport,
+    report: &SpectralBenchResults,
 ) -> std::result::Result<(), String> {
     let e = |x: &dyn std::fmt::Display| x.to_string();
     root.fill(&WHITE).map_err(|x| e(&x))?;
@@ -510,7 +510,7 @@ fn spectral_chart<DB: DrawingBackend>(
 /// Writes `spectral.{png,svg}` at `path_for(name)`; returns the names.
 pub fn write_spectral_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    report: &SpectralReport,
+    report: &SpectralBenchResults,
 ) -> Result<Vec<String>> {
     if report.points.is_empty() {
         return Err(Error::Data("the spectral sweep has no runs to chart".into()));
@@ -563,7 +563,7 @@ mod tests {
             cheapest_adequate: Some("matrix_dft f64 s=2".into()),
             time_ratio: Some(0.75),
         };
-        let mut report = BenchReport {
+        let mut report = PsfBenchResults {
             units: String::new(),
             doe_samples: 112,
             doe_pitch: 5e-6,
