@@ -1,9 +1,10 @@
 //! The charts' shared style: every chart is drawn twice from one drawing function, once into
 //! an RGB buffer written as PNG (atomically) and once as SVG; text uses DejaVu Sans, embedded
 //! in the binary (`assets/fonts/`, Bitstream Vera licence), so charts look the same on every
-//! machine and need no system fonts. Log axes ([`log_span`], [`log_label`]), legends
-//! ([`draw_legend`], [`key_entry`], [`dashed_legend`]) and the error of a failed drawing are
-//! here.
+//! machine and need no system fonts. A chart's frame ([`frame`]), its mesh and grid lines
+//! ([`mesh`], [`GridLines`], [`secondary_axes`]), log axes ([`log_span`], [`log_label`]), legends
+//! ([`draw_legend`], [`key_entry`], [`line_key`], [`dashed_legend`]) and the error of a failed
+//! drawing are here.
 
 use std::path::Path;
 
