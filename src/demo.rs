@@ -32,13 +32,13 @@ use serde::Serialize;
 
 use crate::calibration::psf_extract::{self as pe, PsfCalibration};
 use crate::decoder::finetune::HistoryEntry;
-use crate::decoder::reconstruct::ReconstructFileReport;
+use crate::decoder::reconstruct::ReconstructOutcome;
 use crate::error::{Error, Result};
-use crate::fabrication::chain::{self, ChainParams, DesignSource, FabOptions, FabReport, LoadedDesign};
+use crate::fabrication::chain::{self, ChainParams, DesignSource, FabOptions, FabOutcome, LoadedDesign};
 use crate::fabrication::recipe::Recipe;
-use crate::optics::output::PsfReport;
+use crate::optics::output::PsfOutcome;
 use crate::optics::psf::Psf;
-use crate::pipeline::compare::CompareReport;
+use crate::pipeline::compare::CompareOutcome;
 
 /// The bundled recipes (`masks/NAME.toml`) the demo runs, in order.
 pub const RECIPES: [&str; 3] = ["laser-writer-grayscale", "binary-3mask-8level", "two-photon-stl"];
@@ -66,11 +66,11 @@ const DECODER_STEPS: u64 = FINETUNE_STEPS as u64 + 1;
 
 /// What the demo did, stage by stage (the `--json` output of `doefab demo`).
 #[derive(Debug, Clone, Serialize)]
-pub struct DemoReport {
-    /// One report per recipe of [`RECIPES`], in order.
-    pub fabrication: Vec<FabReport>,
-    pub psf: PsfReport,
-    pub metrology: CompareReport,
+pub struct DemoOutcome {
+    /// One outcome per recipe of [`RECIPES`], in order.
+    pub fabrication: Vec<FabOutcome>,
+    pub psf: PsfOutcome,
+    pub metrology: CompareOutcome,
     pub fabrication_loop: LoopStage,
     pub calibration: CalibrationStage,
     pub decoder: DecoderStage,
@@ -109,7 +109,7 @@ pub struct CalibrationStage {
 pub struct DecoderStage {
     pub decoder: PathBuf,
     pub history: Vec<HistoryEntry>,
-    pub reconstruction: ReconstructFileReport,
+    pub reconstruction: ReconstructOutcome,
 }
 
 impl DecoderStage {
@@ -141,7 +141,7 @@ impl Progress<'_> {
 
 /// Runs every stage into `output` (see the module docs). `progress(message, done, total)` is
 /// called as the work goes on, `done` counting finished steps of `total`.
-pub fn run(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<DemoReport> {
+pub fn run(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<DemoOutcome> {
     let recipes = RECIPES
         .iter()
         .map(|name| Ok((name.to_string(), Recipe::read(Path::new(&format!("built-in:{name}")))?)))
@@ -186,11 +186,11 @@ pub fn run(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<De
 
     let init = crate::decoder::default_init();
     let decoder = fine_tune(&init, &calibration.psf.join("psf.npy"), &output.join("decoder"), &mut p)?;
-    Ok(DemoReport { fabrication, psf, metrology, fabrication_loop, calibration, decoder, folders })
+    Ok(DemoOutcome { fabrication, psf, metrology, fabrication_loop, calibration, decoder, folders })
 }
 
 /// The optics stage: the design's RGB PSF as the plan chooses it, into `out`.
-fn design_psf(design: &LoadedDesign, out: &Path, p: &mut Progress) -> Result<PsfReport> {
+fn design_psf(design: &LoadedDesign, out: &Path, p: &mut Progress) -> Result<PsfOutcome> {
     use crate::optics::{output as psf_out, plan};
     let system = psf_out::system_for(&design.heights);
     let plan = plan::plan(&system, &design.heights, &[], plan::DEFAULT_TOLERANCE)?;
@@ -210,7 +210,7 @@ fn scan_and_compare(
     scan: &Path,
     out: &Path,
     p: &mut Progress,
-) -> Result<CompareReport> {
+) -> Result<CompareOutcome> {
     use crate::metrology::synthetic_scan::{simulate_scan, write_scan, SimulateParams};
     p.show("simulated scan of the 8-level part");
     let (part, _, _) = crate::pipeline::compare::reference_surface(design, Some(params))?;
@@ -302,7 +302,7 @@ pub struct LoopStage {
     /// The simulated process, in words.
     pub process: String,
     /// What `precompensate` wrote and predicted.
-    pub precompensate: crate::pipeline::precompensate::PrecompensateReport,
+    pub precompensate: crate::pipeline::precompensate::PrecompensateOutcome,
     /// The plain mask's part and the pre-compensated mask's part against the design.
     pub before: LoopSide,
     pub after: LoopSide,

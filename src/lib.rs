@@ -34,6 +34,25 @@
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
 //! * [`float`]: exact inlined `round` and `floor` for the per-sample passes.
 //! * [`error`]: the library's error type.
+//!
+//! Names of typed results, one meaning each:
+//!
+//! * `*Outcome`: what a command did, its typed result (what it prints with `--json` and writes
+//!   as its JSON file), e.g. [`fabrication::chain::FabOutcome`], [`demo::DemoOutcome`].
+//! * `*BenchResults`: what a benchmark measured, e.g. [`bench::psf::PsfBenchResults`].
+//! * `*Stats`: the numbers one step records about its run or its input (a frame, a PSF
+//!   channel, a wrap), carried inside an outcome, e.g. [`calibration::hdr_merge::MergeStats`].
+//! * Other results are named for what they are ([`metrology::scan_compare::LevelHeights`],
+//!   [`bench::decoder::FinetuneRun`]).
+//!
+//! "Report" means only the HTML page of [`pipeline::report`] (`doefab report`).
+//!
+//! A file name used in several folders names one concept at several layers, the folder saying
+//! which: `fabrication/precompensate.rs` is the physics and `pipeline/precompensate.rs` the
+//! command that runs it (likewise `psf`, `psf_compare`, `finetune`); `cli/X.rs`, `charts/X.rs`
+//! and `bench/X.rs` are stage or benchmark X's commands, charts and measurements;
+//! `grid/profile.rs`, `io/profile.rs` and `metrology/profile.rs` are the stylus profile's data
+//! model, reader and comparison; a `shared.rs` holds what its folder's modules share.
 
 pub mod bench;
 pub mod calibration;

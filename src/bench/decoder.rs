@@ -50,12 +50,12 @@ pub struct BenchScene {
     /// The bracket merged without the DOE, in the bracket's own frame.
     pub reference: Image,
     pub scoring: Scoring,
-    pub report: SceneReport,
+    pub preparation: ScenePreparation,
 }
 
-/// How a scene was prepared, or why it could not be (for the JSON report).
+/// How a scene was prepared, or why it could not be (part of the benchmark's JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct SceneReport {
+pub struct ScenePreparation {
     pub name: String,
     pub dir: String,
     pub capture: Option<String>,
@@ -135,17 +135,17 @@ pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<Ben
         .map_err(|e| Error::Data(format!("{}: {e}", capture_path.display())))?;
     let clip = scoring.footing.clipping_level;
     let name = scene_name(dir);
-    let report = SceneReport {
+    let preparation = ScenePreparation {
         name: name.clone(),
         dir: dir.display().to_string(),
         capture: Some(capture_path.display().to_string()),
         bracket_frames: frames.len(),
-        merge_warnings: merged.report.warnings.clone(),
+        merge_warnings: merged.stats.warnings.clone(),
         footing: Some(scoring.footing.clone()),
         error: None,
     };
     let capture = Image::new(capture.values.mapv(|v| v / clip));
-    Ok(BenchScene { name, capture, reference: merged.radiance, scoring, report })
+    Ok(BenchScene { name, capture, reference: merged.radiance, scoring, preparation })
 }
 
 /// Scores `image` (a reconstruction, or the capture itself) on the scene's footing.
@@ -243,7 +243,7 @@ pub struct CurvePoint {
 
 /// The fine-tuning run of a benchmark.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct FinetuneReport {
+pub struct FinetuneRun {
     pub init: String,
     pub steps: usize,
     pub seconds_per_step: f64,
@@ -257,21 +257,21 @@ pub struct FinetuneReport {
     pub history: Vec<HistoryEntry>,
 }
 
-/// What `doefab bench decoder` reports.
+/// What `doefab bench decoder` measured (its JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct BenchReport {
+pub struct DecoderBenchResults {
     pub psf: String,
     pub units: &'static str,
     pub negatives: &'static str,
     pub saturation: f64,
     pub min_coverage: f64,
     /// Every scene, scored or refused (with the reason).
-    pub scenes: Vec<SceneReport>,
+    pub scenes: Vec<ScenePreparation>,
     /// The decoders in order: the capture as it is, the given decoders, the fine-tuned one.
     pub decoders: Vec<String>,
     /// Decoder x scene, scene-major, for the scenes scored.
     pub scores: Vec<Score>,
-    pub finetune: Option<FinetuneReport>,
+    pub finetune: Option<FinetuneRun>,
 }
 
 /// Name of the capture scored as it is.
@@ -306,7 +306,11 @@ fn picture_name(decoder: &Path, taken: &mut Vec<String>) -> String {
 /// record); the charts are the command's ([`crate::pipeline::bench::bench_decoder`]).
 /// `progress` is told what is happening and each unit of work done. Refuses when no scene can
 /// be scored.
-pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -> Result<BenchReport> {
+pub fn run(
+    cfg: &BenchConfig,
+    out: &Path,
+    progress: &mut dyn FnMut(&str, u64),
+) -> Result<DecoderBenchResults> {
     if cfg.scenes.is_empty() {
         return Err(Error::param("scenes", "no scene folder given"));
     }
@@ -328,10 +332,10 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
         progress(&format!("merging and registering {}", d.display()), 0);
         match prepare_scene(d, &psf, &cfg.scoring) {
             Ok(s) => {
-                reports.push(s.report.clone());
+                reports.push(s.preparation.clone());
                 scenes.push(s);
             }
-            Err(e) => reports.push(SceneReport {
+            Err(e) => reports.push(ScenePreparation {
                 name: scene_name(d),
                 dir: d.display().to_string(),
                 capture: None,
@@ -386,7 +390,7 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
         let refs: Vec<(String, &Image<f32>)> = im.iter().map(|(n, y)| (n.clone(), y)).collect();
         write_pictures(&out.join(&s.name), s, &refs)?;
     }
-    let report = BenchReport {
+    let report = DecoderBenchResults {
         psf: cfg.psf.display().to_string(),
         units: "PSNR in dB; images in units of the capture's clipping level; seconds",
         negatives:
@@ -414,7 +418,7 @@ fn run_finetune(
     device: &burn::tensor::Device,
     out: &Path,
     progress: &mut dyn FnMut(&str, u64),
-) -> Result<(FinetuneReport, Vec<Image<f32>>)> {
+) -> Result<(FinetuneRun, Vec<Image<f32>>)> {
     let start = DecoderWeights::read(&f.init)?;
     // Real images as `finetune` takes them by default: its hold-out validates, narrow
     // panoramas left out.
@@ -469,7 +473,7 @@ fn run_finetune(
         progress(&format!("fine-tuning: loss {loss:.5}"), 1);
     }
     trainer.write_outputs(&out.join("finetuned"))?;
-    let report = FinetuneReport {
+    let report = FinetuneRun {
         init,
         steps,
         seconds_per_step: seconds / steps.max(1) as f64,

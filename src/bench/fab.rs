@@ -286,7 +286,7 @@ pub struct GdsSweep {
 
 /// The whole benchmark. Deterministic but for the `seconds` fields.
 #[derive(Debug, Clone, Serialize)]
-pub struct FabBenchReport {
+pub struct FabBenchResults {
     pub units: String,
     /// The design, its samples `[rows, columns]` and pitch `[x, y]` (metres).
     pub design: String,
@@ -304,14 +304,14 @@ pub fn run_bench(
     design: &str,
     opts: &FabBenchOptions,
     mut progress: impl FnMut(&str),
-) -> Result<FabBenchReport> {
+) -> Result<FabBenchResults> {
     opts.check()?;
     progress("quantization: simulated gratings");
     let quantization = quantization_sweep(opts)?;
     let stl = stl_sweep(heights, opts, &mut progress)?;
     let gds = gds_sweep(heights, opts, &mut progress)?;
     let (r, c) = heights.dim();
-    Ok(FabBenchReport {
+    Ok(FabBenchResults {
         units: "lengths and heights in metres, times in seconds, file sizes in bytes, GDSII areas in square \
                 nanometres"
             .into(),

@@ -102,9 +102,9 @@ pub struct SceneCheck {
     pub halo_grid: Vec<Vec<f64>>,
 }
 
-/// What `doefab bench forward` reports.
+/// What `doefab bench forward` measured (its JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ForwardReport {
+pub struct ForwardBenchResults {
     pub units: String,
     pub psf: String,
     pub halo_fractions: Vec<f64>,
@@ -130,7 +130,7 @@ pub fn run(
     opts: &ForwardOptions,
     out: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<ForwardReport> {
+) -> Result<ForwardBenchResults> {
     let dirs =
         if opts.scenes.is_empty() { scene_dirs(&opts.data.join("captures"))? } else { opts.scenes.clone() };
     let (psf_path, key) = match &opts.psf {
@@ -156,7 +156,7 @@ pub fn run(
     if scenes.is_empty() {
         return Err(Error::Data(format!("no scene could be registered: {refused:?}")));
     }
-    let report = ForwardReport {
+    let report = ForwardBenchResults {
         units: "residuals: RMS of sqrt(prediction) - sqrt(capture), the capture's clipping level = 1; gains relative \
                 to the scene's gain; offsets and clipping in units of the clipping level; halo and blur radii in \
                 sensor pixels (4.29 um)"

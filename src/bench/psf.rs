@@ -157,7 +157,7 @@ pub struct BenchOptions {
     /// the budget, less [`WRITE_SECONDS`] for the files: the plans from the whole, the sweep
     /// from equal shares of what the plans leave to its eight series (a series stops at the
     /// first sub-sampling that would end past its share, or whose FFT window exceeds
-    /// [`MAX_SIDE`], memory). What is left out is listed in [`BenchReport::skipped`] with why.
+    /// [`MAX_SIDE`], memory). What is left out is listed in [`PsfBenchResults::skipped`] with why.
     pub budget: f64,
     /// The largest sub-sampling of the sweep (the reference runs at two more and four more).
     pub max_subsample: usize,
@@ -204,7 +204,7 @@ pub struct PlanPoint {
 
 /// Everything one `bench psf` run measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct BenchReport {
+pub struct PsfBenchResults {
     /// Units of the numbers below.
     pub units: String,
     /// DOE samples per side, its pitch (m), the aperture (m), the F-number and the
@@ -348,7 +348,7 @@ pub fn run_bench(
     doe: &Grid,
     opts: &BenchOptions,
     mut tick: impl FnMut(&str),
-) -> Result<BenchReport> {
+) -> Result<PsfBenchResults> {
     if opts.max_subsample == 0 || opts.budget.is_nan() || opts.budget <= 0.0 {
         return Err(crate::error::Error::param(
             "bench",
@@ -486,7 +486,7 @@ pub fn run_bench(
             plan.time_ratio = Some(plan.seconds / c.seconds);
         }
     }
-    Ok(BenchReport {
+    Ok(PsfBenchResults {
         units: "lengths in m, times in s, errors as relative L2 (worst channel)".into(),
         doe_samples: doe.values().nrows(),
         doe_pitch: doe.pitch()[0],

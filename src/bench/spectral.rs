@@ -110,7 +110,7 @@ pub struct SpectralPlanPoint {
 
 /// Everything one `bench spectral` run measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SpectralReport {
+pub struct SpectralBenchResults {
     pub units: String,
     pub method: String,
     pub doe_samples: usize,
@@ -142,7 +142,7 @@ pub fn run_spectral(
     doe: &Grid,
     opts: &SpectralOptions,
     mut tick: impl FnMut(&str),
-) -> Result<SpectralReport> {
+) -> Result<SpectralBenchResults> {
     if opts.bands.is_empty() {
         return Err(Error::param("bands", "bench spectral needs at least one band"));
     }
@@ -286,7 +286,7 @@ pub fn run_spectral(
     }
     let silent_failures = plans.iter().filter(|p| p.error.is_some() && !p.meets_tolerance).count();
     let seconds_per_wavelength = run_seconds.iter().sum::<f64>() / run_seconds.len().max(1) as f64;
-    Ok(SpectralReport {
+    Ok(SpectralBenchResults {
         units: "lengths in m, times in s, errors relative L2".into(),
         method: method.name().into(),
         doe_samples: doe.dim().1,

@@ -28,7 +28,7 @@
 //! A pixel that no frame sees between `lo` and `hi` has no trustworthy value: where every frame
 //! is saturated it takes the shortest frame's value over time (a lower bound); where every
 //! frame is in the noise floor, the longest unsaturated frame's value over time. Both sets are counted
-//! and located in the report ([`PixelSet`]) and the caller decides whether to refuse them.
+//! and located in the merge's stats ([`PixelSet`]) and the caller decides whether to refuse them.
 //!
 //! Listed exposure times can be wrong (the paper's shortest frames drift 10-30 % from what the
 //! pixels say). With [`MergeOptions::estimate_times`] the time ratio of each pair of
@@ -124,7 +124,7 @@ impl PixelSet {
 
 /// What the merge found about one frame.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct FrameReport {
+pub struct FrameStats {
     pub file: String,
     /// Seconds, as listed.
     pub exposure_listed: f64,
@@ -142,9 +142,10 @@ pub struct FrameReport {
     pub agreement_samples: usize,
 }
 
-/// The merge's report.
+/// What the merge found: the calibration it used, each frame's stats, the samples it could not
+/// trust and its warnings.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct MergeReport {
+pub struct MergeStats {
     /// `(rows, cols, channels)`.
     pub shape: [usize; 3],
     /// What a radiance value of 1 means.
@@ -167,7 +168,7 @@ pub struct MergeReport {
     /// Where each channel clips, fraction of full scale ([`channel_clipping`]; 1 = at full
     /// scale): the paper's camera clips green at 231 of 255.
     pub channel_clipping: Vec<f64>,
-    pub frames: Vec<FrameReport>,
+    pub frames: Vec<FrameStats>,
     /// Samples saturated in every frame (their radiance is a lower bound).
     pub saturated_everywhere: PixelSet,
     /// Samples in the noise floor in every frame.
@@ -177,12 +178,12 @@ pub struct MergeReport {
     pub warnings: Vec<String>,
 }
 
-/// A merged bracket: radiance `(H, W, C)`, the report and the response curve the frames were
+/// A merged bracket: radiance `(H, W, C)`, the merge's stats and the response curve the frames were
 /// linearized through (`None`: linear captures).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Merged {
     pub radiance: Image,
-    pub report: MergeReport,
+    pub stats: MergeStats,
     pub response: Option<Response>,
     /// `[row, col, channel]` of every sample saturated in every frame, row-major.
     pub saturated_samples: Vec<[usize; 3]>,
@@ -452,7 +453,7 @@ pub fn merge(
         inconsistent_samples,
     } = merge_radiance(&bracket, &sat);
     let sat_level: Vec<f64> = channel_clipping.iter().map(|l| hi * l).collect();
-    let reports = frame_reports(&bracket, times, &radiance, &sat_level);
+    let per_frame = frame_stats(&bracket, times, &radiance, &sat_level);
     if saturated_everywhere.count > 0 {
         warnings.push(format!(
             "{} samples are saturated in every frame (first at row {}, col {}, channel {}); their \
@@ -493,7 +494,7 @@ pub fn merge(
     });
     Ok(Merged {
         radiance: Image::new(radiance),
-        report: MergeReport {
+        stats: MergeStats {
             shape: [shape.0, shape.1, shape.2],
             unit,
             reference_exposure_s: opts.reference_exposure,
@@ -504,7 +505,7 @@ pub fn merge(
             noise_floor: lo,
             saturation: hi,
             channel_clipping,
-            frames: reports,
+            frames: per_frame,
             saturated_everywhere,
             dark_everywhere,
             inconsistent,
@@ -601,13 +602,13 @@ fn merge_radiance(b: &Bracket, sat: &Array3<f64>) -> Radiance {
     }
 }
 
-/// Each frame's report: its saturated samples (at or above `sat_level`, per channel) and
+/// Each frame's stats: its saturated samples (at or above `sat_level`, per channel) and
 /// those in the noise floor, and the RMS and median of `(v_k / t_k - E) / E` over the samples
 /// it sees well exposed (module docs); `times` as listed.
-fn frame_reports(b: &Bracket, times: &[f64], radiance: &Array3<f64>, sat_level: &[f64]) -> Vec<FrameReport> {
+fn frame_stats(b: &Bracket, times: &[f64], radiance: &Array3<f64>, sat_level: &[f64]) -> Vec<FrameStats> {
     let Bracket { frames, linear, used, black, lo } = *b;
     let dark_at = |i: usize, j: usize, c: usize| black[[i, j, c]];
-    let mut reports = Vec::new();
+    let mut stats = Vec::new();
     for (k, f) in frames.iter().enumerate() {
         let nc = radiance.dim().2;
         let (mut saturated, mut floor) = (vec![0; nc], vec![0; nc]);
@@ -628,7 +629,7 @@ fn frame_reports(b: &Bracket, times: &[f64], radiance: &Array3<f64>, sat_level: 
             (!dev.is_empty()).then(|| (dev.iter().map(|d| d * d).sum::<f64>() / dev.len() as f64).sqrt());
         let mut abs: Vec<f64> = dev.iter().map(|d| d.abs()).collect();
         abs.sort_by(f64::total_cmp);
-        reports.push(FrameReport {
+        stats.push(FrameStats {
             file: f.path.display().to_string(),
             exposure_listed: times[k],
             exposure_used: used[k],
@@ -639,7 +640,7 @@ fn frame_reports(b: &Bracket, times: &[f64], radiance: &Array3<f64>, sat_level: 
             agreement_samples: dev.len(),
         });
     }
-    reports
+    stats
 }
 
 /// Effective exposure times from neighbouring frames' value ratios (see the module docs).
@@ -721,11 +722,11 @@ fn estimate_times(
 /// The metadata of the merge's files: radiance unit, method, thresholds, pitch when known.
 fn metadata(merged: &Merged, pitch: Option<f64>) -> Metadata {
     Metadata { pitch: pitch.map(|p| [p, p]), unit: None, text: Vec::new() }
-        .with("radiance_unit", merged.report.unit.clone())
+        .with("radiance_unit", merged.stats.unit.clone())
         .with(
             "reference_exposure_s",
             merged
-                .report
+                .stats
                 .reference_exposure_s
                 .map_or("none (value 1 = full scale in 1 s)".into(), |t| format!("{t}")),
         )
@@ -733,13 +734,13 @@ fn metadata(merged: &Merged, pitch: Option<f64>) -> Metadata {
             "black_level",
             format!(
                 "{} ({})",
-                merged.report.black_level.iter().map(|v| format!("{v}")).collect::<Vec<_>>().join(", "),
-                merged.report.black_level_source
+                merged.stats.black_level.iter().map(|v| format!("{v}")).collect::<Vec<_>>().join(", "),
+                merged.stats.black_level_source
             ),
         )
         .with("merge", "Debevec-Malik weighted mean of value/time, hat weights")
-        .with("noise_floor", format!("{}", merged.report.noise_floor))
-        .with("saturation", format!("{}", merged.report.saturation))
+        .with("noise_floor", format!("{}", merged.stats.noise_floor))
+        .with("saturation", format!("{}", merged.stats.saturation))
 }
 
 /// Writes merged radiance as an OpenEXR file (channels R, G, B, or Y for one channel; f32),
@@ -759,7 +760,7 @@ pub fn write_merged(path: &Path, merged: &Merged, pitch: Option<f64>) -> Result<
 
 /// What the tone-mapped picture of a merge shows.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ToneMapReport {
+pub struct ToneMapStats {
     pub png: String,
     /// Exposure of the picture, stops.
     pub ev: f64,
@@ -776,7 +777,7 @@ pub struct ToneMapReport {
 /// `clip(E 2^ev, 0, 1)`) of the radiance as the EXR stores it (f32), as an 8-bit grayscale or
 /// RGB PNG with the EXR's metadata and the tone map. Warns, with the EV that fits, when more
 /// than a quarter of the samples are white or the brightest is below 5 % of white.
-pub fn write_tone_mapped(path: &Path, merged: &Merged, ev: f64, pitch: Option<f64>) -> Result<ToneMapReport> {
+pub fn write_tone_mapped(path: &Path, merged: &Merged, ev: f64, pitch: Option<f64>) -> Result<ToneMapStats> {
     if !ev.is_finite() {
         return Err(Error::param("ev", format!("must be a finite number of stops, got {ev}")));
     }
@@ -814,5 +815,5 @@ pub fn write_tone_mapped(path: &Path, merged: &Merged, ev: f64, pitch: Option<f6
         .with("tone_map", format!("sRGB (IEC 61966-2-1) of clip(E * 2^{ev}, 0, 1), 8 bits"))
         .with("ev", format!("{ev}"));
     write_png_image_u8(path, &tone_map(&radiance, ev), &meta)?;
-    Ok(ToneMapReport { png: path.display().to_string(), ev, clipped_fraction, ev_p99, ev_max, warnings })
+    Ok(ToneMapStats { png: path.display().to_string(), ev, clipped_fraction, ev_p99, ev_max, warnings })
 }

@@ -72,7 +72,7 @@ use std::path::Path;
 use ndarray::{Array2, Array3};
 use serde::Serialize;
 
-use super::hdr_merge::{write_merged, MergeReport, Merged};
+use super::hdr_merge::{write_merged, MergeStats, Merged};
 use crate::error::{Error, Result};
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::image::Image;
@@ -181,7 +181,7 @@ pub struct PsfCalibration {
     /// Centroid and peak of each channel after centring (metres from the crop centre).
     pub channels: Vec<ChannelSummary>,
     pub encircled_energy: Vec<EncircledEnergy>,
-    pub merge: MergeReport,
+    pub merge: MergeStats,
     pub warnings: Vec<String>,
     pub files: Vec<String>,
 }
@@ -219,7 +219,7 @@ fn clipped_mean_rms(values: &mut [f64]) -> (f64, f64) {
 
 /// The quantization noise of the merged background, one count of the longest frame over
 /// `sqrt(12)`, in the merge's units.
-fn quantization_noise(report: &MergeReport) -> f64 {
+fn quantization_noise(report: &MergeStats) -> f64 {
     let full = if report.bits == 8 { 255.0 } else { 65535.0 };
     let longest = report.frames.iter().map(|f| f.exposure_used).fold(0.0, f64::max);
     if longest > 0.0 {
@@ -257,7 +257,7 @@ fn support(values: &Array2<f64>, floor: f64) -> Array2<bool> {
 ///   (frames one stop apart and the weighted merge of several make it an upper bound within a
 ///   factor of about 2);
 /// * black level: an error `delta` of it (the merge's
-///   [`MergeReport::black_level_uncertainty`], fraction of full scale, plus half a count where
+///   [`MergeStats::black_level_uncertainty`], fraction of full scale, plus half a count where
 ///   the background is too quiet to dither the counts, so that each count's rounding is a bias)
 ///   is an offset of `delta r / t` in a sample from a frame of time `t`, of one sign in every
 ///   sample: it adds `b = delta r / t_max sum_S g(v) / sum_S v` to the channel's sum, the
@@ -272,7 +272,7 @@ fn estimated_error(
     sigma: f64,
     black_uncertainty: f64,
     lost: f64,
-    merge: &MergeReport,
+    merge: &MergeStats,
 ) -> f64 {
     let t_max = merge.frames.iter().map(|f| f.exposure_used).fold(0.0, f64::max);
     let r = merge.reference_exposure_s.unwrap_or(1.0);
@@ -310,7 +310,7 @@ struct Background {
 
 /// Step 1: each channel's clipped mean and RMS ([`clipped_mean_rms`]) over the strip of
 /// `border` pixels along the image's edges, the mean subtracted from `img`.
-fn subtract_background(img: &mut Array3<f64>, border: usize, report: &MergeReport) -> Background {
+fn subtract_background(img: &mut Array3<f64>, border: usize, report: &MergeStats) -> Background {
     let (h, w, nc) = img.dim();
     let (mut background, mut sigma, mut undithered) = (Vec::new(), Vec::new(), Vec::new());
     for c in 0..nc {
@@ -614,10 +614,10 @@ fn centred_channel(
     let all: f64 = values.sum();
     let zeroed: f64 = values.iter().zip(&support).filter(|(_, s)| !**s).map(|(v, _)| v).sum();
     let below_floor = if all > 0.0 { zeroed / all } else { 1.0 };
-    let full = if merged.report.bits == 8 { 255.0 } else { 65535.0 };
-    let black_uncertainty = merged.report.black_level_uncertainty.get(c).copied().unwrap_or(0.0)
+    let full = if merged.stats.bits == 8 { 255.0 } else { 65535.0 };
+    let black_uncertainty = merged.stats.black_level_uncertainty.get(c).copied().unwrap_or(0.0)
         + if undithered { 0.5 / full } else { 0.0 };
-    let e = estimated_error(values, &support, sigma, black_uncertainty, below_floor, &merged.report);
+    let e = estimated_error(values, &support, sigma, black_uncertainty, below_floor, &merged.stats);
     let clamped = Array2::from_shape_fn(values.dim(), |p| if support[p] { values[p].max(0.0) } else { 0.0 });
     let origin = -(n as f64 - 1.0) * 0.5 * opts.sensor_pitch;
     let name = if nc == 3 { ["R", "G", "B"][c].to_string() } else { format!("C{c}") };
@@ -650,12 +650,12 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
     if 2 * border >= h.min(w) {
         return Err(Error::param("border", format!("{border} px leaves no interior in {w} x {h}")));
     }
-    let mut warnings = merged.report.warnings.clone();
+    let mut warnings = merged.stats.warnings.clone();
 
     // 1. Background from the border strip.
     let mut img = merged.radiance.values.clone();
     let Background { level: background, sigma, undithered } =
-        subtract_background(&mut img, border, &merged.report);
+        subtract_background(&mut img, border, &merged.stats);
     // 2. Saturated in every frame: a lone one on the background is stuck; any other is refused.
     let (mut flagged, mut hot_list) = stuck_pixels(merged, &img, &sigma, opts.hot_pixel_neighbours)?;
     // 3. Samples that do not follow the exposure, and the stuck saturated ones.
@@ -782,7 +782,7 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
         estimated_error: estimated,
         channels: psf.summary(),
         encircled_energy,
-        merge: merged.report.clone(),
+        merge: merged.stats.clone(),
         warnings,
         files: Vec::new(),
     };
@@ -923,7 +923,7 @@ mod tests {
                 1.0 + c as f64
             }
         });
-        let report = MergeReport {
+        let report = MergeStats {
             shape: [20, 20, 2],
             unit: String::new(),
             reference_exposure_s: None,

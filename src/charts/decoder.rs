@@ -12,8 +12,8 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::style::{write_png_chart, FONT};
-use crate::bench::decoder::{BenchReport, Score};
+use super::style::{frame, line_key, mesh, write_png_chart, GridLines, FONT};
+use crate::bench::decoder::{DecoderBenchResults, Score};
 use crate::error::{Error, Result};
 
 const COLORS: [RGBColor; 8] = [
@@ -31,7 +31,7 @@ const COLORS: [RGBColor; 8] = [
 type Metric = (&'static str, &'static str, fn(&Score) -> Option<f64>);
 
 /// Draws `report`'s decoder x scene scores into `path` (PNG, 1400 x 900).
-pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()> {
+pub fn write_decoder_scene_chart(path: &Path, report: &DecoderBenchResults) -> Result<()> {
     let scenes: Vec<(String, f64)> = report
         .scenes
         .iter()
@@ -70,16 +70,11 @@ pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()
             // Bars start from the axis floor: a little under the smallest value (dB), or 0.
             let floor = if unit == "dB" { (lo - 3.0).floor() } else { lo.min(0.0) * 1.1 };
             let top = hi + 0.1 * (hi - floor).max(1e-3);
-            let mut chart = ChartBuilder::on(panel)
-                .caption(title, (FONT, 17))
-                .margin(10)
-                .x_label_area_size(30)
-                .y_label_area_size(60)
+            let mut chart = frame(panel, title, 17, 10, [30, 60])
                 .build_cartesian_2d(0.0..scenes.len() as f64, floor..top)
                 .map_err(|x| e(&x))?;
             let names = scenes.clone();
-            chart
-                .configure_mesh()
+            mesh(&mut chart, 12, 12, GridLines::Full)
                 .disable_x_mesh()
                 .x_labels(scenes.len() * 2 + 1)
                 .x_label_formatter(&move |x| {
@@ -91,7 +86,6 @@ pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()
                     }
                 })
                 .y_desc(unit)
-                .label_style((FONT, 12))
                 .draw()
                 .map_err(|x| e(&x))?;
             let width = 0.8 / nd as f64;
@@ -124,7 +118,7 @@ pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()
 /// the training time in minutes (wall clock on the machine's threads, scoring excluded), the
 /// step count in the captions. The validation points' times are their steps times the run's
 /// mean seconds per step.
-pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
+pub fn write_bench_chart(path: &Path, report: &DecoderBenchResults) -> Result<()> {
     let Some(run) = &report.finetune else {
         return Err(Error::Data("no fine-tuning run to chart".into()));
     };
@@ -175,19 +169,13 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                 continue;
             }
             let title = if saturated { "saturated pixels of the capture" } else { "all scored pixels" };
-            let mut chart = ChartBuilder::on(panel)
-                .caption(format!("PSNR-gamma, {title}"), (FONT, 18))
-                .margin(12)
-                .x_label_area_size(40)
-                .y_label_area_size(60)
+            let mut chart = frame(panel, format!("PSNR-gamma, {title}"), 18, 12, [40, 60])
                 // Room under the data for the legend, so that it covers no line.
                 .build_cartesian_2d(0.0..last, (lo - 0.5 - 0.6 * (hi - lo))..(hi + 0.5))
                 .map_err(|x| e(&x))?;
-            chart
-                .configure_mesh()
+            mesh(&mut chart, 13, 13, GridLines::Full)
                 .x_desc(x_desc.as_str())
                 .y_desc("dB")
-                .label_style((FONT, 13))
                 .draw()
                 .map_err(|x| e(&x))?;
             for (k, scene) in scenes.iter().enumerate() {
@@ -201,7 +189,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                     .draw_series(LineSeries::new(line.iter().copied(), color.stroke_width(2)))
                     .map_err(|x| e(&x))?
                     .label(format!("{scene}: fine-tuned here"))
-                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
+                    .legend(line_key(18, color.stroke_width(2)));
                 chart
                     .draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled())))
                     .map_err(|x| e(&x))?;
@@ -245,30 +233,24 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
             let (lo, hi) = validation
                 .iter()
                 .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &(_, v)| (a.min(v), b.max(v)));
-            let mut chart = ChartBuilder::on(&panels[2])
-                .caption("validation PSNR (held-out simulated set)", (FONT, 18))
-                .margin(12)
-                .x_label_area_size(40)
-                .y_label_area_size(60)
+            let mut chart = frame(&panels[2], "validation PSNR (held-out simulated set)", 18, 12, [40, 60])
                 .build_cartesian_2d(0.0..last, (lo - 0.2)..(hi + 0.2))
                 .map_err(|x| e(&x))?;
-            chart
-                .configure_mesh()
+            mesh(&mut chart, 13, 13, GridLines::Full)
                 .x_desc(x_desc.as_str())
                 .y_desc("dB (sqrt domain, peak 1)")
-                .label_style((FONT, 13))
                 .draw()
                 .map_err(|x| e(&x))?;
             chart
                 .draw_series(LineSeries::new([(0.0, first), (last, first)], BLACK.stroke_width(1)))
                 .map_err(|x| e(&x))?
                 .label("the start")
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
+                .legend(line_key(18, BLACK));
             chart
                 .draw_series(LineSeries::new(validation.iter().copied(), RED.stroke_width(2)))
                 .map_err(|x| e(&x))?
                 .label("fine-tuned here")
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED.stroke_width(2)));
+                .legend(line_key(18, RED.stroke_width(2)));
             chart
                 .draw_series(validation.iter().map(|&p| Circle::new(p, 3, RED.filled())))
                 .map_err(|x| e(&x))?;
@@ -282,7 +264,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
 /// above, the residual of each model (a colour each, in the order they add to one another) in
 /// each brightness band; below, the halo model's residual over all unsaturated pixels against
 /// the halo's fraction, a line per radius, the paper model's as a dashed line.
-pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardReport) -> Result<()> {
+pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardBenchResults) -> Result<()> {
     let scenes = &report.scenes;
     if scenes.is_empty() {
         return Err(Error::Data("no scene to chart".into()));
@@ -298,22 +280,20 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardR
             };
             let top =
                 scene.models.iter().flat_map(&values).filter(|v| v.is_finite()).fold(0.0, f64::max) * 1.15;
-            let mut chart = ChartBuilder::on(&columns[k])
-                .caption(
-                    format!(
-                        "{}: sqrt-domain residual, capture - model ({:.0} % scored)",
-                        scene.name,
-                        100.0 * scene.coverage
-                    ),
-                    (FONT, 16),
-                )
-                .margin(10)
-                .x_label_area_size(30)
-                .y_label_area_size(60)
-                .build_cartesian_2d(0.0..bands.len() as f64, 0.0..top.max(1e-3))
-                .map_err(|x| e(&x))?;
-            chart
-                .configure_mesh()
+            let mut chart = frame(
+                &columns[k],
+                format!(
+                    "{}: sqrt-domain residual, capture - model ({:.0} % scored)",
+                    scene.name,
+                    100.0 * scene.coverage
+                ),
+                16,
+                10,
+                [30, 60],
+            )
+            .build_cartesian_2d(0.0..bands.len() as f64, 0.0..top.max(1e-3))
+            .map_err(|x| e(&x))?;
+            mesh(&mut chart, 12, 12, GridLines::Full)
                 .disable_x_mesh()
                 .x_labels(bands.len() * 2 + 1)
                 .x_label_formatter(&|x| {
@@ -325,7 +305,6 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardR
                     }
                 })
                 .y_desc("RMS of sqrt(model) - sqrt(capture)")
-                .label_style((FONT, 12))
                 .draw()
                 .map_err(|x| e(&x))?;
             let width = 0.8 / scene.models.len() as f64;
@@ -366,18 +345,18 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardR
                 .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
             let pad = 0.1 * (hi - lo).max(1e-4);
             let fmax = report.halo_fractions.iter().copied().fold(0.0, f64::max);
-            let mut chart = ChartBuilder::on(&columns[scenes.len() + k])
-                .caption(format!("{}: halo model, all unsaturated pixels", scene.name), (FONT, 16))
-                .margin(10)
-                .x_label_area_size(35)
-                .y_label_area_size(60)
-                .build_cartesian_2d(0.0..fmax * 1.05, (lo - pad)..(hi + pad))
-                .map_err(|x| e(&x))?;
-            chart
-                .configure_mesh()
+            let mut chart = frame(
+                &columns[scenes.len() + k],
+                format!("{}: halo model, all unsaturated pixels", scene.name),
+                16,
+                10,
+                [35, 60],
+            )
+            .build_cartesian_2d(0.0..fmax * 1.05, (lo - pad)..(hi + pad))
+            .map_err(|x| e(&x))?;
+            mesh(&mut chart, 12, 12, GridLines::Full)
                 .x_desc("halo fraction eta")
                 .y_desc("RMS of sqrt(model) - sqrt(capture)")
-                .label_style((FONT, 12))
                 .draw()
                 .map_err(|x| e(&x))?;
             for (r, radius) in report.halo_radii_px.iter().enumerate() {
@@ -393,7 +372,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardR
                     .draw_series(LineSeries::new(points.clone(), color.stroke_width(2)))
                     .map_err(|x| e(&x))?
                     .label(format!("rho {radius} px"))
-                    .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], color.stroke_width(2)));
+                    .legend(line_key(16, color.stroke_width(2)));
                 chart
                     .draw_series(points.iter().map(|&p| Circle::new(p, 3, color.filled())))
                     .map_err(|x| e(&x))?;
@@ -408,7 +387,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardR
                     ))
                     .map_err(|x| e(&x))?
                     .label("paper model")
-                    .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], BLACK.stroke_width(1)));
+                    .legend(line_key(16, BLACK.stroke_width(1)));
             }
             super::style::draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 11)?;
         }

@@ -8,8 +8,11 @@ use std::path::{Path, PathBuf};
 
 use plotters::prelude::*;
 
-use super::style::{draw_legend, log_label, short, write_png_chart, write_svg_chart, FONT};
-use crate::bench::fab::{FabBenchReport, GdsSweep, QuantizationSweep, StlPoint, StlSweep};
+use super::style::{
+    draw_legend, frame, line_key, log_label, mesh, secondary_axes, short, write_png_chart, write_svg_chart,
+    GridLines, FONT,
+};
+use crate::bench::fab::{FabBenchResults, GdsSweep, QuantizationSweep, StlPoint, StlSweep};
 use crate::error::{Error, Result};
 
 /// Log range covering `values` (positive ones), widened by `pad` each way.
@@ -57,15 +60,10 @@ fn quantization_chart<DB: DrawingBackend>(
         q.design_wavelength * 1e9,
         q.max_difference.max(1e-300)
     );
-    let mut chart = ChartBuilder::on(root)
-        .caption(caption, (FONT, 16))
-        .margin(12)
-        .x_label_area_size(45)
-        .y_label_area_size(60)
+    let mut chart = frame(root, caption, 16, 12, [45, 60])
         .build_cartesian_2d(x0 - 0.3..x1 + 0.3, (y0 - 0.05).max(0.0)..1.02)
         .map_err(|x| e(&x))?;
-    chart
-        .configure_mesh()
+    mesh(&mut chart, 13, 14, GridLines::Full)
         .x_desc("level count N (log scale)")
         .y_desc("efficiency of the design order (fraction of the light)")
         .x_labels((2.0 * (x1 - x0 + 0.6)) as usize + 2)
@@ -77,8 +75,6 @@ fn quantization_chart<DB: DrawingBackend>(
             }
         })
         .y_label_formatter(&|v| format!("{v:.2}"))
-        .label_style((FONT, 13))
-        .axis_desc_style((FONT, 14))
         .draw()
         .map_err(|x| e(&x))?;
     let mut wavelengths: Vec<f64> = q.points.iter().map(|p| p.wavelength).collect();
@@ -95,7 +91,7 @@ fn quantization_chart<DB: DrawingBackend>(
             ))
             .map_err(|x| e(&x))?
             .label(format!("{:.0} nm predicted", l * 1e9))
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
+            .legend(line_key(18, colour.stroke_width(2)));
         chart
             .draw_series(
                 own.iter()
@@ -118,11 +114,7 @@ fn stl_cost_chart<DB: DrawingBackend>(
         "STL heightfield, {} x {} samples: triangles and time vs max_error",
         s.samples[0], s.samples[1]
     );
-    let mut chart = ChartBuilder::on(root)
-        .caption(caption, (FONT, 16))
-        .margin(12)
-        .x_label_area_size(45)
-        .y_label_area_size(70)
+    let mut chart = frame(root, caption, 16, 12, [45, 70])
         .right_y_label_area_size(60)
         .build_cartesian_2d(
             x.clone().log_scale(),
@@ -130,26 +122,18 @@ fn stl_cost_chart<DB: DrawingBackend>(
         )
         .map_err(|x| e(&x))?
         .set_secondary_coord(x.log_scale(), log_span(s.points.iter().map(|p| p.seconds), 2.0).log_scale());
-    chart
-        .configure_mesh()
+    mesh(&mut chart, 13, 14, GridLines::Faint)
         .x_desc("max_error, nm (the mesher's bound)")
         .y_desc("triangles in the STL")
         .y_labels(30)
         .x_label_formatter(&|v| log_label(*v, short))
         .y_label_formatter(&|v| log_label(*v, count))
-        .light_line_style(TRANSPARENT)
-        .bold_line_style(BLACK.mix(0.15))
-        .label_style((FONT, 13))
-        .axis_desc_style((FONT, 14))
         .draw()
         .map_err(|x| e(&x))?;
-    chart
-        .configure_secondary_axes()
+    secondary_axes(&mut chart, 13, 14)
         .y_desc("time to mesh, s (best of runs)")
         .y_labels(30)
         .y_label_formatter(&|v| log_label(*v, short))
-        .label_style((FONT, 13))
-        .axis_desc_style((FONT, 14))
         .draw()
         .map_err(|x| e(&x))?;
     let tri: Vec<(f64, f64)> = s.points.iter().map(|p| (p.max_error * 1e9, p.triangles as f64)).collect();
@@ -158,13 +142,13 @@ fn stl_cost_chart<DB: DrawingBackend>(
         .draw_series(LineSeries::new(tri.iter().copied(), BLUE.stroke_width(2)))
         .map_err(|x| e(&x))?
         .label("triangles (left axis)")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.stroke_width(2)));
+        .legend(line_key(18, BLUE.stroke_width(2)));
     chart.draw_series(tri.iter().map(|&p| Circle::new(p, 4, BLUE.filled()))).map_err(|x| e(&x))?;
     chart
         .draw_secondary_series(LineSeries::new(secs.iter().copied(), RED.stroke_width(2)))
         .map_err(|x| e(&x))?
         .label("time (right axis)")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED.stroke_width(2)));
+        .legend(line_key(18, RED.stroke_width(2)));
     chart
         .draw_secondary_series(secs.iter().map(|&p| TriangleMarker::new(p, 5, RED.filled())))
         .map_err(|x| e(&x))?;
@@ -187,31 +171,22 @@ fn stl_error_chart<DB: DrawingBackend>(
     let over = s.points.iter().filter(|p| !p.within_bound).count();
     let caption =
         format!("measured height error vs max_error (on or under the line: bound held; over: {over})");
-    let mut chart = ChartBuilder::on(root)
-        .caption(caption, (FONT, 16))
-        .margin(12)
-        .x_label_area_size(45)
-        .y_label_area_size(70)
+    let mut chart = frame(root, caption, 16, 12, [45, 70])
         .build_cartesian_2d(x.clone().log_scale(), y.log_scale())
         .map_err(|x| e(&x))?;
-    chart
-        .configure_mesh()
+    mesh(&mut chart, 13, 14, GridLines::Faint)
         .x_desc("max_error, nm (the mesher's bound)")
         .y_desc("|mesh - height map| at the samples, nm")
         .y_labels(30)
         .x_label_formatter(&|v| log_label(*v, short))
         .y_label_formatter(&|v| log_label(*v, short))
-        .light_line_style(TRANSPARENT)
-        .bold_line_style(BLACK.mix(0.15))
-        .label_style((FONT, 13))
-        .axis_desc_style((FONT, 14))
         .draw()
         .map_err(|x| e(&x))?;
     chart
         .draw_series(LineSeries::new([(x.start, x.start), (x.end, x.end)], BLACK.stroke_width(1)))
         .map_err(|x| e(&x))?
         .label("bound: error = max_error")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
+        .legend(line_key(18, BLACK));
     for (colour, label, value) in [
         (BLUE, "measured max", (|p: &StlPoint| p.measured_max_error) as fn(&StlPoint) -> f64),
         (RGBColor(0, 140, 0), "measured RMS", |p: &StlPoint| p.measured_rms_error),
@@ -221,7 +196,7 @@ fn stl_error_chart<DB: DrawingBackend>(
             .draw_series(LineSeries::new(pts.iter().copied(), colour.stroke_width(2)))
             .map_err(|x| e(&x))?
             .label(label)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
+            .legend(line_key(18, colour.stroke_width(2)));
         chart.draw_series(pts.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map_err(|x| e(&x))?;
     }
     draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, 13)
@@ -253,34 +228,22 @@ fn gds_chart<DB: DrawingBackend>(
         g.pitch * 1e6,
         g.max_area_difference
     );
-    let mut chart = ChartBuilder::on(root)
-        .caption(caption, (FONT, 16))
-        .margin(12)
-        .x_label_area_size(45)
-        .y_label_area_size(70)
+    let mut chart = frame(root, caption, 16, 12, [45, 70])
         .right_y_label_area_size(60)
         .build_cartesian_2d(x.clone().log_scale(), 0.0..mb_hi.max(1e-6))
         .map_err(|x| e(&x))?
         .set_secondary_coord(x.log_scale(), 0.0..s_hi.max(1e-6));
-    chart
-        .configure_mesh()
+    mesh(&mut chart, 13, 14, GridLines::Faint)
         .x_desc("most vertices per polygon (labels: polygons written)")
         .y_desc("file size, MB")
         .x_labels(30)
         .x_label_formatter(&|v| log_label(*v, short))
-        .light_line_style(TRANSPARENT)
-        .bold_line_style(BLACK.mix(0.15))
         .y_label_formatter(&|v| format!("{v:.2}"))
-        .label_style((FONT, 13))
-        .axis_desc_style((FONT, 14))
         .draw()
         .map_err(|x| e(&x))?;
-    chart
-        .configure_secondary_axes()
+    secondary_axes(&mut chart, 13, 14)
         .y_desc("time to trace and encode, s (best of runs)")
         .y_label_formatter(&|v| format!("{v:.2}"))
-        .label_style((FONT, 13))
-        .axis_desc_style((FONT, 14))
         .draw()
         .map_err(|x| e(&x))?;
     let size: Vec<(f64, f64, usize)> =
@@ -290,7 +253,7 @@ fn gds_chart<DB: DrawingBackend>(
         .draw_series(LineSeries::new(size.iter().map(|p| (p.0, p.1)), BLUE.stroke_width(2)))
         .map_err(|x| e(&x))?
         .label("file size (left axis)")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.stroke_width(2)));
+        .legend(line_key(18, BLUE.stroke_width(2)));
     chart
         .draw_series(size.iter().map(|&(x, y, n)| {
             EmptyElement::at((x, y))
@@ -302,7 +265,7 @@ fn gds_chart<DB: DrawingBackend>(
         .draw_secondary_series(LineSeries::new(secs.iter().copied(), RED.stroke_width(2)))
         .map_err(|x| e(&x))?
         .label("time (right axis)")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED.stroke_width(2)));
+        .legend(line_key(18, RED.stroke_width(2)));
     chart
         .draw_secondary_series(secs.iter().map(|&p| TriangleMarker::new(p, 5, RED.filled())))
         .map_err(|x| e(&x))?;
@@ -316,7 +279,7 @@ fn gds_chart<DB: DrawingBackend>(
 /// the names.
 pub fn write_fab_bench_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    report: &FabBenchReport,
+    report: &FabBenchResults,
 ) -> Result<Vec<String>> {
     if report.quantization.points.is_empty() || report.stl.points.is_empty() || report.gds.points.is_empty() {
         return Err(Error::Data("a fabrication benchmark sweep has no points to chart".into()));
@@ -359,30 +322,30 @@ pub fn precompensation_gain(path: &Path, points: &[GainPoint]) -> Result<()> {
         y1: f64,
     ) -> std::result::Result<(), String> {
         let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
-        let mut ch = ChartBuilder::on(root)
-            .caption("pre-compensation: error of the plain mask / error of the corrected one", (FONT, 17))
-            .margin(14)
-            .x_label_area_size(44)
-            .y_label_area_size(64)
-            .build_cartesian_2d(0.0..x1, 0.0..y1)
-            .map_err(err)?;
-        ch.configure_mesh()
+        let mut ch = frame(
+            root,
+            "pre-compensation: error of the plain mask / error of the corrected one",
+            17,
+            14,
+            [44, 64],
+        )
+        .build_cartesian_2d(0.0..x1, 0.0..y1)
+        .map_err(err)?;
+        mesh(&mut ch, 13, 14, GridLines::Full)
             .x_desc("process blur (standard deviation, design samples)")
             .y_desc("gain (before / after)")
-            .label_style((FONT, 13))
-            .axis_desc_style((FONT, 14))
             .draw()
             .map_err(err)?;
         ch.draw_series(LineSeries::new([(0.0, 2.0), (x1, 2.0)], BLACK.mix(0.4).stroke_width(1)))
             .map_err(err)?
             .label("2x")
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLACK.mix(0.4)));
+            .legend(line_key(18, BLACK.mix(0.4)));
         ch.draw_series(LineSeries::new([(0.0, 1.0), (x1, 1.0)], BLACK.stroke_width(1))).map_err(err)?;
         for (data, colour, label) in [(rms, BLUE, "height RMS"), (psf, RED, "PSF relative L2")] {
             ch.draw_series(LineSeries::new(data.iter().copied(), colour.stroke_width(2)))
                 .map_err(err)?
                 .label(label)
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], colour.stroke_width(2)));
+                .legend(line_key(18, colour.stroke_width(2)));
             ch.draw_series(data.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map_err(err)?;
         }
         draw_legend(&mut ch, SeriesLabelPosition::UpperLeft, 13)

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::style::{draw_legend, key_entry, write_png_chart, write_svg_chart, FONT};
+use super::style::{draw_legend, frame, key_entry, mesh, write_png_chart, write_svg_chart, GridLines, FONT};
 use crate::bench::calibration::{CalibrationBench, Trial};
 use crate::bench::register::RegistrationBench;
 use crate::bench::SweepAxis;
@@ -31,19 +31,13 @@ pub fn failure_panel<'a, DB: DrawingBackend>(
     let (lo, hi) =
         axis.values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
     let pad = 0.06 * (hi - lo).max(1e-12);
-    let mut c = ChartBuilder::on(area)
-        .caption(format!("{} ({})", axis.name, axis.unit), (FONT, 15))
-        .margin(8)
-        .x_label_area_size(28)
-        .y_label_area_size(52)
+    let mut c = frame(area, format!("{} ({})", axis.name, axis.unit), 15, 8, [28, 52])
         .build_cartesian_2d(lo - pad..hi + pad, y.log_scale())
         .map_err(|x| e(&x))?;
-    c.configure_mesh()
+    mesh(&mut c, 11, 11, GridLines::Labels)
         .y_desc(y_desc)
         .y_label_formatter(&|v| format!("{v:.0e}"))
         .x_labels(6)
-        .light_line_style(WHITE)
-        .label_style((FONT, 11))
         .draw()
         .map_err(|x| e(&x))?;
     c.draw_series(LineSeries::new([(lo - pad, limit), (hi + pad, limit)], RED.stroke_width(1)))

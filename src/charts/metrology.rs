@@ -7,7 +7,7 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::style::{draw_legend, write_png_chart, write_svg_chart, FONT};
+use super::style::{draw_legend, frame, line_key, mesh, write_png_chart, write_svg_chart, GridLines, FONT};
 use crate::error::Result;
 use crate::grid::Grid;
 
@@ -108,13 +108,11 @@ pub fn height_map(path: &Path, g: &Grid, title: &str, palette: Palette) -> Resul
             .y_label_area_size(70)
             .build_cartesian_2d(0.0..1.0, lo..hi)
             .map_err(err)?;
-        bar.configure_mesh()
+        mesh(&mut bar, 13, 14, GridLines::Full)
             .disable_x_mesh()
             .disable_y_mesh()
             .disable_x_axis()
             .y_desc("height (nm)")
-            .label_style((FONT, 13))
-            .axis_desc_style((FONT, 14))
             .draw()
             .map_err(err)?;
         let n = 200;
@@ -177,26 +175,23 @@ pub fn profiles(path: &Path, design: &Grid, surface: &Grid) -> Result<()> {
                 .y_label_area_size(70)
                 .build_cartesian_2d(x0 * 1e3..x1 * 1e3, lo - pad..hi + pad)
                 .map_err(err)?;
-            ch.configure_mesh()
+            mesh(&mut ch, 13, 14, GridLines::Full)
                 .x_desc(*label)
                 .y_desc("height (nm)")
-                .label_style((FONT, 13))
-                .axis_desc_style((FONT, 14))
                 .draw()
                 .map_err(err)?;
             for (k, r) in d.iter().enumerate() {
                 let s =
                     ch.draw_series(LineSeries::new(r.iter().copied(), BLACK.stroke_width(1))).map_err(err)?;
                 if k == 0 {
-                    s.label("design").legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLACK));
+                    s.label("design").legend(line_key(18, BLACK));
                 }
             }
             for (k, r) in s.iter().enumerate() {
                 let s =
                     ch.draw_series(LineSeries::new(r.iter().copied(), RED.stroke_width(1))).map_err(err)?;
                 if k == 0 {
-                    s.label("part (registered scan)")
-                        .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RED));
+                    s.label("part (registered scan)").legend(line_key(18, RED));
                 }
             }
             super::style::draw_legend(&mut ch, SeriesLabelPosition::MiddleRight, 13)?;
@@ -229,20 +224,14 @@ pub fn height_histogram(
     }
     let top = counts.iter().copied().max().unwrap_or(1).max(1) as f64 * 1.05;
     write_png_chart(path, 1000, 500, |root| {
-        let mut ch = ChartBuilder::on(root)
-            .caption("heights over the aperture", (FONT, 18))
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(70)
+        let mut ch = frame(root, "heights over the aperture", 18, 12, [40, 70])
             .build_cartesian_2d(lo..hi, 0.0..top)
             .map_err(err)?;
-        ch.configure_mesh()
+        mesh(&mut ch, 13, 14, GridLines::Full)
             .disable_x_mesh()
             .disable_y_mesh()
             .x_desc("height (nm)")
             .y_desc("samples")
-            .label_style((FONT, 13))
-            .axis_desc_style((FONT, 14))
             .draw()
             .map_err(err)?;
         ch.draw_series(counts.iter().enumerate().map(|(k, &c)| {
@@ -260,7 +249,7 @@ pub fn height_histogram(
         )
         .map_err(err)?
         .label("design levels")
-        .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], grey));
+        .legend(line_key(18, grey));
         ch.draw_series(
             measured_levels
                 .iter()
@@ -269,7 +258,7 @@ pub fn height_histogram(
         )
         .map_err(err)?
         .label("measured level means")
-        .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RED));
+        .legend(line_key(18, RED));
         super::style::draw_legend(&mut ch, SeriesLabelPosition::MiddleRight, 13)?;
         Ok(())
     })
@@ -295,36 +284,30 @@ pub fn profile_chart(
     let line = |pts: &[(f64, f64)]| pts.iter().map(|p| (p.0 * 1e6, p.1 * 1e9)).collect::<Vec<_>>();
     let (m, f) = (line(measured), line(model));
     write_svg_chart(path, 1000, 420, |root| {
-        let mut ch = ChartBuilder::on(root)
-            .caption(title, (FONT, 16))
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(70)
+        let mut ch = frame(root, title, 16, 12, [40, 70])
             .build_cartesian_2d(x0..x1, lo - pad..hi + pad)
             .map_err(err)?;
-        ch.configure_mesh()
+        mesh(&mut ch, 13, 14, GridLines::Full)
             .x_desc("position along the profile (um)")
             .y_desc("height (nm)")
-            .label_style((FONT, 13))
-            .axis_desc_style((FONT, 14))
             .draw()
             .map_err(err)?;
         ch.draw_series(LineSeries::new(m, RED.stroke_width(1)))
             .map_err(err)?
             .label("profile")
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RED));
+            .legend(line_key(18, RED));
         if !f.is_empty() {
             ch.draw_series(LineSeries::new(f, BLACK.stroke_width(1)))
                 .map_err(err)?
                 .label("design, fitted")
-                .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLACK));
+                .legend(line_key(18, BLACK));
         }
         for (k, h) in levels.iter().enumerate() {
             let s = ch
                 .draw_series(LineSeries::new([(x0, h * 1e9), (x1, h * 1e9)], BLUE.mix(0.6).stroke_width(1)))
                 .map_err(err)?;
             if k == 0 {
-                s.label("levels").legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLUE));
+                s.label("levels").legend(line_key(18, BLUE));
             }
         }
         super::style::draw_legend(&mut ch, SeriesLabelPosition::UpperRight, 13)
@@ -366,32 +349,31 @@ pub fn registration_speed_accuracy(path: &Path, points: &[SpeedAccuracyPoint], g
         y: (f64, f64),
     ) -> std::result::Result<(), String> {
         let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
-        let mut ch = ChartBuilder::on(root)
-            .caption("registration: time against shift error (least-squares point budget)", (FONT, 17))
-            .margin(14)
-            .x_label_area_size(44)
-            .y_label_area_size(70)
-            .build_cartesian_2d((x.0..x.1).log_scale(), (y.0..y.1).log_scale())
-            .map_err(e)?;
+        let mut ch = frame(
+            root,
+            "registration: time against shift error (least-squares point budget)",
+            17,
+            14,
+            [44, 70],
+        )
+        .build_cartesian_2d((x.0..x.1).log_scale(), (y.0..y.1).log_scale())
+        .map_err(e)?;
         // Three significant digits, no float noise ("0.3", not "0.30000000000000004").
         let fmt = |v: &f64| {
             let d = (2 - v.abs().log10().floor() as i32).max(0) as usize;
             format!("{v:.d$}")
         };
-        ch.configure_mesh()
+        mesh(&mut ch, 13, 14, GridLines::Labels)
             .x_label_formatter(&fmt)
             .y_label_formatter(&fmt)
-            .light_line_style(WHITE)
             .x_desc("time per registration (s)")
             .y_desc("shift error (design pixels, 4.29 um)")
-            .label_style((FONT, 13))
-            .axis_desc_style((FONT, 14))
             .draw()
             .map_err(e)?;
         ch.draw_series(LineSeries::new([(x.0, goal), (x.1, goal)], RED.mix(0.6).stroke_width(1)))
             .map_err(e)?
             .label(format!("goal {goal} px"))
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], RED.mix(0.6)));
+            .legend(line_key(18, RED.mix(0.6)));
         let ok = |v: f64| v.is_finite() && v > 0.0;
         let measured: Vec<(f64, f64)> =
             points.iter().filter(|p| ok(p.seconds) && ok(p.error)).map(|p| (p.seconds, p.error)).collect();
@@ -400,12 +382,12 @@ pub fn registration_speed_accuracy(path: &Path, points: &[SpeedAccuracyPoint], g
         ch.draw_series(LineSeries::new(measured.iter().copied(), BLUE.stroke_width(2)))
             .map_err(e)?
             .label("measured error")
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLUE.stroke_width(2)));
+            .legend(line_key(18, BLUE.stroke_width(2)));
         ch.draw_series(measured.iter().map(|&p| Circle::new(p, 4, BLUE.filled()))).map_err(e)?;
         ch.draw_series(LineSeries::new(formal.iter().copied(), BLACK.mix(0.5).stroke_width(1)))
             .map_err(e)?
             .label("formal standard error")
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLACK.mix(0.5)));
+            .legend(line_key(18, BLACK.mix(0.5)));
         for p in points.iter().filter(|p| ok(p.seconds) && ok(p.error)) {
             let text = if p.chosen { format!("{} (default)", p.label) } else { p.label.clone() };
             ch.draw_series([EmptyElement::at((p.seconds, p.error)) + Text::new(text, (7, 4), (FONT, 12))])

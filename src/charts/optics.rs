@@ -8,10 +8,10 @@ use std::path::PathBuf;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::style::{write_png_chart, write_svg_chart, FONT};
-use crate::bench::psf::{BenchPoint, BenchReport};
-use crate::bench::spectral::SpectralReport;
-use crate::bench::stability::{StabilityMap, StabilityReport, STEPPED_DOE_PITCH};
+use super::style::{frame, line_key, mesh, write_png_chart, write_svg_chart, GridLines, FONT};
+use crate::bench::psf::{BenchPoint, PsfBenchResults};
+use crate::bench::spectral::SpectralBenchResults;
+use crate::bench::stability::{StabilityBenchResults, StabilityMap, STEPPED_DOE_PITCH};
 use crate::error::{Error, Result};
 use crate::optics::propagate::Method;
 
@@ -53,7 +53,7 @@ fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
 
 fn speed_chart<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
-    report: &BenchReport,
+    report: &PsfBenchResults,
 ) -> std::result::Result<(), String> {
     let e = |x: &dyn std::fmt::Display| x.to_string();
     let points = &report.points;
@@ -65,11 +65,7 @@ fn speed_chart<DB: DrawingBackend>(
         report.doe_pitch * 1e6,
         report.f_number,
     );
-    let mut chart = ChartBuilder::on(root)
-        .caption(caption, (FONT, 18))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(70)
+    let mut chart = frame(root, caption, 18, 12, [40, 70])
         .build_cartesian_2d(
             log_range(points.iter().map(|p| p.seconds).chain(report.plans.iter().map(|p| p.seconds)))
                 .log_scale(),
@@ -82,13 +78,11 @@ fn speed_chart<DB: DrawingBackend>(
             .log_scale(),
         )
         .map_err(|x| e(&x))?;
-    chart
-        .configure_mesh()
+    mesh(&mut chart, 13, 13, GridLines::Full)
         .x_desc("run time, s")
         .y_desc("relative L2 vs converged reference")
         .x_label_formatter(&|v| format!("{v:.0e}"))
         .y_label_formatter(&|v| format!("{v:.0e}"))
-        .label_style((FONT, 13))
         .draw()
         .map_err(|x| e(&x))?;
     for (name, colour) in series(points) {
@@ -109,7 +103,7 @@ fn speed_chart<DB: DrawingBackend>(
         .draw_series(LineSeries::new(front, BLACK.stroke_width(2)))
         .map_err(|x| e(&x))?
         .label("Pareto front (valid runs)")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
+        .legend(line_key(18, BLACK.stroke_width(2)));
     // The automatic plan at each tolerance: a triangle at its run, labelled with the tolerance.
     // Tolerances whose plans chose the same configuration share one label at the first.
     let mut labelled: Vec<(String, f64, f64, Vec<String>)> = Vec::new();
@@ -153,15 +147,10 @@ fn stability_chart<DB: DrawingBackend>(
     let e = |x: &dyn std::fmt::Display| x.to_string();
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let s_max = points.iter().map(|p| p.subsample).max().unwrap_or(1) as f64;
-    let mut chart = ChartBuilder::on(root)
-        .caption("PSF: error vs sampling (x: guard refuses)", (FONT, 20))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(70)
+    let mut chart = frame(root, "PSF: error vs sampling (x: guard refuses)", 20, 12, [40, 70])
         .build_cartesian_2d(0.5..s_max + 0.5, log_range(points.iter().map(|p| p.error)).log_scale())
         .map_err(|x| e(&x))?;
-    chart
-        .configure_mesh()
+    mesh(&mut chart, 13, 13, GridLines::Full)
         .x_desc("sub-samples per pixel s (FFT methods: pupil pitch = pixel pitch / s)")
         .y_desc("relative L2 vs converged reference")
         // Sub-sampling is a whole number: one label per integer, none between (a "{v:.0}"
@@ -175,7 +164,6 @@ fn stability_chart<DB: DrawingBackend>(
             }
         })
         .y_label_formatter(&|v| format!("{v:.0e}"))
-        .label_style((FONT, 13))
         .draw()
         .map_err(|x| e(&x))?;
     for (name, colour) in series(points) {
@@ -189,7 +177,7 @@ fn stability_chart<DB: DrawingBackend>(
             .draw_series(LineSeries::new(own.iter().map(|&(x, y, _)| (x, y)), colour))
             .map_err(|x| e(&x))?
             .label(name)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour));
+            .legend(line_key(18, colour));
         chart
             .draw_series(own.iter().map(|&(x, y, valid)| -> DynElement<DB, (f64, f64)> {
                 if valid {
@@ -209,7 +197,7 @@ fn stability_chart<DB: DrawingBackend>(
 /// what was left out, the JSON names it).
 pub fn write_psf_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    report: &BenchReport,
+    report: &PsfBenchResults,
 ) -> Result<Vec<String>> {
     let points = &report.points;
     write_png_chart(&path_for("speed_accuracy.png"), 1000, 650, |r| speed_chart(r, report))?;
@@ -237,7 +225,7 @@ fn error_class(error: f64, tolerance: f64) -> (RGBColor, &'static str) {
 
 fn stability_map_chart<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
-    report: &StabilityReport,
+    report: &StabilityBenchResults,
     map: &StabilityMap,
 ) -> std::result::Result<(), String> {
     let e = |x: &dyn std::fmt::Display| x.to_string();
@@ -271,15 +259,10 @@ fn stability_map_chart<DB: DrawingBackend>(
     } else {
         format!("Fresnel number (D/2)^2 / (lambda g), g = d_s swept, {:.0} nm", map.cells[0].wavelength * 1e9)
     };
-    let mut chart = ChartBuilder::on(root)
-        .caption(caption, (FONT, 17))
-        .margin(12)
-        .x_label_area_size(45)
-        .y_label_area_size(70)
+    let mut chart = frame(root, caption, 17, 12, [45, 70])
         .build_cartesian_2d(x_range.log_scale(), y_lo - 0.08 * (y_hi - y_lo)..y_hi + 0.12 * (y_hi - y_lo))
         .map_err(|x| e(&x))?;
-    chart
-        .configure_mesh()
+    mesh(&mut chart, 13, 13, GridLines::Labels)
         .x_desc(if map.method == "matrix_dft" {
             "pupil pitch / (lambda F#)   (the matrix DFT never samples the lens phase)"
         } else {
@@ -289,8 +272,6 @@ fn stability_map_chart<DB: DrawingBackend>(
         .x_labels(8)
         .x_label_formatter(&|v| format!("{v:.2}"))
         .y_label_formatter(&|v| format!("{v:.0}"))
-        .light_line_style(WHITE)
-        .label_style((FONT, 13))
         .draw()
         .map_err(|x| e(&x))?;
     let (y0, y1) = (y_lo - 0.08 * (y_hi - y_lo), y_hi + 0.12 * (y_hi - y_lo));
@@ -298,7 +279,7 @@ fn stability_map_chart<DB: DrawingBackend>(
         .draw_series(LineSeries::new([(map.limit_x, y0), (map.limit_x, y1)], BLACK.stroke_width(2)))
         .map_err(|x| e(&x))?
         .label(map.limit.as_str())
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.stroke_width(2)));
+        .legend(line_key(18, BLACK.stroke_width(2)));
     if by_wavelength {
         for (k, p) in report.paper.iter().enumerate() {
             let x = p.lens_sampling_ratio;
@@ -329,7 +310,7 @@ fn stability_map_chart<DB: DrawingBackend>(
             .draw_series(LineSeries::new(own, BLUE.stroke_width(1)))
             .map_err(|x| e(&x))?
             .label(format!("the DOE's own {:.0} um samples (left: nested in them)", STEPPED_DOE_PITCH * 1e6))
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.stroke_width(1)));
+            .legend(line_key(18, BLUE.stroke_width(1)));
     }
     for class in 0..4 {
         let tol = report.tolerance;
@@ -373,7 +354,7 @@ fn stability_map_chart<DB: DrawingBackend>(
 /// returns the names.
 pub fn write_stability_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    report: &StabilityReport,
+    report: &StabilityBenchResults,
 ) -> Result<Vec<String>> {
     let mut names = Vec::new();
     for map in &report.maps {
@@ -396,7 +377,7 @@ pub fn write_stability_charts(
 
 fn spectral_chart<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
-    report: &SpectralReport,
+    report: &SpectralBenchResults,
 ) -> std::result::Result<(), String> {
     let e = |x: &dyn std::fmt::Display| x.to_string();
     root.fill(&WHITE).map_err(|x| e(&x))?;
@@ -411,11 +392,7 @@ fn spectral_chart<DB: DrawingBackend>(
         .chain(report.plans.iter().filter_map(|p| p.samples))
         .max()
         .unwrap_or(1) as f64;
-    let mut chart = ChartBuilder::on(root)
-        .caption(caption, (FONT, 17))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(70)
+    let mut chart = frame(root, caption, 17, 12, [40, 70])
         .build_cartesian_2d(
             (0.8..n_max * 1.25).log_scale(),
             log_range(
@@ -428,13 +405,11 @@ fn spectral_chart<DB: DrawingBackend>(
             .log_scale(),
         )
         .map_err(|x| e(&x))?;
-    chart
-        .configure_mesh()
+    mesh(&mut chart, 13, 13, GridLines::Full)
         .x_desc("sub-bands per band N (midpoint rule; time = N monochromatic runs)")
         .y_desc("relative L2 error of the band's PSF")
         .x_label_formatter(&|v| format!("{v:.0}"))
         .y_label_formatter(&|v| format!("{v:.0e}"))
-        .label_style((FONT, 13))
         .draw()
         .map_err(|x| e(&x))?;
     let colours = [RED, GREEN, BLUE, MAGENTA, CYAN, BLACK];
@@ -450,7 +425,7 @@ fn spectral_chart<DB: DrawingBackend>(
             .draw_series(LineSeries::new(series.iter().map(|p| (p.0, p.1)), colour.stroke_width(2)))
             .map_err(|x| e(&x))?
             .label(format!("band {band}: measured"))
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
+            .legend(line_key(16, colour.stroke_width(2)));
         chart
             .draw_series(series.iter().map(|p| Circle::new((p.0, p.1), 4, colour.filled())))
             .map_err(|x| e(&x))?;
@@ -510,7 +485,7 @@ fn spectral_chart<DB: DrawingBackend>(
 /// Writes `spectral.{png,svg}` at `path_for(name)`; returns the names.
 pub fn write_spectral_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    report: &SpectralReport,
+    report: &SpectralBenchResults,
 ) -> Result<Vec<String>> {
     if report.points.is_empty() {
         return Err(Error::Data("the spectral sweep has no runs to chart".into()));
@@ -563,7 +538,7 @@ mod tests {
             cheapest_adequate: Some("matrix_dft f64 s=2".into()),
             time_ratio: Some(0.75),
         };
-        let mut report = BenchReport {
+        let mut report = PsfBenchResults {
             units: String::new(),
             doe_samples: 112,
             doe_pitch: 5e-6,

@@ -1,12 +1,16 @@
 //! The charts' shared style: every chart is drawn twice from one drawing function, once into
 //! an RGB buffer written as PNG (atomically) and once as SVG; text uses DejaVu Sans, embedded
 //! in the binary (`assets/fonts/`, Bitstream Vera licence), so charts look the same on every
-//! machine and need no system fonts. Log axes ([`log_span`], [`log_label`]), legends
-//! ([`draw_legend`], [`key_entry`], [`dashed_legend`]) and the error of a failed drawing are
-//! here.
+//! machine and need no system fonts. A chart's frame ([`frame`]), its mesh and grid lines
+//! ([`mesh`], [`GridLines`], [`secondary_axes`]), log axes ([`log_span`], [`log_label`]), legends
+//! ([`draw_legend`], [`key_entry`], [`line_key`], [`dashed_legend`]) and the error of a failed
+//! drawing are here.
 
 use std::path::Path;
 
+use plotters::chart::{DualCoordChartContext, MeshStyle, SecondaryMeshStyle};
+use plotters::coord::ranged1d::ValueFormatter;
+use plotters::coord::{CoordTranslate, Shift};
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
@@ -30,6 +34,87 @@ pub fn register_font() {
 
 fn chart_error(path: &Path, e: impl std::fmt::Display) -> Error {
     Error::format(path, format!("drawing the chart failed: {e}"))
+}
+
+/// A chart's frame: `caption` in the embedded font at `caption_size` pt, `margin` pixels all
+/// round and label areas `[below, left]` pixels deep.
+pub fn frame<'a, 'b, DB: DrawingBackend>(
+    area: &'a DrawingArea<DB, Shift>,
+    caption: impl AsRef<str>,
+    caption_size: u32,
+    margin: u32,
+    [below, left]: [u32; 2],
+) -> ChartBuilder<'a, 'b, DB> {
+    let mut builder = ChartBuilder::on(area);
+    builder
+        .caption(caption, (FONT, caption_size))
+        .margin(margin)
+        .x_label_area_size(below)
+        .y_label_area_size(left);
+    builder
+}
+
+/// The grid lines of a chart's mesh.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GridLines {
+    /// plotters' own: a line at every label and light lines between.
+    Full,
+    /// A line at every label only (the light lines drawn white).
+    Labels,
+    /// A faint line at every label only, for log axes, whose light lines crowd every decade.
+    Faint,
+}
+
+/// A chart's mesh in the embedded font: tick labels at `label` pt, axis descriptions at `desc`
+/// pt, and `grid`'s lines.
+pub fn mesh<'a, 'b, DB, X, Y, XT, YT>(
+    chart: &'b mut ChartContext<'a, DB, Cartesian2d<X, Y>>,
+    label: u32,
+    desc: u32,
+    grid: GridLines,
+) -> MeshStyle<'a, 'b, X, Y, DB>
+where
+    DB: DrawingBackend,
+    X: Ranged<ValueType = XT> + ValueFormatter<XT>,
+    Y: Ranged<ValueType = YT> + ValueFormatter<YT>,
+{
+    let mut mesh = chart.configure_mesh();
+    mesh.label_style((FONT, label)).axis_desc_style((FONT, desc));
+    match grid {
+        GridLines::Full => {}
+        GridLines::Labels => {
+            mesh.light_line_style(WHITE);
+        }
+        GridLines::Faint => {
+            mesh.light_line_style(TRANSPARENT).bold_line_style(BLACK.mix(0.15));
+        }
+    }
+    mesh
+}
+
+/// The right-hand axis of a chart with two y axes, in the fonts of [`mesh`].
+pub fn secondary_axes<'a, 'b, DB, CT, X, Y, XT, YT>(
+    chart: &'b mut DualCoordChartContext<'a, DB, CT, Cartesian2d<X, Y>>,
+    label: u32,
+    desc: u32,
+) -> SecondaryMeshStyle<'a, 'b, X, Y, DB>
+where
+    DB: DrawingBackend,
+    CT: CoordTranslate,
+    X: Ranged<ValueType = XT> + ValueFormatter<XT>,
+    Y: Ranged<ValueType = YT> + ValueFormatter<YT>,
+{
+    let mut axes = chart.configure_secondary_axes();
+    axes.label_style((FONT, label)).axis_desc_style((FONT, desc));
+    axes
+}
+
+/// The legend sample of a line series: a line `length` pixels long in `style`.
+pub fn line_key<S: Into<ShapeStyle> + Copy>(
+    length: i32,
+    style: S,
+) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
+    move |(x, y)| PathElement::new([(x, y), (x + length, y)], style)
 }
 
 /// A log axis's range: the positive finite `values` widened by the factor `pad` each way, or

@@ -4,7 +4,7 @@
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::style::{write_png_chart, write_svg_chart, FONT};
+use super::style::{frame, line_key, mesh, write_png_chart, write_svg_chart, GridLines, FONT};
 use crate::bench::tiling::TilingBench;
 use crate::error::Result;
 
@@ -35,31 +35,26 @@ fn chart<DB: DrawingBackend>(
 
     // Left: error against overlap, one line per tile; the receptive radius as a line.
     let max_overlap = r.options.overlaps.iter().copied().max().unwrap_or(128).max(r.receptive_radius) as f64;
-    let mut c = ChartBuilder::on(&panels[0])
-        .caption("error against overlap (one line per tile)", (FONT, 15))
-        .margin(10)
-        .x_label_area_size(36)
-        .y_label_area_size(60)
+    let mut c = frame(&panels[0], "error against overlap (one line per tile)", 15, 10, [36, 60])
         .build_cartesian_2d(-4.0..max_overlap + 8.0, (ylo..yhi).log_scale())
         .map_err(|x| e(&x))?;
-    c.configure_mesh()
+    mesh(&mut c, 12, 12, GridLines::Full)
         .x_desc("overlap, px")
         .y_desc("relative L2 to the f64 one-pass output")
         .y_label_formatter(&|v| format!("{v:.0e}"))
-        .label_style((FONT, 12))
         .draw()
         .map_err(|x| e(&x))?;
     let rr = r.receptive_radius as f64;
     c.draw_series(LineSeries::new([(rr, ylo), (rr, yhi)], BLACK.stroke_width(1)))
         .map_err(|x| e(&x))?
         .label(format!("receptive radius {} px", r.receptive_radius))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
+        .legend(line_key(18, BLACK));
     if let Some(p) = one_pass {
         let f = p.relative_l2.max(FLOOR);
         c.draw_series(LineSeries::new([(-4.0, f), (max_overlap + 8.0, f)], RED.stroke_width(1)))
             .map_err(|x| e(&x))?
             .label("f32 one pass")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED));
+            .legend(line_key(18, RED));
     }
     for (k, &tile) in tiles.iter().enumerate() {
         let colour = palette[k % palette.len()];
@@ -72,7 +67,7 @@ fn chart<DB: DrawingBackend>(
         c.draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
             .map_err(|x| e(&x))?
             .label(format!("tile {tile}"))
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
+            .legend(line_key(18, colour.stroke_width(2)));
         c.draw_series(pts.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map_err(|x| e(&x))?;
     }
     super::style::draw_legend(&mut c, SeriesLabelPosition::UpperRight, 12)?;
@@ -80,19 +75,14 @@ fn chart<DB: DrawingBackend>(
     // Right: error against time.
     let std::ops::Range { start: tlo, end: thi } =
         super::style::log_span(r.runs.iter().map(|p| p.seconds).chain([r.reference_seconds]), 1.5, 0.1..10.0);
-    let mut c = ChartBuilder::on(&panels[1])
-        .caption("error against time (label: tile/overlap)", (FONT, 15))
-        .margin(10)
-        .x_label_area_size(36)
-        .y_label_area_size(60)
+    let mut c = frame(&panels[1], "error against time (label: tile/overlap)", 15, 10, [36, 60])
         .build_cartesian_2d((tlo..thi).log_scale(), (ylo..yhi).log_scale())
         .map_err(|x| e(&x))?;
-    c.configure_mesh()
+    mesh(&mut c, 12, 12, GridLines::Full)
         .x_desc("time, s (2 threads)")
         .y_desc("relative L2 to the f64 one-pass output")
         .x_label_formatter(&|v| super::style::log_label(*v, super::style::short))
         .y_label_formatter(&|v| format!("{v:.0e}"))
-        .label_style((FONT, 12))
         .draw()
         .map_err(|x| e(&x))?;
     for p in &r.runs {

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::style::{write_png_chart, write_svg_chart, FONT};
+use super::style::{frame, line_key, mesh, secondary_axes, write_png_chart, write_svg_chart, GridLines};
 use crate::bench::finetune_time::TimedFinetune;
 use crate::decoder::finetune::HistoryEntry;
 use crate::error::{Error, Result};
@@ -32,38 +32,27 @@ pub fn write_training_chart(path: &Path, history: &[HistoryEntry]) -> Result<()>
     let (plo, phi) = if plo.is_finite() { (plo - 0.5, phi + 0.5) } else { (0.0, 1.0) };
     write_png_chart(path, 900, 500, |root| {
         let e = |e: &dyn std::fmt::Display| e.to_string();
-        let mut chart = ChartBuilder::on(root)
-            .caption("Decoder fine-tuning", (FONT, 22))
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(70)
+        let mut chart = frame(root, "Decoder fine-tuning", 22, 12, [40, 70])
             .right_y_label_area_size(70)
             .build_cartesian_2d(0.0..last, (lo..hi).log_scale())
             .map_err(|x| e(&x))?
             .set_secondary_coord(0.0..last, plo..phi);
-        chart
-            .configure_mesh()
+        mesh(&mut chart, 13, 13, GridLines::Full)
             .x_desc("step")
             .y_desc("training loss (sqrt domain)")
-            .label_style((FONT, 13))
             .draw()
             .map_err(|x| e(&x))?;
-        chart
-            .configure_secondary_axes()
-            .y_desc("validation PSNR, dB")
-            .label_style((FONT, 13))
-            .draw()
-            .map_err(|x| e(&x))?;
+        secondary_axes(&mut chart, 13, 13).y_desc("validation PSNR, dB").draw().map_err(|x| e(&x))?;
         chart
             .draw_series(LineSeries::new(losses.iter().copied(), &BLUE))
             .map_err(|x| e(&x))?
             .label("training loss")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE));
+            .legend(line_key(18, BLUE));
         chart
             .draw_secondary_series(LineSeries::new(psnr.iter().copied(), RED.stroke_width(2)))
             .map_err(|x| e(&x))?
             .label("validation PSNR")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED));
+            .legend(line_key(18, RED));
         chart
             .draw_secondary_series(psnr.iter().map(|&p| Circle::new(p, 3, RED.filled())))
             .map_err(|x| e(&x))?;
@@ -88,47 +77,45 @@ fn finetune_time_chart<DB: DrawingBackend>(
         return Err("no validation to chart".into());
     }
     let pad = ((hi - lo) * 0.15).max(0.1);
-    let mut c = ChartBuilder::on(root)
-        .caption(
-            format!(
-                "Fine-tuning {} on {}: held-out validation PSNR against training time",
-                r.init.split(' ').next().unwrap_or(""),
-                r.training_data
-            ),
-            (FONT, 16),
-        )
-        .margin(12)
-        .x_label_area_size(44)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.0..last * 1.05, (lo - pad)..(hi + pad))
-        .map_err(|x| e(&x))?;
+    let mut c = frame(
+        root,
+        format!(
+            "Fine-tuning {} on {}: held-out validation PSNR against training time",
+            r.init.split(' ').next().unwrap_or(""),
+            r.training_data
+        ),
+        16,
+        12,
+        [44, 60],
+    )
+    .build_cartesian_2d(0.0..last * 1.05, (lo - pad)..(hi + pad))
+    .map_err(|x| e(&x))?;
     let x_desc = format!(
         "training time, minutes of wall clock on {} threads ({} steps of {} x {}^2, {:.2} s a step)",
         r.threads, r.steps, r.batch, r.crop, r.seconds_per_step
     );
-    c.configure_mesh()
+    mesh(&mut c, 12, 12, GridLines::Full)
         .x_desc(x_desc)
         .y_desc("validation PSNR, dB")
-        .label_style((FONT, 12))
         .draw()
         .map_err(|x| e(&x))?;
     let (start, best) = r.start_and_best();
     c.draw_series(LineSeries::new([(0.0, start), (last * 1.05, start)], BLACK.stroke_width(1)))
         .map_err(|x| e(&x))?
         .label(format!("the start, {start:.2} dB"))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
+        .legend(line_key(18, BLACK));
     let line: Vec<(f64, f64)> = r.points.iter().map(|p| (minutes(p.seconds), p.val_psnr)).collect();
     c.draw_series(LineSeries::new(line.clone(), BLUE.stroke_width(2)))
         .map_err(|x| e(&x))?
         .label(format!("fine-tuned, best {best:.2} dB"))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.stroke_width(2)));
+        .legend(line_key(18, BLUE.stroke_width(2)));
     c.draw_series(line.iter().map(|&p| Circle::new(p, 4, BLUE.filled()))).map_err(|x| e(&x))?;
     if let Some(s) = r.half_gain_seconds() {
         let at = minutes(s);
         c.draw_series(LineSeries::new([(at, lo - pad), (at, hi + pad)], RED.stroke_width(1)))
             .map_err(|x| e(&x))?
             .label(format!("half the gain, {s:.0} s"))
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED));
+            .legend(line_key(18, RED));
     }
     super::style::draw_legend(&mut c, SeriesLabelPosition::LowerRight, 12)?;
     Ok(())

@@ -194,10 +194,10 @@ pub fn merge(cli: &Cli, a: &MergeArgs) -> Result<()> {
     let out = merge(&opts, &mut report_to(&pb))?;
     pb.finish_and_clear();
     warn(&out.response_warnings);
-    warn(&out.report.warnings);
+    warn(&out.stats.warnings);
     warn(&out.tone_map.warnings);
     print_result(cli, &out, || {
-        print_merge(&out.report, output);
+        print_merge(&out.stats, output);
         println!(
             "  tone-mapped at EV {} ({:.1} % white) -> {}",
             out.tone_map.ev,
@@ -349,7 +349,7 @@ fn print_local_registration(
 }
 
 /// A merge: the radiance image and, per frame, its listed and used exposure (s), saturation and agreement.
-fn print_merge(r: &doefab::calibration::hdr_merge::MergeReport, output: &Path) {
+fn print_merge(r: &doefab::calibration::hdr_merge::MergeStats, output: &Path) {
     println!(
         "{} x {} x {} radiance ({}) -> {}",
         r.shape[1],

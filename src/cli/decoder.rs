@@ -234,10 +234,10 @@ pub fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
     let png = png.clone().unwrap_or_else(|| output.with_extension("png"));
     let selected = doefab::decoder::select_device(*gpu)?;
     let mut report = reconstruct_file(capture, decoder, output, &png, *ev, &opts, &selected.device)?;
-    report.report.warnings.extend(selected.warnings);
-    warn(&report.report.warnings);
+    report.stats.warnings.extend(selected.warnings);
+    warn(&report.stats.warnings);
     print_result(cli, &report, || {
-        let r = &report.report;
+        let r = &report.stats;
         println!(
             "{} x {} in {} pass(es); raw minimum {:.3}, {} values < 0 and {} < -1 ({}) -> {}, {}",
             r.cols,
@@ -404,7 +404,7 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
     let outcome = bench_decoder(&opts, output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     warn(&outcome.warnings);
-    let report = &outcome.report;
+    let report = &outcome.results;
     print_result(cli, &outcome, || {
         println!(
             "{:<16} {:<52} {:>8} {:>15} {:>15} {:>9} {:>10}",

@@ -35,7 +35,7 @@ pub fn demo(cli: &Cli, a: &DemoArgs) -> Result<()> {
 }
 
 /// Where the demo wrote each stage's outputs, and the comparison's and calibration's figures.
-fn print_demo(r: &doefab::demo::DemoReport) {
+fn print_demo(r: &doefab::demo::DemoOutcome) {
     let dirs = &r.folders;
     for ((name, out), fab) in dirs.fabrication.iter().zip(&r.fabrication) {
         println!("{name}: {}", out.join("report.md").display());

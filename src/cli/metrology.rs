@@ -371,7 +371,7 @@ pub fn compare_profile(cli: &Cli, a: &CompareProfileArgs) -> Result<()> {
 }
 
 /// A profile comparison, or a profile's terraces, for a person (lengths in um, heights in nm).
-fn print_profile(r: &doefab::pipeline::compare_profile::ProfileReport, output: Option<&Path>) {
+fn print_profile(r: &doefab::pipeline::compare_profile::CompareProfileOutcome, output: Option<&Path>) {
     println!(
         "{} points ({} measured), step {:.4} um, length {:.2} um; levelled by {}: slope {:.4e}, rms {:.2} nm \
          over {} points",
@@ -483,7 +483,7 @@ fn compare_scan(
     aperture: Option<f64>,
     psf: Option<(doefab::optics::Method, doefab::optics::Options)>,
     output: &Path,
-) -> Result<doefab::pipeline::compare::CompareReport> {
+) -> Result<doefab::pipeline::compare::CompareOutcome> {
     let pb = progress(cli, 4);
     let report = doefab::pipeline::compare::compare_scan_file(
         scan_path,
@@ -503,7 +503,7 @@ fn compare_scan(
 }
 
 /// Prints the warnings of a scan comparison: the scan reader's, the comparison's, the PSFs'.
-pub fn warn_comparison(r: &doefab::pipeline::compare::CompareReport) {
+pub fn warn_comparison(r: &doefab::pipeline::compare::CompareOutcome) {
     warn(&r.scan_warnings);
     warn(&r.comparison.warnings);
     if let Some(p) = &r.psf {
@@ -512,7 +512,7 @@ pub fn warn_comparison(r: &doefab::pipeline::compare::CompareReport) {
 }
 
 /// A scan comparison: registration, error over the aperture (nm), fabrication model, levels, efficiency, PSFs.
-pub fn print_comparison(r: &doefab::pipeline::compare::CompareReport, output: &Path) {
+pub fn print_comparison(r: &doefab::pipeline::compare::CompareOutcome, output: &Path) {
     let c = &r.comparison;
     let g = &c.registration;
     let searched: Vec<String> =

@@ -584,7 +584,7 @@ pub struct Trainer<'a> {
 
 /// What one step reports to the caller (for a progress bar).
 #[derive(Debug, Clone, PartialEq)]
-pub struct StepReport {
+pub struct StepStats {
     pub step: usize,
     pub steps: usize,
     pub loss: f64,
@@ -990,7 +990,7 @@ impl<'a> Trainer<'a> {
     /// Runs to the configured step count, validating and checkpointing into `out` every
     /// `checkpoint_every` steps and at the end; `on_step` sees every step. With `patience`
     /// set, stops early after that many validations without a new best.
-    pub fn run(&mut self, out: &Path, on_step: &mut dyn FnMut(&StepReport)) -> Result<()> {
+    pub fn run(&mut self, out: &Path, on_step: &mut dyn FnMut(&StepStats)) -> Result<()> {
         std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
         while self.step < self.cfg.steps {
             let loss = self.train_step()?;
@@ -999,7 +999,7 @@ impl<'a> Trainer<'a> {
                 val_psnr = Some(self.evaluate()?);
                 self.write_checkpoint(&out.join(CHECKPOINT))?;
             }
-            on_step(&StepReport { step: self.step, steps: self.cfg.steps, loss, val_psnr });
+            on_step(&StepStats { step: self.step, steps: self.cfg.steps, loss, val_psnr });
             if self.stopped_early() {
                 break;
             }
@@ -1105,7 +1105,7 @@ pub struct FinetuneOutcome {
 
 /// Runs a fine-tuning job into `job.output` (see the module docs): `on_step` sees every
 /// step. A run that stops on an error leaves the last good checkpoint and says so.
-pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepReport)) -> Result<FinetuneOutcome> {
+pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepStats)) -> Result<FinetuneOutcome> {
     let psf = Psf::read(&job.psf, job.psf_key.as_deref(), Some(job.pitch))?;
     let psf_sha = crate::io::file_sha256(&job.psf)?;
     let scenes = TrainingScenes::new(

@@ -78,9 +78,9 @@ impl Default for ReconstructOptions {
     }
 }
 
-/// What happened during a reconstruction (for the JSON report).
+/// What happened during a reconstruction (in `doefab reconstruct`'s JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ReconstructReport {
+pub struct ReconstructStats {
     pub rows: usize,
     pub cols: usize,
     /// Size fed to the network: the border context added, then padded to multiples of 16.
@@ -193,7 +193,7 @@ pub fn reconstruct(
     net: &UNet,
     x: &Image<f32>,
     opts: &ReconstructOptions,
-) -> Result<(Image<f32>, ReconstructReport)> {
+) -> Result<(Image<f32>, ReconstructStats)> {
     let (h, w, c) = x.dim();
     if c != 3 || h == 0 || w == 0 {
         return Err(Error::param("capture", format!("is {h} x {w} x {c}; an RGB image is needed")));
@@ -221,7 +221,7 @@ pub fn reconstruct(
         y.mapv_inplace(|v| v.max(0.0));
     }
     let max = y.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-    let report = ReconstructReport {
+    let report = ReconstructStats {
         rows: h,
         cols: w,
         padded_rows: ph,
@@ -237,9 +237,9 @@ pub fn reconstruct(
     Ok((Image::new(y), report))
 }
 
-/// A reconstruction written to disk (the command's JSON report).
+/// A reconstruction written to disk (`doefab reconstruct`'s JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ReconstructFileReport {
+pub struct ReconstructOutcome {
     pub capture: String,
     pub decoder: String,
     pub decoder_sha256: String,
@@ -248,7 +248,7 @@ pub struct ReconstructFileReport {
     pub ev: f64,
     pub options: ReconstructOptions,
     #[serde(flatten)]
-    pub report: ReconstructReport,
+    pub stats: ReconstructStats,
 }
 
 /// Reads `capture`, reconstructs it with the decoder file `decoder` on `device`, writes the
@@ -262,11 +262,11 @@ pub fn reconstruct_file(
     ev: f64,
     opts: &ReconstructOptions,
     device: &burn::tensor::Device,
-) -> Result<ReconstructFileReport> {
+) -> Result<ReconstructOutcome> {
     let x = read_capture(capture)?;
     let weights = crate::decoder::weights::DecoderWeights::read(decoder)?;
     let net = UNet::from_weights(&weights, device);
-    let (y, report) = reconstruct(&net, &x, opts)?;
+    let (y, stats) = reconstruct(&net, &x, opts)?;
     let decoder_sha256 = crate::decoder::weights::decoder_sha256(decoder)?;
     let text = vec![
         ("quantity".to_string(), "linear HDR radiance, 1 = sensor clipping level of the capture".to_string()),
@@ -280,7 +280,7 @@ pub fn reconstruct_file(
     crate::io::exr::write_exr(exr, &[("R", &channels[0]), ("G", &channels[1]), ("B", &channels[2])], &meta)?;
     let png_meta = meta.with("tone_map", format!("sRGB of clip(y * 2^{ev}, 0, 1)"));
     crate::io::png::write_png_image_u8(png_path, &tone_map(&y, ev), &png_meta)?;
-    Ok(ReconstructFileReport {
+    Ok(ReconstructOutcome {
         capture: capture.display().to_string(),
         decoder: decoder.display().to_string(),
         decoder_sha256,
@@ -288,7 +288,7 @@ pub fn reconstruct_file(
         png: png_path.display().to_string(),
         ev,
         options: *opts,
-        report,
+        stats,
     })
 }
 

@@ -8,17 +8,17 @@ use serde::Serialize;
 use crate::design::{ExampleParams, FresnelParams};
 use crate::error::{Error, Result};
 use crate::fabrication::contrast::ContrastCurve;
-use crate::fabrication::gds::{write_layer_previews, write_mask_set, MaskSetOptions, MaskSetReport};
+use crate::fabrication::gds::{write_layer_previews, write_mask_set, MaskSetOptions, MaskSetStats};
 use crate::fabrication::mask::{GrayscaleMask, MaskMeta, MaskOptions};
 use crate::fabrication::quantize::{
-    efficiency_table, feature_check, quantize, quantize_owned, EfficiencyRow, FeatureReport, QuantizeMethod,
+    efficiency_table, feature_check, quantize, quantize_owned, EfficiencyRow, FeatureStats, QuantizeMethod,
     Quantized,
 };
 use crate::fabrication::recipe::{Output, Recipe};
 use crate::fabrication::stl::{
-    level_heights, surface_mesh, surface_stl, write_stl_part, StlOptions, StlReport,
+    level_heights, surface_mesh, surface_stl, write_stl_part, StlOptions, StlStats,
 };
-use crate::fabrication::wrap::{wrap_owned, wrap_to_master_owned, WrapReport, WrapSpec};
+use crate::fabrication::wrap::{wrap_owned, wrap_to_master_owned, WrapSpec, WrapStats};
 use crate::fabrication::{Provenance, ReplicaMode};
 use crate::grid::fill::fill_missing;
 use crate::grid::{Grid, Unit};
@@ -158,8 +158,8 @@ impl ChainParams {
 pub struct Shaped {
     /// Wrapped heights of the surface to make (the master in master mode), metres.
     pub surface: Grid,
-    pub wrap: WrapReport,
-    pub features: FeatureReport,
+    pub wrap: WrapStats,
+    pub features: FeatureStats,
     pub filled_samples: usize,
     pub warnings: Vec<String>,
     pub provenance: Provenance,
@@ -168,10 +168,10 @@ pub struct Shaped {
 /// Everything the chain computes before writing artifacts.
 #[derive(Debug, Clone)]
 pub struct Prepared {
-    pub wrap: WrapReport,
+    pub wrap: WrapStats,
     pub quantized: Quantized,
     pub efficiency: Vec<EfficiencyRow>,
-    pub features: FeatureReport,
+    pub features: FeatureStats,
     pub filled_samples: usize,
     pub warnings: Vec<String>,
     pub provenance: Provenance,
@@ -361,18 +361,18 @@ fn level_map_from_raw(path: &Path, raw: RawMap) -> Result<LevelMap> {
 
 /// Result of `doefab wrap`.
 #[derive(Debug, Clone, Serialize)]
-pub struct WrapFileReport {
-    pub wrap: WrapReport,
+pub struct WrapOutcome {
+    pub wrap: WrapStats,
     pub replica_mode: ReplicaMode,
     pub output: PathBuf,
     pub warnings: Vec<String>,
 }
 
 /// `doefab wrap`: wraps (and optionally inverts) a design and writes the heights.
-pub fn write_wrapped(design: LoadedDesign, p: &ChainParams, output: &Path) -> Result<WrapFileReport> {
+pub fn write_wrapped(design: LoadedDesign, p: &ChainParams, output: &Path) -> Result<WrapOutcome> {
     let prepared = shape(design, p)?;
     write_height_map(output, &prepared.surface, &prepared.provenance)?;
-    Ok(WrapFileReport {
+    Ok(WrapOutcome {
         wrap: prepared.wrap,
         replica_mode: p.replica_mode,
         output: output.to_path_buf(),
@@ -382,19 +382,19 @@ pub fn write_wrapped(design: LoadedDesign, p: &ChainParams, output: &Path) -> Re
 
 /// Result of `doefab quantize`.
 #[derive(Debug, Clone, Serialize)]
-pub struct QuantizeFileReport {
+pub struct QuantizeOutcome {
     pub level_count: usize,
     pub method: QuantizeMethod,
     /// RMS height error of the quantized map, metres.
     pub rms_error: f64,
     pub efficiency: Vec<EfficiencyRow>,
-    pub features: FeatureReport,
+    pub features: FeatureStats,
     pub output: PathBuf,
     pub warnings: Vec<String>,
 }
 
 /// `doefab quantize`: reads wrapped heights written by `doefab wrap` and writes a level map.
-pub fn quantize_file(heights: &Path, p: &ChainParams, output: &Path) -> Result<QuantizeFileReport> {
+pub fn quantize_file(heights: &Path, p: &ChainParams, output: &Path) -> Result<QuantizeOutcome> {
     let raw = read_raw(heights, None)?;
     let mut provenance: Provenance = match raw.metadata.iter().find(|(k, _)| k == KEY_PROVENANCE) {
         Some((_, v)) => serde_json::from_str(v)
@@ -423,7 +423,7 @@ pub fn quantize_file(heights: &Path, p: &ChainParams, output: &Path) -> Result<Q
             features.min_terrace_width * 1e6
         ));
     }
-    Ok(QuantizeFileReport {
+    Ok(QuantizeOutcome {
         level_count: p.level_count,
         method: p.quantization,
         rms_error: q.rms_error,
@@ -496,7 +496,7 @@ pub fn write_gds_set(
     job: &GdsJob,
     stem: &str,
     place: &mut dyn FnMut(&str) -> PathBuf,
-) -> Result<(MaskSetReport, Vec<(String, &'static str)>)> {
+) -> Result<(MaskSetStats, Vec<(String, &'static str)>)> {
     let GdsJob { levels, level_count, period, address_grid, mirror, max_vertices, provenance } = *job;
     let ext = levels.extent();
     let (nc, nr) = ((ext[0] / address_grid).round() as usize, (ext[1] / address_grid).round() as usize);
@@ -518,7 +518,7 @@ pub fn write_gds_set(
         kind: &'static str,
         units: &'static str,
         mirrored: bool,
-        mask_set: &'a MaskSetReport,
+        mask_set: &'a MaskSetStats,
         provenance: &'a Provenance,
     }
     let sidecar = Sidecar {
@@ -542,7 +542,7 @@ pub fn gds_file(
     mirror: bool,
     max_vertices: usize,
     output: &Path,
-) -> Result<MaskSetReport> {
+) -> Result<MaskSetStats> {
     let lm = read_level_map(levels)?;
     let dir = output.parent().map(Path::to_path_buf).unwrap_or_default();
     let stem =
@@ -562,7 +562,7 @@ pub fn gds_file(
 
 /// `doefab stl`: the STL of a level map (from `doefab quantize`) or of wrapped heights (from
 /// `doefab wrap`); which one is read from the file's `quantity` metadata.
-pub fn stl_file(input: &Path, opts: &StlOptions, output: &Path) -> Result<StlReport> {
+pub fn stl_file(input: &Path, opts: &StlOptions, output: &Path) -> Result<StlStats> {
     let heights = surface_from_raw(input, read_raw(input, None)?, &ReadOptions::default())?;
     surface_stl(&heights, opts, output)
 }
@@ -579,7 +579,7 @@ pub struct FabOptions {
 
 /// Everything `doefab fab` did, written as `report.json` (and summarised in `report.md`).
 #[derive(Debug, Clone, Serialize)]
-pub struct FabReport {
+pub struct FabOutcome {
     pub recipe: String,
     pub recipe_path: PathBuf,
     pub units: std::collections::BTreeMap<String, String>,
@@ -588,15 +588,15 @@ pub struct FabReport {
     pub design_size: [usize; 2],
     /// `[x, y]` design pitch, metres.
     pub design_pitch_m: [f64; 2],
-    pub wrap: WrapReport,
+    pub wrap: WrapStats,
     pub level_count: usize,
     /// RMS height error of the quantized surface, metres.
     pub quantization_rms_error_m: f64,
     pub efficiency: Vec<EfficiencyRow>,
-    pub features: FeatureReport,
+    pub features: FeatureStats,
     pub mask: Option<MaskMeta>,
-    pub gds: Option<MaskSetReport>,
-    pub stl: Option<StlReport>,
+    pub gds: Option<MaskSetStats>,
+    pub stl: Option<StlStats>,
     pub warnings: Vec<String>,
     pub artifacts: Vec<Artifact>,
 }
@@ -615,7 +615,7 @@ pub fn run_recipe(
     out_dir: &Path,
     opts: &FabOptions,
     progress: &mut dyn FnMut(&str),
-) -> Result<FabReport> {
+) -> Result<FabOutcome> {
     let design = load_design(source)?;
     progress("design loaded");
     let params = ChainParams::of_recipe(recipe, opts.fill);
@@ -723,7 +723,7 @@ pub fn run_recipe(
     ] {
         units.insert(k.to_string(), v.to_string());
     }
-    let report = FabReport {
+    let report = FabOutcome {
         recipe: recipe.name.clone(),
         recipe_path: recipe.path.clone(),
         units,
@@ -759,7 +759,7 @@ fn level_preview(q: &Quantized) -> ndarray::Array2<u8> {
 }
 
 /// The human-readable summary of a fabrication run.
-pub fn report_markdown(r: &FabReport) -> String {
+pub fn report_markdown(r: &FabOutcome) -> String {
     use std::fmt::Write;
     let mut s = String::new();
     let _ = writeln!(s, "# Fabrication report: {}\n", r.recipe);

@@ -319,7 +319,7 @@ pub struct MaskLayer {
 
 /// What [`write_mask_set`] wrote.
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct MaskSetReport {
+pub struct MaskSetStats {
     pub library: String,
     pub structure: String,
     /// User unit and database unit, metres.
@@ -583,7 +583,7 @@ pub fn mask_set_gds(
     level_count: usize,
     period: f64,
     opts: &MaskSetOptions,
-) -> Result<(Vec<u8>, MaskSetReport)> {
+) -> Result<(Vec<u8>, MaskSetStats)> {
     if !(period.is_finite() && period > 0.0) {
         return Err(Error::param("period", format!("must be finite and positive, got {period} m")));
     }
@@ -622,7 +622,7 @@ pub fn mask_set_gds(
     gds.end_library()?;
     let m = |v: i64| v as f64 * DATABASE_UNIT;
     let e = frame.extent();
-    let report = MaskSetReport {
+    let report = MaskSetStats {
         library: LIBRARY_NAME.into(),
         structure: STRUCTURE_NAME.into(),
         user_unit: USER_UNIT,
@@ -650,7 +650,7 @@ pub fn write_mask_set(
     period: f64,
     opts: &MaskSetOptions,
     path: &Path,
-) -> Result<MaskSetReport> {
+) -> Result<MaskSetStats> {
     let (bytes, report) = mask_set_gds(levels, level_count, period, opts)?;
     write_bytes(path, &bytes)?;
     Ok(report)

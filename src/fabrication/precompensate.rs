@@ -170,7 +170,7 @@ impl Default for PrecompensateOptions {
 
 /// What the deconvolution did.
 #[derive(Debug, Clone, Serialize)]
-pub struct DeblurReport {
+pub struct DeblurStats {
     /// FISTA iterations run.
     pub iterations: usize,
     /// RMS of `G u - (t + p)`, metres: with `u = t + p` (no deconvolution) and at the end.
@@ -198,7 +198,7 @@ pub struct Precompensated {
     /// commanded as it is, and for `commanded`.
     pub rms_before: f64,
     pub rms_after: f64,
-    pub deblur: Option<DeblurReport>,
+    pub deblur: Option<DeblurStats>,
     pub warnings: Vec<String>,
 }
 
@@ -296,7 +296,7 @@ pub fn precompensate(
 }
 
 /// FISTA for `min |G u - b|^2` subject to `bounds[0] <= u <= bounds[1]` (module docs).
-fn deconvolve(b: &Grid, sigma: f64, bounds: [f64; 2], iterations: usize) -> Result<(Grid, DeblurReport)> {
+fn deconvolve(b: &Grid, sigma: f64, bounds: [f64; 2], iterations: usize) -> Result<(Grid, DeblurStats)> {
     let clamp = |v: f64| v.clamp(bounds[0], bounds[1]);
     let residual = |u: &Grid| -> Result<f64> { Ok(rms_plain(&gaussian_blur(u, sigma)?, b)) };
     let residual_before = residual(b)?;
@@ -324,7 +324,7 @@ fn deconvolve(b: &Grid, sigma: f64, bounds: [f64; 2], iterations: usize) -> Resu
     };
     let at = x.values().iter().zip(b.values()).filter(|(v, t)| held(**v, **t)).count();
     let n = x.values().len().max(1) as f64;
-    Ok((x, DeblurReport { iterations, residual_before, residual_after, at_bounds: at as f64 / n }))
+    Ok((x, DeblurStats { iterations, residual_before, residual_after, at_bounds: at as f64 / n }))
 }
 
 /// RMS of `a - b` over all samples.

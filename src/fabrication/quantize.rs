@@ -331,7 +331,7 @@ pub const UNDERSAMPLED_STEP: f64 = 0.4;
 
 /// Local zone periods against the writer's minimum feature.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-pub struct FeatureReport {
+pub struct FeatureStats {
     /// Smallest local zone period over the valid samples, metres (infinite for a flat map).
     pub min_zone_period: f64,
     /// Smallest zone period divided by N (by 1 for continuous profiles): the narrowest
@@ -354,7 +354,7 @@ pub struct FeatureReport {
 /// wrapped and unwrapped maps alike), and compares `Lambda / N` to `min_feature`. A 16-bit
 /// (continuous) profile has no terraces: its narrowest feature is a whole zone, so there the
 /// zone period itself is compared.
-pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_feature: f64) -> FeatureReport {
+pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_feature: f64) -> FeatureStats {
     let steps_per_zone = if level_count == LEVELS_16BIT { 1 } else { level_count } as f64;
     let (nr, nc) = heights.dim();
     let v = heights.values();
@@ -436,7 +436,7 @@ pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_featur
         .collect();
     let (min_period, below, steps, counted) =
         rows.iter().fold((f64::INFINITY, 0, 0, 0), |a, r| (a.0.min(r.0), a.1 + r.1, a.2 + r.2, a.3 + r.3));
-    FeatureReport {
+    FeatureStats {
         min_zone_period: min_period,
         min_terrace_width: min_period / steps_per_zone,
         min_feature,

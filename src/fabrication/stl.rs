@@ -119,9 +119,9 @@ impl Default for StlOptions {
     }
 }
 
-/// What [`write_stl`] wrote (serialisable for reports).
+/// What [`write_stl`] wrote (serialised into the commands' JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct StlReport {
+pub struct StlStats {
     /// Unit of the coordinates in the file.
     pub unit: StlUnit,
     /// The 80-byte header text (trailing padding removed).
@@ -261,7 +261,7 @@ pub fn surface_mesh(heights: &Grid, opts: &StlOptions) -> Result<Mesh> {
 }
 
 /// Meshes `heights` and writes the binary STL to `path`.
-pub fn surface_stl(heights: &Grid, opts: &StlOptions, path: &Path) -> Result<StlReport> {
+pub fn surface_stl(heights: &Grid, opts: &StlOptions, path: &Path) -> Result<StlStats> {
     let mesh = surface_mesh(heights, opts)?;
     write_stl(&mesh, opts.unit, path)
 }
@@ -326,12 +326,12 @@ fn header(mesh: &Mesh, unit: StlUnit, part: Option<&str>) -> [u8; 80] {
 /// Writes `mesh` as binary STL in `unit` (atomically) and reports what was written.
 /// Vertices are rounded to `f32` once, so shared vertices stay bit-identical; normals are
 /// computed from the rounded vertices.
-pub fn write_stl(mesh: &Mesh, unit: StlUnit, path: &Path) -> Result<StlReport> {
+pub fn write_stl(mesh: &Mesh, unit: StlUnit, path: &Path) -> Result<StlStats> {
     write_stl_part(mesh, unit, None, path)
 }
 
 /// [`write_stl`] with the part named in the header (`part=master` or `part=design`).
-pub fn write_stl_part(mesh: &Mesh, unit: StlUnit, part: Option<&str>, path: &Path) -> Result<StlReport> {
+pub fn write_stl_part(mesh: &Mesh, unit: StlUnit, part: Option<&str>, path: &Path) -> Result<StlStats> {
     let count = u32::try_from(mesh.triangles.len()).map_err(|_| {
         Error::Limit(format!(
             "{} triangles do not fit a binary STL (at most {})",
@@ -369,7 +369,7 @@ pub fn write_stl_part(mesh: &Mesh, unit: StlUnit, part: Option<&str>, path: &Pat
     })?;
     let (lo, hi) = mesh.bounds();
     let text = String::from_utf8_lossy(&head).trim_end().to_string();
-    Ok(StlReport {
+    Ok(StlStats {
         unit,
         header: text,
         surface: mesh.kind,

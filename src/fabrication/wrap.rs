@@ -52,7 +52,7 @@ impl WrapSpec {
 
 /// What wrapping did.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-pub struct WrapReport {
+pub struct WrapStats {
     /// Wrap period `p * h_2pi`, metres.
     pub period: f64,
     /// Index at the design wavelength.
@@ -74,24 +74,24 @@ pub struct WrapReport {
 /// exactly `P` (taken down to 0, phase-equivalent) or a hair below 0 (clamped to 0). Computed
 /// in parallel over row blocks; every figure of the report is a count or an extremum, the same
 /// however the rows are split.
-pub fn wrap(heights: &Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
+pub fn wrap(heights: &Grid, spec: &WrapSpec) -> Result<(Grid, WrapStats)> {
     wrap_owned(heights.clone(), spec)
 }
 
 /// [`wrap`] computed in the heights' own storage. A non-finite height stays non-finite in
 /// place (NaN), so the error names the same samples as for the input.
-pub fn wrap_owned(heights: Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
+pub fn wrap_owned(heights: Grid, spec: &WrapSpec) -> Result<(Grid, WrapStats)> {
     wrap_in_place(heights, spec, false)
 }
 
 /// [`wrap`] then [`into_master`] in one pass over the heights' own storage: each block of rows
 /// wrapped, complemented and reversed while it is in cache (the same bits as the two passes;
 /// the wrapped heights lie in `[0, P)`, so the master's range check cannot fail).
-pub fn wrap_to_master_owned(heights: Grid, spec: &WrapSpec) -> Result<(Grid, WrapReport)> {
+pub fn wrap_to_master_owned(heights: Grid, spec: &WrapSpec) -> Result<(Grid, WrapStats)> {
     wrap_in_place(heights, spec, true)
 }
 
-fn wrap_in_place(mut heights: Grid, spec: &WrapSpec, master: bool) -> Result<(Grid, WrapReport)> {
+fn wrap_in_place(mut heights: Grid, spec: &WrapSpec, master: bool) -> Result<(Grid, WrapStats)> {
     if heights.unit() != Unit::Metre {
         return Err(Error::param(
             "heights",
@@ -175,7 +175,7 @@ fn wrap_in_place(mut heights: Grid, spec: &WrapSpec, master: bool) -> Result<(Gr
     // No valid sample: the largest input height is reported as 0.
     let input_max_height = if input_max == f64::NEG_INFINITY { 0.0 } else { input_max };
     let report =
-        WrapReport { period, index: spec.index()?, wrapped_samples, max_wraps, input_max_height, max_height };
+        WrapStats { period, index: spec.index()?, wrapped_samples, max_wraps, input_max_height, max_height };
     Ok((heights, report))
 }
 

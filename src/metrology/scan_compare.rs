@@ -207,7 +207,7 @@ pub struct LevelStat {
     #[serde(deserialize_with = "null_as_nan")]
     pub std: f64,
     /// The level's height fitted with the part's blur over the terrace interiors of the
-    /// aperture, metres (see [`LevelReport`]); `None` where the fit is singular.
+    /// aperture, metres (see [`LevelHeights`]); `None` where the fit is singular.
     #[serde(default)]
     pub fitted_height: Option<f64>,
     /// Measured terrace-interior samples of this level inside the aperture (the fit's support).
@@ -224,7 +224,7 @@ pub struct LevelStat {
 /// `chi_l` the indicator of level `l` and `sigma` the fitted blur, by linear least squares in
 /// the `h_l` (without blur, the fit is the interior mean).
 #[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct LevelReport {
+pub struct LevelHeights {
     pub count: usize,
     /// Nominal step, metres.
     pub step: f64,
@@ -372,7 +372,7 @@ pub struct Comparison {
     pub mean_error: f64,
     pub rms_error: f64,
     pub pv_error: f64,
-    pub levels: Option<LevelReport>,
+    pub levels: Option<LevelHeights>,
     pub model: FabModel,
     pub efficiency: Vec<EfficiencyLoss>,
     pub warnings: Vec<String>,
@@ -716,7 +716,7 @@ fn level_stats(
     inside: &Array2<bool>,
     spec: LevelSpec,
     blur: f64,
-) -> Result<LevelReport> {
+) -> Result<LevelHeights> {
     if spec.count < 2 || !(spec.step.is_finite() && spec.step > 0.0) {
         return Err(Error::param(
             "levels",
@@ -776,7 +776,7 @@ fn level_stats(
     let m = step_heights.len() as f64;
     let mean_step = step_heights.iter().sum::<f64>() / m;
     let step_std = (step_heights.iter().map(|d| (d - mean_step).powi(2)).sum::<f64>() / (m - 1.0)).sqrt();
-    Ok(LevelReport {
+    Ok(LevelHeights {
         count: spec.count,
         step: spec.step,
         levels,
@@ -791,7 +791,7 @@ fn level_stats(
 /// multi-level part, not for the 65,536 "levels" of a continuous 16-bit surface).
 pub const MAX_FITTED_LEVELS: usize = 256;
 
-/// The level heights of [`LevelReport`]'s blurred-indicator fit, of the levels the design
+/// The level heights of [`LevelHeights`]'s blurred-indicator fit, of the levels the design
 /// holds (`None` for a level it does not hold, and for every level where the fit is singular:
 /// a level held with no measured sample in the aperture), and each level's measured samples
 /// there.

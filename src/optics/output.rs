@@ -30,24 +30,24 @@ pub const PEAKS: usize = 7;
 /// Decades shown by the log-scale PNG.
 pub const LOG_DECADES: f64 = 5.0;
 
-/// What `doefab psf` reports and writes as `psf.json`.
+/// What `doefab psf` prints and writes as `psf.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PsfReport {
+pub struct PsfOutcome {
     pub method: String,
     pub normalisation: String,
     pub system: OpticalSystem,
     /// The automatic plan that chose the configuration, when one did.
     pub plan: Option<Plan>,
-    pub channels: Vec<ChannelReport>,
+    pub channels: Vec<ChannelStats>,
     /// Validity conditions a forced run violated.
     pub warnings: Vec<String>,
     /// The files written, relative to the output folder.
     pub files: Vec<String>,
 }
 
-/// Per-channel numbers of [`PsfReport`].
+/// Per-channel numbers of [`PsfOutcome`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ChannelReport {
+pub struct ChannelStats {
     #[serde(flatten)]
     pub summary: ChannelSummary,
     /// Fraction of the channel inside `1.22 lambda F#` of its peak.
@@ -82,7 +82,7 @@ pub fn simulate_and_write(
     opts: &Options,
     notes: &[String],
     out: &Path,
-) -> Result<PsfReport> {
+) -> Result<PsfOutcome> {
     let mut psf = simulate(system, doe, method, opts)?;
     psf.warnings.splice(0..0, notes.iter().cloned());
     // The flat reference on an odd crop, so that its peak pixel sits on the axis.
@@ -100,7 +100,7 @@ pub fn plan_and_write(
     bands: &[Band],
     out: &Path,
     progress: &mut dyn FnMut(&str),
-) -> Result<PsfReport> {
+) -> Result<PsfOutcome> {
     let (psf, ran) = run_reporting(plan, doe, bands, progress)?;
     let odd =
         Plan { system: OpticalSystem { crop: ran.system.crop | 1, ..ran.system.clone() }, ..ran.clone() };
@@ -116,7 +116,7 @@ fn report_and_write(
     system: &OpticalSystem,
     plan: Option<&Plan>,
     out: &Path,
-) -> Result<PsfReport> {
+) -> Result<PsfOutcome> {
     let strehl: Vec<f64> = (0..psf.channels.len())
         .map(|c| {
             let a = psf.peak(c).0 * psf.channels[c].captured.unwrap_or(f64::NAN);
@@ -128,7 +128,7 @@ fn report_and_write(
         .summary()
         .into_iter()
         .enumerate()
-        .map(|(c, summary)| ChannelReport {
+        .map(|(c, summary)| ChannelStats {
             encircled_energy_airy: summary
                 .wavelength
                 .map(|l| psf.encircled_energy(c, summary.peak_position, 1.22 * l * f_number)),
@@ -144,7 +144,7 @@ fn report_and_write(
             summary,
         })
         .collect();
-    let mut report = PsfReport {
+    let mut report = PsfOutcome {
         method: psf.method.clone(),
         normalisation: "each channel sums to 1 over the crop".into(),
         system: system.clone(),
@@ -158,7 +158,7 @@ fn report_and_write(
 }
 
 /// Writes `psf.exr`, `psf.npy`, `psf_log.png` and `psf.json` into `out`, atomically as a folder.
-pub fn write_psf(psf: &Psf, report: &mut PsfReport, out: &Path) -> Result<()> {
+pub fn write_psf(psf: &Psf, report: &mut PsfOutcome, out: &Path) -> Result<()> {
     let mut stage = StagedDir::new(out)?;
     report.files = stage_psf_files(psf, &report.normalisation, &mut stage)?;
     report.files.push("psf.json".into());

@@ -6,12 +6,14 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::bench::decoder::{self as capture_bench, scene_dirs, BenchConfig, BenchReport, FinetuneBench};
-use crate::bench::fab::{self as fab_bench, FabBenchOptions, FabBenchReport};
-use crate::bench::forward::{ForwardOptions, ForwardReport};
+use crate::bench::decoder::{
+    self as capture_bench, scene_dirs, BenchConfig, DecoderBenchResults, FinetuneBench,
+};
+use crate::bench::fab::{self as fab_bench, FabBenchOptions, FabBenchResults};
+use crate::bench::forward::{ForwardBenchResults, ForwardOptions};
 use crate::bench::psf::{self as psf_bench, run_bench, steps, BenchOptions};
-use crate::bench::spectral::{self as spectral_bench, SpectralOptions, SpectralReport};
-use crate::bench::stability::{self, MapOptions, StabilityReport};
+use crate::bench::spectral::{self as spectral_bench, SpectralBenchResults, SpectralOptions};
+use crate::bench::stability::{self, MapOptions, StabilityBenchResults};
 use crate::calibration::capture_registration::{Model, RegisterOptions};
 use crate::calibration::evaluate::ScoringOptions;
 use crate::charts::decoder::{write_bench_chart, write_decoder_scene_chart, write_forward_chart};
@@ -48,7 +50,7 @@ pub fn bench_psf(
     opts: &PsfBenchOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<psf_bench::BenchReport> {
+) -> Result<psf_bench::PsfBenchResults> {
     let loaded = chain::load_design(&opts.design)?;
     let total = steps(&opts.bench) as u64;
     let mut done = 0;
@@ -69,7 +71,7 @@ pub fn run_psf_bench(
     opts: &PsfBenchOptions,
     heights: &crate::grid::Grid,
     tick: impl FnMut(&str),
-) -> Result<psf_bench::BenchReport> {
+) -> Result<psf_bench::PsfBenchResults> {
     run_bench(&design_system(opts, heights)?, heights, &opts.bench, tick)
 }
 
@@ -92,7 +94,7 @@ pub fn bench_spectral(
     opts: &SpectralOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<SpectralReport> {
+) -> Result<SpectralBenchResults> {
     let loaded = chain::load_design(&on.design)?;
     let system = design_system(on, &loaded.heights)?;
     let total = spectral_bench::steps(opts) as u64;
@@ -114,7 +116,7 @@ pub fn bench_stability(
     opts: &MapOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<StabilityReport> {
+) -> Result<StabilityBenchResults> {
     let total = stability::steps(opts) as u64;
     let mut done = 0;
     let report = stability::run_maps(opts, |what| {
@@ -240,7 +242,7 @@ pub fn bench_fab(
     opts: &FabBenchOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<FabBenchReport> {
+) -> Result<FabBenchResults> {
     opts.check()?;
     let total = fab_bench::steps(opts) as u64 + 1;
     progress("loading the design", 0, total);
@@ -306,12 +308,12 @@ pub struct DecoderBenchOptions {
     pub colour_anchor: f64,
 }
 
-/// The benchmark's report (serialised as it is) and the warnings about its scenes.
+/// The benchmark's results (serialised as they are) and the warnings about its scenes.
 #[derive(Debug, Serialize)]
 #[serde(transparent)]
 pub struct DecoderBenchOutcome {
-    /// What [`crate::bench::decoder::run`] reports.
-    pub report: BenchReport,
+    /// What [`crate::bench::decoder::run`] measured.
+    pub results: DecoderBenchResults,
     /// Scenes whose bracket merged with warnings, scenes refused, training images skipped.
     #[serde(skip)]
     pub warnings: Vec<String>,
@@ -319,7 +321,7 @@ pub struct DecoderBenchOutcome {
 
 /// The scenes on which the fine-tuned decoder (the curve's last point) scores below its start
 /// (the first), PSNR-gamma over all scored pixels, as warnings with the figures.
-fn below_start(f: &capture_bench::FinetuneReport) -> Vec<String> {
+fn below_start(f: &capture_bench::FinetuneRun) -> Vec<String> {
     let (Some(start), Some(end)) = (f.curve.first(), f.curve.last()) else { return Vec::new() };
     start
         .scores
@@ -425,7 +427,7 @@ pub fn bench_decoder(
         warnings.extend(f.skipped_images.iter().cloned());
         warnings.extend(below_start(f));
     }
-    Ok(DecoderBenchOutcome { report, warnings })
+    Ok(DecoderBenchOutcome { results: report, warnings })
 }
 
 /// Runs the check of the decoder's measurement model against the real captures
@@ -435,7 +437,7 @@ pub fn bench_forward(
     opts: &ForwardOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<ForwardReport> {
+) -> Result<ForwardBenchResults> {
     let report = crate::bench::forward::run(opts, output, progress)?;
     write_forward_chart(&output.join("forward.png"), &report)?;
     Ok(report)
@@ -444,7 +446,7 @@ pub fn bench_forward(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bench::decoder::{CurvePoint, FinetuneReport, Score};
+    use crate::bench::decoder::{CurvePoint, FinetuneRun, Score};
     use crate::calibration::evaluate::Psnr;
 
     fn point(step: usize, db: [f64; 2]) -> CurvePoint {
@@ -471,7 +473,7 @@ mod tests {
     /// was short; one above its start on every scene is not.
     #[test]
     fn a_fine_tuned_decoder_below_its_start_is_a_warning() {
-        let run = |steps: usize, end: [f64; 2]| FinetuneReport {
+        let run = |steps: usize, end: [f64; 2]| FinetuneRun {
             init: "start".into(),
             steps,
             seconds_per_step: 1.0,

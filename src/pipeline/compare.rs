@@ -143,9 +143,9 @@ pub fn family_member(family: Vec<Reference>, member: Member) -> Result<Reference
     })
 }
 
-/// What `doefab compare` reports and writes as `compare.json`.
+/// What `doefab compare` prints and writes as `compare.json`.
 #[derive(Debug, Clone, Serialize)]
-pub struct CompareReport {
+pub struct CompareOutcome {
     pub scan: String,
     /// SHA-256 of the scan file.
     pub scan_sha256: String,
@@ -191,7 +191,7 @@ pub fn compare_and_write(
     psf: Option<(Method, &Options)>,
     out: &Path,
     step: &mut dyn FnMut(&str),
-) -> Result<CompareReport> {
+) -> Result<CompareOutcome> {
     use crate::charts::metrology::{height_histogram, height_map, profiles, Palette};
     step("register and compare");
     let mut c = compare_family(family, &scan.grid, opts)?;
@@ -259,7 +259,7 @@ pub fn compare_and_write(
         .chain(&["profiles.png", "histogram.png"])
         .map(|s| s.to_string())
         .collect();
-    let report = CompareReport {
+    let report = CompareOutcome {
         scan_sha256: crate::io::file_sha256(scan_path)?,
         scan: scan_name,
         design: design.name.clone(),
@@ -291,7 +291,7 @@ pub fn compare_scan_file(
     psf: Option<(Method, &Options)>,
     out: &Path,
     step: &mut dyn FnMut(&str),
-) -> Result<CompareReport> {
+) -> Result<CompareOutcome> {
     step("read");
     let scan = scan::read_scan(scan_path, scan_opts)?;
     crate::io::heightmap::check_relief(scan_path, &scan.grid)?;

@@ -28,9 +28,9 @@ pub struct ProfileDesign {
     pub options: ProfileOptions,
 }
 
-/// What `doefab compare-profile` reports and writes as `profile.json`.
+/// What `doefab compare-profile` prints and writes as `profile.json`.
 #[derive(Debug, Clone, Serialize)]
-pub struct ProfileReport {
+pub struct CompareProfileOutcome {
     pub profile: String,
     /// SHA-256 of the profile file.
     pub profile_sha256: String,
@@ -57,7 +57,7 @@ pub struct ProfileReport {
     pub files: Vec<String>,
 }
 
-impl ProfileReport {
+impl CompareProfileOutcome {
     /// Every warning: the reader's and the comparison's.
     pub fn warnings(&self) -> Vec<String> {
         let mut w = self.profile_warnings.clone();
@@ -79,7 +79,7 @@ pub fn compare_profile_file(
     level: ProfileLevel,
     design: Option<&ProfileDesign>,
     out: Option<&Path>,
-) -> Result<ProfileReport> {
+) -> Result<CompareProfileOutcome> {
     let file = read_profile(path, read)?;
     let (levelled, levelling) = level_profile(&file.profile, level)?;
     let (comparison, terr, dname, dsha) = match design {
@@ -92,7 +92,7 @@ pub fn compare_profile_file(
         }
         None => (None, Some(terraces(&levelled)?), None, None),
     };
-    let mut report = ProfileReport {
+    let mut report = CompareProfileOutcome {
         profile: path.display().to_string(),
         profile_sha256: crate::io::file_sha256(path)?,
         units: "lengths and heights in metres, angles in radians".into(),

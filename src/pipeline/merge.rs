@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use serde::Serialize;
 
 use crate::calibration::capture;
-use crate::calibration::hdr_merge::{self, MergeReport, Merged, ToneMapReport};
+use crate::calibration::hdr_merge::{self, MergeStats, Merged, ToneMapStats};
 use crate::calibration::response::{self, Response};
 use crate::error::{Error, Result};
 
@@ -46,10 +46,10 @@ pub enum ResponseModel {
 }
 
 /// A merged bracket and the warnings of the response recovery (the merge's own are in
-/// `merged.report.warnings`).
+/// `merged.stats.warnings`).
 #[derive(Debug)]
 pub struct MergedBracket {
-    /// The radiance, its report and the response used.
+    /// The radiance, its stats and the response used.
     pub merged: Merged,
     /// Warnings of the response recovery, empty for a linear merge.
     pub response_warnings: Vec<String>,
@@ -124,14 +124,14 @@ pub struct MergeOptions {
     pub response_out: Option<PathBuf>,
 }
 
-/// The merge's report, the tone mapping's and the response curve's file.
+/// The merge's stats, the tone mapping's and the response curve's file.
 #[derive(Debug, Serialize)]
 pub struct MergeOutcome {
-    /// The merge's report (frames, exposures, warnings), flattened into the outcome.
+    /// The merge's stats (frames, exposures, warnings), flattened into the outcome.
     #[serde(flatten)]
-    pub report: MergeReport,
-    /// The tone-mapped PNG's report.
-    pub tone_map: ToneMapReport,
+    pub stats: MergeStats,
+    /// The tone-mapped PNG's stats.
+    pub tone_map: ToneMapStats,
     /// The response curve's CSV file, where one was asked for.
     pub response_csv: Option<String>,
     /// The tone-mapped PNG written.
@@ -141,7 +141,7 @@ pub struct MergeOutcome {
     #[serde(skip)]
     pub response: Option<Response>,
     /// Warnings of the response recovery (the merge's and the tone mapping's are in their
-    /// reports).
+    /// stats).
     #[serde(skip)]
     pub response_warnings: Vec<String>,
 }
@@ -177,7 +177,7 @@ pub fn merge(opts: &MergeOptions, progress: &mut dyn FnMut(&str, u64, u64)) -> R
         curve.write_csv(path)?;
     }
     Ok(MergeOutcome {
-        report: merged.report,
+        stats: merged.stats,
         tone_map,
         response_csv: opts.response_out.as_ref().map(|p| p.display().to_string()),
         png,

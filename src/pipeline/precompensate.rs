@@ -32,7 +32,7 @@ use crate::fabrication::chain::{self, write_mask, ChainParams, DesignSource, Loa
 use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::mask::render_levels;
 use crate::fabrication::precompensate::{
-    precompensate, DeblurReport, PrecompensateOptions, Precompensated, ProcessModel, Response,
+    precompensate, DeblurStats, PrecompensateOptions, Precompensated, ProcessModel, Response,
 };
 use crate::fabrication::quantize::feature_check;
 use crate::fabrication::recipe::{Output, Recipe};
@@ -44,7 +44,7 @@ use crate::io::raw_map::Metadata;
 use crate::io::scan::ScanOptions;
 use crate::metrology::scan_compare::{
     check_interior, compare, compare_family, efficiency_loss, CompareOptions, Comparison, EfficiencyLoss,
-    FabModel, LevelReport, LevelSpec, Member,
+    FabModel, LevelHeights, LevelSpec, Member,
 };
 use crate::metrology::scan_registration::{check_trust, TRUSTED_FRACTION};
 use crate::metrology::synthetic_scan::{simulate_scan, SimulateParams};
@@ -117,7 +117,7 @@ pub struct Measured {
     /// The fitted fabrication model (depth scale, offset, blur).
     pub model: FabModel,
     /// The per-level statistics, with the design's quantization.
-    pub levels: Option<LevelReport>,
+    pub levels: Option<LevelHeights>,
 }
 
 fn wrapped() -> Member {
@@ -326,9 +326,9 @@ pub struct PrecompensateJob {
     pub force: bool,
 }
 
-/// What `doefab precompensate` reports and writes as `precompensate.json`.
+/// What `doefab precompensate` prints and writes as `precompensate.json`.
 #[derive(Debug, Clone, Serialize)]
-pub struct PrecompensateReport {
+pub struct PrecompensateOutcome {
     /// The units of every figure.
     pub units: String,
     pub design: String,
@@ -349,7 +349,7 @@ pub struct PrecompensateReport {
     /// Highest commanded height allowed, metres.
     pub max_height: f64,
     /// What the deconvolution did, when it ran.
-    pub deblur: Option<DeblurReport>,
+    pub deblur: Option<DeblurStats>,
     /// The model's prediction for the plain and the corrected mask.
     pub predicted: Prediction,
     /// What is left uncorrected or named as beyond the writer.
@@ -397,7 +397,7 @@ fn surface_levels(w: &Grid, max_levels: usize) -> Result<(Grid, Vec<f64>)> {
 /// mask(s) with a sidecar that says what was corrected, from which scan and what is predicted,
 /// the STL of the written surface, `commanded.exr` (the design-frame commanded surface, for
 /// `doefab simulate-scan`) and `precompensate.json`. `step` is called before each stage.
-pub fn run(job: &PrecompensateJob, out: &Path, step: &mut dyn FnMut(&str)) -> Result<PrecompensateReport> {
+pub fn run(job: &PrecompensateJob, out: &Path, step: &mut dyn FnMut(&str)) -> Result<PrecompensateOutcome> {
     if job.recipe.outputs.contains(&Output::Gds) {
         return Err(Error::param(
             "recipe",
@@ -537,7 +537,7 @@ fn write_outputs(
     measured: Measured,
     w: Written,
     out: &Path,
-) -> Result<PrecompensateReport> {
+) -> Result<PrecompensateOutcome> {
     let recipe = &job.recipe;
     let mut stage = StagedDir::new(out)?;
     let mut files = Vec::new();
@@ -545,7 +545,7 @@ fn write_outputs(
     let written = written_surface(&w.result.commanded, recipe.replica_mode)?;
     let period = params.wrap_spec()?.period()?;
     let provenance = params.provenance(design)?;
-    let mut report = PrecompensateReport {
+    let mut report = PrecompensateOutcome {
         units: "lengths and heights in metres, efficiency as a fraction of incident power".into(),
         design: design.name.clone(),
         design_sha256: design.sha256.clone(),

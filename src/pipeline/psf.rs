@@ -11,7 +11,7 @@ use crate::error::{Error, Result};
 use crate::fabrication::chain::{self, DesignSource};
 use crate::grid::Grid;
 use crate::material::Material;
-use crate::optics::output::{self, PsfReport};
+use crate::optics::output::{self, PsfOutcome};
 use crate::optics::plan::{self, Plan};
 use crate::optics::spectrum::{self, Band};
 use crate::optics::system::OpticalSystem;
@@ -115,7 +115,7 @@ impl PsfJob {
     /// Simulates and writes the outputs into the folder `output`; the report carries the
     /// warnings. Progress: one step, the planned simulation, its message saying what is being
     /// simulated (each tripling of spectral sub-bands; none with a forced method).
-    pub fn run(&self, output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<PsfReport> {
+    pub fn run(&self, output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<PsfOutcome> {
         match &self.how {
             How::Method { system, method, options } => {
                 let notes: Vec<String> = self.forced_because.iter().cloned().collect();

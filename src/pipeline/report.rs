@@ -26,11 +26,11 @@ use serde::Serialize;
 
 use super::bench::{run_psf_bench, PsfBenchOptions};
 use crate::bench::calibration::{self as cal_bench, CalibrationBench};
-use crate::bench::fab::{self as fab_bench, FabBenchOptions, FabBenchReport};
+use crate::bench::fab::{self as fab_bench, FabBenchOptions, FabBenchResults};
 use crate::bench::finetune_time::{self, TimedFinetune, TimedOptions};
 use crate::bench::psf::{self as psf_bench, BenchOptions};
 use crate::bench::register::{self as reg_bench, RegistrationBench};
-use crate::bench::stability::{self, MapOptions, StabilityReport};
+use crate::bench::stability::{self, MapOptions, StabilityBenchResults};
 use crate::bench::tiling::{self as tiling_bench, TilingBench, TilingOptions};
 use crate::charts::fabrication::write_fab_bench_charts;
 use crate::charts::failure_maps::{write_calibration_chart, write_registration_chart};
@@ -458,7 +458,7 @@ pub fn run_report(
 }
 
 /// One row per run of the PSF benchmark.
-fn psf_csv(r: &psf_bench::BenchReport) -> String {
+fn psf_csv(r: &psf_bench::PsfBenchResults) -> String {
     let mut s = String::from(
         "method,precision,padding,subsample,pupil_pitch_m,seconds,relative_l2,guard_refuses,pareto\n",
     );
@@ -481,7 +481,7 @@ fn psf_csv(r: &psf_bench::BenchReport) -> String {
 }
 
 /// One row per run of the stability maps.
-fn stability_csv(r: &StabilityReport) -> String {
+fn stability_csv(r: &StabilityBenchResults) -> String {
     let mut s = String::from(
         "map,method,subsample,pupil_pitch_m,wavelength_m,focal_length_m,lens_sampling_ratio,fresnel_number,relative_l2,guard_refuses,silent\n",
     );
@@ -578,10 +578,10 @@ struct Charts {
 
 /// What the benchmarks of the page measured.
 struct Measured<'a> {
-    psf: Option<&'a psf_bench::BenchReport>,
-    maps: &'a StabilityReport,
+    psf: Option<&'a psf_bench::PsfBenchResults>,
+    maps: &'a StabilityBenchResults,
     registration: Option<&'a RegistrationBench>,
-    fab: Option<&'a FabBenchReport>,
+    fab: Option<&'a FabBenchResults>,
     calibration: Option<&'a CalibrationBench>,
     tiling: Option<&'a TilingBench>,
     finetune: Option<&'a TimedFinetune>,
@@ -687,7 +687,7 @@ fn left_out(b: &mut Builder, title: &str, budget: &BudgetRecord, part: &str) -> 
 }
 
 /// The PSF benchmark's section.
-fn psf_section(b: &mut Builder, psf: &psf_bench::BenchReport, charts: Vec<String>) -> Section {
+fn psf_section(b: &mut Builder, psf: &psf_bench::PsfBenchResults, charts: Vec<String>) -> Section {
     let mut reading = vec![
         words("The PSF of the design by every method, precision, FFT padding and pixel sub-sampling, timed and scored against a reference (matrix DFT, Gauss-Legendre pixels) that differs from its own refinement by"),
         b.fig("reference self-difference", psf.reference.difference, "1"),
@@ -735,7 +735,7 @@ fn psf_section(b: &mut Builder, psf: &psf_bench::BenchReport, charts: Vec<String
 }
 
 /// The stability maps' section, naming the maps the budget left out.
-fn map_section(b: &mut Builder, maps: &StabilityReport, charts: Vec<String>) -> Section {
+fn map_section(b: &mut Builder, maps: &StabilityBenchResults, charts: Vec<String>) -> Section {
     if maps.maps.is_empty() {
         let reading = vec![words(&format!(
             "Left out by the budget: {} (their predictions and the time they had are in report.json). Give \
@@ -800,7 +800,7 @@ fn registration_section(b: &mut Builder, registration: &RegistrationBench, chart
 }
 
 /// The fabrication sweeps' section.
-fn fab_section(b: &mut Builder, fab: &FabBenchReport, charts: Vec<String>) -> Section {
+fn fab_section(b: &mut Builder, fab: &FabBenchResults, charts: Vec<String>) -> Section {
     let stl_bounded = fab.stl.points.iter().filter(|p| p.within_bound).count();
     let reading = vec![
         words("Quantization: the predicted design-order efficiency (Swanson, with detuning) against a simulated grating's, largest difference"),

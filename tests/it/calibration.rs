@@ -42,18 +42,18 @@ fn real_brackets_merge_into_an_hdr_every_frame_agrees_with() {
         let (frames, times) = load(&list);
         let opts = MergeOptions { reference_exposure: list.reference_exposure, ..Default::default() };
         let m = merge(&frames, &times, None, None, &opts).unwrap();
-        assert_eq!(m.report.saturated_everywhere.count, 0, "{scene}");
-        for f in &m.report.frames {
+        assert_eq!(m.stats.saturated_everywhere.count, 0, "{scene}");
+        for f in &m.stats.frames {
             let median = f.agreement_median.unwrap();
             let limit = if f.agreement_samples >= 50_000 { 0.03 } else { 0.15 };
             assert!(median < limit, "{scene} {}: median deviation {median}", f.file);
             assert!((f.exposure_used / f.exposure_listed - 1.0).abs() < 0.45, "{scene} {}", f.file);
         }
-        assert_eq!(m.report.channel_clipping, vec![1.0, 231.0 / 255.0, 1.0], "{scene}");
-        assert!(m.report.inconsistent.count < if scene == "Fruit" { 200 } else { 2_000 }, "{scene}");
+        assert_eq!(m.stats.channel_clipping, vec![1.0, 231.0 / 255.0, 1.0], "{scene}");
+        assert!(m.stats.inconsistent.count < if scene == "Fruit" { 200 } else { 2_000 }, "{scene}");
         // The radiance is at the reference exposure: the reference frame's unsaturated values.
         let k = list.frames.iter().position(|f| f.1 == list.reference_exposure.unwrap()).unwrap();
-        let scale = m.report.frames[k].exposure_used / times[k];
+        let scale = m.stats.frames[k].exposure_used / times[k];
         let (mut dev, mut n) = (Vec::new(), 0);
         for (z, e) in frames[k].image.values.iter().zip(&m.radiance) {
             if (0.2..0.9).contains(z) {
@@ -496,7 +496,7 @@ fn bad_brackets_are_refused_with_the_reason() {
     // No unsaturated frame at the PSF core: where and how many.
     let long: Vec<Capture> = frames[..4].to_vec();
     let merged = merge(&long, &times[..4], Some(&dark), None, &opts).unwrap();
-    let n = merged.report.saturated_everywhere.count;
+    let n = merged.stats.saturated_everywhere.count;
     assert!(n > 0);
     let e = calibrate_psf(&merged, &PsfOptions { crop: 101, ..Default::default() }).unwrap_err().to_string();
     assert!(e.contains(&format!("{n} samples have no unsaturated frame")) && e.contains("rows"), "{e}");
@@ -1090,10 +1090,10 @@ fn the_psf_comes_back_at_black_levels_of_0_1_and_3_percent_without_dark_frames()
         for black in [0.0, 0.01, 0.03] {
             let (frames, times) = bracket_of(&truth, black);
             let merged = merge(&frames, &times, None, None, &MergeOptions::default()).unwrap();
-            for (c, b) in merged.report.black_level.iter().enumerate() {
+            for (c, b) in merged.stats.black_level.iter().enumerate() {
                 assert!((b - black).abs() < 5e-4, "{name} {black}: channel {c} black level {b}");
             }
-            for f in &merged.report.frames {
+            for f in &merged.stats.frames {
                 let r = f.exposure_used / f.exposure_listed;
                 assert!((r - 1.0).abs() < 0.025, "{name} {black}: {} time off by {r}", f.file);
             }
@@ -1226,8 +1226,8 @@ fn the_merge_is_at_the_reference_exposure_and_says_so() {
     let level = ratio[ratio.len() / 2];
     println!("merge level at t_ref: {level:.5} over {} samples", ratio.len());
     assert!(ratio.len() > 10_000 && (level - 1.0).abs() < 0.005, "level {level}");
-    assert_eq!(m.report.reference_exposure_s, Some(t_ref));
-    assert!(m.report.unit.contains("t_ref = 0.25 s"), "{}", m.report.unit);
+    assert_eq!(m.stats.reference_exposure_s, Some(t_ref));
+    assert!(m.stats.unit.contains("t_ref = 0.25 s"), "{}", m.stats.unit);
     let dir = common::tempdir();
     let png = dir.path().join("m.png");
     doefab::calibration::hdr_merge::write_tone_mapped(&png, &m, 0.0, None).unwrap();

@@ -9,7 +9,7 @@ use doefab::rng::Lcg;
 use std::collections::BTreeMap;
 
 use doefab::fabrication::gds::{
-    layer_masks, write_layer_previews, write_mask_set, MaskSetOptions, MaskSetReport, MAX_BOUNDARY_VERTICES,
+    layer_masks, write_layer_previews, write_mask_set, MaskSetOptions, MaskSetStats, MAX_BOUNDARY_VERTICES,
     SIGNED_LENGTH_MAX_VERTICES,
 };
 use doefab::{Error, Grid, Unit};
@@ -92,7 +92,7 @@ fn klayout_check(
     path: &std::path::Path,
     rows: usize,
     cols: usize,
-    rep: &MaskSetReport,
+    rep: &MaskSetStats,
 ) -> (BTreeMap<u32, LayerCheck>, Vec<String>) {
     let e = rep.design_extent;
     let args: Vec<String> = vec![
@@ -164,7 +164,7 @@ fn klayout_check(
 fn check_against_klayout(
     levels: &Grid,
     n_levels: usize,
-    rep: &MaskSetReport,
+    rep: &MaskSetStats,
     path: &std::path::Path,
 ) -> Vec<String> {
     let (rows, cols) = levels.dim();

@@ -70,8 +70,12 @@ fn truth(a: f64) -> SimulateProfile {
 fn simulated_comparison(
     a: f64,
     name: &str,
-) -> (SimulateProfile, doefab::pipeline::compare_profile::ProfileReport, tempfile::TempDir, std::path::PathBuf)
-{
+) -> (
+    SimulateProfile,
+    doefab::pipeline::compare_profile::CompareProfileOutcome,
+    tempfile::TempDir,
+    std::path::PathBuf,
+) {
     let (design, chain) = quantized_paper();
     let sp = truth(a);
     let prof = simulate_profile(&design, &sp).unwrap();
