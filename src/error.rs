@@ -1,5 +1,24 @@
 //! The library's error type, split by whose fault it is (after `image::ImageError`).
+//!
+//! Every variant carries a typed cause beside its message, and callers match the cause, never
+//! the text (which is for people and may be reworded):
+//!
+//! * [`Error::Format`]: a file's content is not what its format promises. [`FormatCause`] says
+//!   how: [`Truncated`](FormatCause::Truncated) (the file ends before a field it needs; the
+//!   offset is where it ends), [`Signature`](FormatCause::Signature) (the magic number or the
+//!   identifying name of another format, or none), [`Unsupported`](FormatCause::Unsupported)
+//!   (a valid file using a version, encoding or layout this reader does not decode) and
+//!   [`Malformed`](FormatCause::Malformed) (content that is inconsistent, out of range or not
+//!   parseable); [`Encoding`](FormatCause::Encoding) is the one cause met in writing (an
+//!   encoder refused the content). `offset` is the byte offset of the offending field where the reader knows it.
+//! * [`Error::Parameter`]: a caller's value is refused; `allowed` states the range or the set
+//!   it must lie in ([`Allowed`]) where the check is one.
+//! * [`Error::Validity`]: a numerical method would run outside its validity; [`Condition`]
+//!   names which condition fails (sampling, aliasing, conditioning, ...).
+//! * [`Error::Registration`]: a scan or profile could not be placed on its design;
+//!   [`Refusal`] says why (no match, ambiguous, featureless, not trusted, no overlap).
 
+use std::ops::Bound;
 use std::path::PathBuf;
 
 /// Every fallible library function returns this.
@@ -15,20 +34,33 @@ pub enum Error {
     },
     /// A file was read but its content is not what its format promises.
     #[error("{path}: {what}")]
-    Format { path: PathBuf, what: String },
+    Format {
+        path: PathBuf,
+        /// The byte offset of the offending field (for [`FormatCause::Truncated`], where the
+        /// data end), in the file or in the archive member the message names, where the reader
+        /// knows it.
+        offset: Option<u64>,
+        cause: FormatCause,
+        what: String,
+    },
     /// A parameter given by the caller is out of range or inconsistent.
     #[error("invalid {name}: {reason}")]
-    Parameter { name: String, reason: String },
+    Parameter {
+        name: String,
+        reason: String,
+        /// The range or set the value must lie in, where the check is one.
+        allowed: Option<Allowed>,
+    },
     /// The data itself (not the file) cannot be used: NaN, implausible values, empty regions.
     #[error("{0}")]
     Data(String),
     /// A numerical method would run outside its validity range (sampling, aliasing, conditioning).
-    #[error("outside the method's validity: {0}")]
-    Validity(String),
+    #[error("outside the method's validity: {what}")]
+    Validity { condition: Condition, what: String },
     /// A scan could not be registered to its design: it does not match, the match is
     /// ambiguous (periodic or rotationally symmetric design) or the scan is featureless.
-    #[error("registration refused: {0}")]
-    Registration(String),
+    #[error("registration refused: {what}")]
+    Registration { refusal: Refusal, what: String },
     /// A size limit would be exceeded.
     #[error("{0}")]
     Limit(String),
@@ -39,15 +71,184 @@ pub enum Error {
     Options(String),
 }
 
+/// How a file's content fails its format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum FormatCause {
+    /// The file ends before a field it needs (cut short in a copy or a download).
+    Truncated,
+    /// The magic number or identifying name is wrong or absent: another format, or no file of
+    /// this kind at all (also a file name whose extension names no readable format).
+    Signature,
+    /// A valid file of the format, but a version, encoding, layout or sample type this reader
+    /// does not decode.
+    Unsupported,
+    /// Content inconsistent with itself or the format: a field out of range, a missing or
+    /// duplicated entry, text that does not parse, sizes that disagree.
+    Malformed,
+    /// Writing, not reading: the encoder of the format (or of a chart) refused the content.
+    Encoding,
+}
+
+/// The range or set a parameter must lie in.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum Allowed {
+    /// A number between `min` and `max`, each end included, excluded or open.
+    Range { min: Bound<f64>, max: Bound<f64> },
+    /// One of these names.
+    OneOf(Vec<String>),
+}
+
+impl Allowed {
+    /// `(0, inf)`.
+    pub fn positive() -> Self {
+        Allowed::Range { min: Bound::Excluded(0.0), max: Bound::Unbounded }
+    }
+    /// `[min, inf)`.
+    pub fn at_least(min: f64) -> Self {
+        Allowed::Range { min: Bound::Included(min), max: Bound::Unbounded }
+    }
+    /// `[min, max]`.
+    pub fn between(min: f64, max: f64) -> Self {
+        Allowed::Range { min: Bound::Included(min), max: Bound::Included(max) }
+    }
+    /// One of `names`.
+    pub fn one_of<S: AsRef<str>>(names: &[S]) -> Self {
+        Allowed::OneOf(names.iter().map(|s| s.as_ref().to_string()).collect())
+    }
+    /// Whether the number `v` lies in the range (false for a set of names).
+    pub fn contains(&self, v: f64) -> bool {
+        match self {
+            Allowed::Range { min, max } => {
+                let above = match *min {
+                    Bound::Included(m) => v >= m,
+                    Bound::Excluded(m) => v > m,
+                    Bound::Unbounded => !v.is_nan(),
+                };
+                let below = match *max {
+                    Bound::Included(m) => v <= m,
+                    Bound::Excluded(m) => v < m,
+                    Bound::Unbounded => !v.is_nan(),
+                };
+                above && below
+            }
+            Allowed::OneOf(_) => false,
+        }
+    }
+}
+
+/// The validity condition a numerical method would violate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Condition {
+    /// A propagation method's own conditions (lens and defocus sampling, transfer-function
+    /// bandwidth, phase gradient, the Fresnel approximation, the output window), each violated
+    /// one named in the message; no method of the planner meets them all.
+    Propagation,
+    /// The spectral bands or the pixel integration cannot be sampled finely enough for the
+    /// tolerance within the allowed number of samples.
+    Sampling,
+    /// A periodic replica (of a propagator or a spectrum) would overlap the result.
+    Aliasing,
+    /// The geometry leaves nothing to compute: an imaging configuration (B = 0), a crop larger
+    /// than the window, a simulated scan off its design.
+    Geometry,
+    /// An input outside the range where the model holds (a wavelength outside a dispersion
+    /// formula's range, a depth scale that is a unit error rather than a process error).
+    Domain,
+    /// The equations are singular or leave the unknowns unconstrained.
+    Conditioning,
+    /// Too few usable samples or pixels support the estimate.
+    Coverage,
+    /// The data do not follow the method's model (a motion that is not affine).
+    Model,
+    /// A registration's own conditions fail (see [`Refusal`]); [`Error::Registration`] carries
+    /// the same refusal where the caller reports it as such.
+    Registration(Refusal),
+}
+
+/// Why a scan or profile was not registered to its design.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Refusal {
+    /// The best correlation is below the required one: another design, scan or part.
+    NoMatch,
+    /// A second placement correlates nearly as well (a periodic or rotationally symmetric
+    /// design): the shift or rotation is not determined.
+    Ambiguous,
+    /// The scan or the design has no structure to correlate (flat, or white noise).
+    Featureless,
+    /// The correlation is far below what the scan's own noise allows: the design does not
+    /// describe the part, or the pose is wrong.
+    NotTrusted,
+    /// The scan and the design barely overlap at the placement found.
+    NoOverlap,
+}
+
 impl Error {
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Error::Io { path: path.into(), source }
     }
-    pub fn format(path: impl Into<PathBuf>, what: impl Into<String>) -> Self {
-        Error::Format { path: path.into(), what: what.into() }
+    fn format(
+        path: impl Into<PathBuf>,
+        offset: Option<u64>,
+        cause: FormatCause,
+        what: impl Into<String>,
+    ) -> Self {
+        Error::Format { path: path.into(), offset, cause, what: what.into() }
     }
+    /// The file ends at `offset` (its length) before the field `what` needs.
+    pub fn truncated(path: impl Into<PathBuf>, offset: u64, what: impl Into<String>) -> Self {
+        Error::format(path, Some(offset), FormatCause::Truncated, what)
+    }
+    /// A wrong or absent magic number or identifier: not a file of this format.
+    pub fn signature(path: impl Into<PathBuf>, what: impl Into<String>) -> Self {
+        Error::format(path, None, FormatCause::Signature, what)
+    }
+    /// A version, encoding or layout this reader does not decode.
+    pub fn unsupported(path: impl Into<PathBuf>, what: impl Into<String>) -> Self {
+        Error::format(path, None, FormatCause::Unsupported, what)
+    }
+    /// Content inconsistent, out of range or not parseable.
+    pub fn malformed(path: impl Into<PathBuf>, what: impl Into<String>) -> Self {
+        Error::format(path, None, FormatCause::Malformed, what)
+    }
+    /// The encoder of the file's format refused the content being written.
+    pub fn encoding(path: impl Into<PathBuf>, what: impl Into<String>) -> Self {
+        Error::format(path, None, FormatCause::Encoding, what)
+    }
+    /// This error with the byte offset of the offending field, for a [`Error::Format`] (any
+    /// other error is returned unchanged).
+    #[must_use]
+    pub fn at(mut self, at: u64) -> Self {
+        if let Error::Format { offset, .. } = &mut self {
+            *offset = Some(at);
+        }
+        self
+    }
+    /// A refused parameter without a stated range.
     pub fn param(name: impl Into<String>, reason: impl Into<String>) -> Self {
-        Error::Parameter { name: name.into(), reason: reason.into() }
+        Error::Parameter { name: name.into(), reason: reason.into(), allowed: None }
+    }
+    /// A parameter refused for lying outside `allowed`.
+    pub fn param_in(name: impl Into<String>, allowed: Allowed, reason: impl Into<String>) -> Self {
+        Error::Parameter { name: name.into(), reason: reason.into(), allowed: Some(allowed) }
+    }
+    /// A method refused for violating `condition`.
+    pub fn validity(condition: Condition, what: impl Into<String>) -> Self {
+        Error::Validity { condition, what: what.into() }
+    }
+    /// A registration refused for `refusal`.
+    pub fn registration(refusal: Refusal, what: impl Into<String>) -> Self {
+        Error::Registration { refusal, what: what.into() }
+    }
+    /// The cause of a [`Error::Format`], `None` for any other error.
+    pub fn format_cause(&self) -> Option<FormatCause> {
+        match self {
+            Error::Format { cause, .. } => Some(*cause),
+            _ => None,
+        }
     }
 }
 

@@ -221,7 +221,7 @@ pub fn run_spectral(
         let pilots = per_band.iter().map(|(b, _, f)| (b.name.as_str(), [&f[0], &f[1], &f[2]]));
         let (rule, refused) = match spectral_count(pilots, tol) {
             Ok(count) => (Some(count), None),
-            Err(Error::Validity(why)) => (None, Some(why)),
+            Err(Error::Validity { what, .. }) => (None, Some(what)),
             Err(e) => return Err(e),
         };
         let mut point = SpectralPlanPoint {
@@ -268,7 +268,7 @@ pub fn run_spectral(
                         ));
                     }
                 }
-                Err(Error::Validity(why)) => point.refused = Some(why),
+                Err(Error::Validity { what, .. }) => point.refused = Some(what),
                 Err(e) => return Err(e),
             }
         }

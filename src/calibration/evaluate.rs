@@ -56,7 +56,7 @@ use serde::Serialize;
 use super::capture_registration::{
     luminance, register_affine, register_local, warp, LocalRegistration, Model, RegisterOptions, Registration,
 };
-use crate::error::{Error, Result};
+use crate::error::{Condition, Error, Result};
 use crate::image::Image;
 use crate::optics::convolve::Convolver;
 use crate::optics::psf::Psf;
@@ -329,7 +329,7 @@ pub fn prepare(
             }
         });
         if ratios.len() < 300 {
-            return Err(Error::Validity(format!(
+            return Err(Error::validity(Condition::Coverage, format!(
                 "only {} well-exposed samples (0.05..0.9 of the clipping level) among the registered pixels to \
                  match the reference's gain; 300 needed",
                 ratios.len()
@@ -364,7 +364,7 @@ pub fn prepare(
     let saturated_in_capture = saturated_capture.iter().filter(|v| **v).count();
     let saturated_scored = saturated.iter().filter(|v| **v).count();
     if coverage < opts.min_coverage {
-        return Err(Error::Validity(format!(
+        return Err(Error::validity(Condition::Coverage, format!(
             "the registration covers {:.1} % of the image ({pixels_scored} of {} pixels; {saturated_scored} of the \
              capture's {saturated_in_capture} saturated pixels); the floor is {:.0} %: too few pixels follow one \
              geometry to score on",

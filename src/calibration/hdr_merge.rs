@@ -202,7 +202,7 @@ fn check_frames(frames: &[Capture], times: &[f64], dark: Option<&Image>) -> Resu
         if f.image.values.dim() != first.image.values.dim() || f.bits != first.bits {
             let (h, w, c) = f.image.values.dim();
             let (h0, w0, c0) = first.image.values.dim();
-            return Err(Error::format(
+            return Err(Error::malformed(
                 &f.path,
                 format!(
                     "is {w} x {h} x {c} at {} bits, but {} is {w0} x {h0} x {c0} at {} bits: a bracket's \

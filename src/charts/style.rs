@@ -29,7 +29,7 @@ pub fn register_font() {
 }
 
 fn chart_error(path: &Path, e: impl std::fmt::Display) -> Error {
-    Error::format(path, format!("drawing the chart failed: {e}"))
+    Error::encoding(path, format!("drawing the chart failed: {e}"))
 }
 
 /// A log axis's range: the positive finite `values` widened by the factor `pad` each way, or

@@ -608,9 +608,9 @@ impl<'a> Trainer<'a> {
         let (mut tensors, meta) = read_safetensors(checkpoint)?;
         let field = |k: &str| {
             meta.get(k)
-                .ok_or_else(|| Error::format(checkpoint, format!("not a checkpoint: no '{k}' metadata")))
+                .ok_or_else(|| Error::signature(checkpoint, format!("not a checkpoint: no '{k}' metadata")))
         };
-        let parse_err = |k: &str, e: String| Error::format(checkpoint, format!("metadata '{k}': {e}"));
+        let parse_err = |k: &str, e: String| Error::malformed(checkpoint, format!("metadata '{k}': {e}"));
         if field("psf_sha256")? != psf_sha256 {
             return Err(Error::param(
                 "psf",
@@ -659,7 +659,7 @@ impl<'a> Trainer<'a> {
         let mut take = |key: String| {
             let mt = moments
                 .remove(&key)
-                .ok_or_else(|| Error::format(checkpoint, format!("checkpoint lacks tensor '{key}'")))?;
+                .ok_or_else(|| Error::malformed(checkpoint, format!("checkpoint lacks tensor '{key}'")))?;
             let n = mt.values.len();
             Ok::<_, Error>(Tensor::<1>::from_data(TensorData::new(mt.values, [n]), device))
         };

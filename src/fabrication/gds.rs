@@ -725,7 +725,7 @@ pub fn write_layer_previews(
         let mut buf = Vec::new();
         PngEncoder::new_with_quality(&mut buf, CompressionType::Fast, FilterType::Adaptive)
             .write_image(&img, w, h, image::ExtendedColorType::L8)
-            .map_err(|e| Error::format(&path, format!("cannot encode the PNG preview: {e}")))?;
+            .map_err(|e| Error::encoding(&path, format!("cannot encode the PNG preview: {e}")))?;
         write_bytes(&path, &buf)?;
         paths.push(path);
     }

@@ -20,7 +20,7 @@ use std::path::Path;
 use ndarray::Array2;
 use serde::Serialize;
 
-use crate::error::{Error, Result};
+use crate::error::{Condition, Error, Result};
 use crate::fabrication::precompensate::Response;
 use crate::grid::blur::gaussian_blur;
 use crate::grid::{Grid, Unit};
@@ -151,8 +151,9 @@ pub fn simulate_scan(design: &Grid, p: &SimulateParams) -> Result<Grid> {
         }
     }
     if !valid.iter().any(|&v| v) {
-        return Err(Error::Validity(
-            "the simulated scan does not overlap the design (check the shift, size and pitch)".into(),
+        return Err(Error::validity(
+            Condition::Geometry,
+            "the simulated scan does not overlap the design (check the shift, size and pitch)",
         ));
     }
     Grid::new(values, pitch, Unit::Metre)?.with_mask(valid)

@@ -437,11 +437,11 @@ impl OpticalSystem {
     /// validates the result. Errors name the file and the field.
     pub fn read_toml(path: &std::path::Path, base: &OpticalSystem) -> Result<OpticalSystem> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let f: SystemFile = toml::from_str(&text).map_err(|e| Error::format(path, e.to_string()))?;
+        let f: SystemFile = toml::from_str(&text).map_err(|e| Error::malformed(path, e.to_string()))?;
         let length = |field: &str, v: &Option<String>, into: &mut f64| -> Result<()> {
             if let Some(t) = v {
                 *into = crate::units::parse_length(t)
-                    .map_err(|e| Error::format(path, format!("{field}: {e}")))?;
+                    .map_err(|e| Error::malformed(path, format!("{field}: {e}")))?;
             }
             Ok(())
         };
@@ -467,12 +467,13 @@ impl OpticalSystem {
                 .iter()
                 .map(|t| {
                     crate::units::parse_length(t)
-                        .map_err(|e| Error::format(path, format!("wavelengths: {e}")))
+                        .map_err(|e| Error::malformed(path, format!("wavelengths: {e}")))
                 })
                 .collect::<Result<_>>()?;
         }
         if let Some(m) = &f.material {
-            s.material = Material::by_name(m).map_err(|e| Error::format(path, format!("material: {e}")))?;
+            s.material =
+                Material::by_name(m).map_err(|e| Error::malformed(path, format!("material: {e}")))?;
         }
         s.crop = f.crop.unwrap_or(s.crop);
         s.subsample = f.subsample.unwrap_or(s.subsample);
@@ -481,7 +482,7 @@ impl OpticalSystem {
         if f.padding.is_some() {
             s.padding = f.padding;
         }
-        s.validate().map_err(|e| Error::format(path, e.to_string()))?;
+        s.validate().map_err(|e| Error::malformed(path, e.to_string()))?;
         Ok(s)
     }
 }
