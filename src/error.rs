@@ -113,6 +113,10 @@ impl Allowed {
     pub fn between(min: f64, max: f64) -> Self {
         Allowed::Range { min: Bound::Included(min), max: Bound::Included(max) }
     }
+    /// Between `min` and `max`, each end as given.
+    pub fn within(min: Bound<f64>, max: Bound<f64>) -> Self {
+        Allowed::Range { min, max }
+    }
     /// One of `names`.
     pub fn one_of<S: AsRef<str>>(names: &[S]) -> Self {
         Allowed::OneOf(names.iter().map(|s| s.as_ref().to_string()).collect())
@@ -253,3 +257,82 @@ impl Error {
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+    use crate::io::npy::{decode_npy, header_bytes};
+
+    /// A 2 x 2 f8 `.npy` file as numpy writes it.
+    fn npy() -> Vec<u8> {
+        let mut b = header_bytes("<f8", &[2, 2]);
+        b.extend([1.0f64, 2.0, 3.0, 4.0].iter().flat_map(|v| v.to_le_bytes()));
+        b
+    }
+
+    fn format_error(bytes: &[u8]) -> (FormatCause, Option<u64>, String) {
+        match decode_npy(Path::new("a.npy"), bytes) {
+            Err(Error::Format { cause, offset, what, .. }) => (cause, offset, what),
+            other => panic!("expected a format error, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_reader_states_how_a_file_fails() {
+        let good = npy();
+        assert!(decode_npy(Path::new("a.npy"), &good).is_ok());
+        // Cut inside the data: truncated where the bytes end.
+        let cut = &good[..good.len() - 5];
+        let (cause, offset, what) = format_error(cut);
+        assert_eq!((cause, offset), (FormatCause::Truncated, Some(cut.len() as u64)), "{what}");
+        assert!(what.starts_with("truncated data"), "{what}");
+        // Another format's bytes.
+        let (cause, _, what) = format_error(b"PK\x03\x04 a zip archive, not an array");
+        assert_eq!(cause, FormatCause::Signature, "{what}");
+        // A format version numpy has not written.
+        let mut v9 = good.clone();
+        v9[6] = 9;
+        let (cause, _, what) = format_error(&v9);
+        assert_eq!(cause, FormatCause::Unsupported, "{what}");
+        // A header dictionary that does not parse.
+        let mut broken = good.clone();
+        let at = broken.iter().position(|&b| b == b'{').unwrap();
+        broken[at] = b'[';
+        let (cause, _, what) = format_error(&broken);
+        assert_eq!(cause, FormatCause::Malformed, "{what}");
+    }
+
+    #[test]
+    fn a_refused_parameter_states_its_range() {
+        let g = crate::Grid::new(ndarray::Array2::zeros((4, 4)), [1e-6, 1e-6], crate::Unit::Metre).unwrap();
+        match crate::grid::blur::gaussian_blur(&g, -1e-6) {
+            Err(Error::Parameter { name, allowed: Some(range), .. }) => {
+                assert!(
+                    name == "blur" && !range.contains(-1e-6) && range.contains(0.0) && range.contains(2e-6)
+                )
+            }
+            other => panic!("expected a refused blur with its range, got {other:?}"),
+        }
+        let e = crate::units::length_unit("furlong").unwrap_err();
+        match &e {
+            Error::Parameter { allowed: Some(Allowed::OneOf(units)), .. } => {
+                assert!(units.iter().any(|u| u == "nm"))
+            }
+            other => panic!("expected the allowed units, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_method_names_the_condition_it_would_violate() {
+        let pdms = crate::material::Material::by_name("pdms").unwrap();
+        assert!(pdms.index(550e-9).is_ok());
+        let e = pdms.index(2e-6).unwrap_err();
+        assert!(matches!(e, Error::Validity { condition: Condition::Domain, .. }), "{e:?}");
+        assert!(
+            e.to_string().starts_with("outside the method's validity: pdms: wavelength 2000.0 nm"),
+            "{e}"
+        );
+    }
+}

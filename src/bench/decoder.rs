@@ -31,7 +31,7 @@ use crate::decoder::finetune::{FinetuneConfig, HistoryEntry, Trainer, TrainingSc
 use crate::decoder::reconstruct::{reconstruct, Negatives, ReconstructOptions};
 use crate::decoder::unet::UNet;
 use crate::decoder::weights::DecoderWeights;
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::image::Image;
 use crate::optics::psf::Psf;
 
@@ -312,7 +312,7 @@ pub fn run(cfg: &BenchConfig, out: &Path, progress: &mut dyn FnMut(&str, u64)) -
     }
     if let Some(f) = &cfg.finetune {
         if f.evaluate_every == 0 {
-            return Err(Error::param("evaluate_every", "must be at least 1 step"));
+            return Err(Error::param_in("evaluate_every", Allowed::at_least(1.0), "must be at least 1 step"));
         }
     }
     let device = crate::decoder::device(false)?;

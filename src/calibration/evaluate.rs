@@ -50,13 +50,15 @@
 //! is then its maximum value, recognised by a pile-up of samples there (at least 0.01 % of them
 //! at exactly the maximum, which lies below `saturation`), and reported as a warning.
 
+use std::ops::Bound;
+
 use ndarray::{s, Array2, Array3, Axis, Zip};
 use serde::Serialize;
 
 use super::capture_registration::{
     luminance, register_affine, register_local, warp, LocalRegistration, Model, RegisterOptions, Registration,
 };
-use crate::error::{Condition, Error, Result};
+use crate::error::{Allowed, Condition, Error, Result};
 use crate::image::Image;
 use crate::optics::convolve::Convolver;
 use crate::optics::psf::Psf;
@@ -263,11 +265,16 @@ pub fn prepare(
         )));
     }
     if !(opts.saturation > 0.0 && opts.saturation <= 1.0) {
-        return Err(Error::param("saturation", format!("{} is not in (0, 1]", opts.saturation)));
+        return Err(Error::param_in(
+            "saturation",
+            Allowed::within(Bound::Excluded(0.0), Bound::Included(1.0)),
+            format!("{} is not in (0, 1]", opts.saturation),
+        ));
     }
     if !(0.0..=1.0).contains(&opts.min_coverage) {
-        return Err(Error::param(
+        return Err(Error::param_in(
             "min_coverage",
+            Allowed::between(0.0, 1.0),
             format!("{} is not a fraction in [0, 1]", opts.min_coverage),
         ));
     }

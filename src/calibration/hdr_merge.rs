@@ -45,6 +45,7 @@
 //! `(v_k / t_k - E) / E` over the pixels it sees well exposed: for 8-bit captures the
 //! quantization step alone gives `1 / (255 z sqrt(12))`, 1.1 % at `z = 0.1`.
 
+use std::ops::Bound;
 use std::path::Path;
 
 use ndarray::{Array2, Array3, Zip};
@@ -53,7 +54,7 @@ use serde::Serialize;
 use super::capture::Capture;
 use super::clipping::channel_clipping;
 use super::response::Response;
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::image::tone::tone_map;
 use crate::image::Image;
 use crate::io::exr::write_exr;
@@ -343,8 +344,9 @@ fn black_level(
                 }
             };
             if let Some(bad) = v.iter().find(|x| !(x.is_finite() && (0.0..0.5).contains(*x))) {
-                return Err(Error::param(
+                return Err(Error::param_in(
                     "black_level",
+                    Allowed::within(Bound::Included(0.0), Bound::Excluded(0.5)),
                     format!("{bad} is not a fraction of full scale in [0, 0.5)"),
                 ));
             }

@@ -73,7 +73,7 @@ use ndarray::{Array2, Array3};
 use serde::Serialize;
 
 use super::hdr_merge::{write_merged, MergeReport, Merged};
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::image::Image;
 use crate::io::atomic::{write_json, StagedDir};
@@ -639,7 +639,11 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
         }
     }
     if opts.crop < 3 {
-        return Err(Error::param("crop", format!("must be at least 3 pixels, got {}", opts.crop)));
+        return Err(Error::param_in(
+            "crop",
+            Allowed::at_least(3.0),
+            format!("must be at least 3 pixels, got {}", opts.crop),
+        ));
     }
     if let Some(wl) = &opts.wavelengths {
         if wl.len() != nc {

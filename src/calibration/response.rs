@@ -24,7 +24,7 @@ use ndarray::{Array2, Array3};
 use serde::Serialize;
 
 use super::capture::Capture;
-use crate::error::{Condition, Error, Result};
+use crate::error::{Allowed, Condition, Error, Result};
 use crate::image::Image;
 use crate::io::csv::write_csv;
 use crate::io::raw_map::Metadata;
@@ -149,7 +149,11 @@ pub fn recover_response(frames: &[Capture], times: &[f64], samples: usize, lambd
         ));
     }
     if !(lambda.is_finite() && lambda > 0.0) {
-        return Err(Error::param("lambda", format!("must be positive, got {lambda}")));
+        return Err(Error::param_in(
+            "lambda",
+            Allowed::positive(),
+            format!("must be positive, got {lambda}"),
+        ));
     }
     let n = if samples == 0 { (512 / (p - 1)).clamp(50, 300) } else { samples };
     let mut order: Vec<usize> = (0..p).collect();

@@ -53,12 +53,11 @@ pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()
     ];
     let nd = report.decoders.len();
     write_png_chart(path, 1400, 900, |root| {
-        let e = |e: &dyn std::fmt::Display| e.to_string();
         let footer = 18 * refused.len().min(4) as u32;
         let (main, foot) = root.split_vertically(900 - footer);
         for (k, line) in refused.iter().take(4).enumerate() {
             let text: String = line.chars().take(190).collect();
-            foot.draw(&Text::new(text, (10, 18 * k as i32 + 2), (FONT, 13))).map_err(|x| e(&x))?;
+            foot.draw(&Text::new(text, (10, 18 * k as i32 + 2), (FONT, 13)))?;
         }
         for (panel, (title, unit, value)) in main.split_evenly((2, 2)).iter().zip(metrics) {
             let values: Vec<f64> = report.scores.iter().filter_map(value).collect();
@@ -75,8 +74,7 @@ pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()
                 .margin(10)
                 .x_label_area_size(30)
                 .y_label_area_size(60)
-                .build_cartesian_2d(0.0..scenes.len() as f64, floor..top)
-                .map_err(|x| e(&x))?;
+                .build_cartesian_2d(0.0..scenes.len() as f64, floor..top)?;
             let names = scenes.clone();
             chart
                 .configure_mesh()
@@ -92,8 +90,7 @@ pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()
                 })
                 .y_desc(unit)
                 .label_style((FONT, 12))
-                .draw()
-                .map_err(|x| e(&x))?;
+                .draw()?;
             let width = 0.8 / nd as f64;
             for (d, decoder) in report.decoders.iter().enumerate() {
                 let color = COLORS[d % COLORS.len()];
@@ -109,8 +106,7 @@ pub fn write_decoder_scene_chart(path: &Path, report: &BenchReport) -> Result<()
                     .collect();
                 let short: String = decoder.chars().take(60).collect();
                 chart
-                    .draw_series(bars)
-                    .map_err(|x| e(&x))?
+                    .draw_series(bars)?
                     .label(short)
                     .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled()));
             }
@@ -152,7 +148,6 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
         })
         .collect();
     write_png_chart(path, 1650, 500, |root| {
-        let e = |e: &dyn std::fmt::Display| e.to_string();
         let panels = root.split_evenly((1, 3));
         for (panel, saturated) in panels.iter().zip([false, true]) {
             let value = |s: &Score| {
@@ -181,15 +176,8 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                 .x_label_area_size(40)
                 .y_label_area_size(60)
                 // Room under the data for the legend, so that it covers no line.
-                .build_cartesian_2d(0.0..last, (lo - 0.5 - 0.6 * (hi - lo))..(hi + 0.5))
-                .map_err(|x| e(&x))?;
-            chart
-                .configure_mesh()
-                .x_desc(x_desc.as_str())
-                .y_desc("dB")
-                .label_style((FONT, 13))
-                .draw()
-                .map_err(|x| e(&x))?;
+                .build_cartesian_2d(0.0..last, (lo - 0.5 - 0.6 * (hi - lo))..(hi + 0.5))?;
+            chart.configure_mesh().x_desc(x_desc.as_str()).y_desc("dB").label_style((FONT, 13)).draw()?;
             for (k, scene) in scenes.iter().enumerate() {
                 let color = COLORS[(k + 1) % COLORS.len()];
                 let line: Vec<(f64, f64)> = run
@@ -198,13 +186,10 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                     .filter_map(|p| value(p.scores.get(k)?).map(|v| (minutes(p.seconds), v)))
                     .collect();
                 chart
-                    .draw_series(LineSeries::new(line.iter().copied(), color.stroke_width(2)))
-                    .map_err(|x| e(&x))?
+                    .draw_series(LineSeries::new(line.iter().copied(), color.stroke_width(2)))?
                     .label(format!("{scene}: fine-tuned here"))
                     .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2)));
-                chart
-                    .draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled())))
-                    .map_err(|x| e(&x))?;
+                chart.draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled())))?;
                 for (decoder, &kind) in others.iter().zip(&dash_kinds) {
                     let Some(v) = report
                         .scores
@@ -228,8 +213,7 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                     let short: String = decoder.chars().take(44).collect();
                     let label = format!("{scene}: {short}{}", if start { " (the start)" } else { "" });
                     chart
-                        .draw_series(DashedLineSeries::new([(0.0, v), (last, v)], dash, gap, style))
-                        .map_err(|x| e(&x))?
+                        .draw_series(DashedLineSeries::new([(0.0, v), (last, v)], dash, gap, style))?
                         .label(label)
                         .legend(move |at| super::style::dashed_legend(at, style, dash, gap, 18));
                 }
@@ -250,28 +234,22 @@ pub fn write_bench_chart(path: &Path, report: &BenchReport) -> Result<()> {
                 .margin(12)
                 .x_label_area_size(40)
                 .y_label_area_size(60)
-                .build_cartesian_2d(0.0..last, (lo - 0.2)..(hi + 0.2))
-                .map_err(|x| e(&x))?;
+                .build_cartesian_2d(0.0..last, (lo - 0.2)..(hi + 0.2))?;
             chart
                 .configure_mesh()
                 .x_desc(x_desc.as_str())
                 .y_desc("dB (sqrt domain, peak 1)")
                 .label_style((FONT, 13))
-                .draw()
-                .map_err(|x| e(&x))?;
+                .draw()?;
             chart
-                .draw_series(LineSeries::new([(0.0, first), (last, first)], BLACK.stroke_width(1)))
-                .map_err(|x| e(&x))?
+                .draw_series(LineSeries::new([(0.0, first), (last, first)], BLACK.stroke_width(1)))?
                 .label("the start")
                 .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
             chart
-                .draw_series(LineSeries::new(validation.iter().copied(), RED.stroke_width(2)))
-                .map_err(|x| e(&x))?
+                .draw_series(LineSeries::new(validation.iter().copied(), RED.stroke_width(2)))?
                 .label("fine-tuned here")
                 .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED.stroke_width(2)));
-            chart
-                .draw_series(validation.iter().map(|&p| Circle::new(p, 3, RED.filled())))
-                .map_err(|x| e(&x))?;
+            chart.draw_series(validation.iter().map(|&p| Circle::new(p, 3, RED.filled())))?;
             super::style::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;
         }
         Ok(())
@@ -289,7 +267,6 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardR
     }
     let bands = ["darks", "mid-tones", "brights", "flare ring", "all"];
     write_png_chart(path, 1400, 900, |root| {
-        let e = |e: &dyn std::fmt::Display| e.to_string();
         let columns = root.split_evenly((2, scenes.len()));
         for (k, scene) in scenes.iter().enumerate() {
             let values = |m: &crate::bench::forward::ModelFit| {
@@ -310,8 +287,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardR
                 .margin(10)
                 .x_label_area_size(30)
                 .y_label_area_size(60)
-                .build_cartesian_2d(0.0..bands.len() as f64, 0.0..top.max(1e-3))
-                .map_err(|x| e(&x))?;
+                .build_cartesian_2d(0.0..bands.len() as f64, 0.0..top.max(1e-3))?;
             chart
                 .configure_mesh()
                 .disable_x_mesh()
@@ -326,8 +302,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardR
                 })
                 .y_desc("RMS of sqrt(model) - sqrt(capture)")
                 .label_style((FONT, 12))
-                .draw()
-                .map_err(|x| e(&x))?;
+                .draw()?;
             let width = 0.8 / scene.models.len() as f64;
             for (m, model) in scene.models.iter().enumerate() {
                 let color = COLORS[m % COLORS.len()];
@@ -350,8 +325,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardR
                     };
                 }
                 chart
-                    .draw_series(bars)
-                    .map_err(|x| e(&x))?
+                    .draw_series(bars)?
                     .label(label)
                     .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled()));
             }
@@ -371,15 +345,13 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardR
                 .margin(10)
                 .x_label_area_size(35)
                 .y_label_area_size(60)
-                .build_cartesian_2d(0.0..fmax * 1.05, (lo - pad)..(hi + pad))
-                .map_err(|x| e(&x))?;
+                .build_cartesian_2d(0.0..fmax * 1.05, (lo - pad)..(hi + pad))?;
             chart
                 .configure_mesh()
                 .x_desc("halo fraction eta")
                 .y_desc("RMS of sqrt(model) - sqrt(capture)")
                 .label_style((FONT, 12))
-                .draw()
-                .map_err(|x| e(&x))?;
+                .draw()?;
             for (r, radius) in report.halo_radii_px.iter().enumerate() {
                 let color = COLORS[(r + 1) % COLORS.len()];
                 let points: Vec<(f64, f64)> = report
@@ -390,13 +362,10 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardR
                     .filter(|p| p.1.is_finite())
                     .collect();
                 chart
-                    .draw_series(LineSeries::new(points.clone(), color.stroke_width(2)))
-                    .map_err(|x| e(&x))?
+                    .draw_series(LineSeries::new(points.clone(), color.stroke_width(2)))?
                     .label(format!("rho {radius} px"))
                     .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], color.stroke_width(2)));
-                chart
-                    .draw_series(points.iter().map(|&p| Circle::new(p, 3, color.filled())))
-                    .map_err(|x| e(&x))?;
+                chart.draw_series(points.iter().map(|&p| Circle::new(p, 3, color.filled())))?;
             }
             if paper.is_finite() {
                 chart
@@ -405,8 +374,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardR
                         6,
                         4,
                         BLACK.stroke_width(1),
-                    ))
-                    .map_err(|x| e(&x))?
+                    ))?
                     .label("paper model")
                     .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], BLACK.stroke_width(1)));
             }

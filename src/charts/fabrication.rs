@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use plotters::prelude::*;
 
-use super::style::{draw_legend, log_label, short, write_png_chart, write_svg_chart, FONT};
+use super::style::{draw_legend, log_label, short, write_png_chart, write_svg_chart, Drawn, FONT};
 use crate::bench::fab::{FabBenchReport, GdsSweep, QuantizationSweep, StlPoint, StlSweep};
 use crate::error::{Error, Result};
 
@@ -42,8 +42,7 @@ fn channel_colour(wavelength: f64) -> RGBColor {
 fn quantization_chart<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
     q: &QuantizationSweep,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
+) -> Drawn {
     let log2 = |n: usize| (n as f64).log2();
     let (x0, x1) = q.points.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
         (a.min(log2(p.level_count)), b.max(log2(p.level_count)))
@@ -62,8 +61,7 @@ fn quantization_chart<DB: DrawingBackend>(
         .margin(12)
         .x_label_area_size(45)
         .y_label_area_size(60)
-        .build_cartesian_2d(x0 - 0.3..x1 + 0.3, (y0 - 0.05).max(0.0)..1.02)
-        .map_err(|x| e(&x))?;
+        .build_cartesian_2d(x0 - 0.3..x1 + 0.3, (y0 - 0.05).max(0.0)..1.02)?;
     chart
         .configure_mesh()
         .x_desc("level count N (log scale)")
@@ -79,8 +77,7 @@ fn quantization_chart<DB: DrawingBackend>(
         .y_label_formatter(&|v| format!("{v:.2}"))
         .label_style((FONT, 13))
         .axis_desc_style((FONT, 14))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     let mut wavelengths: Vec<f64> = q.points.iter().map(|p| p.wavelength).collect();
     wavelengths.sort_by(|a, b| b.total_cmp(a));
     wavelengths.dedup();
@@ -92,27 +89,21 @@ fn quantization_chart<DB: DrawingBackend>(
             .draw_series(LineSeries::new(
                 own.iter().map(|p| (log2(p.level_count), p.predicted)),
                 colour.stroke_width(2),
-            ))
-            .map_err(|x| e(&x))?
+            ))?
             .label(format!("{:.0} nm predicted", l * 1e9))
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
         chart
             .draw_series(
                 own.iter()
                     .map(|p| Circle::new((log2(p.level_count), p.simulated), 6, colour.stroke_width(2))),
-            )
-            .map_err(|x| e(&x))?
+            )?
             .label(format!("{:.0} nm simulated", l * 1e9))
             .legend(move |(x, y)| Circle::new((x + 8, y), 5, colour.stroke_width(2)));
     }
     draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 13)
 }
 
-fn stl_cost_chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, plotters::coord::Shift>,
-    s: &StlSweep,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
+fn stl_cost_chart<DB: DrawingBackend>(root: &DrawingArea<DB, plotters::coord::Shift>, s: &StlSweep) -> Drawn {
     let x = log_span(s.points.iter().map(|p| p.max_error * 1e9), 1.4);
     let caption = format!(
         "STL heightfield, {} x {} samples: triangles and time vs max_error",
@@ -127,8 +118,7 @@ fn stl_cost_chart<DB: DrawingBackend>(
         .build_cartesian_2d(
             x.clone().log_scale(),
             log_span(s.points.iter().map(|p| p.triangles as f64), 2.0).log_scale(),
-        )
-        .map_err(|x| e(&x))?
+        )?
         .set_secondary_coord(x.log_scale(), log_span(s.points.iter().map(|p| p.seconds), 2.0).log_scale());
     chart
         .configure_mesh()
@@ -141,8 +131,7 @@ fn stl_cost_chart<DB: DrawingBackend>(
         .bold_line_style(BLACK.mix(0.15))
         .label_style((FONT, 13))
         .axis_desc_style((FONT, 14))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     chart
         .configure_secondary_axes()
         .y_desc("time to mesh, s (best of runs)")
@@ -150,32 +139,26 @@ fn stl_cost_chart<DB: DrawingBackend>(
         .y_label_formatter(&|v| log_label(*v, short))
         .label_style((FONT, 13))
         .axis_desc_style((FONT, 14))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     let tri: Vec<(f64, f64)> = s.points.iter().map(|p| (p.max_error * 1e9, p.triangles as f64)).collect();
     let secs: Vec<(f64, f64)> = s.points.iter().map(|p| (p.max_error * 1e9, p.seconds)).collect();
     chart
-        .draw_series(LineSeries::new(tri.iter().copied(), BLUE.stroke_width(2)))
-        .map_err(|x| e(&x))?
+        .draw_series(LineSeries::new(tri.iter().copied(), BLUE.stroke_width(2)))?
         .label("triangles (left axis)")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.stroke_width(2)));
-    chart.draw_series(tri.iter().map(|&p| Circle::new(p, 4, BLUE.filled()))).map_err(|x| e(&x))?;
+    chart.draw_series(tri.iter().map(|&p| Circle::new(p, 4, BLUE.filled())))?;
     chart
-        .draw_secondary_series(LineSeries::new(secs.iter().copied(), RED.stroke_width(2)))
-        .map_err(|x| e(&x))?
+        .draw_secondary_series(LineSeries::new(secs.iter().copied(), RED.stroke_width(2)))?
         .label("time (right axis)")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED.stroke_width(2)));
-    chart
-        .draw_secondary_series(secs.iter().map(|&p| TriangleMarker::new(p, 5, RED.filled())))
-        .map_err(|x| e(&x))?;
+    chart.draw_secondary_series(secs.iter().map(|&p| TriangleMarker::new(p, 5, RED.filled())))?;
     draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 13)
 }
 
 fn stl_error_chart<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
     s: &StlSweep,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
+) -> Drawn {
     let x = log_span(s.points.iter().map(|p| p.max_error * 1e9), 1.4);
     let y = log_span(
         s.points
@@ -192,8 +175,7 @@ fn stl_error_chart<DB: DrawingBackend>(
         .margin(12)
         .x_label_area_size(45)
         .y_label_area_size(70)
-        .build_cartesian_2d(x.clone().log_scale(), y.log_scale())
-        .map_err(|x| e(&x))?;
+        .build_cartesian_2d(x.clone().log_scale(), y.log_scale())?;
     chart
         .configure_mesh()
         .x_desc("max_error, nm (the mesher's bound)")
@@ -205,11 +187,9 @@ fn stl_error_chart<DB: DrawingBackend>(
         .bold_line_style(BLACK.mix(0.15))
         .label_style((FONT, 13))
         .axis_desc_style((FONT, 14))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     chart
-        .draw_series(LineSeries::new([(x.start, x.start), (x.end, x.end)], BLACK.stroke_width(1)))
-        .map_err(|x| e(&x))?
+        .draw_series(LineSeries::new([(x.start, x.start), (x.end, x.end)], BLACK.stroke_width(1)))?
         .label("bound: error = max_error")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
     for (colour, label, value) in [
@@ -218,29 +198,21 @@ fn stl_error_chart<DB: DrawingBackend>(
     ] {
         let pts: Vec<(f64, f64)> = s.points.iter().map(|p| (p.max_error * 1e9, value(p) * 1e9)).collect();
         chart
-            .draw_series(LineSeries::new(pts.iter().copied(), colour.stroke_width(2)))
-            .map_err(|x| e(&x))?
+            .draw_series(LineSeries::new(pts.iter().copied(), colour.stroke_width(2)))?
             .label(label)
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2)));
-        chart.draw_series(pts.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map_err(|x| e(&x))?;
+        chart.draw_series(pts.iter().map(|&p| Circle::new(p, 4, colour.filled())))?;
     }
     draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, 13)
 }
 
-fn stl_chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, plotters::coord::Shift>,
-    s: &StlSweep,
-) -> std::result::Result<(), String> {
+fn stl_chart<DB: DrawingBackend>(root: &DrawingArea<DB, plotters::coord::Shift>, s: &StlSweep) -> Drawn {
     let (left, right) = root.split_horizontally(root.dim_in_pixel().0 / 2);
     stl_cost_chart(&left, s)?;
     stl_error_chart(&right, s)
 }
 
-fn gds_chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, plotters::coord::Shift>,
-    g: &GdsSweep,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
+fn gds_chart<DB: DrawingBackend>(root: &DrawingArea<DB, plotters::coord::Shift>, g: &GdsSweep) -> Drawn {
     let x = log_span(g.points.iter().map(|p| p.max_vertices as f64), 1.4);
     let mb_hi = g.points.iter().map(|p| p.bytes as f64 / 1e6).fold(0.0, f64::max) * 1.15;
     let s_hi = g.points.iter().map(|p| p.seconds).fold(0.0, f64::max) * 1.15;
@@ -259,8 +231,7 @@ fn gds_chart<DB: DrawingBackend>(
         .x_label_area_size(45)
         .y_label_area_size(70)
         .right_y_label_area_size(60)
-        .build_cartesian_2d(x.clone().log_scale(), 0.0..mb_hi.max(1e-6))
-        .map_err(|x| e(&x))?
+        .build_cartesian_2d(x.clone().log_scale(), 0.0..mb_hi.max(1e-6))?
         .set_secondary_coord(x.log_scale(), 0.0..s_hi.max(1e-6));
     chart
         .configure_mesh()
@@ -273,39 +244,31 @@ fn gds_chart<DB: DrawingBackend>(
         .y_label_formatter(&|v| format!("{v:.2}"))
         .label_style((FONT, 13))
         .axis_desc_style((FONT, 14))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     chart
         .configure_secondary_axes()
         .y_desc("time to trace and encode, s (best of runs)")
         .y_label_formatter(&|v| format!("{v:.2}"))
         .label_style((FONT, 13))
         .axis_desc_style((FONT, 14))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     let size: Vec<(f64, f64, usize)> =
         g.points.iter().map(|p| (p.max_vertices as f64, p.bytes as f64 / 1e6, p.polygons)).collect();
     let secs: Vec<(f64, f64)> = g.points.iter().map(|p| (p.max_vertices as f64, p.seconds)).collect();
     chart
-        .draw_series(LineSeries::new(size.iter().map(|p| (p.0, p.1)), BLUE.stroke_width(2)))
-        .map_err(|x| e(&x))?
+        .draw_series(LineSeries::new(size.iter().map(|p| (p.0, p.1)), BLUE.stroke_width(2)))?
         .label("file size (left axis)")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.stroke_width(2)));
+    chart.draw_series(size.iter().map(|&(x, y, n)| {
+        EmptyElement::at((x, y))
+            + Circle::new((0, 0), 4, BLUE.filled())
+            + Text::new(format!("{n}"), (4, -18), (FONT, 12))
+    }))?;
     chart
-        .draw_series(size.iter().map(|&(x, y, n)| {
-            EmptyElement::at((x, y))
-                + Circle::new((0, 0), 4, BLUE.filled())
-                + Text::new(format!("{n}"), (4, -18), (FONT, 12))
-        }))
-        .map_err(|x| e(&x))?;
-    chart
-        .draw_secondary_series(LineSeries::new(secs.iter().copied(), RED.stroke_width(2)))
-        .map_err(|x| e(&x))?
+        .draw_secondary_series(LineSeries::new(secs.iter().copied(), RED.stroke_width(2)))?
         .label("time (right axis)")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED.stroke_width(2)));
-    chart
-        .draw_secondary_series(secs.iter().map(|&p| TriangleMarker::new(p, 5, RED.filled())))
-        .map_err(|x| e(&x))?;
+    chart.draw_secondary_series(secs.iter().map(|&p| TriangleMarker::new(p, 5, RED.filled())))?;
     draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 13)
 }
 
@@ -357,33 +320,28 @@ pub fn precompensation_gain(path: &Path, points: &[GainPoint]) -> Result<()> {
         psf: &[(f64, f64)],
         x1: f64,
         y1: f64,
-    ) -> std::result::Result<(), String> {
-        let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    ) -> Drawn {
         let mut ch = ChartBuilder::on(root)
             .caption("pre-compensation: error of the plain mask / error of the corrected one", (FONT, 17))
             .margin(14)
             .x_label_area_size(44)
             .y_label_area_size(64)
-            .build_cartesian_2d(0.0..x1, 0.0..y1)
-            .map_err(err)?;
+            .build_cartesian_2d(0.0..x1, 0.0..y1)?;
         ch.configure_mesh()
             .x_desc("process blur (standard deviation, design samples)")
             .y_desc("gain (before / after)")
             .label_style((FONT, 13))
             .axis_desc_style((FONT, 14))
-            .draw()
-            .map_err(err)?;
-        ch.draw_series(LineSeries::new([(0.0, 2.0), (x1, 2.0)], BLACK.mix(0.4).stroke_width(1)))
-            .map_err(err)?
+            .draw()?;
+        ch.draw_series(LineSeries::new([(0.0, 2.0), (x1, 2.0)], BLACK.mix(0.4).stroke_width(1)))?
             .label("2x")
             .legend(|(x, y)| PathElement::new([(x, y), (x + 18, y)], BLACK.mix(0.4)));
-        ch.draw_series(LineSeries::new([(0.0, 1.0), (x1, 1.0)], BLACK.stroke_width(1))).map_err(err)?;
+        ch.draw_series(LineSeries::new([(0.0, 1.0), (x1, 1.0)], BLACK.stroke_width(1)))?;
         for (data, colour, label) in [(rms, BLUE, "height RMS"), (psf, RED, "PSF relative L2")] {
-            ch.draw_series(LineSeries::new(data.iter().copied(), colour.stroke_width(2)))
-                .map_err(err)?
+            ch.draw_series(LineSeries::new(data.iter().copied(), colour.stroke_width(2)))?
                 .label(label)
                 .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], colour.stroke_width(2)));
-            ch.draw_series(data.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map_err(err)?;
+            ch.draw_series(data.iter().map(|&p| Circle::new(p, 4, colour.filled())))?;
         }
         draw_legend(&mut ch, SeriesLabelPosition::UpperLeft, 13)
     }

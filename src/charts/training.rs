@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::style::{write_png_chart, write_svg_chart, FONT};
+use super::style::{write_png_chart, write_svg_chart, Drawn, FONT};
 use crate::bench::finetune_time::TimedFinetune;
 use crate::decoder::finetune::HistoryEntry;
 use crate::error::{Error, Result};
@@ -31,53 +31,37 @@ pub fn write_training_chart(path: &Path, history: &[HistoryEntry]) -> Result<()>
         psnr.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &(_, p)| (a.min(p), b.max(p)));
     let (plo, phi) = if plo.is_finite() { (plo - 0.5, phi + 0.5) } else { (0.0, 1.0) };
     write_png_chart(path, 900, 500, |root| {
-        let e = |e: &dyn std::fmt::Display| e.to_string();
         let mut chart = ChartBuilder::on(root)
             .caption("Decoder fine-tuning", (FONT, 22))
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(70)
             .right_y_label_area_size(70)
-            .build_cartesian_2d(0.0..last, (lo..hi).log_scale())
-            .map_err(|x| e(&x))?
+            .build_cartesian_2d(0.0..last, (lo..hi).log_scale())?
             .set_secondary_coord(0.0..last, plo..phi);
         chart
             .configure_mesh()
             .x_desc("step")
             .y_desc("training loss (sqrt domain)")
             .label_style((FONT, 13))
-            .draw()
-            .map_err(|x| e(&x))?;
+            .draw()?;
+        chart.configure_secondary_axes().y_desc("validation PSNR, dB").label_style((FONT, 13)).draw()?;
         chart
-            .configure_secondary_axes()
-            .y_desc("validation PSNR, dB")
-            .label_style((FONT, 13))
-            .draw()
-            .map_err(|x| e(&x))?;
-        chart
-            .draw_series(LineSeries::new(losses.iter().copied(), &BLUE))
-            .map_err(|x| e(&x))?
+            .draw_series(LineSeries::new(losses.iter().copied(), &BLUE))?
             .label("training loss")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE));
         chart
-            .draw_secondary_series(LineSeries::new(psnr.iter().copied(), RED.stroke_width(2)))
-            .map_err(|x| e(&x))?
+            .draw_secondary_series(LineSeries::new(psnr.iter().copied(), RED.stroke_width(2)))?
             .label("validation PSNR")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED));
-        chart
-            .draw_secondary_series(psnr.iter().map(|&p| Circle::new(p, 3, RED.filled())))
-            .map_err(|x| e(&x))?;
+        chart.draw_secondary_series(psnr.iter().map(|&p| Circle::new(p, 3, RED.filled())))?;
         super::style::draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 13)?;
         Ok(())
     })
 }
 
-fn finetune_time_chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    r: &TimedFinetune,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
-    root.fill(&WHITE).map_err(|x| e(&x))?;
+fn finetune_time_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: &TimedFinetune) -> Drawn {
+    root.fill(&WHITE)?;
     let minutes = |s: f64| s / 60.0;
     let last = r.points.iter().map(|p| minutes(p.seconds)).fold(0.0, f64::max).max(1e-3);
     let (lo, hi) = r
@@ -100,33 +84,24 @@ fn finetune_time_chart<DB: DrawingBackend>(
         .margin(12)
         .x_label_area_size(44)
         .y_label_area_size(60)
-        .build_cartesian_2d(0.0..last * 1.05, (lo - pad)..(hi + pad))
-        .map_err(|x| e(&x))?;
+        .build_cartesian_2d(0.0..last * 1.05, (lo - pad)..(hi + pad))?;
     let x_desc = format!(
         "training time, minutes of wall clock on {} threads ({} steps of {} x {}^2, {:.2} s a step)",
         r.threads, r.steps, r.batch, r.crop, r.seconds_per_step
     );
-    c.configure_mesh()
-        .x_desc(x_desc)
-        .y_desc("validation PSNR, dB")
-        .label_style((FONT, 12))
-        .draw()
-        .map_err(|x| e(&x))?;
+    c.configure_mesh().x_desc(x_desc).y_desc("validation PSNR, dB").label_style((FONT, 12)).draw()?;
     let (start, best) = r.start_and_best();
-    c.draw_series(LineSeries::new([(0.0, start), (last * 1.05, start)], BLACK.stroke_width(1)))
-        .map_err(|x| e(&x))?
+    c.draw_series(LineSeries::new([(0.0, start), (last * 1.05, start)], BLACK.stroke_width(1)))?
         .label(format!("the start, {start:.2} dB"))
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK));
     let line: Vec<(f64, f64)> = r.points.iter().map(|p| (minutes(p.seconds), p.val_psnr)).collect();
-    c.draw_series(LineSeries::new(line.clone(), BLUE.stroke_width(2)))
-        .map_err(|x| e(&x))?
+    c.draw_series(LineSeries::new(line.clone(), BLUE.stroke_width(2)))?
         .label(format!("fine-tuned, best {best:.2} dB"))
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLUE.stroke_width(2)));
-    c.draw_series(line.iter().map(|&p| Circle::new(p, 4, BLUE.filled()))).map_err(|x| e(&x))?;
+    c.draw_series(line.iter().map(|&p| Circle::new(p, 4, BLUE.filled())))?;
     if let Some(s) = r.half_gain_seconds() {
         let at = minutes(s);
-        c.draw_series(LineSeries::new([(at, lo - pad), (at, hi + pad)], RED.stroke_width(1)))
-            .map_err(|x| e(&x))?
+        c.draw_series(LineSeries::new([(at, lo - pad), (at, hi + pad)], RED.stroke_width(1)))?
             .label(format!("half the gain, {s:.0} s"))
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], RED));
     }

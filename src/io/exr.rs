@@ -41,12 +41,15 @@ pub fn read_exr(path: &Path, channel: Option<&str>) -> Result<RawMap> {
     decode_exr(path, &bytes, channel)
 }
 
-/// The layer headers of an OpenEXR file, after checking its magic number. The decoder is
-/// third-party code fed with user bytes: a panic in it becomes an error.
+/// The layer headers of an OpenEXR file, after checking its magic number and its custom
+/// channel-list attributes (in file order: the `exr` crate checks custom attributes in its
+/// `HashMap`'s random order, so a file with two bad ones would give a different error from run
+/// to run). The decoder is third-party code fed with user bytes: a panic in it becomes an error.
 fn read_headers(path: &Path, bytes: &[u8]) -> Result<exr::meta::Headers> {
     if bytes.len() < 4 || bytes[..4] != [0x76, 0x2f, 0x31, 0x01] {
         return Err(Error::signature(path, "not an OpenEXR file: bad magic (expected 76 2f 31 01)"));
     }
+    scanline::check_custom_channel_lists(path, bytes)?;
     Ok(std::panic::catch_unwind(|| exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false))
         .map_err(|_| Error::malformed(path, "OpenEXR: the header decoder failed on malformed data"))?
         .map_err(|e| Error::malformed(path, format!("OpenEXR: {e}")))?
@@ -445,6 +448,35 @@ mod tests {
         for cut in (0..bytes.len()).step_by(7) {
             let e = decode_exr(Path::new("cut.exr"), &bytes[..cut], None);
             assert!(e.unwrap_err().to_string().contains("cut.exr"), "cut at {cut}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod corpus_tests {
+    use super::*;
+
+    /// Two fuzz inputs whose custom channel lists are both bad: the `exr` crate's checks, in
+    /// its `HashMap`'s order, gave one of two messages from run to run; the file-order check
+    /// gives one, the same at every read.
+    #[test]
+    fn bad_custom_channel_lists_give_one_error() {
+        let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus/exr");
+        for (name, expected) in [
+            (
+                "6913a4497bc6be663188c2888b725f9d09ffef72",
+                "OpenEXR: channel 'Z' has sampling 65536 x 0, expected >= 1",
+            ),
+            ("a76f9780315846c69755c736e5240d6729501910", "OpenEXR: attribute 'ps' is an empty channel list"),
+        ] {
+            let bytes = std::fs::read(corpus.join(name)).unwrap();
+            for _ in 0..50 {
+                for channel in [None, Some("Z")] {
+                    let e = decode_exr(Path::new("f.exr"), &bytes, channel).unwrap_err();
+                    assert!(matches!(e, Error::Format { cause: crate::FormatCause::Malformed, .. }), "{e:?}");
+                    assert_eq!(e.to_string(), format!("f.exr: {expected}"));
+                }
+            }
         }
     }
 }

@@ -208,7 +208,11 @@ fn fmt_pitch(p: [f64; 2]) -> String {
 fn resolve_pitch(file: &str, from_file: Option<[f64; 2]>, given: Option<[f64; 2]>) -> Result<[f64; 2]> {
     if let Some(g) = given {
         if !g.iter().all(|p| p.is_finite() && *p > 0.0) {
-            return Err(Error::param("pitch", format!("must be finite and positive, got {g:?} m")));
+            return Err(Error::param_in(
+                "pitch",
+                Allowed::positive(),
+                format!("must be finite and positive, got {g:?} m"),
+            ));
         }
     }
     match (from_file, given) {

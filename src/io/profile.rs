@@ -25,7 +25,7 @@
 use std::io::Write;
 use std::path::Path;
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::profile::Profile;
 use crate::io::atomic::write_atomic;
 
@@ -120,7 +120,11 @@ pub fn profile_unit(name: &str) -> Option<f64> {
 /// [`profile_unit`], refused with the list otherwise.
 pub fn profile_unit_arg(name: &str) -> Result<f64> {
     profile_unit(name).ok_or_else(|| {
-        Error::param("unit", format!("'{name}' is not a length unit (expected one of m, mm, um, nm, pm, A)"))
+        Error::param_in(
+            "unit",
+            Allowed::one_of(&["m", "mm", "um", "nm", "pm", "A"]),
+            format!("'{name}' is not a length unit (expected one of m, mm, um, nm, pm, A)"),
+        )
     })
 }
 

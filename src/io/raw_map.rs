@@ -7,7 +7,7 @@ use std::path::Path;
 
 use ndarray::Array2;
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::units::{length_unit, parse_length};
 
 /// Whether the stored numbers are values in some length unit or integer counts of an image.
@@ -71,8 +71,9 @@ impl Metadata {
         let mut out = Vec::new();
         if let Some([px, py]) = self.pitch {
             if !(px.is_finite() && px > 0.0 && py.is_finite() && py > 0.0) {
-                return Err(Error::param(
+                return Err(Error::param_in(
                     "pitch",
+                    Allowed::positive(),
                     format!("must be finite and positive, got [{px}, {py}] m"),
                 ));
             }

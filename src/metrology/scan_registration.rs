@@ -62,7 +62,7 @@ use rustfft::num_complex::{Complex, Complex32, Complex64};
 use rustfft::{Fft, FftNum, FftPlanner};
 use serde::Serialize;
 
-use crate::error::{Condition, Error, Refusal, Result};
+use crate::error::{Allowed, Condition, Error, Refusal, Result};
 use crate::grid::Grid;
 
 /// Placement of the part: scan position `x_s = t + s R(theta) M x_d` of design position `x_d`
@@ -91,7 +91,11 @@ impl Pose {
             return Err(Error::param("pose", "rotation and shift must be finite"));
         }
         if !(self.scale.is_finite() && self.scale > 0.0) {
-            return Err(Error::param("scale", format!("must be finite and positive, got {}", self.scale)));
+            return Err(Error::param_in(
+                "scale",
+                Allowed::positive(),
+                format!("must be finite and positive, got {}", self.scale),
+            ));
         }
         Ok(())
     }

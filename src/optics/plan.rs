@@ -35,6 +35,7 @@
 //! is invalid or it costs less. Cost is counted in real multiply-adds.
 
 use std::f64::consts::PI;
+use std::ops::Bound;
 
 use serde::{Deserialize, Serialize};
 
@@ -42,7 +43,7 @@ use super::propagate::{self, asm, matrix_dft, Method, Options, Precision, Violat
 use super::psf::{Channel, Psf};
 use super::spectrum::{combine, Band};
 use super::system::{sinc, OpticalSystem, PixelRule};
-use crate::error::{Condition, Error, Result};
+use crate::error::{Allowed, Condition, Error, Result};
 use crate::grid::{Grid, Interpolation};
 
 /// The default tolerance of `doefab psf`: relative L2 error per channel.
@@ -225,7 +226,11 @@ pub fn spectral_count<'a>(
 /// simulated at its spectral samples) or, when `bands` is empty, the system's wavelengths.
 pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) -> Result<Plan> {
     if !(tolerance > 0.0 && tolerance < 1.0) {
-        return Err(Error::param("tolerance", format!("must lie in (0, 1), got {tolerance}")));
+        return Err(Error::param_in(
+            "tolerance",
+            Allowed::within(Bound::Excluded(0.0), Bound::Excluded(1.0)),
+            format!("must lie in (0, 1), got {tolerance}"),
+        ));
     }
     system.validate()?;
     let mut choices = Vec::new();

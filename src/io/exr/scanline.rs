@@ -226,6 +226,37 @@ impl Header {
     }
 }
 
+/// Checks, in file order, every channel-list attribute of a single-part header other than
+/// `channels` (which [`Header::parse`] reads): each must list at least one channel, each with a
+/// sampling of at least 1. A header this walk cannot read is left to the caller's decoder.
+pub(crate) fn check_custom_channel_lists(path: &Path, bytes: &[u8]) -> Result<()> {
+    let Some(version) = bytes.get(4..8).map(|v| u32::from_le_bytes(v.try_into().expect("4 bytes"))) else {
+        return Ok(());
+    };
+    let max_name = if version & 0x400 != 0 { 255 } else { 31 };
+    let mut r = Reader { path, bytes, pos: 8 };
+    while let Ok(Some((name, kind, value))) = next_attribute(&mut r, max_name) {
+        if kind == "chlist" && name != "channels" && parse_channels(path, value, max_name)?.is_empty() {
+            return Err(Error::malformed(
+                path,
+                format!("OpenEXR: attribute '{name}' is an empty channel list"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The next attribute of a header (name, type, value), `None` at the header's end.
+fn next_attribute<'a>(r: &mut Reader<'a>, max_name: usize) -> Result<Option<(String, String, &'a [u8])>> {
+    let name = r.name(max_name, "an attribute name")?;
+    if name.is_empty() {
+        return Ok(None);
+    }
+    let kind = r.name(max_name, "an attribute type")?;
+    let size = usize::try_from(r.i32("an attribute size")?).unwrap_or(usize::MAX);
+    Ok(Some((name, kind, r.take(size, "an attribute")?)))
+}
+
 fn parse_channels(path: &Path, value: &[u8], max_name: usize) -> Result<Vec<Channel>> {
     let mut r = Reader { path, bytes: value, pos: 0 };
     let mut out = Vec::new();
