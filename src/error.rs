@@ -247,13 +247,6 @@ impl Error {
     pub fn registration(refusal: Refusal, what: impl Into<String>) -> Self {
         Error::Registration { refusal, what: what.into() }
     }
-    /// The cause of a [`Error::Format`], `None` for any other error.
-    pub fn format_cause(&self) -> Option<FormatCause> {
-        match self {
-            Error::Format { cause, .. } => Some(*cause),
-            _ => None,
-        }
-    }
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -148,7 +148,11 @@ impl FabBenchOptions {
             ));
         }
         if self.repeats == 0 {
-            return Err(Error::param("repeats", "at least one timed run per configuration"));
+            return Err(Error::param_in(
+                "repeats",
+                Allowed::at_least(1.0),
+                "at least one timed run per configuration",
+            ));
         }
         Ok(())
     }

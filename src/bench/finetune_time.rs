@@ -116,7 +116,11 @@ pub fn run(
     mut tick: impl FnMut(&str),
 ) -> Result<TimedFinetune> {
     if !(opts.seconds > 0.0 && opts.seconds.is_finite()) {
-        return Err(Error::param("seconds", format!("must be a positive time, got {} s", opts.seconds)));
+        return Err(Error::param_in(
+            "seconds",
+            Allowed::positive(),
+            format!("must be a positive time, got {} s", opts.seconds),
+        ));
     }
     if opts.evaluations == 0 {
         return Err(Error::param_in("evaluations", Allowed::at_least(1.0), "must be at least 1"));

@@ -144,6 +144,27 @@ pub struct ScoringOptions {
     pub min_saturated: usize,
 }
 
+impl ScoringOptions {
+    /// Refuses a clipping level outside (0, 1] and a coverage floor outside [0, 1].
+    fn check(&self) -> Result<()> {
+        if !(self.saturation > 0.0 && self.saturation <= 1.0) {
+            return Err(Error::param_in(
+                "saturation",
+                Allowed::within(Bound::Excluded(0.0), Bound::Included(1.0)),
+                format!("{} is not in (0, 1]", self.saturation),
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.min_coverage) {
+            return Err(Error::param_in(
+                "min_coverage",
+                Allowed::between(0.0, 1.0),
+                format!("{} is not a fraction in [0, 1]", self.min_coverage),
+            ));
+        }
+        Ok(())
+    }
+}
+
 impl Default for ScoringOptions {
     fn default() -> Self {
         ScoringOptions {
@@ -264,20 +285,7 @@ pub fn prepare(
             capture.dim()
         )));
     }
-    if !(opts.saturation > 0.0 && opts.saturation <= 1.0) {
-        return Err(Error::param_in(
-            "saturation",
-            Allowed::within(Bound::Excluded(0.0), Bound::Included(1.0)),
-            format!("{} is not in (0, 1]", opts.saturation),
-        ));
-    }
-    if !(0.0..=1.0).contains(&opts.min_coverage) {
-        return Err(Error::param_in(
-            "min_coverage",
-            Allowed::between(0.0, 1.0),
-            format!("{} is not a fraction in [0, 1]", opts.min_coverage),
-        ));
-    }
+    opts.check()?;
     if let Some(bad) = reference.iter().chain(capture.iter()).find(|v| !v.is_finite()) {
         return Err(Error::Data(format!("the reference or the capture holds {bad}")));
     }

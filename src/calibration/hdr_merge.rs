@@ -215,8 +215,9 @@ fn check_frames(frames: &[Capture], times: &[f64], dark: Option<&Image>) -> Resu
             ));
         }
         if !(t.is_finite() && t > 0.0) {
-            return Err(Error::param(
+            return Err(Error::param_in(
                 "times",
+                Allowed::positive(),
                 format!("{}: exposure {t} s is not positive", f.path.display()),
             ));
         }

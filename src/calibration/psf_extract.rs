@@ -126,6 +126,29 @@ pub struct PsfOptions {
     pub max_error: f64,
 }
 
+impl PsfOptions {
+    /// Refuses pitches that are not positive lengths and a crop under 3 pixels.
+    fn check(&self) -> Result<()> {
+        for (name, v) in [("capture_pitch", self.capture_pitch), ("sensor_pitch", self.sensor_pitch)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(Error::param_in(
+                    name,
+                    Allowed::positive(),
+                    format!("must be a positive length, got {v} m"),
+                ));
+            }
+        }
+        if self.crop < 3 {
+            return Err(Error::param_in(
+                "crop",
+                Allowed::at_least(3.0),
+                format!("must be at least 3 pixels, got {}", self.crop),
+            ));
+        }
+        Ok(())
+    }
+}
+
 impl Default for PsfOptions {
     fn default() -> Self {
         PsfOptions {
@@ -633,18 +656,7 @@ fn centred_channel(
 /// Extracts the PSF from a merged pinhole bracket (see the module docs).
 pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCalibration)> {
     let (h, w, nc) = merged.radiance.dim();
-    for (name, v) in [("capture_pitch", opts.capture_pitch), ("sensor_pitch", opts.sensor_pitch)] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(Error::param(name, format!("must be a positive length, got {v} m")));
-        }
-    }
-    if opts.crop < 3 {
-        return Err(Error::param_in(
-            "crop",
-            Allowed::at_least(3.0),
-            format!("must be at least 3 pixels, got {}", opts.crop),
-        ));
-    }
+    opts.check()?;
     if let Some(wl) = &opts.wavelengths {
         if wl.len() != nc {
             return Err(Error::param("wavelengths", format!("{} given for {nc} channels", wl.len())));

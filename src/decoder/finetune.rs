@@ -33,7 +33,7 @@ use crate::decoder::scenes::{GeneratedScenes, SceneSource};
 use crate::decoder::unet::{is_trainable, tensor_values, UNet};
 use crate::decoder::weights::{encode_safetensors, read_safetensors, DecoderWeights, NamedTensor};
 use crate::decoder::{to_tensor, weights};
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::image::Image;
 use crate::io::atomic::write_bytes;
 use crate::optics::convolve::Convolver;
@@ -69,7 +69,11 @@ impl TrainingScenes {
         white_balance: f64,
     ) -> Result<TrainingScenes> {
         if !(white_balance >= 1.0 && white_balance.is_finite()) {
-            return Err(Error::param("white_balance", format!("{white_balance} must be finite and >= 1")));
+            return Err(Error::param_in(
+                "white_balance",
+                Allowed::at_least(1.0),
+                format!("{white_balance} must be finite and >= 1"),
+            ));
         }
         Ok(match data {
             Some(dir) => {

@@ -247,7 +247,11 @@ fn resolve_scale(file: &str, raw: &RawMap, opts: &ReadOptions) -> Result<f64> {
             }
             if let Some(u) = opts.unit {
                 if !(u.is_finite() && u > 0.0) {
-                    return Err(Error::param("unit", format!("must be a positive length, got {u} m")));
+                    return Err(Error::param_in(
+                        "unit",
+                        Allowed::positive(),
+                        format!("must be a positive length, got {u} m"),
+                    ));
                 }
             }
             match (raw.unit, opts.unit) {

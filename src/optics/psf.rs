@@ -16,7 +16,7 @@ use std::path::Path;
 use ndarray::{Array2, Array4, ArrayD};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::{Grid, Unit};
 use crate::io::exr::{decode_exr, exr_channel_names};
 use crate::io::npy::{decode_npy, read_npy_nd};
@@ -400,7 +400,11 @@ fn resolve_pitch(path: &Path, file: Option<[f64; 2]>, given: Option<f64>) -> Res
         }
         (Some(p), _) => Ok(p),
         (None, Some(g)) if g.is_finite() && g > 0.0 => Ok([g, g]),
-        (None, Some(g)) => Err(Error::param("pitch", format!("must be a positive length, got {g} m"))),
+        (None, Some(g)) => Err(Error::param_in(
+            "pitch",
+            Allowed::positive(),
+            format!("must be a positive length, got {g} m"),
+        )),
         (None, None) => Err(Error::malformed(
             path,
             "states no pixel pitch (no metadata with 'sensor_pitch' or 'pitch_x'/'pitch_y'): give `pitch`",
