@@ -1,5 +1,24 @@
 //! The library's error type, split by whose fault it is (after `image::ImageError`).
+//!
+//! Every variant carries a typed cause beside its message, and callers match the cause, never
+//! the text (which is for people and may be reworded):
+//!
+//! * [`Error::Format`]: a file's content is not what its format promises. [`FormatCause`] says
+//!   how: [`Truncated`](FormatCause::Truncated) (the file ends before a field it needs; the
+//!   offset is where it ends), [`Signature`](FormatCause::Signature) (the magic number or the
+//!   identifying name of another format, or none), [`Unsupported`](FormatCause::Unsupported)
+//!   (a valid file using a version, encoding or layout this reader does not decode) and
+//!   [`Malformed`](FormatCause::Malformed) (content that is inconsistent, out of range or not
+//!   parseable); [`Encoding`](FormatCause::Encoding) is the one cause met in writing (an
+//!   encoder refused the content). `offset` is the byte offset of the offending field where the reader knows it.
+//! * [`Error::Parameter`]: a caller's value is refused; `allowed` states the range or the set
+//!   it must lie in ([`Allowed`]) where the check is one.
+//! * [`Error::Validity`]: a numerical method would run outside its validity; [`Condition`]
+//!   names which condition fails (sampling, aliasing, conditioning, ...).
+//! * [`Error::Registration`]: a scan or profile could not be placed on its design;
+//!   [`Refusal`] says why (no match, ambiguous, featureless, not trusted, no overlap).
 
+use std::ops::Bound;
 use std::path::PathBuf;
 
 /// Every fallible library function returns this.
@@ -15,20 +34,33 @@ pub enum Error {
     },
     /// A file was read but its content is not what its format promises.
     #[error("{path}: {what}")]
-    Format { path: PathBuf, what: String },
+    Format {
+        path: PathBuf,
+        /// The byte offset of the offending field (for [`FormatCause::Truncated`], where the
+        /// data end), in the file or in the archive member the message names, where the reader
+        /// knows it.
+        offset: Option<u64>,
+        cause: FormatCause,
+        what: String,
+    },
     /// A parameter given by the caller is out of range or inconsistent.
     #[error("invalid {name}: {reason}")]
-    Parameter { name: String, reason: String },
+    Parameter {
+        name: String,
+        reason: String,
+        /// The range or set the value must lie in, where the check is one.
+        allowed: Option<Allowed>,
+    },
     /// The data itself (not the file) cannot be used: NaN, implausible values, empty regions.
     #[error("{0}")]
     Data(String),
     /// A numerical method would run outside its validity range (sampling, aliasing, conditioning).
-    #[error("outside the method's validity: {0}")]
-    Validity(String),
+    #[error("outside the method's validity: {what}")]
+    Validity { condition: Condition, what: String },
     /// A scan could not be registered to its design: it does not match, the match is
     /// ambiguous (periodic or rotationally symmetric design) or the scan is featureless.
-    #[error("registration refused: {0}")]
-    Registration(String),
+    #[error("registration refused: {what}")]
+    Registration { refusal: Refusal, what: String },
     /// A size limit would be exceeded.
     #[error("{0}")]
     Limit(String),
@@ -39,16 +71,261 @@ pub enum Error {
     Options(String),
 }
 
+/// How a file's content fails its format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum FormatCause {
+    /// The file ends before a field it needs (cut short in a copy or a download).
+    Truncated,
+    /// The magic number or identifying name is wrong or absent: another format, or no file of
+    /// this kind at all (also a file name whose extension names no readable format).
+    Signature,
+    /// A valid file of the format, but a version, encoding, layout or sample type this reader
+    /// does not decode.
+    Unsupported,
+    /// Content inconsistent with itself or the format: a field out of range, a missing or
+    /// duplicated entry, text that does not parse, sizes that disagree.
+    Malformed,
+    /// Writing, not reading: the encoder of the format (or of a chart) refused the content.
+    Encoding,
+}
+
+/// The range or set a parameter must lie in.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum Allowed {
+    /// A number between `min` and `max`, each end included, excluded or open.
+    Range { min: Bound<f64>, max: Bound<f64> },
+    /// One of these names.
+    OneOf(Vec<String>),
+}
+
+impl Allowed {
+    /// `(0, inf)`.
+    pub fn positive() -> Self {
+        Allowed::Range { min: Bound::Excluded(0.0), max: Bound::Unbounded }
+    }
+    /// `[min, inf)`.
+    pub fn at_least(min: f64) -> Self {
+        Allowed::Range { min: Bound::Included(min), max: Bound::Unbounded }
+    }
+    /// `[min, max]`.
+    pub fn between(min: f64, max: f64) -> Self {
+        Allowed::Range { min: Bound::Included(min), max: Bound::Included(max) }
+    }
+    /// Between `min` and `max`, each end as given.
+    pub fn within(min: Bound<f64>, max: Bound<f64>) -> Self {
+        Allowed::Range { min, max }
+    }
+    /// One of `names`.
+    pub fn one_of<S: AsRef<str>>(names: &[S]) -> Self {
+        Allowed::OneOf(names.iter().map(|s| s.as_ref().to_string()).collect())
+    }
+    /// Whether the number `v` lies in the range (false for a set of names).
+    pub fn contains(&self, v: f64) -> bool {
+        match self {
+            Allowed::Range { min, max } => {
+                let above = match *min {
+                    Bound::Included(m) => v >= m,
+                    Bound::Excluded(m) => v > m,
+                    Bound::Unbounded => !v.is_nan(),
+                };
+                let below = match *max {
+                    Bound::Included(m) => v <= m,
+                    Bound::Excluded(m) => v < m,
+                    Bound::Unbounded => !v.is_nan(),
+                };
+                above && below
+            }
+            Allowed::OneOf(_) => false,
+        }
+    }
+}
+
+/// The validity condition a numerical method would violate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Condition {
+    /// A propagation method's own conditions (lens and defocus sampling, transfer-function
+    /// bandwidth, phase gradient, the Fresnel approximation, the output window), each violated
+    /// one named in the message; no method of the planner meets them all.
+    Propagation,
+    /// The spectral bands or the pixel integration cannot be sampled finely enough for the
+    /// tolerance within the allowed number of samples.
+    Sampling,
+    /// A periodic replica (of a propagator or a spectrum) would overlap the result.
+    Aliasing,
+    /// The geometry leaves nothing to compute: an imaging configuration (B = 0), a crop larger
+    /// than the window, a simulated scan off its design.
+    Geometry,
+    /// An input outside the range where the model holds (a wavelength outside a dispersion
+    /// formula's range, a depth scale that is a unit error rather than a process error).
+    Domain,
+    /// The equations are singular or leave the unknowns unconstrained.
+    Conditioning,
+    /// Too few usable samples or pixels support the estimate.
+    Coverage,
+    /// The data do not follow the method's model (a motion that is not affine).
+    Model,
+    /// A registration's own conditions fail (see [`Refusal`]); [`Error::Registration`] carries
+    /// the same refusal where the caller reports it as such.
+    Registration(Refusal),
+}
+
+/// Why a scan or profile was not registered to its design.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Refusal {
+    /// The best correlation is below the required one: another design, scan or part.
+    NoMatch,
+    /// A second placement correlates nearly as well (a periodic or rotationally symmetric
+    /// design): the shift or rotation is not determined.
+    Ambiguous,
+    /// The scan or the design has no structure to correlate (flat, or white noise).
+    Featureless,
+    /// The correlation is far below what the scan's own noise allows: the design does not
+    /// describe the part, or the pose is wrong.
+    NotTrusted,
+    /// The scan and the design barely overlap at the placement found.
+    NoOverlap,
+}
+
 impl Error {
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Error::Io { path: path.into(), source }
     }
-    pub fn format(path: impl Into<PathBuf>, what: impl Into<String>) -> Self {
-        Error::Format { path: path.into(), what: what.into() }
+    fn format(
+        path: impl Into<PathBuf>,
+        offset: Option<u64>,
+        cause: FormatCause,
+        what: impl Into<String>,
+    ) -> Self {
+        Error::Format { path: path.into(), offset, cause, what: what.into() }
     }
+    /// The file ends at `offset` (its length) before the field `what` needs.
+    pub fn truncated(path: impl Into<PathBuf>, offset: u64, what: impl Into<String>) -> Self {
+        Error::format(path, Some(offset), FormatCause::Truncated, what)
+    }
+    /// A wrong or absent magic number or identifier: not a file of this format.
+    pub fn signature(path: impl Into<PathBuf>, what: impl Into<String>) -> Self {
+        Error::format(path, None, FormatCause::Signature, what)
+    }
+    /// A version, encoding or layout this reader does not decode.
+    pub fn unsupported(path: impl Into<PathBuf>, what: impl Into<String>) -> Self {
+        Error::format(path, None, FormatCause::Unsupported, what)
+    }
+    /// Content inconsistent, out of range or not parseable.
+    pub fn malformed(path: impl Into<PathBuf>, what: impl Into<String>) -> Self {
+        Error::format(path, None, FormatCause::Malformed, what)
+    }
+    /// The encoder of the file's format refused the content being written.
+    pub fn encoding(path: impl Into<PathBuf>, what: impl Into<String>) -> Self {
+        Error::format(path, None, FormatCause::Encoding, what)
+    }
+    /// This error with the byte offset of the offending field, for a [`Error::Format`] (any
+    /// other error is returned unchanged).
+    #[must_use]
+    pub fn at(mut self, at: u64) -> Self {
+        if let Error::Format { offset, .. } = &mut self {
+            *offset = Some(at);
+        }
+        self
+    }
+    /// A refused parameter without a stated range.
     pub fn param(name: impl Into<String>, reason: impl Into<String>) -> Self {
-        Error::Parameter { name: name.into(), reason: reason.into() }
+        Error::Parameter { name: name.into(), reason: reason.into(), allowed: None }
+    }
+    /// A parameter refused for lying outside `allowed`.
+    pub fn param_in(name: impl Into<String>, allowed: Allowed, reason: impl Into<String>) -> Self {
+        Error::Parameter { name: name.into(), reason: reason.into(), allowed: Some(allowed) }
+    }
+    /// A method refused for violating `condition`.
+    pub fn validity(condition: Condition, what: impl Into<String>) -> Self {
+        Error::Validity { condition, what: what.into() }
+    }
+    /// A registration refused for `refusal`.
+    pub fn registration(refusal: Refusal, what: impl Into<String>) -> Self {
+        Error::Registration { refusal, what: what.into() }
     }
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+    use crate::io::npy::{decode_npy, header_bytes};
+
+    /// A 2 x 2 f8 `.npy` file as numpy writes it.
+    fn npy() -> Vec<u8> {
+        let mut b = header_bytes("<f8", &[2, 2]);
+        b.extend([1.0f64, 2.0, 3.0, 4.0].iter().flat_map(|v| v.to_le_bytes()));
+        b
+    }
+
+    fn format_error(bytes: &[u8]) -> (FormatCause, Option<u64>, String) {
+        match decode_npy(Path::new("a.npy"), bytes) {
+            Err(Error::Format { cause, offset, what, .. }) => (cause, offset, what),
+            other => panic!("expected a format error, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_reader_states_how_a_file_fails() {
+        let good = npy();
+        assert!(decode_npy(Path::new("a.npy"), &good).is_ok());
+        // Cut inside the data: truncated where the bytes end.
+        let cut = &good[..good.len() - 5];
+        let (cause, offset, what) = format_error(cut);
+        assert_eq!((cause, offset), (FormatCause::Truncated, Some(cut.len() as u64)), "{what}");
+        assert!(what.starts_with("truncated data"), "{what}");
+        // Another format's bytes.
+        let (cause, _, what) = format_error(b"PK\x03\x04 a zip archive, not an array");
+        assert_eq!(cause, FormatCause::Signature, "{what}");
+        // A format version numpy has not written.
+        let mut v9 = good.clone();
+        v9[6] = 9;
+        let (cause, _, what) = format_error(&v9);
+        assert_eq!(cause, FormatCause::Unsupported, "{what}");
+        // A header dictionary that does not parse.
+        let mut broken = good.clone();
+        let at = broken.iter().position(|&b| b == b'{').unwrap();
+        broken[at] = b'[';
+        let (cause, _, what) = format_error(&broken);
+        assert_eq!(cause, FormatCause::Malformed, "{what}");
+    }
+
+    #[test]
+    fn a_refused_parameter_states_its_range() {
+        let g = crate::Grid::new(ndarray::Array2::zeros((4, 4)), [1e-6, 1e-6], crate::Unit::Metre).unwrap();
+        match crate::grid::blur::gaussian_blur(&g, -1e-6) {
+            Err(Error::Parameter { name, allowed: Some(range), .. }) => {
+                assert!(
+                    name == "blur" && !range.contains(-1e-6) && range.contains(0.0) && range.contains(2e-6)
+                )
+            }
+            other => panic!("expected a refused blur with its range, got {other:?}"),
+        }
+        let e = crate::units::length_unit("furlong").unwrap_err();
+        match &e {
+            Error::Parameter { allowed: Some(Allowed::OneOf(units)), .. } => {
+                assert!(units.iter().any(|u| u == "nm"))
+            }
+            other => panic!("expected the allowed units, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_method_names_the_condition_it_would_violate() {
+        let pdms = crate::material::Material::by_name("pdms").unwrap();
+        assert!(pdms.index(550e-9).is_ok());
+        let e = pdms.index(2e-6).unwrap_err();
+        assert!(matches!(e, Error::Validity { condition: Condition::Domain, .. }), "{e:?}");
+        assert!(
+            e.to_string().starts_with("outside the method's validity: pdms: wavelength 2000.0 nm"),
+            "{e}"
+        );
+    }
+}

@@ -26,7 +26,7 @@ pub mod profile;
 use ndarray::{s, Array2};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 
 /// What a grid's values mean.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -505,7 +505,11 @@ fn check_pitch(pitch: [f64; 2]) -> Result<()> {
     if pitch.iter().all(|p| p.is_finite() && *p > 0.0) {
         Ok(())
     } else {
-        Err(Error::param("pitch", format!("must be finite and positive, got {pitch:?} m")))
+        Err(Error::param_in(
+            "pitch",
+            Allowed::positive(),
+            format!("must be finite and positive, got {pitch:?} m"),
+        ))
     }
 }
 

@@ -33,7 +33,7 @@
 //! * [`linalg`]: dense linear solves (nalgebra LU) for the least-squares fits.
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
 //! * [`float`]: exact inlined `round` and `floor` for the per-sample passes.
-//! * [`error`]: the library's error type.
+//! * [`error`]: the library's error type, with typed causes callers match.
 //!
 //! Names of typed results, one meaning each:
 //!
@@ -75,7 +75,7 @@ pub mod rng;
 pub mod table;
 pub mod units;
 
-pub use error::{Error, Result};
+pub use error::{Allowed, Condition, Error, FormatCause, Refusal, Result};
 pub use grid::{Grid, Interpolation, Unit};
 
 /// The README, whose Rust blocks (its "Library use" example) run as doc tests.

@@ -23,9 +23,9 @@ fn main() -> ExitCode {
             for cause in e.chain().skip(1) {
                 eprintln!("  caused by: {cause}");
             }
-            let unregistered = e
-                .chain()
-                .any(|c| matches!(c.downcast_ref::<doefab::Error>(), Some(doefab::Error::Registration(_))));
+            let unregistered = e.chain().any(|c| {
+                matches!(c.downcast_ref::<doefab::Error>(), Some(doefab::Error::Registration { .. }))
+            });
             ExitCode::from(if unregistered { EXIT_UNREGISTERED } else { 2 })
         }
     }

@@ -21,7 +21,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{Condition, Error, Result};
 use crate::table::{column_unit, hermite, pchip_slopes, read_two_columns};
 
 /// A dispersion formula; lengths in the formula are micrometres, as the sources give them.
@@ -189,17 +189,20 @@ impl Material {
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let t = read_two_columns(path, "wavelength_nm,n")?;
         if t.header[1] != "n" {
-            return Err(Error::format(path, format!("second column must be 'n', got '{}'", t.header[1])));
+            return Err(Error::malformed(path, format!("second column must be 'n', got '{}'", t.header[1])));
         }
         let scale = column_unit(path, &t.header[0], "wavelength")?;
         let mut wl: Vec<f64> = Vec::new();
         let mut n = Vec::new();
         for &(line, l, index) in &t.rows {
             if l <= 0.0 || index <= 0.0 {
-                return Err(Error::format(path, format!("line {line}: wavelength and n must be positive")));
+                return Err(Error::malformed(
+                    path,
+                    format!("line {line}: wavelength and n must be positive"),
+                ));
             }
             if wl.last().is_some_and(|&prev| l * scale <= prev) {
-                return Err(Error::format(
+                return Err(Error::malformed(
                     path,
                     format!("line {line}: wavelength {l} does not increase on the previous row"),
                 ));
@@ -208,7 +211,7 @@ impl Material {
             n.push(index);
         }
         if wl.len() < 2 {
-            return Err(Error::format(path, format!("needs at least two rows, got {}", wl.len())));
+            return Err(Error::malformed(path, format!("needs at least two rows, got {}", wl.len())));
         }
         Material::table(&name, wl, n)
     }
@@ -246,13 +249,16 @@ impl Material {
     pub fn index(&self, wavelength: f64) -> Result<f64> {
         let [lo, hi] = self.valid_range;
         if !(wavelength >= lo * 0.999 && wavelength <= hi * 1.001) {
-            return Err(Error::Validity(format!(
-                "{}: wavelength {:.1} nm is outside the dispersion formula's range {:.0}-{:.0} nm",
-                self.name,
-                wavelength * 1e9,
-                lo * 1e9,
-                hi * 1e9
-            )));
+            return Err(Error::validity(
+                Condition::Domain,
+                format!(
+                    "{}: wavelength {:.1} nm is outside the dispersion formula's range {:.0}-{:.0} nm",
+                    self.name,
+                    wavelength * 1e9,
+                    lo * 1e9,
+                    hi * 1e9
+                ),
+            ));
         }
         let l = wavelength * 1e6;
         Ok(match &self.dispersion {

@@ -78,11 +78,11 @@ pub fn parse_two_columns(path: &Path, text: &str, expected: &str) -> Result<TwoC
     let mut lines =
         text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
     let Some((hl, header)) = lines.next() else {
-        return Err(Error::format(path, format!("empty table (expected a header '{expected}')")));
+        return Err(Error::malformed(path, format!("empty table (expected a header '{expected}')")));
     };
     let cols: Vec<String> = header.split(',').map(|c| c.trim().to_ascii_lowercase()).collect();
     if cols.len() != 2 {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             format!("line {}: header must be '{expected}', got '{header}'", hl + 1),
         ));
@@ -91,13 +91,15 @@ pub fn parse_two_columns(path: &Path, text: &str, expected: &str) -> Result<TwoC
     for (ln, line) in lines {
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
         if f.len() != 2 {
-            return Err(Error::format(path, format!("line {}: expected 2 fields, got {}", ln + 1, f.len())));
+            return Err(Error::malformed(
+                path,
+                format!("line {}: expected 2 fields, got {}", ln + 1, f.len()),
+            ));
         }
         let num = |s: &str, col: &str| {
-            s.parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .ok_or_else(|| Error::format(path, format!("line {}: {col} '{s}' is not a number", ln + 1)))
+            s.parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| {
+                Error::malformed(path, format!("line {}: {col} '{s}' is not a number", ln + 1))
+            })
         };
         rows.push((ln + 1, num(f[0], &cols[0])?, num(f[1], &cols[1])?));
     }
@@ -108,7 +110,7 @@ pub fn parse_two_columns(path: &Path, text: &str, expected: &str) -> Result<TwoC
 /// `wavelength[m]`. A column without a unit is refused: a number without a unit is a guess.
 pub fn column_unit(path: &Path, column: &str, base: &str) -> Result<f64> {
     if !column.starts_with(base) {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             format!("header column '{column}' must be {base}_<unit>, e.g. {base}_nm"),
         ));
@@ -120,9 +122,9 @@ pub fn column_unit(path: &Path, column: &str, base: &str) -> Result<f64> {
     });
     match unit {
         Some(u) if !u.is_empty() => length_unit(u).map_err(|_| {
-            Error::format(path, format!("column '{column}': '{u}' is not a length unit (nm, um, m)"))
+            Error::malformed(path, format!("column '{column}': '{u}' is not a length unit (nm, um, m)"))
         }),
-        _ => Err(Error::format(
+        _ => Err(Error::malformed(
             path,
             format!("column '{column}' names no unit: write {base}_nm, {base}_um or {base}_m"),
         )),

@@ -3,7 +3,7 @@
 //! Inside the library every length is in metres (SI). Strings with units are parsed only where
 //! a user or a file hands them over, and formatted only where something is written for a person.
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 
 /// Length units accepted at the edges, with their size in metres.
 pub const LENGTH_UNITS: &[(&str, f64)] = &[
@@ -23,7 +23,11 @@ pub const LENGTH_UNITS: &[(&str, f64)] = &[
 pub fn length_unit(name: &str) -> Result<f64> {
     let n = name.trim();
     LENGTH_UNITS.iter().find(|(u, _)| *u == n).map(|(_, s)| *s).ok_or_else(|| {
-        Error::param("unit", format!("'{name}' is not a length unit (expected one of pm, nm, um, mm, cm, m)"))
+        Error::param_in(
+            "unit",
+            Allowed::one_of(&["pm", "nm", "um", "mm", "cm", "m"]),
+            format!("'{name}' is not a length unit (expected one of pm, nm, um, mm, cm, m)"),
+        )
     })
 }
 

@@ -31,7 +31,7 @@ use crate::decoder::finetune::{FinetuneConfig, HistoryEntry, Trainer, TrainingSc
 use crate::decoder::reconstruct::{reconstruct, Negatives, ReconstructOptions};
 use crate::decoder::unet::UNet;
 use crate::decoder::weights::DecoderWeights;
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::image::Image;
 use crate::optics::psf::Psf;
 
@@ -91,7 +91,7 @@ pub fn scene_dirs(dir: &Path) -> Result<Vec<PathBuf>> {
         .collect();
     dirs.sort();
     if dirs.is_empty() {
-        return Err(Error::format(dir, "holds no scene folder with an exposures.json"));
+        return Err(Error::malformed(dir, "holds no scene folder with an exposures.json"));
     }
     Ok(dirs)
 }
@@ -106,7 +106,7 @@ pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<Ben
     let list_path = dir.join("exposures.json");
     let doe = read_exposures(&list_path, true)?;
     let [(capture_path, _)] = doe.frames.as_slice() else {
-        return Err(Error::format(
+        return Err(Error::malformed(
             &list_path,
             format!("lists {} frames with \"doe\": true; expected exactly one capture", doe.frames.len()),
         ));
@@ -122,7 +122,7 @@ pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<Ben
     let merged = merge(&frames, &times, None, None, &merge_opts)?;
     let capture = read_capture(capture_path)?.image;
     if capture.dim() != merged.radiance.dim() || capture.channels() != 3 {
-        return Err(Error::format(
+        return Err(Error::malformed(
             capture_path,
             format!(
                 "is {:?} (rows, cols, channels); the bracket is {:?} and both must be RGB of one size",
@@ -316,7 +316,7 @@ pub fn run(
     }
     if let Some(f) = &cfg.finetune {
         if f.evaluate_every == 0 {
-            return Err(Error::param("evaluate_every", "must be at least 1 step"));
+            return Err(Error::param_in("evaluate_every", Allowed::at_least(1.0), "must be at least 1 step"));
         }
     }
     let device = crate::decoder::device(false)?;

@@ -29,7 +29,7 @@ use rustfft::num_complex::Complex64;
 use rustfft::FftPlanner;
 use serde::Serialize;
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::fabrication::gds::{
     layer_masks, mask_set_gds, MaskSetOptions, DATABASE_UNIT, MAX_BOUNDARY_VERTICES,
 };
@@ -120,13 +120,18 @@ impl FabBenchOptions {
             return Err(Error::param("max_errors", "the STL sweep needs finite, positive height errors"));
         }
         if !(self.base_thickness.is_finite() && self.base_thickness > 0.0) {
-            return Err(Error::param(
+            return Err(Error::param_in(
                 "base_thickness",
+                Allowed::positive(),
                 format!("must be positive, got {} m", self.base_thickness),
             ));
         }
         if !(self.gds_pitch.is_finite() && self.gds_pitch > 0.0) {
-            return Err(Error::param("gds_pitch", format!("must be positive, got {} m", self.gds_pitch)));
+            return Err(Error::param_in(
+                "gds_pitch",
+                Allowed::positive(),
+                format!("must be positive, got {} m", self.gds_pitch),
+            ));
         }
         if !(2..=256).contains(&self.gds_levels) || !self.gds_levels.is_power_of_two() {
             return Err(Error::param(
@@ -143,7 +148,11 @@ impl FabBenchOptions {
             ));
         }
         if self.repeats == 0 {
-            return Err(Error::param("repeats", "at least one timed run per configuration"));
+            return Err(Error::param_in(
+                "repeats",
+                Allowed::at_least(1.0),
+                "at least one timed run per configuration",
+            ));
         }
         Ok(())
     }

@@ -22,7 +22,7 @@ use serde::Serialize;
 use crate::decoder::finetune::{procedural_scenes, psnr_of_loss, FinetuneConfig, Trainer};
 use crate::decoder::unet::UNet;
 use crate::decoder::weights::{decoder_sha256, DecoderWeights};
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::optics::Psf;
 
 /// What [`run`] runs.
@@ -116,10 +116,14 @@ pub fn run(
     mut tick: impl FnMut(&str),
 ) -> Result<TimedFinetune> {
     if !(opts.seconds > 0.0 && opts.seconds.is_finite()) {
-        return Err(Error::param("seconds", format!("must be a positive time, got {} s", opts.seconds)));
+        return Err(Error::param_in(
+            "seconds",
+            Allowed::positive(),
+            format!("must be a positive time, got {} s", opts.seconds),
+        ));
     }
     if opts.evaluations == 0 {
-        return Err(Error::param("evaluations", "must be at least 1"));
+        return Err(Error::param_in("evaluations", Allowed::at_least(1.0), "must be at least 1"));
     }
     let clock = Instant::now();
     let device = crate::decoder::device(false)?;

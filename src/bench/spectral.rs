@@ -28,7 +28,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::Grid;
 use crate::optics::plan::{plan, run, spectral_count, spectral_error, Estimate, Plan};
 use crate::optics::propagate::{simulate, Options, Precision};
@@ -52,6 +52,21 @@ impl SpectralOptions {
     /// rule placed at 1e-2, 1e-3 and 1e-4.
     pub fn paper() -> Result<SpectralOptions> {
         Ok(SpectralOptions { bands: paper_bands()?, reference_power: 5, tolerances: vec![1e-2, 1e-3, 1e-4] })
+    }
+
+    /// Refuses options the bench cannot run: no band, a reference outside 3^2..3^6 sub-bands.
+    fn check(&self) -> Result<()> {
+        if self.bands.is_empty() {
+            return Err(Error::param("bands", "bench spectral needs at least one band"));
+        }
+        if !(2..=6).contains(&self.reference_power) {
+            return Err(Error::param_in(
+                "reference_power",
+                Allowed::between(2.0, 6.0),
+                "the reference takes 3^2 to 3^6 sub-bands",
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -143,12 +158,7 @@ pub fn run_spectral(
     opts: &SpectralOptions,
     mut tick: impl FnMut(&str),
 ) -> Result<SpectralBenchResults> {
-    if opts.bands.is_empty() {
-        return Err(Error::param("bands", "bench spectral needs at least one band"));
-    }
-    if !(2..=6).contains(&opts.reference_power) {
-        return Err(Error::param("reference_power", "the reference takes 3^2 to 3^6 sub-bands"));
-    }
+    opts.check()?;
     let spatial = plan(system, doe, &[], 1e-2)?;
     let method = spatial.method;
     let base = OpticalSystem { subsample: 1, pixel_rule: PixelRule::GaussLegendre, ..spatial.system.clone() };
@@ -221,7 +231,7 @@ pub fn run_spectral(
         let pilots = per_band.iter().map(|(b, _, f)| (b.name.as_str(), [&f[0], &f[1], &f[2]]));
         let (rule, refused) = match spectral_count(pilots, tol) {
             Ok(count) => (Some(count), None),
-            Err(Error::Validity(why)) => (None, Some(why)),
+            Err(Error::Validity { what, .. }) => (None, Some(what)),
             Err(e) => return Err(e),
         };
         let mut point = SpectralPlanPoint {
@@ -268,7 +278,7 @@ pub fn run_spectral(
                         ));
                     }
                 }
-                Err(Error::Validity(why)) => point.refused = Some(why),
+                Err(Error::Validity { what, .. }) => point.refused = Some(what),
                 Err(e) => return Err(e),
             }
         }

@@ -52,13 +52,16 @@ pub fn read_capture(path: &Path) -> Result<Capture> {
         .map_err(|e| Error::io(path, e))?;
     match reader.format() {
         Some(image::ImageFormat::Png | image::ImageFormat::Tiff) => {}
-        other => return Err(Error::format(path, format!("is {other:?}, not a PNG or TIFF capture"))),
+        other => return Err(Error::signature(path, format!("is {other:?}, not a PNG or TIFF capture"))),
     }
     // The decoder is third-party code fed with user bytes: a panic in it becomes an error.
     let img = std::panic::catch_unwind(move || reader.decode())
-        .map_err(|_| Error::format(path, "the image decoder failed on malformed data"))?
+        .map_err(|_| Error::malformed(path, "the image decoder failed on malformed data"))?
         .map_err(|e| {
-            Error::format(path, format!("cannot decode it as an 8- or 16-bit RGB or grayscale capture: {e}"))
+            Error::malformed(
+                path,
+                format!("cannot decode it as an 8- or 16-bit RGB or grayscale capture: {e}"),
+            )
         })?;
     let (w, h) = (img.width() as usize, img.height() as usize);
     let (samples, channels, bits): (Vec<f64>, usize, u8) = match &img {
@@ -67,7 +70,7 @@ pub fn read_capture(path: &Path) -> Result<Capture> {
         DynamicImage::ImageLuma16(b) => (b.as_raw().iter().map(|&v| v as f64 / 65535.0).collect(), 1, 16),
         DynamicImage::ImageRgb16(b) => (b.as_raw().iter().map(|&v| v as f64 / 65535.0).collect(), 3, 16),
         other => {
-            return Err(Error::format(
+            return Err(Error::unsupported(
                 path,
                 format!(
                 "holds {:?} samples; a capture must be 8- or 16-bit RGB or grayscale (no alpha, no float)",
@@ -77,7 +80,7 @@ pub fn read_capture(path: &Path) -> Result<Capture> {
         }
     };
     let values = Array3::from_shape_vec((h, w, channels), samples)
-        .map_err(|e| Error::format(path, format!("the image data does not fill {w} x {h}: {e}")))?;
+        .map_err(|e| Error::malformed(path, format!("the image data does not fill {w} x {h}: {e}")))?;
     Ok(Capture { path: path.to_path_buf(), image: Image::new(values), bits })
 }
 
@@ -106,7 +109,7 @@ pub fn write_capture(path: &Path, image: &Image, bits: u8) -> Result<()> {
     let mut bytes = Vec::new();
     image::codecs::png::PngEncoder::new(Cursor::new(&mut bytes))
         .write_image(&data, w as u32, h as u32, color)
-        .map_err(|e| Error::format(path, format!("PNG encoding failed: {e}")))?;
+        .map_err(|e| Error::encoding(path, format!("PNG encoding failed: {e}")))?;
     write_bytes(path, &bytes)
 }
 
@@ -131,7 +134,7 @@ pub fn read_rgb_exr(path: &Path) -> Result<Image> {
             Err(Error::Parameter { .. }) => vec![
                 decode_exr_channels(path, &bytes, &[])
                     .map_err(|e| {
-                        Error::format(path, format!("expected channels R, G, B or a single channel: {e}"))
+                        Error::malformed(path, format!("expected channels R, G, B or a single channel: {e}"))
                     })?
                     .swap_remove(0)
                     .values,
@@ -143,7 +146,7 @@ pub fn read_rgb_exr(path: &Path) -> Result<Image> {
     };
     if let (3, Some(c)) = (values.dim().2, header.chromaticities) {
         let to_709 = chromaticities::to_rec709(&c)
-            .map_err(|e| Error::format(path, format!("attribute 'chromaticities' {c:?}: {e}")))?;
+            .map_err(|e| Error::malformed(path, format!("attribute 'chromaticities' {c:?}: {e}")))?;
         if let Some(m) = to_709 {
             for mut px in values.lanes_mut(ndarray::Axis(2)) {
                 let v = m * nalgebra::Vector3::new(px[0], px[1], px[2]);
@@ -172,7 +175,7 @@ pub fn read_image(path: &Path) -> Result<Image> {
                 [1, h, w, c] if c == 1 || c == 3 => (h, w, c),
                 [h, w, 1, c] if c == 1 || c == 3 => (h, w, c),
                 _ => {
-                    return Err(Error::format(
+                    return Err(Error::malformed(
                         path,
                         format!(
                             "has shape {:?}; an image is (H, W), (H, W, C), (1, H, W, C) or (H, W, 1, C) \
@@ -182,12 +185,12 @@ pub fn read_image(path: &Path) -> Result<Image> {
                     ))
                 }
             };
-            a.into_shape_with_order((h, w, c)).map_err(|e| Error::format(path, e.to_string()))?
+            a.into_shape_with_order((h, w, c)).map_err(|e| Error::malformed(path, e.to_string()))?
         }
         Some("png" | "tif" | "tiff") => read_capture(path)?.image.values,
         Some("hdr") => read_radiance_hdr(path)?,
         _ => {
-            return Err(Error::format(
+            return Err(Error::signature(
                 path,
                 "an image is read from .exr, .hdr, .npy, .png, .tif or .tiff (by extension)",
             ))
@@ -195,11 +198,11 @@ pub fn read_image(path: &Path) -> Result<Image> {
     };
     let (h, w, _) = img.dim();
     if h == 0 || w == 0 {
-        return Err(Error::format(path, "is empty"));
+        return Err(Error::malformed(path, "is empty"));
     }
     let bad = img.iter().filter(|v| !v.is_finite()).count();
     if bad > 0 {
-        return Err(Error::format(path, format!("holds {bad} non-finite values (NaN or infinite)")));
+        return Err(Error::malformed(path, format!("holds {bad} non-finite values (NaN or infinite)")));
     }
     Ok(Image::new(img))
 }
@@ -207,11 +210,11 @@ pub fn read_image(path: &Path) -> Result<Image> {
 /// A Radiance RGBE (`.hdr`) image, decoded by the `image` crate to `f32` RGB.
 fn read_radiance_hdr(path: &Path) -> Result<Array3<f64>> {
     let img = image::open(path)
-        .map_err(|e| Error::format(path, format!("cannot read as a Radiance HDR image: {e}")))?;
+        .map_err(|e| Error::malformed(path, format!("cannot read as a Radiance HDR image: {e}")))?;
     let rgb = img.to_rgb32f();
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);
     Array3::from_shape_vec((h, w, 3), rgb.into_raw().into_iter().map(f64::from).collect())
-        .map_err(|e| Error::format(path, format!("the image data does not fill {w} x {h}: {e}")))
+        .map_err(|e| Error::malformed(path, format!("the image data does not fill {w} x {h}: {e}")))
 }
 
 /// A bracket: capture files with their exposure times (seconds).
@@ -241,7 +244,7 @@ struct JsonFrame {
 pub fn read_exposures(path: &Path, with_doe: bool) -> Result<ExposureList> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let list: JsonList = serde_json::from_str(&text).map_err(|e| {
-        Error::format(
+        Error::signature(
             path,
             format!("not an exposure list ({{\"frames\": [{{\"file\", \"exposure_s\"}}]}}): {e}"),
         )
@@ -250,7 +253,7 @@ pub fn read_exposures(path: &Path, with_doe: bool) -> Result<ExposureList> {
     let mut frames = Vec::new();
     for (k, f) in list.frames.iter().enumerate() {
         if !(f.exposure_s.is_finite() && f.exposure_s > 0.0) {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!("frames[{k}].exposure_s is {}; expected a positive time in seconds", f.exposure_s),
             ));
@@ -260,14 +263,14 @@ pub fn read_exposures(path: &Path, with_doe: bool) -> Result<ExposureList> {
         }
     }
     if frames.is_empty() {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             format!("lists no frame with \"doe\": {with_doe} (of {} frames)", list.frames.len()),
         ));
     }
     if let Some(t) = list.reference_exposure_s {
         if !(t.is_finite() && t > 0.0) {
-            return Err(Error::format(path, format!("reference_exposure_s is {t}; expected seconds > 0")));
+            return Err(Error::malformed(path, format!("reference_exposure_s is {t}; expected seconds > 0")));
         }
     }
     Ok(ExposureList { frames, reference_exposure: list.reference_exposure_s })

@@ -32,7 +32,7 @@
 use ndarray::{Array2, Array3};
 use serde::Serialize;
 
-use crate::error::{Error, Result};
+use crate::error::{Condition, Error, Result};
 use crate::image::Image;
 use crate::linalg::solve;
 use crate::rng::Lcg;
@@ -287,7 +287,7 @@ fn match_and_fit(
     let matches = match_tiles(reference, target, opts)?;
     let (affine, rms, used) = robust_affine(&matches, opts.max_shift)?;
     if 3 * used < 2 * matches.len() {
-        return Err(Error::Validity(format!(
+        return Err(Error::validity(Condition::Model, format!(
             "one affine map fits only {used} of {} matched tiles within 1.5 px (two thirds needed): the motion is not \
              affine (parallax between objects at different depths), or the tiles locked onto different \
              features (a raw capture through the DOE holds shifted copies of the scene; register its \
@@ -582,7 +582,7 @@ fn field_pass(
         (0..h).flat_map(|i| (0..w).map(move |j| (i, j))).filter(|&(i, j)| reg.at(i, j).is_some()).count();
     reg.covered_fraction = inside as f64 / (h * w) as f64;
     if reg.covered_fraction < opts.min_coverage {
-        return Err(Error::Validity(format!(
+        return Err(Error::validity(Condition::Coverage, format!(
             "the field covers only {:.1} % of the image ({:.0} % needed): too little texture to follow the motion",
             100.0 * reg.covered_fraction,
             100.0 * opts.min_coverage

@@ -50,13 +50,15 @@
 //! is then its maximum value, recognised by a pile-up of samples there (at least 0.01 % of them
 //! at exactly the maximum, which lies below `saturation`), and reported as a warning.
 
+use std::ops::Bound;
+
 use ndarray::{s, Array2, Array3, Axis, Zip};
 use serde::Serialize;
 
 use super::capture_registration::{
     luminance, register_affine, register_local, warp, LocalRegistration, Model, RegisterOptions, Registration,
 };
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Condition, Error, Result};
 use crate::image::Image;
 use crate::optics::convolve::Convolver;
 use crate::optics::psf::Psf;
@@ -140,6 +142,27 @@ pub struct ScoringOptions {
     pub min_coverage: f64,
     /// Fewest saturated pixels of the capture that must be scored for the saturated figures.
     pub min_saturated: usize,
+}
+
+impl ScoringOptions {
+    /// Refuses a clipping level outside (0, 1] and a coverage floor outside [0, 1].
+    fn check(&self) -> Result<()> {
+        if !(self.saturation > 0.0 && self.saturation <= 1.0) {
+            return Err(Error::param_in(
+                "saturation",
+                Allowed::within(Bound::Excluded(0.0), Bound::Included(1.0)),
+                format!("{} is not in (0, 1]", self.saturation),
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.min_coverage) {
+            return Err(Error::param_in(
+                "min_coverage",
+                Allowed::between(0.0, 1.0),
+                format!("{} is not a fraction in [0, 1]", self.min_coverage),
+            ));
+        }
+        Ok(())
+    }
 }
 
 impl Default for ScoringOptions {
@@ -262,15 +285,7 @@ pub fn prepare(
             capture.dim()
         )));
     }
-    if !(opts.saturation > 0.0 && opts.saturation <= 1.0) {
-        return Err(Error::param("saturation", format!("{} is not in (0, 1]", opts.saturation)));
-    }
-    if !(0.0..=1.0).contains(&opts.min_coverage) {
-        return Err(Error::param(
-            "min_coverage",
-            format!("{} is not a fraction in [0, 1]", opts.min_coverage),
-        ));
-    }
+    opts.check()?;
     if let Some(bad) = reference.iter().chain(capture.iter()).find(|v| !v.is_finite()) {
         return Err(Error::Data(format!("the reference or the capture holds {bad}")));
     }
@@ -329,7 +344,7 @@ pub fn prepare(
             }
         });
         if ratios.len() < 300 {
-            return Err(Error::Validity(format!(
+            return Err(Error::validity(Condition::Coverage, format!(
                 "only {} well-exposed samples (0.05..0.9 of the clipping level) among the registered pixels to \
                  match the reference's gain; 300 needed",
                 ratios.len()
@@ -364,7 +379,7 @@ pub fn prepare(
     let saturated_in_capture = saturated_capture.iter().filter(|v| **v).count();
     let saturated_scored = saturated.iter().filter(|v| **v).count();
     if coverage < opts.min_coverage {
-        return Err(Error::Validity(format!(
+        return Err(Error::validity(Condition::Coverage, format!(
             "the registration covers {:.1} % of the image ({pixels_scored} of {} pixels; {saturated_scored} of the \
              capture's {saturated_in_capture} saturated pixels); the floor is {:.0} %: too few pixels follow one \
              geometry to score on",

@@ -45,6 +45,7 @@
 //! `(v_k / t_k - E) / E` over the pixels it sees well exposed: for 8-bit captures the
 //! quantization step alone gives `1 / (255 z sqrt(12))`, 1.1 % at `z = 0.1`.
 
+use std::ops::Bound;
 use std::path::Path;
 
 use ndarray::{Array2, Array3, Zip};
@@ -53,7 +54,7 @@ use serde::Serialize;
 use super::capture::Capture;
 use super::clipping::channel_clipping;
 use super::response::Response;
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::image::tone::tone_map;
 use crate::image::Image;
 use crate::io::exr::write_exr;
@@ -203,7 +204,7 @@ fn check_frames(frames: &[Capture], times: &[f64], dark: Option<&Image>) -> Resu
         if f.image.values.dim() != first.image.values.dim() || f.bits != first.bits {
             let (h, w, c) = f.image.values.dim();
             let (h0, w0, c0) = first.image.values.dim();
-            return Err(Error::format(
+            return Err(Error::malformed(
                 &f.path,
                 format!(
                     "is {w} x {h} x {c} at {} bits, but {} is {w0} x {h0} x {c0} at {} bits: a bracket's \
@@ -215,8 +216,9 @@ fn check_frames(frames: &[Capture], times: &[f64], dark: Option<&Image>) -> Resu
             ));
         }
         if !(t.is_finite() && t > 0.0) {
-            return Err(Error::param(
+            return Err(Error::param_in(
                 "times",
+                Allowed::positive(),
                 format!("{}: exposure {t} s is not positive", f.path.display()),
             ));
         }
@@ -344,8 +346,9 @@ fn black_level(
                 }
             };
             if let Some(bad) = v.iter().find(|x| !(x.is_finite() && (0.0..0.5).contains(*x))) {
-                return Err(Error::param(
+                return Err(Error::param_in(
                     "black_level",
+                    Allowed::within(Bound::Included(0.0), Bound::Excluded(0.5)),
                     format!("{bad} is not a fraction of full scale in [0, 0.5)"),
                 ));
             }

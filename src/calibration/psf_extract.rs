@@ -73,7 +73,7 @@ use ndarray::{Array2, Array3};
 use serde::Serialize;
 
 use super::hdr_merge::{write_merged, MergeStats, Merged};
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::image::Image;
 use crate::io::atomic::{write_json, StagedDir};
@@ -124,6 +124,29 @@ pub struct PsfOptions {
     /// Largest estimated relative L2 error of a channel ([`PsfCalibration::estimated_error`])
     /// without a warning.
     pub max_error: f64,
+}
+
+impl PsfOptions {
+    /// Refuses pitches that are not positive lengths and a crop under 3 pixels.
+    fn check(&self) -> Result<()> {
+        for (name, v) in [("capture_pitch", self.capture_pitch), ("sensor_pitch", self.sensor_pitch)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(Error::param_in(
+                    name,
+                    Allowed::positive(),
+                    format!("must be a positive length, got {v} m"),
+                ));
+            }
+        }
+        if self.crop < 3 {
+            return Err(Error::param_in(
+                "crop",
+                Allowed::at_least(3.0),
+                format!("must be at least 3 pixels, got {}", self.crop),
+            ));
+        }
+        Ok(())
+    }
 }
 
 impl Default for PsfOptions {
@@ -633,14 +656,7 @@ fn centred_channel(
 /// Extracts the PSF from a merged pinhole bracket (see the module docs).
 pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCalibration)> {
     let (h, w, nc) = merged.radiance.dim();
-    for (name, v) in [("capture_pitch", opts.capture_pitch), ("sensor_pitch", opts.sensor_pitch)] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(Error::param(name, format!("must be a positive length, got {v} m")));
-        }
-    }
-    if opts.crop < 3 {
-        return Err(Error::param("crop", format!("must be at least 3 pixels, got {}", opts.crop)));
-    }
+    opts.check()?;
     if let Some(wl) = &opts.wavelengths {
         if wl.len() != nc {
             return Err(Error::param("wavelengths", format!("{} given for {nc} channels", wl.len())));

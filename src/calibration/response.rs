@@ -24,7 +24,7 @@ use ndarray::{Array2, Array3};
 use serde::Serialize;
 
 use super::capture::Capture;
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Condition, Error, Result};
 use crate::image::Image;
 use crate::io::csv::write_csv;
 use crate::io::raw_map::Metadata;
@@ -101,7 +101,7 @@ impl Response {
     pub fn check(&self, frames: &[Capture]) -> Result<()> {
         for f in frames {
             if f.bits != 8 || f.image.values.dim().2 != self.log_exposure.len() {
-                return Err(Error::format(
+                return Err(Error::unsupported(
                     &f.path,
                     format!(
                         "is {}-bit with {} channels; the response curve is for 8-bit captures with {} channels",
@@ -129,13 +129,13 @@ pub fn recover_response(frames: &[Capture], times: &[f64], samples: usize, lambd
     let dim = frames[0].image.values.dim();
     for f in frames {
         if f.bits != 8 {
-            return Err(Error::format(
+            return Err(Error::unsupported(
                 &f.path,
                 format!("is {}-bit; response recovery is for 8-bit captures", f.bits),
             ));
         }
         if f.image.values.dim() != dim {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 &f.path,
                 format!("is {:?}, the first frame {dim:?}", f.image.values.dim()),
             ));
@@ -149,7 +149,11 @@ pub fn recover_response(frames: &[Capture], times: &[f64], samples: usize, lambd
         ));
     }
     if !(lambda.is_finite() && lambda > 0.0) {
-        return Err(Error::param("lambda", format!("must be positive, got {lambda}")));
+        return Err(Error::param_in(
+            "lambda",
+            Allowed::positive(),
+            format!("must be positive, got {lambda}"),
+        ));
     }
     let n = if samples == 0 { (512 / (p - 1)).clamp(50, 300) } else { samples };
     let mut order: Vec<usize> = (0..p).collect();
@@ -202,13 +206,20 @@ pub fn recover_response(frames: &[Capture], times: &[f64], samples: usize, lambd
             add_row(&[(z - 1, s), (z, -2.0 * s), (z + 1, s)], 0.0);
         }
         if zmax < zmin + 128 {
-            return Err(Error::Validity(format!(
+            return Err(Error::validity(
+                Condition::Conditioning,
+                format!(
                 "channel {c}: the bracket's samples span only values {zmin}..{zmax} of 0..255; the response \
                  outside is unconstrained (add shorter and longer exposures)"
-            )));
+            ),
+            ));
         }
-        let x = solve(ata, atb, m)
-            .map_err(|_| Error::Validity(format!("channel {c}: the response equations are singular")))?;
+        let x = solve(ata, atb, m).map_err(|_| {
+            Error::validity(
+                Condition::Conditioning,
+                format!("channel {c}: the response equations are singular"),
+            )
+        })?;
         let g = x[..256].to_vec();
         if let Some(z) = (zmin..zmax).find(|&z| g[z + 1] < g[z]) {
             warnings.push(format!(

@@ -53,12 +53,11 @@ pub fn write_decoder_scene_chart(path: &Path, report: &DecoderBenchResults) -> R
     ];
     let nd = report.decoders.len();
     write_png_chart(path, 1400, 900, |root| {
-        let e = |e: &dyn std::fmt::Display| e.to_string();
         let footer = 18 * refused.len().min(4) as u32;
         let (main, foot) = root.split_vertically(900 - footer);
         for (k, line) in refused.iter().take(4).enumerate() {
             let text: String = line.chars().take(190).collect();
-            foot.draw(&Text::new(text, (10, 18 * k as i32 + 2), (FONT, 13))).map_err(|x| e(&x))?;
+            foot.draw(&Text::new(text, (10, 18 * k as i32 + 2), (FONT, 13)))?;
         }
         for (panel, (title, unit, value)) in main.split_evenly((2, 2)).iter().zip(metrics) {
             let values: Vec<f64> = report.scores.iter().filter_map(value).collect();
@@ -71,8 +70,7 @@ pub fn write_decoder_scene_chart(path: &Path, report: &DecoderBenchResults) -> R
             let floor = if unit == "dB" { (lo - 3.0).floor() } else { lo.min(0.0) * 1.1 };
             let top = hi + 0.1 * (hi - floor).max(1e-3);
             let mut chart = frame(panel, title, 17, 10, [30, 60])
-                .build_cartesian_2d(0.0..scenes.len() as f64, floor..top)
-                .map_err(|x| e(&x))?;
+                .build_cartesian_2d(0.0..scenes.len() as f64, floor..top)?;
             let names = scenes.clone();
             mesh(&mut chart, 12, 12, GridLines::Full)
                 .disable_x_mesh()
@@ -86,8 +84,7 @@ pub fn write_decoder_scene_chart(path: &Path, report: &DecoderBenchResults) -> R
                     }
                 })
                 .y_desc(unit)
-                .draw()
-                .map_err(|x| e(&x))?;
+                .draw()?;
             let width = 0.8 / nd as f64;
             for (d, decoder) in report.decoders.iter().enumerate() {
                 let color = COLORS[d % COLORS.len()];
@@ -103,8 +100,7 @@ pub fn write_decoder_scene_chart(path: &Path, report: &DecoderBenchResults) -> R
                     .collect();
                 let short: String = decoder.chars().take(60).collect();
                 chart
-                    .draw_series(bars)
-                    .map_err(|x| e(&x))?
+                    .draw_series(bars)?
                     .label(short)
                     .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled()));
             }
@@ -146,7 +142,6 @@ pub fn write_bench_chart(path: &Path, report: &DecoderBenchResults) -> Result<()
         })
         .collect();
     write_png_chart(path, 1650, 500, |root| {
-        let e = |e: &dyn std::fmt::Display| e.to_string();
         let panels = root.split_evenly((1, 3));
         for (panel, saturated) in panels.iter().zip([false, true]) {
             let value = |s: &Score| {
@@ -171,13 +166,8 @@ pub fn write_bench_chart(path: &Path, report: &DecoderBenchResults) -> Result<()
             let title = if saturated { "saturated pixels of the capture" } else { "all scored pixels" };
             let mut chart = frame(panel, format!("PSNR-gamma, {title}"), 18, 12, [40, 60])
                 // Room under the data for the legend, so that it covers no line.
-                .build_cartesian_2d(0.0..last, (lo - 0.5 - 0.6 * (hi - lo))..(hi + 0.5))
-                .map_err(|x| e(&x))?;
-            mesh(&mut chart, 13, 13, GridLines::Full)
-                .x_desc(x_desc.as_str())
-                .y_desc("dB")
-                .draw()
-                .map_err(|x| e(&x))?;
+                .build_cartesian_2d(0.0..last, (lo - 0.5 - 0.6 * (hi - lo))..(hi + 0.5))?;
+            mesh(&mut chart, 13, 13, GridLines::Full).x_desc(x_desc.as_str()).y_desc("dB").draw()?;
             for (k, scene) in scenes.iter().enumerate() {
                 let color = COLORS[(k + 1) % COLORS.len()];
                 let line: Vec<(f64, f64)> = run
@@ -186,13 +176,10 @@ pub fn write_bench_chart(path: &Path, report: &DecoderBenchResults) -> Result<()
                     .filter_map(|p| value(p.scores.get(k)?).map(|v| (minutes(p.seconds), v)))
                     .collect();
                 chart
-                    .draw_series(LineSeries::new(line.iter().copied(), color.stroke_width(2)))
-                    .map_err(|x| e(&x))?
+                    .draw_series(LineSeries::new(line.iter().copied(), color.stroke_width(2)))?
                     .label(format!("{scene}: fine-tuned here"))
                     .legend(line_key(18, color.stroke_width(2)));
-                chart
-                    .draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled())))
-                    .map_err(|x| e(&x))?;
+                chart.draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled())))?;
                 for (decoder, &kind) in others.iter().zip(&dash_kinds) {
                     let Some(v) = report
                         .scores
@@ -216,8 +203,7 @@ pub fn write_bench_chart(path: &Path, report: &DecoderBenchResults) -> Result<()
                     let short: String = decoder.chars().take(44).collect();
                     let label = format!("{scene}: {short}{}", if start { " (the start)" } else { "" });
                     chart
-                        .draw_series(DashedLineSeries::new([(0.0, v), (last, v)], dash, gap, style))
-                        .map_err(|x| e(&x))?
+                        .draw_series(DashedLineSeries::new([(0.0, v), (last, v)], dash, gap, style))?
                         .label(label)
                         .legend(move |at| super::style::dashed_legend(at, style, dash, gap, 18));
                 }
@@ -234,26 +220,20 @@ pub fn write_bench_chart(path: &Path, report: &DecoderBenchResults) -> Result<()
                 .iter()
                 .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &(_, v)| (a.min(v), b.max(v)));
             let mut chart = frame(&panels[2], "validation PSNR (held-out simulated set)", 18, 12, [40, 60])
-                .build_cartesian_2d(0.0..last, (lo - 0.2)..(hi + 0.2))
-                .map_err(|x| e(&x))?;
+                .build_cartesian_2d(0.0..last, (lo - 0.2)..(hi + 0.2))?;
             mesh(&mut chart, 13, 13, GridLines::Full)
                 .x_desc(x_desc.as_str())
                 .y_desc("dB (sqrt domain, peak 1)")
-                .draw()
-                .map_err(|x| e(&x))?;
+                .draw()?;
             chart
-                .draw_series(LineSeries::new([(0.0, first), (last, first)], BLACK.stroke_width(1)))
-                .map_err(|x| e(&x))?
+                .draw_series(LineSeries::new([(0.0, first), (last, first)], BLACK.stroke_width(1)))?
                 .label("the start")
                 .legend(line_key(18, BLACK));
             chart
-                .draw_series(LineSeries::new(validation.iter().copied(), RED.stroke_width(2)))
-                .map_err(|x| e(&x))?
+                .draw_series(LineSeries::new(validation.iter().copied(), RED.stroke_width(2)))?
                 .label("fine-tuned here")
                 .legend(line_key(18, RED.stroke_width(2)));
-            chart
-                .draw_series(validation.iter().map(|&p| Circle::new(p, 3, RED.filled())))
-                .map_err(|x| e(&x))?;
+            chart.draw_series(validation.iter().map(|&p| Circle::new(p, 3, RED.filled())))?;
             super::style::draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 11)?;
         }
         Ok(())
@@ -271,7 +251,6 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardB
     }
     let bands = ["darks", "mid-tones", "brights", "flare ring", "all"];
     write_png_chart(path, 1400, 900, |root| {
-        let e = |e: &dyn std::fmt::Display| e.to_string();
         let columns = root.split_evenly((2, scenes.len()));
         for (k, scene) in scenes.iter().enumerate() {
             let values = |m: &crate::bench::forward::ModelFit| {
@@ -291,8 +270,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardB
                 10,
                 [30, 60],
             )
-            .build_cartesian_2d(0.0..bands.len() as f64, 0.0..top.max(1e-3))
-            .map_err(|x| e(&x))?;
+            .build_cartesian_2d(0.0..bands.len() as f64, 0.0..top.max(1e-3))?;
             mesh(&mut chart, 12, 12, GridLines::Full)
                 .disable_x_mesh()
                 .x_labels(bands.len() * 2 + 1)
@@ -305,8 +283,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardB
                     }
                 })
                 .y_desc("RMS of sqrt(model) - sqrt(capture)")
-                .draw()
-                .map_err(|x| e(&x))?;
+                .draw()?;
             let width = 0.8 / scene.models.len() as f64;
             for (m, model) in scene.models.iter().enumerate() {
                 let color = COLORS[m % COLORS.len()];
@@ -329,8 +306,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardB
                     };
                 }
                 chart
-                    .draw_series(bars)
-                    .map_err(|x| e(&x))?
+                    .draw_series(bars)?
                     .label(label)
                     .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 14, y + 5)], color.filled()));
             }
@@ -352,13 +328,11 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardB
                 10,
                 [35, 60],
             )
-            .build_cartesian_2d(0.0..fmax * 1.05, (lo - pad)..(hi + pad))
-            .map_err(|x| e(&x))?;
+            .build_cartesian_2d(0.0..fmax * 1.05, (lo - pad)..(hi + pad))?;
             mesh(&mut chart, 12, 12, GridLines::Full)
                 .x_desc("halo fraction eta")
                 .y_desc("RMS of sqrt(model) - sqrt(capture)")
-                .draw()
-                .map_err(|x| e(&x))?;
+                .draw()?;
             for (r, radius) in report.halo_radii_px.iter().enumerate() {
                 let color = COLORS[(r + 1) % COLORS.len()];
                 let points: Vec<(f64, f64)> = report
@@ -369,13 +343,10 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardB
                     .filter(|p| p.1.is_finite())
                     .collect();
                 chart
-                    .draw_series(LineSeries::new(points.clone(), color.stroke_width(2)))
-                    .map_err(|x| e(&x))?
+                    .draw_series(LineSeries::new(points.clone(), color.stroke_width(2)))?
                     .label(format!("rho {radius} px"))
                     .legend(line_key(16, color.stroke_width(2)));
-                chart
-                    .draw_series(points.iter().map(|&p| Circle::new(p, 3, color.filled())))
-                    .map_err(|x| e(&x))?;
+                chart.draw_series(points.iter().map(|&p| Circle::new(p, 3, color.filled())))?;
             }
             if paper.is_finite() {
                 chart
@@ -384,8 +355,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardB
                         6,
                         4,
                         BLACK.stroke_width(1),
-                    ))
-                    .map_err(|x| e(&x))?
+                    ))?
                     .label("paper model")
                     .legend(line_key(16, BLACK.stroke_width(1)));
             }

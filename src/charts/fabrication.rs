@@ -10,7 +10,7 @@ use plotters::prelude::*;
 
 use super::style::{
     draw_legend, frame, line_key, log_label, mesh, secondary_axes, short, write_png_chart, write_svg_chart,
-    GridLines, FONT,
+    Drawn, GridLines,
 };
 use crate::bench::fab::{FabBenchResults, GdsSweep, QuantizationSweep, StlPoint, StlSweep};
 use crate::error::{Error, Result};
@@ -45,8 +45,7 @@ fn channel_colour(wavelength: f64) -> RGBColor {
 fn quantization_chart<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
     q: &QuantizationSweep,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
+) -> Drawn {
     let log2 = |n: usize| (n as f64).log2();
     let (x0, x1) = q.points.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
         (a.min(log2(p.level_count)), b.max(log2(p.level_count)))
@@ -61,8 +60,7 @@ fn quantization_chart<DB: DrawingBackend>(
         q.max_difference.max(1e-300)
     );
     let mut chart = frame(root, caption, 16, 12, [45, 60])
-        .build_cartesian_2d(x0 - 0.3..x1 + 0.3, (y0 - 0.05).max(0.0)..1.02)
-        .map_err(|x| e(&x))?;
+        .build_cartesian_2d(x0 - 0.3..x1 + 0.3, (y0 - 0.05).max(0.0)..1.02)?;
     mesh(&mut chart, 13, 14, GridLines::Full)
         .x_desc("level count N (log scale)")
         .y_desc("efficiency of the design order (fraction of the light)")
@@ -75,8 +73,7 @@ fn quantization_chart<DB: DrawingBackend>(
             }
         })
         .y_label_formatter(&|v| format!("{v:.2}"))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     let mut wavelengths: Vec<f64> = q.points.iter().map(|p| p.wavelength).collect();
     wavelengths.sort_by(|a, b| b.total_cmp(a));
     wavelengths.dedup();
@@ -88,27 +85,21 @@ fn quantization_chart<DB: DrawingBackend>(
             .draw_series(LineSeries::new(
                 own.iter().map(|p| (log2(p.level_count), p.predicted)),
                 colour.stroke_width(2),
-            ))
-            .map_err(|x| e(&x))?
+            ))?
             .label(format!("{:.0} nm predicted", l * 1e9))
             .legend(line_key(18, colour.stroke_width(2)));
         chart
             .draw_series(
                 own.iter()
                     .map(|p| Circle::new((log2(p.level_count), p.simulated), 6, colour.stroke_width(2))),
-            )
-            .map_err(|x| e(&x))?
+            )?
             .label(format!("{:.0} nm simulated", l * 1e9))
             .legend(move |(x, y)| Circle::new((x + 8, y), 5, colour.stroke_width(2)));
     }
     draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 13)
 }
 
-fn stl_cost_chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, plotters::coord::Shift>,
-    s: &StlSweep,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
+fn stl_cost_chart<DB: DrawingBackend>(root: &DrawingArea<DB, plotters::coord::Shift>, s: &StlSweep) -> Drawn {
     let x = log_span(s.points.iter().map(|p| p.max_error * 1e9), 1.4);
     let caption = format!(
         "STL heightfield, {} x {} samples: triangles and time vs max_error",
@@ -119,8 +110,7 @@ fn stl_cost_chart<DB: DrawingBackend>(
         .build_cartesian_2d(
             x.clone().log_scale(),
             log_span(s.points.iter().map(|p| p.triangles as f64), 2.0).log_scale(),
-        )
-        .map_err(|x| e(&x))?
+        )?
         .set_secondary_coord(x.log_scale(), log_span(s.points.iter().map(|p| p.seconds), 2.0).log_scale());
     mesh(&mut chart, 13, 14, GridLines::Faint)
         .x_desc("max_error, nm (the mesher's bound)")
@@ -128,38 +118,31 @@ fn stl_cost_chart<DB: DrawingBackend>(
         .y_labels(30)
         .x_label_formatter(&|v| log_label(*v, short))
         .y_label_formatter(&|v| log_label(*v, count))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     secondary_axes(&mut chart, 13, 14)
         .y_desc("time to mesh, s (best of runs)")
         .y_labels(30)
         .y_label_formatter(&|v| log_label(*v, short))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     let tri: Vec<(f64, f64)> = s.points.iter().map(|p| (p.max_error * 1e9, p.triangles as f64)).collect();
     let secs: Vec<(f64, f64)> = s.points.iter().map(|p| (p.max_error * 1e9, p.seconds)).collect();
     chart
-        .draw_series(LineSeries::new(tri.iter().copied(), BLUE.stroke_width(2)))
-        .map_err(|x| e(&x))?
+        .draw_series(LineSeries::new(tri.iter().copied(), BLUE.stroke_width(2)))?
         .label("triangles (left axis)")
         .legend(line_key(18, BLUE.stroke_width(2)));
-    chart.draw_series(tri.iter().map(|&p| Circle::new(p, 4, BLUE.filled()))).map_err(|x| e(&x))?;
+    chart.draw_series(tri.iter().map(|&p| Circle::new(p, 4, BLUE.filled())))?;
     chart
-        .draw_secondary_series(LineSeries::new(secs.iter().copied(), RED.stroke_width(2)))
-        .map_err(|x| e(&x))?
+        .draw_secondary_series(LineSeries::new(secs.iter().copied(), RED.stroke_width(2)))?
         .label("time (right axis)")
         .legend(line_key(18, RED.stroke_width(2)));
-    chart
-        .draw_secondary_series(secs.iter().map(|&p| TriangleMarker::new(p, 5, RED.filled())))
-        .map_err(|x| e(&x))?;
+    chart.draw_secondary_series(secs.iter().map(|&p| TriangleMarker::new(p, 5, RED.filled())))?;
     draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 13)
 }
 
 fn stl_error_chart<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
     s: &StlSweep,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
+) -> Drawn {
     let x = log_span(s.points.iter().map(|p| p.max_error * 1e9), 1.4);
     let y = log_span(
         s.points
@@ -171,20 +154,17 @@ fn stl_error_chart<DB: DrawingBackend>(
     let over = s.points.iter().filter(|p| !p.within_bound).count();
     let caption =
         format!("measured height error vs max_error (on or under the line: bound held; over: {over})");
-    let mut chart = frame(root, caption, 16, 12, [45, 70])
-        .build_cartesian_2d(x.clone().log_scale(), y.log_scale())
-        .map_err(|x| e(&x))?;
+    let mut chart =
+        frame(root, caption, 16, 12, [45, 70]).build_cartesian_2d(x.clone().log_scale(), y.log_scale())?;
     mesh(&mut chart, 13, 14, GridLines::Faint)
         .x_desc("max_error, nm (the mesher's bound)")
         .y_desc("|mesh - height map| at the samples, nm")
         .y_labels(30)
         .x_label_formatter(&|v| log_label(*v, short))
         .y_label_formatter(&|v| log_label(*v, short))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     chart
-        .draw_series(LineSeries::new([(x.start, x.start), (x.end, x.end)], BLACK.stroke_width(1)))
-        .map_err(|x| e(&x))?
+        .draw_series(LineSeries::new([(x.start, x.start), (x.end, x.end)], BLACK.stroke_width(1)))?
         .label("bound: error = max_error")
         .legend(line_key(18, BLACK));
     for (colour, label, value) in [
@@ -193,29 +173,21 @@ fn stl_error_chart<DB: DrawingBackend>(
     ] {
         let pts: Vec<(f64, f64)> = s.points.iter().map(|p| (p.max_error * 1e9, value(p) * 1e9)).collect();
         chart
-            .draw_series(LineSeries::new(pts.iter().copied(), colour.stroke_width(2)))
-            .map_err(|x| e(&x))?
+            .draw_series(LineSeries::new(pts.iter().copied(), colour.stroke_width(2)))?
             .label(label)
             .legend(line_key(18, colour.stroke_width(2)));
-        chart.draw_series(pts.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map_err(|x| e(&x))?;
+        chart.draw_series(pts.iter().map(|&p| Circle::new(p, 4, colour.filled())))?;
     }
     draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, 13)
 }
 
-fn stl_chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, plotters::coord::Shift>,
-    s: &StlSweep,
-) -> std::result::Result<(), String> {
+fn stl_chart<DB: DrawingBackend>(root: &DrawingArea<DB, plotters::coord::Shift>, s: &StlSweep) -> Drawn {
     let (left, right) = root.split_horizontally(root.dim_in_pixel().0 / 2);
     stl_cost_chart(&left, s)?;
     stl_error_chart(&right, s)
 }
 
-fn gds_chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, plotters::coord::Shift>,
-    g: &GdsSweep,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
+fn gds_chart<DB: DrawingBackend>(root: &DrawingArea<DB, plotters::coord::Shift>, g: &GdsSweep) -> Drawn {
     let x = log_span(g.points.iter().map(|p| p.max_vertices as f64), 1.4);
     let mb_hi = g.points.iter().map(|p| p.bytes as f64 / 1e6).fold(0.0, f64::max) * 1.15;
     let s_hi = g.points.iter().map(|p| p.seconds).fold(0.0, f64::max) * 1.15;
@@ -230,8 +202,7 @@ fn gds_chart<DB: DrawingBackend>(
     );
     let mut chart = frame(root, caption, 16, 12, [45, 70])
         .right_y_label_area_size(60)
-        .build_cartesian_2d(x.clone().log_scale(), 0.0..mb_hi.max(1e-6))
-        .map_err(|x| e(&x))?
+        .build_cartesian_2d(x.clone().log_scale(), 0.0..mb_hi.max(1e-6))?
         .set_secondary_coord(x.log_scale(), 0.0..s_hi.max(1e-6));
     mesh(&mut chart, 13, 14, GridLines::Faint)
         .x_desc("most vertices per polygon (labels: polygons written)")
@@ -239,36 +210,23 @@ fn gds_chart<DB: DrawingBackend>(
         .x_labels(30)
         .x_label_formatter(&|v| log_label(*v, short))
         .y_label_formatter(&|v| format!("{v:.2}"))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     secondary_axes(&mut chart, 13, 14)
         .y_desc("time to trace and encode, s (best of runs)")
         .y_label_formatter(&|v| format!("{v:.2}"))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     let size: Vec<(f64, f64, usize)> =
         g.points.iter().map(|p| (p.max_vertices as f64, p.bytes as f64 / 1e6, p.polygons)).collect();
     let secs: Vec<(f64, f64)> = g.points.iter().map(|p| (p.max_vertices as f64, p.seconds)).collect();
     chart
-        .draw_series(LineSeries::new(size.iter().map(|p| (p.0, p.1)), BLUE.stroke_width(2)))
-        .map_err(|x| e(&x))?
+        .draw_series(LineSeries::new(size.iter().map(|p| (p.0, p.1)), BLUE.stroke_width(2)))?
         .label("file size (left axis)")
         .legend(line_key(18, BLUE.stroke_width(2)));
     chart
-        .draw_series(size.iter().map(|&(x, y, n)| {
-            EmptyElement::at((x, y))
-                + Circle::new((0, 0), 4, BLUE.filled())
-                + Text::new(format!("{n}"), (4, -18), (FONT, 12))
-        }))
-        .map_err(|x| e(&x))?;
-    chart
-        .draw_secondary_series(LineSeries::new(secs.iter().copied(), RED.stroke_width(2)))
-        .map_err(|x| e(&x))?
+        .draw_secondary_series(LineSeries::new(secs.iter().copied(), RED.stroke_width(2)))?
         .label("time (right axis)")
         .legend(line_key(18, RED.stroke_width(2)));
-    chart
-        .draw_secondary_series(secs.iter().map(|&p| TriangleMarker::new(p, 5, RED.filled())))
-        .map_err(|x| e(&x))?;
+    chart.draw_secondary_series(secs.iter().map(|&p| TriangleMarker::new(p, 5, RED.filled())))?;
     draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 13)
 }
 
@@ -320,8 +278,7 @@ pub fn precompensation_gain(path: &Path, points: &[GainPoint]) -> Result<()> {
         psf: &[(f64, f64)],
         x1: f64,
         y1: f64,
-    ) -> std::result::Result<(), String> {
-        let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    ) -> Drawn {
         let mut ch = frame(
             root,
             "pre-compensation: error of the plain mask / error of the corrected one",
@@ -329,24 +286,20 @@ pub fn precompensation_gain(path: &Path, points: &[GainPoint]) -> Result<()> {
             14,
             [44, 64],
         )
-        .build_cartesian_2d(0.0..x1, 0.0..y1)
-        .map_err(err)?;
+        .build_cartesian_2d(0.0..x1, 0.0..y1)?;
         mesh(&mut ch, 13, 14, GridLines::Full)
             .x_desc("process blur (standard deviation, design samples)")
             .y_desc("gain (before / after)")
-            .draw()
-            .map_err(err)?;
-        ch.draw_series(LineSeries::new([(0.0, 2.0), (x1, 2.0)], BLACK.mix(0.4).stroke_width(1)))
-            .map_err(err)?
+            .draw()?;
+        ch.draw_series(LineSeries::new([(0.0, 2.0), (x1, 2.0)], BLACK.mix(0.4).stroke_width(1)))?
             .label("2x")
             .legend(line_key(18, BLACK.mix(0.4)));
-        ch.draw_series(LineSeries::new([(0.0, 1.0), (x1, 1.0)], BLACK.stroke_width(1))).map_err(err)?;
+        ch.draw_series(LineSeries::new([(0.0, 1.0), (x1, 1.0)], BLACK.stroke_width(1)))?;
         for (data, colour, label) in [(rms, BLUE, "height RMS"), (psf, RED, "PSF relative L2")] {
-            ch.draw_series(LineSeries::new(data.iter().copied(), colour.stroke_width(2)))
-                .map_err(err)?
+            ch.draw_series(LineSeries::new(data.iter().copied(), colour.stroke_width(2)))?
                 .label(label)
                 .legend(line_key(18, colour.stroke_width(2)));
-            ch.draw_series(data.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map_err(err)?;
+            ch.draw_series(data.iter().map(|&p| Circle::new(p, 4, colour.filled())))?;
         }
         draw_legend(&mut ch, SeriesLabelPosition::UpperLeft, 13)
     }

@@ -7,7 +7,9 @@ use std::path::PathBuf;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::style::{draw_legend, frame, key_entry, mesh, write_png_chart, write_svg_chart, GridLines, FONT};
+use super::style::{
+    draw_legend, frame, key_entry, mesh, write_png_chart, write_svg_chart, DrawError, Drawn, GridLines, FONT,
+};
 use crate::bench::calibration::{CalibrationBench, Trial};
 use crate::bench::register::RegistrationBench;
 use crate::bench::SweepAxis;
@@ -25,23 +27,19 @@ pub fn failure_panel<'a, DB: DrawingBackend>(
     limit: f64,
 ) -> std::result::Result<
     ChartContext<'a, DB, Cartesian2d<plotters::coord::types::RangedCoordf64, LogCoord<f64>>>,
-    String,
+    DrawError,
 > {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
     let (lo, hi) =
         axis.values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
     let pad = 0.06 * (hi - lo).max(1e-12);
     let mut c = frame(area, format!("{} ({})", axis.name, axis.unit), 15, 8, [28, 52])
-        .build_cartesian_2d(lo - pad..hi + pad, y.log_scale())
-        .map_err(|x| e(&x))?;
+        .build_cartesian_2d(lo - pad..hi + pad, y.log_scale())?;
     mesh(&mut c, 11, 11, GridLines::Labels)
         .y_desc(y_desc)
         .y_label_formatter(&|v| format!("{v:.0e}"))
         .x_labels(6)
-        .draw()
-        .map_err(|x| e(&x))?;
-    c.draw_series(LineSeries::new([(lo - pad, limit), (hi + pad, limit)], RED.stroke_width(1)))
-        .map_err(|x| e(&x))?;
+        .draw()?;
+    c.draw_series(LineSeries::new([(lo - pad, limit), (hi + pad, limit)], RED.stroke_width(1)))?;
     Ok(c)
 }
 
@@ -63,7 +61,7 @@ pub fn draw_failure_key<'a, DB: DrawingBackend + 'a>(
     silent: &str,
     estimate: Option<&str>,
     line: &str,
-) -> std::result::Result<(), String> {
+) -> Drawn {
     key_entry(panel, within, |(x, y)| Circle::new((x + 8, y), 4, WITHIN.filled()))?;
     if let Some(warned) = warned {
         key_entry(panel, warned, |(x, y)| TriangleMarker::new((x + 8, y), 6, WARNED.filled()))?;
@@ -82,17 +80,13 @@ pub fn draw_failure_key<'a, DB: DrawingBackend + 'a>(
 /// The error drawn for a refused trial (above every other).
 const CALIBRATION_REFUSED_AT: f64 = 3.0;
 
-fn calibration_chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    r: &CalibrationBench,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
-    root.fill(&WHITE).map_err(|x| e(&x))?;
+fn calibration_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: &CalibrationBench) -> Drawn {
+    root.fill(&WHITE)?;
     let title = format!(
         "PSF calibration from a pinhole bracket: error against each trouble, two seeds (silent failures: {}; warned: {}; refused: {})",
         r.silent_failures, r.warned, r.refused
     );
-    let root = root.titled(&title, (FONT, 17)).map_err(|x| e(&x))?;
+    let root = root.titled(&title, (FONT, 17))?;
     let panels = root.split_evenly((1, r.axes.len()));
     let floor = 1e-4;
     for (i, (axis, area)) in r.axes.iter().zip(panels.iter()).enumerate() {
@@ -121,8 +115,7 @@ fn calibration_chart<DB: DrawingBackend>(
             own.iter()
                 .filter(|t| t.estimated.is_finite())
                 .map(|t| Circle::new((t.value, t.estimated.max(floor)), 6, ESTIMATE.stroke_width(1))),
-        )
-        .map_err(|x| e(&x))?;
+        )?;
         c.draw_series(own.iter().map(|t| -> DynElement<DB, (f64, f64)> {
             let at = (t.value, t.worst.max(floor));
             match t.outcome.as_str() {
@@ -133,8 +126,7 @@ fn calibration_chart<DB: DrawingBackend>(
                 "warned" => TriangleMarker::new(at, 6, WARNED.filled()).into_dyn(),
                 _ => Circle::new(at, 4, WITHIN.filled()).into_dyn(),
             }
-        }))
-        .map_err(|x| e(&x))?;
+        }))?;
     }
     Ok(())
 }
@@ -154,17 +146,13 @@ pub fn write_calibration_chart(
 /// The shift error drawn for a refused trial (above every accepted one).
 const REGISTRATION_REFUSED_AT: f64 = 30.0;
 
-fn registration_chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    r: &RegistrationBench,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
-    root.fill(&WHITE).map_err(|x| e(&x))?;
+fn registration_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: &RegistrationBench) -> Drawn {
+    root.fill(&WHITE)?;
     let title = format!(
         "Scan registration: shift error against each trouble, two seeds (silent failures: {}; refused: {})",
         r.silent_failures, r.refused
     );
-    let root = root.titled(&title, (FONT, 18)).map_err(|x| e(&x))?;
+    let root = root.titled(&title, (FONT, 18))?;
     let panels = root.split_evenly((2, 3));
     for (i, (axis, area)) in r.axes.iter().zip(panels.iter()).enumerate() {
         let mut c = failure_panel(
@@ -195,8 +183,7 @@ fn registration_chart<DB: DrawingBackend>(
                 "wrong" => Circle::new((t.value, t.shift_error.max(1e-4)), 7, RED.stroke_width(2)).into_dyn(),
                 _ => Circle::new((t.value, t.shift_error.max(1e-4)), 4, WITHIN.filled()).into_dyn(),
             }
-        }))
-        .map_err(|x| e(&x))?;
+        }))?;
     }
     Ok(())
 }

@@ -7,7 +7,9 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::style::{draw_legend, frame, line_key, mesh, write_png_chart, write_svg_chart, GridLines, FONT};
+use super::style::{
+    draw_legend, frame, line_key, mesh, write_png_chart, write_svg_chart, Drawn, GridLines, FONT,
+};
 use crate::error::Result;
 use crate::grid::Grid;
 
@@ -67,10 +69,6 @@ fn range_nm(g: &Grid, p: Palette) -> (f64, f64) {
     }
 }
 
-fn err(e: impl std::fmt::Display) -> String {
-    e.to_string()
-}
-
 /// A false-colour map of `g` (heights in metres) titled `title`, with a colour bar in nm;
 /// invalid (non-measured) samples are grey. Row 0 at the top.
 pub fn height_map(path: &Path, g: &Grid, title: &str, palette: Palette) -> Result<()> {
@@ -81,15 +79,13 @@ pub fn height_map(path: &Path, g: &Grid, title: &str, palette: Palette) -> Resul
     let (width, height) = (w as u32 + 170, h as u32 + 70);
     write_png_chart(path, width, height, |root| {
         let (map_area, bar_area) = root.split_horizontally(w as u32 + 30);
-        map_area.draw(&Text::new(title.to_string(), (15, 10), (FONT, 18).into_font())).map_err(err)?;
+        map_area.draw(&Text::new(title.to_string(), (15, 10), (FONT, 18).into_font()))?;
         let mm = [nc as f64 * g.pitch()[0] * 1e3, nr as f64 * g.pitch()[1] * 1e3];
-        map_area
-            .draw(&Text::new(
-                format!("{:.2} x {:.2} mm, {} x {} samples", mm[0], mm[1], nc, nr),
-                (15, h as i32 + 45),
-                (FONT, 13).into_font(),
-            ))
-            .map_err(err)?;
+        map_area.draw(&Text::new(
+            format!("{:.2} x {:.2} mm, {} x {} samples", mm[0], mm[1], nc, nr),
+            (15, h as i32 + 45),
+            (FONT, 13).into_font(),
+        ))?;
         for i in 0..h {
             for j in 0..w {
                 let (si, sj) = (i * step, j * step);
@@ -98,7 +94,7 @@ pub fn height_map(path: &Path, g: &Grid, title: &str, palette: Palette) -> Resul
                 } else {
                     RGBColor(160, 160, 160)
                 };
-                map_area.draw_pixel((15 + j as i32, 35 + i as i32), &c).map_err(err)?;
+                map_area.draw_pixel((15 + j as i32, 35 + i as i32), &c)?;
             }
         }
         let mut bar = ChartBuilder::on(&bar_area)
@@ -106,21 +102,18 @@ pub fn height_map(path: &Path, g: &Grid, title: &str, palette: Palette) -> Resul
             .margin_bottom(35)
             .margin_right(10)
             .y_label_area_size(70)
-            .build_cartesian_2d(0.0..1.0, lo..hi)
-            .map_err(err)?;
+            .build_cartesian_2d(0.0..1.0, lo..hi)?;
         mesh(&mut bar, 13, 14, GridLines::Full)
             .disable_x_mesh()
             .disable_y_mesh()
             .disable_x_axis()
             .y_desc("height (nm)")
-            .draw()
-            .map_err(err)?;
+            .draw()?;
         let n = 200;
         bar.draw_series((0..n).map(|k| {
             let (a, b) = (lo + (hi - lo) * k as f64 / n as f64, lo + (hi - lo) * (k + 1) as f64 / n as f64);
             Rectangle::new([(0.0, a), (1.0, b)], colour(palette, (k as f64 + 0.5) / n as f64).filled())
-        }))
-        .map_err(err)?;
+        }))?;
         Ok(())
     })
 }
@@ -173,23 +166,16 @@ pub fn profiles(path: &Path, design: &Grid, surface: &Grid) -> Result<()> {
                 .margin(12)
                 .x_label_area_size(40)
                 .y_label_area_size(70)
-                .build_cartesian_2d(x0 * 1e3..x1 * 1e3, lo - pad..hi + pad)
-                .map_err(err)?;
-            mesh(&mut ch, 13, 14, GridLines::Full)
-                .x_desc(*label)
-                .y_desc("height (nm)")
-                .draw()
-                .map_err(err)?;
+                .build_cartesian_2d(x0 * 1e3..x1 * 1e3, lo - pad..hi + pad)?;
+            mesh(&mut ch, 13, 14, GridLines::Full).x_desc(*label).y_desc("height (nm)").draw()?;
             for (k, r) in d.iter().enumerate() {
-                let s =
-                    ch.draw_series(LineSeries::new(r.iter().copied(), BLACK.stroke_width(1))).map_err(err)?;
+                let s = ch.draw_series(LineSeries::new(r.iter().copied(), BLACK.stroke_width(1)))?;
                 if k == 0 {
                     s.label("design").legend(line_key(18, BLACK));
                 }
             }
             for (k, r) in s.iter().enumerate() {
-                let s =
-                    ch.draw_series(LineSeries::new(r.iter().copied(), RED.stroke_width(1))).map_err(err)?;
+                let s = ch.draw_series(LineSeries::new(r.iter().copied(), RED.stroke_width(1)))?;
                 if k == 0 {
                     s.label("part (registered scan)").legend(line_key(18, RED));
                 }
@@ -225,20 +211,17 @@ pub fn height_histogram(
     let top = counts.iter().copied().max().unwrap_or(1).max(1) as f64 * 1.05;
     write_png_chart(path, 1000, 500, |root| {
         let mut ch = frame(root, "heights over the aperture", 18, 12, [40, 70])
-            .build_cartesian_2d(lo..hi, 0.0..top)
-            .map_err(err)?;
+            .build_cartesian_2d(lo..hi, 0.0..top)?;
         mesh(&mut ch, 13, 14, GridLines::Full)
             .disable_x_mesh()
             .disable_y_mesh()
             .x_desc("height (nm)")
             .y_desc("samples")
-            .draw()
-            .map_err(err)?;
+            .draw()?;
         ch.draw_series(counts.iter().enumerate().map(|(k, &c)| {
             let x = lo + k as f64 * width;
             Rectangle::new([(x, 0.0), (x + width, c as f64)], RGBColor(59, 82, 139).filled())
-        }))
-        .map_err(err)?
+        }))?
         .label("part")
         .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], RGBColor(59, 82, 139).filled()));
         let grey = RGBColor(90, 90, 90);
@@ -246,8 +229,7 @@ pub fn height_histogram(
             design_levels
                 .iter()
                 .map(|v| PathElement::new([(v * 1e9, 0.0), (v * 1e9, top)], grey.stroke_width(2))),
-        )
-        .map_err(err)?
+        )?
         .label("design levels")
         .legend(line_key(18, grey));
         ch.draw_series(
@@ -255,8 +237,7 @@ pub fn height_histogram(
                 .iter()
                 .filter(|v| v.is_finite())
                 .map(|v| PathElement::new([(v * 1e9, 0.0), (v * 1e9, top)], RED.stroke_width(2))),
-        )
-        .map_err(err)?
+        )?
         .label("measured level means")
         .legend(line_key(18, RED));
         super::style::draw_legend(&mut ch, SeriesLabelPosition::MiddleRight, 13)?;
@@ -284,28 +265,22 @@ pub fn profile_chart(
     let line = |pts: &[(f64, f64)]| pts.iter().map(|p| (p.0 * 1e6, p.1 * 1e9)).collect::<Vec<_>>();
     let (m, f) = (line(measured), line(model));
     write_svg_chart(path, 1000, 420, |root| {
-        let mut ch = frame(root, title, 16, 12, [40, 70])
-            .build_cartesian_2d(x0..x1, lo - pad..hi + pad)
-            .map_err(err)?;
+        let mut ch = frame(root, title, 16, 12, [40, 70]).build_cartesian_2d(x0..x1, lo - pad..hi + pad)?;
         mesh(&mut ch, 13, 14, GridLines::Full)
             .x_desc("position along the profile (um)")
             .y_desc("height (nm)")
-            .draw()
-            .map_err(err)?;
-        ch.draw_series(LineSeries::new(m, RED.stroke_width(1)))
-            .map_err(err)?
-            .label("profile")
-            .legend(line_key(18, RED));
+            .draw()?;
+        ch.draw_series(LineSeries::new(m, RED.stroke_width(1)))?.label("profile").legend(line_key(18, RED));
         if !f.is_empty() {
-            ch.draw_series(LineSeries::new(f, BLACK.stroke_width(1)))
-                .map_err(err)?
+            ch.draw_series(LineSeries::new(f, BLACK.stroke_width(1)))?
                 .label("design, fitted")
                 .legend(line_key(18, BLACK));
         }
         for (k, h) in levels.iter().enumerate() {
-            let s = ch
-                .draw_series(LineSeries::new([(x0, h * 1e9), (x1, h * 1e9)], BLUE.mix(0.6).stroke_width(1)))
-                .map_err(err)?;
+            let s = ch.draw_series(LineSeries::new(
+                [(x0, h * 1e9), (x1, h * 1e9)],
+                BLUE.mix(0.6).stroke_width(1),
+            ))?;
             if k == 0 {
                 s.label("levels").legend(line_key(18, BLUE));
             }
@@ -347,8 +322,7 @@ pub fn registration_speed_accuracy(path: &Path, points: &[SpeedAccuracyPoint], g
         goal: f64,
         x: (f64, f64),
         y: (f64, f64),
-    ) -> std::result::Result<(), String> {
-        let e = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    ) -> Drawn {
         let mut ch = frame(
             root,
             "registration: time against shift error (least-squares point budget)",
@@ -356,8 +330,7 @@ pub fn registration_speed_accuracy(path: &Path, points: &[SpeedAccuracyPoint], g
             14,
             [44, 70],
         )
-        .build_cartesian_2d((x.0..x.1).log_scale(), (y.0..y.1).log_scale())
-        .map_err(e)?;
+        .build_cartesian_2d((x.0..x.1).log_scale(), (y.0..y.1).log_scale())?;
         // Three significant digits, no float noise ("0.3", not "0.30000000000000004").
         let fmt = |v: &f64| {
             let d = (2 - v.abs().log10().floor() as i32).max(0) as usize;
@@ -368,10 +341,8 @@ pub fn registration_speed_accuracy(path: &Path, points: &[SpeedAccuracyPoint], g
             .y_label_formatter(&fmt)
             .x_desc("time per registration (s)")
             .y_desc("shift error (design pixels, 4.29 um)")
-            .draw()
-            .map_err(e)?;
-        ch.draw_series(LineSeries::new([(x.0, goal), (x.1, goal)], RED.mix(0.6).stroke_width(1)))
-            .map_err(e)?
+            .draw()?;
+        ch.draw_series(LineSeries::new([(x.0, goal), (x.1, goal)], RED.mix(0.6).stroke_width(1)))?
             .label(format!("goal {goal} px"))
             .legend(line_key(18, RED.mix(0.6)));
         let ok = |v: f64| v.is_finite() && v > 0.0;
@@ -379,21 +350,18 @@ pub fn registration_speed_accuracy(path: &Path, points: &[SpeedAccuracyPoint], g
             points.iter().filter(|p| ok(p.seconds) && ok(p.error)).map(|p| (p.seconds, p.error)).collect();
         let formal: Vec<(f64, f64)> =
             points.iter().filter(|p| ok(p.seconds) && ok(p.sigma)).map(|p| (p.seconds, p.sigma)).collect();
-        ch.draw_series(LineSeries::new(measured.iter().copied(), BLUE.stroke_width(2)))
-            .map_err(e)?
+        ch.draw_series(LineSeries::new(measured.iter().copied(), BLUE.stroke_width(2)))?
             .label("measured error")
             .legend(line_key(18, BLUE.stroke_width(2)));
-        ch.draw_series(measured.iter().map(|&p| Circle::new(p, 4, BLUE.filled()))).map_err(e)?;
-        ch.draw_series(LineSeries::new(formal.iter().copied(), BLACK.mix(0.5).stroke_width(1)))
-            .map_err(e)?
+        ch.draw_series(measured.iter().map(|&p| Circle::new(p, 4, BLUE.filled())))?;
+        ch.draw_series(LineSeries::new(formal.iter().copied(), BLACK.mix(0.5).stroke_width(1)))?
             .label("formal standard error")
             .legend(line_key(18, BLACK.mix(0.5)));
         for p in points.iter().filter(|p| ok(p.seconds) && ok(p.error)) {
             let text = if p.chosen { format!("{} (default)", p.label) } else { p.label.clone() };
-            ch.draw_series([EmptyElement::at((p.seconds, p.error)) + Text::new(text, (7, 4), (FONT, 12))])
-                .map_err(e)?;
+            ch.draw_series([EmptyElement::at((p.seconds, p.error)) + Text::new(text, (7, 4), (FONT, 12))])?;
             if p.chosen {
-                ch.draw_series([Circle::new((p.seconds, p.error), 8, BLUE.stroke_width(2))]).map_err(e)?;
+                ch.draw_series([Circle::new((p.seconds, p.error), 8, BLUE.stroke_width(2))])?;
             }
         }
         draw_legend(&mut ch, SeriesLabelPosition::UpperRight, 13)

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::style::{frame, line_key, mesh, write_png_chart, write_svg_chart, GridLines, FONT};
+use super::style::{frame, line_key, mesh, write_png_chart, write_svg_chart, Drawn, GridLines, FONT};
 use crate::bench::psf::{BenchPoint, PsfBenchResults};
 use crate::bench::spectral::SpectralBenchResults;
 use crate::bench::stability::{StabilityBenchResults, StabilityMap, STEPPED_DOE_PITCH};
@@ -51,13 +51,9 @@ fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
     super::style::log_span(values, 2.0, 1e-6..1.0)
 }
 
-fn speed_chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    report: &PsfBenchResults,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
+fn speed_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, report: &PsfBenchResults) -> Drawn {
     let points = &report.points;
-    root.fill(&WHITE).map_err(|x| e(&x))?;
+    root.fill(&WHITE)?;
     // The counts go in the legend: in the caption they ran past the chart's width.
     let caption = format!(
         "PSF: error vs run time, {} DOE samples at {:.2} um, F/{:.1}",
@@ -65,34 +61,26 @@ fn speed_chart<DB: DrawingBackend>(
         report.doe_pitch * 1e6,
         report.f_number,
     );
-    let mut chart = frame(root, caption, 18, 12, [40, 70])
-        .build_cartesian_2d(
-            log_range(points.iter().map(|p| p.seconds).chain(report.plans.iter().map(|p| p.seconds)))
-                .log_scale(),
-            log_range(
-                points
-                    .iter()
-                    .map(|p| p.error)
-                    .chain(report.plans.iter().flat_map(|p| [p.error, p.tolerance])),
-            )
-            .log_scale(),
+    let mut chart = frame(root, caption, 18, 12, [40, 70]).build_cartesian_2d(
+        log_range(points.iter().map(|p| p.seconds).chain(report.plans.iter().map(|p| p.seconds))).log_scale(),
+        log_range(
+            points.iter().map(|p| p.error).chain(report.plans.iter().flat_map(|p| [p.error, p.tolerance])),
         )
-        .map_err(|x| e(&x))?;
+        .log_scale(),
+    )?;
     mesh(&mut chart, 13, 13, GridLines::Full)
         .x_desc("run time, s")
         .y_desc("relative L2 vs converged reference")
         .x_label_formatter(&|v| format!("{v:.0e}"))
         .y_label_formatter(&|v| format!("{v:.0e}"))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     for (name, colour) in series(points) {
         let own: Vec<&BenchPoint> = points.iter().filter(|p| p.series == name).collect();
         chart
             .draw_series(own.iter().map(|p| {
                 let style = if p.violations.is_empty() { colour.filled() } else { colour.stroke_width(1) };
                 Circle::new((p.seconds, p.error.max(1e-300)), 4, style)
-            }))
-            .map_err(|x| e(&x))?
+            }))?
             .label(name)
             .legend(move |(x, y)| Circle::new((x + 8, y), 4, colour.filled()));
     }
@@ -100,8 +88,7 @@ fn speed_chart<DB: DrawingBackend>(
     let mut front = front;
     front.sort_by(|a, b| a.0.total_cmp(&b.0));
     chart
-        .draw_series(LineSeries::new(front, BLACK.stroke_width(2)))
-        .map_err(|x| e(&x))?
+        .draw_series(LineSeries::new(front, BLACK.stroke_width(2)))?
         .label("Pareto front (valid runs)")
         .legend(line_key(18, BLACK.stroke_width(2)));
     // The automatic plan at each tolerance: a triangle at its run, labelled with the tolerance.
@@ -119,8 +106,7 @@ fn speed_chart<DB: DrawingBackend>(
             EmptyElement::at((*seconds, error.max(1e-300)))
                 + TriangleMarker::new((0, 0), 7, BLACK.filled())
                 + Text::new(format!("plan at {}", tolerances.join(", ")), (8, -6), (FONT, 13))
-        }))
-        .map_err(|x| e(&x))?
+        }))?
         .label("automatic plan at a tolerance")
         .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, BLACK.filled()));
     super::style::key_entry(&mut chart, "hollow: the guard refuses the run", |(x, y)| {
@@ -140,16 +126,11 @@ fn speed_chart<DB: DrawingBackend>(
     Ok(())
 }
 
-fn stability_chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    points: &[BenchPoint],
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
-    root.fill(&WHITE).map_err(|x| e(&x))?;
+fn stability_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, points: &[BenchPoint]) -> Drawn {
+    root.fill(&WHITE)?;
     let s_max = points.iter().map(|p| p.subsample).max().unwrap_or(1) as f64;
     let mut chart = frame(root, "PSF: error vs sampling (x: guard refuses)", 20, 12, [40, 70])
-        .build_cartesian_2d(0.5..s_max + 0.5, log_range(points.iter().map(|p| p.error)).log_scale())
-        .map_err(|x| e(&x))?;
+        .build_cartesian_2d(0.5..s_max + 0.5, log_range(points.iter().map(|p| p.error)).log_scale())?;
     mesh(&mut chart, 13, 13, GridLines::Full)
         .x_desc("sub-samples per pixel s (FFT methods: pupil pitch = pixel pitch / s)")
         .y_desc("relative L2 vs converged reference")
@@ -164,8 +145,7 @@ fn stability_chart<DB: DrawingBackend>(
             }
         })
         .y_label_formatter(&|v| format!("{v:.0e}"))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     for (name, colour) in series(points) {
         let mut own: Vec<(f64, f64, bool)> = points
             .iter()
@@ -174,19 +154,16 @@ fn stability_chart<DB: DrawingBackend>(
             .collect();
         own.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
         chart
-            .draw_series(LineSeries::new(own.iter().map(|&(x, y, _)| (x, y)), colour))
-            .map_err(|x| e(&x))?
+            .draw_series(LineSeries::new(own.iter().map(|&(x, y, _)| (x, y)), colour))?
             .label(name)
             .legend(line_key(18, colour));
-        chart
-            .draw_series(own.iter().map(|&(x, y, valid)| -> DynElement<DB, (f64, f64)> {
-                if valid {
-                    Circle::new((x, y), 3, colour.filled()).into_dyn()
-                } else {
-                    Cross::new((x, y), 6, colour.stroke_width(2)).into_dyn()
-                }
-            }))
-            .map_err(|x| e(&x))?;
+        chart.draw_series(own.iter().map(|&(x, y, valid)| -> DynElement<DB, (f64, f64)> {
+            if valid {
+                Circle::new((x, y), 3, colour.filled()).into_dyn()
+            } else {
+                Cross::new((x, y), 6, colour.stroke_width(2)).into_dyn()
+            }
+        }))?;
     }
     super::style::draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 13)?;
     Ok(())
@@ -227,9 +204,8 @@ fn stability_map_chart<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
     report: &StabilityBenchResults,
     map: &StabilityMap,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
-    root.fill(&WHITE).map_err(|x| e(&x))?;
+) -> Drawn {
+    root.fill(&WHITE)?;
     let by_wavelength = map.y_axis == "wavelength";
     let y_of = |c: &crate::bench::stability::MapCell| {
         if by_wavelength {
@@ -260,8 +236,7 @@ fn stability_map_chart<DB: DrawingBackend>(
         format!("Fresnel number (D/2)^2 / (lambda g), g = d_s swept, {:.0} nm", map.cells[0].wavelength * 1e9)
     };
     let mut chart = frame(root, caption, 17, 12, [45, 70])
-        .build_cartesian_2d(x_range.log_scale(), y_lo - 0.08 * (y_hi - y_lo)..y_hi + 0.12 * (y_hi - y_lo))
-        .map_err(|x| e(&x))?;
+        .build_cartesian_2d(x_range.log_scale(), y_lo - 0.08 * (y_hi - y_lo)..y_hi + 0.12 * (y_hi - y_lo))?;
     mesh(&mut chart, 13, 13, GridLines::Labels)
         .x_desc(if map.method == "matrix_dft" {
             "pupil pitch / (lambda F#)   (the matrix DFT never samples the lens phase)"
@@ -272,28 +247,22 @@ fn stability_map_chart<DB: DrawingBackend>(
         .x_labels(8)
         .x_label_formatter(&|v| format!("{v:.2}"))
         .y_label_formatter(&|v| format!("{v:.0}"))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     let (y0, y1) = (y_lo - 0.08 * (y_hi - y_lo), y_hi + 0.12 * (y_hi - y_lo));
     chart
-        .draw_series(LineSeries::new([(map.limit_x, y0), (map.limit_x, y1)], BLACK.stroke_width(2)))
-        .map_err(|x| e(&x))?
+        .draw_series(LineSeries::new([(map.limit_x, y0), (map.limit_x, y1)], BLACK.stroke_width(2)))?
         .label(map.limit.as_str())
         .legend(line_key(18, BLACK.stroke_width(2)));
     if by_wavelength {
         for (k, p) in report.paper.iter().enumerate() {
             let x = p.lens_sampling_ratio;
             let y_text = y1 - (0.02 + 0.035 * k as f64) * (y1 - y0);
-            chart
-                .draw_series(LineSeries::new([(x, y0), (x, y1)], BLUE.stroke_width(1)))
-                .map_err(|x| e(&x))?;
-            chart
-                .draw_series(std::iter::once(Text::new(
-                    format!("paper {:.0} nm", p.wavelength * 1e9),
-                    (x, y_text),
-                    (FONT, 12).into_font().color(&BLUE),
-                )))
-                .map_err(|x| e(&x))?;
+            chart.draw_series(LineSeries::new([(x, y0), (x, y1)], BLUE.stroke_width(1)))?;
+            chart.draw_series(std::iter::once(Text::new(
+                format!("paper {:.0} nm", p.wavelength * 1e9),
+                (x, y_text),
+                (FONT, 12).into_font().color(&BLUE),
+            )))?;
         }
     }
     if map.design != "smooth" {
@@ -307,8 +276,7 @@ fn stability_map_chart<DB: DrawingBackend>(
             }
         }
         chart
-            .draw_series(LineSeries::new(own, BLUE.stroke_width(1)))
-            .map_err(|x| e(&x))?
+            .draw_series(LineSeries::new(own, BLUE.stroke_width(1)))?
             .label(format!("the DOE's own {:.0} um samples (left: nested in them)", STEPPED_DOE_PITCH * 1e6))
             .legend(line_key(18, BLUE.stroke_width(1)));
     }
@@ -325,8 +293,7 @@ fn stability_map_chart<DB: DrawingBackend>(
                 } else {
                     Cross::new(at, 7, colour.stroke_width(3)).into_dyn()
                 }
-            }))
-            .map_err(|x| e(&x))?
+            }))?
             .label(label)
             .legend(move |(x, y)| Circle::new((x + 8, y), 5, colour.filled()));
     }
@@ -336,13 +303,11 @@ fn stability_map_chart<DB: DrawingBackend>(
                 .iter()
                 .filter(|c| c.silent)
                 .map(|c| Circle::new((c.lens_sampling_ratio, y_of(c)), 11, RED.stroke_width(2))),
-        )
-        .map_err(|x| e(&x))?
+        )?
         .label("silent failure: guard accepts, error > tol")
         .legend(|(x, y)| Circle::new((x + 8, y), 6, RED.stroke_width(2)));
     chart
-        .draw_series(std::iter::empty::<Circle<(f64, f64), i32>>())
-        .map_err(|x| e(&x))?
+        .draw_series(std::iter::empty::<Circle<(f64, f64), i32>>())?
         .label("dot: guard accepts; cross: guard refuses")
         .legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
     super::style::draw_legend(&mut chart, SeriesLabelPosition::UpperLeft, 12)?;
@@ -375,12 +340,8 @@ pub fn write_stability_charts(
     Ok(names)
 }
 
-fn spectral_chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    report: &SpectralBenchResults,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
-    root.fill(&WHITE).map_err(|x| e(&x))?;
+fn spectral_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, report: &SpectralBenchResults) -> Drawn {
+    root.fill(&WHITE)?;
     let caption = format!(
         "Spectral samples: error vs sub-bands per band ({}, {} DOE samples; reference {} sub-bands; silent failures: {})",
         report.method, report.doe_samples, report.reference_samples, report.silent_failures
@@ -392,26 +353,23 @@ fn spectral_chart<DB: DrawingBackend>(
         .chain(report.plans.iter().filter_map(|p| p.samples))
         .max()
         .unwrap_or(1) as f64;
-    let mut chart = frame(root, caption, 17, 12, [40, 70])
-        .build_cartesian_2d(
-            (0.8..n_max * 1.25).log_scale(),
-            log_range(
-                report
-                    .points
-                    .iter()
-                    .flat_map(|p| [p.error, p.estimate])
-                    .chain(report.plans.iter().map(|p| p.tolerance)),
-            )
-            .log_scale(),
+    let mut chart = frame(root, caption, 17, 12, [40, 70]).build_cartesian_2d(
+        (0.8..n_max * 1.25).log_scale(),
+        log_range(
+            report
+                .points
+                .iter()
+                .flat_map(|p| [p.error, p.estimate])
+                .chain(report.plans.iter().map(|p| p.tolerance)),
         )
-        .map_err(|x| e(&x))?;
+        .log_scale(),
+    )?;
     mesh(&mut chart, 13, 13, GridLines::Full)
         .x_desc("sub-bands per band N (midpoint rule; time = N monochromatic runs)")
         .y_desc("relative L2 error of the band's PSF")
         .x_label_formatter(&|v| format!("{v:.0}"))
         .y_label_formatter(&|v| format!("{v:.0e}"))
-        .draw()
-        .map_err(|x| e(&x))?;
+        .draw()?;
     let colours = [RED, GREEN, BLUE, MAGENTA, CYAN, BLACK];
     for (k, (band, _, _)) in report.bands.iter().enumerate() {
         let colour = colours[k % colours.len()];
@@ -422,13 +380,10 @@ fn spectral_chart<DB: DrawingBackend>(
             .map(|p| (p.samples as f64, p.error, p.estimate))
             .collect();
         chart
-            .draw_series(LineSeries::new(series.iter().map(|p| (p.0, p.1)), colour.stroke_width(2)))
-            .map_err(|x| e(&x))?
+            .draw_series(LineSeries::new(series.iter().map(|p| (p.0, p.1)), colour.stroke_width(2)))?
             .label(format!("band {band}: measured"))
             .legend(line_key(16, colour.stroke_width(2)));
-        chart
-            .draw_series(series.iter().map(|p| Circle::new((p.0, p.1), 4, colour.filled())))
-            .map_err(|x| e(&x))?;
+        chart.draw_series(series.iter().map(|p| Circle::new((p.0, p.1), 4, colour.filled())))?;
         // The estimate's dashes, and its legend sample's.
         const DASH: u32 = 6;
         const GAP: u32 = 4;
@@ -438,26 +393,21 @@ fn spectral_chart<DB: DrawingBackend>(
                 DASH,
                 GAP,
                 colour.stroke_width(1),
-            ))
-            .map_err(|x| e(&x))?
+            ))?
             .label(format!("band {band}: plan's estimate"))
             .legend(move |at| super::style::dashed_legend(at, colour.stroke_width(1), DASH, GAP, 16));
     }
     for p in &report.plans {
         let tol = p.tolerance;
-        chart
-            .draw_series(DashedLineSeries::new(
-                [(0.8, tol), (n_max * 1.25, tol)],
-                3,
-                5,
-                BLACK.mix(0.5).stroke_width(1),
-            ))
-            .map_err(|x| e(&x))?;
+        chart.draw_series(DashedLineSeries::new(
+            [(0.8, tol), (n_max * 1.25, tol)],
+            3,
+            5,
+            BLACK.mix(0.5).stroke_width(1),
+        ))?;
         let text = match (p.samples, p.error) {
             (Some(n), Some(err)) => {
-                chart
-                    .draw_series(std::iter::once(Cross::new((n as f64, err), 8, BLACK.stroke_width(2))))
-                    .map_err(|x| e(&x))?;
+                chart.draw_series(std::iter::once(Cross::new((n as f64, err), 8, BLACK.stroke_width(2))))?;
                 format!(
                     "tolerance {tol:.0e}: estimate asks {}, the run settles on N = {n} ({})",
                     p.rule_samples.map_or("-".into(), |r| r.to_string()),
@@ -469,13 +419,10 @@ fn spectral_chart<DB: DrawingBackend>(
             }
             _ => format!("tolerance {tol:.0e}: plan refuses"),
         };
-        chart
-            .draw_series(std::iter::once(Text::new(text, (0.9, tol * 1.15), (FONT, 12))))
-            .map_err(|x| e(&x))?;
+        chart.draw_series(std::iter::once(Text::new(text, (0.9, tol * 1.15), (FONT, 12))))?;
     }
     chart
-        .draw_series(std::iter::empty::<Cross<(f64, f64), i32>>())
-        .map_err(|x| e(&x))?
+        .draw_series(std::iter::empty::<Cross<(f64, f64), i32>>())?
         .label("cross: the plan's run at a tolerance (N it settled on, worst band)")
         .legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
     super::style::draw_legend(&mut chart, SeriesLabelPosition::UpperRight, 12)?;

@@ -32,8 +32,34 @@ pub fn register_font() {
     });
 }
 
+/// A failed drawing step of a chart (plotters' error, or a chart's own refusal), kept as its
+/// message for the error that names the chart's file.
+#[derive(Debug)]
+pub struct DrawError(String);
+
+impl std::fmt::Display for DrawError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl<E: std::error::Error + Send + Sync> From<DrawingAreaErrorKind<E>> for DrawError {
+    fn from(e: DrawingAreaErrorKind<E>) -> Self {
+        DrawError(e.to_string())
+    }
+}
+
+impl From<&str> for DrawError {
+    fn from(what: &str) -> Self {
+        DrawError(what.to_string())
+    }
+}
+
+/// What a drawing function returns: `?` turns plotters' errors into a [`DrawError`].
+pub type Drawn = std::result::Result<(), DrawError>;
+
 fn chart_error(path: &Path, e: impl std::fmt::Display) -> Error {
-    Error::format(path, format!("drawing the chart failed: {e}"))
+    Error::encoding(path, format!("drawing the chart failed: {e}"))
 }
 
 /// A chart's frame: `caption` in the embedded font at `caption_size` pt, `margin` pixels all
@@ -145,17 +171,13 @@ pub fn key_entry<'a, DB, CT, E>(
     chart: &mut ChartContext<'a, DB, CT>,
     label: &str,
     glyph: impl Fn((i32, i32)) -> E + 'a,
-) -> std::result::Result<(), String>
+) -> Drawn
 where
     DB: DrawingBackend + 'a,
     CT: plotters::coord::CoordTranslate,
     E: IntoDynElement<'a, DB, (i32, i32)>,
 {
-    chart
-        .draw_series(std::iter::empty::<Circle<CT::From, i32>>())
-        .map_err(|e| e.to_string())?
-        .label(label)
-        .legend(glyph);
+    chart.draw_series(std::iter::empty::<Circle<CT::From, i32>>())?.label(label).legend(glyph);
     Ok(())
 }
 
@@ -165,7 +187,7 @@ pub fn draw_legend<'a, DB, CT>(
     chart: &mut ChartContext<'a, DB, CT>,
     position: SeriesLabelPosition,
     size: u32,
-) -> std::result::Result<(), String>
+) -> Drawn
 where
     DB: DrawingBackend + 'a,
     CT: plotters::coord::CoordTranslate,
@@ -176,8 +198,8 @@ where
         .label_font((FONT, size))
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK)
-        .draw()
-        .map_err(|e| e.to_string())
+        .draw()?;
+    Ok(())
 }
 
 /// A log axis's label: `f(v)` where the mantissa of `v` is 1, 2 or 5, else none (plotters
@@ -229,7 +251,7 @@ pub fn legend_dashes(dash: u32, gap: u32, length: u32) -> [(i32, i32); 3] {
 /// Draws `draw` into a `width` x `height` RGB bitmap and writes it as an 8-bit PNG at `path`.
 pub fn write_png_chart<F>(path: &Path, width: u32, height: u32, draw: F) -> Result<()>
 where
-    F: FnOnce(&DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>) -> std::result::Result<(), String>,
+    F: FnOnce(&DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>) -> Drawn,
 {
     register_font();
     let mut rgb = vec![255u8; (width * height * 3) as usize];
@@ -253,7 +275,7 @@ where
 /// Draws `draw` as an SVG document of `width` x `height` and writes it at `path`.
 pub fn write_svg_chart<F>(path: &Path, width: u32, height: u32, draw: F) -> Result<()>
 where
-    F: FnOnce(&DrawingArea<SVGBackend<'_>, plotters::coord::Shift>) -> std::result::Result<(), String>,
+    F: FnOnce(&DrawingArea<SVGBackend<'_>, plotters::coord::Shift>) -> Drawn,
 {
     register_font();
     let mut svg = String::new();
@@ -309,12 +331,9 @@ mod tests {
                 .margin(10)
                 .x_label_area_size(30)
                 .y_label_area_size(30)
-                .build_cartesian_2d(0.0..1.0, 0.0..1.0)
-                .map_err(|e| e.to_string())?;
-            chart.configure_mesh().draw().map_err(|e| e.to_string())?;
-            chart
-                .draw_series(LineSeries::new((0..=10).map(|i| (i as f64 / 10.0, i as f64 / 10.0)), &RED))
-                .map_err(|e| e.to_string())?;
+                .build_cartesian_2d(0.0..1.0, 0.0..1.0)?;
+            chart.configure_mesh().draw()?;
+            chart.draw_series(LineSeries::new((0..=10).map(|i| (i as f64 / 10.0, i as f64 / 10.0)), &RED))?;
             Ok(())
         })
         .unwrap();
@@ -325,7 +344,8 @@ mod tests {
         assert!(dark > 200, "axes and caption text are drawn ({dark} px)");
         let svg_path = dir.path().join("c.svg");
         write_svg_chart(&svg_path, 320, 240, |root| {
-            root.draw(&Text::new("label", (10, 10), (FONT, 12).into_font())).map_err(|e| e.to_string())
+            root.draw(&Text::new("label", (10, 10), (FONT, 12).into_font()))?;
+            Ok(())
         })
         .unwrap();
         let svg = std::fs::read_to_string(&svg_path).unwrap();

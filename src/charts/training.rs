@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::style::{frame, line_key, mesh, secondary_axes, write_png_chart, write_svg_chart, GridLines};
+use super::style::{
+    frame, line_key, mesh, secondary_axes, write_png_chart, write_svg_chart, Drawn, GridLines,
+};
 use crate::bench::finetune_time::TimedFinetune;
 use crate::decoder::finetune::HistoryEntry;
 use crate::error::{Error, Result};
@@ -31,42 +33,31 @@ pub fn write_training_chart(path: &Path, history: &[HistoryEntry]) -> Result<()>
         psnr.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &(_, p)| (a.min(p), b.max(p)));
     let (plo, phi) = if plo.is_finite() { (plo - 0.5, phi + 0.5) } else { (0.0, 1.0) };
     write_png_chart(path, 900, 500, |root| {
-        let e = |e: &dyn std::fmt::Display| e.to_string();
         let mut chart = frame(root, "Decoder fine-tuning", 22, 12, [40, 70])
             .right_y_label_area_size(70)
-            .build_cartesian_2d(0.0..last, (lo..hi).log_scale())
-            .map_err(|x| e(&x))?
+            .build_cartesian_2d(0.0..last, (lo..hi).log_scale())?
             .set_secondary_coord(0.0..last, plo..phi);
         mesh(&mut chart, 13, 13, GridLines::Full)
             .x_desc("step")
             .y_desc("training loss (sqrt domain)")
-            .draw()
-            .map_err(|x| e(&x))?;
-        secondary_axes(&mut chart, 13, 13).y_desc("validation PSNR, dB").draw().map_err(|x| e(&x))?;
+            .draw()?;
+        secondary_axes(&mut chart, 13, 13).y_desc("validation PSNR, dB").draw()?;
         chart
-            .draw_series(LineSeries::new(losses.iter().copied(), &BLUE))
-            .map_err(|x| e(&x))?
+            .draw_series(LineSeries::new(losses.iter().copied(), &BLUE))?
             .label("training loss")
             .legend(line_key(18, BLUE));
         chart
-            .draw_secondary_series(LineSeries::new(psnr.iter().copied(), RED.stroke_width(2)))
-            .map_err(|x| e(&x))?
+            .draw_secondary_series(LineSeries::new(psnr.iter().copied(), RED.stroke_width(2)))?
             .label("validation PSNR")
             .legend(line_key(18, RED));
-        chart
-            .draw_secondary_series(psnr.iter().map(|&p| Circle::new(p, 3, RED.filled())))
-            .map_err(|x| e(&x))?;
+        chart.draw_secondary_series(psnr.iter().map(|&p| Circle::new(p, 3, RED.filled())))?;
         super::style::draw_legend(&mut chart, SeriesLabelPosition::MiddleRight, 13)?;
         Ok(())
     })
 }
 
-fn finetune_time_chart<DB: DrawingBackend>(
-    root: &DrawingArea<DB, Shift>,
-    r: &TimedFinetune,
-) -> std::result::Result<(), String> {
-    let e = |x: &dyn std::fmt::Display| x.to_string();
-    root.fill(&WHITE).map_err(|x| e(&x))?;
+fn finetune_time_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: &TimedFinetune) -> Drawn {
+    root.fill(&WHITE)?;
     let minutes = |s: f64| s / 60.0;
     let last = r.points.iter().map(|p| minutes(p.seconds)).fold(0.0, f64::max).max(1e-3);
     let (lo, hi) = r
@@ -88,32 +79,24 @@ fn finetune_time_chart<DB: DrawingBackend>(
         12,
         [44, 60],
     )
-    .build_cartesian_2d(0.0..last * 1.05, (lo - pad)..(hi + pad))
-    .map_err(|x| e(&x))?;
+    .build_cartesian_2d(0.0..last * 1.05, (lo - pad)..(hi + pad))?;
     let x_desc = format!(
         "training time, minutes of wall clock on {} threads ({} steps of {} x {}^2, {:.2} s a step)",
         r.threads, r.steps, r.batch, r.crop, r.seconds_per_step
     );
-    mesh(&mut c, 12, 12, GridLines::Full)
-        .x_desc(x_desc)
-        .y_desc("validation PSNR, dB")
-        .draw()
-        .map_err(|x| e(&x))?;
+    mesh(&mut c, 12, 12, GridLines::Full).x_desc(x_desc).y_desc("validation PSNR, dB").draw()?;
     let (start, best) = r.start_and_best();
-    c.draw_series(LineSeries::new([(0.0, start), (last * 1.05, start)], BLACK.stroke_width(1)))
-        .map_err(|x| e(&x))?
+    c.draw_series(LineSeries::new([(0.0, start), (last * 1.05, start)], BLACK.stroke_width(1)))?
         .label(format!("the start, {start:.2} dB"))
         .legend(line_key(18, BLACK));
     let line: Vec<(f64, f64)> = r.points.iter().map(|p| (minutes(p.seconds), p.val_psnr)).collect();
-    c.draw_series(LineSeries::new(line.clone(), BLUE.stroke_width(2)))
-        .map_err(|x| e(&x))?
+    c.draw_series(LineSeries::new(line.clone(), BLUE.stroke_width(2)))?
         .label(format!("fine-tuned, best {best:.2} dB"))
         .legend(line_key(18, BLUE.stroke_width(2)));
-    c.draw_series(line.iter().map(|&p| Circle::new(p, 4, BLUE.filled()))).map_err(|x| e(&x))?;
+    c.draw_series(line.iter().map(|&p| Circle::new(p, 4, BLUE.filled())))?;
     if let Some(s) = r.half_gain_seconds() {
         let at = minutes(s);
-        c.draw_series(LineSeries::new([(at, lo - pad), (at, hi + pad)], RED.stroke_width(1)))
-            .map_err(|x| e(&x))?
+        c.draw_series(LineSeries::new([(at, lo - pad), (at, hi + pad)], RED.stroke_width(1)))?
             .label(format!("half the gain, {s:.0} s"))
             .legend(line_key(18, RED));
     }

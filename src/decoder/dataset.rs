@@ -96,7 +96,7 @@ pub fn read_dir(dir: &Path) -> Result<HdrFolder> {
     }
     paths.sort();
     if paths.is_empty() {
-        return Err(Error::format(dir, "holds no .exr or .hdr images (searched recursively)"));
+        return Err(Error::malformed(dir, "holds no .exr or .hdr images (searched recursively)"));
     }
     let mut folder = HdrFolder { images: Vec::new(), skipped: Vec::new() };
     for p in &paths {
@@ -106,7 +106,7 @@ pub fn read_dir(dir: &Path) -> Result<HdrFolder> {
         }
     }
     if folder.images.is_empty() {
-        return Err(Error::format(
+        return Err(Error::malformed(
             dir,
             format!(
                 "none of its {} .exr/.hdr images can be read: {}",
@@ -124,7 +124,7 @@ pub fn read_dir(dir: &Path) -> Result<HdrFolder> {
 fn read_hdr_image(root: &Path, path: &PathBuf) -> Result<HdrImage> {
     let img = crate::calibration::capture::read_image(path)?;
     if img.channels() != 3 {
-        return Err(Error::format(
+        return Err(Error::unsupported(
             path,
             format!("has {} channel(s); an HDR training image is RGB", img.channels()),
         ));
@@ -133,7 +133,7 @@ fn read_hdr_image(root: &Path, path: &PathBuf) -> Result<HdrImage> {
     let mut pixels = img.to_f32().values;
     let max = pixels.iter().fold(0.0f32, |m, &v| m.max(v));
     if max <= 0.0 {
-        return Err(Error::format(path, "is black everywhere: nothing to expose"));
+        return Err(Error::malformed(path, "is black everywhere: nothing to expose"));
     }
     // Lossy compression (DWA) rings below zero around edges and highlights: such values become
     // 0, unless they carry a share of the image's energy that no compressed radiance would.
@@ -149,7 +149,7 @@ fn read_hdr_image(root: &Path, path: &PathBuf) -> Result<HdrImage> {
             },
         );
     if neg > NEGATIVE_NOISE as f64 * pos {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             format!(
                 "its negative values sum to {:.2} % of its positive ones; HDR radiance must be >= 0 \
@@ -209,7 +209,7 @@ pub fn training_and_validation(
         let n = all.images.len();
         let images: Vec<HdrImage> = all.images.into_iter().filter(wide_enough).collect();
         if images.is_empty() {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 d,
                 format!(
                     "none of its {n} readable images is a photograph or a panorama at least {min_panorama_width} px wide"
@@ -226,14 +226,17 @@ pub fn training_and_validation(
         }
         None => {
             let (t, v) = split(folder.images, holdout_every).map_err(|e| match e {
-                Error::Parameter { name, reason } if !folder.skipped.is_empty() => Error::Parameter {
-                    name,
-                    reason: format!(
-                        "{reason} ({} could not be read: {})",
-                        folder.skipped.len(),
-                        folder.skipped.join("; ")
-                    ),
-                },
+                Error::Parameter { name, reason, allowed } if !folder.skipped.is_empty() => {
+                    Error::Parameter {
+                        name,
+                        allowed,
+                        reason: format!(
+                            "{reason} ({} could not be read: {})",
+                            folder.skipped.len(),
+                            folder.skipped.join("; ")
+                        ),
+                    }
+                }
                 e => e,
             })?;
             (t, v, Vec::new())

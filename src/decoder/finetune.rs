@@ -33,7 +33,7 @@ use crate::decoder::scenes::{GeneratedScenes, SceneSource};
 use crate::decoder::unet::{is_trainable, tensor_values, UNet};
 use crate::decoder::weights::{encode_safetensors, read_safetensors, DecoderWeights, NamedTensor};
 use crate::decoder::{to_tensor, weights};
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::image::Image;
 use crate::io::atomic::write_bytes;
 use crate::optics::convolve::Convolver;
@@ -69,7 +69,11 @@ impl TrainingScenes {
         white_balance: f64,
     ) -> Result<TrainingScenes> {
         if !(white_balance >= 1.0 && white_balance.is_finite()) {
-            return Err(Error::param("white_balance", format!("{white_balance} must be finite and >= 1")));
+            return Err(Error::param_in(
+                "white_balance",
+                Allowed::at_least(1.0),
+                format!("{white_balance} must be finite and >= 1"),
+            ));
         }
         Ok(match data {
             Some(dir) => {
@@ -677,9 +681,9 @@ impl<'a> Trainer<'a> {
         let (mut tensors, meta) = read_safetensors(checkpoint)?;
         let field = |k: &str| {
             meta.get(k)
-                .ok_or_else(|| Error::format(checkpoint, format!("not a checkpoint: no '{k}' metadata")))
+                .ok_or_else(|| Error::signature(checkpoint, format!("not a checkpoint: no '{k}' metadata")))
         };
-        let parse_err = |k: &str, e: String| Error::format(checkpoint, format!("metadata '{k}': {e}"));
+        let parse_err = |k: &str, e: String| Error::malformed(checkpoint, format!("metadata '{k}': {e}"));
         if field("psf_sha256")? != psf_sha256 {
             return Err(Error::param(
                 "psf",
@@ -728,7 +732,7 @@ impl<'a> Trainer<'a> {
         let mut take = |key: String| {
             let mt = moments
                 .remove(&key)
-                .ok_or_else(|| Error::format(checkpoint, format!("checkpoint lacks tensor '{key}'")))?;
+                .ok_or_else(|| Error::malformed(checkpoint, format!("checkpoint lacks tensor '{key}'")))?;
             let n = mt.values.len();
             Ok::<_, Error>(Tensor::<1>::from_data(TensorData::new(mt.values, [n]), device))
         };

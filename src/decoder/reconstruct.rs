@@ -105,7 +105,7 @@ pub fn read_capture(path: &Path) -> Result<Image<f32>> {
     let c = crate::calibration::capture::read_capture(path)?;
     let channels = c.image.channels();
     if channels != 3 {
-        return Err(Error::format(
+        return Err(Error::unsupported(
             path,
             format!("has {channels} channel(s); the decoder takes RGB captures (linear sensor values)"),
         ));

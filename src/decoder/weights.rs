@@ -108,7 +108,10 @@ impl DecoderWeights {
             problems.push(format!("tensor '{name}' is not part of the decoder"));
         }
         if !problems.is_empty() {
-            return Err(Error::format(path, format!("not a DeepOpticsHDR decoder: {}", problems.join("; "))));
+            return Err(Error::signature(
+                path,
+                format!("not a DeepOpticsHDR decoder: {}", problems.join("; ")),
+            ));
         }
         Ok(DecoderWeights { tensors: out, metadata })
     }
@@ -151,7 +154,7 @@ pub fn decoder_bytes(path: &Path) -> Result<std::borrow::Cow<'static, [u8]>> {
     if let Some(name) = path.to_str().and_then(|p| p.strip_prefix("built-in:")) {
         let Some((_, bytes)) = BUILT_IN.iter().find(|(n, _)| *n == name) else {
             let names: Vec<_> = BUILT_IN.iter().map(|(n, _)| format!("built-in:{n}")).collect();
-            return Err(Error::format(
+            return Err(Error::signature(
                 path,
                 format!("no bundled decoder of that name; bundled: {}", names.join(", ")),
             ));
@@ -183,7 +186,7 @@ pub fn decode_safetensors(
     path: &Path,
     bytes: &[u8],
 ) -> Result<(BTreeMap<String, NamedTensor>, BTreeMap<String, String>)> {
-    let bad = |what: String| Error::format(path, format!("safetensors: {what}"));
+    let bad = |what: String| Error::malformed(path, format!("safetensors: {what}"));
     let (header_len, header) = SafeTensors::read_metadata(bytes).map_err(|e| bad(e.to_string()))?;
     let data = &bytes[8 + header_len..];
     let metadata: BTreeMap<String, String> =

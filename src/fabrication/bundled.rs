@@ -30,6 +30,6 @@ pub fn read_text(path: &Path, ext: &str) -> Result<String> {
             .filter(|(n, _)| n.ends_with(ext))
             .map(|(n, _)| format!("{BUILT_IN}{}", n.trim_end_matches(ext)))
             .collect();
-        Error::format(path, format!("no bundled file of that name; bundled: {}", names.join(", ")))
+        Error::signature(path, format!("no bundled file of that name; bundled: {}", names.join(", ")))
     })
 }

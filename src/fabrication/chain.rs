@@ -304,7 +304,7 @@ pub struct LevelMap {
 
 fn meta_get<'a>(path: &Path, meta: &'a [(String, String)], key: &str) -> Result<&'a str> {
     meta.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str()).ok_or_else(|| {
-        Error::format(
+        Error::malformed(
             path,
             format!("metadata '{key}' is missing: expected a level map written by `doefab quantize`"),
         )
@@ -324,7 +324,7 @@ pub fn surface_from_raw(path: &Path, raw: RawMap, opts: &ReadOptions) -> Result<
         return heightmap_from_raw(path, raw, opts);
     }
     if opts.unit.is_some() || opts.z_scale.is_some() || opts.z_offset.is_some() {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             "a level map's heights come from its level count and period: drop `unit`, `z_scale` and `z_offset`",
         ));
@@ -335,23 +335,23 @@ pub fn surface_from_raw(path: &Path, raw: RawMap, opts: &ReadOptions) -> Result<
 
 fn level_map_from_raw(path: &Path, raw: RawMap) -> Result<LevelMap> {
     if meta_get(path, &raw.metadata, KEY_QUANTITY)? != "level" {
-        return Err(Error::format(path, "metadata 'quantity' is not 'level': expected a level map"));
+        return Err(Error::malformed(path, "metadata 'quantity' is not 'level': expected a level map"));
     }
     let level_count: usize = meta_get(path, &raw.metadata, KEY_LEVEL_COUNT)?
         .parse()
-        .map_err(|_| Error::format(path, "metadata 'level_count' is not an integer"))?;
+        .map_err(|_| Error::malformed(path, "metadata 'level_count' is not an integer"))?;
     crate::fabrication::quantize::check_level_count(level_count)
-        .map_err(|e| Error::format(path, format!("metadata 'level_count': {e}")))?;
+        .map_err(|e| Error::malformed(path, format!("metadata 'level_count': {e}")))?;
     let period: f64 = meta_get(path, &raw.metadata, KEY_PERIOD)?
         .parse()
-        .map_err(|_| Error::format(path, "metadata 'period_m' is not a number"))?;
+        .map_err(|_| Error::malformed(path, "metadata 'period_m' is not a number"))?;
     let provenance: Provenance = serde_json::from_str(meta_get(path, &raw.metadata, KEY_PROVENANCE)?)
-        .map_err(|e| Error::format(path, format!("metadata 'provenance': {e}")))?;
-    let pitch = raw.pitch.ok_or_else(|| Error::format(path, "metadata 'pitch_x'/'pitch_y' is missing"))?;
+        .map_err(|e| Error::malformed(path, format!("metadata 'provenance': {e}")))?;
+    let pitch = raw.pitch.ok_or_else(|| Error::malformed(path, "metadata 'pitch_x'/'pitch_y' is missing"))?;
     if let Some(((i, j), v)) =
         raw.values.indexed_iter().find(|(_, v)| v.fract() != 0.0 || **v < 0.0 || **v >= level_count as f64)
     {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             format!("sample at row {i}, column {j} is {v}, not a level in 0..{level_count}"),
         ));
@@ -398,7 +398,7 @@ pub fn quantize_file(heights: &Path, p: &ChainParams, output: &Path) -> Result<Q
     let raw = read_raw(heights, None)?;
     let mut provenance: Provenance = match raw.metadata.iter().find(|(k, _)| k == KEY_PROVENANCE) {
         Some((_, v)) => serde_json::from_str(v)
-            .map_err(|e| Error::format(heights, format!("metadata 'provenance': {e}")))?,
+            .map_err(|e| Error::malformed(heights, format!("metadata 'provenance': {e}")))?,
         None => Provenance {
             design: heights.display().to_string(),
             design_sha256: crate::io::file_sha256(heights)?,
@@ -651,8 +651,10 @@ pub fn run_recipe(
     let mut mask_meta = None;
     let grayscale = recipe.grayscale_extensions();
     if !grayscale.is_empty() {
-        let curve_path =
-            recipe.contrast_curve.as_ref().ok_or_else(|| Error::format(&recipe.path, "no contrast_curve"))?;
+        let curve_path = recipe
+            .contrast_curve
+            .as_ref()
+            .ok_or_else(|| Error::malformed(&recipe.path, "no contrast_curve"))?;
         let curve = ContrastCurve::read_csv(curve_path)?;
         let mopts = recipe.mask_options(opts.force);
         let mask = crate::fabrication::mask::render(

@@ -35,7 +35,7 @@ pub struct ContrastCurve {
 impl ContrastCurve {
     /// Builds a curve from points; `source` names them in error messages.
     pub fn new(dose: Vec<f64>, depth: Vec<f64>, source: &Path) -> Result<Self> {
-        let bad = |what: String| Error::format(source, what);
+        let bad = |what: String| Error::malformed(source, what);
         if dose.len() != depth.len() || dose.len() < 2 {
             return Err(bad(format!(
                 "a contrast curve needs at least 2 (dose, depth) rows, got {}",
@@ -78,7 +78,10 @@ impl ContrastCurve {
         let text = crate::fabrication::bundled::read_text(path, ".csv")?;
         let t = parse_two_columns(path, &text, "dose,depth_nm")?;
         if t.header[0] != "dose" {
-            return Err(Error::format(path, format!("first column must be 'dose', got '{}'", t.header[0])));
+            return Err(Error::malformed(
+                path,
+                format!("first column must be 'dose', got '{}'", t.header[0]),
+            ));
         }
         let scale = column_unit(path, &t.header[1], "depth")?;
         let dose = t.rows.iter().map(|r| r.1).collect();

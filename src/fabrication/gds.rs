@@ -48,7 +48,7 @@ use std::path::{Path, PathBuf};
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::fabrication::trace::{trace, Polygon};
 use crate::grid::{Grid, Unit};
 use crate::io::atomic::write_bytes;
@@ -460,8 +460,9 @@ fn crosses(frame: &Frame, opts: &MaskSetOptions) -> Result<Crosses> {
         ));
     }
     if !(opts.cross_margin.is_finite() && opts.cross_margin >= 0.0) {
-        return Err(Error::param(
+        return Err(Error::param_in(
             "cross_margin",
+            Allowed::at_least(0.0),
             format!("must be finite and >= 0, got {} m", opts.cross_margin),
         ));
     }
@@ -503,7 +504,11 @@ fn crosses(frame: &Frame, opts: &MaskSetOptions) -> Result<Crosses> {
 
 fn whole_or_round(name: &str, metres: f64) -> Result<i64> {
     if !(metres.is_finite() && metres > 0.0) {
-        return Err(Error::param(name, format!("must be finite and positive, got {metres} m")));
+        return Err(Error::param_in(
+            name,
+            Allowed::positive(),
+            format!("must be finite and positive, got {metres} m"),
+        ));
     }
     let v = nm(name, metres)?;
     if v < 1 {
@@ -514,8 +519,9 @@ fn whole_or_round(name: &str, metres: f64) -> Result<i64> {
 
 fn check_options(opts: &MaskSetOptions) -> Result<()> {
     if !(4..=MAX_BOUNDARY_VERTICES).contains(&opts.max_vertices) {
-        return Err(Error::param(
+        return Err(Error::param_in(
             "max_vertices",
+            Allowed::between(4.0, MAX_BOUNDARY_VERTICES as f64),
             format!(
                 "must be within 4..={MAX_BOUNDARY_VERTICES} (GDSII boundary limit), got {}",
                 opts.max_vertices
@@ -585,7 +591,11 @@ pub fn mask_set_gds(
     opts: &MaskSetOptions,
 ) -> Result<(Vec<u8>, MaskSetStats)> {
     if !(period.is_finite() && period > 0.0) {
-        return Err(Error::param("period", format!("must be finite and positive, got {period} m")));
+        return Err(Error::param_in(
+            "period",
+            Allowed::positive(),
+            format!("must be finite and positive, got {period} m"),
+        ));
     }
     let (masks, frame, crosses) = prepare(levels, level_count, opts)?;
     let results: Vec<Result<(GdsStream, usize, usize)>> = std::thread::scope(|scope| {
@@ -725,7 +735,7 @@ pub fn write_layer_previews(
         let mut buf = Vec::new();
         PngEncoder::new_with_quality(&mut buf, CompressionType::Fast, FilterType::Adaptive)
             .write_image(&img, w, h, image::ExtendedColorType::L8)
-            .map_err(|e| Error::format(&path, format!("cannot encode the PNG preview: {e}")))?;
+            .map_err(|e| Error::encoding(&path, format!("cannot encode the PNG preview: {e}")))?;
         write_bytes(&path, &buf)?;
         paths.push(path);
     }

@@ -40,7 +40,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::blur::gaussian_blur;
 use crate::grid::{Grid, Unit};
 
@@ -229,10 +229,18 @@ pub fn precompensate(
         return Err(Error::Data("the target surface has non-measured or non-finite samples".into()));
     }
     if !(opts.max_height.is_finite() && opts.max_height > 0.0) {
-        return Err(Error::param("max_height", format!("must be positive, got {:e} m", opts.max_height)));
+        return Err(Error::param_in(
+            "max_height",
+            Allowed::positive(),
+            format!("must be positive, got {:e} m", opts.max_height),
+        ));
     }
     if !(model.blur.is_finite() && model.blur >= 0.0) {
-        return Err(Error::param("blur", format!("must be finite and >= 0, got {:e} m", model.blur)));
+        return Err(Error::param_in(
+            "blur",
+            Allowed::at_least(0.0),
+            format!("must be finite and >= 0, got {:e} m", model.blur),
+        ));
     }
     let (tmin, tmax) = target.min_max().ok_or_else(|| Error::Data("the target is empty".into()))?;
     let r = &model.response;

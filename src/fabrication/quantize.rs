@@ -4,7 +4,7 @@
 use ndarray::{s, Array2, Zip};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::float;
 use crate::grid::{par, Grid, Unit};
 
@@ -142,7 +142,11 @@ pub fn quantize_owned(
         return Err(Error::param("heights", "expected heights in metres"));
     }
     if !(period > 0.0 && period.is_finite()) {
-        return Err(Error::param("period", format!("must be positive, got {period}")));
+        return Err(Error::param_in(
+            "period",
+            Allowed::positive(),
+            format!("must be positive, got {period}"),
+        ));
     }
     let n = level_count as f64;
     let check_range = |range: Option<(f64, f64)>| match range {

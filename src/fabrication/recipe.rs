@@ -179,19 +179,19 @@ impl Recipe {
     /// errors name the file and the field.
     pub fn read(path: &Path) -> Result<Recipe> {
         let text = read_text(path, ".toml")?;
-        let f: RecipeFile = toml::from_str(&text).map_err(|e| Error::format(path, e.to_string()))?;
+        let f: RecipeFile = toml::from_str(&text).map_err(|e| Error::malformed(path, e.to_string()))?;
         let len = |field: &str, v: &str| {
-            parse_length(v).map_err(|e| Error::format(path, format!("field '{field}': {e}")))
+            parse_length(v).map_err(|e| Error::malformed(path, format!("field '{field}': {e}")))
         };
         let positive = |field: &str, v: f64| {
             if v > 0.0 {
                 Ok(v)
             } else {
-                Err(Error::format(path, format!("field '{field}' must be positive")))
+                Err(Error::malformed(path, format!("field '{field}' must be positive")))
             }
         };
         check_level_count(f.process.level_count)
-            .map_err(|e| Error::format(path, format!("field 'process.level_count': {e}")))?;
+            .map_err(|e| Error::malformed(path, format!("field 'process.level_count': {e}")))?;
         let bundled = path.to_str().is_some_and(|p| p.starts_with(BUILT_IN));
         let dir = path.parent().unwrap_or(Path::new("."));
         let contrast_curve = f.process.contrast_curve.map(|c| match bundled {
@@ -200,17 +200,17 @@ impl Recipe {
         });
         let needs_curve = f.outputs.iter().any(|o| matches!(o, Output::GrayscalePng | Output::GrayscaleTiff));
         if needs_curve && contrast_curve.is_none() {
-            return Err(Error::format(path, "grayscale outputs need 'process.contrast_curve'"));
+            return Err(Error::malformed(path, "grayscale outputs need 'process.contrast_curve'"));
         }
         if f.outputs.contains(&Output::Gds) && !f.process.level_count.is_power_of_two() {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!("a binary mask set needs a power-of-two level_count, got {}", f.process.level_count),
             ));
         }
         let stl_unit = match &f.stl.unit {
             Some(u) => {
-                StlUnit::parse(u).map_err(|e| Error::format(path, format!("field 'stl.unit': {e}")))?
+                StlUnit::parse(u).map_err(|e| Error::malformed(path, format!("field 'stl.unit': {e}")))?
             }
             None => StlUnit::Millimetre,
         };
@@ -253,7 +253,7 @@ impl Recipe {
             gds_max_vertices: match f.gds.max_vertices {
                 Some(n) if (4..=MAX_BOUNDARY_VERTICES).contains(&n) => n,
                 Some(n) => {
-                    return Err(Error::format(
+                    return Err(Error::malformed(
                         path,
                         format!("field 'gds.max_vertices': {n} is outside 4..={MAX_BOUNDARY_VERTICES}"),
                     ))

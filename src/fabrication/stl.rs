@@ -35,7 +35,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::{Grid, Unit};
 use crate::io::atomic::write_atomic;
 
@@ -181,8 +181,9 @@ fn check_input(heights: &Grid, base_thickness: f64) -> Result<(f64, f64)> {
         )));
     }
     if !(base_thickness.is_finite() && base_thickness > 0.0) {
-        return Err(Error::param(
+        return Err(Error::param_in(
             "base_thickness",
+            Allowed::positive(),
             format!("must be finite and positive (a closed solid needs a base), got {base_thickness} m"),
         ));
     }
@@ -212,7 +213,11 @@ pub fn terrace_mesh(heights: &Grid, base_thickness: f64) -> Result<Mesh> {
 pub fn heightfield_mesh(heights: &Grid, base_thickness: f64, max_error: f64) -> Result<Mesh> {
     let (lo, _) = check_input(heights, base_thickness)?;
     if !(max_error.is_finite() && max_error > 0.0) {
-        return Err(Error::param("max_error", format!("must be finite and positive, got {max_error} m")));
+        return Err(Error::param_in(
+            "max_error",
+            Allowed::positive(),
+            format!("must be finite and positive, got {max_error} m"),
+        ));
     }
     let (nr, nc) = heights.dim();
     if nr < 2 || nc < 2 {
@@ -270,10 +275,14 @@ pub fn surface_stl(heights: &Grid, opts: &StlOptions, path: &Path) -> Result<Stl
 /// (metres), the quantization convention of the fabrication stage.
 pub fn level_heights(levels: &Grid, level_count: usize, period: f64) -> Result<Grid> {
     if level_count == 0 {
-        return Err(Error::param("level_count", "must be at least 1"));
+        return Err(Error::param_in("level_count", Allowed::at_least(1.0), "must be at least 1"));
     }
     if !(period.is_finite() && period > 0.0) {
-        return Err(Error::param("period", format!("must be finite and positive, got {period} m")));
+        return Err(Error::param_in(
+            "period",
+            Allowed::positive(),
+            format!("must be finite and positive, got {period} m"),
+        ));
     }
     let n = level_count as f64;
     for ((i, j), &v) in levels.values().indexed_iter() {

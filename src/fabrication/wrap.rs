@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use ndarray::{s, Zip};
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::float;
 use crate::grid::{par, Grid, Unit};
 use crate::material::Material;
@@ -44,7 +44,11 @@ impl WrapSpec {
     /// The wrap period `P = p * lambda0 / (n0 - 1)`, metres.
     pub fn period(&self) -> Result<f64> {
         if self.order == 0 {
-            return Err(Error::param("order", "the multi-order factor p must be at least 1"));
+            return Err(Error::param_in(
+                "order",
+                Allowed::at_least(1.0),
+                "the multi-order factor p must be at least 1",
+            ));
         }
         Ok(self.order as f64 * self.material.height_2pi(self.wavelength)?)
     }

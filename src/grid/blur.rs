@@ -4,14 +4,18 @@
 
 use ndarray::Array2;
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::Grid;
 
 /// Separable Gaussian blur (standard deviation `sigma` metres) normalised over valid samples:
 /// `sum w g v / sum w g` with `w` the validity (Knutsson & Westin's normalized convolution).
 pub fn gaussian_blur(g: &Grid, sigma: f64) -> Result<Grid> {
     if !(sigma.is_finite() && sigma >= 0.0) {
-        return Err(Error::param("blur", format!("must be finite and >= 0, got {sigma} m")));
+        return Err(Error::param_in(
+            "blur",
+            Allowed::at_least(0.0),
+            format!("must be finite and >= 0, got {sigma} m"),
+        ));
     }
     if sigma == 0.0 {
         return Ok(g.clone());
@@ -38,7 +42,11 @@ pub fn gaussian_blur(g: &Grid, sigma: f64) -> Result<Grid> {
 /// the edges). `sigma` 0 returns the values.
 pub fn blur_samples(values: &Array2<f64>, sigma: f64) -> Result<Array2<f64>> {
     if !(sigma.is_finite() && sigma >= 0.0) {
-        return Err(Error::param("blur", format!("must be finite and >= 0, got {sigma} samples")));
+        return Err(Error::param_in(
+            "blur",
+            Allowed::at_least(0.0),
+            format!("must be finite and >= 0, got {sigma} samples"),
+        ));
     }
     if sigma == 0.0 {
         return Ok(values.clone());

@@ -46,7 +46,7 @@ pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
 /// Writes pretty JSON atomically (with a trailing newline).
 pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
     let mut text = serde_json::to_string_pretty(value)
-        .map_err(|e| Error::format(path, format!("cannot serialise JSON: {e}")))?;
+        .map_err(|e| Error::encoding(path, format!("cannot serialise JSON: {e}")))?;
     text.push('\n');
     write_bytes(path, text.as_bytes())
 }

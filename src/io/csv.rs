@@ -30,7 +30,7 @@ pub fn read_csv(path: &Path) -> Result<RawMap> {
 /// Decodes the bytes of a text matrix file (see [`read_csv`]); `path` names it in errors.
 pub fn decode_csv(path: &Path, bytes: &[u8]) -> Result<RawMap> {
     let text = std::str::from_utf8(bytes).map_err(|e| {
-        Error::format(path, format!("not UTF-8 text (invalid byte at offset {})", e.valid_up_to()))
+        Error::malformed(path, format!("not UTF-8 text (invalid byte at offset {})", e.valid_up_to()))
     })?;
     parse_csv(path, text)
 }
@@ -81,7 +81,7 @@ pub fn parse_csv(path: &Path, text: &str) -> Result<RawMap> {
             cols = cells.len();
             first_line = lineno;
         } else if cells.len() != cols {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!(
                     "line {lineno} has {} columns but line {first_line} (the first data line) has {cols}",
@@ -92,17 +92,17 @@ pub fn parse_csv(path: &Path, text: &str) -> Result<RawMap> {
         for (k, cell) in cells.iter().enumerate() {
             let v: f64 = cell.parse().map_err(|_| {
                 let shown = if cell.is_empty() { "an empty cell".to_string() } else { format!("'{cell}'") };
-                Error::format(path, format!("line {lineno}, column {}: {shown} is not a number", k + 1))
+                Error::malformed(path, format!("line {lineno}, column {}: {shown} is not a number", k + 1))
             })?;
             data.push(v);
         }
         rows += 1;
     }
     if rows == 0 || cols == 0 {
-        return Err(Error::format(path, "holds no data lines"));
+        return Err(Error::malformed(path, "holds no data lines"));
     }
     let values = Array2::from_shape_vec((rows, cols), data)
-        .map_err(|e| Error::format(path, format!("cannot form a {rows} x {cols} matrix: {e}")))?;
+        .map_err(|e| Error::malformed(path, format!("cannot form a {rows} x {cols} matrix: {e}")))?;
 
     let (mut pitch, mut unit) = pitch_unit_from_text(path, &metadata)?;
     let get = |k: &str| metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
@@ -114,7 +114,7 @@ pub fn parse_csv(path: &Path, text: &str) -> Result<RawMap> {
                     pitch = Some([wd / cols as f64, hd / rows as f64])
                 }
                 _ => {
-                    return Err(Error::format(
+                    return Err(Error::malformed(
                         path,
                         format!("header 'Width: {wt}' / 'Height: {ht}' is not a pair of positive lengths"),
                     ))

@@ -41,15 +41,18 @@ pub fn read_exr(path: &Path, channel: Option<&str>) -> Result<RawMap> {
     decode_exr(path, &bytes, channel)
 }
 
-/// The layer headers of an OpenEXR file, after checking its magic number. The decoder is
-/// third-party code fed with user bytes: a panic in it becomes an error.
+/// The layer headers of an OpenEXR file, after checking its magic number and its custom
+/// channel-list attributes (in file order: the `exr` crate checks custom attributes in its
+/// `HashMap`'s random order, so a file with two bad ones would give a different error from run
+/// to run). The decoder is third-party code fed with user bytes: a panic in it becomes an error.
 fn read_headers(path: &Path, bytes: &[u8]) -> Result<exr::meta::Headers> {
     if bytes.len() < 4 || bytes[..4] != [0x76, 0x2f, 0x31, 0x01] {
-        return Err(Error::format(path, "not an OpenEXR file: bad magic (expected 76 2f 31 01)"));
+        return Err(Error::signature(path, "not an OpenEXR file: bad magic (expected 76 2f 31 01)"));
     }
+    scanline::check_custom_channel_lists(path, bytes)?;
     Ok(std::panic::catch_unwind(|| exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false))
-        .map_err(|_| Error::format(path, "OpenEXR: the header decoder failed on malformed data"))?
-        .map_err(|e| Error::format(path, format!("OpenEXR: {e}")))?
+        .map_err(|_| Error::malformed(path, "OpenEXR: the header decoder failed on malformed data"))?
+        .map_err(|e| Error::malformed(path, format!("OpenEXR: {e}")))?
         .headers)
 }
 
@@ -84,12 +87,12 @@ pub fn decode_exr_channels(path: &Path, bytes: &[u8], channels: &[&str]) -> Resu
     });
     let image = match decoded {
         Ok(Ok(img)) => img,
-        Ok(Err(e)) => return Err(Error::format(path, format!("OpenEXR: {e}"))),
-        Err(_) => return Err(Error::format(path, "OpenEXR: the decoder failed on malformed data")),
+        Ok(Err(e)) => return Err(Error::malformed(path, format!("OpenEXR: {e}"))),
+        Err(_) => return Err(Error::malformed(path, "OpenEXR: the decoder failed on malformed data")),
     };
     let layers = &image.layer_data;
     if layers.len() != 1 {
-        return Err(Error::format(
+        return Err(Error::unsupported(
             path,
             format!("holds {} layers; a height map has exactly one", layers.len()),
         ));
@@ -127,7 +130,7 @@ pub fn decode_exr_channels(path: &Path, bytes: &[u8], channels: &[&str]) -> Resu
     };
     let (w, h) = (layer.size.0, layer.size.1);
     if w == 0 || h == 0 {
-        return Err(Error::format(path, "the image is empty"));
+        return Err(Error::malformed(path, "the image is empty"));
     }
     let mut planes = Vec::with_capacity(indices.len());
     for index in indices {
@@ -135,7 +138,7 @@ pub fn decode_exr_channels(path: &Path, bytes: &[u8], channels: &[&str]) -> Resu
             FlatSamples::F32(v) => v.iter().map(|&x| x as f64).collect(),
             FlatSamples::F16(v) => v.iter().map(|x| x.to_f64()).collect(),
             FlatSamples::U32(_) => {
-                return Err(Error::format(
+                return Err(Error::unsupported(
                     path,
                     format!(
                         "channel '{}' holds u32 integers; a height map needs an f16 or f32 channel",
@@ -145,7 +148,7 @@ pub fn decode_exr_channels(path: &Path, bytes: &[u8], channels: &[&str]) -> Resu
             }
         };
         planes.push(Array2::from_shape_vec((h, w), samples).map_err(|e| {
-            Error::format(path, format!("channel '{}' does not fill {w} x {h}: {e}", names[index]))
+            Error::malformed(path, format!("channel '{}' does not fill {w} x {h}: {e}", names[index]))
         })?);
     }
 
@@ -172,7 +175,7 @@ fn check_data_windows(path: &Path, headers: &[exr::meta::header::Header], len: u
         let (w, hgt) = (h.layer_size.width(), h.layer_size.height());
         let raw = w.saturating_mul(hgt).saturating_mul(h.channels.bytes_per_pixel);
         if w.saturating_mul(hgt) > 1 << 28 || raw / (1032 * 64) > len {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!(
                     "OpenEXR: the data window is {w} x {hgt} pixels of {} bytes, more than a {}-byte \
@@ -215,7 +218,7 @@ fn attributes(path: &Path, layer: &LayerAttributes, image: &ImageAttributes) -> 
             Some(AttributeValue::F32(v)) => *v as f64,
             Some(AttributeValue::Text(t)) => unit_from_text(path, name, &t.to_string())?,
             Some(other) => {
-                return Err(Error::format(
+                return Err(Error::malformed(
                     path,
                     format!(
                         "attribute '{name}' is a {:?}, expected an f64 or f32 in metres",
@@ -227,20 +230,20 @@ fn attributes(path: &Path, layer: &LayerAttributes, image: &ImageAttributes) -> 
         if v.is_finite() && v > 0.0 {
             Ok(Some(v))
         } else {
-            Err(Error::format(path, format!("attribute '{name}' = {v} is not a positive length")))
+            Err(Error::malformed(path, format!("attribute '{name}' = {v} is not a positive length")))
         }
     };
     let pitch = match (length("pitch_x")?, length("pitch_y")?, length("pitch")?) {
         (Some(x), Some(y), _) => Some([x, y]),
         (Some(_), None, _) | (None, Some(_), _) => {
-            return Err(Error::format(path, "has only one of the attributes 'pitch_x' and 'pitch_y'"))
+            return Err(Error::malformed(path, "has only one of the attributes 'pitch_x' and 'pitch_y'"))
         }
         (None, None, p) => p.map(|p| [p, p]),
     };
     let unit = match get("unit") {
         None => None,
         Some(AttributeValue::Text(t)) => Some(unit_from_text(path, "unit", &t.to_string())?),
-        Some(_) => return Err(Error::format(path, "attribute 'unit' is not text")),
+        Some(_) => return Err(Error::malformed(path, "attribute 'unit' is not text")),
     };
     let metadata = attrs
         .iter()
@@ -317,8 +320,8 @@ pub fn encode_exr(path: &Path, channels: &[(&str, &Array2<f32>)], meta: &Metadat
         .write()
         .non_parallel()
         .to_buffered(Cursor::new(&mut buf))
-        .map_err(|e| Error::format(path, format!("OpenEXR encoding failed: {e}")))?;
-    sort_header_attributes(&mut buf).map_err(|what| Error::format(path, what))?;
+        .map_err(|e| Error::encoding(path, format!("OpenEXR encoding failed: {e}")))?;
+    sort_header_attributes(&mut buf).map_err(|what| Error::encoding(path, what))?;
     Ok(buf)
 }
 
@@ -445,6 +448,35 @@ mod tests {
         for cut in (0..bytes.len()).step_by(7) {
             let e = decode_exr(Path::new("cut.exr"), &bytes[..cut], None);
             assert!(e.unwrap_err().to_string().contains("cut.exr"), "cut at {cut}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod corpus_tests {
+    use super::*;
+
+    /// Two fuzz inputs whose custom channel lists are both bad: the `exr` crate's checks, in
+    /// its `HashMap`'s order, gave one of two messages from run to run; the file-order check
+    /// gives one, the same at every read.
+    #[test]
+    fn bad_custom_channel_lists_give_one_error() {
+        let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus/exr");
+        for (name, expected) in [
+            (
+                "6913a4497bc6be663188c2888b725f9d09ffef72",
+                "OpenEXR: channel 'Z' has sampling 65536 x 0, expected >= 1",
+            ),
+            ("a76f9780315846c69755c736e5240d6729501910", "OpenEXR: attribute 'ps' is an empty channel list"),
+        ] {
+            let bytes = std::fs::read(corpus.join(name)).unwrap();
+            for _ in 0..50 {
+                for channel in [None, Some("Z")] {
+                    let e = decode_exr(Path::new("f.exr"), &bytes, channel).unwrap_err();
+                    assert!(matches!(e, Error::Format { cause: crate::FormatCause::Malformed, .. }), "{e:?}");
+                    assert_eq!(e.to_string(), format!("f.exr: {expected}"));
+                }
+            }
         }
     }
 }

@@ -24,7 +24,7 @@
 
 use std::path::Path;
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::{Grid, Unit};
 use crate::io::raw_map::{RawMap, SampleKind};
 use crate::units::format_length;
@@ -56,7 +56,7 @@ impl Format {
             "png" => Format::Png,
             "csv" | "txt" | "asc" | "dat" => Format::Csv,
             _ => {
-                return Err(Error::format(
+                return Err(Error::signature(
                     path,
                     format!(
                         "unknown height-map format '.{ext}' (expected .npy, .exr, .tif/.tiff, .png, \
@@ -208,7 +208,11 @@ fn fmt_pitch(p: [f64; 2]) -> String {
 fn resolve_pitch(file: &str, from_file: Option<[f64; 2]>, given: Option<[f64; 2]>) -> Result<[f64; 2]> {
     if let Some(g) = given {
         if !g.iter().all(|p| p.is_finite() && *p > 0.0) {
-            return Err(Error::param("pitch", format!("must be finite and positive, got {g:?} m")));
+            return Err(Error::param_in(
+                "pitch",
+                Allowed::positive(),
+                format!("must be finite and positive, got {g:?} m"),
+            ));
         }
     }
     match (from_file, given) {
@@ -243,7 +247,11 @@ fn resolve_scale(file: &str, raw: &RawMap, opts: &ReadOptions) -> Result<f64> {
             }
             if let Some(u) = opts.unit {
                 if !(u.is_finite() && u > 0.0) {
-                    return Err(Error::param("unit", format!("must be a positive length, got {u} m")));
+                    return Err(Error::param_in(
+                        "unit",
+                        Allowed::positive(),
+                        format!("must be a positive length, got {u} m"),
+                    ));
                 }
             }
             match (raw.unit, opts.unit) {
@@ -328,6 +336,8 @@ fn check_plausible_range(file: &str, raw: &RawMap, k: f64, lo: f64, hi: f64) -> 
             .copied()
     };
     let range = format!("a design's relief lies within {MIN_PLAUSIBLE_PV:e}..{MAX_PLAUSIBLE_PV:e} m");
+    // The range the heights' peak-to-valley must reach under the refused unit or scale.
+    let plausible = Allowed::between(MIN_PLAUSIBLE_PV, MAX_PLAUSIBLE_PV);
     match raw.kind {
         SampleKind::Float => {
             let head = format!(
@@ -344,7 +354,7 @@ fn check_plausible_range(file: &str, raw: &RawMap, k: f64, lo: f64, hi: f64) -> 
                 ),
                 None => "; no length unit makes them plausible: check the file".to_string(),
             };
-            Err(Error::param("unit", head + &tail))
+            Err(Error::param_in("unit", plausible, head + &tail))
         }
         SampleKind::Counts { .. } => {
             let head = format!(
@@ -361,7 +371,7 @@ fn check_plausible_range(file: &str, raw: &RawMap, k: f64, lo: f64, hi: f64) -> 
                     format_length(pv * s)
                 ),
             };
-            Err(Error::param("z_scale", head + &tail))
+            Err(Error::param_in("z_scale", plausible, head + &tail))
         }
     }
 }

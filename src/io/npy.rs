@@ -80,7 +80,7 @@ impl Elem {
 /// Parses the dtype string into element type and byte order (`true` = big endian).
 fn parse_descr(path: &Path, descr: &str) -> Result<(Elem, bool)> {
     let bad = || {
-        Error::format(
+        Error::unsupported(
             path,
             format!(
                 "dtype '{descr}' is not supported (expected a float f2/f4/f8 or an integer \
@@ -236,25 +236,30 @@ impl<'a> Literal<'a> {
 /// Parses the preamble and header of a `.npy` file held in `bytes`.
 pub fn parse_header(path: &Path, bytes: &[u8]) -> Result<NpyHeader> {
     if bytes.len() < 10 {
-        return Err(Error::format(
+        return Err(Error::truncated(
             path,
+            bytes.len() as u64,
             format!("not a .npy file: {} bytes, shorter than the 10-byte preamble", bytes.len()),
         ));
     }
     if &bytes[..6] != MAGIC {
-        return Err(Error::format(path, "not a .npy file: bad magic (expected \\x93NUMPY)"));
+        return Err(Error::signature(path, "not a .npy file: bad magic (expected \\x93NUMPY)"));
     }
     let version = (bytes[6], bytes[7]);
     let (hlen, start) = match version.0 {
         1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
         2 | 3 => {
             if bytes.len() < 12 {
-                return Err(Error::format(path, "truncated: the header length field is cut off"));
+                return Err(Error::truncated(
+                    path,
+                    bytes.len() as u64,
+                    "truncated: the header length field is cut off",
+                ));
             }
             (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12)
         }
         v => {
-            return Err(Error::format(
+            return Err(Error::unsupported(
                 path,
                 format!("unsupported .npy format version {v}.{} (expected 1, 2 or 3)", version.1),
             ))
@@ -262,8 +267,9 @@ pub fn parse_header(path: &Path, bytes: &[u8]) -> Result<NpyHeader> {
     };
     let end = start + hlen;
     if bytes.len() < end {
-        return Err(Error::format(
+        return Err(Error::truncated(
             path,
+            bytes.len() as u64,
             format!(
                 "truncated: expected a {hlen}-byte header at offset {start}, got {}",
                 bytes.len().saturating_sub(start)
@@ -272,24 +278,26 @@ pub fn parse_header(path: &Path, bytes: &[u8]) -> Result<NpyHeader> {
     }
     let text = &bytes[start..end];
     let dict =
-        Literal { s: text, pos: 0 }.dict().map_err(|e| Error::format(path, format!("bad header: {e}")))?;
+        Literal { s: text, pos: 0 }.dict().map_err(|e| Error::malformed(path, format!("bad header: {e}")))?;
     let field = |name: &str| {
         dict.iter()
             .find(|(k, _)| k == name)
             .map(|(_, v)| v.clone())
-            .ok_or_else(|| Error::format(path, format!("header field '{name}' is missing")))
+            .ok_or_else(|| Error::malformed(path, format!("header field '{name}' is missing")))
     };
     let descr = match field("descr")? {
         PyValue::Str(s) => s,
-        v => return Err(Error::format(path, format!("header field 'descr' is not a string: {v:?}"))),
+        v => return Err(Error::malformed(path, format!("header field 'descr' is not a string: {v:?}"))),
     };
     let fortran_order = match field("fortran_order")? {
         PyValue::Bool(b) => b,
-        v => return Err(Error::format(path, format!("header field 'fortran_order' is not a bool: {v:?}"))),
+        v => {
+            return Err(Error::malformed(path, format!("header field 'fortran_order' is not a bool: {v:?}")))
+        }
     };
     let shape = match field("shape")? {
         PyValue::Tuple(t) => t,
-        v => return Err(Error::format(path, format!("header field 'shape' is not a tuple: {v:?}"))),
+        v => return Err(Error::malformed(path, format!("header field 'shape' is not a tuple: {v:?}"))),
     };
     Ok(NpyHeader { version, descr, fortran_order, shape, data_offset: end })
 }
@@ -328,7 +336,7 @@ fn decode(path: &Path, data: &[u8], elem: Elem, big: bool) -> Result<Vec<f64>> {
     const EXACT: f64 = 9_007_199_254_740_992.0;
     if matches!(elem, Elem::I8 | Elem::U8) {
         if let Some(k) = out.iter().position(|v| v.abs() > EXACT) {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!("integer element {k} exceeds 2^53 and cannot be represented exactly"),
             ));
@@ -363,11 +371,12 @@ pub fn decode_npy(path: &Path, bytes: &[u8]) -> Result<(NpyHeader, ArrayD<f64>)>
     let count = h.shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d));
     let nbytes = count
         .and_then(|n| n.checked_mul(elem.size()))
-        .ok_or_else(|| Error::format(path, format!("shape {:?} is too large to address", h.shape)))?;
+        .ok_or_else(|| Error::malformed(path, format!("shape {:?} is too large to address", h.shape)))?;
     let have = bytes.len() - h.data_offset;
     if have < nbytes {
-        return Err(Error::format(
+        return Err(Error::truncated(
             path,
+            bytes.len() as u64,
             format!(
                 "truncated data: expected {nbytes} bytes at offset {}, got {have} (shape {:?}, dtype '{}')",
                 h.data_offset, h.shape, h.descr
@@ -375,7 +384,7 @@ pub fn decode_npy(path: &Path, bytes: &[u8]) -> Result<(NpyHeader, ArrayD<f64>)>
         ));
     }
     if have > nbytes {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             format!(
                 "{} bytes follow the {nbytes} data bytes of shape {:?}, dtype '{}' (wrong shape?)",
@@ -392,7 +401,7 @@ pub fn decode_npy(path: &Path, bytes: &[u8]) -> Result<(NpyHeader, ArrayD<f64>)>
     } else {
         ArrayD::from_shape_vec(shape, data)
     }
-    .map_err(|e| Error::format(path, format!("data does not fit shape {:?}: {e}", h.shape)))?;
+    .map_err(|e| Error::malformed(path, format!("data does not fit shape {:?}: {e}", h.shape)))?;
     let arr = if h.fortran_order { arr.as_standard_layout().into_owned() } else { arr };
     Ok((h, arr))
 }
@@ -413,18 +422,18 @@ fn decode_npy_checked(path: &Path, bytes: &[u8]) -> Result<(NpyHeader, Array2<f6
     let (rows, cols) = match h.shape.as_slice() {
         [r, c] | [r, c, 1] => (*r, *c),
         s => {
-            return Err(Error::format(
+            return Err(Error::unsupported(
                 path,
                 format!("shape {} is not a 2-D map (expected (H, W) or (H, W, 1))", py_shape(s)),
             ))
         }
     };
     if rows == 0 || cols == 0 {
-        return Err(Error::format(path, format!("the map is empty: shape {}", py_shape(&h.shape))));
+        return Err(Error::malformed(path, format!("the map is empty: shape {}", py_shape(&h.shape))));
     }
     let arr = arr
         .into_shape_with_order((rows, cols))
-        .map_err(|e| Error::format(path, format!("cannot view as {rows} x {cols}: {e}")))?;
+        .map_err(|e| Error::malformed(path, format!("cannot view as {rows} x {cols}: {e}")))?;
     Ok((h, arr))
 }
 
@@ -556,7 +565,7 @@ fn read_f8_hashed(path: &Path) -> Result<Option<(RawMap, String)>> {
     }
     let sha = hasher.finalize().iter().map(|b| format!("{b:02x}")).collect();
     let values = Array2::from_shape_vec((rows, cols), values)
-        .map_err(|e| Error::format(path, format!("data does not fit shape ({rows}, {cols}): {e}")))?;
+        .map_err(|e| Error::malformed(path, format!("data does not fit shape ({rows}, {cols}): {e}")))?;
     Ok(Some((raw_map(h, values), sha)))
 }
 

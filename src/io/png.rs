@@ -34,10 +34,10 @@ pub fn read_png(path: &Path) -> Result<RawMap> {
 /// Decodes the bytes of a PNG file (see [`read_png`]); `path` names it in errors.
 pub fn decode_png(path: &Path, bytes: &[u8]) -> Result<RawMap> {
     if bytes.len() < 8 || bytes[..8] != SIGNATURE {
-        return Err(Error::format(path, "not a PNG file: bad signature"));
+        return Err(Error::signature(path, "not a PNG file: bad signature"));
     }
     let run = || -> Result<RawMap> {
-        let fail = |what: &str, e: png::DecodingError| Error::format(path, format!("PNG: {what}: {e}"));
+        let fail = |what: &str, e: png::DecodingError| Error::malformed(path, format!("PNG: {what}: {e}"));
         let mut dec = png::Decoder::new(Cursor::new(bytes));
         dec.set_transformations(png::Transformations::IDENTITY);
         let mut reader = dec.read_info().map_err(|e| fail("cannot read the header", e))?;
@@ -46,7 +46,7 @@ pub fn decode_png(path: &Path, bytes: &[u8]) -> Result<RawMap> {
             (info.width as usize, info.height as usize, info.color_type, info.bit_depth)
         };
         if color != png::ColorType::Grayscale {
-            return Err(Error::format(
+            return Err(Error::unsupported(
                 path,
                 format!("is a {color:?} PNG; a height map must be single-channel grayscale"),
             ));
@@ -55,7 +55,7 @@ pub fn decode_png(path: &Path, bytes: &[u8]) -> Result<RawMap> {
             png::BitDepth::Eight => 8,
             png::BitDepth::Sixteen => 16,
             d => {
-                return Err(Error::format(
+                return Err(Error::unsupported(
                     path,
                     format!("has {d:?} bit depth; a height map PNG must have 8 or 16 bits per sample"),
                 ))
@@ -65,7 +65,7 @@ pub fn decode_png(path: &Path, bytes: &[u8]) -> Result<RawMap> {
         // match in at most 2 bits), so a file cannot hold more raw image bytes than that.
         let raw = (w * bits as usize / 8 + 1) * h;
         if raw / 1032 > bytes.len() {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!(
                     "byte offset 16: IHDR says {w} x {h} samples of {bits} bits ({raw} bytes), more than \
@@ -75,7 +75,7 @@ pub fn decode_png(path: &Path, bytes: &[u8]) -> Result<RawMap> {
             ));
         }
         let size = reader.output_buffer_size().ok_or_else(|| {
-            Error::format(
+            Error::malformed(
                 path,
                 format!("byte offset 16: IHDR says {w} x {h}, too large an image for this machine"),
             )
@@ -93,7 +93,7 @@ pub fn decode_png(path: &Path, bytes: &[u8]) -> Result<RawMap> {
             }
         }
         let values = Array2::from_shape_vec((h, w), samples)
-            .map_err(|_| Error::format(path, format!("the image data does not fill {w} x {h}")))?;
+            .map_err(|_| Error::malformed(path, format!("the image data does not fill {w} x {h}")))?;
         let mut metadata = Vec::new();
         let info = reader.info();
         for t in &info.uncompressed_latin1_text {
@@ -134,7 +134,7 @@ pub fn decode_png(path: &Path, bytes: &[u8]) -> Result<RawMap> {
     };
     // The decoder is third-party code fed with user bytes: a panic in it becomes an error.
     std::panic::catch_unwind(run)
-        .unwrap_or_else(|_| Err(Error::format(path, "PNG: the decoder failed on malformed data")))
+        .unwrap_or_else(|_| Err(Error::malformed(path, "PNG: the decoder failed on malformed data")))
 }
 
 fn encode(
@@ -150,7 +150,7 @@ fn encode(
         (Ok(a), Ok(b)) if a > 0 && b > 0 => (a, b),
         _ => return Err(Error::param("image", format!("{h} x {w} cannot be stored as a PNG image"))),
     };
-    let fail = |e: png::EncodingError| Error::format(path, format!("PNG encoding failed: {e}"));
+    let fail = |e: png::EncodingError| Error::encoding(path, format!("PNG encoding failed: {e}"));
     let mut out = Vec::new();
     {
         let mut enc = png::Encoder::new(&mut out, w32, h32);

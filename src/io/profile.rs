@@ -25,7 +25,7 @@
 use std::io::Write;
 use std::path::Path;
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::profile::Profile;
 use crate::io::atomic::write_atomic;
 
@@ -120,7 +120,11 @@ pub fn profile_unit(name: &str) -> Option<f64> {
 /// [`profile_unit`], refused with the list otherwise.
 pub fn profile_unit_arg(name: &str) -> Result<f64> {
     profile_unit(name).ok_or_else(|| {
-        Error::param("unit", format!("'{name}' is not a length unit (expected one of m, mm, um, nm, pm, A)"))
+        Error::param_in(
+            "unit",
+            Allowed::one_of(&["m", "mm", "um", "nm", "pm", "A"]),
+            format!("'{name}' is not a length unit (expected one of m, mm, um, nm, pm, A)"),
+        )
     })
 }
 
@@ -263,7 +267,7 @@ fn read_rows(path: &Path, lines: &[&str], first: usize, delim: Delim) -> Result<
             continue;
         };
         if cells.len() < 2 {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!(
                     "line {lineno}: one cell '{}' where a position and a height were expected (is the file \
@@ -276,7 +280,7 @@ fn read_rows(path: &Path, lines: &[&str], first: usize, delim: Delim) -> Result<
             Some(v) => (v, true),
             None if is_missing(cells[1]) => (0.0, false),
             None => {
-                return Err(Error::format(
+                return Err(Error::malformed(
                     path,
                     format!(
                         "line {lineno}, column 2: '{}' is not a height (a number, or empty/NaN)",
@@ -291,7 +295,7 @@ fn read_rows(path: &Path, lines: &[&str], first: usize, delim: Delim) -> Result<
         lineno_of.push(lineno);
     }
     if x.len() < 2 {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             format!("holds {} data row(s): a profile needs at least 2", x.len()),
         ));
@@ -306,7 +310,7 @@ pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Re
     let Some((first, delim)) =
         lines.iter().enumerate().find_map(|(n, l)| data_delimiter(l.trim()).map(|d| (n, d)))
     else {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             "holds no data rows (expected rows of two numbers, position and height, after the header)",
         ));
@@ -327,7 +331,7 @@ pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Re
             });
         resolved[col] = match (from_file, given) {
             (Some((s, src)), Some(g)) if (s / g - 1.0).abs() > 1e-9 => {
-                return Err(Error::format(
+                return Err(Error::malformed(
                     path,
                     format!("the {name} unit is {src} ({s:e} m) but `{flag}` says {g:e} m"),
                 ))
@@ -335,7 +339,7 @@ pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Re
             (Some(f), _) => f,
             (None, Some(g)) => (g, flag.to_string()),
             (None, None) => {
-                return Err(Error::format(
+                return Err(Error::malformed(
                     path,
                     format!(
                         "no {name} unit found (expected a column header such as 'Lateral (um), Height (nm)' \
@@ -353,7 +357,7 @@ pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Re
     for k in 1..x.len() {
         let ok = if increasing { x[k] > x[k - 1] } else { x[k] < x[k - 1] };
         if !ok {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!(
                     "line {}: position {} does not {} the previous row's {} (line {}): the position column \
@@ -380,7 +384,7 @@ pub fn parse_profile(path: &Path, bytes: &[u8], opts: &ProfileReadOptions) -> Re
     if missing > 0 {
         warnings.push(format!("{missing} of {} points are not measured (empty or NaN heights)", valid.len()));
     }
-    let profile = Profile::new(xm, zm, Some(valid)).map_err(|e| Error::format(path, e.to_string()))?;
+    let profile = Profile::new(xm, zm, Some(valid)).map_err(|e| Error::malformed(path, e.to_string()))?;
     Ok(ProfileFile {
         profile,
         x_unit: xu,

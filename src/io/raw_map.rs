@@ -7,7 +7,7 @@ use std::path::Path;
 
 use ndarray::Array2;
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::units::{length_unit, parse_length};
 
 /// Whether the stored numbers are values in some length unit or integer counts of an image.
@@ -71,8 +71,9 @@ impl Metadata {
         let mut out = Vec::new();
         if let Some([px, py]) = self.pitch {
             if !(px.is_finite() && px > 0.0 && py.is_finite() && py > 0.0) {
-                return Err(Error::param(
+                return Err(Error::param_in(
                     "pitch",
+                    Allowed::positive(),
                     format!("must be finite and positive, got [{px}, {py}] m"),
                 ));
             }
@@ -110,19 +111,20 @@ pub(crate) fn pitch_unit_from_text(
     let length = |key: &str, text: &str| -> Result<f64> {
         let v = match text.parse::<f64>() {
             Ok(v) => v,
-            Err(_) => parse_length(text)
-                .map_err(|_| Error::format(path, format!("metadata '{key}' = '{text}' is not a length")))?,
+            Err(_) => parse_length(text).map_err(|_| {
+                Error::malformed(path, format!("metadata '{key}' = '{text}' is not a length"))
+            })?,
         };
         if v.is_finite() && v > 0.0 {
             Ok(v)
         } else {
-            Err(Error::format(path, format!("metadata '{key}' = '{text}' is not a positive length")))
+            Err(Error::malformed(path, format!("metadata '{key}' = '{text}' is not a positive length")))
         }
     };
     let pitch = match (get("pitch_x"), get("pitch_y"), get("pitch")) {
         (Some(x), Some(y), _) => Some([length("pitch_x", x)?, length("pitch_y", y)?]),
         (Some(_), None, _) | (None, Some(_), _) => {
-            return Err(Error::format(path, "metadata has only one of 'pitch_x' and 'pitch_y'"))
+            return Err(Error::malformed(path, "metadata has only one of 'pitch_x' and 'pitch_y'"))
         }
         (None, None, Some(p)) => {
             let p = length("pitch", p)?;
@@ -143,7 +145,7 @@ pub(crate) fn unit_from_text(path: &Path, key: &str, text: &str) -> Result<f64> 
         .or_else(|_| parse_length(text))
         .ok()
         .filter(|v| v.is_finite() && *v > 0.0)
-        .ok_or_else(|| Error::format(path, format!("metadata '{key}' = '{text}' is not a length unit")))
+        .ok_or_else(|| Error::malformed(path, format!("metadata '{key}' = '{text}' is not a length unit")))
 }
 
 #[cfg(test)]

@@ -47,17 +47,17 @@ pub fn decode_tiff(path: &Path, bytes: &[u8]) -> Result<RawMap> {
             || bytes[..4] == *b"II+\0"
             || bytes[..4] == *b"MM\0+")
     {
-        return Err(Error::format(path, "not a TIFF file: bad magic (expected II*\\0 or MM\\0*)"));
+        return Err(Error::signature(path, "not a TIFF file: bad magic (expected II*\\0 or MM\\0*)"));
     }
     let run = || -> std::result::Result<RawMap, Error> {
-        let fail = |what: &str, e: tiff::TiffError| Error::format(path, format!("TIFF: {what}: {e}"));
+        let fail = |what: &str, e: tiff::TiffError| Error::malformed(path, format!("TIFF: {what}: {e}"));
         let mut dec = Decoder::new(Cursor::new(bytes)).map_err(|e| fail("cannot read the header", e))?;
         let (w, h) = dec.dimensions().map_err(|e| fail("cannot read the dimensions", e))?;
         let color = dec.colortype().map_err(|e| fail("cannot read the colour type", e))?;
         let bits = match color {
             ColorType::Gray(b) => b,
             other => {
-                return Err(Error::format(
+                return Err(Error::unsupported(
                     path,
                     format!("is a {other:?} image; a height map must be single-channel grayscale"),
                 ))
@@ -65,7 +65,7 @@ pub fn decode_tiff(path: &Path, bytes: &[u8]) -> Result<RawMap> {
         };
         let photometric = dec.find_tag_unsigned::<u16>(Tag::PhotometricInterpretation).ok().flatten();
         if photometric == Some(PhotometricInterpretation::WhiteIsZero.to_u16()) {
-            return Err(Error::format(
+            return Err(Error::unsupported(
                 path,
                 "is stored WhiteIsZero (inverted); a height map must be BlackIsZero",
             ));
@@ -76,7 +76,7 @@ pub fn decode_tiff(path: &Path, bytes: &[u8]) -> Result<RawMap> {
         };
         let data = dec.read_image().map_err(|e| fail("cannot read the image data", e))?;
         if dec.more_images() {
-            return Err(Error::format(path, "holds several images; a height map file holds one"));
+            return Err(Error::unsupported(path, "holds several images; a height map file holds one"));
         }
         let (kind, samples): (SampleKind, Vec<f64>) = match data {
             DecodingResult::F32(v) => (SampleKind::Float, v.into_iter().map(f64::from).collect()),
@@ -89,15 +89,18 @@ pub fn decode_tiff(path: &Path, bytes: &[u8]) -> Result<RawMap> {
             DecodingResult::I16(v) => (SampleKind::Counts { bits }, v.into_iter().map(f64::from).collect()),
             DecodingResult::I32(v) => (SampleKind::Counts { bits }, v.into_iter().map(f64::from).collect()),
             DecodingResult::U64(_) | DecodingResult::I64(_) => {
-                return Err(Error::format(path, "64-bit integer samples are not supported for height maps"))
+                return Err(Error::unsupported(
+                    path,
+                    "64-bit integer samples are not supported for height maps",
+                ))
             }
         };
         let (rows, cols) = (h as usize, w as usize);
         if rows == 0 || cols == 0 {
-            return Err(Error::format(path, "the image is empty"));
+            return Err(Error::malformed(path, "the image is empty"));
         }
         let values = Array2::from_shape_vec((rows, cols), samples).map_err(|_| {
-            Error::format(
+            Error::malformed(
                 path,
                 format!("the decoded samples do not fill {cols} x {rows} (bits per sample {bits})"),
             )
@@ -107,7 +110,7 @@ pub fn decode_tiff(path: &Path, bytes: &[u8]) -> Result<RawMap> {
             Some(d) if d.lines().next().map(str::trim) == Some(DESCRIPTION_MARK) => {
                 for line in d.lines().skip(1).filter(|l| !l.trim().is_empty()) {
                     let (k, v) = line.split_once('=').ok_or_else(|| {
-                        Error::format(path, format!("ImageDescription line '{line}' is not key=value"))
+                        Error::malformed(path, format!("ImageDescription line '{line}' is not key=value"))
                     })?;
                     metadata.push((k.trim().to_string(), v.trim().to_string()));
                 }
@@ -122,7 +125,7 @@ pub fn decode_tiff(path: &Path, bytes: &[u8]) -> Result<RawMap> {
     };
     // The decoder is third-party code fed with user bytes: a panic in it becomes an error.
     std::panic::catch_unwind(run)
-        .unwrap_or_else(|_| Err(Error::format(path, "TIFF: the decoder failed on malformed data")))
+        .unwrap_or_else(|_| Err(Error::malformed(path, "TIFF: the decoder failed on malformed data")))
 }
 
 /// The `ImageDescription` text for `meta`: the mark line, then `key=value` lines.
@@ -153,7 +156,7 @@ where
         _ => return Err(Error::param("image", format!("{h} x {w} cannot be stored as a TIFF image"))),
     };
     let desc = description(path, meta)?;
-    let fail = |e: tiff::TiffError| Error::format(path, format!("TIFF encoding failed: {e}"));
+    let fail = |e: tiff::TiffError| Error::encoding(path, format!("TIFF encoding failed: {e}"));
     let mut buf = Cursor::new(Vec::new());
     {
         let mut enc = TiffEncoder::new(&mut buf)

@@ -38,7 +38,7 @@
 
 use ndarray::Array2;
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::Grid;
 
 /// A least-squares plane `z = a + bx * j + by * i` (heights per pixel).
@@ -290,7 +290,11 @@ pub fn level(g: &Grid, method: LevelMethod) -> Result<(Grid, Levelling)> {
 /// The samples outside a circle of diameter `d` (metres) centred on the field.
 fn outside_aperture(g: &Grid, d: f64) -> Result<Array2<bool>> {
     if !(d.is_finite() && d > 0.0) {
-        return Err(Error::param("aperture", format!("{d} m is not a positive diameter")));
+        return Err(Error::param_in(
+            "aperture",
+            Allowed::positive(),
+            format!("{d} m is not a positive diameter"),
+        ));
     }
     let (nr, nc) = g.dim();
     let [px, py] = g.pitch();

@@ -16,7 +16,7 @@
 use ndarray::Array2;
 use serde::Serialize;
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::Grid;
 use crate::metrology::level::{level_plane, level_polynomial};
 
@@ -42,7 +42,7 @@ fn collect(mask: Array2<bool>, threshold: f64, iterations: usize) -> Outliers {
 /// The n-sigma test on residuals from a polynomial of order `order` (see the module docs).
 pub fn nsigma_outliers(g: &Grid, n: f64, order: usize, max_iterations: usize) -> Result<Outliers> {
     if !(n.is_finite() && n > 0.0) {
-        return Err(Error::param("n-sigma", format!("must be positive, got {n}")));
+        return Err(Error::param_in("n-sigma", Allowed::positive(), format!("must be positive, got {n}")));
     }
     let mut out = Array2::from_elem(g.dim(), false);
     let mut threshold = f64::INFINITY;

@@ -77,7 +77,7 @@
 
 use serde::Serialize;
 
-use crate::error::{Error, Result};
+use crate::error::{Error, Refusal, Result};
 use crate::grid::blur::gaussian_blur;
 use crate::grid::profile::median;
 pub use crate::grid::profile::Profile;
@@ -694,16 +694,19 @@ pub fn compare_profile(
     let CoarseMatch { peak, along: is0, across: iv0, sign, .. } = coarse;
     let peak_ratio = second_peak(&coarse.row, (is0 + ns) as usize) / peak;
     if peak < opts.min_correlation {
-        return Err(Error::Registration(format!(
+        return Err(Error::registration(
+            Refusal::NoMatch,
+            format!(
             "the profile does not match the design along the line: best correlation {peak:.3} (below {:.2}) \
              within +-{:.1} um along and +-{:.1} um across",
             opts.min_correlation,
             along * 1e6,
             across * 1e6
-        )));
+        ),
+        ));
     }
     if peak_ratio > opts.max_peak_ratio {
-        return Err(Error::Registration(format!(
+        return Err(Error::registration(Refusal::Ambiguous, format!(
             "the shift along the line is ambiguous: a second correlation peak reaches {:.3} of the first within \
              +-{:.1} um (the design repeats along the line); narrow the search (`along_search`) or choose another line",
             peak_ratio,
@@ -754,7 +757,7 @@ pub fn compare_profile(
     let fit = fit_table(&ctx, &blurred, &p, profile.x()[0]);
     let correlation = fit_correlation(&fit);
     if correlation.is_nan() || correlation < opts.min_correlation {
-        return Err(Error::Registration(format!(
+        return Err(Error::registration(Refusal::NoMatch, format!(
             "the profile does not match the design along the line: the fitted model correlates by {correlation:.3} \
              (below {:.2}), residual {:.1} nm RMS",
             opts.min_correlation,
@@ -1537,7 +1540,11 @@ mod tests {
         let wrong = d.map_values(wrong, Unit::Metre).unwrap();
         let (sp, prof) = sim(&wrong, 0.9, 3.3e-6, 4.1e-6, 3);
         let e = compare_profile(&prof, &d, &sp.line, &ProfileOptions::default()).unwrap_err();
-        assert!(matches!(e, Error::Registration(_)) && e.to_string().contains("not trusted"), "{e}");
+        assert!(
+            matches!(e, Error::Registration { refusal: Refusal::NotTrusted, .. })
+                && e.to_string().contains("not trusted"),
+            "{e}"
+        );
         let lenient = ProfileOptions { min_correlation_ratio: 0.0, ..Default::default() };
         let c = compare_profile(&prof, &d, &sp.line, &lenient).unwrap();
         assert!(c.correlation > 0.8 && c.correlation < 0.95 * c.noise_ceiling, "{c:#?}");
@@ -1554,7 +1561,11 @@ mod tests {
         let (sp, prof) = sim(&d, 0.9, 3.3e-6, 0.0, 7);
         let opts = ProfileOptions { along_search: 200e-6, ..Default::default() };
         let e = compare_profile(&prof, &d, &sp.line, &opts).unwrap_err();
-        assert!(matches!(e, Error::Registration(_)) && e.to_string().contains("ambiguous"), "{e}");
+        assert!(
+            matches!(e, Error::Registration { refusal: Refusal::Ambiguous, .. })
+                && e.to_string().contains("ambiguous"),
+            "{e}"
+        );
     }
 
     #[test]

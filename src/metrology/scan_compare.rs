@@ -50,7 +50,7 @@
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{Condition, Error, Refusal, Result};
 use crate::fabrication::quantize::{continuous_efficiency, detuning, order_efficiency};
 use crate::fabrication::wrap::WrapSpec;
 use crate::grid::blur::gaussian_blur;
@@ -442,7 +442,9 @@ pub fn compare_family(family: &[Reference], scan: &Grid, opts: &CompareOptions) 
         )));
     }
     let as_registration = |e| match e {
-        Error::Validity(m) => Error::Registration(m),
+        Error::Validity { condition: Condition::Registration(refusal), what } => {
+            Error::Registration { refusal, what }
+        }
         other => other,
     };
     let (tried, best, first_error) = register_family(family, scan, &opts.register);
@@ -461,7 +463,7 @@ pub fn compare_family(family: &[Reference], scan: &Grid, opts: &CompareOptions) 
         }
     };
     check_registration(&reg, &opts.register).map_err(|e| match as_registration(e) {
-        Error::Registration(m) => Error::Registration(named(m)),
+        Error::Registration { refusal, what } => Error::Registration { refusal, what: named(what) },
         other => other,
     })?;
     let Reference { member, surface: reference, levels } = family[k].clone();
@@ -479,18 +481,21 @@ pub fn compare_family(family: &[Reference], scan: &Grid, opts: &CompareOptions) 
     }
     let interior_correlation = interior_correlation(design, &surface, aperture);
     if interior_correlation.is_nan() || interior_correlation < opts.register.min_correlation {
-        return Err(Error::Registration(format!(
+        return Err(Error::registration(
+            Refusal::NoMatch,
+            format!(
             "the scan does not match the design inside the aperture: correlation {interior_correlation:.3} \
              over the central {:.0}% of the aperture is below {:.2} (the registration correlation of {:.3} \
              comes from the aperture's edge or the overall shape, not the design's structure)",
             100.0 * INTERIOR,
             opts.register.min_correlation,
             reg.correlation
-        )));
+        ),
+        ));
     }
     check_interior(interior_correlation, reg.noise_ceiling, opts.register.min_correlation_ratio).map_err(
         |e| match e {
-            Error::Registration(m) => Error::Registration(named(m)),
+            Error::Registration { refusal, what } => Error::Registration { refusal, what: named(what) },
             other => other,
         },
     )?;
@@ -1286,7 +1291,9 @@ mod tests {
         }
         let scan = simulate_scan(&master, &sp).unwrap();
         match compare_family(&family[..1], &scan, &opts) {
-            Err(Error::Registration(m)) => assert!(m.contains("not trusted"), "{m}"),
+            Err(Error::Registration { refusal: Refusal::NotTrusted, what: m }) => {
+                assert!(m.contains("not trusted"), "{m}")
+            }
             other => panic!("expected a refusal, got {other:?}"),
         }
     }
@@ -1363,7 +1370,9 @@ mod tests {
         let other = Grid::new(v, [PAPER_PITCH; 2], Unit::Metre).unwrap();
         let other = gaussian_blur(&other, 3.0 * PAPER_PITCH).unwrap();
         match compare(&paper(200), &other, &CompareOptions::default()) {
-            Err(Error::Registration(m)) => assert!(m.contains("does not match"), "{m}"),
+            Err(Error::Registration { refusal: Refusal::NoMatch, what: m }) => {
+                assert!(m.contains("does not match"), "{m}")
+            }
             other => panic!("expected a registration error, got {other:?}"),
         }
     }
@@ -1388,13 +1397,17 @@ mod tests {
         let scan = simulate_scan(&f, &SimulateParams { noise: 5e-9, ..Default::default() }).unwrap();
         let opts = CompareOptions { aperture: Some(aperture), ..Default::default() };
         match compare(&d, &scan, &opts) {
-            Err(Error::Registration(m)) => assert!(m.contains("not trusted"), "{m}"),
+            Err(Error::Registration { refusal: Refusal::NotTrusted, what: m }) => {
+                assert!(m.contains("not trusted"), "{m}")
+            }
             other => panic!("expected a registration error, got {other:?}"),
         }
         let mut lenient = opts.clone();
         lenient.register.min_correlation_ratio = 0.0;
         match compare(&d, &scan, &lenient) {
-            Err(Error::Registration(m)) => assert!(m.contains("inside the aperture"), "{m}"),
+            Err(Error::Registration { refusal: Refusal::NoMatch, what: m }) => {
+                assert!(m.contains("inside the aperture"), "{m}")
+            }
             other => panic!("expected a registration error, got {other:?}"),
         }
         // The design's own scan passes the same check.

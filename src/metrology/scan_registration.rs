@@ -62,7 +62,7 @@ use rustfft::num_complex::{Complex, Complex32, Complex64};
 use rustfft::{Fft, FftNum, FftPlanner};
 use serde::Serialize;
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Condition, Error, Refusal, Result};
 use crate::grid::Grid;
 
 /// Placement of the part: scan position `x_s = t + s R(theta) M x_d` of design position `x_d`
@@ -91,7 +91,11 @@ impl Pose {
             return Err(Error::param("pose", "rotation and shift must be finite"));
         }
         if !(self.scale.is_finite() && self.scale > 0.0) {
-            return Err(Error::param("scale", format!("must be finite and positive, got {}", self.scale)));
+            return Err(Error::param_in(
+                "scale",
+                Allowed::positive(),
+                format!("must be finite and positive, got {}", self.scale),
+            ));
         }
         Ok(())
     }
@@ -272,7 +276,7 @@ pub fn check_trust(what: &str, correlation: f64, ceiling: f64, fraction: f64) ->
     if correlation >= fraction * ceiling {
         return Ok(());
     }
-    Err(Error::Registration(format!(
+    Err(Error::registration(Refusal::NotTrusted, format!(
         "{what} is not trusted: it correlates {correlation:.3} with the design where the scan's own noise \
          allows {ceiling:.3} (below {:.0}% of it): the design it was registered to does not describe the part \
          (another design, or another surface of its family, such as the design unwrapped where the recipe \
@@ -668,28 +672,37 @@ pub fn register_pose(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Resu
 /// [`Error::Registration`]), an ambiguous shift or rotation ([`Error::Validity`]).
 pub fn check_registration(reg: &Registration, opts: &RegisterOptions) -> Result<()> {
     if reg.correlation.is_nan() || reg.correlation < opts.min_correlation {
-        return Err(Error::Validity(format!(
-            "the scan does not match the design: correlation {:.3} after registration is below {:.2} \
+        return Err(Error::validity(
+            Condition::Registration(Refusal::NoMatch),
+            format!(
+                "the scan does not match the design: correlation {:.3} after registration is below {:.2} \
              (wrong design, wrong scan, or a part too damaged to register)",
-            reg.correlation, opts.min_correlation
-        )));
+                reg.correlation, opts.min_correlation
+            ),
+        ));
     }
     check_trust("the registration", reg.correlation, reg.noise_ceiling, opts.min_correlation_ratio)?;
     if reg.peak_ratio > opts.max_peak_ratio {
-        return Err(Error::Validity(format!(
-            "registration is ambiguous: the second correlation peak is {:.1}% of the first \
+        return Err(Error::validity(
+            Condition::Registration(Refusal::Ambiguous),
+            format!(
+                "registration is ambiguous: the second correlation peak is {:.1}% of the first \
              (a periodic structure such as a grating fixes the shift only modulo its period); \
              a fiducial or an aperture edge in the scan would fix it",
-            100.0 * reg.peak_ratio
-        )));
+                100.0 * reg.peak_ratio
+            ),
+        ));
     }
     if opts.max_rotation > 0.0 && reg.rotation_contrast < opts.min_rotation_contrast {
-        return Err(Error::Validity(format!(
-            "registration is ambiguous: the correlation changes by only {:.2}% over +-{:.2} deg of \
+        return Err(Error::validity(
+            Condition::Registration(Refusal::Ambiguous),
+            format!(
+                "registration is ambiguous: the correlation changes by only {:.2}% over +-{:.2} deg of \
              rotation (a rotationally symmetric design: rotation is unobservable without a fiducial)",
-            100.0 * reg.rotation_contrast,
-            opts.max_rotation.to_degrees()
-        )));
+                100.0 * reg.rotation_contrast,
+                opts.max_rotation.to_degrees()
+            ),
+        ));
     }
     Ok(())
 }
@@ -702,7 +715,10 @@ const OBSERVABLE_ROWS: usize = 256;
 fn check_observable(design: &Grid, scan: &Grid) -> Result<(f64, f64)> {
     let (lo, hi) = design.min_max().ok_or_else(|| Error::Data("the design has no valid sample".into()))?;
     if hi <= lo {
-        return Err(Error::Validity("the design is flat: there is nothing to register against".into()));
+        return Err(Error::validity(
+            Condition::Registration(Refusal::Featureless),
+            "the design is flat: there is nothing to register against",
+        ));
     }
     // The statistics from at most OBSERVABLE_ROWS rows spread over the scan: half a million
     // samples of a 2048^2 scan tell structure from white noise as well as four million.
@@ -735,17 +751,21 @@ fn check_observable(design: &Grid, scan: &Grid) -> Result<(f64, f64)> {
     let var = (ss / n - (s / n).powi(2)).max(0.0);
     let dvar = if nd > 0.0 { sd / nd } else { 0.0 };
     if var.is_nan() || var.sqrt() <= 1e-12 {
-        return Err(Error::Validity(
-            "the scan is featureless (flat after levelling): nothing to register".into(),
+        return Err(Error::validity(
+            Condition::Registration(Refusal::Featureless),
+            "the scan is featureless (flat after levelling): nothing to register",
         ));
     }
     let ratio = (dvar / (2.0 * var)).sqrt();
     if ratio > 0.8 {
-        return Err(Error::Validity(format!(
-            "the scan is featureless: after levelling it looks like white noise (neighbour \
+        return Err(Error::validity(
+            Condition::Registration(Refusal::Featureless),
+            format!(
+                "the scan is featureless: after levelling it looks like white noise (neighbour \
              differences {ratio:.2} x sqrt(2) x its RMS {:.3} nm); nothing to register",
-            var.sqrt() * 1e9
-        )));
+                var.sqrt() * 1e9
+            ),
+        ));
     }
     // White noise from the neighbour differences' median absolute deviation (steps at zone
     // edges are outliers to it).
@@ -788,7 +808,10 @@ fn coarse_search(d: &Img, s: &Img, opts: &RegisterOptions) -> Result<Coarse> {
     fft.run(&mut sh, false);
     let s_norm = s.v.iter().map(|v| v * v).sum::<f64>().sqrt();
     if s_norm.is_nan() || s_norm <= 0.0 {
-        return Err(Error::Validity("the scan is featureless at the coarse scale".into()));
+        return Err(Error::validity(
+            Condition::Registration(Refusal::Featureless),
+            "the scan is featureless at the coarse scale",
+        ));
     }
     let radius = 0.5 * tr.min(tc) as f64;
     let step = (1.0 / radius).min(0.5f64.to_radians());
@@ -870,7 +893,10 @@ fn coarse_search(d: &Img, s: &Img, opts: &RegisterOptions) -> Result<Coarse> {
     }
     let best = peaks[bm][ba];
     if best.value.is_nan() || best.value == 0.0 {
-        return Err(Error::Validity("no correlation between scan and design at any placement".into()));
+        return Err(Error::validity(
+            Condition::Registration(Refusal::NoMatch),
+            "no correlation between scan and design at any placement",
+        ));
     }
     let mirror = mirrors[bm];
     let mirror_ratio = if mirrors.len() > 1 {
@@ -1219,8 +1245,9 @@ fn refine(ctx: &Ctx, pts: &[[f64; 3]], p: &mut Params, radius_px: f64, linear_fi
     // The linear parameters first, with the geometry fixed (exact least squares).
     let mut nm = accumulate(ctx, pts, p, half)?;
     if nm.n < 16.0 {
-        return Err(Error::Validity(
-            "the scan and the design barely overlap at the coarse placement: nothing to refine".into(),
+        return Err(Error::validity(
+            Condition::Registration(Refusal::NoOverlap),
+            "the scan and the design barely overlap at the coarse placement: nothing to refine",
         ));
     }
     let all: Vec<usize> = (0..NP).collect();
@@ -1360,10 +1387,11 @@ mod tests {
         Grid::new(v, [PAPER_PITCH, PAPER_PITCH], crate::grid::Unit::Metre).unwrap()
     }
 
-    fn refusal(design: &Grid, sp: &SimulateParams) -> String {
+    /// The registration's refusal of a scan of `design` and its message.
+    fn refusal(design: &Grid, sp: &SimulateParams) -> (Refusal, String) {
         let s = simulate_scan(design, sp).unwrap();
         match register(design, &s, &RegisterOptions::default()) {
-            Err(Error::Validity(m)) => m,
+            Err(Error::Validity { condition: Condition::Registration(r), what }) => (r, what),
             other => panic!("expected a refusal, got {other:?}"),
         }
     }
@@ -1374,8 +1402,8 @@ mod tests {
         let d = grid(256, |x, y| 0.3e-6 * ((tau * x / 32.0).cos() + (tau * y / 32.0).cos()));
         let pose = Pose { shift: [9.0 * PAPER_PITCH, 4.0 * PAPER_PITCH], ..Default::default() };
         let sp = SimulateParams { pose, noise: 5e-9, size: Some((180, 180)), ..Default::default() };
-        let m = refusal(&d, &sp);
-        assert!(m.contains("periodic"), "{m}");
+        let (r, m) = refusal(&d, &sp);
+        assert!(r == Refusal::Ambiguous && m.contains("periodic"), "{m}");
     }
 
     #[test]
@@ -1389,8 +1417,8 @@ mod tests {
             }
         });
         let pose = Pose { shift: [5.5 * PAPER_PITCH, -2.0 * PAPER_PITCH], ..Default::default() };
-        let m = refusal(&d, &SimulateParams { pose, noise: 5e-9, blur: 2e-6, ..Default::default() });
-        assert!(m.contains("rotationally symmetric"), "{m}");
+        let (r, m) = refusal(&d, &SimulateParams { pose, noise: 5e-9, blur: 2e-6, ..Default::default() });
+        assert!(r == Refusal::Ambiguous && m.contains("rotationally symmetric"), "{m}");
     }
 
     #[test]
@@ -1400,12 +1428,17 @@ mod tests {
         let noisy = simulate_scan(&flat, &SimulateParams { noise: 20e-9, ..Default::default() }).unwrap();
         for s in [flat, noisy] {
             match register(&d, &s, &RegisterOptions::default()) {
-                Err(Error::Validity(m)) => assert!(m.contains("featureless"), "{m}"),
+                Err(Error::Validity {
+                    condition: Condition::Registration(Refusal::Featureless),
+                    what: m,
+                }) => {
+                    assert!(m.contains("featureless"), "{m}")
+                }
                 other => panic!("expected a refusal, got {other:?}"),
             }
         }
-        let m = refusal(&grid(64, |_, _| 1e-6), &SimulateParams::default());
-        assert!(m.contains("design is flat"), "{m}");
+        let (r, m) = refusal(&grid(64, |_, _| 1e-6), &SimulateParams::default());
+        assert!(r == Refusal::Featureless && m.contains("design is flat"), "{m}");
     }
 
     #[test]
@@ -1417,7 +1450,9 @@ mod tests {
         let other = crate::grid::blur::gaussian_blur(&other, 3.0 * PAPER_PITCH).unwrap();
         let s = simulate_scan(&other, &SimulateParams { noise: 5e-9, ..Default::default() }).unwrap();
         match register(&paper(200), &s, &RegisterOptions::default()) {
-            Err(Error::Validity(m)) => assert!(m.contains("does not match"), "{m}"),
+            Err(Error::Validity { condition: Condition::Registration(Refusal::NoMatch), what: m }) => {
+                assert!(m.contains("does not match"), "{m}")
+            }
             other => panic!("expected a refusal, got {other:?}"),
         }
     }

@@ -15,12 +15,13 @@
 //! random `missing` fraction of the others, are non-measured (invalid). Every random number
 //! comes from [`crate::rng::Lcg`] seeded with `seed`: the same parameters give the same scan.
 
+use std::ops::Bound;
 use std::path::Path;
 
 use ndarray::Array2;
 use serde::Serialize;
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Condition, Error, Result};
 use crate::fabrication::precompensate::Response;
 use crate::grid::blur::gaussian_blur;
 use crate::grid::{Grid, Unit};
@@ -104,10 +105,18 @@ pub fn simulate_scan(design: &Grid, p: &SimulateParams) -> Result<Grid> {
         return Err(Error::param("depth scale/offset/tilt", "must be finite"));
     }
     if !(p.noise.is_finite() && p.noise >= 0.0) {
-        return Err(Error::param("noise", format!("must be finite and >= 0, got {} m", p.noise)));
+        return Err(Error::param_in(
+            "noise",
+            Allowed::at_least(0.0),
+            format!("must be finite and >= 0, got {} m", p.noise),
+        ));
     }
     if !(0.0..1.0).contains(&p.missing) {
-        return Err(Error::param("missing", format!("must be in [0, 1), got {}", p.missing)));
+        return Err(Error::param_in(
+            "missing",
+            Allowed::within(Bound::Included(0.0), Bound::Excluded(1.0)),
+            format!("must be in [0, 1), got {}", p.missing),
+        ));
     }
     p.pose.check()?;
     let made = match &p.response {
@@ -118,7 +127,11 @@ pub fn simulate_scan(design: &Grid, p: &SimulateParams) -> Result<Grid> {
     let (_, hmax) = design.min_max().ok_or_else(|| Error::Data("the design has no valid sample".into()))?;
     let pitch = p.pitch.unwrap_or(design.pitch());
     if !pitch.iter().all(|v| v.is_finite() && *v > 0.0) {
-        return Err(Error::param("pitch", format!("must be finite and positive, got {pitch:?} m")));
+        return Err(Error::param_in(
+            "pitch",
+            Allowed::positive(),
+            format!("must be finite and positive, got {pitch:?} m"),
+        ));
     }
     let (rows, cols) = p.size.unwrap_or_else(|| {
         let e = design.extent();
@@ -151,8 +164,9 @@ pub fn simulate_scan(design: &Grid, p: &SimulateParams) -> Result<Grid> {
         }
     }
     if !valid.iter().any(|&v| v) {
-        return Err(Error::Validity(
-            "the simulated scan does not overlap the design (check the shift, size and pitch)".into(),
+        return Err(Error::validity(
+            Condition::Geometry,
+            "the simulated scan does not overlap the design (check the shift, size and pitch)",
         ));
     }
     Grid::new(values, pitch, Unit::Metre)?.with_mask(valid)

@@ -35,6 +35,7 @@
 //! is invalid or it costs less. Cost is counted in real multiply-adds.
 
 use std::f64::consts::PI;
+use std::ops::Bound;
 
 use serde::{Deserialize, Serialize};
 
@@ -42,7 +43,7 @@ use super::propagate::{self, asm, matrix_dft, Method, Options, Precision, Violat
 use super::psf::{Channel, Psf};
 use super::spectrum::{combine, Band};
 use super::system::{sinc, OpticalSystem, PixelRule};
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Condition, Error, Result};
 use crate::grid::{Grid, Interpolation};
 
 /// The default tolerance of `doefab psf`: relative L2 error per channel.
@@ -205,7 +206,7 @@ pub fn spectral_count<'a>(
     let mut worst = SpectralCount { needed: 0, estimate: 0.0, band: String::new(), rejected: String::new() };
     for (name, f) in pilots {
         let n = (1..=MAX_SPECTRAL).find(|&n| spectral_error(f, n) <= budget).ok_or_else(|| {
-            Error::Validity(format!(
+            Error::validity(Condition::Sampling, format!(
                 "band '{name}' would need more than {MAX_SPECTRAL} spectral samples for an error within {budget:.1e}"
             ))
         })?;
@@ -225,7 +226,11 @@ pub fn spectral_count<'a>(
 /// simulated at its spectral samples) or, when `bands` is empty, the system's wavelengths.
 pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) -> Result<Plan> {
     if !(tolerance > 0.0 && tolerance < 1.0) {
-        return Err(Error::param("tolerance", format!("must lie in (0, 1), got {tolerance}")));
+        return Err(Error::param_in(
+            "tolerance",
+            Allowed::within(Bound::Excluded(0.0), Bound::Excluded(1.0)),
+            format!("must lie in (0, 1), got {tolerance}"),
+        ));
     }
     system.validate()?;
     let mut choices = Vec::new();
@@ -255,10 +260,10 @@ pub fn plan(system: &OpticalSystem, doe: &Grid, bands: &[Band], tolerance: f64) 
     let mut candidates: Vec<Candidate> = matrix.into_iter().chain(asm).collect();
     candidates.sort_by(|a, b| a.2.total_cmp(&b.2));
     let Some((method, chosen, mut cost, why)) = candidates.first().cloned() else {
-        return Err(Error::Validity(format!(
-            "no method is valid for this system:\n  {}",
-            refusals.join("\n  ")
-        )));
+        return Err(Error::validity(
+            Condition::Propagation,
+            format!("no method is valid for this system:\n  {}", refusals.join("\n  ")),
+        ));
     };
     let others: Vec<String> = candidates[1..]
         .iter()
@@ -368,7 +373,7 @@ fn wavelength_range(system: &OpticalSystem, bands: &[Band]) -> Result<(f64, f64)
 fn least_subsample(rule: PixelRule, pitch: f64, cutoff: f64, tolerance: f64) -> Result<usize> {
     let share = 0.5 * tolerance;
     (1..=MAX_SUBSAMPLE).find(|&s| pixel_error(rule, pitch, s, cutoff) <= share).ok_or_else(|| {
-        Error::Validity(format!(
+        Error::validity(Condition::Sampling, format!(
             "pixel integration by {rule:?} would need more than {MAX_SUBSAMPLE} sub-samples per pixel for a tolerance of {tolerance:e}"
         ))
     })
@@ -788,7 +793,7 @@ pub fn run_reporting(
             return Ok((psf, ran));
         }
         if 3 * n > MAX_SPECTRAL_CHECKED {
-            return Err(Error::Validity(format!(
+            return Err(Error::validity(Condition::Sampling, format!(
                 "spectral sampling does not converge within {MAX_SPECTRAL_CHECKED} sub-bands per band: {n} sub-bands \
                  differ from their middle thirds by {:.1e} (estimate {estimate:.1e}, allowed {budget:.1e}); \
                  narrow the bands or raise the tolerance",

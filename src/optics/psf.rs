@@ -16,7 +16,7 @@ use std::path::Path;
 use ndarray::{Array2, Array4, ArrayD};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::{Grid, Unit};
 use crate::io::exr::{decode_exr, exr_channel_names};
 use crate::io::npy::{decode_npy, read_npy_nd};
@@ -282,18 +282,18 @@ impl Psf {
         wavelengths: Option<&[f64]>,
     ) -> Result<Psf> {
         let mut zip = zip::ZipArchive::new(reader)
-            .map_err(|e| Error::format(path, format!("not a NumPy .npz (zip) archive: {e}")))?;
+            .map_err(|e| Error::signature(path, format!("not a NumPy .npz (zip) archive: {e}")))?;
         let names: Vec<String> = zip.file_names().filter(|n| n.ends_with(".npy")).map(String::from).collect();
         let entry = match key {
             Some(k) => {
                 let want = format!("{k}.npy");
                 names.iter().find(|n| **n == want).cloned().ok_or_else(|| {
-                    Error::format(path, format!("no array '{k}' in the archive (it holds {names:?})"))
+                    Error::malformed(path, format!("no array '{k}' in the archive (it holds {names:?})"))
                 })?
             }
             None if names.len() == 1 => names[0].clone(),
             None => {
-                return Err(Error::format(
+                return Err(Error::malformed(
                     path,
                     format!("the archive holds {} arrays {names:?}; name the one to read", names.len()),
                 ))
@@ -301,9 +301,9 @@ impl Psf {
         };
         let mut bytes = Vec::new();
         zip.by_name(&entry)
-            .map_err(|e| Error::format(path, format!("cannot open '{entry}': {e}")))?
+            .map_err(|e| Error::malformed(path, format!("cannot open '{entry}': {e}")))?
             .read_to_end(&mut bytes)
-            .map_err(|e| Error::format(path, format!("cannot inflate '{entry}': {e}")))?;
+            .map_err(|e| Error::malformed(path, format!("cannot inflate '{entry}': {e}")))?;
         let inner = path.join(&entry);
         let (h, arr) = decode_npy(&inner, &bytes)?;
         Psf::from_array(&inner, &h.shape, arr, [pitch, pitch], wavelengths)
@@ -324,14 +324,14 @@ impl Psf {
             [r, c] => (*r, *c, 1),
             [r, c, k] | [r, c, 1, k] => (*r, *c, *k),
             s => {
-                return Err(Error::format(
+                return Err(Error::unsupported(
                     path,
                     format!("shape {s:?} is not a PSF (expected (H, W), (H, W, C) or (H, W, 1, C))"),
                 ))
             }
         };
         if rows == 0 || cols == 0 || nc == 0 {
-            return Err(Error::format(path, format!("empty PSF of shape {shape:?}")));
+            return Err(Error::malformed(path, format!("empty PSF of shape {shape:?}")));
         }
         if let Some(w) = wavelengths {
             if w.len() != nc {
@@ -343,7 +343,7 @@ impl Psf {
         }
         let flat = arr
             .into_shape_with_order((rows, cols, nc))
-            .map_err(|e| Error::format(path, format!("cannot view as {rows} x {cols} x {nc}: {e}")))?;
+            .map_err(|e| Error::malformed(path, format!("cannot view as {rows} x {cols} x {nc}: {e}")))?;
         let mut channels = Vec::new();
         for c in 0..nc {
             let values = Array2::from_shape_fn((rows, cols), |(i, j)| flat[[i, j, c]]);
@@ -356,7 +356,7 @@ impl Psf {
             });
         }
         Psf::new(channels, "file").map_err(|e| match e {
-            Error::Data(m) => Error::format(path, m),
+            Error::Data(m) => Error::malformed(path, m),
             other => other,
         })
     }
@@ -383,7 +383,7 @@ impl Psf {
             }
             Some("npy") => read_npy_psf(path, pitch),
             Some("exr") => read_exr_psf(path, pitch),
-            _ => Err(Error::format(path, "a PSF is read from .npy, .npz or .exr (by extension)")),
+            _ => Err(Error::signature(path, "a PSF is read from .npy, .npz or .exr (by extension)")),
         }
     }
 }
@@ -392,14 +392,20 @@ impl Psf {
 /// when both are known).
 fn resolve_pitch(path: &Path, file: Option<[f64; 2]>, given: Option<f64>) -> Result<[f64; 2]> {
     match (file, given) {
-        (Some(p), Some(g)) if p.iter().any(|&q| ((q - g) / g).abs() > PITCH_TOLERANCE) => Err(Error::format(
-            path,
-            format!("states pitch [{:e}, {:e}] m, but `pitch` is {g:e} m", p[0], p[1]),
-        )),
+        (Some(p), Some(g)) if p.iter().any(|&q| ((q - g) / g).abs() > PITCH_TOLERANCE) => {
+            Err(Error::malformed(
+                path,
+                format!("states pitch [{:e}, {:e}] m, but `pitch` is {g:e} m", p[0], p[1]),
+            ))
+        }
         (Some(p), _) => Ok(p),
         (None, Some(g)) if g.is_finite() && g > 0.0 => Ok([g, g]),
-        (None, Some(g)) => Err(Error::param("pitch", format!("must be a positive length, got {g} m"))),
-        (None, None) => Err(Error::format(
+        (None, Some(g)) => Err(Error::param_in(
+            "pitch",
+            Allowed::positive(),
+            format!("must be a positive length, got {g} m"),
+        )),
+        (None, None) => Err(Error::malformed(
             path,
             "states no pixel pitch (no metadata with 'sensor_pitch' or 'pitch_x'/'pitch_y'): give `pitch`",
         )),
@@ -417,7 +423,7 @@ fn read_side_json(npy: &Path) -> Result<SideMetadata> {
     }
     let text = std::fs::read_to_string(&json).map_err(|e| Error::io(&json, e))?;
     let v: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| Error::format(&json, format!("not JSON: {e}")))?;
+        serde_json::from_str(&text).map_err(|e| Error::malformed(&json, format!("not JSON: {e}")))?;
     // `doefab psf` nests the pitch in its system; `calibrate-psf` states it at the top.
     let pitch = v
         .pointer("/system/sensor_pitch")
@@ -425,7 +431,7 @@ fn read_side_json(npy: &Path) -> Result<SideMetadata> {
         .and_then(serde_json::Value::as_f64)
         .filter(|p| p.is_finite() && *p > 0.0)
         .ok_or_else(|| {
-            Error::format(
+            Error::malformed(
                 &json,
                 "field 'system.sensor_pitch' or 'sensor_pitch' (metres, positive) is missing",
             )
@@ -433,12 +439,12 @@ fn read_side_json(npy: &Path) -> Result<SideMetadata> {
     let channels = v
         .get("channels")
         .and_then(serde_json::Value::as_array)
-        .ok_or_else(|| Error::format(&json, "field 'channels' (an array) is missing"))?
+        .ok_or_else(|| Error::malformed(&json, "field 'channels' (an array) is missing"))?
         .iter()
         .enumerate()
         .map(|(i, c)| {
             let name = c.get("name").and_then(serde_json::Value::as_str).ok_or_else(|| {
-                Error::format(&json, format!("field 'channels[{i}].name' (text) is missing"))
+                Error::malformed(&json, format!("field 'channels[{i}].name' (text) is missing"))
             })?;
             Ok((name.to_string(), c.get("wavelength").and_then(serde_json::Value::as_f64)))
         })
@@ -453,7 +459,7 @@ fn read_npy_psf(path: &Path, given: Option<f64>) -> Result<Psf> {
     let mut psf = Psf::from_array(path, &h.shape, arr, pitch, None)?;
     if let Some((_, names)) = side {
         if names.len() != psf.channels.len() {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path.with_extension("json"),
                 format!("lists {} channels, {} holds {}", names.len(), path.display(), psf.channels.len()),
             ));
@@ -494,7 +500,7 @@ fn read_exr_psf(path: &Path, given: Option<f64>) -> Result<Psf> {
         });
     }
     Psf::new(channels, "file").map_err(|e| match e {
-        Error::Data(m) => Error::format(path, m),
+        Error::Data(m) => Error::malformed(path, m),
         other => other,
     })
 }

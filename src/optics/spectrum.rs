@@ -90,25 +90,25 @@ pub fn read_response_csv(path: &Path) -> Result<Vec<Band>> {
     let mut lines =
         text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
     let Some((_, header)) = lines.next() else {
-        return Err(Error::format(path, "empty table (expected a header 'wavelength_nm,r,g,b')"));
+        return Err(Error::malformed(path, "empty table (expected a header 'wavelength_nm,r,g,b')"));
     };
     let cols: Vec<String> = header.split(',').map(|c| c.trim().to_ascii_lowercase()).collect();
     if cols.len() < 2 {
-        return Err(Error::format(path, format!("header '{header}' names no response column")));
+        return Err(Error::malformed(path, format!("header '{header}' names no response column")));
     }
     let unit = column_unit(path, &cols[0], "wavelength")?;
     let mut rows: Vec<Vec<f64>> = vec![Vec::new(); cols.len()];
     for (ln, line) in lines {
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
         if f.len() != cols.len() {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!("line {}: expected {} fields, got {}", ln + 1, cols.len(), f.len()),
             ));
         }
         for (c, s) in f.iter().enumerate() {
             let v = s.parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| {
-                Error::format(path, format!("line {}: {} '{s}' is not a number", ln + 1, cols[c]))
+                Error::malformed(path, format!("line {}: {} '{s}' is not a number", ln + 1, cols[c]))
             })?;
             rows[c].push(if c == 0 { v * unit } else { v });
         }
@@ -118,7 +118,7 @@ pub fn read_response_csv(path: &Path) -> Result<Vec<Band>> {
         .enumerate()
         .map(|(c, name)| {
             Band::new(name, rows[0].clone(), rows[c + 1].clone())
-                .map_err(|e| Error::format(path, e.to_string()))
+                .map_err(|e| Error::malformed(path, e.to_string()))
         })
         .collect()
 }

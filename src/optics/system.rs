@@ -20,7 +20,7 @@ use rustfft::num_complex::Complex64;
 use serde::{Deserialize, Serialize};
 
 use crate::design::{PAPER_APERTURE, PAPER_PITCH};
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::material::{Material, PAPER_WAVELENGTHS};
 
@@ -176,7 +176,11 @@ impl OpticalSystem {
             if v.is_finite() && v > 0.0 {
                 Ok(())
             } else {
-                Err(Error::param(name, format!("must be a positive finite length, got {v} m")))
+                Err(Error::param_in(
+                    name,
+                    Allowed::positive(),
+                    format!("must be a positive finite length, got {v} m"),
+                ))
             }
         };
         positive("aperture", self.aperture)?;
@@ -190,10 +194,18 @@ impl OpticalSystem {
         positive("pupil_pitch", self.pupil_pitch)?;
         positive("pupil_window", self.pupil_window)?;
         if self.crop == 0 {
-            return Err(Error::param("crop", "the sensor window needs at least 1 x 1 pixels"));
+            return Err(Error::param_in(
+                "crop",
+                Allowed::at_least(1.0),
+                "the sensor window needs at least 1 x 1 pixels",
+            ));
         }
         if self.subsample == 0 {
-            return Err(Error::param("subsample", "needs at least one sample per pixel"));
+            return Err(Error::param_in(
+                "subsample",
+                Allowed::at_least(1.0),
+                "needs at least one sample per pixel",
+            ));
         }
         if self.pupil_window < self.aperture {
             return Err(Error::param(
@@ -207,8 +219,9 @@ impl OpticalSystem {
         }
         if let Some(p) = self.padding {
             if !(p.is_finite() && (1.0..=16.0).contains(&p)) {
-                return Err(Error::param(
+                return Err(Error::param_in(
                     "padding",
+                    Allowed::between(1.0, 16.0),
                     format!("the FFT window over the pupil's side must be from 1 to 16, got {p}"),
                 ));
             }
@@ -437,11 +450,11 @@ impl OpticalSystem {
     /// validates the result. Errors name the file and the field.
     pub fn read_toml(path: &std::path::Path, base: &OpticalSystem) -> Result<OpticalSystem> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let f: SystemFile = toml::from_str(&text).map_err(|e| Error::format(path, e.to_string()))?;
+        let f: SystemFile = toml::from_str(&text).map_err(|e| Error::malformed(path, e.to_string()))?;
         let length = |field: &str, v: &Option<String>, into: &mut f64| -> Result<()> {
             if let Some(t) = v {
                 *into = crate::units::parse_length(t)
-                    .map_err(|e| Error::format(path, format!("{field}: {e}")))?;
+                    .map_err(|e| Error::malformed(path, format!("{field}: {e}")))?;
             }
             Ok(())
         };
@@ -467,12 +480,13 @@ impl OpticalSystem {
                 .iter()
                 .map(|t| {
                     crate::units::parse_length(t)
-                        .map_err(|e| Error::format(path, format!("wavelengths: {e}")))
+                        .map_err(|e| Error::malformed(path, format!("wavelengths: {e}")))
                 })
                 .collect::<Result<_>>()?;
         }
         if let Some(m) = &f.material {
-            s.material = Material::by_name(m).map_err(|e| Error::format(path, format!("material: {e}")))?;
+            s.material =
+                Material::by_name(m).map_err(|e| Error::malformed(path, format!("material: {e}")))?;
         }
         s.crop = f.crop.unwrap_or(s.crop);
         s.subsample = f.subsample.unwrap_or(s.subsample);
@@ -481,7 +495,7 @@ impl OpticalSystem {
         if f.padding.is_some() {
             s.padding = f.padding;
         }
-        s.validate().map_err(|e| Error::format(path, e.to_string()))?;
+        s.validate().map_err(|e| Error::malformed(path, e.to_string()))?;
         Ok(s)
     }
 }

@@ -205,8 +205,8 @@ pub fn compare_and_write(
             system.aperture = c.aperture;
             match psf_comparison(reference, &filled, &system, method, o) {
                 Ok(p) => Some(p),
-                Err(Error::Validity(m)) => {
-                    c.warnings.push(format!("the PSF comparison was skipped: {m}"));
+                Err(Error::Validity { what, .. }) => {
+                    c.warnings.push(format!("the PSF comparison was skipped: {what}"));
                     None
                 }
                 Err(e) => return Err(e),

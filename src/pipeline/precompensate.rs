@@ -27,7 +27,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{Condition, Error, Result};
 use crate::fabrication::chain::{self, write_mask, ChainParams, DesignSource, LoadedDesign};
 use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::mask::render_levels;
@@ -145,8 +145,9 @@ impl Measured {
     /// Reads `compare.json`; errors name the file and the field.
     pub fn read(path: &Path) -> Result<Measured> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        serde_json::from_str(&text)
-            .map_err(|e| Error::format(path, format!("not a compare.json written by `doefab compare`: {e}")))
+        serde_json::from_str(&text).map_err(|e| {
+            Error::malformed(path, format!("not a compare.json written by `doefab compare`: {e}"))
+        })
     }
 }
 
@@ -159,10 +160,10 @@ pub fn process_model(
 ) -> Result<(ProcessModel, String)> {
     // The rule `compare` applies, so that no registration it refuses becomes a correction.
     let named = |e: Error| match e {
-        Error::Registration(why) => Error::Registration(format!(
-            "{}: {why}; a model fitted from it would correct the wrong thing",
-            m.scan
-        )),
+        Error::Registration { refusal, what } => Error::registration(
+            refusal,
+            format!("{}: {what}; a model fitted from it would correct the wrong thing", m.scan),
+        ),
         other => other,
     };
     let ceiling = m.registration.noise_ceiling;
@@ -170,7 +171,7 @@ pub fn process_model(
     check_interior(m.interior_correlation, ceiling, TRUSTED_FRACTION).map_err(named)?;
     let k = m.model.depth_scale;
     if !(DEPTH_SCALE_RANGE[0]..=DEPTH_SCALE_RANGE[1]).contains(&k) {
-        return Err(Error::Validity(format!(
+        return Err(Error::validity(Condition::Domain, format!(
             "{}: the fitted depth scale {k:.3} is outside {}..{}: that is a wrong height unit, scan or design, \
              not a process error to pre-compensate",
             m.scan, DEPTH_SCALE_RANGE[0], DEPTH_SCALE_RANGE[1]
@@ -200,7 +201,7 @@ pub fn process_model(
             Response::new(levels.iter().map(|p| p.0).collect(), levels.iter().map(|p| p.1).collect())
         };
         let r = r.map_err(|e| {
-            Error::Validity(format!(
+            Error::validity(Condition::Model, format!(
                 "{}: the per-level heights of the part: {e}; set `levels` to false to correct the depth scale alone",
                 m.scan
             ))
@@ -431,7 +432,7 @@ pub fn run(job: &PrecompensateJob, out: &Path, step: &mut dyn FnMut(&str)) -> Re
         ModelSource::CompareJson(path) => {
             let m = Measured::read(path)?;
             if m.design_sha256 != design.sha256 {
-                return Err(Error::format(
+                return Err(Error::malformed(
                     path,
                     format!(
                         "design_sha256 {} is not that of {} ({}): the comparison was made against another design",
@@ -439,7 +440,8 @@ pub fn run(job: &PrecompensateJob, out: &Path, step: &mut dyn FnMut(&str)) -> Re
                     ),
                 ));
             }
-            let target = family_member(family, m.member).map_err(|e| Error::format(path, e.to_string()))?;
+            let target =
+                family_member(family, m.member).map_err(|e| Error::malformed(path, e.to_string()))?;
             (m, target)
         }
     };
@@ -563,7 +565,7 @@ fn write_outputs(
     };
     let grayscale = recipe.grayscale_extensions();
     if !grayscale.is_empty() {
-        let curve = curve.ok_or_else(|| Error::format(&recipe.path, "no contrast_curve"))?;
+        let curve = curve.ok_or_else(|| Error::malformed(&recipe.path, "no contrast_curve"))?;
         let grays = (1usize << recipe.mask_bits.min(16)).max(2);
         let (levels, heights) = surface_levels(&written, MAX_MASK_LEVELS.min(grays))?;
         let mopts = recipe.mask_options(job.force);

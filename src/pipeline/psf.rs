@@ -80,7 +80,7 @@ pub fn prepare(opts: &PsfOptions) -> Result<PsfJob> {
             // Asked to run where nothing is valid (a measured part's blurred steps are slopes
             // no pupil sampling resolves): the matrix DFT at the DOE's own samples, the plan's
             // refusal kept as a warning beside the method's violations.
-            Err(Error::Validity(why)) if opts.allow_invalid && bands.is_empty() => {
+            Err(Error::Validity { what: why, .. }) if opts.allow_invalid && bands.is_empty() => {
                 system.subsample = opts.subsample;
                 let options = Options { allow_invalid: true, ..Default::default() };
                 let how = How::Method { system: Box::new(system), method: Method::MatrixDft, options };

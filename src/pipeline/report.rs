@@ -37,7 +37,7 @@ use crate::charts::failure_maps::{write_calibration_chart, write_registration_ch
 use crate::charts::optics::{write_psf_charts, write_stability_charts};
 use crate::charts::tiling::write_tiling_chart;
 use crate::charts::training::write_finetune_time_chart;
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 use crate::io::atomic::{self, StagedDir};
 
 /// What `doefab report` runs.
@@ -330,7 +330,11 @@ pub fn run_report(
     progress: &mut dyn FnMut(&str, u64, u64),
 ) -> Result<Page> {
     if !(opts.budget > 0.0 && opts.budget.is_finite()) {
-        return Err(Error::param("budget", format!("must be a positive time, got {} s", opts.budget)));
+        return Err(Error::param_in(
+            "budget",
+            Allowed::positive(),
+            format!("must be a positive time, got {} s", opts.budget),
+        ));
     }
     let start = Instant::now();
     let total = steps(opts) as u64;

@@ -222,7 +222,14 @@ fn the_plan_refuses_what_it_cannot_meet_and_names_why() {
     let s = scene();
     let doe = heights(|_, _| 0.0);
     for bad in [0.0, -1e-3, 1.5, f64::NAN] {
-        let e = plan(&s, &doe, &[], bad).unwrap_err().to_string();
+        let e = plan(&s, &doe, &[], bad).unwrap_err();
+        match &e {
+            doefab::Error::Parameter { name, allowed: Some(range), .. } => {
+                assert!(name == "tolerance" && !range.contains(bad) && range.contains(TOL), "{e}")
+            }
+            other => panic!("expected a refused tolerance with its range, got {other:?}"),
+        }
+        let e = e.to_string();
         assert!(e.contains("tolerance"), "{e}");
     }
     // A band reaching outside PDMS's dispersion formula names the range.
@@ -233,7 +240,9 @@ fn the_plan_refuses_what_it_cannot_meet_and_names_why() {
     // considers (DOE pitch / 8 still leaves 2.0 mm at 450 nm over a 3 mm crop), with the FFT
     // method's grid over its size limit: refused with both reasons.
     let wide = OpticalSystem { crop: 1000, ..s.clone() };
-    let e = plan(&wide, &doe, &[], TOL).unwrap_err().to_string();
+    let e = plan(&wide, &doe, &[], TOL).unwrap_err();
+    assert!(matches!(e, doefab::Error::Validity { condition: doefab::Condition::Propagation, .. }), "{e:?}");
+    let e = e.to_string();
     assert!(
         e.contains("no method is valid") && e.contains("matrix_dft") && e.contains("angular_spectrum"),
         "{e}"

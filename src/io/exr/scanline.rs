@@ -95,7 +95,11 @@ struct Reader<'a> {
 impl<'a> Reader<'a> {
     fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8]> {
         let end = self.pos.checked_add(n).filter(|&e| e <= self.bytes.len()).ok_or_else(|| {
-            Error::format(self.path, format!("OpenEXR: the file ends inside {what} (at byte {})", self.pos))
+            Error::truncated(
+                self.path,
+                self.bytes.len() as u64,
+                format!("OpenEXR: the file ends inside {what} (at byte {})", self.pos),
+            )
         })?;
         let s = &self.bytes[self.pos..end];
         self.pos = end;
@@ -111,7 +115,7 @@ impl<'a> Reader<'a> {
     fn name(&mut self, max: usize, what: &str) -> Result<String> {
         let rest = &self.bytes[self.pos.min(self.bytes.len())..];
         let n = rest.iter().take(max + 1).position(|&b| b == 0).ok_or_else(|| {
-            Error::format(
+            Error::malformed(
                 self.path,
                 format!("OpenEXR: {what} at byte {} is not a name of at most {max} bytes", self.pos),
             )
@@ -126,11 +130,11 @@ impl Header {
     /// Parses the header of an OpenEXR file (magic, version, attributes).
     pub fn parse(path: &Path, bytes: &[u8]) -> Result<Header> {
         if bytes.len() < 8 || bytes[..4] != [0x76, 0x2f, 0x31, 0x01] {
-            return Err(Error::format(path, "not an OpenEXR file: bad magic (expected 76 2f 31 01)"));
+            return Err(Error::signature(path, "not an OpenEXR file: bad magic (expected 76 2f 31 01)"));
         }
         let version = u32::from_le_bytes(bytes[4..8].try_into().expect("4 bytes"));
         if version & 0xff != 2 {
-            return Err(Error::format(
+            return Err(Error::unsupported(
                 path,
                 format!("OpenEXR: format version {}, expected 2", version & 0xff),
             ));
@@ -146,11 +150,12 @@ impl Header {
             }
             let kind = r.name(max_name, "an attribute type")?;
             let size = r.i32("an attribute size")?;
-            let size = usize::try_from(size)
-                .map_err(|_| Error::format(path, format!("OpenEXR: attribute '{name}' has size {size}")))?;
+            let size = usize::try_from(size).map_err(|_| {
+                Error::malformed(path, format!("OpenEXR: attribute '{name}' has size {size}"))
+            })?;
             let value = r.take(size, &format!("attribute '{name}'"))?;
             let bad = |expected: &str| {
-                Error::format(
+                Error::malformed(
                     path,
                     format!("OpenEXR: attribute '{name}' is a {size}-byte {kind}, expected {expected}"),
                 )
@@ -179,12 +184,12 @@ impl Header {
             }
         }
         let missing =
-            |what: &str| Error::format(path, format!("OpenEXR: the header has no '{what}' attribute"));
+            |what: &str| Error::malformed(path, format!("OpenEXR: the header has no '{what}' attribute"));
         let channels: Vec<Channel> = channels.ok_or_else(|| missing("channels"))?;
         let data_window = data_window.ok_or_else(|| missing("dataWindow"))?;
         let [x0, y0, x1, y1] = data_window;
         if x1 < x0 || y1 < y0 {
-            return Err(Error::format(path, format!("OpenEXR: the data window {data_window:?} is empty")));
+            return Err(Error::malformed(path, format!("OpenEXR: the data window {data_window:?} is empty")));
         }
         Ok(Header {
             channels,
@@ -221,6 +226,37 @@ impl Header {
     }
 }
 
+/// Checks, in file order, every channel-list attribute of a single-part header other than
+/// `channels` (which [`Header::parse`] reads): each must list at least one channel, each with a
+/// sampling of at least 1. A header this walk cannot read is left to the caller's decoder.
+pub(crate) fn check_custom_channel_lists(path: &Path, bytes: &[u8]) -> Result<()> {
+    let Some(version) = bytes.get(4..8).map(|v| u32::from_le_bytes(v.try_into().expect("4 bytes"))) else {
+        return Ok(());
+    };
+    let max_name = if version & 0x400 != 0 { 255 } else { 31 };
+    let mut r = Reader { path, bytes, pos: 8 };
+    while let Ok(Some((name, kind, value))) = next_attribute(&mut r, max_name) {
+        if kind == "chlist" && name != "channels" && parse_channels(path, value, max_name)?.is_empty() {
+            return Err(Error::malformed(
+                path,
+                format!("OpenEXR: attribute '{name}' is an empty channel list"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The next attribute of a header (name, type, value), `None` at the header's end.
+fn next_attribute<'a>(r: &mut Reader<'a>, max_name: usize) -> Result<Option<(String, String, &'a [u8])>> {
+    let name = r.name(max_name, "an attribute name")?;
+    if name.is_empty() {
+        return Ok(None);
+    }
+    let kind = r.name(max_name, "an attribute type")?;
+    let size = usize::try_from(r.i32("an attribute size")?).unwrap_or(usize::MAX);
+    Ok(Some((name, kind, r.take(size, "an attribute")?)))
+}
+
 fn parse_channels(path: &Path, value: &[u8], max_name: usize) -> Result<Vec<Channel>> {
     let mut r = Reader { path, bytes: value, pos: 0 };
     let mut out = Vec::new();
@@ -234,7 +270,7 @@ fn parse_channels(path: &Path, value: &[u8], max_name: usize) -> Result<Vec<Chan
             1 => PixelType::Half,
             2 => PixelType::Float,
             t => {
-                return Err(Error::format(
+                return Err(Error::malformed(
                     path,
                     format!("OpenEXR: channel '{name}' has pixel type {t}, expected 0, 1 or 2"),
                 ))
@@ -243,7 +279,7 @@ fn parse_channels(path: &Path, value: &[u8], max_name: usize) -> Result<Vec<Chan
         let linear = r.take(4, "a channel's pLinear byte")?[0] != 0;
         let (x_sampling, y_sampling) = (r.i32("a channel's x sampling")?, r.i32("a channel's y sampling")?);
         if x_sampling < 1 || y_sampling < 1 {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!("OpenEXR: channel '{name}' has sampling {x_sampling} x {y_sampling}, expected >= 1"),
             ));
@@ -254,14 +290,15 @@ fn parse_channels(path: &Path, value: &[u8], max_name: usize) -> Result<Vec<Chan
 
 /// Reads the named channels of a scan-line file (each at its own sampling), in the order asked.
 pub fn read_channels(path: &Path, bytes: &[u8], header: &Header, names: &[&str]) -> Result<Vec<Plane>> {
-    let fail = |what: String| Error::format(path, format!("OpenEXR: {what}"));
+    let fail = |what: String| Error::malformed(path, format!("OpenEXR: {what}"));
+    let unsupported = |what: String| Error::unsupported(path, format!("OpenEXR: {what}"));
     if header.tiled || header.deep || header.multipart {
-        return Err(fail(
+        return Err(unsupported(
             "a tiled, deep or multi-part file; this reader decodes single-part scan-line files".into(),
         ));
     }
     let lines = header.lines_per_chunk().ok_or_else(|| {
-        fail(format!(
+        unsupported(format!(
             "{} compression; this reader decodes NONE, RLE, ZIPS, ZIP, PIZ, B44 and B44A",
             compression_name(header.compression)
         ))
@@ -310,7 +347,7 @@ pub fn read_channels(path: &Path, bytes: &[u8], header: &Header, names: &[&str])
                 .position(|c| c.name == *n)
                 .ok_or_else(|| fail(format!("no channel '{n}'")))?;
             if header.channels[k].pixel_type == PixelType::Uint {
-                return Err(fail(format!(
+                return Err(unsupported(format!(
                     "channel '{n}' holds u32 integers, expected half or float samples"
                 )));
             }

@@ -108,9 +108,13 @@ pub struct LumaChroma {
 /// Reads the `Y`, `RY`, `BY` channels of a luminance/chroma scan-line file (see the module
 /// docs for what is refused).
 pub fn read_luma_chroma(path: &Path, bytes: &[u8], header: &Header) -> Result<LumaChroma> {
-    let fail = |what: String| Error::format(path, format!("OpenEXR luminance/chroma image: {what}"));
-    let y =
-        header.channel("Y").ok_or_else(|| fail("has chroma (RY, BY) but no luminance channel Y".into()))?;
+    let fail = |what: String| Error::unsupported(path, format!("OpenEXR luminance/chroma image: {what}"));
+    let y = header.channel("Y").ok_or_else(|| {
+        Error::malformed(
+            path,
+            "OpenEXR luminance/chroma image: has chroma (RY, BY) but no luminance channel Y",
+        )
+    })?;
     if (y.x_sampling, y.y_sampling) != (1, 1) {
         return Err(fail(format!(
             "channel Y is sampled {} x {}, expected 1 x 1",

@@ -133,7 +133,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let b = Bin::new(path, bytes);
     let n = bytes.len().min(MAGIC.len());
     if bytes[..n] != MAGIC[..n] {
-        return Err(b.bad(0, "not an Alicona AL3D file: it does not start with 'AliconaImaging'"));
+        return Err(b.signature(0, "not an Alicona AL3D file: it does not start with 'AliconaImaging'"));
     }
     b.take(0, MAGIC.len(), "the magic")?;
     let mut tags = Vec::new();
@@ -179,7 +179,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     }
     let depth_off = t.need_usize("DepthImageOffset")?;
     if depth_off == 0 {
-        return Err(b.bad(
+        return Err(b.unsupported(
             t.need("DepthImageOffset")?.1,
             "DepthImageOffset is 0: the file holds no depth image (a texture only)",
         ));

@@ -66,17 +66,23 @@ struct Ctx<'a> {
 
 impl Ctx<'_> {
     fn err(&self, what: impl std::fmt::Display) -> Error {
-        Error::format(self.path, what.to_string())
+        Error::malformed(self.path, what.to_string())
     }
     /// An error of the HDF5 layer, while reading `what`.
     fn h5(&self, what: &str) -> impl Fn(hdf5_reader::error::Error) -> Error + '_ {
         let what = what.to_string();
         let len = self.len;
         move |e| {
-            Error::format(
-                self.path,
-                format!("HDF5 structure damaged or cut short while reading {what} (the file ends at byte offset {len}): {e}"),
-            )
+            use hdf5_reader::error::Error as H5Error;
+            let what = format!(
+                "HDF5 structure damaged or cut short while reading {what} (the file ends at byte offset {len}): {e}"
+            );
+            match e {
+                H5Error::UnexpectedEof { .. } | H5Error::OffsetOutOfBounds(_) => {
+                    Error::truncated(self.path, len as u64, what)
+                }
+                _ => Error::malformed(self.path, what),
+            }
         }
     }
 }
@@ -385,7 +391,8 @@ fn surface_path(ctx: &Ctx, file: &Hdf5File, vref: usize, warnings: &mut Vec<Stri
             } else {
                 let found = datasets_in(ctx, file, "/Data/Surface")?;
                 match found.as_slice() {
-                    [] => return Err(ctx.err(
+                    [] => return Err(Error::signature(
+                        ctx.path,
                         "not a Zygo .datx file: an HDF5 file with no surface map (no /MetaData link to one, \
                              no /Measurement/Surface, no dataset in /Data/Surface)",
                     )),
@@ -467,7 +474,9 @@ fn height_scale(
 pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let ctx = Ctx { path, len: bytes.len() };
     if signature_offset(bytes).is_none() {
-        return Err(ctx.err(format!(
+        return Err(Error::signature(
+            path,
+            format!(
             "byte offset 0: not a Zygo .datx file: no HDF5 signature (\\x89HDF\\r\\n\\x1a\\n) at byte offset 0, 512, 1024, ... \
              (the file is {} bytes)",
             bytes.len()
@@ -484,10 +493,14 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let vref = 4 + sb.offset_size as usize + 4;
     let end = sb.base_address.saturating_add(sb.eof_address);
     if end > bytes.len() as u64 {
-        return Err(ctx.err(format!(
-            "truncated at byte offset {}: the HDF5 superblock says the file ends at byte offset {end}",
-            bytes.len()
-        )));
+        return Err(Error::truncated(
+            path,
+            bytes.len() as u64,
+            format!(
+                "truncated at byte offset {}: the HDF5 superblock says the file ends at byte offset {end}",
+                bytes.len()
+            ),
+        ));
     }
     let mut warnings = Vec::new();
 

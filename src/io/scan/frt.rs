@@ -100,13 +100,13 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
                 b.bad(0, "a MicroProf text export, not the binary .frt format: read it as a text matrix")
             );
         }
-        return Err(b.bad(0, "not an FRT MicroProf file: it does not start with 'FRTM_GLIDERV'"));
+        return Err(b.signature(0, "not an FRT MicroProf file: it does not start with 'FRTM_GLIDERV'"));
     }
     let version = b.text(12, 4, "the version")?;
     let wide = match version.as_str() {
         "1.00" => false,
         "1.01" => true,
-        _ => return Err(b.bad(12, format!("version '{version}' is not read (1.00 and 1.01 are)"))),
+        _ => return Err(b.unsupported(12, format!("version '{version}' is not read (1.00 and 1.01 are)"))),
     };
     let count = b.u16le(16, "the number of blocks")?;
     let mut warnings = Vec::new();

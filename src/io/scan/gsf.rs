@@ -22,24 +22,27 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let head = format!("{MAGIC}\n");
     if !bytes.starts_with(head.as_bytes()) {
         if head.as_bytes().starts_with(bytes) {
-            return Err(Error::format(
+            return Err(Error::truncated(
                 path,
+                bytes.len() as u64,
                 format!("truncated at byte offset {} inside the '{MAGIC}' line", bytes.len()),
             ));
         }
-        return Err(Error::format(
+        return Err(Error::signature(
             path,
             format!("byte offset 0: not a GSF file: it does not start with '{MAGIC}'"),
         ));
     }
     let nul = bytes.iter().position(|&b| b == 0).ok_or_else(|| {
-        Error::format(
+        Error::truncated(
             path,
+            bytes.len() as u64,
             format!("truncated at byte offset {}: the header never ends (no NUL padding)", bytes.len()),
         )
     })?;
-    let header = std::str::from_utf8(&bytes[..nul])
-        .map_err(|e| Error::format(path, format!("byte offset {}: header is not UTF-8", e.valid_up_to())))?;
+    let header = std::str::from_utf8(&bytes[..nul]).map_err(|e| {
+        Error::malformed(path, format!("byte offset {}: header is not UTF-8", e.valid_up_to()))
+    })?;
     let start = (nul / 4 + 1) * 4;
     let bin = Bin::new(path, bytes);
     let pad = bin.take(nul, start - nul, "the NUL padding after the header")?;
@@ -52,10 +55,10 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
             continue;
         }
         let (k, v) = line.split_once('=').ok_or_else(|| {
-            Error::format(path, format!("header line {}: '{line}' is not 'Key = Value'", n + 1))
+            Error::malformed(path, format!("header line {}: '{line}' is not 'Key = Value'", n + 1))
         })?;
         if metadata.iter().any(|(key, _)| key == k.trim()) {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!("header line {}: key '{}' is given twice", n + 1, k.trim()),
             ));
@@ -63,23 +66,21 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         metadata.push((k.trim().to_string(), v.trim().to_string()));
     }
     let get = |k: &str| metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
-    let num = |k: &str| -> Result<Option<f64>> {
-        match get(k) {
-            None => Ok(None),
-            Some(v) => v
-                .parse::<f64>()
-                .ok()
-                .filter(|x| x.is_finite())
-                .map(Some)
-                .ok_or_else(|| Error::format(path, format!("header '{k} = {v}' is not a finite number"))),
-        }
-    };
+    let num =
+        |k: &str| -> Result<Option<f64>> {
+            match get(k) {
+                None => Ok(None),
+                Some(v) => v.parse::<f64>().ok().filter(|x| x.is_finite()).map(Some).ok_or_else(|| {
+                    Error::malformed(path, format!("header '{k} = {v}' is not a finite number"))
+                }),
+            }
+        };
     let res = |k: &str| -> Result<usize> {
-        let v = get(k).ok_or_else(|| Error::format(path, format!("header lacks the required '{k}'")))?;
+        let v = get(k).ok_or_else(|| Error::malformed(path, format!("header lacks the required '{k}'")))?;
         v.parse::<usize>()
             .ok()
             .filter(|&n| n > 0)
-            .ok_or_else(|| Error::format(path, format!("header '{k} = {v}' is not a positive integer")))
+            .ok_or_else(|| Error::malformed(path, format!("header '{k} = {v}' is not a positive integer")))
     };
     let (xres, yres) = (res("XRes")?, res("YRes")?);
     let nbytes = data_len(path, yres, xres, 4)?;
@@ -93,16 +94,16 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let values: Vec<f64> =
         data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64).collect();
     let values = shape(path, yres, xres, values)?;
-    let xy = match get("XYUnits") {
-        Some(u) => Some(
-            scan_length_unit(u)
-                .ok_or_else(|| Error::format(path, format!("header 'XYUnits = {u}' is not a length unit")))?,
-        ),
-        None => None,
-    };
+    let xy =
+        match get("XYUnits") {
+            Some(u) => Some(scan_length_unit(u).ok_or_else(|| {
+                Error::malformed(path, format!("header 'XYUnits = {u}' is not a length unit"))
+            })?),
+            None => None,
+        };
     let unit = match get("ZUnits") {
         Some(u) => Some(scan_length_unit(u).ok_or_else(|| {
-            Error::format(
+            Error::malformed(
                 path,
                 format!("header 'ZUnits = {u}' is not a length unit (a height map needs one)"),
             )
@@ -115,7 +116,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
             Some([xr * s / xres as f64, yr * s / yres as f64])
         }
         (Some(_), Some(_), Some(_)) => {
-            return Err(Error::format(path, "header XReal/YReal must be positive"));
+            return Err(Error::malformed(path, "header XReal/YReal must be positive"));
         }
         _ => None,
     };

@@ -226,7 +226,9 @@ fn field(b: &Bin, path_name: &str, v: &Value) -> Result<Field> {
         return Err(b.bad(0, format!("'{path_name}' is not an object")));
     };
     if o.type_name != "GwyDataField" {
-        return Err(b.bad(o.offset, format!("'{path_name}' is a {}, not a GwyDataField", o.type_name)));
+        return Err(
+            b.unsupported(o.offset, format!("'{path_name}' is a {}, not a GwyDataField", o.type_name))
+        );
     }
     let int = |n: &str| match o.get(n) {
         Some(Value::Int(v)) => Ok(*v),
@@ -271,11 +273,11 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let b = Bin::new(path, bytes);
     b.take(0, 4, "the magic GWYP")?;
     if !has_magic(bytes) {
-        return Err(b.bad(0, "not a Gwyddion native file: it does not start with GWYP"));
+        return Err(b.signature(0, "not a Gwyddion native file: it does not start with GWYP"));
     }
     let top = Parser { b: Bin::new(path, bytes), at: 4 }.object(0)?;
     if top.type_name != "GwyContainer" {
-        return Err(b.bad(4, format!("the file holds a {}, not a GwyContainer", top.type_name)));
+        return Err(b.unsupported(4, format!("the file holds a {}, not a GwyContainer", top.type_name)));
     }
     // The lowest-numbered channel `/N/data`, by the name the file gives it (`/01/data` and
     // `/+1/data` parse as 1 too: the key is the file's own, not one rebuilt from the number).

@@ -283,7 +283,7 @@ fn rows_bytes(t: &Tiff, img: &Image, index: usize, row_bytes: usize) -> Result<V
         return Err(t.b.bad(img.at, format!("page {index} is empty ({} x {} points)", img.cols, img.rows)));
     }
     let need = img.rows.checked_mul(row_bytes).ok_or_else(|| {
-        Error::format(t.b.path, format!("page {index}: {} rows of {row_bytes} bytes overflow", img.rows))
+        Error::malformed(t.b.path, format!("page {index}: {} rows of {row_bytes} bytes overflow", img.rows))
     })?;
     let nstrips = img.rows.div_ceil(img.rows_per_strip);
     if img.strips.len() != nstrips {
@@ -436,7 +436,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         }
         _ => {
             b.take(0, 4, "the TIFF header")?;
-            return Err(b.bad(
+            return Err(b.signature(
                 0,
                 "not an Olympus LEXT file: it does not start as a TIFF file does (II*\\0 or MM\\0*)",
             ));
@@ -449,7 +449,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     // Page 0's measurement XML.
     let desc = pages[0].description.as_deref().unwrap_or("");
     let Some(start) = desc.find(TIFF_XML) else {
-        return Err(t.b.bad(
+        return Err(t.b.signature(
             pages[0].at,
             "not an Olympus LEXT file: the first page's ImageDescription holds no <TiffTagDescData> XML",
         ));

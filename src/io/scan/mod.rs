@@ -149,9 +149,9 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<ScanFormat> {
         "exr" => ScanFormat::Exr,
         _ => {
             if let Some(why) = unread::refusal(&ext) {
-                return Err(Error::format(path, why));
+                return Err(Error::malformed(path, why));
             }
-            return Err(Error::format(
+            return Err(Error::signature(
                 path,
                 format!(
                     "unknown scan format '.{ext}' (expected .x3p, .gsf, .sdf, .sur, .gwy, .opd, .opdx, .plu, .plux, .al3d, .tmd, .vk4/.vk6/.vk7, .lext, .frt, .datx, .spm, .dat, .xyz, \
@@ -173,7 +173,7 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
     let format = detect_format(path, bytes)?;
     let text = || {
         std::str::from_utf8(bytes)
-            .map_err(|e| Error::format(path, format!("byte offset {}: not UTF-8 text", e.valid_up_to())))
+            .map_err(|e| Error::malformed(path, format!("byte offset {}: not UTF-8 text", e.valid_up_to())))
     };
     match format {
         ScanFormat::X3p => x3p::decode(path, bytes),
@@ -207,8 +207,8 @@ pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<
             let values = match shape.as_slice() {
                 [r, c] | [r, c, 1] if *r > 0 && *c > 0 => arr
                     .into_shape_with_order((shape[0], shape[1]))
-                    .map_err(|e| Error::format(path, format!("cannot view as a 2-D map: {e}")))?,
-                _ => return Err(Error::format(path, format!("shape {shape:?} is not a 2-D map"))),
+                    .map_err(|e| Error::malformed(path, format!("cannot view as a 2-D map: {e}")))?,
+                _ => return Err(Error::unsupported(path, format!("shape {shape:?} is not a 2-D map"))),
             };
             let raw = RawMap {
                 values,
@@ -233,7 +233,7 @@ fn spip_header(path: &Path, raw: &mut RawMap) -> Result<()> {
             None => Ok(None),
             Some(v) => {
                 v.parse::<f64>().ok().filter(|x| x.is_finite() && *x > 0.0).map(Some).ok_or_else(|| {
-                    Error::format(path, format!("header '{k} = {v}' is not a positive number"))
+                    Error::malformed(path, format!("header '{k} = {v}' is not a positive number"))
                 })
             }
         }
@@ -266,9 +266,9 @@ fn as_z_unit(reason: String) -> String {
 /// [`as_z_unit`] on a parameter error of the height-map reader.
 fn z_unit_error(e: Error) -> Error {
     match e {
-        Error::Parameter { name, reason } => {
+        Error::Parameter { name, reason, allowed } => {
             let name = if name == "unit" { "z_unit".to_string() } else { name };
-            Error::Parameter { name, reason: as_z_unit(reason) }
+            Error::Parameter { name, reason: as_z_unit(reason), allowed }
         }
         e => e,
     }
@@ -292,7 +292,9 @@ pub fn scan_from_raw(path: &Path, sr: ScanRaw, opts: &ScanOptions) -> Result<Sca
     let mut read = opts.read_options();
     if stated && !read.allow_implausible {
         match crate::io::heightmap::check_plausibility(path, &raw, &read) {
-            Err(Error::Parameter { name, reason }) if name == "unit" => {
+            // The relief is implausible in the file's own unit (the refusal states the
+            // plausible range): a warning here, as the comment above says.
+            Err(Error::Parameter { name, reason, allowed: Some(_) }) if name == "unit" => {
                 warnings.push(format!("{} (kept: the file states its unit)", as_z_unit(reason)));
             }
             other => other.map_err(z_unit_error)?,

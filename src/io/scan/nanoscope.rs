@@ -164,7 +164,9 @@ fn parse_header(b: &Bin) -> Result<(Vec<Section>, usize)> {
             );
         }
         if off > HEADER_LIMIT {
-            return Err(b.bad(off, "no '\\*File list end' line in the first 4 MiB: not a Nanoscope header"));
+            return Err(
+                b.signature(off, "no '\\*File list end' line in the first 4 MiB: not a Nanoscope header")
+            );
         }
         let rest = &bytes[off..];
         let Some(nl) = rest.iter().position(|&c| c == b'\n') else {
@@ -255,7 +257,7 @@ fn height_rank(s: &Section) -> Option<u8> {
 fn refuse_other_files(b: &Bin) -> Result<()> {
     let bytes = b.bytes;
     if bytes.starts_with(ISO28600) {
-        return Err(b.bad(
+        return Err(b.signature(
             0,
             "an ISO 28600 SPM data transfer (text) file, not a Bruker Nanoscope file: ISO 28600 is not \
              read; export the surface from the software that wrote it as ISO 25178-72 .x3p or \
@@ -270,12 +272,16 @@ fn refuse_other_files(b: &Bin) -> Result<()> {
         ));
     }
     if bytes.starts_with(MAGIC_FORCE) {
-        return Err(b.bad(0, "a Nanoscope force-curve file ('\\*Force file list'), not a surface scan"));
+        return Err(
+            b.unsupported(0, "a Nanoscope force-curve file ('\\*Force file list'), not a surface scan")
+        );
     }
     let n = bytes.len().min(MAGIC.len());
     let m = bytes.len().min(MAGIC_EC.len());
     if bytes[..n] != MAGIC[..n] && bytes[..m] != MAGIC_EC[..m] {
-        return Err(b.bad(0, "not a Bruker Nanoscope file: it does not start with '\\*File list' CR LF"));
+        return Err(
+            b.signature(0, "not a Bruker Nanoscope file: it does not start with '\\*File list' CR LF")
+        );
     }
     Ok(())
 }
@@ -308,7 +314,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let Some(image) = best.map(|(_, i)| images[i]) else {
         let names: Vec<String> =
             images.iter().map(|s| channel_name(s).unwrap_or_else(|| "?".into())).collect();
-        return Err(b.bad(
+        return Err(b.unsupported(
             header_end,
             format!(
                 "no height channel among the images ({}): only 'Height' or 'Height Sensor' is read",

@@ -103,7 +103,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let b = Bin::new(path, bytes);
     b.take(0, 2 + ENTRY, "the directory entry")?;
     if !has_magic(bytes) {
-        return Err(b.bad(0, "not a Wyko OPD file: it does not start with 01 00 'Directory'"));
+        return Err(b.signature(0, "not a Wyko OPD file: it does not start with 01 00 'Directory'"));
     }
     let mut warnings = Vec::new();
     let entries = read_directory(&b, &mut warnings)?;

@@ -255,11 +255,11 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let b = Bin::new(path, bytes);
     let n = bytes.len().min(8);
     if bytes[..n] != MAGIC[..n] {
-        return Err(b.bad(0, "not a Bruker Vision64 .opdx file: it does not start with 'VCA DATA'"));
+        return Err(b.signature(0, "not a Bruker Vision64 .opdx file: it does not start with 'VCA DATA'"));
     }
     b.take(0, MAGIC.len(), "the magic")?;
     if bytes[..MAGIC.len()] != MAGIC[..] {
-        return Err(b.bad(
+        return Err(b.unsupported(
             8,
             "a 'VCA DATA' file of another version (expected the bytes 01 00 00 55 after 'VCA DATA')",
         ));
@@ -371,7 +371,7 @@ fn height_channel(r: &Reader, b: &Bin, warnings: &mut Vec<String>) -> Result<Str
     if !has_2d {
         let what = kind.as_deref().unwrap_or("no 2-D data");
         let profile = r.items.iter().any(|(p, _, _)| p.starts_with("/1D_Data/"));
-        return Err(b.bad(
+        return Err(b.unsupported(
             MAGIC.len(),
             if profile {
                 format!("a stylus profile ('{what}', 1-D data), not a surface map: profiles are not read by scan-info")

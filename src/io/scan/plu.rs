@@ -38,7 +38,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     b.take(0, HEADER + 8, "the header")?;
     let date = b.text(0, 128, "the date")?;
     if date.is_empty() || !date.chars().all(|c| !c.is_control()) {
-        return Err(b.bad(0, "not a Sensofar PLu file: the header does not start with a date"));
+        return Err(b.signature(0, "not a Sensofar PLu file: the header does not start with a date"));
     }
     let kind = b.u32le(428, "the measurement type")?;
     if kind != TOPOGRAPHY {
@@ -51,7 +51,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
             6 => "a custom measurement",
             _ => "an unknown measurement",
         };
-        return Err(b.bad(428, format!("measurement type {kind} is {name}, not a topography (3)")));
+        return Err(b.unsupported(428, format!("measurement type {kind} is {name}, not a topography (3)")));
     }
     let rows = b.u32le(HEADER, "the rows")? as usize;
     let cols = b.u32le(HEADER + 4, "the columns")? as usize;

@@ -34,37 +34,45 @@ fn child<'a, 'i>(node: roxmltree::Node<'a, 'i>, name: &str) -> Option<roxmltree:
 /// Decodes a `.plux` file (see the module docs).
 pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     if !bytes.starts_with(b"PK") {
-        return Err(Error::format(
+        return Err(Error::signature(
             path,
             "byte offset 0: not a Sensofar PLUx file: it is not a zip archive (no 'PK' signature)",
         ));
     }
     let mut zip = zip::ZipArchive::new(Cursor::new(bytes)).map_err(|e| {
-        Error::format(path, format!("byte offset {}: not a complete zip archive: {e}", bytes.len()))
+        Error::truncated(
+            path,
+            bytes.len() as u64,
+            format!("byte offset {}: not a complete zip archive: {e}", bytes.len()),
+        )
     })?;
-    let xml = entry(path, &mut zip, INDEX, 1 << 24)?
-        .ok_or_else(|| Error::format(path, "not a Sensofar PLUx file: the zip archive holds no index.xml"))?;
+    let xml = entry(path, &mut zip, INDEX, 1 << 24)?.ok_or_else(|| {
+        Error::signature(path, "not a Sensofar PLUx file: the zip archive holds no index.xml")
+    })?;
     let xml = xml.strip_prefix(b"\xef\xbb\xbf").unwrap_or(&xml);
-    let xml = std::str::from_utf8(xml)
-        .map_err(|e| Error::format(path, format!("index.xml: byte offset {}: not UTF-8", e.valid_up_to())))?;
-    let doc = roxmltree::Document::parse(xml).map_err(|e| Error::format(path, format!("index.xml: {e}")))?;
+    let xml = std::str::from_utf8(xml).map_err(|e| {
+        Error::malformed(path, format!("index.xml: byte offset {}: not UTF-8", e.valid_up_to()))
+    })?;
+    let doc =
+        roxmltree::Document::parse(xml).map_err(|e| Error::malformed(path, format!("index.xml: {e}")))?;
     let root = doc.root_element();
     let Some(general) = child(root, "GENERAL").filter(|g| child(*g, "IMAGE_SIZE_X").is_some()) else {
-        return Err(Error::format(
+        return Err(Error::signature(
             path,
             "not a Sensofar PLUx file: index.xml has no GENERAL/IMAGE_SIZE_X (an index.xml of another format)",
         ));
     };
     let text = |name: &str| child(general, name).and_then(|n| n.text()).map(|t| t.trim().to_string());
     let count = |name: &str| -> Result<usize> {
-        let t = text(name).ok_or_else(|| Error::format(path, format!("index.xml lacks GENERAL/{name}")))?;
+        let t =
+            text(name).ok_or_else(|| Error::malformed(path, format!("index.xml lacks GENERAL/{name}")))?;
         t.parse::<usize>()
-            .map_err(|_| Error::format(path, format!("index.xml GENERAL/{name} = '{t}' is not a count")))
+            .map_err(|_| Error::malformed(path, format!("index.xml GENERAL/{name} = '{t}' is not a count")))
     };
     let cols = count("IMAGE_SIZE_X")?;
     let rows = count("IMAGE_SIZE_Y")?;
     if rows == 0 || cols == 0 {
-        return Err(Error::format(path, format!("index.xml: the map is empty ({cols} x {rows} points)")));
+        return Err(Error::malformed(path, format!("index.xml: the map is empty ({cols} x {rows} points)")));
     }
     let need = data_len(path, rows, cols, 4)?;
 
@@ -81,19 +89,19 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     }
     layers.sort();
     let Some((index, member)) = layers.first().cloned() else {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             "index.xml names no layer with a FILENAME_Z: the file holds no heights",
         ));
     };
     let data = entry(path, &mut zip, &member, need)?.ok_or_else(|| {
-        Error::format(
+        Error::malformed(
             path,
             format!("index.xml names '{member}' for LAYER_{index}, but the archive has no such member"),
         )
     })?;
     if data.len() != need {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             format!(
                 "zip member '{member}': {} bytes, {need} expected for {cols} x {rows} f32 heights",

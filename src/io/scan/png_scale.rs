@@ -42,8 +42,9 @@ pub fn find_pcal(path: &Path, bytes: &[u8]) -> Result<Option<PCal>> {
         let kind = &bytes[p + 4..p + 8];
         let start = p + 8;
         let Some(end) = start.checked_add(n).filter(|&e| e <= bytes.len()) else {
-            return Err(Error::format(
+            return Err(Error::truncated(
                 path,
+                bytes.len() as u64,
                 format!("byte offset {p}: PNG chunk of {n} bytes runs past the end"),
             ));
         };
@@ -60,7 +61,7 @@ pub fn find_pcal(path: &Path, bytes: &[u8]) -> Result<Option<PCal>> {
 
 fn parse_pcal(path: &Path, d: &[u8], offset: usize) -> Result<PCal> {
     let bad =
-        |at: usize, what: &str| Error::format(path, format!("byte offset {}: pCAL {what}", offset + at));
+        |at: usize, what: &str| Error::malformed(path, format!("byte offset {}: pCAL {what}", offset + at));
     let nul = d.iter().position(|&c| c == 0).ok_or_else(|| bad(0, "keyword is not terminated"))?;
     let name: String = d[..nul].iter().map(|&c| c as char).collect();
     let f = nul + 1;
@@ -98,7 +99,7 @@ pub fn decode(path: &Path, bytes: &[u8], explicit_scale: bool) -> Result<ScanRaw
         (None, _) => {}
         (Some(c), false) => {
             let SampleKind::Counts { bits } = raw.kind else {
-                return Err(Error::format(path, "pCAL on a non-integer image"));
+                return Err(Error::unsupported(path, "pCAL on a non-integer image"));
             };
             if c.equation != 0 || c.params.len() != 2 {
                 return Err(Error::param(
@@ -111,7 +112,7 @@ pub fn decode(path: &Path, bytes: &[u8], explicit_scale: bool) -> Result<ScanRaw
                 ));
             }
             let s = scan_length_unit(&c.unit).ok_or_else(|| {
-                Error::format(
+                Error::malformed(
                     path,
                     format!("byte offset {}: pCAL unit '{}' is not a length unit", c.offset, c.unit),
                 )
@@ -125,12 +126,12 @@ pub fn decode(path: &Path, bytes: &[u8], explicit_scale: bool) -> Result<ScanRaw
             // x0 and x1 are i32: their difference is taken in f64, where it cannot overflow.
             let (x0, x1) = (f64::from(c.x0), f64::from(c.x1));
             if x1 == x0 {
-                return Err(Error::format(path, format!("byte offset {}: pCAL x0 = x1", c.offset)));
+                return Err(Error::malformed(path, format!("byte offset {}: pCAL x0 = x1", c.offset)));
             }
             // z = z0 + per_count * stored count.
             let (z0, per_count) = if gwyddion {
                 if (x0, x1) != (0.0, full) {
-                    return Err(Error::format(
+                    return Err(Error::malformed(
                         path,
                         format!(
                             "byte offset {}: pCAL x0 = {}, x1 = {} in a file written by Gwyddion, which writes 0 and {full} for {bits}-bit samples",

@@ -104,8 +104,9 @@ impl<'a> Bin<'a> {
     pub fn take(&self, off: usize, len: usize, what: &str) -> Result<&'a [u8]> {
         match off.checked_add(len) {
             Some(end) if end <= self.bytes.len() => Ok(&self.bytes[off..end]),
-            _ => Err(Error::format(
+            _ => Err(Error::truncated(
                 self.path,
+                self.bytes.len() as u64,
                 format!(
                     "truncated at byte offset {}: {what} needs {len} bytes from offset {off}",
                     self.bytes.len()
@@ -151,9 +152,17 @@ impl<'a> Bin<'a> {
     pub fn text(&self, off: usize, len: usize, what: &str) -> Result<String> {
         Ok(decode_text(self.take(off, len, what)?))
     }
-    /// An error about the field at `off`.
+    /// A malformed field at `off`.
     pub fn bad(&self, off: usize, what: impl std::fmt::Display) -> Error {
-        Error::format(self.path, format!("byte offset {off}: {what}"))
+        Error::malformed(self.path, format!("byte offset {off}: {what}")).at(off as u64)
+    }
+    /// A wrong magic number or identifier at `off`: not a file of this format.
+    pub fn signature(&self, off: usize, what: impl std::fmt::Display) -> Error {
+        Error::signature(self.path, format!("byte offset {off}: {what}")).at(off as u64)
+    }
+    /// A valid file, but a version or layout (named at `off`) this reader does not decode.
+    pub fn unsupported(&self, off: usize, what: impl std::fmt::Display) -> Error {
+        Error::unsupported(self.path, format!("byte offset {off}: {what}")).at(off as u64)
     }
 }
 
@@ -182,17 +191,17 @@ pub(crate) fn scan_length_unit(text: &str) -> Option<f64> {
 /// A row-major `rows x cols` array from `data`, or an error naming the file.
 pub(crate) fn shape(path: &Path, rows: usize, cols: usize, data: Vec<f64>) -> Result<ndarray::Array2<f64>> {
     if rows == 0 || cols == 0 {
-        return Err(Error::format(path, format!("the map is empty ({cols} x {rows} points)")));
+        return Err(Error::malformed(path, format!("the map is empty ({cols} x {rows} points)")));
     }
     ndarray::Array2::from_shape_vec((rows, cols), data)
-        .map_err(|e| Error::format(path, format!("cannot form a {rows} x {cols} map: {e}")))
+        .map_err(|e| Error::malformed(path, format!("cannot form a {rows} x {cols} map: {e}")))
 }
 
 /// The number of bytes of `rows * cols` samples of `size` bytes, refusing overflow and maps
 /// above 2^28 samples (a 16384 x 16384 scan is the largest the instruments write).
 pub(crate) fn data_len(path: &Path, rows: usize, cols: usize, size: usize) -> Result<usize> {
     let n = rows.checked_mul(cols).filter(|&n| n <= 1 << 28).ok_or_else(|| {
-        Error::format(path, format!("{cols} x {rows} points is beyond any profilometer scan (limit 2^28)"))
+        Error::malformed(path, format!("{cols} x {rows} points is beyond any profilometer scan (limit 2^28)"))
     })?;
     Ok(n * size)
 }

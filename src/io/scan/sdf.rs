@@ -41,12 +41,12 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     match bytes.first() {
         Some(b'a') => {
             let text = std::str::from_utf8(bytes).map_err(|e| {
-                Error::format(path, format!("byte offset {}: ASCII SDF is not text", e.valid_up_to()))
+                Error::malformed(path, format!("byte offset {}: ASCII SDF is not text", e.valid_up_to()))
             })?;
             decode_ascii(path, text)
         }
         Some(b'b') => decode_binary(path, bytes),
-        _ => Err(Error::format(path, "not an SDF file: the version string must start with 'a' or 'b'")),
+        _ => Err(Error::signature(path, "not an SDF file: the version string must start with 'a' or 'b'")),
     }
 }
 
@@ -61,10 +61,13 @@ fn finish(
 ) -> Result<ScanRaw> {
     let [xs, ys, zs] = scales;
     if !(xs.is_finite() && xs > 0.0 && ys.is_finite() && ys > 0.0) {
-        return Err(Error::format(path, format!("Xscale = {xs}, Yscale = {ys}: the pitch must be positive")));
+        return Err(Error::malformed(
+            path,
+            format!("Xscale = {xs}, Yscale = {ys}: the pitch must be positive"),
+        ));
     }
     if !(zs.is_finite() && zs != 0.0) {
-        return Err(Error::format(path, format!("Zscale = {zs}: must be finite and non-zero")));
+        return Err(Error::malformed(path, format!("Zscale = {zs}: must be finite and non-zero")));
     }
     let values = shape(path, yres, xres, raw.into_iter().map(|v| v * zs).collect())?;
     let raw = RawMap {
@@ -83,7 +86,7 @@ pub fn decode_ascii(path: &Path, text: &str) -> Result<ScanRaw> {
     let mut lines = text.lines().enumerate();
     let version = lines.next().map(|(_, l)| l.trim()).unwrap_or_default();
     if !(version.starts_with("aBCR") || version.starts_with("aISO")) {
-        return Err(Error::format(
+        return Err(Error::signature(
             path,
             format!("line 1: '{version}' is not an ASCII SDF version (aBCR/aISO)"),
         ));
@@ -101,9 +104,9 @@ pub fn decode_ascii(path: &Path, text: &str) -> Result<ScanRaw> {
         }
         let (k, v) = t
             .split_once('=')
-            .ok_or_else(|| Error::format(path, format!("line {}: '{t}' is not 'Key = Value'", n + 1)))?;
+            .ok_or_else(|| Error::malformed(path, format!("line {}: '{t}' is not 'Key = Value'", n + 1)))?;
         if metadata.iter().any(|(key, _)| key == k.trim()) {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!("line {}: header key '{}' is given twice", n + 1, k.trim()),
             ));
@@ -111,20 +114,20 @@ pub fn decode_ascii(path: &Path, text: &str) -> Result<ScanRaw> {
         metadata.push((k.trim().to_string(), v.trim().to_string()));
     }
     if !closed {
-        return Err(Error::format(path, "the header is not closed by a '*' line"));
+        return Err(Error::malformed(path, "the header is not closed by a '*' line"));
     }
     let get = |k: &str| metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.as_str());
-    let need = |k: &str| get(k).ok_or_else(|| Error::format(path, format!("header lacks '{k}'")));
+    let need = |k: &str| get(k).ok_or_else(|| Error::malformed(path, format!("header lacks '{k}'")));
     let count = |k: &str| -> Result<usize> {
         let v = need(k)?;
         v.parse::<usize>()
             .ok()
             .filter(|&n| n > 0)
-            .ok_or_else(|| Error::format(path, format!("header '{k} = {v}' is not a positive integer")))
+            .ok_or_else(|| Error::malformed(path, format!("header '{k} = {v}' is not a positive integer")))
     };
     let float = |k: &str| -> Result<f64> {
         let v = need(k)?;
-        v.parse::<f64>().map_err(|_| Error::format(path, format!("header '{k} = {v}' is not a number")))
+        v.parse::<f64>().map_err(|_| Error::malformed(path, format!("header '{k} = {v}' is not a number")))
     };
     let (xres, yres) = (count("NumPoints")?, count("NumProfiles")?);
     let scales = [float("Xscale")?, float("Yscale")?, float("Zscale")?];
@@ -140,7 +143,7 @@ pub fn decode_ascii(path: &Path, text: &str) -> Result<ScanRaw> {
                 break 'lines;
             }
             if data.len() == n {
-                return Err(Error::format(
+                return Err(Error::malformed(
                     path,
                     format!(
                         "line {}: more than NumPoints x NumProfiles = {n} values before the closing '*'",
@@ -152,14 +155,14 @@ pub fn decode_ascii(path: &Path, text: &str) -> Result<ScanRaw> {
                 f64::NAN
             } else {
                 tok.parse::<f64>().map_err(|_| {
-                    Error::format(path, format!("line {}: '{tok}' is neither a number nor BAD", ln + 1))
+                    Error::malformed(path, format!("line {}: '{tok}' is neither a number nor BAD", ln + 1))
                 })?
             };
             data.push(v);
         }
     }
     if data.len() != n {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             format!("holds {} values, NumPoints x NumProfiles = {xres} x {yres} = {n} expected", data.len()),
         ));
@@ -174,7 +177,7 @@ pub fn decode_binary(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let b = Bin::new(path, bytes);
     let version = b.text(0, 8, "the version string")?;
     if !(version.starts_with("bBCR") || version.starts_with("bISO")) {
-        return Err(b.bad(0, format!("'{version}' is not a binary SDF version (bBCR/bISO)")));
+        return Err(b.signature(0, format!("'{version}' is not a binary SDF version (bBCR/bISO)")));
     }
     // Try both layouts of NumPoints/NumProfiles (u16: 81-byte header; u32: 85-byte header).
     let mut candidates = Vec::new();
@@ -212,7 +215,9 @@ pub fn decode_binary(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let d = hsize - 3;
     let (compression, dtype, check) = (bytes[d], bytes[d + 1], bytes[d + 2]);
     if compression != 0 {
-        return Err(b.bad(d, format!("Compression = {compression}: only uncompressed data is supported")));
+        return Err(
+            b.unsupported(d, format!("Compression = {compression}: only uncompressed data is supported"))
+        );
     }
     let size = type_size(dtype).ok_or_else(|| b.bad(d + 1, format!("DataType {dtype} is not 0..7")))?;
     let data = b.take(hsize, xres * yres * size, "the data")?;

@@ -38,7 +38,7 @@ pub const HEADER: usize = 512;
 pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let b = Bin::new(path, bytes);
     if b.take(0, 12, "the signature")? != b"DIGITAL SURF" {
-        return Err(b.bad(0, "not a Digital Surf file: the signature is not 'DIGITAL SURF'"));
+        return Err(b.signature(0, "not a Digital Surf file: the signature is not 'DIGITAL SURF'"));
     }
     b.take(0, HEADER, "the 512-byte header")?;
     let nobjects = b.u16le(14, "the object count")?;

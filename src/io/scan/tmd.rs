@@ -39,13 +39,13 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let b = Bin::new(path, bytes);
     let n = bytes.len().min(FAMILY.len());
     if bytes[..n] != FAMILY[..n] {
-        return Err(b.bad(0, "not a TrueMap file: it does not start with 'Binary TrueMap Data File'"));
+        return Err(b.signature(0, "not a TrueMap file: it does not start with 'Binary TrueMap Data File'"));
     }
     let n = bytes.len().min(MAGIC.len());
     if bytes[..n] != MAGIC[..n] {
         let line = bytes.split(|&c| c == b'\r' || c == b'\n' || c == 0).next().unwrap_or(&[]);
         let line = decode_text(&line[..line.len().min(64)]);
-        return Err(b.bad(
+        return Err(b.unsupported(
             FAMILY.len(),
             format!("'{line}' is not a version 2.0 TrueMap file ('Binary TrueMap Data File v2.0' CR LF NUL)"),
         ));

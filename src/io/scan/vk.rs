@@ -93,7 +93,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     }
     if !bytes.starts_with(b"VK3_") && !bytes.starts_with(MAGIC) {
         return Err(Bin::new(path, bytes)
-            .bad(0, "not a Keyence VK file: it does not start with 'VK4_', 'VK6' or 'VK7'"));
+            .signature(0, "not a Keyence VK file: it does not start with 'VK4_', 'VK6' or 'VK7'"));
     }
     decode_vk4(path, bytes)
 }
@@ -125,7 +125,7 @@ fn decode_container(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let at = start as u64 + f.data_start();
     let limit = (zip_bytes.len() as u64).saturating_mul(DEFLATE_RATIO).min(ENTRY_LIMIT);
     if f.size() > limit {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             format!(
                 "byte offset {at}: zip entry '{VK4_ENTRY}' claims {} bytes, more than the {}-byte \
@@ -138,11 +138,16 @@ fn decode_container(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     // Grown as the entry decompresses, never reserved from the size the archive claims.
     let mut inner = Vec::new();
     (&mut f).take(limit).read_to_end(&mut inner).map_err(|e| {
-        Error::format(path, format!("byte offset {at}: zip entry '{VK4_ENTRY}' is corrupt: {e}"))
+        Error::malformed(path, format!("byte offset {at}: zip entry '{VK4_ENTRY}' is corrupt: {e}"))
     })?;
     let inner_path = PathBuf::from(format!("{} (zip entry {VK4_ENTRY})", path.display()));
     let mut sr = decode_vk4(&inner_path, &inner).map_err(|e| match e {
-        Error::Format { what, .. } => Error::format(path, format!("zip entry '{VK4_ENTRY}': {what}")),
+        Error::Format { offset, cause, what, .. } => Error::Format {
+            path: path.to_path_buf(),
+            offset,
+            cause,
+            what: format!("zip entry '{VK4_ENTRY}': {what}"),
+        },
         other => other,
     })?;
     sr.raw.metadata.insert(0, ("container".into(), format!("{kind} (zip entry {VK4_ENTRY})")));
@@ -167,9 +172,11 @@ fn decode_vk4(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let n = bytes.len().min(MAGIC.len());
     if bytes[..n] != MAGIC[..n] {
         if bytes.starts_with(b"VK3_") {
-            return Err(b.bad(0, "a Keyence VK3 file (the older layout) is not read; VK4, VK6 and VK7 are"));
+            return Err(
+                b.unsupported(0, "a Keyence VK3 file (the older layout) is not read; VK4, VK6 and VK7 are")
+            );
         }
-        return Err(b.bad(0, "not a Keyence VK4 file: it does not start with 'VK4_'"));
+        return Err(b.signature(0, "not a Keyence VK4 file: it does not start with 'VK4_'"));
     }
     let head = b.take(0, HEADER, "the 12-byte header")?;
     let kind = u32::from_le_bytes([head[8], head[9], head[10], head[11]]);

@@ -37,11 +37,11 @@ pub(crate) fn entry(
     let mut f = match zip.by_name(name) {
         Ok(f) => f,
         Err(zip::result::ZipError::FileNotFound) => return Ok(None),
-        Err(e) => return Err(Error::format(path, format!("zip entry '{name}': {e}"))),
+        Err(e) => return Err(Error::malformed(path, format!("zip entry '{name}': {e}"))),
     };
     let at = f.data_start();
     if f.size() as usize > limit {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             format!(
                 "byte offset {at}: zip entry '{name}' holds {} bytes, at most {limit} expected",
@@ -50,12 +50,11 @@ pub(crate) fn entry(
         ));
     }
     let mut out = Vec::with_capacity(f.size() as usize);
-    (&mut f)
-        .take(limit as u64 + 1)
-        .read_to_end(&mut out)
-        .map_err(|e| Error::format(path, format!("byte offset {at}: zip entry '{name}' is corrupt: {e}")))?;
+    (&mut f).take(limit as u64 + 1).read_to_end(&mut out).map_err(|e| {
+        Error::malformed(path, format!("byte offset {at}: zip entry '{name}' is corrupt: {e}"))
+    })?;
     if out.len() > limit {
-        return Err(Error::format(
+        return Err(Error::malformed(
             path,
             format!("byte offset {at}: zip entry '{name}' is larger than it says"),
         ));
@@ -66,13 +65,19 @@ pub(crate) fn entry(
 /// Decodes an `.x3p` file's bytes (see the module docs).
 pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let mut zip = zip::ZipArchive::new(Cursor::new(bytes)).map_err(|e| {
-        Error::format(path, format!("byte offset {}: not a complete zip archive: {e}", bytes.len()))
+        Error::truncated(
+            path,
+            bytes.len() as u64,
+            format!("byte offset {}: not a complete zip archive: {e}", bytes.len()),
+        )
     })?;
     let xml_bytes = entry(path, &mut zip, "main.xml", 1 << 24)?
-        .ok_or_else(|| Error::format(path, "the archive holds no main.xml"))?;
-    let xml = std::str::from_utf8(&xml_bytes)
-        .map_err(|e| Error::format(path, format!("main.xml: byte offset {}: not UTF-8", e.valid_up_to())))?;
-    let doc = roxmltree::Document::parse(xml).map_err(|e| Error::format(path, format!("main.xml: {e}")))?;
+        .ok_or_else(|| Error::signature(path, "the archive holds no main.xml"))?;
+    let xml = std::str::from_utf8(&xml_bytes).map_err(|e| {
+        Error::malformed(path, format!("main.xml: byte offset {}: not UTF-8", e.valid_up_to()))
+    })?;
+    let doc =
+        roxmltree::Document::parse(xml).map_err(|e| Error::malformed(path, format!("main.xml: {e}")))?;
     let main = MainXml { path, doc };
     let metadata = main.metadata();
     let axes = main.axes()?;
@@ -129,7 +134,7 @@ impl<'input> MainXml<'_, 'input> {
 
     fn need(&self, route: &[&str]) -> Result<String> {
         self.text(route)
-            .ok_or_else(|| Error::format(self.path, format!("main.xml lacks {}", route.join("/"))))
+            .ok_or_else(|| Error::malformed(self.path, format!("main.xml lacks {}", route.join("/"))))
     }
 
     /// A finite number, or `default` when the element is absent.
@@ -137,10 +142,10 @@ impl<'input> MainXml<'_, 'input> {
         let path = self.path;
         match (self.text(route), default) {
             (Some(t), _) => t.parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| {
-                Error::format(path, format!("main.xml {} = '{t}' is not a finite number", route.join("/")))
+                Error::malformed(path, format!("main.xml {} = '{t}' is not a finite number", route.join("/")))
             }),
             (None, Some(d)) => Ok(d),
-            (None, None) => Err(Error::format(path, format!("main.xml lacks {}", route.join("/")))),
+            (None, None) => Err(Error::malformed(path, format!("main.xml lacks {}", route.join("/")))),
         }
     }
 
@@ -148,7 +153,7 @@ impl<'input> MainXml<'_, 'input> {
     fn count(&self, route: &[&str]) -> Result<usize> {
         let t = self.need(route)?;
         t.parse::<usize>().ok().filter(|&n| n > 0).ok_or_else(|| {
-            Error::format(
+            Error::malformed(
                 self.path,
                 format!("main.xml {} = '{t}' is not a positive integer", route.join("/")),
             )
@@ -181,7 +186,7 @@ impl<'input> MainXml<'_, 'input> {
         for ax in ["CX", "CY"] {
             let t = self.need(&["Record1", "Axes", ax, "AxisType"])?;
             if t != "I" {
-                return Err(Error::format(
+                return Err(Error::unsupported(
                     path,
                     format!("axis {ax} has AxisType '{t}': only incremental (I) x and y axes are supported"),
                 ));
@@ -190,7 +195,7 @@ impl<'input> MainXml<'_, 'input> {
         let px = self.num(&["Record1", "Axes", "CX", "Increment"], None)?;
         let py = self.num(&["Record1", "Axes", "CY", "Increment"], None)?;
         if px <= 0.0 || py <= 0.0 {
-            return Err(Error::format(path, format!("x/y increments {px}, {py} must be positive")));
+            return Err(Error::malformed(path, format!("x/y increments {px}, {py} must be positive")));
         }
         let ox = self.num(&["Record1", "Axes", "CX", "Offset"], Some(0.0))?;
         let oy = self.num(&["Record1", "Axes", "CY", "Offset"], Some(0.0))?;
@@ -199,7 +204,7 @@ impl<'input> MainXml<'_, 'input> {
             "I" => 2,
             "L" | "F" => 4,
             "D" => 8,
-            _ => return Err(Error::format(path, format!("CZ DataType '{dt}' is not I, L, F or D"))),
+            _ => return Err(Error::unsupported(path, format!("CZ DataType '{dt}' is not I, L, F or D"))),
         };
         let zinc = self.num(&["Record1", "Axes", "CZ", "Increment"], Some(1.0))?;
         let zoff = self.num(&["Record1", "Axes", "CZ", "Offset"], Some(0.0))?;
@@ -209,7 +214,7 @@ impl<'input> MainXml<'_, 'input> {
         );
         let nz = self.count(&["Record3", "MatrixDimension", "SizeZ"])?;
         if nz != 1 {
-            return Err(Error::format(
+            return Err(Error::unsupported(
                 path,
                 format!("SizeZ = {nz}: only single-layer surfaces are supported"),
             ));
@@ -254,11 +259,11 @@ fn point_data(
     Ok(match main.text(&["Record3", "DataLink", "PointDataLink"]) {
         Some(link) => {
             let data = entry(path, zip, &link, nbytes)?.ok_or_else(|| {
-                Error::format(path, format!("main.xml links '{link}', which the archive lacks"))
+                Error::malformed(path, format!("main.xml links '{link}', which the archive lacks"))
             })?;
             if data.len() != nbytes {
-                return Err(Error::format(
-                    path,
+                return Err(Error::truncated(
+                    path, data.len() as u64,
                     format!(
                         "{link}: truncated at byte offset {} of the entry: {nx} x {ny} points of type {dt} need {nbytes} bytes",
                         data.len()
@@ -276,9 +281,9 @@ fn point_data(
             data.chunks_exact(size).map(decode_one).collect()
         }
         None => {
-            let list = main
-                .find(&["Record3", "DataList"])
-                .ok_or_else(|| Error::format(path, "main.xml has neither a PointDataLink nor a DataList"))?;
+            let list = main.find(&["Record3", "DataList"]).ok_or_else(|| {
+                Error::malformed(path, "main.xml has neither a PointDataLink nor a DataList")
+            })?;
             let mut v = Vec::with_capacity(nx * ny);
             for d in list.children().filter(|c| c.is_element() && c.tag_name().name() == "Datum") {
                 let t = d.text().map(str::trim).unwrap_or("");
@@ -286,11 +291,11 @@ fn point_data(
                     f64::NAN
                 } else {
                     t.parse::<f64>()
-                        .map_err(|_| Error::format(path, format!("DataList: '{t}' is not a number")))?
+                        .map_err(|_| Error::malformed(path, format!("DataList: '{t}' is not a number")))?
                 });
             }
             if v.len() != nx * ny {
-                return Err(Error::format(
+                return Err(Error::malformed(
                     path,
                     format!("DataList holds {} values, {nx} x {ny} expected", v.len()),
                 ));
@@ -314,10 +319,10 @@ fn mask_invalid_points(
     {
         let need = (nx * ny).div_ceil(8);
         let bits = entry(path, zip, &link, need)?.ok_or_else(|| {
-            Error::format(path, format!("main.xml links '{link}', which the archive lacks"))
+            Error::malformed(path, format!("main.xml links '{link}', which the archive lacks"))
         })?;
         if bits.len() != need {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!("{link}: {} bytes, {need} expected for {nx} x {ny} bits", bits.len()),
             ));

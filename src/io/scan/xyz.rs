@@ -47,7 +47,7 @@ pub fn parse(path: &Path, text: &str, unit: Option<f64>) -> Result<ScanRaw> {
         let cells: Vec<&str> =
             t.split(|c: char| c.is_whitespace() || c == ',' || c == ';').filter(|c| !c.is_empty()).collect();
         if cells.len() != 3 {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!("line {}: {} columns, x y z expected", n + 1, cells.len()),
             ));
@@ -55,17 +55,17 @@ pub fn parse(path: &Path, text: &str, unit: Option<f64>) -> Result<ScanRaw> {
         let mut p = [0.0f64; 3];
         for (k, c) in cells.iter().enumerate() {
             p[k] = c.parse().map_err(|_| {
-                Error::format(path, format!("line {}, column {}: '{c}' is not a number", n + 1, k + 1))
+                Error::malformed(path, format!("line {}, column {}: '{c}' is not a number", n + 1, k + 1))
             })?;
         }
         if !(p[0].is_finite() && p[1].is_finite()) {
-            return Err(Error::format(path, format!("line {}: x and y must be finite", n + 1)));
+            return Err(Error::malformed(path, format!("line {}: x and y must be finite", n + 1)));
         }
         pts.push(p);
         lines.push(n + 1);
     }
     if pts.is_empty() {
-        return Err(Error::format(path, "holds no points"));
+        return Err(Error::malformed(path, "holds no points"));
     }
     let file_unit = match metadata.iter().find(|(k, _)| k == "unit") {
         Some((_, u)) => Some(unit_from_text(path, "unit", u)?),
@@ -88,7 +88,7 @@ pub fn parse(path: &Path, text: &str, unit: Option<f64>) -> Result<ScanRaw> {
         let n = distinct(&v, 1e-6 * (hi - lo));
         let name = if k == 0 { "x" } else { "y" };
         if n < 2 {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!("all points share one {name} value: the {name} pitch cannot be derived"),
             ));
@@ -105,7 +105,7 @@ pub fn parse(path: &Path, text: &str, unit: Option<f64>) -> Result<ScanRaw> {
         let fi = (p[1] - y0) / py;
         let (j, i) = (fj.round(), fi.round());
         if (fj - j).abs() > 0.01 || (fi - i).abs() > 0.01 {
-            return Err(Error::format(
+            return Err(Error::malformed(
                 path,
                 format!(
                     "line {line}: ({}, {}) is off the regular grid (pitch {px:e} x {py:e}, origin {x0:e}, {y0:e})",
@@ -115,7 +115,7 @@ pub fn parse(path: &Path, text: &str, unit: Option<f64>) -> Result<ScanRaw> {
         }
         let (i, j) = (i as usize, j as usize);
         if seen[[i, j]] {
-            return Err(Error::format(path, format!("line {line}: grid node ({i}, {j}) is given twice")));
+            return Err(Error::malformed(path, format!("line {line}: grid node ({i}, {j}) is given twice")));
         }
         seen[[i, j]] = true;
         values[[i, j]] = p[2];

@@ -61,7 +61,7 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let b = Bin::new(path, bytes);
     b.take(0, 4, "the magic number")?;
     if !has_magic(bytes) {
-        return Err(b.bad(0, "not a MetroPro file: bad magic number"));
+        return Err(b.signature(0, "not a MetroPro file: bad magic number"));
     }
     let fmt = b.i16be(4, "header_format")?;
     let hsize = b.i32be(6, "header_size")?;

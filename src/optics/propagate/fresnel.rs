@@ -24,7 +24,7 @@ use rustfft::FftPlanner;
 use super::shared::{
     check_fresnel, check_lens_sampling, check_window, field_power, pupil_phase, SensorIntensity, Violation,
 };
-use crate::error::{Error, Result};
+use crate::error::{Condition, Error, Result};
 use crate::grid::Grid;
 use crate::optics::fft::{fft_freq, good_size, Plan2d};
 use crate::optics::system::{sinc, OpticalSystem};
@@ -136,9 +136,12 @@ pub(crate) fn two_step(
     let n = u0.dim().0;
     let m = system.samples();
     if m > w || !(w - n).is_multiple_of(2) || !(w - m).is_multiple_of(2) {
-        return Err(Error::Validity(format!(
-            "the sensor crop ({m} samples) does not fit centred in the {w}-sample propagation window"
-        )));
+        return Err(Error::validity(
+            Condition::Geometry,
+            format!(
+                "the sensor crop ({m} samples) does not fit centred in the {w}-sample propagation window"
+            ),
+        ));
     }
     let mut planner = FftPlanner::new();
     let plan = Plan2d::new(&mut planner, w);

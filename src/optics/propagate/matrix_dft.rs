@@ -26,7 +26,7 @@ use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 
 use super::shared::{check_fresnel, field_power, pupil_phase, Precision, SensorIntensity, Violation};
-use crate::error::{Error, Result};
+use crate::error::{Condition, Error, Result};
 use crate::grid::{Grid, Interpolation};
 use crate::optics::system::{nested_parity, nested_refinement, sinc, OpticalSystem};
 
@@ -172,7 +172,7 @@ pub fn transform<T: Real>(
 ) -> Result<Array2<f64>> {
     let m = system.abcd();
     if m.b.abs() < 1e-9 * system.focal_length {
-        return Err(Error::Validity("B = 0: the sensor images the DOE plane".into()));
+        return Err(Error::validity(Condition::Geometry, "B = 0: the sensor images the DOE plane"));
     }
     let n = u1.dim().0;
     let c = (n as f64 - 1.0) * 0.5;

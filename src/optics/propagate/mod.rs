@@ -28,7 +28,7 @@ use rayon::prelude::*;
 
 use super::psf::{Channel, Psf};
 use super::system::{OpticalSystem, PixelRule};
-use crate::error::{Error, Result};
+use crate::error::{Condition, Error, Result};
 use crate::grid::{Grid, Unit};
 pub use shared::{field_power, Method, Options, Precision, SensorIntensity, Violation};
 
@@ -54,10 +54,13 @@ pub fn simulate(system: &OpticalSystem, doe: &Grid, method: Method, opts: &Optio
     let violations = check(method, system, doe)?;
     if !violations.is_empty() && !opts.allow_invalid {
         let list: Vec<String> = violations.iter().map(|v| v.to_string()).collect();
-        return Err(Error::Validity(format!(
-            "method {method} is not valid for this system (run with allow_invalid to force):\n  {}",
-            list.join("\n  ")
-        )));
+        return Err(Error::validity(
+            Condition::Propagation,
+            format!(
+                "method {method} is not valid for this system (run with allow_invalid to force):\n  {}",
+                list.join("\n  ")
+            ),
+        ));
     }
     if opts.precision == Precision::F32 && method != Method::MatrixDft {
         return Err(Error::param(

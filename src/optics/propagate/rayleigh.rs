@@ -26,7 +26,7 @@ use rustfft::num_complex::Complex64;
 use super::shared::{
     check_lens_sampling, content_bandwidth, field_power, pupil_phase, SensorIntensity, Violation,
 };
-use crate::error::{Error, Result};
+use crate::error::{Condition, Error, Result};
 use crate::grid::Grid;
 use crate::optics::fft::{good_size, Plan2d};
 use crate::optics::system::{OpticalSystem, PixelRule};
@@ -279,7 +279,7 @@ fn band_limited_intensity_with(
     let dxf = dx / r as f64;
     let alias = alias_amplitude(dxf, b2, dz.min(zs), wavelength);
     if alias > 1e-9 {
-        return Err(Error::Validity(format!(
+        return Err(Error::validity(Condition::Aliasing, format!(
             "the band-limited truth's lattice ({:.4} um) leaves a propagator replica of amplitude {alias:.1e}: \
              the distances ({:.4} and {:.4} mm) are too short",
             dxf * 1e6,
