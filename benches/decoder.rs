@@ -162,7 +162,7 @@ fn train_step_time(
     let xr: Vec<&Image<f32>> = xs.iter().collect();
     let tr: Vec<&Image<f32>> = ts.iter().collect();
     time(runs, || {
-        adam.step(&mut net, to_tensor(&xr, dev), to_tensor(&tr, dev), None).expect("finite loss");
+        adam.step(&mut net, to_tensor(&xr, dev), to_tensor(&tr, dev)).expect("finite loss");
         dev.sync().expect("the step ran");
     })
 }

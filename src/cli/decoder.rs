@@ -118,11 +118,6 @@ pub struct FinetuneArgs {
     /// paper's real captures).
     #[arg(long, default_value_t = doefab::decoder::finetune::BLEND)]
     pub blend: f64,
-    /// Weight of the colour anchor: the start decoder's channel means on each training batch,
-    /// over the pixels the capture does not clip, as a penalty on the fine-tuned decoder's
-    /// (0 = none).
-    #[arg(long, default_value_t = doefab::decoder::finetune::COLOUR_ANCHOR)]
-    pub colour_anchor: f64,
     /// Read noise of the simulated captures, fraction of full scale (default: as measured
     /// on the paper's captures; the paper trained with 0.02).
     #[arg(long, default_value_t = doefab::decoder::finetune::READ_NOISE)]
@@ -208,11 +203,6 @@ pub struct BenchDecoderArgs {
     pub channel_clipping: Vec<f64>,
     #[command(flatten)]
     pub halo: HaloArgs,
-    /// Weight of the colour anchor: the start decoder's channel means on each training batch,
-    /// over the pixels the capture does not clip, as a penalty on the fine-tuned decoder's
-    /// (0 = none).
-    #[arg(long, default_value_t = doefab::decoder::finetune::COLOUR_ANCHOR)]
-    pub colour_anchor: f64,
     /// Tile side of the registration, pixels.
     #[arg(long, default_value_t = 48)]
     pub tile: usize,
@@ -279,7 +269,6 @@ pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
         patience,
         negative_penalty,
         blend,
-        colour_anchor,
         read_noise,
         shot_noise,
         bits,
@@ -313,7 +302,6 @@ pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
             patience: *patience,
             negative_penalty: *negative_penalty,
             blend: *blend,
-            colour_anchor: *colour_anchor,
             noise_sigma: *read_noise,
             shot_noise: *shot_noise,
             bits: (*bits > 0).then_some(*bits),
@@ -377,7 +365,6 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         procedural,
         channel_clipping,
         halo,
-        colour_anchor,
         tile,
         output,
     } = a;
@@ -398,7 +385,6 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         tile: *tile,
         channel_clipping: [channel_clipping[0], channel_clipping[1], channel_clipping[2]],
         halo: halo.halo(),
-        colour_anchor: *colour_anchor,
     };
     let pb = progress(cli, 0);
     let outcome = bench_decoder(&opts, output, &mut report_to(&pb))?;

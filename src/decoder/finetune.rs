@@ -166,14 +166,6 @@ pub struct FinetuneConfig {
     /// [`MeasurementModel::halo`]); `None`: none.
     #[serde(default)]
     pub halo: Option<Halo>,
-    /// Weight `lambda` of the colour anchor added to the training loss: the start decoder's
-    /// colour on the same batch, as a penalty on each channel's mean over the pixels the capture
-    /// does not clip (see [`colour_anchor_loss`]; 0 = none). Learning without Forgetting (Li &
-    /// Hoiem 2016) with the start decoder as the teacher, on the one statistic the real captures
-    /// score that the simulation misses: fine-tuning shifts the colour of the unsaturated parts
-    /// of real captures while its simulated loss falls (README, fine-tuning table).
-    #[serde(default)]
-    pub colour_anchor: f64,
 }
 
 fn one() -> f64 {
@@ -209,7 +201,6 @@ impl Default for FinetuneConfig {
             blend: 1.0,
             channel_clipping: full_scale(),
             halo: None,
-            colour_anchor: 0.0,
         }
     }
 }
@@ -258,8 +249,6 @@ pub const HALO: Halo = Halo { fraction: 0.05, radius_px: 64.0 };
 pub const NEGATIVE_PENALTY: f64 = 10.0;
 /// `doefab finetune`'s weight-space blend (0.5 measured best on the paper's real captures).
 pub const BLEND: f64 = 0.5;
-/// `doefab finetune`'s colour anchor weight (see [`FinetuneConfig::colour_anchor`]).
-pub const COLOUR_ANCHOR: f64 = 0.0;
 
 impl FinetuneConfig {
     /// `doefab finetune`'s settings, measured on the paper's real captures (README): the
@@ -280,7 +269,6 @@ impl FinetuneConfig {
             blend: BLEND,
             channel_clipping: CHANNEL_CLIPPING,
             halo: Some(HALO),
-            colour_anchor: COLOUR_ANCHOR,
             ..FinetuneConfig::default()
         }
     }
@@ -307,9 +295,6 @@ impl FinetuneConfig {
         }
         if !(self.negative_penalty >= 0.0 && self.negative_penalty.is_finite()) {
             return bad("negative_penalty", format!("{} must be finite and >= 0", self.negative_penalty));
-        }
-        if !(self.colour_anchor >= 0.0 && self.colour_anchor.is_finite()) {
-            return bad("colour_anchor", format!("{} must be finite and >= 0", self.colour_anchor));
         }
         if !(self.blend > 0.0 && self.blend <= 1.0) {
             return bad("blend", format!("{} must lie in (0, 1]", self.blend));
@@ -392,10 +377,6 @@ pub struct Adam {
     updates: Vec<bool>,
     /// Weight of the penalty on negative outputs (see [`FinetuneConfig::negative_penalty`]).
     pub negative_penalty: f64,
-    /// Weight of the colour anchor and where each channel clips (see
-    /// [`FinetuneConfig::colour_anchor`]).
-    pub colour_anchor: f64,
-    channel_clipping: [f64; 3],
     /// First and second moments per checkpoint entry (`None` for frozen or not yet updated).
     m: Vec<Option<Tensor<1>>>,
     v: Vec<Option<Tensor<1>>>,
@@ -413,24 +394,15 @@ impl Adam {
             t: 0,
             updates: net.names().iter().map(|n| cfg.updates(n)).collect(),
             negative_penalty: cfg.negative_penalty,
-            colour_anchor: cfg.colour_anchor,
-            channel_clipping: cfg.channel_clipping,
             m: vec![None; n],
             v: vec![None; n],
         }
     }
 
     /// Forward, the paper's loss, backward and one update of `net` for the NCHW batch `x`
-    /// with targets `target` (on the network's device). `anchor` is the start decoder's
-    /// output on `x`, needed when the colour anchor is weighted. Returns the loss before the
-    /// update; a non-finite loss is an error and leaves `net` and the moments unchanged.
-    pub fn step(
-        &mut self,
-        net: &mut UNet,
-        x: Tensor<4>,
-        target: Tensor<4>,
-        anchor: Option<Tensor<4>>,
-    ) -> Result<f64> {
+    /// with targets `target` (on the network's device). Returns the loss before the update;
+    /// a non-finite loss is an error and leaves `net` and the moments unchanged.
+    pub fn step(&mut self, net: &mut UNet, x: Tensor<4>, target: Tensor<4>) -> Result<f64> {
         let leaves: Vec<Tensor<1>> = self
             .updates
             .iter()
@@ -446,19 +418,11 @@ impl Adam {
             .collect();
         let mut tracked = net.clone();
         tracked.set_params(leaves.clone());
-        let y_hat = tracked.forward(x.clone().autodiff())?;
+        let y_hat = tracked.forward(x.autodiff())?;
         let mut loss = gamma_loss(y_hat.clone(), target.autodiff());
         if self.negative_penalty > 0.0 {
-            let neg = y_hat.clone().clamp_max(0.0);
+            let neg = y_hat.clamp_max(0.0);
             loss = loss + (neg.clone() * neg).mean() * self.negative_penalty as f32;
-        }
-        if self.colour_anchor > 0.0 {
-            let Some(anchor) = anchor else {
-                return Err(Error::param("colour_anchor", "is weighted but the step got no start output"));
-            };
-            let unclipped = unclipped_mask(&x, &self.channel_clipping).autodiff();
-            let term = colour_anchor_loss(y_hat, anchor.autodiff(), unclipped);
-            loss = loss + term * self.colour_anchor as f32;
         }
         let value = tensor_values(loss.clone().inner())?[0] as f64;
         if !value.is_finite() {
@@ -490,39 +454,6 @@ impl Adam {
         self.t += 1;
         Ok(value)
     }
-}
-
-/// 1 where no channel of the NCHW capture `x` is within 2 % of its clipping level, else 0
-/// (`(N, 1, H, W)`).
-pub fn unclipped_mask(x: &Tensor<4>, channel_clipping: &[f64; 3]) -> Tensor<4> {
-    let [n, _, h, w] = x.dims();
-    let mut mask = Tensor::<4>::ones([n, 1, h, w], &x.device());
-    for (c, clip) in channel_clipping.iter().enumerate() {
-        let below = x.clone().narrow(1, c, 1).lower_elem(0.98 * clip).float();
-        mask = mask * below;
-    }
-    mask
-}
-
-/// The colour anchor of [`FinetuneConfig::colour_anchor`]: with `m_bc` the mean of channel `c`
-/// of `y_hat` over image `b`'s pixels where `mask` is 1, `a_bc` the same of the start decoder's
-/// output `anchor`, `mean_b = (a_b1 + a_b2 + a_b3) / 3`,
-///
-/// `C = mean_bc(((m_bc - a_bc) / mean_b)^2)`,
-///
-/// the squared relative error of the channel means against the start's, which is what the
-/// evaluation's channel balance reads on real captures (means over unsaturated pixels). An
-/// image without unclipped pixels adds nothing.
-pub fn colour_anchor_loss(y_hat: Tensor<4>, anchor: Tensor<4>, mask: Tensor<4>) -> Tensor<1> {
-    let count = mask.clone().sum_dim(3).sum_dim(2);
-    let weight = count.clone().greater_elem(0.0).float();
-    let count = count.clamp_min(1.0);
-    let means = |t: Tensor<4>| (t * mask.clone()).sum_dim(3).sum_dim(2) / count.clone();
-    let m = means(y_hat);
-    let a = means(anchor);
-    let grey = a.clone().mean_dim(1).abs().clamp_min(1e-3);
-    let d = (m - a) / grey * weight;
-    (d.clone() * d).mean()
 }
 
 /// `count` simulated training captures of `crop x crop`, their scenes (the crop plus `conv`'s
@@ -821,15 +752,8 @@ impl<'a> Trainer<'a> {
         let mut rng = self.rng.clone();
         let batch = self.simulate_batch(self.source, &mut rng, self.cfg.batch)?;
         let (x, target) = self.tensors(&batch, &self.net.device().clone());
-        let anchor = if self.cfg.colour_anchor > 0.0 {
-            let mut start = self.net.clone();
-            start.set_params(self.start.clone());
-            Some(start.forward(x.clone())?)
-        } else {
-            None
-        };
         self.adam.lr = self.cfg.lr_at(self.step + 1);
-        let value = self.adam.step(&mut self.net, x, target, anchor).map_err(|e| match e {
+        let value = self.adam.step(&mut self.net, x, target).map_err(|e| match e {
             Error::Data(m) => Error::Data(format!("{m} at step {}; stopped", self.step + 1)),
             other => other,
         })?;

@@ -304,8 +304,6 @@ pub struct DecoderBenchOptions {
     pub channel_clipping: [f64; 3],
     /// The fine-tuning's halo (see [`FinetuneConfig::halo`]).
     pub halo: Option<crate::decoder::measurement::Halo>,
-    /// The fine-tuning's colour anchor (see [`FinetuneConfig::colour_anchor`]).
-    pub colour_anchor: f64,
 }
 
 /// The benchmark's results (serialised as they are) and the warnings about its scenes.
@@ -367,7 +365,6 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
             seed: o.seed,
             channel_clipping: o.channel_clipping,
             halo: o.halo,
-            colour_anchor: o.colour_anchor,
             ..FinetuneConfig::recommended()
         },
         evaluate_every,

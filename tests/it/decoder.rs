@@ -415,9 +415,9 @@ fn an_adam_step_lowers_the_loss_on_its_batch() {
     let t = [rgb(3, 32, 32).mapv(|v| v * 2.0), rgb(4, 32, 32)];
     let batch =
         |a: &[Array3<f32>; 2]| to_tensor(&[&Image::new(a[0].clone()), &Image::new(a[1].clone())], &dev);
-    let l0 = adam.step(&mut net, batch(&x), batch(&t), None).unwrap();
-    let l1 = adam.step(&mut net, batch(&x), batch(&t), None).unwrap();
-    let l2 = adam.step(&mut net, batch(&x), batch(&t), None).unwrap();
+    let l0 = adam.step(&mut net, batch(&x), batch(&t)).unwrap();
+    let l1 = adam.step(&mut net, batch(&x), batch(&t)).unwrap();
+    let l2 = adam.step(&mut net, batch(&x), batch(&t)).unwrap();
     eprintln!("loss {l0:.6} -> {l1:.6} -> {l2:.6}");
     assert!(l1 < l0 && l2 < l1, "{l0} {l1} {l2}");
     // The loss itself, against its formula evaluated here.
@@ -952,7 +952,7 @@ fn the_negative_penalty_lifts_negative_outputs() {
         let mut adam =
             Adam::new(&net, &FinetuneConfig { lr: 1e-3, negative_penalty: mu, ..FinetuneConfig::default() });
         for _ in 0..3 {
-            adam.step(&mut net, batch(&x), batch(&t), None).unwrap();
+            adam.step(&mut net, batch(&x), batch(&t)).unwrap();
         }
         let y = doefab::decoder::infer(&net, &Image::new(x[0].clone())).unwrap();
         y.iter().map(|&v| (v.min(0.0) as f64).powi(2)).sum::<f64>() / y.len() as f64
@@ -961,79 +961,6 @@ fn the_negative_penalty_lifts_negative_outputs() {
     eprintln!("mean min(y, 0)^2: {without:.3e} without the penalty, {with:.3e} with it");
     assert!(without > 0.0, "the random start should have negative outputs");
     assert!(with < 0.5 * without, "{with} vs {without}");
-}
-
-/// The colour anchor against its equation: outputs whose channel means are (1.1, 1, 0.8) times
-/// the start's grey (1, 1, 1) give `((0.1^2 + 0 + 0.2^2) / 3)`; pixels the mask leaves out do
-/// not count; an image with no unclipped pixel adds nothing. The mask leaves out a pixel where
-/// any channel lies within 2 % of its clipping level.
-#[test]
-fn the_colour_anchor_is_the_squared_relative_error_of_unclipped_channel_means() {
-    use burn::tensor::{Tensor, TensorData};
-    use doefab::decoder::finetune::{colour_anchor_loss, unclipped_mask};
-    use doefab::decoder::unet::tensor_values;
-    let dev = device(false).unwrap();
-    let nchw =
-        |v: Vec<f32>, n: usize, c: usize| Tensor::<4>::from_data(TensorData::new(v, [n, c, 2, 2]), &dev);
-    // Two images of 2 x 2; the last pixel of each is clipped (far off in the output).
-    let mut y = Vec::new();
-    for gain in [1.1f32, 1.0, 0.8] {
-        y.extend([gain, gain, gain, 50.0]);
-    }
-    let y = nchw([y.clone(), y].concat(), 2, 3);
-    let anchor = nchw(vec![1.0; 24], 2, 3);
-    let mut x = vec![0.5f32; 24];
-    x[3] = 1.0; // image 0, red, last pixel at full scale
-    x[12 + 4 + 3] = 0.9; // image 1, green, last pixel within 2 % of green's 0.906
-    let mask = unclipped_mask(&nchw(x, 2, 3), &[1.0, 231.0 / 255.0, 1.0]);
-    let m = tensor_values(mask.clone()).unwrap();
-    assert_eq!(m, vec![1.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 0.0]);
-    let c = tensor_values(colour_anchor_loss(y.clone(), anchor.clone(), mask)).unwrap()[0];
-    let expected = (0.1f32 * 0.1 + 0.2 * 0.2) / 3.0;
-    assert!((c - expected).abs() < 1e-6 * expected.max(1.0), "{c} vs {expected}");
-    // Every pixel of image 1 clipped: it adds nothing, image 0 alone is half the mean.
-    let half_mask = nchw(vec![1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0], 2, 1);
-    let half = tensor_values(colour_anchor_loss(y, anchor, half_mask)).unwrap()[0];
-    assert!((half - expected / 2.0).abs() < 1e-6, "{half} vs {}", expected / 2.0);
-}
-
-/// The colour anchor holds the start's colour: with targets whose green is half the input's, a
-/// few steps move the output's green mean away from the start's, less with the anchor than
-/// without; and a weighted anchor without the start's output is refused.
-#[test]
-fn the_colour_anchor_holds_the_start_colour() {
-    let dev = device(false).unwrap();
-    let x = [rgb(5, 32, 32), rgb(6, 32, 32)];
-    let mut t = x.clone();
-    for a in &mut t {
-        a.index_axis_mut(ndarray::Axis(2), 1).mapv_inplace(|v| 0.5 * v);
-    }
-    let batch =
-        |a: &[Array3<f32>; 2]| to_tensor(&[&Image::new(a[0].clone()), &Image::new(a[1].clone())], &dev);
-    let start = UNet::from_weights(&random_weights(7), &dev);
-    let green = |net: &UNet| {
-        let y = infer(net, &Image::new(x[0].clone())).unwrap();
-        let y = y.values;
-        y.index_axis(ndarray::Axis(2), 1).mean().unwrap() as f64
-    };
-    let g0 = green(&start);
-    let drift = |lambda: f64| {
-        let mut net = start.clone();
-        let mut adam =
-            Adam::new(&net, &FinetuneConfig { lr: 1e-3, colour_anchor: lambda, ..FinetuneConfig::default() });
-        for _ in 0..4 {
-            let anchor = start.forward(batch(&x)).unwrap();
-            adam.step(&mut net, batch(&x), batch(&t), Some(anchor)).unwrap();
-        }
-        (green(&net) / g0 - 1.0).abs()
-    };
-    let (without, with) = (drift(0.0), drift(100.0));
-    eprintln!("green mean moved {:.2} % without the anchor, {:.2} % with it", 100.0 * without, 100.0 * with);
-    assert!(without > 0.02, "the cast targets should move green: {without}");
-    assert!(with < 0.5 * without, "{with} vs {without}");
-    let mut net = start.clone();
-    let mut adam = Adam::new(&net, &FinetuneConfig { colour_anchor: 1.0, ..FinetuneConfig::default() });
-    assert!(adam.step(&mut net, batch(&x), batch(&t), None).is_err());
 }
 
 // ---------------------------------------------------------------------------------------------
