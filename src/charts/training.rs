@@ -127,6 +127,7 @@ mod tests {
                 loss: (s > 0).then(|| 0.1 / (s as f64).sqrt()),
                 val_loss: (s % 5 == 0).then_some(0.05),
                 val_psnr: (s % 5 == 0).then_some(20.0 + s as f64 / 5.0),
+                grad_norm: None,
             })
             .collect();
         let dir = tempfile::tempdir().unwrap();

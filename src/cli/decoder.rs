@@ -143,6 +143,10 @@ pub struct FinetuneArgs {
     pub validation: usize,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Largest global gradient norm a step takes; larger ones are scaled down to it (0 = no
+    /// clipping; the first steps' norms reach 10^3-10^4 where the usual ones are 0.5-2; README).
+    #[arg(long, default_value_t = doefab::decoder::finetune::GRAD_CLIP)]
+    pub grad_clip: f64,
     /// Run on the GPU (builds with the `gpu` feature: any vendor's GPU; or `cuda`).
     #[arg(long)]
     pub gpu: bool,
@@ -206,6 +210,9 @@ pub struct BenchDecoderArgs {
     /// Tile side of the registration, pixels.
     #[arg(long, default_value_t = 48)]
     pub tile: usize,
+    /// The fine-tuning's largest gradient norm (finetune's --grad-clip; 0 = no clipping).
+    #[arg(long, default_value_t = doefab::decoder::finetune::GRAD_CLIP)]
+    pub grad_clip: f64,
     /// Output folder.
     #[arg(short, long)]
     pub output: PathBuf,
@@ -269,6 +276,7 @@ pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
         patience,
         negative_penalty,
         blend,
+        grad_clip,
         read_noise,
         shot_noise,
         bits,
@@ -302,6 +310,7 @@ pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
             patience: *patience,
             negative_penalty: *negative_penalty,
             blend: *blend,
+            grad_clip: *grad_clip,
             noise_sigma: *read_noise,
             shot_noise: *shot_noise,
             bits: (*bits > 0).then_some(*bits),
@@ -366,6 +375,7 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         channel_clipping,
         halo,
         tile,
+        grad_clip,
         output,
     } = a;
     let opts = DecoderBenchOptions {
@@ -385,6 +395,7 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         tile: *tile,
         channel_clipping: [channel_clipping[0], channel_clipping[1], channel_clipping[2]],
         halo: halo.halo(),
+        grad_clip: *grad_clip,
     };
     let pb = progress(cli, 0);
     let outcome = bench_decoder(&opts, output, &mut report_to(&pb))?;

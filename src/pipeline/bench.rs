@@ -304,6 +304,8 @@ pub struct DecoderBenchOptions {
     pub channel_clipping: [f64; 3],
     /// The fine-tuning's halo (see [`FinetuneConfig::halo`]).
     pub halo: Option<crate::decoder::measurement::Halo>,
+    /// The fine-tuning's gradient clipping (see [`FinetuneConfig::grad_clip`]).
+    pub grad_clip: f64,
 }
 
 /// The benchmark's results (serialised as they are) and the warnings about its scenes.
@@ -365,6 +367,7 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
             seed: o.seed,
             channel_clipping: o.channel_clipping,
             halo: o.halo,
+            grad_clip: o.grad_clip,
             ..FinetuneConfig::recommended()
         },
         evaluate_every,

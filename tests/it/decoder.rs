@@ -402,6 +402,7 @@ fn tiny_config(steps: usize) -> FinetuneConfig {
         checkpoint_every: 2,
         validation: 2,
         seed: 9,
+        grad_clip: 1.0,
         ..FinetuneConfig::default()
     }
 }
@@ -961,6 +962,61 @@ fn the_negative_penalty_lifts_negative_outputs() {
     eprintln!("mean min(y, 0)^2: {without:.3e} without the penalty, {with:.3e} with it");
     assert!(without > 0.0, "the random start should have negative outputs");
     assert!(with < 0.5 * without, "{with} vs {without}");
+}
+
+/// Gradient clipping: a batch whose gradient norm is far above the first step's (inputs 1000
+/// times brighter, which drive the random decoder's outputs deep below zero under the negative
+/// penalty) is reported as it is and cut: a limit above both norms steps bit for bit as no
+/// clipping does, one between them changes the second step only (the first step, under it,
+/// is the same). A negative or non-finite limit is refused, naming the parameter.
+#[test]
+fn gradient_clipping_cuts_a_spike_to_its_limit() {
+    use doefab::decoder::unet::tensor_values;
+    let dev = device(false).unwrap();
+    let x = [rgb(1, 32, 32), rgb(2, 32, 32)];
+    let t = [rgb(3, 32, 32), rgb(4, 32, 32)];
+    let batch =
+        |a: &[Array3<f32>; 2]| to_tensor(&[&Image::new(a[0].clone()), &Image::new(a[1].clone())], &dev);
+    let spike = [x[0].mapv(|v| v * 1000.0), x[1].mapv(|v| v * 1000.0)];
+    let values = |net: &UNet| -> Vec<Vec<f32>> {
+        net.params().iter().map(|p| tensor_values(p.clone()).unwrap()).collect()
+    };
+    let steps = |grad_clip: f64, batches: &[&[Array3<f32>; 2]]| {
+        let mut net = UNet::from_weights(&random_weights(3), &dev);
+        let cfg = FinetuneConfig { lr: 1e-3, negative_penalty: 10.0, grad_clip, ..FinetuneConfig::default() };
+        let mut adam = Adam::new(&net, &cfg);
+        let mut norms = Vec::new();
+        let mut params = Vec::new();
+        for b in batches {
+            adam.step(&mut net, batch(b), batch(&t)).unwrap();
+            norms.push(adam.last_grad_norm);
+            params.push(values(&net));
+        }
+        (norms, params)
+    };
+    let (norms, loose) = steps(1e12, &[&x, &spike]);
+    let (first, second) = (norms[0].unwrap(), norms[1].unwrap());
+    eprintln!("gradient norms: first {first:.4e}, spike {second:.4e}");
+    assert!(first > 0.0 && second > 100.0 * first, "the spike batch should have a far larger norm");
+    let (none_norms, free) = steps(0.0, &[&x, &spike]);
+    assert_eq!(none_norms, vec![None, None], "without clipping no norm is computed");
+    assert_eq!(loose, free, "a limit above every norm must leave the steps as they are");
+    let (_, cut) = steps(2.0 * first, &[&x, &spike]);
+    assert_eq!(cut[0], free[0], "the first step is under the limit");
+    assert_ne!(cut[1], free[1], "the spike is cut");
+    let images = test_scenes();
+    for bad_limit in [-1.0, f64::NAN] {
+        let bad = Trainer::new(
+            UNet::from_weights(&random_weights(3), &dev),
+            &small_psf(),
+            "ab",
+            &images,
+            None,
+            FinetuneConfig { grad_clip: bad_limit, ..tiny_config(1) },
+            "random",
+        );
+        assert!(bad.err().unwrap().to_string().contains("grad_clip"));
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
