@@ -492,6 +492,7 @@ fn fine_tune(init: &Path, psf_path: &Path, out: &Path, p: &mut Progress) -> Resu
         crop: 64,
         validation: 1,
         checkpoint_every: FINETUNE_STEPS,
+        grad_clip: ft::GRAD_CLIP,
         ..Default::default()
     };
     let device = crate::decoder::device(false)?;
