@@ -571,6 +571,9 @@ pub struct Trainer<'a> {
     best_step: usize,
     /// Validations since the last new best.
     stale: usize,
+    /// The next step's batch, simulated while the current step ran, with the generator's
+    /// state after it (see [`Trainer::train_step`]).
+    prefetched: Option<(Lcg, Result<Vec<Measurement>>)>,
 }
 
 /// What one step reports to the caller (for a progress bar).
@@ -647,6 +650,7 @@ impl<'a> Trainer<'a> {
             start,
             best_step: 0,
             stale: 0,
+            prefetched: None,
         };
         t.validation =
             t.simulate_batch(val_source, &mut Lcg(t.cfg.seed ^ 0x5eed_0000_7a11_da7e), t.cfg.validation)?;
@@ -805,12 +809,42 @@ impl<'a> Trainer<'a> {
 
     /// One Adam step on a fresh batch (then the L2-SP pull, when set); returns the batch's
     /// loss (before the update).
+    ///
+    /// The next step's batch is simulated on the CPU while this step runs (on a GPU the step
+    /// would otherwise wait for it). It is drawn from the generator's state after this step's
+    /// batch, exactly as the next step would draw it, so a run's batches, and with them its
+    /// weights, do not depend on the prefetching (tested against steps without it).
     pub fn train_step(&mut self) -> Result<f64> {
-        let mut rng = self.rng.clone();
-        let batch = self.simulate_batch(self.source, &mut rng, self.cfg.batch)?;
+        let (rng, batch) = match self.prefetched.take() {
+            Some((rng, batch)) => (rng, batch?),
+            None => {
+                let mut rng = self.rng.clone();
+                let batch = self.simulate_batch(self.source, &mut rng, self.cfg.batch)?;
+                (rng, batch)
+            }
+        };
         let (x, target) = self.tensors(&batch, &self.net.device().clone());
         self.adam.lr = self.cfg.lr_at(self.step + 1);
-        let value = self.adam.step(&mut self.net, x, target).map_err(|e| match e {
+        let (source, conv, model, crop, count) =
+            (self.source, &self.conv, self.cfg.model(), self.cfg.crop, self.cfg.batch);
+        let prefetch = self.step + 1 < self.cfg.steps;
+        let (stepped, next) = std::thread::scope(|scope| {
+            let next = prefetch.then(|| {
+                let mut rng = rng.clone();
+                scope.spawn(move || {
+                    let batch = simulate_captures(source, conv, &model, crop, &mut rng, count);
+                    (rng, batch)
+                })
+            });
+            let stepped = self.adam.step(&mut self.net, x, target);
+            (stepped, next.map(|handle| handle.join()))
+        });
+        self.prefetched = match next {
+            Some(Ok(next)) => Some(next),
+            Some(Err(panic)) => std::panic::resume_unwind(panic),
+            None => None,
+        };
+        let value = stepped.map_err(|e| match e {
             Error::Data(m) => Error::Data(format!("{m} at step {}; stopped", self.step + 1)),
             other => other,
         })?;
