@@ -14,7 +14,8 @@ use super::shared::{print_result, progress, report_to, warn};
 pub struct ReconstructArgs {
     /// The capture: RGB PNG or TIFF, 8 or 16 bits, linear sensor values.
     pub capture: PathBuf,
-    /// Decoder file (.safetensors), e.g. the paper's decoder_measured_psf.safetensors.
+    /// Decoder file (.safetensors), or built-in:paper-simulated-psf / built-in:paper-measured-psf /
+    /// built-in:doefab-measured-psf.
     #[arg(long)]
     pub decoder: PathBuf,
     /// Output EXR (linear, 1 = the capture's clipping level).
@@ -58,7 +59,8 @@ pub struct FinetuneArgs {
     #[arg(long, value_parser = clap_length, default_value = "4.29um")]
     pub pitch: f64,
     /// Initial decoder: a file, or built-in:paper-simulated-psf (the default) /
-    /// built-in:paper-measured-psf, the paper's decoders compiled in.
+    /// built-in:paper-measured-psf (the paper's decoders) / built-in:doefab-measured-psf
+    /// (doefab's fine-tune on the paper's measured PSF), compiled in.
     #[arg(long)]
     pub init: Option<PathBuf>,
     /// Folder of real HDR images (.exr, .hdr, searched recursively; 2:1 images are taken as
@@ -85,7 +87,8 @@ pub struct FinetuneArgs {
     /// Continue the run in the output folder's checkpoint.
     #[arg(long)]
     pub resume: bool,
-    /// Total steps (80: on the paper's real captures, longer runs drift in colour; README).
+    /// Total steps (80, measured with three seeds on 2 cores; 240 with --blend 0.5 made
+    /// built-in:doefab-measured-psf; README).
     #[arg(long, default_value_t = doefab::decoder::finetune::STEPS)]
     pub steps: usize,
     #[arg(long, default_value_t = doefab::decoder::finetune::BATCH)]
@@ -164,7 +167,8 @@ pub struct BenchDecoderArgs {
     #[arg(long = "scene")]
     pub scenes: Vec<PathBuf>,
     /// A decoder to score: a .safetensors file or built-in:paper-simulated-psf /
-    /// built-in:paper-measured-psf; repeat for more (default: the paper's two).
+    /// built-in:paper-measured-psf / built-in:doefab-measured-psf; repeat for more (default:
+    /// the paper's two).
     #[arg(long = "decoder")]
     pub decoders: Vec<PathBuf>,
     /// The measured PSF (default <data>/measured_psf.npz, array psf_val).
@@ -540,7 +544,7 @@ pub fn bench_forward(cli: &Cli, a: &BenchForwardArgs) -> Result<()> {
 #[derive(Args)]
 pub struct BenchTilingArgs {
     /// The decoder: a .safetensors file or built-in:paper-simulated-psf /
-    /// built-in:paper-measured-psf.
+    /// built-in:paper-measured-psf / built-in:doefab-measured-psf.
     #[arg(long, default_value = "built-in:paper-measured-psf")]
     pub decoder: PathBuf,
     /// Side of the simulated capture, pixels (a multiple of 16).

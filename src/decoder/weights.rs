@@ -144,7 +144,7 @@ pub const LAYOUT: &str =
 (TF conv2d_transpose); BN: beta,gamma,moving_mean,moving_variance, eps=1e-5";
 
 /// Reads every tensor of a safetensors file (F32 only) and its metadata.
-/// `built-in:NAME` reads one of the paper's decoders compiled into the binary ([`BUILT_IN`]).
+/// `built-in:NAME` reads one of the decoders compiled into the binary ([`BUILT_IN`]).
 pub fn read_safetensors(path: &Path) -> Result<(BTreeMap<String, NamedTensor>, BTreeMap<String, String>)> {
     decode_safetensors(path, &decoder_bytes(path)?)
 }
@@ -169,13 +169,17 @@ pub fn decoder_sha256(path: &Path) -> Result<String> {
     Ok(crate::io::hex_sha256(&decoder_bytes(path)?))
 }
 
-/// The paper's two decoders (Metzler et al. 2020, BSD-3, `assets/deepoptics-hdr/LICENSE`),
-/// compiled in so that an installed binary fine-tunes and reconstructs with no data beside it:
-/// `paper-simulated-psf` (trained end to end with the simulated PSF) and
-/// `paper-measured-psf` (fine-tuned by the paper with its measured PSF).
+/// The bundled decoders, compiled in so that an installed binary fine-tunes and reconstructs
+/// with no data beside it: the paper's two (Metzler et al. 2020, BSD-3,
+/// `assets/deepoptics-hdr/LICENSE`), `paper-simulated-psf` (trained end to end with the
+/// simulated PSF) and `paper-measured-psf` (fine-tuned by the paper with its measured PSF),
+/// and `doefab-measured-psf`, doefab's `finetune` of the first on the paper's measured PSF
+/// (`assets/doefab/`, its `training.json` beside it; derived from the paper's weights, so
+/// under the same licence).
 pub const BUILT_IN: &[(&str, &[u8])] = &[
     ("paper-simulated-psf", include_bytes!("../../assets/deepoptics-hdr/decoder_simulated_psf.safetensors")),
     ("paper-measured-psf", include_bytes!("../../assets/deepoptics-hdr/decoder_measured_psf.safetensors")),
+    ("doefab-measured-psf", include_bytes!("../../assets/doefab/decoder_measured_psf.safetensors")),
 ];
 
 /// Decodes safetensors bytes (see [`read_safetensors`]) with the format's reference crate
