@@ -27,6 +27,7 @@ pub enum Method {
 }
 
 impl Method {
+    /// Every method, in the order of the enum.
     pub const ALL: [Method; 4] =
         [Method::MatrixDft, Method::Fresnel, Method::AngularSpectrum, Method::RayleighSommerfeld];
 
@@ -81,11 +82,13 @@ pub enum Precision {
     /// rounding error (unit roundoff `6e-8` accumulated over sums of ~n/2 terms) stays near
     /// `1e-6` relative L2 on the PSF (measured by the tests and `benches/psf.rs`).
     F32,
+    /// Double precision, the default.
     #[default]
     F64,
 }
 
 impl Precision {
+    /// The name used on the command line and in metadata (`f32`, `f64`).
     pub fn name(self) -> &'static str {
         match self {
             Precision::F32 => "f32",
@@ -138,7 +141,9 @@ impl fmt::Display for Violation {
 /// The sensor intensity of one wavelength on the sub-sample grid (`crop * subsample` per side,
 /// W/m^2 for a unit-amplitude incident wave) with the power that left the DOE (W).
 pub struct SensorIntensity {
+    /// `|u|^2` on the sensor sub-samples, `crop * subsample` square, W/m^2.
     pub intensity: Array2<f64>,
+    /// Power of the pupil field leaving the DOE, `sum |u|^2 dx^2` ([`field_power`]), W.
     pub input_power: f64,
 }
 
