@@ -463,7 +463,8 @@ pub struct LocalRegistration {
     pub node_spacing_px: usize,
     /// Nodes covered by the extension (no kept match within a node) rather than by matches.
     pub extended_nodes: usize,
-    /// Of those, the nodes placed by guided matching (see [`guided`]).
+    /// Of those, the nodes placed by guided matching: the tile matched again near the
+    /// displacement its neighbours interpolate (a tile the measurement model fits poorly).
     pub guided_nodes: usize,
     /// Nodes of the field, rows times columns.
     pub nodes: usize,

@@ -16,13 +16,13 @@ use crate::optics::system::{nested_parity, nested_refinement, takes_doe_samples,
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Method {
-    /// Single transform pupil -> sensor by matrix DFT ([`matrix_dft`]).
+    /// Single transform pupil -> sensor by matrix DFT ([`matrix_dft`](super::matrix_dft)).
     MatrixDft,
-    /// Two-step Fresnel transfer function with a thin-lens phase ([`fresnel`]).
+    /// Two-step Fresnel transfer function with a thin-lens phase ([`fresnel`](super::fresnel)).
     Fresnel,
-    /// Band-limited angular spectrum with a hyperbolic lens phase ([`asm`]).
+    /// Band-limited angular spectrum with a hyperbolic lens phase ([`asm`](super::asm)).
     AngularSpectrum,
-    /// Direct Rayleigh-Sommerfeld integration ([`rayleigh`]).
+    /// Direct Rayleigh-Sommerfeld integration ([`rayleigh`](super::rayleigh)).
     RayleighSommerfeld,
 }
 
@@ -73,8 +73,8 @@ impl fmt::Display for Method {
     }
 }
 
-/// Floating-point precision of the matrix products of [`matrix_dft`]; the FFT methods and
-/// every phase are computed in `f64`.
+/// Floating-point precision of the matrix products of [`matrix_dft`](super::matrix_dft); the
+/// FFT methods and every phase are computed in `f64`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Precision {
