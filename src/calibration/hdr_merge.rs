@@ -78,7 +78,8 @@ pub enum BlackLevel {
 /// Thresholds of the merge.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MergeOptions {
-    /// Raw values at or below this fraction of full scale are in the noise floor.
+    /// Raw values at or below this fraction of full scale above the black level (`z - d`) are
+    /// in the noise floor.
     pub noise_floor: f64,
     /// Raw values at or above this fraction of full scale are saturated.
     pub saturation: f64,
@@ -182,7 +183,9 @@ pub struct MergeStats {
     pub frames: Vec<FrameStats>,
     /// Samples saturated in every frame (their radiance is a lower bound).
     pub saturated_everywhere: PixelSet,
-    /// Samples in the noise floor in every frame.
+    /// Samples that no frame sees between the noise floor and saturation, and that some frame
+    /// sees below saturation (in practice: in the noise floor in every frame); their radiance is
+    /// the longest such frame's value over time.
     pub dark_everywhere: PixelSet,
     /// Samples whose well-exposed frames disagree by more than [`INCONSISTENT_RATIO`].
     pub inconsistent: PixelSet,
