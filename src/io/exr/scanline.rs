@@ -14,7 +14,7 @@
 //! A chunk whose data are not shorter than its raw size is stored raw (as OpenEXR writes it).
 //! The decompressors follow OpenEXR's (`ImfRleCompressor.cpp`, `ImfZipCompressor.cpp`,
 //! `ImfB44Compressor.cpp`; BSD-3-Clause, Contributors to the OpenEXR Project), PIZ in
-//! [`super::piz`]. PXR24, DWAA and DWAB are refused by name (no luminance/chroma file here uses
+//! `exr/piz.rs`. PXR24, DWAA and DWAB are refused by name (no luminance/chroma file here uses
 //! them); tiled, deep and multi-part files are refused.
 
 use std::path::Path;

@@ -1,5 +1,5 @@
 //! What the scan format readers share: the formats ([`ScanFormat`]), what a reader returns
-//! ([`ScanRaw`]), bounds-checked access to a binary file's fields ([`Bin`]) and the checks and
+//! ([`ScanRaw`]), bounds-checked access to a binary file's fields (`Bin`) and the checks and
 //! texts every reader applies.
 
 use std::path::Path;
