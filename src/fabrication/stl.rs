@@ -135,7 +135,8 @@ pub struct StlStats {
     pub triangles: u64,
     /// Distinct vertices of the mesh (the file repeats them per triangle).
     pub vertices: u64,
-    /// Triangles of the naive two-per-pixel top mesh.
+    /// Triangles of the naive top mesh: two per pixel for terraces, two per cell between four
+    /// pixel centres for a heightfield.
     pub naive_triangles: u64,
     /// `triangles / naive_triangles`.
     pub triangle_ratio: f64,
