@@ -56,8 +56,11 @@
 
 pub mod bench;
 pub mod calibration;
+#[cfg(feature = "charts")]
 pub mod charts;
+#[cfg(feature = "decoder")]
 pub mod decoder;
+#[cfg(all(feature = "charts", feature = "decoder"))]
 pub mod demo;
 pub mod design;
 pub mod error;
