@@ -31,6 +31,8 @@
 //! * [`demo`]: every stage on the built-in design (`doefab demo`), no input needed.
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`linalg`]: dense linear solves (nalgebra LU) for the least-squares fits.
+//! * [`fft`]: planned 1-D and 2-D FFTs (square or rectangular, `f64` or `f32`), the one plan
+//!   layer below the optics and the metrology.
 //! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
 //! * [`float`]: exact inlined `round` and `floor` for the per-sample passes.
 //! * [`error`]: the library's error type, with typed causes callers match.
@@ -65,6 +67,7 @@ pub mod demo;
 pub mod design;
 pub mod error;
 pub mod fabrication;
+pub mod fft;
 pub mod float;
 pub mod grid;
 pub mod image;

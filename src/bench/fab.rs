@@ -26,7 +26,6 @@ use std::time::Instant;
 
 use ndarray::Array2;
 use rustfft::num_complex::Complex64;
-use rustfft::FftPlanner;
 use serde::Serialize;
 
 use crate::error::{Allowed, Error, Result};
@@ -36,6 +35,7 @@ use crate::fabrication::gds::{
 use crate::fabrication::quantize::{check_level_count, detuning, order_efficiency, quantize, QuantizeMethod};
 use crate::fabrication::stl::{heightfield_mesh, Mesh, StlOptions};
 use crate::fabrication::wrap::{wrap, WrapSpec};
+use crate::fft::Plan1d;
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::material::{Material, PAPER_WAVELENGTHS};
 
@@ -368,7 +368,7 @@ pub fn simulate_grating(
     let heights = q.heights()?;
     let mut field: Vec<Complex64> =
         heights.values().iter().map(|&h| Complex64::from_polar(1.0, phase_per_metre * h)).collect();
-    FftPlanner::new().plan_fft_forward(m).process(&mut field);
+    Plan1d::new(m).process(&mut field, false);
     let norm = (m as f64).powi(2);
     let total = field.iter().map(|c| c.norm_sqr()).sum::<f64>() / norm;
     let k = order as usize % m;

@@ -140,8 +140,7 @@ impl Costs {
 /// Work per second of one forward 2-D FFT of `w x w` complex samples (a quarter of
 /// [`crate::optics::plan::fft_cost`]), timed once.
 fn fft_rate(w: usize) -> f64 {
-    let mut planner = rustfft::FftPlanner::new();
-    let plan = crate::optics::fft::Plan2d::new(&mut planner, w);
+    let plan = crate::fft::Plan2d::new(w);
     let mut field = Array2::<rustfft::num_complex::Complex64>::zeros((w, w));
     let t = Instant::now();
     plan.transform(&mut field, false);

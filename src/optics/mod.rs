@@ -11,10 +11,8 @@
 //! * [`plan`]: the automatic plan (method, sampling, precision, spectral samples for a
 //!   tolerance).
 //! * [`spectrum`]: spectral bands weighted by a sensor response.
-//! * [`fft`]: planned square 2-D FFTs of this stage.
 
 pub mod convolve;
-pub mod fft;
 pub mod output;
 pub mod plan;
 pub mod propagate;

@@ -12,8 +12,8 @@ use std::path::{Path, PathBuf};
 /// The stages in the order data flows through them.
 const STAGES: [&str; 6] = ["design", "fabrication", "metrology", "optics", "calibration", "decoder"];
 /// Modules every stage may use; they use no stage (nor the layers above the stages).
-const SHARED: [&str; 10] =
-    ["error", "grid", "units", "material", "table", "rng", "linalg", "io", "image", "float"];
+const SHARED: [&str; 11] =
+    ["error", "grid", "units", "material", "table", "rng", "linalg", "io", "image", "float", "fft"];
 /// The layers above the stages, lowest first: each names none above it.
 const ABOVE: [&str; 4] = ["bench", "charts", "pipeline", "demo"];
 

@@ -24,8 +24,8 @@ use super::fresnel::{crop_too_large, two_step};
 use super::shared::{check_lens_sampling, check_window, field_power, pupil_phase};
 use super::shared::{SensorIntensity, Violation};
 use crate::error::Result;
+use crate::fft::{fft_freq, good_size};
 use crate::grid::Grid;
-use crate::optics::fft::{fft_freq, good_size};
 use crate::optics::system::{sinc, OpticalSystem};
 
 /// `(n, dx, w)`: pupil samples, pitch and padded FFT size of this method (at least `2 n`, or
