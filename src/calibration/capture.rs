@@ -244,10 +244,15 @@ struct JsonFrame {
 pub fn read_exposures(path: &Path, with_doe: bool) -> Result<ExposureList> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let list: JsonList = serde_json::from_str(&text).map_err(|e| {
-        Error::signature(
-            path,
-            format!("not an exposure list ({{\"frames\": [{{\"file\", \"exposure_s\"}}]}}): {e}"),
-        )
+        let what = format!("not an exposure list ({{\"frames\": [{{\"file\", \"exposure_s\"}}]}}): {e}");
+        // JSON that does not parse is malformed; JSON of another shape is another file.
+        match e.classify() {
+            serde_json::error::Category::Syntax | serde_json::error::Category::Eof => {
+                Error::malformed(path, what)
+            }
+            _ => Error::signature(path, what),
+        }
+        .at_json(&text, &e)
     })?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut frames = Vec::new();

@@ -65,7 +65,7 @@ pub mod zygo;
 
 use std::path::Path;
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::grid::Grid;
 use crate::io::heightmap::{heightmap_from_raw, ReadOptions};
 use crate::io::raw_map::{RawMap, SampleKind};
@@ -278,12 +278,15 @@ fn z_unit_error(e: Error) -> Error {
 pub fn scan_from_raw(path: &Path, sr: ScanRaw, opts: &ScanOptions) -> Result<Scan> {
     let ScanRaw { raw, format, origin, mut warnings } = sr;
     if !raw.values.iter().any(|v| v.is_finite()) {
-        return Err(Error::Data(format!(
-            "{}: no measured point in the scan ({} x {} samples, all non-measured)",
-            path.display(),
-            raw.values.nrows(),
-            raw.values.ncols()
-        )));
+        return Err(Error::data(
+            DataCause::Empty,
+            format!(
+                "{}: no measured point in the scan ({} x {} samples, all non-measured)",
+                path.display(),
+                raw.values.nrows(),
+                raw.values.ncols()
+            ),
+        ));
     }
     let metadata = raw.metadata.clone();
     // A file that states its own height unit is trusted: an implausible relief is a warning

@@ -362,8 +362,8 @@ pub fn encode(values: &ndarray::Array2<f64>, pitch: [f64; 2]) -> Result<Vec<u8>>
         let opt = zip::write::SimpleFileOptions::default()
             .compression_method(zip::CompressionMethod::Deflated)
             .last_modified_time(zip::DateTime::default());
-        let io = |e: std::io::Error| Error::Data(format!("x3p encoding: {e}"));
-        let ze = |e: zip::result::ZipError| Error::Data(format!("x3p encoding: {e}"));
+        let io = |e: std::io::Error| Error::internal(format!("x3p encoding: {e}"));
+        let ze = |e: zip::result::ZipError| Error::internal(format!("x3p encoding: {e}"));
         z.start_file("main.xml", opt).map_err(ze)?;
         z.write_all(xml.as_bytes()).map_err(io)?;
         z.start_file("bindata/data.bin", opt).map_err(ze)?;
