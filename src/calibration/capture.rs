@@ -58,10 +58,11 @@ pub fn read_capture(path: &Path) -> Result<Capture> {
     let img = std::panic::catch_unwind(move || reader.decode())
         .map_err(|_| Error::malformed(path, "the image decoder failed on malformed data"))?
         .map_err(|e| {
-            Error::malformed(
-                path,
-                format!("cannot decode it as an 8- or 16-bit RGB or grayscale capture: {e}"),
-            )
+            let what = format!("cannot decode it as an 8- or 16-bit RGB or grayscale capture: {e}");
+            match e {
+                image::ImageError::Unsupported(_) => Error::unsupported(path, what),
+                _ => Error::malformed(path, what),
+            }
         })?;
     let (w, h) = (img.width() as usize, img.height() as usize);
     let (samples, channels, bits): (Vec<f64>, usize, u8) = match &img {

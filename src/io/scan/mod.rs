@@ -172,8 +172,10 @@ pub fn read_scan_raw(path: &Path, opts: &ScanOptions) -> Result<ScanRaw> {
 pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<ScanRaw> {
     let format = detect_format(path, bytes)?;
     let text = || {
-        std::str::from_utf8(bytes)
-            .map_err(|e| Error::malformed(path, format!("byte offset {}: not UTF-8 text", e.valid_up_to())))
+        std::str::from_utf8(bytes).map_err(|e| {
+            let at = e.valid_up_to();
+            Error::malformed(path, format!("byte offset {at}: not UTF-8 text")).at(at as u64)
+        })
     };
     match format {
         ScanFormat::X3p => x3p::decode(path, bytes),
