@@ -69,10 +69,16 @@ const DECODER_STEPS: u64 = FINETUNE_STEPS as u64 + 1;
 pub struct DemoOutcome {
     /// One outcome per recipe of [`RECIPES`], in order.
     pub fabrication: Vec<FabOutcome>,
+    /// The optics stage: the design's RGB PSF (`psf/`), as `doefab psf` reports it.
     pub psf: PsfOutcome,
+    /// The metrology stage: the synthetic scan of the 8-level part against the design
+    /// (`metrology/compare/`), as `doefab compare` reports it.
     pub metrology: CompareOutcome,
+    /// The fabrication loop stage (`precompensate/`).
     pub fabrication_loop: LoopStage,
+    /// The calibration stage (`calibration/`).
     pub calibration: CalibrationStage,
+    /// The decoder stage (`decoder/`).
     pub decoder: DecoderStage,
     /// Where each stage wrote.
     #[serde(skip)]
@@ -84,9 +90,13 @@ pub struct DemoOutcome {
 pub struct Folders {
     /// Each recipe's name and output folder, in the order of [`RECIPES`].
     pub fabrication: Vec<(String, PathBuf)>,
+    /// The design's PSF (`psf/`).
     pub psf: PathBuf,
+    /// The synthetic scan of the 8-level part (`metrology/scan.x3p`).
     pub scan: PathBuf,
+    /// The scan's comparison with the design (`metrology/compare/`).
     pub compare: PathBuf,
+    /// The fabrication loop (`precompensate/`).
     pub fabrication_loop: PathBuf,
 }
 
@@ -94,21 +104,29 @@ pub struct Folders {
 /// calibrated PSF is to the simulated one.
 #[derive(Debug, Clone, Serialize)]
 pub struct CalibrationStage {
+    /// Folder of the synthetic 8-bit pinhole bracket: the frames, `dark.png` and
+    /// `exposures.json`.
     pub bracket: PathBuf,
+    /// Folder of the calibrated PSF (`psf.npy`, `psf.exr`, `psf.json`, ...).
     pub psf: PathBuf,
     /// Per channel, `||c - s|| / ||s||` ([`Psf::relative_l2`]) of the calibrated PSF `c`
     /// against the simulated PSF's window of the same size around its peak, `s`
     /// ([`window_at_peak`]), each summing to 1. Not [`crate::optics::psf_compare::compare`]: that
     /// one crops to the centred common window and aligns the centroids first.
     pub relative_l2_to_simulated: Vec<f64>,
+    /// What the calibration reported, as `calibrate-psf` writes it into `psf.json`.
     pub report: PsfCalibration,
 }
 
 /// The decoder stage: the fine-tuned decoder, its training curve and the reconstruction.
 #[derive(Debug, Clone, Serialize)]
 pub struct DecoderStage {
+    /// The fine-tuned decoder's weights (`finetune/decoder.safetensors`).
     pub decoder: PathBuf,
+    /// The training curve, one entry per logged step.
     pub history: Vec<HistoryEntry>,
+    /// The reconstruction of the simulated capture (`capture.png` -> `reconstruction.exr` and
+    /// `.png`).
     pub reconstruction: ReconstructOutcome,
 }
 
@@ -304,8 +322,9 @@ pub struct LoopStage {
     pub process: String,
     /// What `precompensate` wrote and predicted.
     pub precompensate: crate::pipeline::precompensate::PrecompensateOutcome,
-    /// The plain mask's part and the pre-compensated mask's part against the design.
+    /// The plain mask's part against the design.
     pub before: LoopSide,
+    /// The pre-compensated mask's part against the design.
     pub after: LoopSide,
     /// The loop at each blur of [`SWEEP_BLURS`] on the 320-sample design.
     pub sweep: Vec<crate::pipeline::precompensate::SweepPoint>,

@@ -16,7 +16,7 @@ use crate::error::{Error, Result};
 use crate::grid::{Grid, Unit};
 use crate::material::Material;
 
-/// Geometry of the paper's DOE (Metzler et al. 2020, Sec. 5).
+/// Sample pitch of the paper's DOE, metres (Metzler et al. 2020, Sec. 5).
 pub const PAPER_PITCH: f64 = 4.29e-6;
 /// Samples per side: 5.6 mm / 4.29 um.
 pub const PAPER_SAMPLES: usize = 1306;
@@ -101,10 +101,15 @@ pub fn paper_example(p: &ExampleParams) -> Result<Grid> {
 /// Parameters of the Fresnel lens example.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FresnelParams {
+    /// Samples per side.
     pub samples: usize,
+    /// Sample pitch, metres.
     pub pitch: f64,
+    /// Clear aperture diameter, metres; outside it the height is 0.
     pub aperture: f64,
+    /// Focal length `f` of the lens, metres.
     pub focal_length: f64,
+    /// Design wavelength `lambda`, metres; one zone is one 2 pi period (PDMS) at it.
     pub wavelength: f64,
 }
 

@@ -142,6 +142,7 @@ impl Grid {
         })
     }
 
+    /// The values, `(rows, cols)` = `(ny, nx)`, in [`Grid::unit`]; invalid samples hold 0.
     pub fn values(&self) -> &Array2<f64> {
         &self.values
     }
@@ -154,6 +155,7 @@ impl Grid {
     pub fn values_mut_and_mask(&mut self) -> (&mut Array2<f64>, Option<&Array2<bool>>) {
         (&mut self.values, self.valid.as_ref())
     }
+    /// The values, the grid consumed (invalid samples hold 0; pitch, origin and mask dropped).
     pub fn into_values(self) -> Array2<f64> {
         self.values
     }
@@ -169,6 +171,7 @@ impl Grid {
     pub fn origin(&self) -> [f64; 2] {
         self.origin
     }
+    /// What the values mean.
     pub fn unit(&self) -> Unit {
         self.unit
     }
@@ -185,6 +188,7 @@ impl Grid {
     pub fn mask(&self) -> Option<&Array2<bool>> {
         self.valid.as_ref()
     }
+    /// Whether sample `(i, j)` (row, column) is measured; every sample is when there is no mask.
     pub fn is_valid(&self, i: usize, j: usize) -> bool {
         self.valid.as_ref().is_none_or(|m| m[[i, j]])
     }

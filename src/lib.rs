@@ -51,13 +51,16 @@
 //! which: `fabrication/precompensate.rs` is the physics and `pipeline/precompensate.rs` the
 //! command that runs it (likewise `psf`, `psf_compare`, `finetune`); `cli/X.rs`, `charts/X.rs`
 //! and `bench/X.rs` are stage or benchmark X's commands, charts and measurements;
-//! `grid/profile.rs`, `io/profile.rs` and `metrology/profile.rs` are the stylus profile's data
+//! `grid/profile.rs`, `io/profile.rs` and `metrology/profile/` are the stylus profile's data
 //! model, reader and comparison; a `shared.rs` holds what its folder's modules share.
 
 pub mod bench;
 pub mod calibration;
+#[cfg(feature = "charts")]
 pub mod charts;
+#[cfg(feature = "decoder")]
 pub mod decoder;
+#[cfg(all(feature = "charts", feature = "decoder"))]
 pub mod demo;
 pub mod design;
 pub mod error;

@@ -24,23 +24,33 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Condition, Error, Result};
 use crate::table::{column_unit, hermite, pchip_slopes, read_two_columns};
 
-/// A dispersion formula; lengths in the formula are micrometres, as the sources give them.
+/// A dispersion formula; lengths in the Cauchy and Sellmeier formulas are micrometres, as the
+/// sources give them, a table's wavelengths metres.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "form", rename_all = "snake_case")]
 pub enum Dispersion {
+    /// Cauchy, `n = a + b / lambda^2 + c / lambda^4`, lambda in micrometres.
     Cauchy {
+        /// Constant term, dimensionless.
         a: f64,
+        /// Coefficient of `1 / lambda^2`, um^2.
         b: f64,
+        /// Coefficient of `1 / lambda^4`, um^4.
         c: f64,
     },
+    /// Sellmeier, `n^2 = 1 + sum_i b_i lambda^2 / (lambda^2 - c_i)`, lambda in micrometres.
     Sellmeier {
+        /// Oscillator strengths `b_i`, dimensionless; as many as `c`.
         b: Vec<f64>,
+        /// Resonance terms `c_i` (squared resonance wavelengths), um^2.
         c: Vec<f64>,
     },
     /// A measured table: strictly increasing wavelengths (metres) with their index,
     /// interpolated by PCHIP (monotone piecewise cubic Hermite).
     Table {
+        /// Wavelengths, metres, strictly increasing (at least two).
         wavelength: Vec<f64>,
+        /// Refractive index at each wavelength.
         n: Vec<f64>,
     },
 }
@@ -48,7 +58,9 @@ pub enum Dispersion {
 /// A named material with its dispersion and the wavelength range (metres) where it holds.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Material {
+    /// Name: a built-in's (`pdms`, `fused_silica`, ...), the user's, or a table file's stem.
     pub name: String,
+    /// The formula or table that gives n(lambda).
     pub dispersion: Dispersion,
     /// `[min, max]` wavelength in metres where the formula is valid.
     pub valid_range: [f64; 2],

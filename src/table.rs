@@ -62,7 +62,10 @@ pub fn hermite(x: &[f64], y: &[f64], m: &[f64], t: f64) -> f64 {
 /// A two-column CSV: the header's column names (lower case) and the numeric rows with their
 /// 1-based line numbers.
 pub struct TwoColumns {
+    /// The two column names, trimmed and in lower case, as the header spells them.
     pub header: [String; 2],
+    /// `(line, first, second)` per data row: the 1-based line number in the file and the two
+    /// finite values, in the columns' own units.
     pub rows: Vec<(usize, f64, f64)>,
 }
 

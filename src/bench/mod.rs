@@ -23,14 +23,18 @@
 //! * [`finetune_time`]: fine-tuning's validation PSNR against its time (`doefab report`).
 
 pub mod calibration;
+#[cfg(feature = "decoder")]
 pub mod decoder;
 pub mod fab;
+#[cfg(feature = "decoder")]
 pub mod finetune_time;
+#[cfg(feature = "decoder")]
 pub mod forward;
 pub mod psf;
 pub mod register;
 pub mod spectral;
 pub mod stability;
+#[cfg(feature = "decoder")]
 pub mod tiling;
 
 /// One axis of a failure map's sweep (`bench register`, `bench calibration`): its name, unit and

@@ -26,6 +26,7 @@ use crate::io::exr::decode_exr_channels;
 /// One capture: linear values in `[0, 1]` with its bit depth.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Capture {
+    /// The file it was read from.
     pub path: PathBuf,
     /// Counts divided by the full-scale count.
     pub image: Image,
@@ -221,8 +222,10 @@ fn read_radiance_hdr(path: &Path) -> Result<Array3<f64>> {
 /// A bracket: capture files with their exposure times (seconds).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ExposureList {
+    /// Each capture file with its exposure time, seconds, in the list's order.
     pub frames: Vec<(PathBuf, f64)>,
-    /// The exposure the merged radiance is expressed at (value 1 = full scale at this time).
+    /// The exposure the merged radiance is expressed at, seconds (value 1 = full scale at this
+    /// time); `None`: the radiance is in fraction of full scale per second.
     pub reference_exposure: Option<f64>,
 }
 
@@ -286,8 +289,11 @@ pub fn read_exposures(path: &Path, with_doe: bool) -> Result<ExposureList> {
 /// exposure list (given with `--exposures`, or as the only file when it is a `.json` file).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct BracketSpec {
+    /// Capture files (or a single `.json` exposure list).
     pub files: Vec<PathBuf>,
+    /// The exposure time of each file, in its order, as text ("1/60", "0.5", "2s", "250ms").
     pub times: Vec<String>,
+    /// The exposure list (`--exposures`); `None` when the files and times name the bracket.
     pub exposures: Option<PathBuf>,
     /// Take the frames marked `"doe": true` from the exposure list.
     pub doe_frames: bool,

@@ -41,11 +41,14 @@ use rayon::prelude::*;
 /// `q = a p + b` in pixel coordinates `(x, y) = (col, row)`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Affine {
+    /// The linear part, row-major: `q_x = a[0][0] p_x + a[0][1] p_y + b[0]`.
     pub a: [[f64; 2]; 2],
+    /// The translation `[x, y]`, pixels.
     pub b: [f64; 2],
 }
 
 impl Affine {
+    /// The image `a p + b` of the point `p` (`[x, y]`, pixels).
     pub fn apply(&self, p: [f64; 2]) -> [f64; 2] {
         [
             self.a[0][0] * p[0] + self.a[0][1] * p[1] + self.b[0],
@@ -100,11 +103,15 @@ impl Default for RegisterOptions {
 /// The fitted map and how well it fits.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Registration {
+    /// The map of the reference onto the target, `q = A p + b`, pixels.
     pub affine: Affine,
-    /// Mean scale `sqrt(det A)` and rotation (degrees, counter-clockwise in (x, y)).
+    /// Mean scale `sqrt(|det A|)`, target over reference.
     pub scale: f64,
+    /// Rotation, degrees, counter-clockwise in `(x, y)`: `atan2(A10 - A01, A00 + A11)`.
     pub rotation_deg: f64,
+    /// Tiles matched in the refinement pass (enough texture, a clear NCC peak).
     pub tiles_matched: usize,
+    /// Of those, the tiles the fitted map follows within 1.5 px (the inliers it was fitted on).
     pub tiles_used: usize,
     /// RMS distance between the matched tile positions and the fitted map, pixels.
     pub residual_rms_px: f64,
@@ -454,13 +461,18 @@ fn bilinear(img: &Array3<f64>, y: f64, x: f64) -> Option<Vec<f64>> {
 /// Depth edges are smoothed over about a tile; the residual says how far that matters.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct LocalRegistration {
+    /// Distance between neighbouring nodes of the field, pixels (half the tile side).
     pub node_spacing_px: usize,
     /// Nodes covered by the extension (no kept match within a node) rather than by matches.
     pub extended_nodes: usize,
-    /// Of those, the nodes placed by guided matching (see [`guided`]).
+    /// Of those, the nodes placed by guided matching: the tile matched again near the
+    /// displacement its neighbours interpolate (a tile the measurement model fits poorly).
     pub guided_nodes: usize,
+    /// Nodes of the field, rows times columns.
     pub nodes: usize,
+    /// Tiles matched in the second pass (enough texture, a clear NCC peak).
     pub tiles_matched: usize,
+    /// Of those, the matches kept by the neighbours' consensus.
     pub tiles_used: usize,
     /// Leave-one-out RMS error of the field at the kept matches, pixels.
     pub residual_rms_px: f64,

@@ -66,14 +66,18 @@ use crate::optics::psf::Psf;
 /// PSNR figures over one set of samples.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Psnr {
+    /// `PSNR_L = 10 log10(P^2 / mean (y - x)^2)`, dB.
     pub linear_db: f64,
+    /// `PSNR_gamma = 10 log10(P / mean (sqrt(y+) - sqrt(x+))^2)`, dB.
     pub gamma_db: f64,
-    /// The peak `P` used and the pixels evaluated.
+    /// The peak `P`: the reference's maximum over the samples, in the images' units.
     pub peak: f64,
+    /// Pixels evaluated (each with all its channels).
     pub pixels: usize,
-    /// The smallest reconstruction value over the samples, and the fraction of samples below
-    /// zero (counted as they are in `linear_db`, as 0 in `gamma_db`).
+    /// The smallest reconstruction value over the samples, in the images' units.
     pub min_output: f64,
+    /// Fraction of samples (pixel and channel) below zero (0..1), counted as they are in
+    /// `linear_db`, as 0 in `gamma_db`.
     pub negative_fraction: f64,
 }
 
@@ -186,15 +190,23 @@ impl Default for ScoringOptions {
 /// How a scene's reference was registered onto its capture, and what is scored.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Footing {
+    /// Rows of the capture, pixels.
     pub rows: usize,
+    /// Columns of the capture, pixels.
     pub cols: usize,
     /// Whether the capture was predicted through a PSF (else the reference itself, clipped).
     pub psf: bool,
+    /// The motion model registered: "affine" or "local".
     pub model: Model,
+    /// The affine map of the prediction onto the capture; `None` under the local model.
     pub registration: Option<Registration>,
+    /// The displacement field of the prediction onto the capture; `None` under the affine
+    /// model.
     pub local_registration: Option<LocalRegistration>,
-    /// `capture / (h * reference)` over well-exposed samples (see the module docs), and their number.
+    /// The gain `g`: median of `capture / (h * reference)` over well-exposed samples (see the
+    /// module docs).
     pub gain: f64,
+    /// The samples (pixel and channel) that median is taken over, at least 300.
     pub gain_samples: usize,
     /// Registration passes (2 when the gain moved the clipping of the prediction).
     pub passes: usize,
@@ -203,14 +215,18 @@ pub struct Footing {
     /// Where each channel clips, fraction of the clipping level ([`super::clipping`]): a sample
     /// at or above `saturation` times it is saturated.
     pub channel_clipping: Vec<f64>,
-    /// Pixels scored, and their fraction of the image.
+    /// Pixels scored: those the registration covers.
     pub pixels_scored: usize,
+    /// `pixels_scored` over the image's pixels (0..1).
     pub coverage: f64,
-    /// Pixels saturated in the capture, and how many of them are scored.
+    /// Pixels saturated in the capture (any channel at or above `saturation` times its
+    /// clipping).
     pub saturated_in_capture: usize,
+    /// Of those, the pixels scored.
     pub saturated_scored: usize,
-    /// Why the saturated figures are withheld, if they are.
+    /// Why the saturated figures are withheld; `None` when they are given.
     pub saturated_withheld: Option<String>,
+    /// A lower clipping level detected in the capture or in a channel, one sentence each.
     pub warnings: Vec<String>,
 }
 
@@ -223,13 +239,16 @@ pub struct Scoring {
     pub mask: Array2<bool>,
     /// Scored pixels saturated in the capture.
     pub saturated: Array2<bool>,
+    /// How the reference was registered and what is scored.
     pub footing: Footing,
 }
 
 /// One image scored on a [`Scoring`].
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Score {
+    /// The image's name (its path in `doefab evaluate`; "capture as it is" for the baseline).
     pub name: String,
+    /// PSNR over every scored pixel.
     pub all: Psnr,
     /// `None` when the saturated figures are withheld ([`Footing::saturated_withheld`]).
     pub saturated: Option<Psnr>,
@@ -482,7 +501,9 @@ impl Scoring {
 /// What `doefab evaluate` reports: one footing and every image's scores on it.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Evaluation {
+    /// How the reference was registered onto the capture and what is scored.
     pub footing: Footing,
+    /// The capture's own score first (the baseline), then each image's, in the order given.
     pub scores: Vec<Score>,
 }
 
@@ -526,6 +547,7 @@ pub struct EvaluateFiles {
     pub capture_pitch: f64,
     /// The reconstructions to score (see [`super::capture::read_image`]).
     pub images: Vec<std::path::PathBuf>,
+    /// Registration, saturation level and coverage floors.
     pub options: ScoringOptions,
     /// Where to write what was scored against (see [`write_registered`]), if anywhere.
     pub registered: Option<std::path::PathBuf>,

@@ -78,7 +78,8 @@ pub enum BlackLevel {
 /// Thresholds of the merge.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MergeOptions {
-    /// Raw values at or below this fraction of full scale are in the noise floor.
+    /// Raw values at or below this fraction of full scale above the black level (`z - d`) are
+    /// in the noise floor.
     pub noise_floor: f64,
     /// Raw values at or above this fraction of full scale are saturated.
     pub saturation: f64,
@@ -87,6 +88,7 @@ pub struct MergeOptions {
     /// Express the radiance at this exposure (s): value 1 = full scale at this time. `None`:
     /// full scale per second.
     pub reference_exposure: Option<f64>,
+    /// Where the black level comes from.
     pub black_level: BlackLevel,
 }
 
@@ -106,9 +108,11 @@ impl Default for MergeOptions {
 /// box `[row_min, col_min, row_max, col_max]`.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct PixelSet {
+    /// Samples (pixel and channel) in the set.
     pub count: usize,
-    /// `[row, col, channel]`.
+    /// `[row, col, channel]` of the first in row-major order; `None` when the set is empty.
     pub first: Option<[usize; 3]>,
+    /// `[row_min, col_min, row_max, col_max]`, pixels, inclusive; `None` when the set is empty.
     pub bbox: Option<[usize; 4]>,
 }
 
@@ -126,6 +130,7 @@ impl PixelSet {
 /// What the merge found about one frame.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FrameStats {
+    /// The capture file.
     pub file: String,
     /// Seconds, as listed.
     pub exposure_listed: f64,
@@ -135,9 +140,10 @@ pub struct FrameStats {
     pub saturated: Vec<usize>,
     /// Samples in the noise floor per channel.
     pub noise_floor: Vec<usize>,
-    /// RMS and median relative deviation of value / time from the merge, over the samples
+    /// RMS of the relative deviation `(v_k / t_k - E) / E` from the merge over the samples
     /// this frame sees well exposed (`None` when it sees none).
     pub agreement_rms: Option<f64>,
+    /// Median of `|v_k / t_k - E| / E` over the same samples (`None` when it sees none).
     pub agreement_median: Option<f64>,
     /// Samples the agreement was measured over.
     pub agreement_samples: usize,
@@ -155,27 +161,36 @@ pub struct MergeStats {
     pub reference_exposure_s: Option<f64>,
     /// Bit depth of the frames.
     pub bits: u8,
-    /// Per channel: the black level subtracted (fraction of full scale; the mean of the dark
-    /// frame when one is given) and where it came from.
+    /// Per channel: the black level subtracted, fraction of full scale (the mean of the dark
+    /// frame when one is given).
     pub black_level: Vec<f64>,
     /// Per channel: how far the black level may be off, fraction of full scale (0 where it is
     /// given or measured by dark frames; see [`estimate_black_level`]; where it could not be
     /// measured, the shortest frame's lowest value).
     pub black_level_uncertainty: Vec<f64>,
+    /// Where the black level came from: "given", "dark frames", the shortest frame's histogram
+    /// (with its file), or none (a response curve).
     pub black_level_source: String,
+    /// Noise floor, fraction of full scale above the black level: samples at or below it carry
+    /// no weight.
     pub noise_floor: f64,
     /// Saturation, fraction of where each channel clips.
     pub saturation: f64,
     /// Where each channel clips, fraction of full scale ([`channel_clipping`]; 1 = at full
     /// scale): the paper's camera clips green at 231 of 255.
     pub channel_clipping: Vec<f64>,
+    /// One per frame, in the bracket's order.
     pub frames: Vec<FrameStats>,
     /// Samples saturated in every frame (their radiance is a lower bound).
     pub saturated_everywhere: PixelSet,
-    /// Samples in the noise floor in every frame.
+    /// Samples that no frame sees between the noise floor and saturation, and that some frame
+    /// sees below saturation (in practice: in the noise floor in every frame); their radiance is
+    /// the longest such frame's value over time.
     pub dark_everywhere: PixelSet,
     /// Samples whose well-exposed frames disagree by more than [`INCONSISTENT_RATIO`].
     pub inconsistent: PixelSet,
+    /// What the caller should know (channels clipping below full scale, the black level, drifted
+    /// times, untrusted samples), one sentence each.
     pub warnings: Vec<String>,
 }
 
@@ -183,8 +198,11 @@ pub struct MergeStats {
 /// linearized through (`None`: linear captures).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Merged {
+    /// Radiance `(H, W, C)`, in the unit [`MergeStats::unit`] states.
     pub radiance: Image,
+    /// What the merge used and found.
     pub stats: MergeStats,
+    /// The response curve the frames were linearized through; `None` for linear captures.
     pub response: Option<Response>,
     /// `[row, col, channel]` of every sample saturated in every frame, row-major.
     pub saturated_samples: Vec<[usize; 3]>,
@@ -763,15 +781,20 @@ pub fn write_merged(path: &Path, merged: &Merged, pitch: Option<f64>) -> Result<
 /// What the tone-mapped picture of a merge shows.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ToneMapStats {
+    /// The PNG file written.
     pub png: String,
     /// Exposure of the picture, stops.
     pub ev: f64,
-    /// Fraction of samples at white (`E 2^ev >= 1`).
+    /// Fraction of samples at white (`E 2^ev >= 1`), 0..1.
     pub clipped_fraction: f64,
-    /// The exposures that put the 99th percentile and the maximum of the radiance at white
-    /// (`None` where that value is not positive).
+    /// The exposure, stops, that puts the 99th percentile of the radiance at white,
+    /// `-log2(p99)` (`None` where it is not positive).
     pub ev_p99: Option<f64>,
+    /// The exposure, stops, that puts the maximum of the radiance at white, `-log2(max)`
+    /// (`None` where it is not positive).
     pub ev_max: Option<f64>,
+    /// More than a quarter of the samples white, or the brightest below 5 % of white, each
+    /// with the EV that fits.
     pub warnings: Vec<String>,
 }
 

@@ -106,9 +106,11 @@ pub enum Centre {
 pub struct PsfOptions {
     /// Output size in sensor pixels (square).
     pub crop: usize,
+    /// What is put at the crop centre.
     pub centre: Centre,
-    /// Pixel pitch of the captures and of the sensor the PSF is for, metres.
+    /// Pixel pitch of the captures, metres.
     pub capture_pitch: f64,
+    /// Pixel pitch of the sensor the PSF is for, metres (the output's pitch).
     pub sensor_pitch: f64,
     /// A hot pixel's 8 neighbours all lie within this many background sigmas above their median.
     pub hot_pixel_neighbours: f64,
@@ -169,32 +171,43 @@ impl Default for PsfOptions {
 /// Encircled energy of every channel within a radius of the crop centre.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EncircledEnergy {
+    /// The radius, sensor pixels.
     pub radius_px: f64,
+    /// Per channel: fraction of its energy (0..1) in the pixels whose centre lies within the
+    /// radius.
     pub fraction: Vec<f64>,
 }
 
 /// What `calibrate-psf` reports and writes as `psf.json`.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct PsfCalibration {
+    /// Output size, sensor pixels (square).
     pub crop: usize,
+    /// What was put at the crop centre.
     pub centre: Centre,
+    /// Pixel pitch of the captures, metres.
     pub capture_pitch: f64,
+    /// Pixel pitch of the PSF written, metres.
     pub sensor_pitch: f64,
-    /// `[row, col]` of the brightest pixel, of the axis (its sub-pixel maximum) and of the
-    /// centroid in the capture, pixels.
+    /// `[row, col]` of the brightest pixel of the channel sum in the capture, pixels.
     pub peak_px: [usize; 2],
+    /// `[row, col]` of the axis (the brightest pixel's sub-pixel maximum) in the capture,
+    /// pixels.
     pub axis_px: [f64; 2],
+    /// `[row, col]` of the intensity centroid of the channel sum in the capture, pixels.
     pub centroid_px: [f64; 2],
-    /// Per-channel background level (merged units) and its noise.
+    /// Per channel: the background level subtracted, in the merged radiance's unit.
     pub background: Vec<f64>,
+    /// Per channel: the background's noise `sigma` (RMS), in the merged radiance's unit.
     pub background_sigma: Vec<f64>,
-    /// Hot samples replaced (pixel and channel: a hot pixel counts once per channel), and the
-    /// first 1000 of them as `[row, col, channel]`, row-major.
+    /// Hot samples replaced (pixel and channel: a hot pixel counts once per channel).
     pub hot_pixels: usize,
+    /// The first 1000 of them as `[row, col, channel]`, row-major.
     pub hot_pixel_positions: Vec<[usize; 3]>,
-    /// Per channel: energy outside the crop window and the (signed) energy of the samples
-    /// below the noise floor that were zeroed, each as a fraction of the channel's energy.
+    /// Per channel: energy outside the crop window, fraction of the channel's energy.
     pub energy_outside: Vec<f64>,
+    /// Per channel: the signed energy of the samples below the noise floor that were zeroed,
+    /// fraction of the channel's energy.
     pub below_floor: Vec<f64>,
     /// Per channel: the relative L2 error the calibration expects of itself: the noise of the
     /// samples it kept (the background's, times the exposure ratio of the frame each comes
@@ -203,9 +216,15 @@ pub struct PsfCalibration {
     pub estimated_error: Vec<f64>,
     /// Centroid and peak of each channel after centring (metres from the crop centre).
     pub channels: Vec<ChannelSummary>,
+    /// Encircled energy about the crop centre at radii of 2, 5, 10, 20, 40 and 80 pixels and
+    /// half the crop.
     pub encircled_energy: Vec<EncircledEnergy>,
+    /// What the merge of the pinhole bracket used and found.
     pub merge: MergeStats,
+    /// The merge's warnings, then the extraction's (a second peak, energy outside the crop, an
+    /// uncertain channel), one sentence each.
     pub warnings: Vec<String>,
+    /// The files written, relative to the output folder (empty until written).
     pub files: Vec<String>,
 }
 

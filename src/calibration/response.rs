@@ -33,13 +33,17 @@ use crate::linalg::solve;
 /// The recovered `g(z) = ln f^-1(z)` per channel, 256 values each.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Response {
+    /// Per channel, `g(z)` for `z = 0..=255` counts: the natural log of the exposure `E t` that
+    /// gives value `z`, fixed by `g(128) = ln(128/255)`.
     pub log_exposure: Vec<Vec<f64>>,
     /// Per channel, the lowest and highest value the samples observe with non-zero weight;
     /// outside this range `g` is an extrapolation by the smoothness term alone.
     pub observed: Vec<[usize; 2]>,
-    /// Sample pixels per channel and the smoothness weight used.
+    /// Sample pixels per channel.
     pub samples: usize,
+    /// The smoothness weight `lambda` of eq. 3.
     pub lambda: f64,
+    /// Channels whose recovered curve decreases inside the observed range, one sentence each.
     pub warnings: Vec<String>,
 }
 

@@ -260,8 +260,11 @@ pub fn write_fab_bench_charts(
 /// One blur width of the chart: the blur in samples, and before/after pairs of the height RMS
 /// (metres) and of the PSF's relative L2 against the design's.
 pub struct GainPoint {
+    /// Blur of the simulated process, in design samples (standard deviation / pitch).
     pub blur_samples: f64,
+    /// RMS of part - design over the aperture, before and after pre-compensation, metres.
     pub rms: [f64; 2],
+    /// PSF relative L2 against the design's, before and after pre-compensation.
     pub psf: [f64; 2],
 }
 

@@ -43,10 +43,12 @@ pub fn failure_panel<'a, DB: DrawingBackend>(
     Ok(c)
 }
 
-/// The colours of a failure map's markers: a trial within its limit (dot), over it and warned
-/// (triangle), and the method's own error estimate (ring).
+/// The colours of a failure map's markers: a trial within its limit (green dot), over it and
+/// warned (orange triangle), and the method's own error estimate (grey ring).
 pub const WITHIN: RGBColor = RGBColor(0, 120, 0);
+/// Colour of a trial over its limit and warned (orange triangle).
 pub const WARNED: RGBColor = RGBColor(220, 140, 0);
+/// Colour of the method's own error estimate (grey ring).
 pub const ESTIMATE: RGBColor = RGBColor(150, 150, 150);
 
 /// The key of a failure map, drawn on `panel` at `position`: the dot (`within`), the orange

@@ -292,10 +292,15 @@ pub fn profile_chart(
 /// One setting of [`registration_speed_accuracy`]: its label, time (seconds), shift error and
 /// formal standard error (design pixels), and whether it is the default.
 pub struct SpeedAccuracyPoint {
+    /// Name of the setting, written beside its point.
     pub label: String,
+    /// Time per registration, seconds.
     pub seconds: f64,
+    /// Length of the shift error (registered - true), design pixels.
     pub error: f64,
+    /// Formal standard error of the shift (length of the per-axis pair), design pixels.
     pub sigma: f64,
+    /// The setting is the default (marked "(default)" and ringed).
     pub chosen: bool,
 }
 

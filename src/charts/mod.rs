@@ -17,11 +17,14 @@
 //! * [`decoder`]: decoders on real captures, the fine-tuning against time there, the
 //!   measurement model against the captures.
 
+#[cfg(feature = "decoder")]
 pub mod decoder;
 pub mod fabrication;
 pub mod failure_maps;
 pub mod metrology;
 pub mod optics;
 pub mod style;
+#[cfg(feature = "decoder")]
 pub mod tiling;
+#[cfg(feature = "decoder")]
 pub mod training;

@@ -69,6 +69,7 @@ impl HdrImage {
 /// The images of a folder that could be read, and why the others could not.
 #[derive(Debug, Clone)]
 pub struct HdrFolder {
+    /// The images read, sorted by relative path.
     pub images: Vec<HdrImage>,
     /// One warning for each image skipped: its path and the reader's reason.
     pub skipped: Vec<String>,

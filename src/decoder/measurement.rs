@@ -70,7 +70,9 @@ impl Default for MeasurementModel {
 /// in a Gaussian of standard deviation `radius_px` sensor pixels (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Halo {
+    /// `eta`: the fraction of all light in the halo, in `[0, 1)`.
     pub fraction: f64,
+    /// `rho`: the Gaussian's standard deviation, sensor pixels.
     pub radius_px: f64,
 }
 

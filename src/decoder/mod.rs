@@ -27,6 +27,7 @@ use unet::{tensor_values, UNet};
 /// The device the decoder runs on, and what its selection has to report.
 #[derive(Debug, Clone)]
 pub struct SelectedDevice {
+    /// The burn device the decoder's tensors live on.
     pub device: Device,
     /// Whether the device is a software rasterizer (Mesa's lavapipe or llvmpipe: a "GPU" that
     /// runs on the CPU; lavapipe measured 57 to 117 times slower than the CPU backend).

@@ -64,6 +64,7 @@ pub struct ReconstructOptions {
     pub overlap: usize,
     /// Mirrored context added on every side of the capture before the network, pixels.
     pub border: usize,
+    /// What is done with negative outputs.
     pub negatives: Negatives,
 }
 
@@ -81,18 +82,26 @@ impl Default for ReconstructOptions {
 /// What happened during a reconstruction (in `doefab reconstruct`'s JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ReconstructStats {
+    /// Rows of the capture, pixels.
     pub rows: usize,
+    /// Columns of the capture, pixels.
     pub cols: usize,
-    /// Size fed to the network: the border context added, then padded to multiples of 16.
+    /// Rows fed to the network: the border context added, then padded to a multiple of 16.
     pub padded_rows: usize,
+    /// Columns fed to the network, likewise.
     pub padded_cols: usize,
     /// Network passes (1 when the image fits in one tile).
     pub tiles: usize,
+    /// What was done with negative outputs.
     pub negatives: Negatives,
-    /// Raw output values (over pixels and channels) below 0 and below -1, and the minimum.
+    /// Raw output values (over pixels and channels) below 0.
     pub values_below_zero: usize,
+    /// Raw output values (over pixels and channels) below -1.
     pub values_below_minus_one: usize,
+    /// The smallest raw output value, in units of the capture's clipping level.
     pub min_raw: f32,
+    /// The largest output value written (after clamping, if any), in units of the capture's
+    /// clipping level.
     pub max: f32,
     /// Warnings (e.g. an overlap smaller than the receptive field).
     pub warnings: Vec<String>,
@@ -243,13 +252,21 @@ pub fn reconstruct(
 /// A reconstruction written to disk (`doefab reconstruct`'s JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ReconstructOutcome {
+    /// The capture file.
     pub capture: String,
+    /// The decoder file (or bundled decoder name).
     pub decoder: String,
+    /// SHA-256 of the decoder's bytes, hex.
     pub decoder_sha256: String,
+    /// The linear HDR written, OpenEXR (R, G, B; 1 = the capture's clipping level).
     pub exr: String,
+    /// The tone-mapped sRGB picture written, PNG.
     pub png: String,
+    /// Exposure of the picture, stops: it shows `clip(y 2^ev, 0, 1)`.
     pub ev: f64,
+    /// Tiling and output options used.
     pub options: ReconstructOptions,
+    /// What happened during the reconstruction (flattened into this object).
     #[serde(flatten)]
     pub stats: ReconstructStats,
 }

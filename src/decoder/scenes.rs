@@ -174,7 +174,10 @@ pub trait SceneSource: Sync {
 /// Scenes from a generator `f(seed, rows, cols)` (such as a procedural scene generator), each
 /// with a seed drawn from the run's generator.
 pub struct GeneratedScenes<F> {
+    /// What the scenes are: [`SceneSource::describe`] (the decoder's metadata) and errors give it.
     pub name: &'static str,
+    /// The generator: `f(seed, rows, cols)` gives one linear HDR RGB scene of `rows x cols`; a
+    /// non-finite or negative value in it is refused.
     pub generate: F,
 }
 

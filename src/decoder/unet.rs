@@ -96,6 +96,7 @@ impl UNet {
         Ok(DecoderWeights { tensors, metadata: Default::default() })
     }
 
+    /// The device the parameters live on.
     pub fn device(&self) -> &Device {
         &self.device
     }

@@ -65,7 +65,9 @@ pub fn tensor_specs() -> Vec<(String, Vec<usize>)> {
 /// One tensor: its shape and row-major values.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NamedTensor {
+    /// Dimensions, TF layout (a convolution kernel is `[kh, kw, in, out]`).
     pub shape: Vec<usize>,
+    /// The values, row-major; as many as the product of `shape`.
     pub values: Vec<f32>,
 }
 

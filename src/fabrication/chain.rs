@@ -55,8 +55,11 @@ impl DesignSource {
 /// A design height map with its name and content hash.
 #[derive(Debug, Clone)]
 pub struct LoadedDesign {
+    /// Design heights, metres.
     pub heights: Grid,
+    /// The file path as given, or `built-in:NAME`.
     pub name: String,
+    /// SHA-256 (hex) of the file's bytes, or of a built-in design's parameters as JSON.
     pub sha256: String,
 }
 
@@ -100,11 +103,17 @@ pub fn load_design(source: &DesignSource) -> Result<LoadedDesign> {
 /// The physical parameters of the chain (a recipe supplies them, or the command line).
 #[derive(Debug, Clone, Serialize)]
 pub struct ChainParams {
+    /// Design wavelength, metres.
     pub wavelength: f64,
+    /// DOE material name ([`Material::by_name`]).
     pub material: String,
+    /// Multi-order factor p: the wrap period is `p * h_2pi`.
     pub order: u32,
+    /// Number of height levels per period.
     pub level_count: usize,
+    /// How heights are mapped onto levels.
     pub quantization: QuantizeMethod,
+    /// Whether the outputs show the design or the master that casts it.
     pub replica_mode: ReplicaMode,
     /// Writer's smallest feature, metres.
     pub min_feature: f64,
@@ -144,6 +153,7 @@ impl ChainParams {
         })
     }
 
+    /// The wrap these parameters fix: wavelength, material (looked up by name) and order.
     pub fn wrap_spec(&self) -> Result<WrapSpec> {
         Ok(WrapSpec {
             wavelength: self.wavelength,
@@ -158,22 +168,34 @@ impl ChainParams {
 pub struct Shaped {
     /// Wrapped heights of the surface to make (the master in master mode), metres.
     pub surface: Grid,
+    /// What wrapping did.
     pub wrap: WrapStats,
+    /// Local zone periods against the writer's minimum feature.
     pub features: FeatureStats,
+    /// Samples filled (Laplace) because they were non-finite or not measured; 0 without `fill`.
     pub filled_samples: usize,
+    /// Narrow terraces, large steps and filled samples, one sentence each.
     pub warnings: Vec<String>,
+    /// What every output made from the surface says of its origin.
     pub provenance: Provenance,
 }
 
 /// Everything the chain computes before writing artifacts.
 #[derive(Debug, Clone)]
 pub struct Prepared {
+    /// What wrapping did.
     pub wrap: WrapStats,
+    /// The level map of the surface to make.
     pub quantized: Quantized,
+    /// Predicted efficiency of the design order at the paper's three wavelengths.
     pub efficiency: Vec<EfficiencyRow>,
+    /// Local zone periods against the writer's minimum feature.
     pub features: FeatureStats,
+    /// Samples filled (Laplace) because they were non-finite or not measured; 0 without `fill`.
     pub filled_samples: usize,
+    /// Narrow terraces, large steps and filled samples, one sentence each.
     pub warnings: Vec<String>,
+    /// What every output made from the levels says of its origin.
     pub provenance: Provenance,
 }
 
@@ -256,7 +278,9 @@ pub fn prepare(design: LoadedDesign, p: &ChainParams) -> Result<Prepared> {
 /// One file the chain wrote.
 #[derive(Debug, Clone, Serialize)]
 pub struct Artifact {
+    /// Where the file is, in its final place.
     pub path: PathBuf,
+    /// What the file is (`level_map`, `grayscale_mask`, `gds_mask_set`, `stl`, `report_json`, ...).
     pub kind: String,
 }
 
@@ -297,9 +321,13 @@ pub fn write_level_map(path: &Path, q: &Quantized, provenance: &Provenance) -> R
 
 /// A level map read back: levels, level count, period and provenance.
 pub struct LevelMap {
+    /// Level index per sample, 0..`level_count` (`Unit::Level`).
     pub levels: Grid,
+    /// Number of levels `N` per period.
     pub level_count: usize,
+    /// Height of one full period (`p * h_2pi`), metres: level `l` stands for `l period / N`.
     pub period: f64,
+    /// Where the map came from (its `provenance` metadata).
     pub provenance: Provenance,
 }
 
@@ -363,9 +391,13 @@ fn level_map_from_raw(path: &Path, raw: RawMap) -> Result<LevelMap> {
 /// Result of `doefab wrap`.
 #[derive(Debug, Clone, Serialize)]
 pub struct WrapOutcome {
+    /// What wrapping did: period (metres), wrapped samples, heights before and after.
     pub wrap: WrapStats,
+    /// Whether the heights written are the design's or the master's.
     pub replica_mode: ReplicaMode,
+    /// The wrapped height map written (EXR, metres).
     pub output: PathBuf,
+    /// Narrow terraces, large steps and filled samples, one sentence each.
     pub warnings: Vec<String>,
 }
 
@@ -384,13 +416,19 @@ pub fn write_wrapped(design: LoadedDesign, p: &ChainParams, output: &Path) -> Re
 /// Result of `doefab quantize`.
 #[derive(Debug, Clone, Serialize)]
 pub struct QuantizeOutcome {
+    /// Number of levels per period.
     pub level_count: usize,
+    /// How heights were mapped onto levels.
     pub method: QuantizeMethod,
     /// RMS height error of the quantized map, metres.
     pub rms_error: f64,
+    /// Predicted efficiency of the design order at the paper's three wavelengths.
     pub efficiency: Vec<EfficiencyRow>,
+    /// Local zone periods against the writer's minimum feature.
     pub features: FeatureStats,
+    /// The level map written (EXR).
     pub output: PathBuf,
+    /// Terraces narrower than the minimum feature, if any, in a sentence.
     pub warnings: Vec<String>,
 }
 
@@ -478,14 +516,17 @@ pub fn mask_file(levels: &Path, curve: &Path, opts: &MaskOptions, output: &Path)
 pub struct GdsJob<'a> {
     /// Level map at any pitch.
     pub levels: &'a Grid,
+    /// Number of levels `N` (a power of two: `log2 N` masks).
     pub level_count: usize,
     /// Wrap period p * h_2pi, metres.
     pub period: f64,
     /// Mask writer address grid, metres.
     pub address_grid: f64,
+    /// Mirror the pattern left-right (for writing through the substrate).
     pub mirror: bool,
     /// Most vertices per polygon ([`MaskSetOptions::max_vertices`]).
     pub max_vertices: usize,
+    /// Where the levels came from, written into the sidecar.
     pub provenance: &'a Provenance,
 }
 
@@ -571,7 +612,9 @@ pub fn stl_file(input: &Path, opts: &StlOptions, output: &Path) -> Result<StlSta
 /// Options of `doefab fab` beyond the recipe.
 #[derive(Debug, Clone, Default)]
 pub struct FabOptions {
+    /// Fill NaN and non-measured samples (Laplace) instead of refusing them.
     pub fill: bool,
+    /// Write a grayscale mask above its pixel limit anyway ([`MaskOptions::force`]).
     pub force: bool,
     /// Also write the intermediate maps: the wrapped surface (`surface.exr`), the level map
     /// (`levels.exr`, what `doefab mask`, `gds` and `stl` take) and its preview.
@@ -581,24 +624,39 @@ pub struct FabOptions {
 /// Everything `doefab fab` did, written as `report.json` (and summarised in `report.md`).
 #[derive(Debug, Clone, Serialize)]
 pub struct FabOutcome {
+    /// The recipe's name.
     pub recipe: String,
+    /// The recipe file, or `built-in:NAME`.
     pub recipe_path: PathBuf,
+    /// The unit of each kind of value in the report (`length`, `height`, `pitch`,
+    /// `wavelength`: `m`; `efficiency`: fraction of incident power).
     pub units: std::collections::BTreeMap<String, String>,
+    /// Where the outputs came from: design, wavelength, material, period, levels.
     pub provenance: Provenance,
     /// `[width, height]` of the design, samples.
     pub design_size: [usize; 2],
     /// `[x, y]` design pitch, metres.
     pub design_pitch_m: [f64; 2],
+    /// What wrapping did: period (metres), wrapped samples, heights before and after.
     pub wrap: WrapStats,
+    /// Number of levels per period.
     pub level_count: usize,
     /// RMS height error of the quantized surface, metres.
     pub quantization_rms_error_m: f64,
+    /// Predicted efficiency of the design order at the paper's three wavelengths.
     pub efficiency: Vec<EfficiencyRow>,
+    /// Local zone periods against the writer's minimum feature.
     pub features: FeatureStats,
+    /// The grayscale mask's sidecar; `None` when the recipe asks for no grayscale mask.
     pub mask: Option<MaskMeta>,
+    /// The GDSII mask set's report; `None` when the recipe asks for none.
     pub gds: Option<MaskSetStats>,
+    /// The STL's statistics; `None` when the recipe asks for no STL.
     pub stl: Option<StlStats>,
+    /// What the chain found questionable (narrow terraces, filled samples, a large STL), one
+    /// sentence each.
     pub warnings: Vec<String>,
+    /// Every file written, the reports included.
     pub artifacts: Vec<Artifact>,
 }
 

@@ -154,6 +154,7 @@ pub struct GdsStream {
 }
 
 impl GdsStream {
+    /// An empty stream.
     pub fn new() -> Self {
         GdsStream::default()
     }
@@ -259,14 +260,17 @@ impl GdsStream {
         self.buf.extend_from_slice(&other.buf);
     }
 
+    /// Length of the stream so far, bytes.
     pub fn len(&self) -> usize {
         self.buf.len()
     }
 
+    /// Whether no record has been written.
     pub fn is_empty(&self) -> bool {
         self.buf.is_empty()
     }
 
+    /// The stream's bytes, as a GDSII file holds them.
     pub fn into_bytes(self) -> Vec<u8> {
         self.buf
     }
@@ -323,11 +327,15 @@ pub struct MaskLayer {
 /// What [`write_mask_set`] wrote.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct MaskSetStats {
+    /// Library name written into LIBNAME ([`LIBRARY_NAME`]).
     pub library: String,
+    /// Name of the one structure holding every layer ([`STRUCTURE_NAME`]).
     pub structure: String,
-    /// User unit and database unit, metres.
+    /// User unit, metres (1e-6).
     pub user_unit: f64,
+    /// Database unit, metres (1e-9): the grid of every coordinate.
     pub database_unit: f64,
+    /// Number of levels `N` the masks make (a power of two; `log2 N` masks).
     pub level_count: usize,
     /// Etch depth of the deepest level plus one step (`p * h_2pi`), metres.
     pub period: f64,
@@ -335,14 +343,18 @@ pub struct MaskSetStats {
     pub pitch: [f64; 2],
     /// Design extent in GDSII coordinates, metres: `[x_min, y_min, x_max, y_max]`.
     pub design_extent: [f64; 4],
-    /// Alignment crosses: bar length and width, and centres in GDSII coordinates (metres),
-    /// top-left, top-right, bottom-left, bottom-right.
+    /// Length of each bar of the alignment crosses (tip to tip), metres.
     pub cross_arm: f64,
+    /// Width of the bars of the alignment crosses, metres.
     pub cross_width: f64,
+    /// Centres of the alignment crosses in GDSII coordinates, metres: top-left, top-right,
+    /// bottom-left, bottom-right.
     pub cross_centres: Vec<[f64; 2]>,
+    /// One entry per mask, in layer order (1 = first etch, deepest).
     pub masks: Vec<MaskLayer>,
-    /// Totals over all layers, pattern only.
+    /// Pattern polygons over all layers (alignment crosses not counted).
     pub polygons: usize,
+    /// Vertices of the pattern polygons over all layers.
     pub vertices: usize,
     /// Size of the GDSII file, bytes.
     pub bytes: usize,

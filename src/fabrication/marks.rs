@@ -87,6 +87,7 @@ pub struct Canvas {
 }
 
 impl Canvas {
+    /// An empty canvas of `width` x `height` pixels; refused where it cannot be allocated.
     pub fn new(width: usize, height: usize) -> Result<Canvas> {
         let fail = || {
             let what = format!("cannot allocate a {width} x {height} drawing canvas");
@@ -148,9 +149,11 @@ impl Canvas {
         self.mask.data()[y * self.mask.width() as usize + x] >= 128
     }
 
+    /// Width, pixels.
     pub fn width(&self) -> usize {
         self.mask.width() as usize
     }
+    /// Height, pixels.
     pub fn height(&self) -> usize {
         self.mask.height() as usize
     }

@@ -40,6 +40,7 @@ pub struct MaskOptions {
     pub writer_pitch: f64,
     /// 8 or 16.
     pub bits: u8,
+    /// Resist polarity: which of depth or remaining thickness the dose makes.
     pub polarity: Polarity,
     /// Mirror the pattern left-right on the mask (for writing through the substrate).
     pub mirror: bool,
@@ -51,6 +52,7 @@ pub struct MaskOptions {
     pub label: String,
     /// Refuse outputs above this many pixels unless `force`.
     pub max_pixels: usize,
+    /// Write a mask above `max_pixels` anyway.
     pub force: bool,
 }
 
@@ -73,6 +75,7 @@ impl Default for MaskOptions {
 /// One level's row of the mapping table.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct LevelDose {
+    /// Level index, 0..N-1.
     pub level: usize,
     /// Target surface height of the level, metres.
     pub height_m: f64,
@@ -81,6 +84,7 @@ pub struct LevelDose {
     pub curve_depth_m: f64,
     /// Relative dose, 0..=1.
     pub dose: f64,
+    /// Gray value written for the level, counts: `round(dose * full_scale)`.
     pub gray: u32,
 }
 
@@ -115,7 +119,10 @@ fn listed_rule(n: usize) -> String {
 /// The sidecar metadata of a grayscale mask (written as JSON next to the image).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MaskMeta {
+    /// What the file is: `grayscale_lithography_mask`.
     pub kind: String,
+    /// The unit of each kind of value in the sidecar (`length`, `pitch`, `height`: `m`; `dose`:
+    /// relative to full scale; `gray`: counts).
     pub units: std::collections::BTreeMap<String, String>,
     /// `[x, y]` writer pitch, metres.
     pub pitch_m: [f64; 2],
@@ -125,13 +132,22 @@ pub struct MaskMeta {
     pub pattern_offset_px: [usize; 2],
     /// `[width, height]` of the pattern, pixels.
     pub pattern_size_px: [usize; 2],
+    /// Bits per pixel of the image, 8 or 16.
     pub bits: u8,
+    /// Largest gray value, `2^bits - 1` counts (full writer dose).
     pub full_scale: u32,
+    /// What gray 0 means, in words (no exposure).
     pub gray_0: String,
+    /// What gray `full_scale` means, in words (full writer dose).
     pub gray_full_scale: String,
+    /// Resist polarity.
     pub polarity: Polarity,
+    /// What the contrast curve's depth is under this polarity, in words (developed depth, or
+    /// remaining thickness).
     pub curve_meaning: String,
+    /// The pattern is mirrored left-right (for writing through the substrate).
     pub mirrored: bool,
+    /// Number of levels `N` of the level map.
     pub level_count: usize,
     /// Depth of one full period (p * h_2pi), metres.
     pub period_m: f64,
@@ -139,11 +155,15 @@ pub struct MaskMeta {
     /// spaced ones including the first and the last, each row exact.
     #[serde(default)]
     pub levels_listed: String,
+    /// Level -> height -> curve depth -> dose -> gray, one row per listed level.
     pub levels: Vec<LevelDose>,
+    /// The contrast curve's file (or `built-in:NAME`).
     pub contrast_curve: String,
     /// Cross centres, pixels `[x, y]`.
     pub marks_px: Vec<[f64; 2]>,
+    /// Text drawn in the frame below the pattern (empty for none).
     pub label: String,
+    /// Where the mask came from: design, wavelength, material, period, levels.
     pub provenance: Provenance,
     /// What `doefab precompensate` corrected, from which scan, and what it predicts (absent in
     /// a plain `fab` mask).
@@ -156,6 +176,7 @@ pub struct MaskMeta {
 pub struct GrayscaleMask {
     /// Gray levels, row 0 at the top.
     pub gray: Array2<u16>,
+    /// The sidecar metadata written next to the image.
     pub meta: MaskMeta,
 }
 

@@ -54,15 +54,20 @@ pub struct Provenance {
     pub design: String,
     /// SHA-256 of the design file's bytes (or of the built-in design's parameters).
     pub design_sha256: String,
+    /// Whether the outputs show the design itself or the master that casts it.
     pub replica_mode: ReplicaMode,
     /// Design wavelength, metres.
     pub wavelength_m: f64,
+    /// Name of the DOE material (`pdms`, ...).
     pub material: String,
     /// Multi-order factor p.
     pub order: u32,
     /// Wrap period p * h_2pi, metres.
     pub period_m: f64,
+    /// Number of height levels the period is quantized to.
     pub level_count: usize,
+    /// The quantization method, by its Rust name (`Round`, `FloydSteinberg`).
     pub quantization: String,
+    /// Version of doefab that wrote the output.
     pub doefab_version: String,
 }

@@ -134,6 +134,7 @@ impl Response {
 /// The process: the response `R` then the Gaussian blur (module docs).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ProcessModel {
+    /// The height response `R`, commanded -> made height.
     pub response: Response,
     /// Standard deviation of the lateral blur, metres.
     pub blur: f64,
@@ -175,6 +176,7 @@ pub struct DeblurStats {
     pub iterations: usize,
     /// RMS of `G u - (t + p)`, metres: with `u = t + p` (no deconvolution) and at the end.
     pub residual_before: f64,
+    /// RMS of `G u - (t + p)` at the end of the deconvolution, metres.
     pub residual_after: f64,
     /// Fraction of samples held at a bound of the reachable range where the target is not.
     pub at_bounds: f64,
@@ -193,12 +195,19 @@ pub struct Precompensated {
     /// The model's prediction of the part made from `commanded`, and from the target itself
     /// (the plain mask).
     pub predicted: Grid,
+    /// The model's prediction of the part made from the target commanded as it is (the plain
+    /// mask), metres.
     pub plain: Grid,
     /// RMS of the predicted part minus the target, piston removed: for the plain target
     /// commanded as it is, and for `commanded`.
     pub rms_before: f64,
+    /// RMS of the part predicted from `commanded` minus the target, piston removed, metres.
     pub rms_after: f64,
+    /// What the deconvolution did; `None` where the blur was not deconvolved (deblur off, or a
+    /// blur at or below the pitch).
     pub deblur: Option<DeblurStats>,
+    /// What the correction could not do, one sentence each (e.g. a blur too small to
+    /// deconvolve).
     pub warnings: Vec<String>,
 }
 

@@ -44,9 +44,11 @@ pub fn check_level_count(n: usize) -> Result<()> {
 pub struct Quantized {
     /// Level index per sample (`Unit::Level`).
     pub levels: Grid,
+    /// Number of levels `N` per period.
     pub level_count: usize,
     /// Height of one full period (`p * h_2pi`), metres.
     pub period: f64,
+    /// How the heights were mapped onto levels.
     pub method: QuantizeMethod,
     /// RMS of (quantized - design) over valid samples, phase-wrapped, metres.
     pub rms_error: f64,

@@ -107,33 +107,51 @@ struct GdsFile {
 /// A parsed, validated recipe (SI units).
 #[derive(Debug, Clone, Serialize)]
 pub struct Recipe {
+    /// The recipe's name (`name`).
     pub name: String,
+    /// What the recipe is for, in words (`description`; empty when absent).
     pub description: String,
+    /// The recipe file, or `built-in:NAME` for a bundled one.
     pub path: PathBuf,
     /// Writer address grid, metres.
     pub address_grid: f64,
     /// Smallest feature the writer resolves, metres.
     pub min_feature: f64,
+    /// Number of height levels per period (`process.level_count`; a power of two for GDSII).
     pub level_count: usize,
+    /// How heights are mapped onto levels (default: nearest level).
     pub quantization: QuantizeMethod,
+    /// Whether the outputs show the design or the master that casts it (default: design).
     pub replica_mode: ReplicaMode,
+    /// Resist polarity of the grayscale mask (default: positive).
     pub polarity: Polarity,
+    /// The resist's contrast curve (dose -> depth CSV), relative paths resolved against the
+    /// recipe's folder; needed by grayscale outputs, `None` when the recipe names none.
     pub contrast_curve: Option<PathBuf>,
     /// Design wavelength, metres (default 530 nm).
     pub wavelength: f64,
+    /// DOE material name (default `pdms`).
     pub material: String,
+    /// Multi-order factor p: the wrap period is `p * h_2pi` (default 1).
     pub order: u32,
+    /// Bits per grayscale mask pixel, 8 or 16 (default 16).
     pub mask_bits: u8,
+    /// Mirror the mask pattern left-right, for writing through the substrate (default off).
     pub mask_mirror: bool,
-    /// Frame width around the mask pattern, metres.
+    /// Frame width around the mask pattern, metres (default 0.5 mm).
     pub mask_border: f64,
+    /// Text drawn in the mask's frame below the pattern (empty for none).
     pub mask_label: String,
+    /// Length unit of the STL coordinates (default mm).
     pub stl_unit: StlUnit,
+    /// Thickness of the STL's solid base below the lowest surface point, metres (default 1 mm).
     pub stl_base_thickness: f64,
+    /// Largest height error of a simplified STL heightfield, metres (default 5 nm).
     pub stl_max_error: f64,
     /// Most vertices per GDSII polygon, 4..=8190 (default 4094: every reader takes it without
     /// a warning; see [`crate::fabrication::gds`]).
     pub gds_max_vertices: usize,
+    /// The artifacts to produce.
     pub outputs: Vec<Output>,
 }
 

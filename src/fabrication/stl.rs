@@ -86,7 +86,10 @@ pub enum SurfaceChoice {
     /// otherwise a heightfield.
     #[default]
     Auto,
+    /// Exact flat terraces with vertical walls ([`terrace_mesh`]), whatever the map.
     Terraces,
+    /// Error-bounded TIN through the pixel centres ([`heightfield_mesh`]), for a map of at
+    /// least 2 x 2 samples.
     Heightfield,
 }
 
@@ -126,10 +129,14 @@ pub struct StlStats {
     pub unit: StlUnit,
     /// The 80-byte header text (trailing padding removed).
     pub header: String,
+    /// How the top surface was meshed.
     pub surface: SurfaceKind,
+    /// Triangles in the file: top surface, side walls and base of the closed solid.
     pub triangles: u64,
+    /// Distinct vertices of the mesh (the file repeats them per triangle).
     pub vertices: u64,
-    /// Triangles of the naive two-per-pixel top mesh.
+    /// Triangles of the naive top mesh: two per pixel for terraces, two per cell between four
+    /// pixel centres for a heightfield.
     pub naive_triangles: u64,
     /// `triangles / naive_triangles`.
     pub triangle_ratio: f64,

@@ -62,18 +62,23 @@ impl Profile {
     pub fn z(&self) -> &[f64] {
         &self.z
     }
+    /// Validity per point (`false`: not measured).
     pub fn valid(&self) -> &[bool] {
         &self.valid
     }
+    /// Whether point `k` is measured.
     pub fn is_valid(&self, k: usize) -> bool {
         self.valid[k]
     }
+    /// Number of points, valid or not.
     pub fn len(&self) -> usize {
         self.x.len()
     }
+    /// Whether the profile has no points (never, as built: [`Profile::new`] needs 2).
     pub fn is_empty(&self) -> bool {
         self.x.is_empty()
     }
+    /// Number of valid points.
     pub fn valid_count(&self) -> usize {
         self.valid.iter().filter(|v| **v).count()
     }

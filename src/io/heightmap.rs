@@ -37,10 +37,15 @@ pub const MAX_PLAUSIBLE_PV: f64 = 1e-3;
 /// The height-map formats [`read_heightmap`] understands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Format {
+    /// NumPy `.npy` array ([`super::npy`]).
     Npy,
+    /// OpenEXR `.exr` image ([`super::exr`]).
     Exr,
+    /// TIFF `.tif`/`.tiff` image ([`super::tiff`]).
     Tiff,
+    /// PNG `.png` image ([`super::png`]).
     Png,
+    /// Delimited text `.csv`/`.txt`/`.asc`/`.dat` ([`super::csv`]).
     Csv,
 }
 

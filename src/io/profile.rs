@@ -43,15 +43,22 @@ pub struct ProfileReadOptions {
 pub struct ProfileFile {
     /// Positions and heights in metres.
     pub profile: Profile,
-    /// Metres per stored position and height value, and where each came from.
+    /// Metres per stored position value.
     pub x_unit: f64,
+    /// Metres per stored height value.
     pub z_unit: f64,
+    /// Where the position unit came from, in words (the column header or a header pair with
+    /// its line, or `x_unit` where the caller gave it).
     pub x_unit_source: String,
+    /// Where the height unit came from, as for `x_unit_source` (`z_unit` where the caller gave
+    /// it).
     pub z_unit_source: String,
     /// Header `key, value` pairs, in file order.
     pub metadata: Vec<(String, String)>,
     /// Lines after the data that were not read as data.
     pub footer_lines: usize,
+    /// What the reader changed or found missing, one sentence each (a reversed profile, the
+    /// count of non-measured points).
     pub warnings: Vec<String>,
 }
 

@@ -17,7 +17,10 @@ pub enum SampleKind {
     Float,
     /// Unsigned or signed integer counts of an image format with `bits` per sample:
     /// scaled by an explicit metres-per-count factor.
-    Counts { bits: u8 },
+    Counts {
+        /// Bits per sample: 8 or 16 (PNG), 8, 16 or 32 (TIFF).
+        bits: u8,
+    },
 }
 
 /// What a format reader found: the stored numbers and what the file states about them.
@@ -25,6 +28,7 @@ pub enum SampleKind {
 pub struct RawMap {
     /// The stored numbers, row 0 = first row of the file (top of an image).
     pub values: Array2<f64>,
+    /// Whether the numbers are length values or integer counts.
     pub kind: SampleKind,
     /// `[x, y]` pitch in metres, when the file states it.
     pub pitch: Option<[f64; 2]>,

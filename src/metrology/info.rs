@@ -15,7 +15,9 @@ use crate::units::format_length;
 /// A summary of one scan.
 #[derive(Debug, Clone, Serialize)]
 pub struct ScanInfo {
+    /// The scan file.
     pub file: String,
+    /// The file format it was read as.
     pub format: ScanFormat,
     /// `[columns, rows]`.
     pub size: [usize; 2],
@@ -25,8 +27,11 @@ pub struct ScanInfo {
     pub origin: [f64; 2],
     /// Unit of the heights (always "m").
     pub z_unit: String,
+    /// Measured (valid) samples.
     pub valid: usize,
+    /// `valid` over all samples, 0..1.
     pub valid_fraction: f64,
+    /// Problems of the read that did not stop it (checksum mismatch, odd header values).
     pub warnings: Vec<String>,
     /// Height parameters of the scan as read (reference: the mean).
     pub raw: HeightParams,

@@ -44,8 +44,11 @@ use crate::grid::Grid;
 /// A least-squares plane `z = a + bx * j + by * i` (heights per pixel).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Plane {
+    /// Height at sample (0, 0), in the grid's unit (metres for a scan).
     pub a: f64,
+    /// Slope along the columns, grid unit per pixel.
     pub bx: f64,
+    /// Slope along the rows, grid unit per pixel.
     pub by: f64,
 }
 
@@ -59,6 +62,7 @@ impl Plane {
 /// A fitted polynomial surface of order `order` in centred, scaled coordinates (module docs).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Polynomial {
+    /// The highest total degree `p + q`.
     pub order: usize,
     /// `((p, q), c_pq)`: the coefficient of `u^p v^q`.
     pub coefficients: Vec<((usize, usize), f64)>,
@@ -243,12 +247,17 @@ pub enum LevelMethod {
     Facet,
     /// Least-squares plane through the substrate: the samples outside a centred circular
     /// aperture of this diameter (metres) when given, else the lowest level (module docs).
-    Substrate { aperture: Option<f64> },
+    Substrate {
+        /// Diameter of the centred circular aperture, metres; `None`: the lowest level is the
+        /// substrate.
+        aperture: Option<f64>,
+    },
 }
 
 /// What a levelling did: the plane removed and, for a substrate fit, what the substrate was.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Levelling {
+    /// The method applied.
     pub method: LevelMethod,
     /// The plane subtracted (heights per pixel, as [`Plane`]).
     pub plane: Plane,

@@ -34,10 +34,15 @@ pub struct HeightParams {
     pub n: usize,
     /// Mean height (the reference of the other parameters).
     pub mean: f64,
+    /// Arithmetic mean height `Sa = mean |d|`, metres.
     pub sa: f64,
+    /// Root mean square height `Sq = sqrt(mean d^2)`, metres.
     pub sq: f64,
+    /// Maximum peak height `Sp = max d`, metres (>= 0).
     pub sp: f64,
+    /// Maximum pit depth `Sv = -min d`, metres (>= 0).
     pub sv: f64,
+    /// Maximum height `Sz = Sp + Sv`, metres.
     pub sz: f64,
     /// Skewness (0 for a flat surface).
     pub ssk: f64,

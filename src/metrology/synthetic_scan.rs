@@ -50,6 +50,7 @@ pub struct SimulateParams {
     pub noise: f64,
     /// Fraction (0..1) of the measured samples dropped at random.
     pub missing: f64,
+    /// Seed of the generator behind the noise and the dropped samples.
     pub seed: u64,
     /// Scan pitch `[x, y]`, metres (default: the design's).
     pub pitch: Option<[f64; 2]>,

@@ -31,10 +31,12 @@ impl Plan2d {
         Plan2d { n, forward: planner.plan_fft_forward(n), inverse: planner.plan_fft_inverse(n) }
     }
 
+    /// The side `n` of the transform, samples.
     pub fn len(&self) -> usize {
         self.n
     }
 
+    /// Whether the side is 0.
     pub fn is_empty(&self) -> bool {
         self.n == 0
     }

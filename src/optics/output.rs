@@ -33,11 +33,15 @@ pub const LOG_DECADES: f64 = 5.0;
 /// What `doefab psf` prints and writes as `psf.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PsfOutcome {
+    /// The propagation method that made the PSF (its name, e.g. "asm").
     pub method: String,
+    /// How the channels are normalised: "each channel sums to 1 over the crop".
     pub normalisation: String,
+    /// The optical system simulated (the plan's, when a plan ran).
     pub system: OpticalSystem,
     /// The automatic plan that chose the configuration, when one did.
     pub plan: Option<Plan>,
+    /// Numbers of each channel, in the PSF's channel order.
     pub channels: Vec<ChannelStats>,
     /// Validity conditions a forced run violated.
     pub warnings: Vec<String>,
@@ -48,9 +52,11 @@ pub struct PsfOutcome {
 /// Per-channel numbers of [`PsfOutcome`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ChannelStats {
+    /// Name, wavelength, centroid, peak and captured power (flattened into this object).
     #[serde(flatten)]
     pub summary: ChannelSummary,
-    /// Fraction of the channel inside `1.22 lambda F#` of its peak.
+    /// Fraction of the channel (0..1) inside `1.22 lambda F#` of its peak; `None` for a
+    /// channel without a wavelength.
     pub encircled_energy_airy: Option<f64>,
     /// The central peak and its shifted copies: the brightest local maxima at least the Airy
     /// radius `1.22 lambda F#` (two pixels without a wavelength) apart, with the energy
@@ -58,7 +64,8 @@ pub struct ChannelStats {
     pub peaks: Vec<Peak>,
     /// Whether the sensor sub-samples resolve the intensity (`pitch / subsample <= lambda F# / 2`,
     /// the intensity's Nyquist pitch). If not, pixel values are point samples rather than pixel
-    /// integrals, and `captured` (a Riemann sum) can exceed 1.
+    /// integrals, and `captured` (a Riemann sum) can exceed 1. `None` for a channel without a
+    /// wavelength.
     pub pixel_integration_resolved: Option<bool>,
     /// Peak pixel relative to a flat DOE's peak pixel in the same system and method, the flat
     /// one computed on an odd crop so that its peak pixel is centred on the axis.

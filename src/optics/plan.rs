@@ -60,25 +60,37 @@ pub const MAX_SIDE: usize = 8192;
 /// One choice of the plan with the condition that bounds it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Choice {
+    /// What was chosen ("method", "pupil pitch", "pixel integration", "padding",
+    /// "precision", "spectral samples", "spectral check").
     pub what: String,
+    /// The value taken, as text with its unit ("matrix_dft", "4.2900 um", "2x").
     pub value: String,
+    /// The condition that bounds it, with the numbers.
     pub because: String,
 }
 
 /// Estimated relative L2 error of each term and their sum.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Estimate {
+    /// Error of integrating each pixel by its sub-samples (module docs), relative L2.
     pub pixel_integration: f64,
+    /// Rounding error of `f32` products, `u sqrt(n + M)`; 0 in `f64`.
     pub precision: f64,
+    /// Error of the composite midpoint rule over the spectral samples of a band, from the
+    /// pilot run or, once run, the run's own check; 0 for plain wavelengths.
     pub spectral: f64,
+    /// The sum of the three (a triangle inequality), relative L2.
     pub total: f64,
 }
 
 /// A configuration the plan chose.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Plan {
+    /// The tolerance planned for: relative L2 error per channel, in (0, 1).
     pub tolerance: f64,
+    /// The propagation method chosen.
     pub method: Method,
+    /// Precision of the matrix products (`f32` only for the matrix DFT).
     pub precision: Precision,
     /// The system with the chosen pupil pitch, sub-sampling and the wavelengths to simulate.
     pub system: OpticalSystem,
@@ -86,9 +98,11 @@ pub struct Plan {
     pub spectral_samples: usize,
     /// FFT window over pupil window (1 = none, the matrix DFT needs none).
     pub padding: f64,
+    /// Estimated relative L2 error of each term of the configuration.
     pub estimate: Estimate,
     /// Real multiply-adds of the run (all wavelengths).
     pub cost: f64,
+    /// Each choice with the condition that bounds it, in the order made.
     pub choices: Vec<Choice>,
 }
 
@@ -583,9 +597,11 @@ pub const MAX_SPECTRAL_CHECKED: usize = 243;
 /// The cheaper pixel sub-samplings the plan rejected, measured rather than estimated.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CheaperMeasured {
+    /// The plan's tolerance, relative L2 error per channel.
     pub tolerance: f64,
-    /// The plan's sub-samples per pixel and axis, and its estimated error there.
+    /// The plan's sub-samples per pixel and axis.
     pub chosen: usize,
+    /// The plan's total estimated error ([`Estimate::total`]), relative L2.
     pub chosen_estimate: f64,
     /// Where they were compared, metres: the plan's wavelengths, or each band's centre.
     pub wavelengths: Vec<f64>,
@@ -597,9 +613,13 @@ pub struct CheaperMeasured {
 /// One cheaper run of [`measure_cheaper`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CheaperRun {
+    /// Sub-samples per pixel and axis of this run.
     pub subsample: usize,
+    /// Relative L2 against the plan's run, the worst channel's.
     pub error: f64,
+    /// The pixel integration error estimated for this sub-sampling, relative L2.
     pub estimate: f64,
+    /// Whether the method's validity checks accept this sub-sampling (the run was forced).
     pub valid: bool,
 }
 

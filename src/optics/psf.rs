@@ -52,21 +52,30 @@ pub struct Psf {
 /// value and the channel's energy within the search radius of it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Peak {
+    /// `[x, y]` position of the pixel, metres from the window centre.
     pub position: [f64; 2],
+    /// The pixel's value, fraction of the channel's sum (0..1).
     pub value: f64,
+    /// Sum of the channel over pixels whose centre lies within the search radius of
+    /// `position`, fraction of the channel's sum (0..1).
     pub energy: f64,
 }
 
 /// Summary numbers of one channel (for reports and JSON).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ChannelSummary {
+    /// Channel name ("635nm", "R", ...).
     pub name: String,
+    /// The channel's wavelength in metres; `None` for a colour band without one.
     pub wavelength: Option<f64>,
     /// `[x, y]` centroid, metres from the window centre.
     pub centroid: [f64; 2],
-    /// Peak value (fraction of the channel's sum) and its `[x, y]` position, metres.
+    /// Peak value, fraction of the channel's sum (0..1).
     pub peak: f64,
+    /// `[x, y]` position of the peak pixel, metres from the window centre.
     pub peak_position: [f64; 2],
+    /// Fraction of the DOE's output power that lands in the window (see
+    /// [`Channel::captured`]); `None` when not known (a measured or loaded PSF).
     pub captured: Option<f64>,
 }
 

@@ -60,9 +60,10 @@ pub struct CompareOptions {
 /// Numbers of one channel of one PSF, over its own whole window.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ChannelNumbers {
+    /// Name, wavelength, centroid, peak and captured power (flattened into this object).
     #[serde(flatten)]
     pub summary: ChannelSummary,
-    /// Fraction of the channel within the radius of its peak.
+    /// Fraction of the channel (0..1) within the radius of its peak.
     pub encircled_energy: f64,
     /// The central peak and its shifted copies (at least the radius apart).
     pub peaks: Vec<Peak>,
@@ -71,10 +72,13 @@ pub struct ChannelNumbers {
 /// One channel of the comparison.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ChannelComparison {
+    /// The channel's name, `"A/B"` when the two PSFs name it differently.
     pub name: String,
     /// Radius of the encircled energy and the peak search, metres.
     pub radius: f64,
+    /// Numbers of A's channel, over A's whole window.
     pub a: ChannelNumbers,
+    /// Numbers of B's channel, over B's whole window.
     pub b: ChannelNumbers,
     /// Centroid of B minus centroid of A over the common window, `[x, y]` metres: the shift
     /// removed before the aligned L2.
@@ -94,18 +98,27 @@ pub struct ChannelComparison {
 /// What `doefab psf-compare` reports.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Comparison {
+    /// Name of the reference PSF A (its file path in `doefab psf-compare`).
     pub a: String,
+    /// Name of the PSF B compared against it and moved onto its centroid.
     pub b: String,
     /// Pixel pitch `[x, y]`, metres.
     pub pitch: [f64; 2],
-    /// `(rows, cols)` of A, of B, and of the common window compared.
+    /// `(rows, cols)` of A, pixels.
     pub dim_a: (usize, usize),
+    /// `(rows, cols)` of B, pixels.
     pub dim_b: (usize, usize),
+    /// `(rows, cols)` of the common centred window compared, pixels.
     pub dim_common: (usize, usize),
     /// How the windows were matched (a sentence; "same size" when they were).
     pub window: String,
+    /// How the compared channels are normalised: "each channel sums to 1 over the common
+    /// window".
     pub normalisation: String,
+    /// One per channel, in channel order.
     pub channels: Vec<ChannelComparison>,
+    /// Edge energy above [`WARN_LEVEL`] that wraps in the shift, and band-edge content above
+    /// it under a sub-pixel shift, one sentence each.
     pub warnings: Vec<String>,
 }
 

@@ -21,8 +21,12 @@ use crate::table::{column_unit, hermite, pchip_slopes};
 /// increasing), zero outside `[lo, hi]` = the table's range.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Band {
+    /// Channel name (the response CSV column's header).
     pub name: String,
+    /// Tabulated wavelengths, metres, increasing; at least two.
     pub wavelengths: Vec<f64>,
+    /// Spectral response at each wavelength, non-negative, any scale (it cancels in the
+    /// normalisation).
     pub response: Vec<f64>,
     slopes: Vec<f64>,
 }

@@ -161,9 +161,13 @@ impl Default for OpticalSystem {
 /// (Siegman, Lasers, ch. 15; Collins 1970, JOSA 60, 1168).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Abcd {
+    /// `A = 1 - d_s/g`, dimensionless.
     pub a: f64,
+    /// `B = d_phi + d_s - d_phi d_s / g`, metres.
     pub b: f64,
+    /// `C = -1/g`, 1/metres.
     pub c: f64,
+    /// `D = 1 - d_phi/g`, dimensionless.
     pub d: f64,
 }
 

@@ -192,7 +192,6 @@ pub fn compare_and_write(
     out: &Path,
     step: &mut dyn FnMut(&str),
 ) -> Result<CompareOutcome> {
-    use crate::charts::metrology::{height_histogram, height_map, profiles, Palette};
     step("register and compare");
     let mut c = compare_family(family, &scan.grid, opts)?;
     let reference = &c.reference;
@@ -238,6 +237,35 @@ pub fn compare_and_write(
         &exr_meta,
     )?;
     crate::io::atomic::write_json(&stage.stage_path("surface.json"), &meta)?;
+    let files: Vec<String> =
+        ["compare.json", "surface.exr", "surface.json"].iter().map(|s| s.to_string()).collect();
+    #[cfg(feature = "charts")]
+    let files = [files, write_compare_pictures(&mut stage, reference, &c)?].concat();
+    let report = CompareOutcome {
+        scan_sha256: crate::io::file_sha256(scan_path)?,
+        scan: scan_name,
+        design: design.name.clone(),
+        design_sha256: design.sha256.clone(),
+        units: "lengths and heights in metres, angles in radians".into(),
+        scan_warnings: scan.warnings.clone(),
+        comparison: c,
+        psf,
+        files,
+    };
+    crate::io::atomic::write_json(&stage.stage_path("compare.json"), &report)?;
+    stage.commit()?;
+    Ok(report)
+}
+
+/// The comparison's pictures, staged in `stage`: false-colour maps `design.png`, `scan.png`,
+/// `difference.png` (heights in metres), `profiles.png` and `histogram.png`; their names.
+#[cfg(feature = "charts")]
+fn write_compare_pictures(
+    stage: &mut crate::io::atomic::StagedDir,
+    reference: &Grid,
+    c: &Comparison,
+) -> Result<Vec<String>> {
+    use crate::charts::metrology::{height_histogram, height_map, profiles, Palette};
     height_map(&stage.stage_path("design.png"), reference, "design", Palette::Sequential)?;
     height_map(&stage.stage_path("scan.png"), &c.surface, "part (registered scan)", Palette::Sequential)?;
     height_map(&stage.stage_path("difference.png"), &c.difference, "part - design", Palette::Diverging)?;
@@ -254,25 +282,10 @@ pub fn compare_and_write(
         .as_ref()
         .map_or((vec![], vec![]), |l| l.levels.iter().map(|s| (s.design_height, s.mean)).unzip());
     height_histogram(&stage.stage_path("histogram.png"), &heights, &dl, &ml)?;
-    let files = ["compare.json", "surface.exr", "surface.json", "design.png", "scan.png", "difference.png"]
+    Ok(["design.png", "scan.png", "difference.png", "profiles.png", "histogram.png"]
         .iter()
-        .chain(&["profiles.png", "histogram.png"])
         .map(|s| s.to_string())
-        .collect();
-    let report = CompareOutcome {
-        scan_sha256: crate::io::file_sha256(scan_path)?,
-        scan: scan_name,
-        design: design.name.clone(),
-        design_sha256: design.sha256.clone(),
-        units: "lengths and heights in metres, angles in radians".into(),
-        scan_warnings: scan.warnings.clone(),
-        comparison: c,
-        psf,
-        files,
-    };
-    crate::io::atomic::write_json(&stage.stage_path("compare.json"), &report)?;
-    stage.commit()?;
-    Ok(report)
+        .collect())
 }
 
 /// `doefab compare` from files: reads the scan at `scan_path`, loads the design, makes its

@@ -114,7 +114,9 @@ pub fn compare_profile_file(
     };
     let Some(out) = out else { return Ok(report) };
     let mut stage = crate::io::atomic::StagedDir::new(out)?;
-    report.files = ["profile.json", "profile_fit.csv", "profile.svg"].map(String::from).to_vec();
+    report.files = ["profile.json", "profile_fit.csv"].map(String::from).to_vec();
+    #[cfg(feature = "charts")]
+    report.files.push("profile.svg".into());
     let csv = stage.stage_path("profile_fit.csv");
     type Points = Vec<(f64, f64)>;
     let (measured, model, levels): (Points, Points, Vec<f64>) = match &report.comparison {
@@ -152,20 +154,26 @@ pub fn compare_profile_file(
         }
         Ok(())
     })?;
-    // Without a design the levels are drawn above the lowest terrace, where they were measured.
-    let base = report.terraces.as_ref().and_then(|_| levelled_base(&levelled, &levels)).unwrap_or(0.0);
-    let shown: Vec<f64> = levels.iter().map(|h| h + base).collect();
-    let title = match &report.design {
-        Some(d) => format!("{} against {d}", path.display()),
-        None => format!("{} (levelled), terraces", path.display()),
-    };
-    crate::charts::metrology::profile_chart(
-        &stage.stage_path("profile.svg"),
-        &measured,
-        &model,
-        &shown,
-        &title,
-    )?;
+    // The chart (feature `charts`).
+    #[cfg(not(feature = "charts"))]
+    let _ = levels;
+    #[cfg(feature = "charts")]
+    {
+        // Without a design the levels are drawn above the lowest terrace, where they were measured.
+        let base = report.terraces.as_ref().and_then(|_| levelled_base(&levelled, &levels)).unwrap_or(0.0);
+        let shown: Vec<f64> = levels.iter().map(|h| h + base).collect();
+        let title = match &report.design {
+            Some(d) => format!("{} against {d}", path.display()),
+            None => format!("{} (levelled), terraces", path.display()),
+        };
+        crate::charts::metrology::profile_chart(
+            &stage.stage_path("profile.svg"),
+            &measured,
+            &model,
+            &shown,
+            &title,
+        )?;
+    }
     crate::io::atomic::write_json(&stage.stage_path("profile.json"), &report)?;
     stage.commit()?;
     Ok(report)
@@ -173,6 +181,7 @@ pub fn compare_profile_file(
 
 /// Height of the lowest terrace of a levelled profile: the mean of the points nearer to the
 /// lowest level than to the next (`levels` relative to the lowest, ascending).
+#[cfg(feature = "charts")]
 fn levelled_base(p: &crate::metrology::profile::Profile, levels: &[f64]) -> Option<f64> {
     let gap = levels.get(1).copied()?;
     let zs: Vec<f64> = (0..p.len()).filter(|&k| p.is_valid(k)).map(|k| p.z()[k]).collect();

@@ -23,13 +23,16 @@
 //! * [`report`]: the benchmarks of a design within one time budget, gathered into one static
 //!   HTML page with its charts and data (`doefab report`).
 
+#[cfg(all(feature = "charts", feature = "decoder"))]
 pub mod bench;
 pub mod calibrate_psf;
 pub mod compare;
 pub mod compare_profile;
+#[cfg(all(feature = "charts", feature = "decoder"))]
 pub mod finetune;
 pub mod merge;
 pub mod precompensate;
 pub mod psf;
 pub mod psf_compare;
+#[cfg(all(feature = "charts", feature = "decoder"))]
 pub mod report;

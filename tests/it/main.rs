@@ -8,6 +8,7 @@ mod calibration;
 mod cli;
 mod compare;
 mod decoder;
+mod docs;
 mod exr_images;
 mod gds;
 mod io;

@@ -45,6 +45,7 @@ impl Mesh {
     pub fn triangles(&self) -> &[[u32; 3]] {
         &self.triangles
     }
+    /// How the top surface was meshed.
     pub fn kind(&self) -> SurfaceKind {
         self.kind
     }
@@ -67,6 +68,7 @@ impl Mesh {
     pub fn chamfers(&self) -> u64 {
         self.chamfers
     }
+    /// Thickness of the base below the lowest surface point, metres.
     pub fn base_thickness(&self) -> f64 {
         self.base_thickness
     }

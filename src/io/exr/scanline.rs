@@ -14,7 +14,7 @@
 //! A chunk whose data are not shorter than its raw size is stored raw (as OpenEXR writes it).
 //! The decompressors follow OpenEXR's (`ImfRleCompressor.cpp`, `ImfZipCompressor.cpp`,
 //! `ImfB44Compressor.cpp`; BSD-3-Clause, Contributors to the OpenEXR Project), PIZ in
-//! [`super::piz`]. PXR24, DWAA and DWAB are refused by name (no luminance/chroma file here uses
+//! `exr/piz.rs`. PXR24, DWAA and DWAB are refused by name (no luminance/chroma file here uses
 //! them); tiled, deep and multi-part files are refused.
 
 use std::path::Path;
@@ -25,8 +25,11 @@ use crate::error::{Error, Result};
 /// How a channel's samples are stored.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PixelType {
+    /// 32-bit unsigned integers (type code 0; refused as image data).
     Uint,
+    /// 16-bit IEEE half floats (type code 1).
     Half,
+    /// 32-bit IEEE floats (type code 2).
     Float,
 }
 
@@ -42,17 +45,22 @@ impl PixelType {
 /// One entry of the header's channel list.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Channel {
+    /// Channel name (`Y`, `RY`, `R`, ...).
     pub name: String,
+    /// How the samples are stored.
     pub pixel_type: PixelType,
     /// `pLinear`: the values are perceptually linear (B44 then stores them on a log scale).
     pub linear: bool,
+    /// Horizontal sampling, pixels (at least 1): samples sit at the `x` divisible by it.
     pub x_sampling: i32,
+    /// Vertical sampling, pixels (at least 1): samples sit at the `y` divisible by it.
     pub y_sampling: i32,
 }
 
 /// The header fields this reader needs (of a single-part file: the first header otherwise).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Header {
+    /// The `channels` attribute, in file order (sorted by name).
     pub channels: Vec<Channel>,
     /// OpenEXR's compression code: 0 NONE, 1 RLE, 2 ZIPS, 3 ZIP, 4 PIZ, 5 PXR24, 6 B44, 7 B44A,
     /// 8 DWAA, 9 DWAB.
@@ -61,8 +69,11 @@ pub struct Header {
     pub data_window: [i32; 4],
     /// The `chromaticities` attribute: CIE x, y of red, green, blue and white.
     pub chromaticities: Option<[f32; 8]>,
+    /// The file is tiled (version flag 0x200 or a `tiles` attribute); refused by the reader.
     pub tiled: bool,
+    /// The file holds deep data (version flag 0x800); refused by the reader.
     pub deep: bool,
+    /// The file has several parts (version flag 0x1000); refused by the reader.
     pub multipart: bool,
     /// Where the chunk offset table starts.
     offsets_at: usize,
@@ -72,8 +83,11 @@ pub struct Header {
 /// are exact in `f32`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Plane {
+    /// Sampled lines of the data window (its height for a sampling of 1).
     pub rows: usize,
+    /// Samples per line (the window's width for a sampling of 1).
     pub cols: usize,
+    /// The `rows x cols` samples, row-major.
     pub values: Vec<f32>,
 }
 
@@ -203,14 +217,17 @@ impl Header {
         })
     }
 
+    /// Width of the data window, pixels.
     pub fn width(&self) -> usize {
         (self.data_window[2] as i64 - self.data_window[0] as i64 + 1) as usize
     }
 
+    /// Height of the data window, pixels.
     pub fn height(&self) -> usize {
         (self.data_window[3] as i64 - self.data_window[1] as i64 + 1) as usize
     }
 
+    /// The channel named `name`, `None` where the file has none.
     pub fn channel(&self, name: &str) -> Option<&Channel> {
         self.channels.iter().find(|c| c.name == name)
     }

@@ -96,8 +96,11 @@ pub fn luminance_weights(c: &[f32; 8]) -> [f32; 3] {
 /// sampling (a missing one reads as zeros, OpenEXR's fill value).
 #[derive(Debug, Clone, PartialEq)]
 pub struct LumaChroma {
+    /// Luminance `Y`, one sample per pixel.
     pub y: Plane,
+    /// Chroma `RY = (R - Y) / Y`, one sample per 2 x 2 pixels.
     pub ry: Plane,
+    /// Chroma `BY = (B - Y) / Y`, one sample per 2 x 2 pixels.
     pub by: Plane,
     /// `[x_min, y_min, x_max, y_max]`.
     pub data_window: [i32; 4],

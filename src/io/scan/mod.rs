@@ -104,6 +104,7 @@ impl ScanOptions {
 pub struct Scan {
     /// Heights in metres; non-measured points are invalid samples.
     pub grid: Grid,
+    /// The file format the scan was read as.
     pub format: ScanFormat,
     /// Every key/value the file carries (header fields, XML elements), in file order.
     pub metadata: Vec<(String, String)>,

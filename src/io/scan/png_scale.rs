@@ -24,11 +24,18 @@ use crate::io::scan::raw::{scan_length_unit, ScanFormat, ScanRaw};
 /// The fields of a `pCAL` chunk.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PCal {
+    /// Calibration name (the chunk's keyword).
     pub name: String,
+    /// Stored sample value that maps to the first end of the range (`X0`).
     pub x0: i32,
+    /// Stored sample value that maps to the other end of the range (`X1`).
     pub x1: i32,
+    /// Equation type: 0 linear (the only one read), 1 base-e exponential, 2 arbitrary-base
+    /// exponential, 3 hyperbolic.
     pub equation: u8,
+    /// Unit of the physical values (a length unit for a height scan: `m`, `um`, `nm`, ...).
     pub unit: String,
+    /// The equation's parameters `p0, p1, ...`, in `unit`; the linear one has two.
     pub params: Vec<f64>,
     /// Byte offset of the chunk's data in the file.
     pub offset: usize,

@@ -1,5 +1,5 @@
 //! What the scan format readers share: the formats ([`ScanFormat`]), what a reader returns
-//! ([`ScanRaw`]), bounds-checked access to a binary file's fields ([`Bin`]) and the checks and
+//! ([`ScanRaw`]), bounds-checked access to a binary file's fields (`Bin`) and the checks and
 //! texts every reader applies.
 
 use std::path::Path;
@@ -13,29 +13,53 @@ use crate::io::raw_map::RawMap;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ScanFormat {
+    /// ISO 25178-72 XML 3D surface profile (`.x3p`).
     X3p,
+    /// Gwyddion Simple Field (`.gsf`).
     Gsf,
+    /// ISO 25178-71 surface data file, ASCII (`.sdf` not starting with `b`).
     SdfAscii,
+    /// ISO 25178-71 surface data file, binary (`.sdf` starting with `b`).
     SdfBinary,
+    /// Digital Surf SUR (`.sur`).
     Sur,
+    /// Gwyddion native GWY (`.gwy`).
     Gwy,
+    /// Zygo MetroPro DAT (`.dat` with the MetroPro magic).
     MetroPro,
+    /// Wyko / Bruker Vision OPD (`.opd`).
     Opd,
+    /// Bruker Vision64 OPDx (`.opdx`).
     Opdx,
+    /// Sensofar PLu (`.plu`).
     Plu,
+    /// Sensofar PLUx (`.plux`).
     Plux,
+    /// Alicona AL3D (`.al3d`).
     Al3d,
+    /// TrueMap TMD (`.tmd`).
     Tmd,
+    /// Keyence VK4, VK6 or VK7 (`.vk4`, `.vk6`, `.vk7`).
     Vk,
+    /// Olympus LEXT (`.lext`).
     Lext,
+    /// FRT MicroProf (`.frt`).
     Frt,
+    /// Zygo Mx DATX (`.datx`).
     Datx,
+    /// Bruker Nanoscope SPM (`.spm`, or a three-digit extension with the Nanoscope magic).
     Nanoscope,
+    /// XYZ point list, text (`.xyz`).
     Xyz,
+    /// Text matrix of heights (`.txt`, `.csv`, `.asc`, or `.dat` without the MetroPro magic).
     Matrix,
+    /// 8/16-bit grayscale PNG, with a `pCAL` height scale or an explicit one (`.png`).
     Png,
+    /// TIFF height map (`.tif`, `.tiff`).
     Tiff,
+    /// NumPy NPY array (`.npy`).
     Npy,
+    /// OpenEXR height map (`.exr`).
     Exr,
 }
 
@@ -76,6 +100,7 @@ impl ScanFormat {
 pub struct ScanRaw {
     /// Stored numbers (non-measured points NaN), pitch and unit as the file states them.
     pub raw: RawMap,
+    /// The file format read.
     pub format: ScanFormat,
     /// `[x, y]` position of sample (0, 0) in metres, when the file states it.
     pub origin: Option<[f64; 2]>,

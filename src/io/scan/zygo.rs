@@ -157,12 +157,20 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
 /// Field values for [`encode`].
 #[derive(Debug, Clone)]
 pub struct MetroProFields {
+    /// Header format 1, 2 or 3 (the magic and the header size follow from it: 834 or 4096
+    /// bytes).
     pub header_format: i16,
+    /// Phase resolution code: 0 (R = 4096), 1 (32768), 2 (131072, format 3 only).
     pub phase_res: i16,
+    /// `wavelength_in`, metres.
     pub wavelength: f32,
+    /// `intf_scale_factor` S (0.5 for a reflection interferometer).
     pub scale_factor: f32,
+    /// `obliquity_factor` O.
     pub obliquity: f32,
+    /// Lateral resolution, metres per pixel (0: unknown).
     pub camera_res: f32,
+    /// `data_inverted`: heights negated.
     pub inverted: bool,
     /// Intensity buckets written before the phase map (each `width x height` u16).
     pub buckets: i16,

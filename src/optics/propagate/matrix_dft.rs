@@ -129,7 +129,9 @@ pub fn sensor_intensity(
 /// A real type the matrix products run in (`f32` or `f64`); phases and trigonometry are
 /// always evaluated in `f64` and rounded once.
 pub trait Real: LinalgScalar + Send + Sync {
+    /// `x` rounded to this type.
     fn of(x: f64) -> Self;
+    /// The value widened to `f64`.
     fn wide(self) -> f64;
 }
 

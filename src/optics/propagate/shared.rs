@@ -16,17 +16,18 @@ use crate::optics::system::{nested_parity, nested_refinement, takes_doe_samples,
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Method {
-    /// Single transform pupil -> sensor by matrix DFT ([`matrix_dft`]).
+    /// Single transform pupil -> sensor by matrix DFT ([`matrix_dft`](super::matrix_dft)).
     MatrixDft,
-    /// Two-step Fresnel transfer function with a thin-lens phase ([`fresnel`]).
+    /// Two-step Fresnel transfer function with a thin-lens phase ([`fresnel`](super::fresnel)).
     Fresnel,
-    /// Band-limited angular spectrum with a hyperbolic lens phase ([`asm`]).
+    /// Band-limited angular spectrum with a hyperbolic lens phase ([`asm`](super::asm)).
     AngularSpectrum,
-    /// Direct Rayleigh-Sommerfeld integration ([`rayleigh`]).
+    /// Direct Rayleigh-Sommerfeld integration ([`rayleigh`](super::rayleigh)).
     RayleighSommerfeld,
 }
 
 impl Method {
+    /// Every method, in the order of the enum.
     pub const ALL: [Method; 4] =
         [Method::MatrixDft, Method::Fresnel, Method::AngularSpectrum, Method::RayleighSommerfeld];
 
@@ -72,8 +73,8 @@ impl fmt::Display for Method {
     }
 }
 
-/// Floating-point precision of the matrix products of [`matrix_dft`]; the FFT methods and
-/// every phase are computed in `f64`.
+/// Floating-point precision of the matrix products of [`matrix_dft`](super::matrix_dft); the
+/// FFT methods and every phase are computed in `f64`.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Precision {
@@ -81,11 +82,13 @@ pub enum Precision {
     /// rounding error (unit roundoff `6e-8` accumulated over sums of ~n/2 terms) stays near
     /// `1e-6` relative L2 on the PSF (measured by the tests and `benches/psf.rs`).
     F32,
+    /// Double precision, the default.
     #[default]
     F64,
 }
 
 impl Precision {
+    /// The name used on the command line and in metadata (`f32`, `f64`).
     pub fn name(self) -> &'static str {
         match self {
             Precision::F32 => "f32",
@@ -138,7 +141,9 @@ impl fmt::Display for Violation {
 /// The sensor intensity of one wavelength on the sub-sample grid (`crop * subsample` per side,
 /// W/m^2 for a unit-amplitude incident wave) with the power that left the DOE (W).
 pub struct SensorIntensity {
+    /// `|u|^2` on the sensor sub-samples, `crop * subsample` square, W/m^2.
     pub intensity: Array2<f64>,
+    /// Power of the pupil field leaving the DOE, `sum |u|^2 dx^2` ([`field_power`]), W.
     pub input_power: f64,
 }
 
