@@ -33,7 +33,7 @@ use serde::Serialize;
 use crate::calibration::psf_extract::{self as pe, PsfCalibration};
 use crate::decoder::finetune::HistoryEntry;
 use crate::decoder::reconstruct::ReconstructOutcome;
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::fabrication::chain::{self, ChainParams, DesignSource, FabOptions, FabOutcome, LoadedDesign};
 use crate::fabrication::recipe::Recipe;
 use crate::optics::output::PsfOutcome;
@@ -189,7 +189,8 @@ pub fn run(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<De
     let psf = design_psf(&design, &folders.psf, &mut p)?;
 
     let scanned = recipes.iter().find(|(n, _)| n == SCANNED_RECIPE).map(|(_, r)| r);
-    let scanned = scanned.ok_or_else(|| Error::Data(format!("the demo has no recipe {SCANNED_RECIPE}")))?;
+    let scanned =
+        scanned.ok_or_else(|| Error::internal(format!("the demo has no recipe {SCANNED_RECIPE}")))?;
     let metro = output.join("metrology");
     folders.scan = metro.join("scan.x3p");
     folders.compare = metro.join("compare");
@@ -480,10 +481,13 @@ pub fn window_at_peak(psf: &Psf, size: usize) -> Result<Psf> {
     let before = (size.max(1) - 1) / 2;
     let (pi, pj) = peak;
     if pi < before || pj < before || pi - before + size > h || pj - before + size > w {
-        return Err(Error::Data(format!(
-            "the PSF's peak at ({pi}, {pj}) is too close to the border of its {h} x {w} window for a \
+        return Err(Error::data(
+            DataCause::OutOfRange,
+            format!(
+                "the PSF's peak at ({pi}, {pj}) is too close to the border of its {h} x {w} window for a \
              {size} x {size} window around it"
-        )));
+            ),
+        ));
     }
     let (rows, cols) = (pi - before..pi - before + size, pj - before..pj - before + size);
     let channels = psf

@@ -17,6 +17,28 @@
 //!   names which condition fails (sampling, aliasing, conditioning, ...).
 //! * [`Error::Registration`]: a scan or profile could not be placed on its design;
 //!   [`Refusal`] says why (no match, ambiguous, featureless, not trusted, no overlap).
+//! * [`Error::TypedData`]: the data themselves (arrays, images, scans, profiles, PSFs; not the file
+//!   that held them) cannot be used. [`DataCause`] says how:
+//!   [`NotFinite`](DataCause::NotFinite) (NaN, infinite or unmeasured samples where a value is
+//!   needed), [`Empty`](DataCause::Empty) (nothing to work on), [`TooFew`](DataCause::TooFew)
+//!   (fewer usable samples than the step needs), [`Shape`](DataCause::Shape) (sizes, channel
+//!   counts or pitches that must agree do not), [`OutOfRange`](DataCause::OutOfRange) (values
+//!   outside what the step accepts), [`Featureless`](DataCause::Featureless) (no structure to
+//!   work with: flat, a single level), [`Singular`](DataCause::Singular) (a fit the data leave
+//!   undetermined), [`Diverged`](DataCause::Diverged) (an iteration that did not converge) and
+//!   [`Internal`](DataCause::Internal) (an intermediate the library built itself breaks its own
+//!   invariant: a bug, not the caller's data).
+//! * [`Error::Limit`]: a size limit would be exceeded; [`Resource`] names what is counted
+//!   (samples, work, bytes of a record, triangles, vertices, distinct heights, coordinates,
+//!   area, relief), `requested` and `limit` its amounts.
+//! * [`Error::Options`]: options given together that cannot all be honoured; [`OptionsCause`]
+//!   says how (a value refused before any work starts, two options that exclude each other,
+//!   one that requires another, two outputs naming the same file) and `options` names them.
+//! * [`Error::Io`]: the operating system refused a read or a write (no cause beyond its own
+//!   [`std::io::ErrorKind`]).
+//!
+//! Every variant prints its message alone (`Format` after the file's path, `Parameter`,
+//! `Validity` and `Registration` after their fixed prefixes); the causes are not printed.
 
 use std::ops::Bound;
 use std::path::PathBuf;
@@ -51,9 +73,15 @@ pub enum Error {
         /// The range or set the value must lie in, where the check is one.
         allowed: Option<Allowed>,
     },
-    /// The data itself (not the file) cannot be used: NaN, implausible values, empty regions.
+    /// The data themselves (not the file) cannot be used, in the modules not yet converted to
+    /// [`Error::TypedData`] (profile and scan comparison, scan registration, fine-tuning):
+    /// transitional, to be replaced by it.
     #[error("{0}")]
     Data(String),
+    /// The data themselves (not the file) cannot be used: NaN, implausible values, empty
+    /// regions, sizes that disagree; [`DataCause`] says which.
+    #[error("{what}")]
+    TypedData { cause: DataCause, what: String },
     /// A numerical method would run outside its validity range (sampling, aliasing, conditioning).
     #[error("outside the method's validity: {what}")]
     Validity { condition: Condition, what: String },
@@ -61,14 +89,14 @@ pub enum Error {
     /// ambiguous (periodic or rotationally symmetric design) or the scan is featureless.
     #[error("registration refused: {what}")]
     Registration { refusal: Refusal, what: String },
-    /// A size limit would be exceeded.
-    #[error("{0}")]
-    Limit(String),
-    /// Options given together that cannot all be honoured (a value refused before any work
-    /// starts, two options that exclude each other, two outputs naming the same file); the
-    /// message names the options as their fields are named, in backticks.
-    #[error("{0}")]
-    Options(String),
+    /// A size limit would be exceeded: `requested` of `resource` where at most `limit` can be
+    /// made, written or computed (both in the resource's unit, see [`Resource`]).
+    #[error("{what}")]
+    Limit { resource: Resource, requested: f64, limit: f64, what: String },
+    /// Options given together that cannot all be honoured; `options` names them as their
+    /// fields are named (`response_out`, `response`), and so does the message, in backticks.
+    #[error("{what}")]
+    Options { options: Vec<String>, cause: OptionsCause, what: String },
 }
 
 /// How a file's content fails its format.
@@ -190,6 +218,78 @@ pub enum Refusal {
     NoOverlap,
 }
 
+/// Why data (not the file that held them) cannot be used.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum DataCause {
+    /// A value is NaN or infinite, or a sample is not measured (masked), where the step needs
+    /// a finite value at every sample (the message says where the first one is).
+    NotFinite,
+    /// Nothing to work on: no valid sample, no channel, no point, no run, no light.
+    Empty,
+    /// Some usable samples, but fewer than the step needs (points for a fit, matched tiles,
+    /// cells, terrace levels, samples inside an aperture).
+    TooFew,
+    /// Sizes that must agree do not: array shapes, channel counts, pitches.
+    Shape,
+    /// Values outside the range the step accepts: a level that is not an integer in range,
+    /// heights not wrapped into one period, a peak too close to its window's border, a curve
+    /// that does not cover the depth needed, a relief implausible for the part.
+    OutOfRange,
+    /// The data have no structure the step can use: a flat surface or profile, a single level
+    /// or levels the histogram does not resolve, a line that misses the design's structure.
+    Featureless,
+    /// A fit the data leave undetermined: too few or collinear points, a singular map, a
+    /// parameter without effect (the data's side of [`Condition::Conditioning`]).
+    Singular,
+    /// An iteration did not converge, or diverged (a loss that became NaN or grew).
+    Diverged,
+    /// Not the caller's data: an intermediate the library built itself breaks its own
+    /// invariant (a mesh, a reshaped array, a tensor read back, a worker that panicked, a
+    /// built-in entry missing). A bug to report with the message.
+    Internal,
+}
+
+/// What a [`Error::Limit`] counts; `requested` and `limit` are in the unit given here.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Resource {
+    /// Samples (pixels) of a map, raster, scan, mask, preview or canvas: all of them, or
+    /// along the longer side where the limit is a side's (a raster to trace, a canvas).
+    Samples,
+    /// Elementary operations of a method (kernel products of a direct integration).
+    Work,
+    /// Bytes of one record of a file format (a GDSII record's length).
+    RecordBytes,
+    /// Triangles of a mesh file.
+    Triangles,
+    /// Vertices of one polygon (a GDSII boundary).
+    Vertices,
+    /// Distinct heights of a terrace mesh.
+    Heights,
+    /// The magnitude of a coordinate in a file's integer range, in nanometres.
+    Coordinate,
+    /// The magnitude of an area in an integer range, in square nanometres.
+    Area,
+    /// The relief a process can make from its commands, in metres.
+    Relief,
+}
+
+/// How options given together fail.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum OptionsCause {
+    /// One option's value is refused before any work starts, in the command's own wording
+    /// (a library function's refused argument is an [`Error::Parameter`]).
+    Value,
+    /// Two options exclude each other.
+    Exclusive,
+    /// An option needs another one given, or given otherwise.
+    Requires,
+    /// Two outputs name the same file.
+    SameFile,
+}
+
 impl Error {
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Error::Io { path: path.into(), source }
@@ -231,6 +331,27 @@ impl Error {
         }
         self
     }
+    /// This error with its message passed through `f` (to name the file or scene it concerns
+    /// before it, or add a note after it), its variant and cause kept. The message is the
+    /// whole text of [`Error::TypedData`], [`Error::Limit`] and [`Error::Options`]; of the other
+    /// variants it is the part after their fixed prefix (an [`Error::Io`] is returned as it
+    /// is).
+    #[must_use]
+    pub fn reworded(mut self, f: impl FnOnce(String) -> String) -> Self {
+        let text = match &mut self {
+            Error::TypedData { what, .. }
+            | Error::Data(what)
+            | Error::Limit { what, .. }
+            | Error::Options { what, .. }
+            | Error::Format { what, .. }
+            | Error::Validity { what, .. }
+            | Error::Registration { what, .. } => what,
+            Error::Parameter { reason, .. } => reason,
+            Error::Io { .. } => return self,
+        };
+        *text = f(std::mem::take(text));
+        self
+    }
     /// A refused parameter without a stated range.
     pub fn param(name: impl Into<String>, reason: impl Into<String>) -> Self {
         Error::Parameter { name: name.into(), reason: reason.into(), allowed: None }
@@ -247,6 +368,49 @@ impl Error {
     pub fn registration(refusal: Refusal, what: impl Into<String>) -> Self {
         Error::Registration { refusal, what: what.into() }
     }
+    /// Data that cannot be used, for `cause`.
+    pub fn data(cause: DataCause, what: impl Into<String>) -> Self {
+        Error::TypedData { cause, what: what.into() }
+    }
+    /// A bug: an intermediate the library built breaks its own invariant.
+    pub fn internal(what: impl Into<String>) -> Self {
+        Error::data(DataCause::Internal, what)
+    }
+    /// `requested` of `resource` where at most `limit` can be made.
+    pub fn limit(resource: Resource, requested: f64, limit: f64, what: impl Into<String>) -> Self {
+        Error::Limit { resource, requested, limit, what: what.into() }
+    }
+    /// Options `options` refused together for `cause`.
+    pub fn options<S: AsRef<str>>(options: &[S], cause: OptionsCause, what: impl Into<String>) -> Self {
+        Error::Options {
+            options: options.iter().map(|s| s.as_ref().to_string()).collect(),
+            cause,
+            what: what.into(),
+        }
+    }
+    /// This error with the byte offset where serde_json stopped in `text` (the whole file the
+    /// [`Error::Format`] names), where it reports one.
+    #[must_use]
+    pub fn at_json(self, text: &str, e: &serde_json::Error) -> Self {
+        match e.line() {
+            0 => self,
+            line => self.at(byte_offset(text, line, e.column())),
+        }
+    }
+    /// A TOML file at `path` that does not parse or does not hold the fields its reader
+    /// needs: [`FormatCause::Malformed`] at the start of the span the parser reports, with
+    /// the parser's message.
+    pub fn toml(path: impl Into<PathBuf>, e: &toml::de::Error) -> Self {
+        let offset = e.span().map(|s| s.start as u64);
+        Error::format(path, offset, FormatCause::Malformed, e.to_string())
+    }
+}
+
+/// The byte offset of 1-based `line` and `column` (serde_json's column counts bytes, 0 before
+/// the line's first byte), clamped to the text.
+fn byte_offset(text: &str, line: usize, column: usize) -> u64 {
+    let start: usize = text.split_inclusive('\n').take(line - 1).map(str::len).sum();
+    (start + column.saturating_sub(1)).min(text.len()) as u64
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -26,7 +26,7 @@ pub mod profile;
 use ndarray::{s, Array2};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Result};
 
 /// What a grid's values mean.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -87,7 +87,10 @@ impl Grid {
         check_pitch(pitch)?;
         let (rows, cols) = values.dim();
         if rows == 0 || cols == 0 {
-            return Err(Error::Data(format!("a grid needs at least 1 x 1 samples, got {rows} x {cols}")));
+            return Err(Error::data(
+                DataCause::Empty,
+                format!("a grid needs at least 1 x 1 samples, got {rows} x {cols}"),
+            ));
         }
         let origin = [-(cols as f64 - 1.0) * 0.5 * pitch[0], -(rows as f64 - 1.0) * 0.5 * pitch[1]];
         Ok(Grid { values, pitch, origin, unit, valid: None })
@@ -96,11 +99,10 @@ impl Grid {
     /// Attaches a validity mask (`false` = not measured). Invalid samples are set to 0.
     pub fn with_mask(mut self, valid: Array2<bool>) -> Result<Self> {
         if valid.dim() != self.values.dim() {
-            return Err(Error::Data(format!(
-                "validity mask is {:?} but values are {:?}",
-                valid.dim(),
-                self.values.dim()
-            )));
+            return Err(Error::data(
+                DataCause::Shape,
+                format!("validity mask is {:?} but values are {:?}", valid.dim(), self.values.dim()),
+            ));
         }
         ndarray::Zip::from(&mut self.values).and(&valid).for_each(|v, &ok| {
             if !ok {
@@ -200,11 +202,10 @@ impl Grid {
     /// Returns a copy with the values replaced (same geometry, mask and unit given).
     pub fn map_values(&self, values: Array2<f64>, unit: Unit) -> Result<Grid> {
         if values.dim() != self.values.dim() {
-            return Err(Error::Data(format!(
-                "replacement values are {:?}, grid is {:?}",
-                values.dim(),
-                self.values.dim()
-            )));
+            return Err(Error::data(
+                DataCause::Shape,
+                format!("replacement values are {:?}, grid is {:?}", values.dim(), self.values.dim()),
+            ));
         }
         Ok(Grid { values, pitch: self.pitch, origin: self.origin, unit, valid: self.valid.clone() })
     }

@@ -81,7 +81,7 @@ pub mod rng;
 pub mod table;
 pub mod units;
 
-pub use error::{Allowed, Condition, Error, FormatCause, Refusal, Result};
+pub use error::{Allowed, Condition, DataCause, Error, FormatCause, OptionsCause, Refusal, Resource, Result};
 pub use grid::{Grid, Interpolation, Unit};
 
 /// The README, whose Rust blocks (its "Library use" example) run as doc tests.

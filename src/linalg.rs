@@ -3,7 +3,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 
 /// A pivot below this fraction of the largest diagonal entry of `a` is taken as singular.
 pub const PIVOT_FLOOR: f64 = 1e-12;
@@ -23,10 +23,11 @@ pub fn solve(a: Vec<f64>, b: Vec<f64>, m: usize) -> Result<Vec<f64>> {
     let lu = DMatrix::from_row_slice(m, m, &a).lu();
     let smallest = lu.u().diagonal().iter().fold(f64::INFINITY, |s, v| s.min(v.abs()));
     let singular = || {
-        Error::Data(format!(
+        let what = format!(
             "the fit is singular: the points do not determine the surface (too few or collinear; smallest \
              pivot {smallest:.3e} of {scale:.3e})"
-        ))
+        );
+        Error::data(DataCause::Singular, what)
     };
     if smallest.is_nan() || smallest <= PIVOT_FLOOR * scale {
         return Err(singular());

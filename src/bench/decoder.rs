@@ -31,7 +31,7 @@ use crate::decoder::finetune::{FinetuneConfig, HistoryEntry, Trainer, TrainingSc
 use crate::decoder::reconstruct::{reconstruct, Negatives, ReconstructOptions};
 use crate::decoder::unet::UNet;
 use crate::decoder::weights::DecoderWeights;
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Result};
 use crate::image::Image;
 use crate::optics::psf::Psf;
 
@@ -132,7 +132,7 @@ pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<Ben
         ));
     }
     let scoring = prepare(&merged.radiance, &capture, Some(psf), opts)
-        .map_err(|e| Error::Data(format!("{}: {e}", capture_path.display())))?;
+        .map_err(|e| e.reworded(|m| format!("{}: {m}", capture_path.display())))?;
     let clip = scoring.footing.clipping_level;
     let name = scene_name(dir);
     let preparation = ScenePreparation {
@@ -350,7 +350,7 @@ pub fn run(
     if scenes.is_empty() {
         let why: Vec<String> =
             reports.iter().map(|r| format!("{}: {}", r.name, r.error.as_deref().unwrap_or("?"))).collect();
-        return Err(Error::Data(format!("no scene could be scored: {}", why.join("; "))));
+        return Err(Error::data(DataCause::Empty, format!("no scene could be scored: {}", why.join("; "))));
     }
     let mut names = vec![CAPTURE.to_string()];
     names.extend(cfg.decoders.iter().map(|p| p.display().to_string()));

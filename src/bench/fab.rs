@@ -28,7 +28,7 @@ use ndarray::Array2;
 use rustfft::num_complex::Complex64;
 use serde::Serialize;
 
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, Error, Resource, Result};
 use crate::fabrication::gds::{
     layer_masks, mask_set_gds, MaskSetOptions, DATABASE_UNIT, MAX_BOUNDARY_VERTICES,
 };
@@ -477,7 +477,7 @@ pub fn mesh_height_error(mesh: &Mesh, heights: &Grid) -> Result<MeshError> {
     }
     let uncovered = error.iter().filter(|e| e.is_nan()).count();
     if uncovered > 0 {
-        return Err(Error::Data(format!("{uncovered} samples lie under no top triangle of the mesh")));
+        return Err(Error::internal(format!("{uncovered} samples lie under no top triangle of the mesh")));
     }
     let rms = (error.iter().map(|e| e * e).sum::<f64>() / error.len() as f64).sqrt();
     Ok(MeshError { max, rms })
@@ -559,7 +559,7 @@ pub struct Boundary {
 /// Reads every BOUNDARY of a GDSII stream (records: big-endian `u16` length, record type,
 /// data type, data); other elements are skipped.
 pub fn read_boundaries(bytes: &[u8]) -> Result<Vec<Boundary>> {
-    let bad = |what: String| Error::Data(format!("GDSII stream: {what}"));
+    let bad = |what: String| Error::internal(format!("GDSII stream: {what}"));
     let mut out = Vec::new();
     let mut layer = None;
     let mut points: Option<Vec<[i32; 2]>> = None;
@@ -657,8 +657,11 @@ pub fn gds_sweep(
             let layer = k as u16 + 1;
             let own: Vec<&Boundary> = boundaries.iter().filter(|b| b.layer == layer && inside(b)).collect();
             let area: i128 = own.iter().map(|b| twice_area(&b.points)).sum::<i128>() / 2;
-            let to_i64 =
-                |v: i128| i64::try_from(v).map_err(|_| Error::Limit(format!("area {v} nm^2 out of range")));
+            let to_i64 = |v: i128| {
+                let what = || format!("area {v} nm^2 out of range");
+                i64::try_from(v)
+                    .map_err(|_| Error::limit(Resource::Area, (v as f64).abs(), i64::MAX as f64, what()))
+            };
             layers.push(GdsLayerArea {
                 layer,
                 polygons: own.len(),

@@ -22,7 +22,7 @@ use serde::Serialize;
 use crate::decoder::finetune::{procedural_scenes, psnr_of_loss, FinetuneConfig, Trainer};
 use crate::decoder::unet::UNet;
 use crate::decoder::weights::{decoder_sha256, DecoderWeights};
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Result};
 use crate::optics::Psf;
 
 /// What [`run`] runs.
@@ -190,7 +190,7 @@ fn psnr_from(trainer: &Trainer) -> Result<f64> {
         .rev()
         .find_map(|h| h.val_loss)
         .map(psnr_of_loss)
-        .ok_or_else(|| Error::Data("the fine-tuning run logged no validation".into()))
+        .ok_or_else(|| Error::data(DataCause::Empty, "the fine-tuning run logged no validation"))
 }
 
 #[cfg(test)]

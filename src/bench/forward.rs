@@ -37,7 +37,7 @@ use serde::Serialize;
 use super::decoder::{prepare_scene, scene_dirs, BenchScene, SENSOR_PITCH};
 use crate::calibration::evaluate::{convolve_psf, ScoringOptions};
 use crate::decoder::measurement::{halo_blur, Halo};
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::image::Image;
 use crate::optics::psf::Psf;
 
@@ -154,7 +154,7 @@ pub fn run(
     }
     progress("", total, total);
     if scenes.is_empty() {
-        return Err(Error::Data(format!("no scene could be registered: {refused:?}")));
+        return Err(Error::data(DataCause::Empty, format!("no scene could be registered: {refused:?}")));
     }
     let report = ForwardBenchResults {
         units: "residuals: RMS of sqrt(prediction) - sqrt(capture), the capture's clipping level = 1; gains relative \
@@ -171,7 +171,7 @@ pub fn run(
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     crate::io::atomic::write_bytes(
         &out.join("forward.json"),
-        serde_json::to_string_pretty(&report).map_err(|e| Error::Data(e.to_string()))?.as_bytes(),
+        serde_json::to_string_pretty(&report).map_err(|e| Error::internal(e.to_string()))?.as_bytes(),
     )?;
     Ok(report)
 }
@@ -183,7 +183,10 @@ pub fn check_scene(scene: &BenchScene, psf: &Psf, saturation: f64) -> Result<Sce
     let levels: [f64; 3] = match footing.channel_clipping.as_slice() {
         [r, gr, b] => [*r, *gr, *b],
         other => {
-            return Err(Error::Data(format!("{}: {} channels; the check needs RGB", scene.name, other.len())))
+            return Err(Error::data(
+                DataCause::Shape,
+                format!("{}: {} channels; the check needs RGB", scene.name, other.len()),
+            ))
         }
     };
     let capture = &scene.capture.values;
@@ -236,7 +239,7 @@ pub fn check_scene(scene: &BenchScene, psf: &Psf, saturation: f64) -> Result<Sce
             }
         }
     }
-    let (halo_fit, halo_prediction) = best.ok_or_else(|| Error::Data("no halo model was fitted".into()))?;
+    let (halo_fit, halo_prediction) = best.ok_or_else(|| Error::internal("no halo model was fitted"))?;
     let halo = halo_fit.halo;
     models.push(named("+ halo", halo_fit));
     let mut blurred_best: Option<ModelFit> = None;

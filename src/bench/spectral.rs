@@ -173,7 +173,7 @@ pub fn run_spectral(
         let seconds = t.elapsed().as_secs_f64();
         run_seconds.push(seconds);
         let channel =
-            psf.channels.into_iter().next().ok_or_else(|| Error::Data("a run gave no channel".into()))?;
+            psf.channels.into_iter().next().ok_or_else(|| Error::internal("a run gave no channel"))?;
         Ok((channel, seconds))
     };
     let band_psf =

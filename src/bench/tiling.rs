@@ -141,7 +141,7 @@ fn infer_f64(net: &UNet, x: &Image<f32>) -> Result<Vec<f64>> {
     let v = y
         .into_data()
         .try_into_vec::<f64>()
-        .map_err(|e| Error::Data(format!("cannot read the f64 output back: {e:?}")))?;
+        .map_err(|e| Error::internal(format!("cannot read the f64 output back: {e:?}")))?;
     Ok((0..h * w * c).map(|k| v[(k % c) * h * w + k / c]).collect())
 }
 

@@ -59,10 +59,11 @@ pub fn read_capture(path: &Path) -> Result<Capture> {
     let img = std::panic::catch_unwind(move || reader.decode())
         .map_err(|_| Error::malformed(path, "the image decoder failed on malformed data"))?
         .map_err(|e| {
-            Error::malformed(
-                path,
-                format!("cannot decode it as an 8- or 16-bit RGB or grayscale capture: {e}"),
-            )
+            let what = format!("cannot decode it as an 8- or 16-bit RGB or grayscale capture: {e}");
+            match e {
+                image::ImageError::Unsupported(_) => Error::unsupported(path, what),
+                _ => Error::malformed(path, what),
+            }
         })?;
     let (w, h) = (img.width() as usize, img.height() as usize);
     let (samples, channels, bits): (Vec<f64>, usize, u8) = match &img {
@@ -247,10 +248,15 @@ struct JsonFrame {
 pub fn read_exposures(path: &Path, with_doe: bool) -> Result<ExposureList> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let list: JsonList = serde_json::from_str(&text).map_err(|e| {
-        Error::signature(
-            path,
-            format!("not an exposure list ({{\"frames\": [{{\"file\", \"exposure_s\"}}]}}): {e}"),
-        )
+        let what = format!("not an exposure list ({{\"frames\": [{{\"file\", \"exposure_s\"}}]}}): {e}");
+        // JSON that does not parse is malformed; JSON of another shape is another file.
+        match e.classify() {
+            serde_json::error::Category::Syntax | serde_json::error::Category::Eof => {
+                Error::malformed(path, what)
+            }
+            _ => Error::signature(path, what),
+        }
+        .at_json(&text, &e)
     })?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut frames = Vec::new();

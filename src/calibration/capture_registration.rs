@@ -32,7 +32,7 @@
 use ndarray::{Array2, Array3};
 use serde::Serialize;
 
-use crate::error::{Condition, Error, Result};
+use crate::error::{Condition, DataCause, Error, Result};
 use crate::image::Image;
 use crate::linalg::solve;
 use crate::rng::Lcg;
@@ -218,7 +218,7 @@ pub fn register_affine(
     // Refinement: the target mapped back through the first fit differs from the reference by
     // a fraction of a pixel, where the parabola's sub-pixel estimate is unbiased.
     let a0 = first.affine;
-    let inv = a0.inverse().ok_or_else(|| Error::Data("the affine fit is singular".into()))?;
+    let inv = a0.inverse().ok_or_else(|| Error::data(DataCause::Singular, "the affine fit is singular"))?;
     let (h, w) = reference.dim();
     let (back, _) = warp(&Image::new(target.clone().insert_axis(ndarray::Axis(2))), &inv, h, w)?;
     let back = back.values.index_axis_move(ndarray::Axis(2), 0);
@@ -323,10 +323,11 @@ fn robust_affine(matches: &[Match], max_shift: usize) -> Result<(Affine, f64, us
     const INLIER_PX: f64 = 1.5;
     let matched = matches.len();
     let too_few = |n: usize| {
-        Error::Data(format!(
+        let what = format!(
             "only {n} of {matched} tiles matched consistently (6 needed): the images do not show the same \
              scene, or move by more than {max_shift} px"
-        ))
+        );
+        Error::data(DataCause::TooFew, what)
     };
     if matched < 6 {
         return Err(too_few(matched));
@@ -370,7 +371,7 @@ fn robust_affine(matches: &[Match], max_shift: usize) -> Result<(Affine, f64, us
         }
         keep = next;
     }
-    fit.ok_or_else(|| Error::Data("no tiles matched".into()))
+    fit.ok_or_else(|| Error::data(DataCause::TooFew, "no tiles matched"))
 }
 
 /// Least squares `q = A p + b` over point pairs.
@@ -396,7 +397,8 @@ fn fit_affine(pairs: &[&Match]) -> Result<Affine> {
 /// (bilinear), with the mask of target pixels whose source lies inside the reference.
 pub fn warp(reference: &Image, affine: &Affine, rows: usize, cols: usize) -> Result<(Image, Array2<bool>)> {
     let reference = &reference.values;
-    let inv = affine.inverse().ok_or_else(|| Error::Data("the affine map is singular".into()))?;
+    let inv =
+        affine.inverse().ok_or_else(|| Error::data(DataCause::Singular, "the affine map is singular"))?;
     let nc = reference.dim().2;
     let mut out = Array3::<f64>::zeros((rows, cols, nc));
     let mut inside = Array2::from_elem((rows, cols), false);
@@ -504,15 +506,19 @@ pub fn register_local(
     opts: &RegisterOptions,
 ) -> Result<LocalRegistration> {
     if reference.dim() != target.dim() {
-        return Err(Error::Data(format!(
-            "the reference is {:?} and the target {:?}: local registration needs one size",
-            reference.dim(),
-            target.dim()
-        )));
+        return Err(Error::data(
+            DataCause::Shape,
+            format!(
+                "the reference is {:?} and the target {:?}: local registration needs one size",
+                reference.dim(),
+                target.dim()
+            ),
+        ));
     }
     let (prewarp, _, _) = robust_affine(&match_tiles(target, reference, opts)?, opts.max_shift)?;
-    let to_target =
-        prewarp.inverse().ok_or_else(|| Error::Data("the dominant affine map is singular".into()))?;
+    let to_target = prewarp
+        .inverse()
+        .ok_or_else(|| Error::data(DataCause::Singular, "the dominant affine map is singular"))?;
     let (h, w) = target.dim();
     let (moved, _) = warp(&Image::new(reference.clone().insert_axis(ndarray::Axis(2))), &to_target, h, w)?;
     let mut reg = field_pass(&moved.values.index_axis_move(ndarray::Axis(2), 0), target, opts)?;
@@ -564,12 +570,15 @@ fn field_pass(
     let u = consensus(u);
     let used = u.iter().filter(|v| v.is_some()).count();
     if used < 6 {
-        return Err(Error::Data(format!(
-            "only {used} of {} matched tiles agree with their neighbours (6 needed): the images do not \
+        return Err(Error::data(
+            DataCause::TooFew,
+            format!(
+                "only {used} of {} matched tiles agree with their neighbours (6 needed): the images do not \
              show the same scene, or move by more than {} px",
-            matches.len(),
-            opts.max_shift
-        )));
+                matches.len(),
+                opts.max_shift
+            ),
+        ));
     }
     let mut nf = bilateral_field(&u, &nodes, &affine);
     let (extended, guided_nodes) = extend_field(&mut nf, &u, &nodes, &affine, (reference, target));

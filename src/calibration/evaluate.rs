@@ -58,7 +58,7 @@ use serde::Serialize;
 use super::capture_registration::{
     luminance, register_affine, register_local, warp, LocalRegistration, Model, RegisterOptions, Registration,
 };
-use crate::error::{Allowed, Condition, Error, Result};
+use crate::error::{Allowed, Condition, DataCause, Error, Result};
 use crate::image::Image;
 use crate::optics::convolve::Convolver;
 use crate::optics::psf::Psf;
@@ -85,16 +85,22 @@ pub struct Psnr {
 pub fn psnr(reference: &Image, recon: &Image, mask: Option<&Array2<bool>>) -> Result<Psnr> {
     let (reference, recon) = (&reference.values, &recon.values);
     if reference.dim() != recon.dim() {
-        return Err(Error::Data(format!(
-            "the reference is {:?} and the reconstruction {:?} (rows, cols, channels)",
-            reference.dim(),
-            recon.dim()
-        )));
+        return Err(Error::data(
+            DataCause::Shape,
+            format!(
+                "the reference is {:?} and the reconstruction {:?} (rows, cols, channels)",
+                reference.dim(),
+                recon.dim()
+            ),
+        ));
     }
     let (h, w, nc) = reference.dim();
     if let Some(m) = mask {
         if m.dim() != (h, w) {
-            return Err(Error::Data(format!("the pixel mask is {:?}, the images {:?}", m.dim(), (h, w))));
+            return Err(Error::data(
+                DataCause::Shape,
+                format!("the pixel mask is {:?}, the images {:?}", m.dim(), (h, w)),
+            ));
         }
     }
     let (mut peak, mut sl, mut sg, mut n, mut pixels) = (0.0f64, 0.0, 0.0, 0usize, 0usize);
@@ -108,9 +114,10 @@ pub fn psnr(reference: &Image, recon: &Image, mask: Option<&Array2<bool>>) -> Re
             for c in 0..nc {
                 let (x, y) = (reference[[i, j, c]], recon[[i, j, c]]);
                 if !x.is_finite() || !y.is_finite() {
-                    return Err(Error::Data(format!(
+                    let what = format!(
                         "non-finite value at row {i}, column {j}, channel {c}: reference {x}, reconstruction {y}"
-                    )));
+                    );
+                    return Err(Error::data(DataCause::NotFinite, what));
                 }
                 peak = peak.max(x);
                 sl += (y - x).powi(2);
@@ -122,7 +129,7 @@ pub fn psnr(reference: &Image, recon: &Image, mask: Option<&Array2<bool>>) -> Re
         }
     }
     if n == 0 || peak <= 0.0 {
-        return Err(Error::Data("no samples with a positive reference to evaluate".into()));
+        return Err(Error::data(DataCause::Empty, "no samples with a positive reference to evaluate"));
     }
     let (ml, mg) = (sl / n as f64, sg / n as f64);
     Ok(Psnr {
@@ -273,7 +280,10 @@ pub fn convolve_psf(x: &Image, psf: &Psf) -> Result<Image> {
     let x = &x.values;
     let (h, w, nc) = x.dim();
     if psf.channels.len() != nc {
-        return Err(Error::Data(format!("the PSF has {} channels and the images {nc}", psf.channels.len())));
+        return Err(Error::data(
+            DataCause::Shape,
+            format!("the PSF has {} channels and the images {nc}", psf.channels.len()),
+        ));
     }
     let mut psf = psf.clone();
     psf.normalise()?;
@@ -298,15 +308,18 @@ pub fn prepare(
 ) -> Result<Scoring> {
     let (h, w, nc) = capture.dim();
     if reference.dim() != capture.dim() {
-        return Err(Error::Data(format!(
-            "the reference is {:?} and the capture {:?} (rows, cols, channels): both must be one size",
-            reference.dim(),
-            capture.dim()
-        )));
+        return Err(Error::data(
+            DataCause::Shape,
+            format!(
+                "the reference is {:?} and the capture {:?} (rows, cols, channels): both must be one size",
+                reference.dim(),
+                capture.dim()
+            ),
+        ));
     }
     opts.check()?;
     if let Some(bad) = reference.iter().chain(capture.iter()).find(|v| !v.is_finite()) {
-        return Err(Error::Data(format!("the reference or the capture holds {bad}")));
+        return Err(Error::data(DataCause::NotFinite, format!("the reference or the capture holds {bad}")));
     }
     let mut warnings = Vec::new();
     let clip = clipping_level(capture, opts.saturation, &mut warnings);
@@ -380,7 +393,7 @@ pub fn prepare(
     let (mut warped_reference, _) = match (&registration, &local_registration) {
         (_, Some(l)) => l.warp(reference),
         (Some(r), None) => warp(reference, &r.affine, h, w)?,
-        (None, None) => return Err(Error::Data("no registration was made".into())),
+        (None, None) => return Err(Error::internal("no registration was made")),
     };
     Zip::from(warped_reference.values.lanes_mut(Axis(2))).and(&mask).for_each(|mut px, &inside| {
         if inside {
@@ -448,7 +461,7 @@ impl Scoring {
         match (&self.footing.local_registration, &self.footing.registration) {
             (Some(l), _) => Ok(l.warp(image).0),
             (None, Some(r)) => Ok(warp(image, &r.affine, self.footing.rows, self.footing.cols)?.0),
-            (None, None) => Err(Error::Data("no registration was made".into())),
+            (None, None) => Err(Error::internal("no registration was made")),
         }
     }
 
@@ -456,11 +469,14 @@ impl Scoring {
     /// clipping level) against the registered reference over the scene's pixel sets.
     pub fn score(&self, name: &str, image: &Image) -> Result<Score> {
         if image.dim() != self.reference.dim() {
-            return Err(Error::Data(format!(
-                "{name}: is {:?} (rows, cols, channels); the capture is {:?}",
-                image.dim(),
-                self.reference.dim()
-            )));
+            return Err(Error::data(
+                DataCause::Shape,
+                format!(
+                    "{name}: is {:?} (rows, cols, channels); the capture is {:?}",
+                    image.dim(),
+                    self.reference.dim()
+                ),
+            ));
         }
         let all = psnr(&self.reference, image, Some(&self.mask))?;
         let saturated = match self.footing.saturated_withheld {
@@ -567,7 +583,10 @@ pub fn write_registered(path: &std::path::Path, scoring: &Scoring, pitch: f64) -
         .map(|c| scoring.reference.index_axis(Axis(2), c).mapv(|v| v as f32))
         .collect();
     if planes.len() != 3 {
-        return Err(Error::Data(format!("the reference has {} channels; RGB is written", planes.len())));
+        return Err(Error::data(
+            DataCause::Shape,
+            format!("the reference has {} channels; RGB is written", planes.len()),
+        ));
     }
     let set = |m: &Array2<bool>| m.mapv(|v| f32::from(u8::from(v)));
     let (scored, saturated) = (set(&scoring.mask), set(&scoring.saturated));

@@ -54,7 +54,7 @@ use serde::Serialize;
 use super::capture::Capture;
 use super::clipping::channel_clipping;
 use super::response::Response;
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Result};
 use crate::image::tone::tone_map;
 use crate::image::Image;
 use crate::io::exr::write_exr;
@@ -222,16 +222,15 @@ fn check_frames(frames: &[Capture], times: &[f64], dark: Option<&Image>) -> Resu
         if f.image.values.dim() != first.image.values.dim() || f.bits != first.bits {
             let (h, w, c) = f.image.values.dim();
             let (h0, w0, c0) = first.image.values.dim();
-            return Err(Error::malformed(
-                &f.path,
-                format!(
-                    "is {w} x {h} x {c} at {} bits, but {} is {w0} x {h0} x {c0} at {} bits: a bracket's \
-                     frames must match",
-                    f.bits,
-                    first.path.display(),
-                    first.bits
-                ),
-            ));
+            let what = format!(
+                "{}: is {w} x {h} x {c} at {} bits, but {} is {w0} x {h0} x {c0} at {} bits: a bracket's \
+                 frames must match",
+                f.path.display(),
+                f.bits,
+                first.path.display(),
+                first.bits
+            );
+            return Err(Error::data(DataCause::Shape, what));
         }
         if !(t.is_finite() && t > 0.0) {
             return Err(Error::param_in(

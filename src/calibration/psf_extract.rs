@@ -73,7 +73,7 @@ use ndarray::{Array2, Array3};
 use serde::Serialize;
 
 use super::hdr_merge::{write_merged, MergeStats, Merged};
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Result};
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::image::Image;
 use crate::io::atomic::{write_json, StagedDir};
@@ -411,18 +411,21 @@ fn stuck_pixels(
         let b = refused.iter().fold([f[0], f[1], f[0], f[1]], |b, p| {
             [b[0].min(p[0]), b[1].min(p[1]), b[2].max(p[0]), b[3].max(p[1])]
         });
-        return Err(Error::Data(format!(
-            "{} samples have no unsaturated frame (first at row {}, col {}, channel {}; all within rows \
+        return Err(Error::data(
+            DataCause::OutOfRange,
+            format!(
+                "{} samples have no unsaturated frame (first at row {}, col {}, channel {}; all within rows \
              {}..={}, cols {}..={}): add a shorter exposure to the bracket",
-            refused.len(),
-            f[0],
-            f[1],
-            f[2],
-            b[0],
-            b[2],
-            b[1],
-            b[3]
-        )));
+                refused.len(),
+                f[0],
+                f[1],
+                f[2],
+                b[0],
+                b[2],
+                b[1],
+                b[3]
+            ),
+        ));
     }
     Ok((flagged, hot_list))
 }
@@ -643,7 +646,10 @@ fn centred_channel(
     for ((a, b), v) in shifted.indexed_iter_mut() {
         let (fi, fj) = (target[0] + a as f64 - off, target[1] + b as f64 - off);
         *v = plane.sample_index(fi, fj, Interpolation::Bicubic).ok_or_else(|| {
-            Error::Data(format!("the crop window leaves the capture at row {fi:.1}, col {fj:.1}"))
+            Error::data(
+                DataCause::OutOfRange,
+                format!("the crop window leaves the capture at row {fi:.1}, col {fj:.1}"),
+            )
         })?;
     }
     let mut grid = Grid::new(shifted, [opts.capture_pitch; 2], Unit::Dimensionless)?;
@@ -720,18 +726,21 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
     let fits = |ci: f64, cj: f64| -> Result<()> {
         let (lo_i, hi_i, lo_j, hi_j) = (ci - half, ci + half, cj - half, cj + half);
         if lo_i < 0.0 || lo_j < 0.0 || hi_i > (h - 1) as f64 || hi_j > (w - 1) as f64 {
-            return Err(Error::Data(format!(
-                "the PSF at row {ci:.1}, col {cj:.1} of the {w} x {h} capture is off the crop window: a \
+            return Err(Error::data(
+                DataCause::OutOfRange,
+                format!(
+                    "the PSF at row {ci:.1}, col {cj:.1} of the {w} x {h} capture is off the crop window: a \
                  {0} x {0} crop at the sensor pitch needs {1:.0} px of capture on every side (it has \
                  {2:.0} above, {3:.0} below, {4:.0} left, {5:.0} right); centre the pinhole or choose a \
                  smaller `crop`",
-                opts.crop,
-                half,
-                ci,
-                (h - 1) as f64 - ci,
-                cj,
-                (w - 1) as f64 - cj
-            )));
+                    opts.crop,
+                    half,
+                    ci,
+                    (h - 1) as f64 - ci,
+                    cj,
+                    (w - 1) as f64 - cj
+                ),
+            ));
         }
         Ok(())
     };
@@ -757,8 +766,9 @@ pub fn calibrate_psf(merged: &Merged, opts: &PsfOptions) -> Result<(Psf, PsfCali
             }
         }
         if s <= 0.0 {
-            return Err(Error::Data(
-                "the crop window holds no energy above the background: no PSF found".into(),
+            return Err(Error::data(
+                DataCause::Empty,
+                "the crop window holds no energy above the background: no PSF found",
             ));
         }
         centroid = [si / s, sj / s];

@@ -14,7 +14,7 @@ use plotters::prelude::*;
 
 use super::style::{frame, line_key, mesh, write_png_chart, GridLines, FONT};
 use crate::bench::decoder::{DecoderBenchResults, Score};
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 
 const COLORS: [RGBColor; 8] = [
     RGBColor(127, 127, 127),
@@ -38,7 +38,7 @@ pub fn write_decoder_scene_chart(path: &Path, report: &DecoderBenchResults) -> R
         .filter_map(|s| s.footing.as_ref().map(|f| (s.name.clone(), f.coverage)))
         .collect();
     if scenes.is_empty() || report.scores.is_empty() {
-        return Err(Error::Data("no scored scene to chart".into()));
+        return Err(Error::data(DataCause::Empty, "no scored scene to chart"));
     }
     let refused: Vec<String> = report
         .scenes
@@ -116,10 +116,10 @@ pub fn write_decoder_scene_chart(path: &Path, report: &DecoderBenchResults) -> R
 /// mean seconds per step.
 pub fn write_bench_chart(path: &Path, report: &DecoderBenchResults) -> Result<()> {
     let Some(run) = &report.finetune else {
-        return Err(Error::Data("no fine-tuning run to chart".into()));
+        return Err(Error::data(DataCause::Empty, "no fine-tuning run to chart"));
     };
     if run.curve.is_empty() {
-        return Err(Error::Data("no fine-tuning points to chart".into()));
+        return Err(Error::data(DataCause::Empty, "no fine-tuning points to chart"));
     }
     let minutes = |seconds: f64| seconds / 60.0;
     let last = run.curve.iter().map(|p| minutes(p.seconds)).fold(0.0, f64::max).max(1e-3);
@@ -247,7 +247,7 @@ pub fn write_bench_chart(path: &Path, report: &DecoderBenchResults) -> Result<()
 pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardBenchResults) -> Result<()> {
     let scenes = &report.scenes;
     if scenes.is_empty() {
-        return Err(Error::Data("no scene to chart".into()));
+        return Err(Error::data(DataCause::Empty, "no scene to chart"));
     }
     let bands = ["darks", "mid-tones", "brights", "flare ring", "all"];
     write_png_chart(path, 1400, 900, |root| {

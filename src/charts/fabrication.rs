@@ -13,7 +13,7 @@ use super::style::{
     Drawn, GridLines,
 };
 use crate::bench::fab::{FabBenchResults, GdsSweep, QuantizationSweep, StlPoint, StlSweep};
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 
 /// Log range covering `values` (positive ones), widened by `pad` each way.
 fn log_span(values: impl Iterator<Item = f64>, pad: f64) -> std::ops::Range<f64> {
@@ -240,7 +240,7 @@ pub fn write_fab_bench_charts(
     report: &FabBenchResults,
 ) -> Result<Vec<String>> {
     if report.quantization.points.is_empty() || report.stl.points.is_empty() || report.gds.points.is_empty() {
-        return Err(Error::Data("a fabrication benchmark sweep has no points to chart".into()));
+        return Err(Error::data(DataCause::Empty, "a fabrication benchmark sweep has no points to chart"));
     }
     let q = &report.quantization;
     write_png_chart(&path_for("quantization.png"), 1000, 650, |r| quantization_chart(r, q))?;

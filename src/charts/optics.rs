@@ -12,7 +12,7 @@ use super::style::{frame, line_key, mesh, write_png_chart, write_svg_chart, Draw
 use crate::bench::psf::{BenchPoint, PsfBenchResults};
 use crate::bench::spectral::SpectralBenchResults;
 use crate::bench::stability::{StabilityBenchResults, StabilityMap, STEPPED_DOE_PITCH};
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::optics::propagate::Method;
 
 /// The series of `points` in their order of appearance, each with its colour: the methods'
@@ -324,7 +324,10 @@ pub fn write_stability_charts(
     let mut names = Vec::new();
     for map in &report.maps {
         if map.cells.is_empty() {
-            return Err(Error::Data(format!("the {} map has no runs to chart", map.name())));
+            return Err(Error::data(
+                DataCause::Empty,
+                format!("the {} map has no runs to chart", map.name()),
+            ));
         }
         for ext in ["png", "svg"] {
             let name = format!("stability_{}.{ext}", map.name());
@@ -435,7 +438,7 @@ pub fn write_spectral_charts(
     report: &SpectralBenchResults,
 ) -> Result<Vec<String>> {
     if report.points.is_empty() {
-        return Err(Error::Data("the spectral sweep has no runs to chart".into()));
+        return Err(Error::data(DataCause::Empty, "the spectral sweep has no runs to chart"));
     }
     let png = "spectral.png".to_string();
     write_png_chart(&path_for(&png), 1000, 650, |r| spectral_chart(r, report))?;

@@ -12,7 +12,7 @@ use super::style::{
 };
 use crate::bench::finetune_time::TimedFinetune;
 use crate::decoder::finetune::HistoryEntry;
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 
 /// Draws the training curve of `history` into `path` (PNG, 900 x 500).
 pub fn write_training_chart(path: &Path, history: &[HistoryEntry]) -> Result<()> {
@@ -23,7 +23,7 @@ pub fn write_training_chart(path: &Path, history: &[HistoryEntry]) -> Result<()>
     let psnr: Vec<(f64, f64)> =
         history.iter().filter_map(|h| h.val_psnr.map(|p| (h.step as f64, p))).collect();
     if losses.is_empty() && psnr.is_empty() {
-        return Err(Error::Data("no training steps to chart".into()));
+        return Err(Error::data(DataCause::Empty, "no training steps to chart"));
     }
     let last = history.iter().map(|h| h.step).max().unwrap_or(1).max(1) as f64;
     let (lo, hi) =

@@ -40,7 +40,7 @@ use ndarray::{Array3, Axis};
 use sha2::{Digest, Sha256};
 
 use super::scenes::SceneSource;
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::image::Image;
 use crate::rng::Lcg;
 
@@ -276,7 +276,7 @@ impl HdrScenes {
     /// Scenes from `images`, described as `name` in the decoder's metadata.
     pub fn new(name: &str, images: Vec<HdrImage>) -> Result<HdrScenes> {
         if images.is_empty() {
-            return Err(Error::Data(format!("{name}: no images")));
+            return Err(Error::data(DataCause::Empty, format!("{name}: no images")));
         }
         Ok(HdrScenes {
             name: name.into(),
@@ -328,7 +328,7 @@ impl SceneSource for HdrScenes {
             jitter_colour(&mut out, rng, self.white_balance);
         }
         if out.iter().all(|&v| v == 0.0) {
-            return Err(Error::Data(format!("{}: a black view was drawn", img.name)));
+            return Err(Error::data(DataCause::Empty, format!("{}: a black view was drawn", img.name)));
         }
         Ok(Image::new(out))
     }

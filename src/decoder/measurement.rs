@@ -22,7 +22,7 @@
 
 use ndarray::{s, Array2, Array3, Axis};
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::image::Image;
 use crate::optics::convolve::Convolver;
 use crate::rng::Lcg;
@@ -172,10 +172,11 @@ pub fn measure(
     let (_, q, _) = v.select_nth_unstable_by(k, f64::total_cmp);
     let q = *q;
     if !(q > 0.0 && q.is_finite()) {
-        return Err(Error::Data(format!(
-            "the scene's {:.1} % brightest sensor values are {q}: cannot set an exposure",
-            100.0 * f
-        )));
+        let cause = if q.is_finite() { DataCause::Empty } else { DataCause::NotFinite };
+        return Err(Error::data(
+            cause,
+            format!("the scene's {:.1} % brightest sensor values are {q}: cannot set an exposure", 100.0 * f),
+        ));
     }
     let exposure = 1.0 / q;
     let (lo, hi) = model.target_range;

@@ -34,7 +34,7 @@ use serde::Serialize;
 
 use crate::decoder::infer;
 use crate::decoder::unet::{UNet, SIZE_MULTIPLE};
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::image::tone::tone_map;
 use crate::image::Image;
 
@@ -224,7 +224,10 @@ pub fn reconstruct(
     let values_below_minus_one = y.iter().filter(|&&v| v < -1.0).count();
     let min_raw = y.iter().copied().fold(f32::INFINITY, f32::min);
     if let Some(bad) = y.iter().find(|v| !v.is_finite()) {
-        return Err(Error::Data(format!("the decoder produced {bad}: the weights are broken")));
+        return Err(Error::data(
+            DataCause::NotFinite,
+            format!("the decoder produced {bad}: the weights are broken"),
+        ));
     }
     if opts.negatives == Negatives::Clamp {
         y.mapv_inplace(|v| v.max(0.0));

@@ -22,7 +22,7 @@
 
 use ndarray::{Array2, Array3};
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::image::Image;
 use crate::rng::Lcg;
 
@@ -193,7 +193,8 @@ where
         let seed = (rng.uniform() * (1u64 << 53) as f64) as u64;
         let scene = (self.generate)(seed, rows, cols);
         if let Some(v) = scene.values.iter().find(|v| !v.is_finite() || **v < 0.0) {
-            return Err(Error::Data(format!("{} (seed {seed}) made the value {v}", self.name)));
+            let cause = if v.is_finite() { DataCause::OutOfRange } else { DataCause::NotFinite };
+            return Err(Error::data(cause, format!("{} (seed {seed}) made the value {v}", self.name)));
         }
         Ok(scene)
     }

@@ -201,5 +201,7 @@ impl UNet {
 
 /// Reads a tensor's values back as `f32`.
 pub fn tensor_values<const D: usize>(t: Tensor<D>) -> Result<Vec<f32>> {
-    t.into_data().try_into_vec::<f32>().map_err(|e| Error::Data(format!("cannot read a tensor back: {e:?}")))
+    t.into_data()
+        .try_into_vec::<f32>()
+        .map_err(|e| Error::internal(format!("cannot read a tensor back: {e:?}")))
 }

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::design::{ExampleParams, FresnelParams};
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::gds::{write_layer_previews, write_mask_set, MaskSetOptions, MaskSetStats};
 use crate::fabrication::mask::{GrayscaleMask, MaskMeta, MaskOptions};
@@ -85,7 +85,7 @@ pub fn load_design(source: &DesignSource) -> Result<LoadedDesign> {
                     ))
                 }
             };
-            let bytes = params.map_err(|e| Error::Data(e.to_string()))?;
+            let bytes = params.map_err(|e| Error::internal(e.to_string()))?;
             Ok(LoadedDesign {
                 heights,
                 name: format!("built-in:{name}"),
@@ -209,11 +209,12 @@ pub fn shape(design: LoadedDesign, p: &ChainParams) -> Result<Shaped> {
         if let Some(mask) = design.heights.mask() {
             let missing = mask.iter().filter(|v| !**v).count();
             let (i, j) = mask.indexed_iter().find(|(_, v)| !**v).map(|(ix, _)| ix).unwrap_or_default();
-            return Err(Error::Data(format!(
+            let what = format!(
                 "{}: {missing} samples are NaN, infinite or not measured (first at row {i}, column {j}); \
                  set `fill` to fill them from their neighbours",
                 design.name
-            )));
+            );
+            return Err(Error::data(DataCause::NotFinite, what));
         }
         // Non-finite heights are refused by `wrap`.
         (design.heights, 0)
@@ -295,7 +296,7 @@ const KEY_PERIOD: &str = "period_m";
 const KEY_PROVENANCE: &str = "provenance";
 
 fn provenance_json(p: &Provenance) -> Result<String> {
-    serde_json::to_string(p).map_err(|e| Error::Data(e.to_string()))
+    serde_json::to_string(p).map_err(|e| Error::internal(e.to_string()))
 }
 
 /// Writes wrapped heights (metres) as a float EXR with pitch, unit and provenance.

@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::table::{column_unit, hermite, parse_two_columns, pchip_slopes};
 
 /// A monotone contrast curve. Invariants: at least 2 points, doses strictly increasing in
@@ -104,13 +104,16 @@ impl ContrastCurve {
         let [lo, hi] = self.depth_range();
         let tol = 1e-12 * (hi - lo);
         if depth < lo - tol || depth > hi + tol {
-            return Err(Error::Data(format!(
-                "{}: the contrast curve covers {:.1}..{:.1} nm but {:.1} nm is needed",
-                self.source.display(),
-                lo * 1e9,
-                hi * 1e9,
-                depth * 1e9
-            )));
+            return Err(Error::data(
+                DataCause::OutOfRange,
+                format!(
+                    "{}: the contrast curve covers {:.1}..{:.1} nm but {:.1} nm is needed",
+                    self.source.display(),
+                    lo * 1e9,
+                    hi * 1e9,
+                    depth * 1e9
+                ),
+            ));
         }
         // The segment whose end depths bracket the target: the interpolant there is one cubic
         // (`hermite` evaluates the same cubic strictly inside the segment).

@@ -48,7 +48,7 @@ use std::path::{Path, PathBuf};
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Resource, Result};
 use crate::fabrication::trace::{trace, Polygon};
 use crate::grid::{Grid, Unit};
 use crate::io::atomic::write_bytes;
@@ -162,7 +162,8 @@ impl GdsStream {
     fn head(&mut self, record: u16, data_len: usize) -> Result<()> {
         let len = data_len + 4;
         if len > u16::MAX as usize {
-            return Err(Error::Limit(format!("a GDSII record of {len} bytes exceeds the 65535-byte limit")));
+            let what = format!("a GDSII record of {len} bytes exceeds the 65535-byte limit");
+            return Err(Error::limit(Resource::RecordBytes, len as f64, f64::from(u16::MAX), what));
         }
         self.buf.extend_from_slice(&(len as u16).to_be_bytes());
         self.buf.extend_from_slice(&record.to_be_bytes());
@@ -224,9 +225,11 @@ impl GdsStream {
         point: impl Fn(usize) -> [i32; 2],
     ) -> Result<()> {
         if !(3..=MAX_BOUNDARY_VERTICES).contains(&n) {
-            return Err(Error::Limit(format!(
-                "a GDSII boundary needs 3..={MAX_BOUNDARY_VERTICES} vertices, got {n}"
-            )));
+            let what = format!("a GDSII boundary needs 3..={MAX_BOUNDARY_VERTICES} vertices, got {n}");
+            return Err(match n {
+                0..3 => Error::data(DataCause::TooFew, what),
+                _ => Error::limit(Resource::Vertices, n as f64, MAX_BOUNDARY_VERTICES as f64, what),
+            });
         }
         let (layer, datatype) = (gds_short("layer", layer)?, gds_short("datatype", datatype)?);
         self.head(rec::BOUNDARY, 0)?;
@@ -373,19 +376,23 @@ fn checked_levels(levels: &Grid, level_count: usize) -> Result<Array2<u8>> {
     }
     if let Some(mask) = levels.mask() {
         if let Some(((i, j), _)) = mask.indexed_iter().find(|(_, &ok)| !ok) {
-            return Err(Error::Data(format!(
+            let what = format!(
                 "level map sample (row {i}, column {j}) is invalid (masked); every sample of a mask set \
                  must be a level"
-            )));
+            );
+            return Err(Error::data(DataCause::NotFinite, what));
         }
     }
     let top = (level_count - 1) as f64;
     let mut out = Array2::<u8>::zeros(levels.dim());
     for ((i, j), &v) in levels.values().indexed_iter() {
         if !(v >= 0.0 && v <= top && v == v.round()) {
-            return Err(Error::Data(format!(
-                "level map sample (row {i}, column {j}) is {v}; expected an integer level in 0..={top}"
-            )));
+            return Err(Error::data(
+                DataCause::OutOfRange,
+                format!(
+                    "level map sample (row {i}, column {j}) is {v}; expected an integer level in 0..={top}"
+                ),
+            ));
         }
         out[[i, j]] = v as u8;
     }
@@ -558,9 +565,8 @@ fn prepare(
     let all = crosses.outlines.iter().flatten().flat_map(|p| [p[0], p[1]]).chain(e);
     for v in all {
         if i32::try_from(v).is_err() {
-            return Err(Error::Limit(format!(
-                "coordinate {v} nm does not fit the 32-bit GDSII range (+-2.147 m at 1 nm)"
-            )));
+            let what = format!("coordinate {v} nm does not fit the 32-bit GDSII range (+-2.147 m at 1 nm)");
+            return Err(Error::limit(Resource::Coordinate, (v as f64).abs(), f64::from(i32::MAX), what));
         }
     }
     Ok((masks, frame, crosses))
@@ -692,7 +698,8 @@ pub fn layer_previews(
     let (pad_x, pad_y) = (reach / f.px + 2, reach / f.py + 2);
     let (w, h) = (f.cols + 2 * pad_x, f.rows + 2 * pad_y);
     if w > u32::MAX as i64 || h > u32::MAX as i64 || w * h > (1 << 34) {
-        return Err(Error::Limit(format!("a {w} x {h} preview is too large")));
+        let what = format!("a {w} x {h} preview is too large");
+        return Err(Error::limit(Resource::Samples, w as f64 * h as f64, (1u64 << 34) as f64, what));
     }
     // The canvas with the crosses; pixel centres tested against the bars, in units of nm / 2.
     let mut base = vec![0u8; (w * h) as usize];
@@ -840,7 +847,15 @@ mod tests {
         // The largest XY record is 4 + 8 * 8191 = 65532 bytes.
         assert_eq!(s.len(), 4 + 6 + 6 + 65532 + 4);
         let more: Vec<[i32; 2]> = (0..MAX_BOUNDARY_VERTICES as i32 + 1).map(|k| [k, 0]).collect();
-        assert!(matches!(s.boundary(1, 0, &more), Err(Error::Limit(_))));
+        let e = s.boundary(1, 0, &more).unwrap_err();
+        let n = MAX_BOUNDARY_VERTICES as f64;
+        let vertices = |e: &Error| match *e {
+            Error::Limit { resource: Resource::Vertices, requested, limit, .. } => Some((requested, limit)),
+            _ => None,
+        };
+        assert_eq!(vertices(&e), Some((n + 1.0, n)), "{e:?}");
+        let e = s.boundary(1, 0, &more[..2]).unwrap_err();
+        assert!(matches!(e, Error::TypedData { cause: DataCause::TooFew, .. }), "{e:?}");
         assert!(s.boundary(40000, 0, &pts[..4]).is_err());
         // The signed-length-safe limit keeps the XY record within 32767 bytes.
         assert!(4 + 8 * (SIGNED_LENGTH_MAX_VERTICES + 1) <= i16::MAX as usize);
@@ -904,7 +919,8 @@ mod tests {
         }
         // Coordinates beyond the 32-bit range: 5 m wide at 1 mm pitch.
         let huge = level_grid(Array2::zeros((1, 5000)), 1e-3);
-        assert!(matches!(mask_set_gds(&huge, 2, 1e-6, &o), Err(Error::Limit(_))));
+        let e = mask_set_gds(&huge, 2, 1e-6, &o).unwrap_err();
+        assert!(matches!(e, Error::Limit { resource: Resource::Coordinate, .. }), "{e:?}");
     }
 
     #[test]

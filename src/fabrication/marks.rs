@@ -6,7 +6,7 @@
 
 use tiny_skia::{FillRule, Mask, PathBuilder, Rect, Transform};
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Resource, Result};
 
 /// Rows of a 5 x 7 glyph, top to bottom; bit 4 is the leftmost column.
 fn glyph(c: char) -> Option<[u8; 7]> {
@@ -89,8 +89,17 @@ pub struct Canvas {
 impl Canvas {
     /// An empty canvas of `width` x `height` pixels; refused where it cannot be allocated.
     pub fn new(width: usize, height: usize) -> Result<Canvas> {
-        let mask = Mask::new(width as u32, height as u32)
-            .ok_or_else(|| Error::Limit(format!("cannot allocate a {width} x {height} drawing canvas")))?;
+        let fail = || {
+            let what = format!("cannot allocate a {width} x {height} drawing canvas");
+            match width.max(height) {
+                side if width.min(height) > 0 => {
+                    Error::limit(Resource::Samples, side as f64, f64::from(u32::MAX), what)
+                }
+                _ => Error::data(DataCause::Empty, what),
+            }
+        };
+        let (w, h) = (u32::try_from(width).map_err(|_| fail())?, u32::try_from(height).map_err(|_| fail())?);
+        let mask = Mask::new(w, h).ok_or_else(fail)?;
         Ok(Canvas { mask })
     }
 

@@ -15,7 +15,7 @@
 use ndarray::{s, Array2};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Resource, Result};
 use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::marks::{label_cells, Canvas};
 use crate::fabrication::Provenance;
@@ -225,21 +225,23 @@ pub fn render_levels(
         ));
     }
     if levels.mask().is_some() {
-        return Err(Error::Data(
-            "the level map has non-measured samples: fill them before writing a mask".into(),
+        return Err(Error::data(
+            DataCause::NotFinite,
+            "the level map has non-measured samples: fill them before writing a mask",
         ));
     }
     // Size check before any large allocation.
     let layout = Layout::new(levels.extent(), opts);
     let Layout { w, h, pw, ph, b } = layout;
     if w.saturating_mul(h) > opts.max_pixels && !opts.force {
-        return Err(Error::Limit(format!(
+        let what = format!(
             "the mask would be {w} x {h} = {:.0} Mpx at a {:.3} um writer grid, above the limit of {:.0} Mpx; \
              set `force` to write it anyway",
             (w * h) as f64 / 1e6,
             opts.writer_pitch * 1e6,
             opts.max_pixels as f64 / 1e6
-        )));
+        );
+        return Err(Error::limit(Resource::Samples, (w * h) as f64, opts.max_pixels as f64, what));
     }
     let table = dose_table(heights, curve, opts.polarity, full_scale)?;
     let gray_of: Vec<u16> = table.iter().map(|t| t.gray as u16).collect();
@@ -425,7 +427,10 @@ fn paint_pattern(levels: &Grid, opts: &MaskOptions, layout: &Layout, gray_of: &[
     });
     if let Some((l, i, j)) = bad.into_iter().flatten().next() {
         let level_count = gray_of.len();
-        return Err(Error::Data(format!("level {l} at row {i}, column {j} is outside 0..{level_count}")));
+        return Err(Error::data(
+            DataCause::OutOfRange,
+            format!("level {l} at row {i}, column {j} is outside 0..{level_count}"),
+        ));
     }
     Ok(gray)
 }

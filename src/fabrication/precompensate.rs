@@ -40,7 +40,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Resource, Result};
 use crate::grid::blur::gaussian_blur;
 use crate::grid::{Grid, Unit};
 
@@ -235,7 +235,10 @@ pub fn precompensate(
         return Err(Error::param("target", "must hold heights in metres"));
     }
     if target.mask().is_some() || target.non_finite().is_some() {
-        return Err(Error::Data("the target surface has non-measured or non-finite samples".into()));
+        return Err(Error::data(
+            DataCause::NotFinite,
+            "the target surface has non-measured or non-finite samples",
+        ));
     }
     if !(opts.max_height.is_finite() && opts.max_height > 0.0) {
         return Err(Error::param_in(
@@ -251,12 +254,13 @@ pub fn precompensate(
             format!("must be finite and >= 0, got {:e} m", model.blur),
         ));
     }
-    let (tmin, tmax) = target.min_max().ok_or_else(|| Error::Data("the target is empty".into()))?;
+    let (tmin, tmax) =
+        target.min_max().ok_or_else(|| Error::data(DataCause::Empty, "the target is empty"))?;
     let r = &model.response;
     let (lo, hi) = (r.made(0.0), r.made(opts.max_height));
     let span = tmax - tmin;
     if span > hi - lo {
-        return Err(Error::Limit(format!(
+        let what = format!(
             "the process cannot make the target: its {:.1} nm of relief need more than the {:.1} nm it makes \
              from commands of 0..{:.1} nm (depth scale {:.3}); the correction would need a command of {:.1} nm",
             span * 1e9,
@@ -264,7 +268,8 @@ pub fn precompensate(
             opts.max_height * 1e9,
             (hi - lo) / opts.max_height,
             r.commanded_for(lo + span) * 1e9
-        )));
+        );
+        return Err(Error::limit(Resource::Relief, span, hi - lo, what));
     }
     let mut warnings = Vec::new();
     let pitch = target.pitch()[0].min(target.pitch()[1]);

@@ -4,7 +4,7 @@
 use ndarray::{s, Array2, Zip};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Result};
 use crate::float;
 use crate::grid::{par, Grid, Unit};
 
@@ -152,12 +152,15 @@ pub fn quantize_owned(
     }
     let n = level_count as f64;
     let check_range = |range: Option<(f64, f64)>| match range {
-        Some((lo, hi)) if lo < -1e-12 * period || hi > period * (1.0 + 1e-9) => Err(Error::Data(format!(
-            "quantization needs heights wrapped into [0, {:.4} um); got {:.4}..{:.4} um: wrap first",
-            period * 1e6,
-            lo * 1e6,
-            hi * 1e6
-        ))),
+        Some((lo, hi)) if lo < -1e-12 * period || hi > period * (1.0 + 1e-9) => Err(Error::data(
+            DataCause::OutOfRange,
+            format!(
+                "quantization needs heights wrapped into [0, {:.4} um); got {:.4}..{:.4} um: wrap first",
+                period * 1e6,
+                lo * 1e6,
+                hi * 1e6
+            ),
+        )),
         _ => Ok(()),
     };
     let sq = match method {

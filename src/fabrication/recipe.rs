@@ -197,7 +197,7 @@ impl Recipe {
     /// errors name the file and the field.
     pub fn read(path: &Path) -> Result<Recipe> {
         let text = read_text(path, ".toml")?;
-        let f: RecipeFile = toml::from_str(&text).map_err(|e| Error::malformed(path, e.to_string()))?;
+        let f: RecipeFile = toml::from_str(&text).map_err(|e| Error::toml(path, &e))?;
         let len = |field: &str, v: &str| {
             parse_length(v).map_err(|e| Error::malformed(path, format!("field '{field}': {e}")))
         };

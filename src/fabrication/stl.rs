@@ -35,7 +35,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Resource, Result};
 use crate::grid::{Grid, Unit};
 use crate::io::atomic::write_atomic;
 
@@ -176,16 +176,22 @@ fn check_input(heights: &Grid, base_thickness: f64) -> Result<(f64, f64)> {
     if let Some(mask) = heights.mask() {
         let bad = mask.iter().filter(|&&v| !v).count();
         if let Some(((i, j), _)) = mask.indexed_iter().find(|(_, &v)| !v) {
-            return Err(Error::Data(format!(
-                "{bad} height samples are invalid (masked), the first at row {i}, column {j}: \
+            return Err(Error::data(
+                DataCause::NotFinite,
+                format!(
+                    "{bad} height samples are invalid (masked), the first at row {i}, column {j}: \
                  an STL needs a height everywhere (fill or crop the map first)"
-            )));
+                ),
+            ));
         }
     }
     if let Some((count, (i, j))) = heights.non_finite() {
-        return Err(Error::Data(format!(
-            "{count} height samples are not finite (NaN or infinite), the first at row {i}, column {j}"
-        )));
+        return Err(Error::data(
+            DataCause::NotFinite,
+            format!(
+                "{count} height samples are not finite (NaN or infinite), the first at row {i}, column {j}"
+            ),
+        ));
     }
     if !(base_thickness.is_finite() && base_thickness > 0.0) {
         return Err(Error::param_in(
@@ -194,7 +200,7 @@ fn check_input(heights: &Grid, base_thickness: f64) -> Result<(f64, f64)> {
             format!("must be finite and positive (a closed solid needs a base), got {base_thickness} m"),
         ));
     }
-    heights.min_max().ok_or_else(|| Error::Data("the height map holds no sample".into()))
+    heights.min_max().ok_or_else(|| Error::data(DataCause::Empty, "the height map holds no sample"))
 }
 
 /// Meshes a quantized height map (metres) exactly as terraces; see the module docs and
@@ -228,9 +234,10 @@ pub fn heightfield_mesh(heights: &Grid, base_thickness: f64, max_error: f64) -> 
     }
     let (nr, nc) = heights.dim();
     if nr < 2 || nc < 2 {
-        return Err(Error::Data(format!(
-            "a heightfield mesh needs at least 2 x 2 samples, got {nr} x {nc} (use terraces)"
-        )));
+        return Err(Error::data(
+            DataCause::TooFew,
+            format!("a heightfield mesh needs at least 2 x 2 samples, got {nr} x {nc} (use terraces)"),
+        ));
     }
     heightfield::mesh(heights, lo - base_thickness, base_thickness, max_error)
 }
@@ -294,9 +301,12 @@ pub fn level_heights(levels: &Grid, level_count: usize, period: f64) -> Result<G
     let n = level_count as f64;
     for ((i, j), &v) in levels.values().indexed_iter() {
         if levels.is_valid(i, j) && !(v.fract() == 0.0 && v >= 0.0 && v < n) {
-            return Err(Error::Data(format!(
-                "level map: sample at row {i}, column {j} is {v}, not an integer in 0..{level_count}"
-            )));
+            return Err(Error::data(
+                DataCause::OutOfRange,
+                format!(
+                    "level map: sample at row {i}, column {j} is {v}, not an integer in 0..{level_count}"
+                ),
+            ));
         }
     }
     levels.map_values(levels.values().mapv(|l| l * period / n), Unit::Metre)
@@ -349,11 +359,9 @@ pub fn write_stl(mesh: &Mesh, unit: StlUnit, path: &Path) -> Result<StlStats> {
 /// [`write_stl`] with the part named in the header (`part=master` or `part=design`).
 pub fn write_stl_part(mesh: &Mesh, unit: StlUnit, part: Option<&str>, path: &Path) -> Result<StlStats> {
     let count = u32::try_from(mesh.triangles.len()).map_err(|_| {
-        Error::Limit(format!(
-            "{} triangles do not fit a binary STL (at most {})",
-            mesh.triangles.len(),
-            u32::MAX
-        ))
+        let what =
+            format!("{} triangles do not fit a binary STL (at most {})", mesh.triangles.len(), u32::MAX);
+        Error::limit(Resource::Triangles, mesh.triangles.len() as f64, f64::from(u32::MAX), what)
     })?;
     let scale = 1.0 / unit.metres();
     let verts: Vec<[f32; 3]> = mesh

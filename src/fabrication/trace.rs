@@ -43,7 +43,7 @@
 
 use ndarray::Array2;
 
-use crate::error::{Error, Result};
+use crate::error::{Error, Resource, Result};
 
 /// A polygon as its vertices `[x, y]` = `[column, row]` in pixel-corner coordinates.
 pub type Polygon = Vec<[u32; 2]>;
@@ -84,7 +84,9 @@ pub fn trace(mask: &Array2<bool>, max_vertices: usize) -> Result<Vec<Polygon>> {
     }
     let (rows, cols) = mask.dim();
     if rows >= u32::MAX as usize || cols >= u32::MAX as usize {
-        return Err(Error::Limit(format!("a {rows} x {cols} raster is too large to trace")));
+        let side = rows.max(cols) as f64;
+        let what = format!("a {rows} x {cols} raster is too large to trace");
+        return Err(Error::limit(Resource::Samples, side, f64::from(u32::MAX - 1), what));
     }
     let runs = extract_runs(mask);
     let mut stack = components(&runs, None);

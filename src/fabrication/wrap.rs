@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use ndarray::{s, Zip};
 
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Result};
 use crate::float;
 use crate::grid::{par, Grid, Unit};
 use crate::material::Material;
@@ -174,7 +174,7 @@ fn wrap_in_place(mut heights: Grid, spec: &WrapSpec, master: bool) -> Result<(Gr
         // Named where the input has them: the master's columns turned back.
         let input_order = if master { heights.into_mirrored(true, false) } else { heights };
         check_finite(&input_order)?;
-        return Err(Error::Data("non-finite heights".into()));
+        return Err(Error::data(DataCause::NotFinite, "non-finite heights"));
     }
     // No valid sample: the largest input height is reported as 0.
     let input_max_height = if input_max == f64::NEG_INFINITY { 0.0 } else { input_max };
@@ -236,12 +236,15 @@ pub fn into_master(mut design: Grid, period: f64) -> Result<Grid> {
     });
     let (lo, hi) = parts.into_iter().fold(start, |a, b| (a.0.min(b.0), a.1.max(b.1)));
     if lo <= hi && (lo < 0.0 || hi >= period * (1.0 + 1e-12)) {
-        return Err(Error::Data(format!(
-            "replica inversion needs wrapped heights in [0, {:.4} um), got {:.4}..{:.4} um",
-            period * 1e6,
-            lo * 1e6,
-            hi * 1e6
-        )));
+        return Err(Error::data(
+            DataCause::OutOfRange,
+            format!(
+                "replica inversion needs wrapped heights in [0, {:.4} um), got {:.4}..{:.4} um",
+                period * 1e6,
+                lo * 1e6,
+                hi * 1e6
+            ),
+        ));
     }
     Ok(design.into_mirrored_mask(true, false))
 }
@@ -260,10 +263,13 @@ pub fn cast_of_master(wrapped: &Grid, period: f64) -> Result<Grid> {
 pub fn check_finite(g: &Grid) -> Result<()> {
     match g.non_finite() {
         None => Ok(()),
-        Some((count, (i, j))) => Err(Error::Data(format!(
-            "{count} height values are NaN or infinite (first at row {i}, column {j}); \
+        Some((count, (i, j))) => Err(Error::data(
+            DataCause::NotFinite,
+            format!(
+                "{count} height values are NaN or infinite (first at row {i}, column {j}); \
              set `fill` to fill them from their neighbours"
-        ))),
+            ),
+        )),
     }
 }
 

@@ -70,7 +70,7 @@ fn blur_separable(a: &Array2<f64>, kx: &[f64], ky: &[f64]) -> Result<Array2<f64>
     let (nr, nc) = a.dim();
     let (rx, ry) = (kx.len() / 2, ky.len() / 2);
     let a = a.as_standard_layout();
-    let src = a.as_slice().ok_or_else(|| Error::Data("blur: values not contiguous".into()))?;
+    let src = a.as_slice().ok_or_else(|| Error::internal("blur: values not contiguous"))?;
     let span = |c: usize, n: usize, r: usize| (c.saturating_sub(r), (c + r).min(n - 1));
     let kx_sum: f64 = kx.iter().sum();
     let mut out = vec![0.0; nr * nc];
@@ -100,7 +100,7 @@ fn blur_separable(a: &Array2<f64>, kx: &[f64], ky: &[f64]) -> Result<Array2<f64>
             }
         },
     );
-    Array2::from_shape_vec((nr, nc), out).map_err(|e| Error::Data(format!("blur: {e}")))
+    Array2::from_shape_vec((nr, nc), out).map_err(|e| Error::internal(format!("blur: {e}")))
 }
 
 #[cfg(test)]

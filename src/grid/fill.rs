@@ -1,7 +1,7 @@
 //! Filling non-measured points: the membrane (Laplace) fill, below the stages that use it
 //! (fabrication's `--fill`, metrology's comparison, the PSF of a scanned part).
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::grid::Grid;
 
 /// Replaces non-finite and invalid samples by the solution of Laplace's equation with the
@@ -20,7 +20,7 @@ pub fn fill_missing(g: &Grid) -> Result<(Grid, usize)> {
         }
     }
     if holes.len() == v.len() {
-        return Err(Error::Data("nothing to fill from: no sample is finite".into()));
+        return Err(Error::data(DataCause::Empty, "nothing to fill from: no sample is finite"));
     }
     // Start from the mean of the valid samples.
     let (sum, cnt) = v.iter().filter(|x| x.is_finite()).fold((0.0, 0usize), |(s, c), x| (s + x, c + 1));

@@ -3,7 +3,7 @@
 //! never enters a sum or a fit. Read by [`crate::io::profile`], levelled and compared with a
 //! design by `metrology::profile`.
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 
 /// A 1-D height profile; see the module docs.
 #[derive(Debug, Clone, PartialEq)]
@@ -18,24 +18,33 @@ impl Profile {
     /// (`None`: every finite height valid; non-finite heights are always invalid).
     pub fn new(x: Vec<f64>, z: Vec<f64>, valid: Option<Vec<bool>>) -> Result<Profile> {
         if x.len() != z.len() || valid.as_ref().is_some_and(|v| v.len() != x.len()) {
-            return Err(Error::Data(format!(
-                "a profile needs as many heights as positions: {} positions, {} heights",
-                x.len(),
-                z.len()
-            )));
+            return Err(Error::data(
+                DataCause::Shape,
+                format!(
+                    "a profile needs as many heights as positions: {} positions, {} heights",
+                    x.len(),
+                    z.len()
+                ),
+            ));
         }
         if x.len() < 2 {
-            return Err(Error::Data(format!("a profile needs at least 2 points, got {}", x.len())));
+            return Err(Error::data(
+                DataCause::TooFew,
+                format!("a profile needs at least 2 points, got {}", x.len()),
+            ));
         }
         if let Some(k) = x.iter().position(|v| !v.is_finite()) {
-            return Err(Error::Data(format!("position {k} is not finite")));
+            return Err(Error::data(DataCause::NotFinite, format!("position {k} is not finite")));
         }
         if let Some(k) = (1..x.len()).find(|&k| x[k] <= x[k - 1]) {
-            return Err(Error::Data(format!(
-                "positions must be strictly increasing: point {k} at {:e} m follows {:e} m",
-                x[k],
-                x[k - 1]
-            )));
+            return Err(Error::data(
+                DataCause::OutOfRange,
+                format!(
+                    "positions must be strictly increasing: point {k} at {:e} m follows {:e} m",
+                    x[k],
+                    x[k - 1]
+                ),
+            ));
         }
         let valid: Vec<bool> = match valid {
             Some(v) => v.iter().zip(&z).map(|(ok, h)| *ok && h.is_finite()).collect(),

@@ -114,7 +114,7 @@ mod tests {
         write_bytes(&p, b"old").unwrap();
         let r = write_atomic(&p, |w| {
             w.write_all(b"partial new content").unwrap();
-            Err(Error::Data("boom".into()))
+            Err(Error::internal("boom"))
         });
         assert!(r.is_err());
         assert_eq!(std::fs::read(&p).unwrap(), b"old");

@@ -24,7 +24,7 @@
 
 use std::path::Path;
 
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Result};
 use crate::grid::{Grid, Unit};
 use crate::io::raw_map::{RawMap, SampleKind};
 use crate::units::format_length;
@@ -186,12 +186,13 @@ pub fn check_relief(path: &Path, grid: &Grid) -> Result<()> {
     if pv == 0.0 || (MIN_PLAUSIBLE_PV..=MAX_PLAUSIBLE_PV).contains(&pv) {
         return Ok(());
     }
-    Err(Error::Data(format!(
+    let what = format!(
         "{}: the heights span {} peak-to-valley, beyond a DOE's relief ({MIN_PLAUSIBLE_PV:e}..{MAX_PLAUSIBLE_PV:e} m): \
          not a scan of this part, or a wrong height unit in the file",
         path.display(),
         format_length(pv)
-    )))
+    );
+    Err(Error::data(DataCause::OutOfRange, what))
 }
 
 /// The plausibility check of [`heightmap_from_raw`] alone (module docs): the error it would
@@ -321,7 +322,7 @@ fn check_plausible(file: &str, raw: &RawMap, k: f64) -> Result<()> {
 /// when there is none); `raw` supplies the kind of the values.
 fn check_plausible_range(file: &str, raw: &RawMap, k: f64, lo: f64, hi: f64) -> Result<()> {
     if lo > hi {
-        return Err(Error::Data(format!("{file}: no finite height value in the map")));
+        return Err(Error::data(DataCause::Empty, format!("{file}: no finite height value in the map")));
     }
     let pv_raw = hi - lo;
     let pv = pv_raw * k.abs();

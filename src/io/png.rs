@@ -72,13 +72,15 @@ pub fn decode_png(path: &Path, bytes: &[u8]) -> Result<RawMap> {
                      a {}-byte file can hold at deflate's best ratio (1032:1)",
                     bytes.len()
                 ),
-            ));
+            )
+            .at(16));
         }
         let size = reader.output_buffer_size().ok_or_else(|| {
             Error::malformed(
                 path,
                 format!("byte offset 16: IHDR says {w} x {h}, too large an image for this machine"),
             )
+            .at(16)
         })?;
         let mut buf = vec![0u8; size];
         let frame = reader.next_frame(&mut buf).map_err(|e| fail("cannot read the image data", e))?;

@@ -38,7 +38,7 @@
 
 use ndarray::Array2;
 
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Result};
 use crate::grid::Grid;
 
 /// A least-squares plane `z = a + bx * j + by * i` (heights per pixel).
@@ -87,9 +87,10 @@ fn fit_points(g: &Grid, region: Option<&Array2<bool>>) -> Result<Vec<(usize, usi
         }
     }
     if let Some((count, (i, j))) = g.non_finite() {
-        return Err(Error::Data(format!(
-            "{count} valid heights are NaN or infinite (first at row {i}, column {j})"
-        )));
+        return Err(Error::data(
+            DataCause::NotFinite,
+            format!("{count} valid heights are NaN or infinite (first at row {i}, column {j})"),
+        ));
     }
     Ok(g.values()
         .indexed_iter()
@@ -101,7 +102,10 @@ fn fit_points(g: &Grid, region: Option<&Array2<bool>>) -> Result<Vec<(usize, usi
 /// Least squares for `z ~ sum_k c_k f_k(i, j)`: returns `c`.
 fn lstsq(points: &[(usize, usize, f64)], m: usize, basis: impl Fn(f64, f64, &mut [f64])) -> Result<Vec<f64>> {
     if points.len() < m {
-        return Err(Error::Data(format!("{} points cannot fix {m} fit coefficients", points.len())));
+        return Err(Error::data(
+            DataCause::TooFew,
+            format!("{} points cannot fix {m} fit coefficients", points.len()),
+        ));
     }
     let mut a = vec![0.0; m * m];
     let mut b = vec![0.0; m];
@@ -149,7 +153,10 @@ pub fn fit_plane_rows(g: &Grid, region: Option<&Array2<bool>>, row_step: usize) 
                 continue;
             }
             if !z.is_finite() {
-                return Err(Error::Data(format!("a valid height is NaN or infinite (row {i}, column {j})")));
+                return Err(Error::data(
+                    DataCause::NotFinite,
+                    format!("a valid height is NaN or infinite (row {i}, column {j})"),
+                ));
             }
             let x = j as f64 - jc;
             n += 1.0;
@@ -164,7 +171,7 @@ pub fn fit_plane_rows(g: &Grid, region: Option<&Array2<bool>>, row_step: usize) 
         }
     }
     if n < 3.0 {
-        return Err(Error::Data(format!("{n} points cannot fix 3 fit coefficients")));
+        return Err(Error::data(DataCause::TooFew, format!("{n} points cannot fix 3 fit coefficients")));
     }
     let c = crate::linalg::solve(vec![n, sx, sy, sx, sxx, sxy, sy, sxy, syy], vec![sz, sxz, syz], 3)?;
     Ok(Plane { a: c[0] - c[1] * jc - c[2] * ic, bx: c[1], by: c[2] })
@@ -224,7 +231,7 @@ pub fn level_polynomial(g: &Grid, order: usize, region: Option<&Array2<bool>>) -
 pub fn subtract_mean(g: &Grid) -> Result<(Grid, f64)> {
     let pts = fit_points(g, None)?;
     if pts.is_empty() {
-        return Err(Error::Data("no valid sample: the mean is undefined".into()));
+        return Err(Error::data(DataCause::Empty, "no valid sample: the mean is undefined"));
     }
     let m = pts.iter().map(|p| p.2).sum::<f64>() / pts.len() as f64;
     Ok((subtract(g, |_, _| m)?, m))
@@ -331,9 +338,10 @@ fn outside_aperture(g: &Grid, d: f64) -> Result<Array2<bool>> {
 /// The facet-levelling plane (module docs) and the number of iterations it took.
 pub fn fit_facet(g: &Grid) -> Result<(Plane, usize)> {
     if let Some((count, (i, j))) = g.non_finite() {
-        return Err(Error::Data(format!(
-            "{count} valid heights are NaN or infinite (first at row {i}, column {j})"
-        )));
+        return Err(Error::data(
+            DataCause::NotFinite,
+            format!("{count} valid heights are NaN or infinite (first at row {i}, column {j})"),
+        ));
     }
     let (nr, nc) = g.dim();
     let [px, py] = g.pitch();
@@ -350,10 +358,10 @@ pub fn fit_facet(g: &Grid) -> Result<(Plane, usize)> {
         }
     }
     if cells.len() < 3 {
-        return Err(Error::Data(format!(
-            "{} cells of 2 x 2 valid samples: facet levelling needs at least 3",
-            cells.len()
-        )));
+        return Err(Error::data(
+            DataCause::TooFew,
+            format!("{} cells of 2 x 2 valid samples: facet levelling needs at least 3", cells.len()),
+        ));
     }
     let (mut sx, mut sy) = (0.0, 0.0);
     let mut prev: Option<(f64, f64)> = None;
@@ -393,8 +401,9 @@ pub fn fit_facet(g: &Grid) -> Result<(Plane, usize)> {
         sx += k * dx;
         sy += k * dy;
     }
-    Err(Error::Data(
-        "facet levelling did not converge in 100 iterations: the surface has no dominant facet".into(),
+    Err(Error::data(
+        DataCause::Diverged,
+        "facet levelling did not converge in 100 iterations: the surface has no dominant facet",
     ))
 }
 
@@ -434,11 +443,14 @@ pub fn fit_lowest_level(g: &Grid) -> Result<(Plane, usize, LowestLevel)> {
     }
     let spread = (ss / n as f64).sqrt();
     if next < 6.0 * spread {
-        return Err(Error::Data(format!(
-            "the lowest level spreads {spread:.4e} m (rms) about its plane, more than a sixth of the \
+        return Err(Error::data(
+            DataCause::Featureless,
+            format!(
+                "the lowest level spreads {spread:.4e} m (rms) about its plane, more than a sixth of the \
              {next:.4e} m step to the next level: the surface is not terraced (or too rough) for a \
              lowest-level substrate; name the substrate region (an aperture) or use facet levelling"
-        )));
+            ),
+        ));
     }
     Ok((plane, n, LowestLevel { next_level: next, spread }))
 }
@@ -488,12 +500,18 @@ fn histogram(r: &mut [f64]) -> (f64, f64, Vec<f64>) {
 /// a plane, levelled down to rounding errors).
 fn histogram_levels(r: &mut [f64], range: f64) -> Result<[f64; 3]> {
     if r.len() < 3 {
-        return Err(Error::Data(format!("{} valid samples: no height histogram", r.len())));
+        return Err(Error::data(
+            DataCause::TooFew,
+            format!("{} valid samples: no height histogram", r.len()),
+        ));
     }
     let n = r.len() as f64;
     let (lo, w, c) = histogram(r);
     if w * c.len() as f64 <= 1e-9 * range {
-        return Err(Error::Data("the surface is flat: a single level, no substrate to tell apart".into()));
+        return Err(Error::data(
+            DataCause::Featureless,
+            "the surface is flat: a single level, no substrate to tell apart",
+        ));
     }
     let nb = c.len();
     // Local maxima (the first bin of a plateau) holding about 1 % of the samples.
@@ -506,20 +524,24 @@ fn histogram_levels(r: &mut [f64], range: f64) -> Result<[f64; 3]> {
         .collect();
     let at = |k: usize| lo + (k as f64 + 0.5) * w;
     let [p0, p1, ..] = peaks[..] else {
-        return Err(Error::Data(
-            "the height histogram shows a single level: no substrate to tell apart from the structure".into(),
+        return Err(Error::data(
+            DataCause::Featureless,
+            "the height histogram shows a single level: no substrate to tell apart from the structure",
         ));
     };
     let v = (p0..=p1).min_by(|&a, &b| c[a].total_cmp(&c[b])).unwrap_or(p0);
     if c[v] > 0.5 * c[p0] {
-        return Err(Error::Data(format!(
-            "the lowest levels at {:.4e} m and {:.4e} m are not resolved in the height histogram (the \
+        return Err(Error::data(
+            DataCause::Featureless,
+            format!(
+                "the lowest levels at {:.4e} m and {:.4e} m are not resolved in the height histogram (the \
              valley between them holds {:.0} % of the lower peak): tilt or noise blur the levels, so \
              the substrate cannot be told apart",
-            at(p0),
-            at(p1),
-            100.0 * c[v] / c[p0]
-        )));
+                at(p0),
+                at(p1),
+                100.0 * c[v] / c[p0]
+            ),
+        ));
     }
     Ok([at(p0), at(v), at(p1)])
 }

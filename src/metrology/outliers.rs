@@ -16,7 +16,7 @@
 use ndarray::Array2;
 use serde::Serialize;
 
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Result};
 use crate::grid::Grid;
 use crate::metrology::level::{level_plane, level_polynomial};
 
@@ -51,7 +51,7 @@ pub fn nsigma_outliers(g: &Grid, n: f64, order: usize, max_iterations: usize) ->
         passes += 1;
         let valid = g.values().indexed_iter().map(|((i, j), _)| g.is_valid(i, j) && !out[[i, j]]);
         let valid =
-            Array2::from_shape_vec(g.dim(), valid.collect()).map_err(|e| Error::Data(e.to_string()))?;
+            Array2::from_shape_vec(g.dim(), valid.collect()).map_err(|e| Error::internal(e.to_string()))?;
         let masked = g.clone().with_mask(valid.clone())?;
         let res = if order == 1 {
             level_plane(&masked, None)?.0
@@ -107,7 +107,7 @@ pub fn median_outliers(g: &Grid, size: usize, n: f64, min_step: f64) -> Result<O
     }
     let mut abs: Vec<f64> = res.iter().filter(|v| v.is_finite()).map(|v| v.abs()).collect();
     if abs.is_empty() {
-        return Err(Error::Data("no valid sample to test".into()));
+        return Err(Error::data(DataCause::Empty, "no valid sample to test"));
     }
     abs.sort_by(f64::total_cmp);
     let mad = abs[abs.len() / 2];

@@ -24,7 +24,7 @@
 use ndarray::{s, Array2, Zip};
 use serde::Serialize;
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::grid::{Grid, Unit};
 
 /// ISO 25178 height parameters of a surface (heights in the grid's unit, metres for scans).
@@ -65,14 +65,15 @@ pub fn height_params(g: &Grid) -> Result<HeightParams> {
     };
     if vals.iter().any(|v| !v.is_finite()) {
         if let Some((count, (i, j))) = g.non_finite() {
-            return Err(Error::Data(format!(
-                "{count} valid heights are NaN or infinite (first at row {i}, column {j})"
-            )));
+            return Err(Error::data(
+                DataCause::NotFinite,
+                format!("{count} valid heights are NaN or infinite (first at row {i}, column {j})"),
+            ));
         }
     }
     let n = vals.len();
     if n == 0 {
-        return Err(Error::Data("no valid sample: the surface parameters are undefined".into()));
+        return Err(Error::data(DataCause::Empty, "no valid sample: the surface parameters are undefined"));
     }
     let nf = n as f64;
     let mean = vals.iter().sum::<f64>() / nf;

@@ -21,7 +21,7 @@ use std::path::Path;
 use ndarray::Array2;
 use serde::Serialize;
 
-use crate::error::{Allowed, Condition, Error, Result};
+use crate::error::{Allowed, Condition, DataCause, Error, Resource, Result};
 use crate::fabrication::precompensate::Response;
 use crate::grid::blur::gaussian_blur;
 use crate::grid::{Grid, Unit};
@@ -125,7 +125,8 @@ pub fn simulate_scan(design: &Grid, p: &SimulateParams) -> Result<Grid> {
         None => design.clone(),
     };
     let blurred = gaussian_blur(&made, p.blur)?;
-    let (_, hmax) = design.min_max().ok_or_else(|| Error::Data("the design has no valid sample".into()))?;
+    let (_, hmax) =
+        design.min_max().ok_or_else(|| Error::data(DataCause::Empty, "the design has no valid sample"))?;
     let pitch = p.pitch.unwrap_or(design.pitch());
     if !pitch.iter().all(|v| v.is_finite() && *v > 0.0) {
         return Err(Error::param_in(
@@ -139,7 +140,11 @@ pub fn simulate_scan(design: &Grid, p: &SimulateParams) -> Result<Grid> {
         ((e[1] / pitch[1]).round().max(1.0) as usize, (e[0] / pitch[0]).round().max(1.0) as usize)
     });
     if rows == 0 || cols == 0 || rows.saturating_mul(cols) > 1 << 28 {
-        return Err(Error::Limit(format!("a {rows} x {cols} scan is empty or too large")));
+        let what = format!("a {rows} x {cols} scan is empty or too large");
+        return Err(match rows.saturating_mul(cols) {
+            0 => Error::data(DataCause::Empty, what),
+            n => Error::limit(Resource::Samples, n as f64, (1u64 << 28) as f64, what),
+        });
     }
     let sampler = Sampler::new(&blurred);
     let mut rng = Lcg(p.seed);

@@ -16,7 +16,7 @@ use std::path::Path;
 use ndarray::{Array2, Array4, ArrayD};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Result};
 use crate::grid::{Grid, Unit};
 use crate::io::exr::{decode_exr, exr_channel_names};
 use crate::io::npy::{decode_npy, read_npy_nd};
@@ -84,20 +84,23 @@ impl Psf {
     /// each to sum 1.
     pub fn new(channels: Vec<Channel>, method: &str) -> Result<Psf> {
         let Some(first) = channels.first() else {
-            return Err(Error::Data("a PSF needs at least one channel".into()));
+            return Err(Error::data(DataCause::Empty, "a PSF needs at least one channel"));
         };
         let (dim, pitch) = (first.grid.dim(), first.grid.pitch());
         for c in &channels {
             if c.grid.dim() != dim || c.grid.pitch() != pitch {
-                return Err(Error::Data(format!(
-                    "PSF channel '{}' is {:?} at pitch {:?}, channel '{}' is {:?} at {:?}",
-                    c.name,
-                    c.grid.dim(),
-                    c.grid.pitch(),
-                    first.name,
-                    dim,
-                    pitch
-                )));
+                return Err(Error::data(
+                    DataCause::Shape,
+                    format!(
+                        "PSF channel '{}' is {:?} at pitch {:?}, channel '{}' is {:?} at {:?}",
+                        c.name,
+                        c.grid.dim(),
+                        c.grid.pitch(),
+                        first.name,
+                        dim,
+                        pitch
+                    ),
+                ));
             }
         }
         let mut psf = Psf { channels, method: method.into(), warnings: Vec::new() };
@@ -110,11 +113,12 @@ impl Psf {
         for c in &mut self.channels {
             let v = c.grid.values();
             if let Some(bad) = v.iter().find(|x| !x.is_finite() || **x < 0.0) {
-                return Err(Error::Data(format!("PSF channel '{}' holds {bad}", c.name)));
+                let cause = if bad.is_finite() { DataCause::OutOfRange } else { DataCause::NotFinite };
+                return Err(Error::data(cause, format!("PSF channel '{}' holds {bad}", c.name)));
             }
             let s: f64 = v.sum();
             if s <= 0.0 {
-                return Err(Error::Data(format!("PSF channel '{}' is all zero", c.name)));
+                return Err(Error::data(DataCause::Empty, format!("PSF channel '{}' is all zero", c.name)));
             }
             c.grid.values_mut().mapv_inplace(|x| x / s);
         }
@@ -209,7 +213,10 @@ impl Psf {
             .map(|c| {
                 let (a, b) = (self.channels[c].captured, flat.channels[c].captured);
                 let (Some(a), Some(b)) = (a, b) else {
-                    return Err(Error::Data("Strehl ratio needs PSFs with known captured power".into()));
+                    return Err(Error::data(
+                        DataCause::NotFinite,
+                        "Strehl ratio needs PSFs with known captured power",
+                    ));
                 };
                 Ok(self.peak(c).0 * a / (flat.peak(c).0 * b))
             })
@@ -229,13 +236,16 @@ impl Psf {
 
     fn check_same(&self, other: &Psf) -> Result<()> {
         if self.channels.len() != other.channels.len() || self.dim() != other.dim() {
-            return Err(Error::Data(format!(
-                "PSFs differ in shape: {} channels of {:?} vs {} of {:?}",
-                self.channels.len(),
-                self.dim(),
-                other.channels.len(),
-                other.dim()
-            )));
+            return Err(Error::data(
+                DataCause::Shape,
+                format!(
+                    "PSFs differ in shape: {} channels of {:?} vs {} of {:?}",
+                    self.channels.len(),
+                    self.dim(),
+                    other.channels.len(),
+                    other.dim()
+                ),
+            ));
         }
         Ok(())
     }
@@ -365,7 +375,7 @@ impl Psf {
             });
         }
         Psf::new(channels, "file").map_err(|e| match e {
-            Error::Data(m) => Error::malformed(path, m),
+            Error::TypedData { what, .. } => Error::malformed(path, what),
             other => other,
         })
     }
@@ -431,8 +441,8 @@ fn read_side_json(npy: &Path) -> Result<SideMetadata> {
         return Ok(None);
     }
     let text = std::fs::read_to_string(&json).map_err(|e| Error::io(&json, e))?;
-    let v: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| Error::malformed(&json, format!("not JSON: {e}")))?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| Error::malformed(&json, format!("not JSON: {e}")).at_json(&text, &e))?;
     // `doefab psf` nests the pitch in its system; `calibrate-psf` states it at the top.
     let pitch = v
         .pointer("/system/sensor_pitch")
@@ -509,7 +519,7 @@ fn read_exr_psf(path: &Path, given: Option<f64>) -> Result<Psf> {
         });
     }
     Psf::new(channels, "file").map_err(|e| match e {
-        Error::Data(m) => Error::malformed(path, m),
+        Error::TypedData { what, .. } => Error::malformed(path, what),
         other => other,
     })
 }

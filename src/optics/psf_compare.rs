@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 use super::output::PEAKS;
 use super::psf::{ChannelSummary, Peak, Psf};
 use super::system::OpticalSystem;
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::fft::Plan1d;
 
 /// Frequency (cycles per pixel) above which a channel's content counts as near the sampling
@@ -154,20 +154,26 @@ fn centroid_index(psf: &Psf, c: usize) -> [f64; 2] {
 /// Compares `b` against `a` (see the module docs); `a_name`/`b_name` label them.
 pub fn compare(a: &Psf, b: &Psf, a_name: &str, b_name: &str, opts: &CompareOptions) -> Result<Comparison> {
     if a.channels.len() != b.channels.len() {
-        return Err(Error::Data(format!(
-            "{a_name} has {} channels ({}), {b_name} has {} ({}): a comparison needs the same count",
-            a.channels.len(),
-            names(a),
-            b.channels.len(),
-            names(b)
-        )));
+        return Err(Error::data(
+            DataCause::Shape,
+            format!(
+                "{a_name} has {} channels ({}), {b_name} has {} ({}): a comparison needs the same count",
+                a.channels.len(),
+                names(a),
+                b.channels.len(),
+                names(b)
+            ),
+        ));
     }
     let (pa, pb) = (a.pitch(), b.pitch());
     if (0..2).any(|k| ((pa[k] - pb[k]) / pa[k]).abs() > PITCH_TOLERANCE) {
-        return Err(Error::Data(format!(
-            "{a_name} has pitch [{:e}, {:e}] m, {b_name} [{:e}, {:e}] m: resample one first",
-            pa[0], pa[1], pb[0], pb[1]
-        )));
+        return Err(Error::data(
+            DataCause::Shape,
+            format!(
+                "{a_name} has pitch [{:e}, {:e}] m, {b_name} [{:e}, {:e}] m: resample one first",
+                pa[0], pa[1], pb[0], pb[1]
+            ),
+        ));
     }
     let (da, db) = (a.dim(), b.dim());
     let common = (da.0.min(db.0), da.1.min(db.1));

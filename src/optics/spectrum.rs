@@ -13,7 +13,7 @@ use std::path::Path;
 use ndarray::Array2;
 
 use super::psf::{Channel, Psf};
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::grid::{Grid, Unit};
 use crate::table::{column_unit, hermite, pchip_slopes};
 
@@ -139,8 +139,10 @@ pub fn combine(psf: &Psf, bands: &[Band], samples: &[Vec<(f64, f64)>]) -> Result
         let mut sum = Array2::<f64>::zeros((rows, cols));
         let (mut wsum, mut lsum, mut csum) = (0.0, 0.0, 0.0);
         for &(l, w) in s {
-            let ch =
-                psf.channels.get(k).ok_or_else(|| Error::Data("fewer PSF channels than samples".into()))?;
+            let ch = psf
+                .channels
+                .get(k)
+                .ok_or_else(|| Error::data(DataCause::Shape, "fewer PSF channels than samples"))?;
             let captured = ch.captured.unwrap_or(1.0);
             sum.scaled_add(w * captured, ch.grid.values());
             wsum += w;

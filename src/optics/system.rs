@@ -20,7 +20,7 @@ use rustfft::num_complex::Complex64;
 use serde::{Deserialize, Serialize};
 
 use crate::design::{PAPER_APERTURE, PAPER_PITCH};
-use crate::error::{Allowed, Error, Result};
+use crate::error::{Allowed, DataCause, Error, Result};
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::material::{Material, PAPER_WAVELENGTHS};
 
@@ -370,13 +370,16 @@ impl OpticalSystem {
             if x * x + y * y <= r2max {
                 let h = g.values()[[i, j]];
                 if !g.is_valid(i, j) || !h.is_finite() {
-                    return Err(Error::Data(format!(
-                        "the DOE height is missing or not finite inside the aperture \
+                    return Err(Error::data(
+                        DataCause::NotFinite,
+                        format!(
+                            "the DOE height is missing or not finite inside the aperture \
                          (pupil sample row {i}, column {j}, at x = {:.1} um, y = {:.1} um); \
                          fill the map first",
-                        x * 1e6,
-                        y * 1e6
-                    )));
+                            x * 1e6,
+                            y * 1e6
+                        ),
+                    ));
                 }
                 *v = h;
             }
@@ -454,7 +457,7 @@ impl OpticalSystem {
     /// validates the result. Errors name the file and the field.
     pub fn read_toml(path: &std::path::Path, base: &OpticalSystem) -> Result<OpticalSystem> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let f: SystemFile = toml::from_str(&text).map_err(|e| Error::malformed(path, e.to_string()))?;
+        let f: SystemFile = toml::from_str(&text).map_err(|e| Error::toml(path, &e))?;
         let length = |field: &str, v: &Option<String>, into: &mut f64| -> Result<()> {
             if let Some(t) = v {
                 *into = crate::units::parse_length(t)

@@ -227,7 +227,7 @@ pub fn compare_and_write(
         measured_fraction: c.measured_fraction,
         filled_samples,
     };
-    let json = serde_json::to_string(&meta).map_err(|e| Error::Data(e.to_string()))?;
+    let json = serde_json::to_string(&meta).map_err(|e| Error::internal(e.to_string()))?;
     let exr_meta = crate::io::raw_map::Metadata::heights(reference.pitch())
         .with("quantity", "height")
         .with("surface", json);

@@ -9,7 +9,7 @@ use serde::Serialize;
 use crate::calibration::capture;
 use crate::calibration::hdr_merge::{self, MergeStats, Merged, ToneMapStats};
 use crate::calibration::response::{self, Response};
-use crate::error::{Error, Result};
+use crate::error::{Error, OptionsCause, Result};
 
 /// An exposure bracket and how to merge it.
 #[derive(Debug, Clone)]
@@ -152,23 +152,29 @@ pub struct MergeOutcome {
 /// same file.
 pub fn merge(opts: &MergeOptions, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<MergeOutcome> {
     if opts.response_out.is_some() && opts.response != ResponseModel::Debevec {
-        return Err(Error::Options(
+        return Err(Error::options(
+            &["response_out", "response"],
+            OptionsCause::Requires,
             "`response_out` saves the curve that `response` debevec recovers; a linear merge \
-             (the default `response` linear) has none"
-                .into(),
+             (the default `response` linear) has none",
         ));
     }
     if !opts.ev.is_finite() {
-        return Err(Error::Options(format!("`ev` must be a finite number of stops, got {}", opts.ev)));
+        let what = format!("`ev` must be a finite number of stops, got {}", opts.ev);
+        return Err(Error::options(&["ev"], OptionsCause::Value, what));
     }
     let output = &opts.output;
     let png = opts.png.clone().unwrap_or_else(|| output.with_extension("png"));
     if png == *output || opts.response_out.as_ref().is_some_and(|r| r == output || *r == png) {
-        return Err(Error::Options(format!(
-            "the EXR ({}), the PNG ({}) and `response_out` must be different files",
-            output.display(),
-            png.display()
-        )));
+        return Err(Error::options(
+            &["output", "png", "response_out"],
+            OptionsCause::SameFile,
+            format!(
+                "the EXR ({}), the PNG ({}) and `response_out` must be different files",
+                output.display(),
+                png.display()
+            ),
+        ));
     }
     let MergedBracket { merged, response_warnings } = merge_bracket(&opts.bracket, opts.response, progress)?;
     hdr_merge::write_merged(output, &merged, None)?;

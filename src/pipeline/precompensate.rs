@@ -27,7 +27,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Condition, Error, Result};
+use crate::error::{Condition, DataCause, Error, Result};
 use crate::fabrication::chain::{self, write_mask, ChainParams, DesignSource, LoadedDesign};
 use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::mask::render_levels;
@@ -147,6 +147,7 @@ impl Measured {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
         serde_json::from_str(&text).map_err(|e| {
             Error::malformed(path, format!("not a compare.json written by `doefab compare`: {e}"))
+                .at_json(&text, &e)
         })
     }
 }
@@ -364,7 +365,8 @@ fn written_surface(commanded: &Grid, mode: ReplicaMode) -> Result<Grid> {
     match mode {
         ReplicaMode::Design => Ok(commanded.clone()),
         ReplicaMode::Master => {
-            let (lo, hi) = commanded.min_max().ok_or_else(|| Error::Data("empty surface".into()))?;
+            let (lo, hi) =
+                commanded.min_max().ok_or_else(|| Error::data(DataCause::Empty, "empty surface"))?;
             let v = commanded.values().mapv(|c| hi + lo - c);
             Ok(commanded.map_values(v, Unit::Metre)?.mirror(true, false))
         }
@@ -598,7 +600,7 @@ fn write_outputs(
     let meta = Metadata::heights(w.result.commanded.pitch())
         .with("quantity", "height")
         .with("content", "pre-compensated commanded surface, design frame (doefab precompensate)")
-        .with("provenance", serde_json::to_string(&provenance).map_err(|e| Error::Data(e.to_string()))?);
+        .with("provenance", serde_json::to_string(&provenance).map_err(|e| Error::internal(e.to_string()))?);
     crate::io::exr::write_exr(
         &stage.stage_path("commanded.exr"),
         &[("height", &w.result.commanded.values().mapv(|v| v as f32))],

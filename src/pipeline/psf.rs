@@ -7,7 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::error::{Error, Result};
+use crate::error::{Error, OptionsCause, Result};
 use crate::fabrication::chain::{self, DesignSource};
 use crate::grid::Grid;
 use crate::material::Material;
@@ -65,7 +65,8 @@ pub fn prepare(opts: &PsfOptions) -> Result<PsfJob> {
     }
     let how = if let Some(method) = &opts.method {
         if opts.response.is_some() {
-            return Err(Error::Options("`response` needs the automatic plan: leave out `method`".into()));
+            let what = "`response` needs the automatic plan: leave out `method`";
+            return Err(Error::options(&["response", "method"], OptionsCause::Exclusive, what));
         }
         system.subsample = opts.subsample;
         let options = Options { allow_invalid: opts.allow_invalid, ..Default::default() };

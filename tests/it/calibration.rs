@@ -12,6 +12,7 @@ use doefab::calibration::hdr_merge::{merge, MergeOptions};
 use doefab::calibration::response::recover_response;
 use doefab::decoder::scenes::procedural_scene;
 use doefab::image::Image;
+use doefab::{Condition, DataCause, Error, FormatCause};
 use ndarray::Array3;
 
 /// `deepoptics-hdr/<rel>` of the shared data set (the test fails when it is missing).
@@ -293,9 +294,11 @@ fn psnr_matches_the_hand_computed_value() {
     assert!((q.linear_db - 10.0 * (48.0f64 / 2.25).log10()).abs() < 1e-9, "{q:?}");
     assert!((q.gamma_db - 10.0 * 48.0f64.log10()).abs() < 1e-9, "{q:?}");
     assert_eq!((q.min_output, q.negative_fraction), (-0.5, 1.0 / 48.0));
-    assert!(psnr(&x, &Image::new(Array3::zeros((4, 5, 3))), None).is_err());
+    let e = psnr(&x, &Image::new(Array3::zeros((4, 5, 3))), None).unwrap_err();
+    assert!(matches!(e, Error::TypedData { cause: DataCause::Shape, .. }), "{e:?}");
     n[[0, 0, 0]] = f64::NAN;
-    assert!(psnr(&x, &n, None).unwrap_err().to_string().contains("non-finite"));
+    let e = psnr(&x, &n, None).unwrap_err();
+    assert!(matches!(e, Error::TypedData { cause: DataCause::NotFinite, .. }), "{e:?}");
 }
 
 /// `img` seen through `q = A p + b`: each target pixel samples the image at `A^-1 (q - b)`
@@ -487,23 +490,30 @@ fn bad_brackets_are_refused_with_the_reason() {
     // Mismatched sizes: the error names the odd file and both sizes.
     let mut odd = frames.clone();
     odd[3].image.values = odd[3].image.values.slice(ndarray::s![..179, .., ..]).to_owned();
-    let e = merge(&odd, &times, None, None, &opts).unwrap_err().to_string();
+    let e = merge(&odd, &times, None, None, &opts).unwrap_err();
+    assert!(matches!(e, Error::TypedData { cause: DataCause::Shape, .. }), "{e:?}");
+    let e = e.to_string();
     assert!(e.contains("frame3.png") && e.contains("170 x 179") && e.contains("170 x 180"), "{e}");
     // Mixed bit depths.
     let mut mixed = frames.clone();
     mixed[1].bits = 16;
-    assert!(merge(&mixed, &times, None, None, &opts).unwrap_err().to_string().contains("16 bits"));
+    let e = merge(&mixed, &times, None, None, &opts).unwrap_err();
+    assert!(matches!(e, Error::TypedData { cause: DataCause::Shape, .. }), "{e:?}");
+    assert!(e.to_string().contains("16 bits"), "{e}");
     // No unsaturated frame at the PSF core: where and how many.
     let long: Vec<Capture> = frames[..4].to_vec();
     let merged = merge(&long, &times[..4], Some(&dark), None, &opts).unwrap();
     let n = merged.stats.saturated_everywhere.count;
     assert!(n > 0);
-    let e = calibrate_psf(&merged, &PsfOptions { crop: 101, ..Default::default() }).unwrap_err().to_string();
+    let e = calibrate_psf(&merged, &PsfOptions { crop: 101, ..Default::default() }).unwrap_err();
+    assert!(matches!(e, Error::TypedData { cause: DataCause::OutOfRange, .. }), "{e:?}");
+    let e = e.to_string();
     assert!(e.contains(&format!("{n} samples have no unsaturated frame")) && e.contains("rows"), "{e}");
     // The PSF too close to the edge for the crop window.
     let merged = merge(&frames, &times, Some(&dark), None, &opts).unwrap();
-    let e = calibrate_psf(&merged, &PsfOptions { crop: 171, ..Default::default() }).unwrap_err().to_string();
-    assert!(e.contains("off the crop window") && e.contains("171 x 171"), "{e}");
+    let e = calibrate_psf(&merged, &PsfOptions { crop: 171, ..Default::default() }).unwrap_err();
+    assert!(matches!(e, Error::TypedData { cause: DataCause::OutOfRange, .. }), "{e:?}");
+    assert!(e.to_string().contains("171 x 171"), "{e}");
     assert!(calibrate_psf(&merged, &PsfOptions { crop: 101, ..Default::default() }).is_ok());
 }
 
@@ -512,15 +522,16 @@ fn captures_of_the_wrong_kind_are_refused() {
     let dir = common::tempdir();
     let rgba = dir.path().join("rgba.png");
     image::RgbaImage::new(8, 8).save(&rgba).unwrap();
-    let e = read_capture(&rgba).unwrap_err().to_string();
-    assert!(e.contains("rgba.png") && e.contains("Rgba8"), "{e}");
+    let e = read_capture(&rgba).unwrap_err();
+    assert_eq!(common::format_cause(&e), (FormatCause::Unsupported, None, rgba.as_path()), "{e}");
     let f32 = dir.path().join("float.tif");
     doefab::io::tiff::write_tiff_f32(&f32, &ndarray::Array2::zeros((4, 4)), &Default::default()).unwrap();
-    let e = read_capture(&f32).unwrap_err().to_string();
-    assert!(e.contains("float.tif") && e.contains("8- or 16-bit"), "{e}");
+    let e = read_capture(&f32).unwrap_err();
+    assert_eq!(common::format_cause(&e), (FormatCause::Unsupported, None, f32.as_path()), "{e}");
     let text = dir.path().join("notes.png");
     std::fs::write(&text, "not an image").unwrap();
-    assert!(read_capture(&text).unwrap_err().to_string().contains("notes.png"));
+    let e = read_capture(&text).unwrap_err();
+    assert_eq!(common::format_cause(&e), (FormatCause::Malformed, None, text.as_path()), "{e}");
 }
 
 /// `doefab calibrate-psf` on a bracket written as PNG files with an exposure list and dark
@@ -1029,11 +1040,14 @@ fn a_known_shift_and_gain_are_recovered_once_and_every_image_is_scored_on_one_pi
     assert!((t.footing.gain / f.gain - 1.0).abs() < 0.01 && (t.footing.coverage - f.coverage).abs() < 0.02);
     // Below the floor: refused with the figure.
     let strict = ScoringOptions { min_coverage: 0.99, ..ScoringOptions::default() };
-    let err = prepare(&im(&reference), &im(&capture), Some(&psf), &strict).unwrap_err().to_string();
+    let err = prepare(&im(&reference), &im(&capture), Some(&psf), &strict).unwrap_err();
+    assert!(matches!(err, Error::Validity { condition: Condition::Coverage, .. }), "{err:?}");
+    let err = err.to_string();
     assert!(err.contains("floor is 99 %") && err.contains(&format!("{:.1} %", 100.0 * f.coverage)), "{err}");
     // An unrelated capture is refused rather than scored.
     let other = procedural_scene(7, 320, 320).mapv(|v| (v as f64 * 0.3).min(1.0));
-    assert!(prepare(&im(&reference), &im(&other), Some(&psf), &opts).is_err());
+    let e = prepare(&im(&reference), &im(&other), Some(&psf), &opts).unwrap_err();
+    assert!(matches!(e, Error::TypedData { cause: DataCause::TooFew, .. }), "{e:?}");
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -1,8 +1,10 @@
 //! Shared helpers for the integration tests.
 #![allow(dead_code)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
+
+use doefab::{Error, FormatCause};
 
 /// The Python interpreter that holds the independent checkers (KLayout's `klayout`, `trimesh`,
 /// `numpy`): `$DOEFAB_PYTHON`, else `.venv/bin/python` made by `tests/setup-python.sh`.
@@ -67,4 +69,12 @@ pub fn shared_data(rel: &str) -> PathBuf {
         p.display()
     );
     p
+}
+
+/// The cause, byte offset and file of an [`Error::Format`]; panics naming any other error.
+pub fn format_cause(e: &Error) -> (FormatCause, Option<u64>, &Path) {
+    match e {
+        Error::Format { cause, offset, path, .. } => (*cause, *offset, path),
+        other => panic!("expected a format error, got {other:?}"),
+    }
 }

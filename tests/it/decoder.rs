@@ -14,6 +14,7 @@ use doefab::decoder::weights::{encode_safetensors, DecoderWeights, NamedTensor};
 use doefab::decoder::{device, infer};
 use doefab::image::Image;
 use doefab::io::npy::read_npy_nd;
+use doefab::{DataCause, Error, FormatCause};
 use ndarray::Array3;
 
 /// `deepoptics-hdr/` of the shared data set (the test fails when it is missing).
@@ -155,15 +156,16 @@ fn missing_and_misshaped_tensors_are_named() {
     let refs: Vec<(&str, &NamedTensor)> = tensors.iter().map(|(n, t)| (n.as_str(), t)).collect();
     let path = t.path().join("bad.safetensors");
     std::fs::write(&path, encode_safetensors(&refs, &BTreeMap::new())).unwrap();
-    let err = DecoderWeights::read(&path).unwrap_err().to_string();
-    assert!(err.contains("bad.safetensors"), "{err}");
+    let err = DecoderWeights::read(&path).unwrap_err();
+    assert_eq!(common::format_cause(&err), (FormatCause::Signature, None, path.as_path()), "{err}");
+    let err = err.to_string();
     assert!(err.contains("'dec3.bn.gamma' is missing"), "{err}");
     assert!(err.contains("'head.fuse.weight' has shape [1, 1, 3, 6], expected [1, 1, 6, 3]"), "{err}");
     assert!(err.contains("'extra' is not part of the decoder"), "{err}");
     // A file that is not safetensors at all.
     std::fs::write(&path, b"\x0a\x00\x00\x00\x00\x00\x00\x00{not json}").unwrap();
-    let err = DecoderWeights::read(&path).unwrap_err().to_string();
-    assert!(err.contains("invalid JSON in header"), "{err}");
+    let err = DecoderWeights::read(&path).unwrap_err();
+    assert_eq!(common::format_cause(&err), (FormatCause::Malformed, None, path.as_path()), "{err}");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -278,16 +280,18 @@ fn captures_are_read_as_linear_rgb_and_bad_ones_refused() {
     assert_eq!((x[[0, 3, 0]], x[[0, 0, 1]]), (3000.0 / 65535.0, 1.0));
     let gray = t.path().join("gray.png");
     image::GrayImage::new(4, 4).save(&gray).unwrap();
-    let err = read_capture(&gray).unwrap_err().to_string();
-    assert!(err.contains("gray.png") && err.contains("1 channel") && err.contains("RGB"), "{err}");
+    let err = read_capture(&gray).unwrap_err();
+    assert_eq!(common::format_cause(&err), (FormatCause::Unsupported, None, gray.as_path()), "{err}");
+    assert!(err.to_string().contains("1 channel"), "{err}");
     let rgba = t.path().join("rgba.png");
     image::RgbaImage::new(4, 4).save(&rgba).unwrap();
-    let err = read_capture(&rgba).unwrap_err().to_string();
-    assert!(err.contains("rgba.png") && err.contains("Rgba8"), "{err}");
+    let err = read_capture(&rgba).unwrap_err();
+    assert_eq!(common::format_cause(&err), (FormatCause::Unsupported, None, rgba.as_path()), "{err}");
+    assert!(err.to_string().contains("Rgba8"), "{err}");
     let f32tif = t.path().join("f.tif");
     doefab::io::tiff::write_tiff_f32(&f32tif, &ndarray::Array2::zeros((4, 4)), &Default::default()).unwrap();
-    let err = read_capture(&f32tif).unwrap_err().to_string();
-    assert!(err.contains("f.tif") && err.contains("8- or 16-bit"), "{err}");
+    let err = read_capture(&f32tif).unwrap_err();
+    assert_eq!(common::format_cause(&err), (FormatCause::Unsupported, None, f32tif.as_path()), "{err}");
 }
 
 #[test]
@@ -509,8 +513,9 @@ fn resume_continues_exactly_and_divergence_keeps_the_last_good_checkpoint() {
     assert!(da.metadata["final_loss"].parse::<f64>().unwrap() > 0.0);
     assert!(a.join("training.json").exists());
     // A different PSF is refused on resume.
-    let err = Trainer::resume(&ckpt, &psf, "cd34", &images, None, 4, None, &dev).err().unwrap().to_string();
-    assert!(err.contains("SHA-256"), "{err}");
+    let err = Trainer::resume(&ckpt, &psf, "cd34", &images, None, 4, None, &dev).err().unwrap();
+    assert!(matches!(err, Error::Parameter { ref name, .. } if name == "psf"), "{err:?}");
+    assert!(err.to_string().contains("SHA-256"), "{err}");
     // Resuming the step-2 checkpoint with a huge step size diverges: the run stops with a
     // message and the checkpoint on disk is still the step-2 one.
     let c = t.path().join("c");
@@ -547,11 +552,9 @@ fn generated_scenes_feed_a_run_and_bad_values_are_refused() {
         generate: |_, r: usize, c: usize| Image::new(Array3::from_elem((r, c, 3), f32::NAN)),
     };
     let net = UNet::from_weights(&random_weights(5), &dev);
-    let err = Trainer::new(net, &small_psf(), "ff", &broken, None, tiny_config(1), "random")
-        .err()
-        .unwrap()
-        .to_string();
-    assert!(err.contains("broken") && err.contains("NaN"), "{err}");
+    let err = Trainer::new(net, &small_psf(), "ff", &broken, None, tiny_config(1), "random").err().unwrap();
+    assert!(matches!(err, Error::TypedData { cause: DataCause::NotFinite, .. }), "{err:?}");
+    assert!(err.to_string().contains("broken"), "{err}");
 }
 
 /// Writes [`hdr_images`] as RGB EXR files `NAME.exr` into `dir`.
@@ -597,8 +600,9 @@ fn unreadable_training_images_are_skipped_and_an_empty_side_refused() {
     assert!(train.describe().contains("1 unreadable image skipped"), "{}", train.describe());
     std::fs::remove_file(val.join("ok.exr")).unwrap();
     std::fs::write(val.join("bad.hdr"), b"#?RADIANCE\nnonsense").unwrap();
-    let err = training_and_validation(&data, Some(&val), 5, 0).err().expect("refused").to_string();
-    assert!(err.contains("none of its 1 .exr/.hdr images can be read") && err.contains("bad.hdr"), "{err}");
+    let err = training_and_validation(&data, Some(&val), 5, 0).err().expect("refused");
+    assert_eq!(common::format_cause(&err), (FormatCause::Malformed, None, val.as_path()), "{err}");
+    assert!(err.to_string().contains("bad.hdr"), "{err}");
     // Held out by name: when the only image the split would validate on is unreadable, the
     // refusal says which could not be read.
     let split_dir = t.path().join("split");
@@ -607,7 +611,9 @@ fn unreadable_training_images_are_skipped_and_an_empty_side_refused() {
     let kept = (0..).map(|k| format!("img{k}.exr")).find(|n| !is_validation(n, 5)).unwrap();
     std::fs::copy(data.join("test0.exr"), split_dir.join(&kept)).unwrap();
     std::fs::write(split_dir.join(&held), b"garbage").unwrap();
-    let err = training_and_validation(&split_dir, None, 5, 0).err().expect("refused").to_string();
+    let err = training_and_validation(&split_dir, None, 5, 0).err().expect("refused");
+    assert!(matches!(err, Error::Parameter { .. }), "{err:?}");
+    let err = err.to_string();
     assert!(
         err.contains("0 for validation") && err.contains(&held) && err.contains("could not be read"),
         "{err}"
@@ -950,8 +956,9 @@ fn the_bundled_decoders_are_the_papers_files() {
         assert_eq!(decoder_sha256(&builtin).unwrap(), doefab::io::file_sha256(&dir.join(file)).unwrap());
         DecoderWeights::read(&builtin).unwrap();
     }
-    let e = DecoderWeights::read(Path::new("built-in:nothing")).unwrap_err().to_string();
-    assert!(e.contains("built-in:paper-measured-psf"), "{e}");
+    let e = DecoderWeights::read(Path::new("built-in:nothing")).unwrap_err();
+    assert_eq!(common::format_cause(&e).0, FormatCause::Signature, "{e}");
+    assert!(e.to_string().contains("built-in:paper-measured-psf"), "{e}");
 }
 
 /// The decoder written is the best validated one: a run whose steps all validate worse than
@@ -1036,7 +1043,8 @@ fn the_written_decoder_blends_the_best_weights_with_the_start() {
         FinetuneConfig { blend: 1.5, ..tiny_config(1) },
         "random",
     );
-    assert!(bad.err().unwrap().to_string().contains("blend"));
+    let e = bad.err().unwrap();
+    assert!(matches!(e, Error::Parameter { ref name, .. } if name == "blend"), "{e:?}");
 }
 
 /// The penalty on negative outputs pulls them toward zero, which the paper's loss alone (it
@@ -1114,7 +1122,8 @@ fn gradient_clipping_reports_norms_and_cuts_only_steps_above_its_limit() {
             FinetuneConfig { grad_clip: bad_limit, ..tiny_config(1) },
             "random",
         );
-        assert!(bad.err().unwrap().to_string().contains("grad_clip"));
+        let e = bad.err().unwrap();
+        assert!(matches!(e, Error::Parameter { ref name, .. } if name == "grad_clip"), "{e:?}");
     }
 }
 

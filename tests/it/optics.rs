@@ -9,6 +9,7 @@ use doefab::material::Material;
 use doefab::optics::propagate::{self, field_power, matrix_dft};
 use doefab::optics::system::OpticalSystem;
 use doefab::optics::{simulate, Method, Options, Psf};
+use doefab::{Condition, DataCause, Error, FormatCause};
 use ndarray::Array2;
 
 const L550: f64 = 550e-9;
@@ -282,7 +283,9 @@ fn an_invalid_configuration_is_refused_or_runs_with_a_warning() {
         ..Default::default()
     };
     let doe = flat(140, 4.29e-6);
-    let e = simulate(&s, &doe, Method::Fresnel, &Options::default()).unwrap_err().to_string();
+    let e = simulate(&s, &doe, Method::Fresnel, &Options::default()).unwrap_err();
+    assert!(matches!(e, Error::Validity { condition: Condition::Propagation, .. }), "{e:?}");
+    let e = e.to_string();
     assert!(e.contains("lens_sampling at 530.0 nm") && e.contains("lens_sampling at 450.0 nm"), "{e}");
     assert!(!e.contains("635.0 nm"), "{e}");
     let psf =
@@ -466,37 +469,46 @@ fn the_measured_psf_loads_through_the_same_type() {
     // The same measures work across PSFs of one shape: it differs from itself by nothing.
     assert_eq!(psf.relative_l2(&psf).unwrap(), vec![0.0; 3]);
     // Errors name the archive and the array.
-    let e = Psf::read_npz(&path, Some("nope"), 4.29e-6, None).unwrap_err().to_string();
-    assert!(e.contains("measured_psf.npz") && e.contains("no array 'nope'"), "{e}");
+    let e = Psf::read_npz(&path, Some("nope"), 4.29e-6, None).unwrap_err();
+    assert_eq!(common::format_cause(&e), (FormatCause::Malformed, None, path.as_path()), "{e}");
+    assert!(e.to_string().contains("no array 'nope'"), "{e}");
 }
 
 #[test]
 fn bad_input_is_refused_with_a_clear_error() {
     let s = f7(1.75e-6, 101);
-    let err = |s: &OpticalSystem, doe: &Grid, m: Method| {
-        simulate(s, doe, m, &Options::default()).unwrap_err().to_string()
+    let err =
+        |s: &OpticalSystem, doe: &Grid, m: Method| simulate(s, doe, m, &Options::default()).unwrap_err();
+    let param = |e: &Error| match e {
+        Error::Parameter { name, .. } => name.clone(),
+        other => panic!("expected a refused parameter, got {other:?}"),
     };
     // Heights with NaN inside the aperture.
     let mut v = Array2::zeros((204, 204));
     v[[100, 90]] = f64::NAN;
     let nan = Grid::new(v, [5e-6; 2], Unit::Metre).unwrap();
-    assert!(err(&s, &nan, Method::MatrixDft).contains("not finite inside the aperture"));
+    let e = err(&s, &nan, Method::MatrixDft);
+    assert!(matches!(e, Error::TypedData { cause: DataCause::NotFinite, .. }), "{e:?}");
     // An aperture larger than the grid.
-    assert!(err(&s, &flat(150, 5e-6), Method::MatrixDft).contains("larger than the DOE grid"));
+    assert_eq!(param(&err(&s, &flat(150, 5e-6), Method::MatrixDft)), "aperture");
     // A wavelength outside the material's range names the range.
     let ir = OpticalSystem { wavelengths: vec![900e-9], ..s.clone() };
-    assert!(err(&ir, &flat(204, 5e-6), Method::MatrixDft).contains("400-700 nm"));
+    let e = err(&ir, &flat(204, 5e-6), Method::MatrixDft);
+    assert!(matches!(e, Error::Validity { condition: Condition::Domain, .. }), "{e:?}");
+    assert!(e.to_string().contains("400-700 nm"), "{e}");
     // Zero and negative distances.
     let zero = OpticalSystem { focal_length: 0.0, ..s.clone() };
-    assert!(err(&zero, &flat(204, 5e-6), Method::MatrixDft).contains("focal_length"));
+    assert_eq!(param(&err(&zero, &flat(204, 5e-6), Method::MatrixDft)), "focal_length");
     let neg = OpticalSystem { object_distance: Some(-1.0), ..s.clone() };
-    assert!(err(&neg, &flat(204, 5e-6), Method::Fresnel).contains("object_distance"));
+    assert_eq!(param(&err(&neg, &flat(204, 5e-6), Method::Fresnel)), "object_distance");
     // A sensor crop larger than the propagation window.
     let wide = OpticalSystem { sensor_pitch: 5e-6, pupil_pitch: 5e-6, crop: 400, ..s.clone() };
-    assert!(err(&wide, &flat(204, 5e-6), Method::Fresnel).contains("the sensor crop needs 400 samples"));
+    let e = err(&wide, &flat(204, 5e-6), Method::Fresnel);
+    assert!(matches!(e, Error::Validity { condition: Condition::Propagation, .. }), "{e:?}");
+    assert!(e.to_string().contains("the sensor crop needs 400 samples"), "{e}");
     // Heights that are not metres.
     let levels = Grid::new(Array2::zeros((204, 204)), [5e-6; 2], Unit::Level).unwrap();
-    assert!(err(&s, &levels, Method::MatrixDft).contains("heights in metres"));
+    assert_eq!(param(&err(&s, &levels, Method::MatrixDft)), "doe");
 }
 
 #[test]
@@ -587,7 +599,8 @@ fn a_finite_object_focuses_at_the_thin_lens_image_distance() {
     let b = d_phi + d_i - d_phi * d_i / g;
     assert!((at / infinity / (g / b).powi(2) - 1.0).abs() < 2e-3, "{at} vs {infinity}");
     assert_eq!(Method::from_name("angular-spectrum").unwrap(), Method::AngularSpectrum);
-    assert!(Method::from_name("fft").unwrap_err().to_string().contains("unknown method 'fft'"));
+    let e = Method::from_name("fft").unwrap_err();
+    assert!(matches!(e, Error::Parameter { ref name, .. } if name == "method"), "{e:?}");
 }
 
 #[test]
@@ -637,13 +650,14 @@ fn the_folded_real_transform_equals_the_direct_collins_sum_in_f64_and_f32() {
     // Points not symmetric about the axis are refused.
     let s = f7(3e-6, 4);
     let u1 = Array2::from_elem((8, 8), Complex64::new(1.0, 0.0));
-    let e = matrix_dft::transform::<f64>(&s, &u1, 5e-6, &[0.0, 1e-6, 2e-6], L550).unwrap_err().to_string();
-    assert!(e.contains("symmetric"), "{e}");
+    let e = matrix_dft::transform::<f64>(&s, &u1, 5e-6, &[0.0, 1e-6, 2e-6], L550).unwrap_err();
+    assert!(matches!(e, Error::Parameter { .. }), "{e:?}");
+    assert!(e.to_string().contains("symmetric"), "{e}");
     // f32 is refused for the FFT methods rather than silently run in f64.
     let doe = flat(204, 5e-6);
     let o = Options { precision: Precision::F32, ..Default::default() };
-    let e = simulate(&f7(3e-6, 8), &doe, Method::Fresnel, &o).unwrap_err().to_string();
-    assert!(e.contains("f32 is implemented for matrix_dft only"), "{e}");
+    let e = simulate(&f7(3e-6, 8), &doe, Method::Fresnel, &o).unwrap_err();
+    assert!(matches!(e, Error::Parameter { ref name, .. } if name == "precision"), "{e:?}");
 }
 
 /// The stability maps of the two-step Fresnel method, the angular spectrum and the matrix DFT

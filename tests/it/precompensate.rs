@@ -16,6 +16,7 @@ use doefab::optics::output::system_for;
 use doefab::optics::{Method, Options};
 use doefab::pipeline::compare::psf_comparison;
 use doefab::pipeline::precompensate::{simulate_loop, Corrections, LoopResult};
+use doefab::{Condition, Error, Refusal};
 
 const N: usize = 320;
 
@@ -314,17 +315,20 @@ fn the_command_refuses_what_it_cannot_correct() {
     let mut w = vec![];
     // The trust rule of `compare`, on the registration and on the aperture's interior.
     let poor = Measured { interior_correlation: 0.93, ..m.clone() };
-    let e = process_model(&poor, &Corrections::default(), &mut w).unwrap_err().to_string();
-    assert!(e.contains("s.x3p") && e.contains("not trusted") && e.contains("0.930"), "{e}");
+    let e = process_model(&poor, &Corrections::default(), &mut w).unwrap_err();
+    assert!(matches!(e, Error::Registration { refusal: Refusal::NotTrusted, .. }), "{e:?}");
+    let e = e.to_string();
+    assert!(e.contains("s.x3p") && e.contains("0.930"), "{e}");
     let mut poor = m.clone();
     poor.registration.correlation = 0.9;
-    let e = process_model(&poor, &Corrections::default(), &mut w).unwrap_err().to_string();
-    assert!(e.contains("the registration is not trusted") && e.contains("0.900"), "{e}");
+    let e = process_model(&poor, &Corrections::default(), &mut w).unwrap_err();
+    assert!(matches!(e, Error::Registration { refusal: Refusal::NotTrusted, .. }), "{e:?}");
+    assert!(e.to_string().contains("0.900"), "{e}");
     let mut flat = m.clone();
     flat.model.depth_scale = 0.31;
-    let e = process_model(&flat, &Corrections { levels: false, ..Default::default() }, &mut w)
-        .unwrap_err()
-        .to_string();
+    let e = process_model(&flat, &Corrections { levels: false, ..Default::default() }, &mut w).unwrap_err();
+    assert!(matches!(e, Error::Validity { condition: Condition::Domain, .. }), "{e:?}");
+    let e = e.to_string();
     assert!(e.contains("0.310") && e.contains("0.5..1.5"), "{e}");
     std::fs::write(&json, "{\"scan\": 3}").unwrap();
     let e = refused("built-in:laser-writer-grayscale", &json);

@@ -261,7 +261,7 @@ fn the_report_refuses_a_budget_it_cannot_keep() {
         finetune: TimedOptions::new(0.0),
     };
     let dir = tempfile::tempdir().unwrap();
-    let e = run_report(&opts, &dir.path().join("r"), &mut |_, _, _| {}).unwrap_err().to_string();
-    assert!(e.contains("budget"), "{e}");
+    let e = run_report(&opts, &dir.path().join("r"), &mut |_, _, _| {}).unwrap_err();
+    assert!(matches!(e, doefab::Error::Parameter { ref name, .. } if name == "budget"), "{e:?}");
     assert!(!dir.path().join("r").exists());
 }

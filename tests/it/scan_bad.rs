@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 use doefab::io::scan::zygo::{self, MetroProFields, INVALID_PHASE};
 use doefab::io::scan::{decode_scan_raw, read_scan, scan_from_raw, ScanOptions};
 use doefab::metrology::stats::height_params;
+use doefab::{DataCause, Error, FormatCause};
 use ndarray::Array2;
 
 fn local(name: &str) -> PathBuf {
@@ -36,13 +37,14 @@ fn check_cuts_below(name: &str, bytes: &[u8], every: usize, n: usize, offsets: b
     for cut in cuts {
         let r = std::panic::catch_unwind(|| decode(name, &bytes[..cut], &ScanOptions::default()));
         let e = match r {
-            Ok(Err(e)) => e.to_string(),
+            Ok(Err(e)) => e,
             Ok(Ok(_)) => panic!("{name} cut at {cut} of {n} bytes was accepted"),
             Err(_) => panic!("{name} cut at {cut} panicked"),
         };
-        assert!(e.contains(name), "{name} cut at {cut}: {e}");
+        let (_, offset, path) = common::format_cause(&e);
+        assert_eq!(path, Path::new(name), "{name} cut at {cut}: {e:?}");
         if offsets && cut > 0 {
-            assert!(e.contains("byte offset"), "{name} cut at {cut}: {e}");
+            assert!(offset.is_some(), "{name} cut at {cut}: {e:?}");
         }
     }
 }
@@ -146,13 +148,13 @@ fn metropro_file_built_byte_by_byte() {
         &zygo::encode(&MetroProFields { phase_res: 2, ..f.clone() }, &phase),
         &ScanOptions::default(),
     )
-    .unwrap_err()
-    .to_string();
-    assert!(e.contains("byte offset 218"), "{e}");
+    .unwrap_err();
+    assert_eq!(common::format_cause(&e).1, Some(218), "{e:?}");
     // No lateral resolution in the file: `pitch` is required.
     let nores = zygo::encode(&MetroProFields { camera_res: 0.0, ..f }, &phase);
-    let e = decode("p.dat", &nores, &ScanOptions::default()).unwrap_err().to_string();
-    assert!(e.contains("pass `pitch`"), "{e}");
+    let e = decode("p.dat", &nores, &ScanOptions::default()).unwrap_err();
+    assert!(matches!(e, Error::Parameter { ref name, .. } if name == "pitch"), "{e:?}");
+    assert!(e.to_string().contains("pass `pitch`"), "{e}");
     let s = decode("p.dat", &nores, &ScanOptions { pitch: Some([1e-6; 2]), ..Default::default() }).unwrap();
     assert_eq!(s.grid.pitch(), [1e-6; 2]);
 }
@@ -161,17 +163,17 @@ fn metropro_file_built_byte_by_byte() {
 fn all_nan_scans_are_refused() {
     let v = Array2::from_elem((4, 5), f64::NAN);
     let e = decode("nan.gsf", &doefab::io::scan::gsf::encode(&v, [1e-6; 2]), &ScanOptions::default())
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("nan.gsf") && e.contains("no measured point"), "{e}");
+        .unwrap_err();
+    assert!(matches!(e, Error::TypedData { cause: DataCause::Empty, .. }), "{e:?}");
+    assert!(e.to_string().starts_with("nan.gsf: no measured point"), "{e}");
     let e =
         decode("nan.x3p", &doefab::io::scan::x3p::encode(&v, [1e-6; 2]).unwrap(), &ScanOptions::default())
-            .unwrap_err()
-            .to_string();
-    assert!(e.contains("no measured point"), "{e}");
+            .unwrap_err();
+    assert!(matches!(e, Error::TypedData { cause: DataCause::Empty, .. }), "{e:?}");
     let t =
         "aISO-1.0\nNumPoints = 2\nNumProfiles = 1\nXscale = 1e-6\nYscale = 1e-6\nZscale = 1\n*\nBAD BAD\n*\n";
-    assert!(decode("nan.sdf", t.as_bytes(), &ScanOptions::default()).is_err());
+    let e = decode("nan.sdf", t.as_bytes(), &ScanOptions::default()).unwrap_err();
+    assert!(matches!(e, Error::TypedData { cause: DataCause::Empty, .. }), "{e:?}");
 }
 
 #[test]
@@ -180,26 +182,27 @@ fn missing_pitch_or_unit_is_refused_with_the_option_to_pass() {
     let p = dir.path().join("scan.npy");
     let v = Array2::from_shape_fn((5, 6), |(i, j)| (i + j) as f64 * 10.0);
     doefab::io::npy::write_npy_f64(&p, &v).unwrap();
-    let e = read_scan(&p, &ScanOptions::default()).unwrap_err().to_string();
-    assert!(e.contains("carries no pitch: pass `pitch`"), "{e}");
+    let e = read_scan(&p, &ScanOptions::default()).unwrap_err();
+    assert!(matches!(e, Error::Parameter { ref name, .. } if name == "pitch"), "{e:?}");
+    assert!(e.to_string().contains("carries no pitch: pass `pitch`"), "{e}");
     let o = ScanOptions { pitch: Some([1e-6; 2]), ..Default::default() };
-    let e = read_scan(&p, &o).unwrap_err().to_string();
-    assert!(e.contains("invalid z_unit: ") && e.contains("no height unit: pass `z_unit`"), "{e}");
+    let e = read_scan(&p, &o).unwrap_err();
+    assert!(matches!(e, Error::Parameter { ref name, .. } if name == "z_unit"), "{e:?}");
+    assert!(e.to_string().contains("no height unit: pass `z_unit`"), "{e}");
     let o = ScanOptions { pitch: Some([1e-6; 2]), z_unit: Some(1e-9), ..Default::default() };
     let s = read_scan(&p, &o).unwrap();
     assert!((s.grid.values()[[4, 5]] - 90e-9).abs() < 1e-20);
     // A point list states no unit for its columns.
-    let e =
-        decode("p.xyz", b"0 0 1\n1 0 2\n0 1 3\n1 1 4\n", &ScanOptions::default()).unwrap_err().to_string();
-    assert!(e.contains("pass `z_unit`"), "{e}");
+    let e = decode("p.xyz", b"0 0 1\n1 0 2\n0 1 3\n1 1 4\n", &ScanOptions::default()).unwrap_err();
+    assert!(matches!(e, Error::Parameter { ref name, .. } if name == "z_unit"), "{e:?}");
     // A GSF without units: the field and heights need the caller's pitch and unit.
     let head = b"Gwyddion Simple Field 1.0\nXRes = 2\nYRes = 1\n";
     let mut g = head.to_vec();
     g.extend(std::iter::repeat_n(0u8, 4 - head.len() % 4));
     g.extend_from_slice(&1.0f32.to_le_bytes());
     g.extend_from_slice(&2.0f32.to_le_bytes());
-    let e = decode("u.gsf", &g, &ScanOptions::default()).unwrap_err().to_string();
-    assert!(e.contains("pass `pitch`"), "{e}");
+    let e = decode("u.gsf", &g, &ScanOptions::default()).unwrap_err();
+    assert!(matches!(e, Error::Parameter { ref name, .. } if name == "pitch"), "{e:?}");
     let o = ScanOptions { pitch: Some([1e-6; 2]), z_unit: Some(1e-9), ..Default::default() };
     assert!(decode("u.gsf", &g, &o).is_ok());
 }
@@ -239,7 +242,9 @@ fn implausible_heights_of_a_stated_unit_warn_and_compare_refuses() {
         "{:?}",
         s.warnings
     );
-    let e = doefab::io::heightmap::check_relief(Path::new("nm.x3p"), &s.grid).unwrap_err().to_string();
+    let e = doefab::io::heightmap::check_relief(Path::new("nm.x3p"), &s.grid).unwrap_err();
+    assert!(matches!(e, Error::TypedData { cause: DataCause::OutOfRange, .. }), "{e:?}");
+    let e = e.to_string();
     assert!(e.contains("nm.x3p") && e.contains("150 m") && e.contains("beyond a DOE's relief"), "{e}");
     // Through the command: scan-info reads it, compare refuses it.
     let dir = common::tempdir();
@@ -260,9 +265,9 @@ fn implausible_heights_of_a_stated_unit_warn_and_compare_refuses() {
     // A unit the caller states is checked as before.
     let xyz = "0 0 0\n1 0 100\n0 1 200\n1 1 300\n";
     let e = decode("a.xyz", xyz.as_bytes(), &ScanOptions { z_unit: Some(1.0), ..Default::default() })
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("implausible"), "{e}");
+        .unwrap_err();
+    assert!(matches!(e, Error::Parameter { ref name, .. } if name == "z_unit"), "{e:?}");
+    assert!(e.to_string().contains("implausible"), "{e}");
 }
 
 #[test]
@@ -341,7 +346,12 @@ fn al3d_and_tmd_cuts_corruption_and_other_formats() {
     let al3d = std::fs::read(local("wave_pedestal.surfalize.al3d")).unwrap();
     let tmd = std::fs::read(local("wave_pedestal.surfalize.tmd")).unwrap();
     let x3p = std::fs::read(local("s1_tilt_pedestal.x3pio.x3p")).unwrap();
-    let err = |name: &str, b: &[u8]| decode(name, b, &ScanOptions::default()).unwrap_err().to_string();
+    let err = |name: &str, b: &[u8]| {
+        let e = decode(name, b, &ScanOptions::default()).unwrap_err();
+        let (cause, _, path) = common::format_cause(&e);
+        assert!(path == Path::new(name) && cause == FormatCause::Signature, "{e:?}");
+        e.to_string()
+    };
     for other in [&tmd, &x3p] {
         let e = err("wrong.al3d", other);
         assert!(e.contains("wrong.al3d") && e.contains("not an Alicona AL3D file"), "{e}");
@@ -374,7 +384,12 @@ fn spm_and_plux_cuts_corruption_and_other_formats() {
     let spm = std::fs::read(local("wave_pedestal.v5.layout.spm")).unwrap();
     let plux = std::fs::read(local("wave_pedestal.layout.plux")).unwrap();
     let x3p = std::fs::read(local("s1_tilt_pedestal.x3pio.x3p")).unwrap();
-    let err = |name: &str, b: &[u8]| decode(name, b, &ScanOptions::default()).unwrap_err().to_string();
+    let err = |name: &str, b: &[u8]| {
+        let e = decode(name, b, &ScanOptions::default()).unwrap_err();
+        let (cause, _, path) = common::format_cause(&e);
+        assert!(path == Path::new(name) && cause == FormatCause::Signature, "{e:?}");
+        e.to_string()
+    };
     for other in [&plux, &x3p] {
         let e = err("wrong.spm", other);
         assert!(e.contains("wrong.spm") && e.contains("not a Bruker Nanoscope file"), "{e}");
@@ -399,7 +414,12 @@ fn datx_cuts_corruption_and_other_formats() {
         check_cuts(&short, &bytes, true);
         check_corruption(&short, &bytes);
     }
-    let err = |name: &str, b: &[u8]| decode(name, b, &ScanOptions::default()).unwrap_err().to_string();
+    let err = |name: &str, b: &[u8]| {
+        let e = decode(name, b, &ScanOptions::default()).unwrap_err();
+        let (cause, _, path) = common::format_cause(&e);
+        assert!(path == Path::new(name) && cause == FormatCause::Signature, "{e:?}");
+        e.to_string()
+    };
     let x3p = std::fs::read(local("s1_tilt_pedestal.x3pio.x3p")).unwrap();
     let e = err("wrong.datx", &x3p);
     assert!(e.contains("wrong.datx") && e.contains("not a Zygo .datx file: no HDF5 signature"), "{e}");
@@ -416,8 +436,9 @@ fn opd_cuts_and_corruption() {
         let short = format!("cut-{name}");
         check_cuts(&short, &bytes, true);
         check_corruption(&short, &bytes);
-        let e = decode(&short, &bytes[..bytes.len() - 36], &ScanOptions::default()).unwrap_err().to_string();
-        assert!(e.contains(&short) && e.contains("byte offset"), "{e}");
+        let e = decode(&short, &bytes[..bytes.len() - 36], &ScanOptions::default()).unwrap_err();
+        let (_, offset, path) = common::format_cause(&e);
+        assert!(offset.is_some() && path == Path::new(&short), "{e:?}");
     }
 }
 
@@ -429,7 +450,12 @@ fn opdx_cuts_corruption_and_other_formats() {
     let bytes = std::fs::read(local("wave_pedestal.layout.opdx")).unwrap();
     check_cuts("cut.opdx", &bytes, true);
     check_corruption("cut.opdx", &bytes);
-    let err = |name: &str, b: &[u8]| decode(name, b, &ScanOptions::default()).unwrap_err().to_string();
+    let err = |name: &str, b: &[u8]| {
+        let e = decode(name, b, &ScanOptions::default()).unwrap_err();
+        let (cause, _, path) = common::format_cause(&e);
+        assert!(path == Path::new(name) && cause == FormatCause::Signature, "{e:?}");
+        e.to_string()
+    };
     for other in ["s1_tilt_pedestal.x3pio.x3p", "wave_pedestal.h5py.datx"] {
         let e = err("wrong.opdx", &std::fs::read(local(other)).unwrap());
         assert!(e.contains("wrong.opdx") && e.contains("not a Bruker Vision64 .opdx file"), "{e}");
@@ -480,7 +506,12 @@ fn vk_and_frt_cuts_corruption_and_other_formats() {
     let frt = std::fs::read(local("wave_pedestal.layout.frt")).unwrap();
     let tmd = std::fs::read(local("wave_pedestal.surfalize.tmd")).unwrap();
     let x3p = std::fs::read(local("s1_tilt_pedestal.x3pio.x3p")).unwrap();
-    let err = |name: &str, b: &[u8]| decode(name, b, &ScanOptions::default()).unwrap_err().to_string();
+    let err = |name: &str, b: &[u8]| {
+        let e = decode(name, b, &ScanOptions::default()).unwrap_err();
+        let (cause, _, path) = common::format_cause(&e);
+        assert!(path == Path::new(name) && cause == FormatCause::Signature, "{e:?}");
+        e.to_string()
+    };
     for other in [&frt, &tmd, &x3p] {
         let e = err("wrong.vk4", other);
         assert!(e.contains("wrong.vk4") && e.contains("not a Keyence VK file"), "{e}");
@@ -509,7 +540,12 @@ fn lext_cuts_corruption_and_other_formats() {
     let tmd = std::fs::read(local("wave_pedestal.surfalize.tmd")).unwrap();
     let x3p = std::fs::read(local("s1_tilt_pedestal.x3pio.x3p")).unwrap();
     let tiff = std::fs::read(local("s1_tilt_pedestal.grey16.tiff")).unwrap();
-    let err = |name: &str, b: &[u8]| decode(name, b, &ScanOptions::default()).unwrap_err().to_string();
+    let err = |name: &str, b: &[u8]| {
+        let e = decode(name, b, &ScanOptions::default()).unwrap_err();
+        let (cause, _, path) = common::format_cause(&e);
+        assert!(path == Path::new(name) && cause == FormatCause::Signature, "{e:?}");
+        e.to_string()
+    };
     for other in [&tmd, &x3p] {
         let e = err("wrong.lext", other);
         assert!(e.contains("wrong.lext") && e.contains("not an Olympus LEXT file"), "{e}");
@@ -519,6 +555,7 @@ fn lext_cuts_corruption_and_other_formats() {
     let at = lext.windows(7).position(|w| w == b"HEIGHT\0").unwrap();
     let mut no_height = lext.clone();
     no_height[at..at + 6].copy_from_slice(b"HEIGHX");
-    let e = err("flat.lext", &no_height);
-    assert!(e.contains("flat.lext") && e.contains("no page titled HEIGHT"), "{e}");
+    let e = decode("flat.lext", &no_height, &ScanOptions::default()).unwrap_err();
+    assert_eq!(common::format_cause(&e), (FormatCause::Malformed, Some(8), Path::new("flat.lext")), "{e}");
+    assert!(e.to_string().contains("no page titled HEIGHT"), "{e}");
 }

@@ -12,7 +12,7 @@ use doefab::fabrication::stl::{
     heightfield_mesh, level_heights, surface_stl, terrace_mesh, write_stl, StlOptions, StlUnit,
     SurfaceChoice, SurfaceKind, CHAMFER_FRACTION,
 };
-use doefab::{Grid, Unit};
+use doefab::{DataCause, Error, Grid, Unit};
 use ndarray::Array2;
 
 const CHECK: &str = r#"
@@ -247,13 +247,15 @@ fn invalid_inputs_write_nothing() {
     let opts = StlOptions::default();
     let mut v = Array2::from_elem((5, 5), 0.1e-6);
     v[[3, 1]] = f64::NAN;
-    let e = surface_stl(&metre_grid(v.clone(), [1e-6; 2]), &opts, &path).unwrap_err().to_string();
-    assert!(e.contains("not finite"), "{e}");
+    let e = surface_stl(&metre_grid(v.clone(), [1e-6; 2]), &opts, &path).unwrap_err();
+    assert!(matches!(e, Error::TypedData { cause: DataCause::NotFinite, .. }), "{e:?}");
     let masked = Grid::from_values_nan_invalid(v, [1e-6; 2], Unit::Metre).unwrap();
-    let e = surface_stl(&masked, &opts, &path).unwrap_err().to_string();
-    assert!(e.contains("masked") && e.contains("row 3, column 1"), "{e}");
+    let e = surface_stl(&masked, &opts, &path).unwrap_err();
+    assert!(matches!(e, Error::TypedData { cause: DataCause::NotFinite, .. }), "{e:?}");
+    assert!(e.to_string().contains("row 3, column 1"), "{e}");
     let ok = metre_grid(Array2::from_elem((5, 5), 0.1e-6), [1e-6; 2]);
     let neg = StlOptions { base_thickness: -1e-6, ..opts };
-    assert!(surface_stl(&ok, &neg, &path).unwrap_err().to_string().contains("base_thickness"));
+    let e = surface_stl(&ok, &neg, &path).unwrap_err();
+    assert!(matches!(e, Error::Parameter { ref name, .. } if name == "base_thickness"), "{e:?}");
     assert!(!path.exists());
 }

@@ -21,7 +21,7 @@ use spade::handles::FixedVertexHandle;
 use spade::{DelaunayTriangulation, Point2, Triangulation};
 
 use super::mesh::{Frame, Mesh, SurfaceKind};
-use crate::error::{Error, Result};
+use crate::error::{Error, Resource, Result};
 use crate::grid::Grid;
 
 /// Largest |h - plane| over the pixel centres inside (or on) the triangle with pixel vertices
@@ -74,11 +74,14 @@ fn worst_pixel(h: &Array2<f64>, v: [[u32; 2]; 3]) -> (f64, [u32; 2]) {
 /// Builds the simplified heightfield mesh; inputs were checked by the caller.
 pub(super) fn mesh(heights: &Grid, z_base: f64, base_thickness: f64, max_error: f64) -> Result<Mesh> {
     let (nr, nc) = heights.dim();
-    if nr as u64 * nc as u64 >= u32::MAX as u64 / 4 {
-        return Err(Error::Limit(format!("a {nr} x {nc} map is too large for one STL mesh")));
+    let (samples, limit) = (nr as u64 * nc as u64, u32::MAX as u64 / 4);
+    if samples >= limit {
+        let what = format!("a {nr} x {nc} map is too large for one STL mesh");
+        return Err(Error::limit(Resource::Samples, samples as f64, (limit - 1) as f64, what));
     }
     let h = heights.values();
-    let fail = |e: spade::InsertionError| Error::Data(format!("heightfield mesh: insertion failed: {e:?}"));
+    let fail =
+        |e: spade::InsertionError| Error::internal(format!("heightfield mesh: insertion failed: {e:?}"));
     let mut tin: DelaunayTriangulation<Point2<f64>> = DelaunayTriangulation::new();
     let mut vpix: Vec<[u32; 2]> = Vec::new();
     // Inserts pixel (i, j), starting the point location at vertex `hint` when given.
@@ -90,7 +93,7 @@ pub(super) fn mesh(heights: &Grid, z_base: f64, base_thickness: f64, max_error: 
         }
         .map_err(fail)?;
         if v.index() != vpix.len() {
-            return Err(Error::Data(format!("heightfield mesh: pixel ({i}, {j}) inserted twice")));
+            return Err(Error::internal(format!("heightfield mesh: pixel ({i}, {j}) inserted twice")));
         }
         vpix.push([i, j]);
         Ok::<(), Error>(())

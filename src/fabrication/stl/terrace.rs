@@ -41,7 +41,7 @@ use std::collections::HashMap;
 use spade::{ConstrainedDelaunayTriangulation, Point2, Triangulation};
 
 use super::mesh::{Frame, Mesh, SurfaceKind};
-use crate::error::{Error, Result};
+use crate::error::{Error, Resource, Result};
 use crate::grid::Grid;
 
 /// Leg of the saddle chamfer as a fraction of the pitch (1/64: exact in binary, and large
@@ -130,11 +130,16 @@ fn level_indices(heights: &Grid) -> Result<(Vec<u16>, Vec<f64>)> {
                 Some(&k) => k,
                 None => {
                     if table.len() >= OUT as usize {
-                        return Err(Error::Limit(format!(
-                            "terrace meshing supports at most {} distinct heights; \
-                             mesh a continuous map as a heightfield",
-                            OUT
-                        )));
+                        return Err(Error::limit(
+                            Resource::Heights,
+                            (table.len() + 1) as f64,
+                            f64::from(OUT),
+                            format!(
+                                "terrace meshing supports at most {} distinct heights; \
+                                 mesh a continuous map as a heightfield",
+                                OUT
+                            ),
+                        ));
                     }
                     let k = table.len() as u16;
                     table.push(if v == 0.0 { 0.0 } else { v });
@@ -384,14 +389,14 @@ impl Numbering<'_> {
             .iter()
             .position(|&l| l == level)
             .map(|k| self.first[p] + k as u32)
-            .ok_or_else(|| Error::Data(format!("terrace mesh: point {p} has no vertex at level {level}")))
+            .ok_or_else(|| Error::internal(format!("terrace mesh: point {p} has no vertex at level {level}")))
     }
     fn base(&self, p: usize) -> Result<u32> {
         let c = &self.corners[p];
         if c.base {
             Ok(self.first[p] + c.n as u32)
         } else {
-            Err(Error::Data(format!("terrace mesh: point {p} is not on the outline")))
+            Err(Error::internal(format!("terrace mesh: point {p} is not on the outline")))
         }
     }
     /// Vertices at point p from `lo` (a level or BASE) up to level `hi`, with every level of
@@ -435,8 +440,10 @@ fn zipper(pc: &[(i32, u32)], qc: &[(i32, u32)], tris: &mut Vec<[u32; 3]>) {
 /// Builds the terrace mesh; inputs were checked by the caller.
 pub(super) fn mesh(heights: &Grid, z_base: f64, base_thickness: f64) -> Result<Mesh> {
     let (nr, nc) = heights.dim();
-    if (nr as u64 + 1) * (nc as u64 + 1) >= u32::MAX as u64 / 4 {
-        return Err(Error::Limit(format!("a {nr} x {nc} map is too large for one STL mesh")));
+    let (corners, limit) = ((nr as u64 + 1) * (nc as u64 + 1), u32::MAX as u64 / 4);
+    if corners >= limit {
+        let what = format!("a {nr} x {nc} map is too large for one STL mesh");
+        return Err(Error::limit(Resource::Samples, corners as f64, (limit - 1) as f64, what));
     }
     let (idx, level_z) = level_indices(heights)?;
     let t = Terraces::trace(idx, nr, nc);
@@ -452,9 +459,9 @@ pub(super) fn mesh(heights: &Grid, z_base: f64, base_thickness: f64) -> Result<M
         .collect();
     let edges: Vec<[usize; 2]> = segs.iter().map(|s| [s.p as usize, s.q as usize]).collect();
     let cdt = ConstrainedDelaunayTriangulation::<Point2<f64>>::bulk_load_cdt(verts, edges)
-        .map_err(|e| Error::Data(format!("terrace mesh: triangulation failed: {e:?}")))?;
+        .map_err(|e| Error::internal(format!("terrace mesh: triangulation failed: {e:?}")))?;
     if cdt.num_vertices() != n_points {
-        return Err(Error::Data("terrace mesh: duplicate key points".into()));
+        return Err(Error::internal("terrace mesh: duplicate key points"));
     }
 
     let mut first = Vec::with_capacity(n_points + 1);

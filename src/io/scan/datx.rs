@@ -480,7 +480,8 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
             "byte offset 0: not a Zygo .datx file: no HDF5 signature (\\x89HDF\\r\\n\\x1a\\n) at byte offset 0, 512, 1024, ... \
              (the file is {} bytes)",
             bytes.len()
-        )));
+        ))
+        .at(0));
     }
     let budget = bytes.len().saturating_mul(INFLATE).max(1 << 16);
     let opts = OpenOptions::default()

@@ -31,7 +31,8 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         return Err(Error::signature(
             path,
             format!("byte offset 0: not a GSF file: it does not start with '{MAGIC}'"),
-        ));
+        )
+        .at(0));
     }
     let nul = bytes.iter().position(|&b| b == 0).ok_or_else(|| {
         Error::truncated(
@@ -41,7 +42,8 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         )
     })?;
     let header = std::str::from_utf8(&bytes[..nul]).map_err(|e| {
-        Error::malformed(path, format!("byte offset {}: header is not UTF-8", e.valid_up_to()))
+        let at = e.valid_up_to();
+        Error::malformed(path, format!("byte offset {at}: header is not UTF-8")).at(at as u64)
     })?;
     let start = (nul / 4 + 1) * 4;
     let bin = Bin::new(path, bytes);

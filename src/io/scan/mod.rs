@@ -65,7 +65,7 @@ pub mod zygo;
 
 use std::path::Path;
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::grid::Grid;
 use crate::io::heightmap::{heightmap_from_raw, ReadOptions};
 use crate::io::raw_map::{RawMap, SampleKind};
@@ -173,8 +173,10 @@ pub fn read_scan_raw(path: &Path, opts: &ScanOptions) -> Result<ScanRaw> {
 pub fn decode_scan_raw(path: &Path, bytes: &[u8], opts: &ScanOptions) -> Result<ScanRaw> {
     let format = detect_format(path, bytes)?;
     let text = || {
-        std::str::from_utf8(bytes)
-            .map_err(|e| Error::malformed(path, format!("byte offset {}: not UTF-8 text", e.valid_up_to())))
+        std::str::from_utf8(bytes).map_err(|e| {
+            let at = e.valid_up_to();
+            Error::malformed(path, format!("byte offset {at}: not UTF-8 text")).at(at as u64)
+        })
     };
     match format {
         ScanFormat::X3p => x3p::decode(path, bytes),
@@ -279,12 +281,15 @@ fn z_unit_error(e: Error) -> Error {
 pub fn scan_from_raw(path: &Path, sr: ScanRaw, opts: &ScanOptions) -> Result<Scan> {
     let ScanRaw { raw, format, origin, mut warnings } = sr;
     if !raw.values.iter().any(|v| v.is_finite()) {
-        return Err(Error::Data(format!(
-            "{}: no measured point in the scan ({} x {} samples, all non-measured)",
-            path.display(),
-            raw.values.nrows(),
-            raw.values.ncols()
-        )));
+        return Err(Error::data(
+            DataCause::Empty,
+            format!(
+                "{}: no measured point in the scan ({} x {} samples, all non-measured)",
+                path.display(),
+                raw.values.nrows(),
+                raw.values.ncols()
+            ),
+        ));
     }
     let metadata = raw.metadata.clone();
     // A file that states its own height unit is trusted: an implausible relief is a warning

@@ -37,7 +37,8 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
         return Err(Error::signature(
             path,
             "byte offset 0: not a Sensofar PLUx file: it is not a zip archive (no 'PK' signature)",
-        ));
+        )
+        .at(0));
     }
     let mut zip = zip::ZipArchive::new(Cursor::new(bytes)).map_err(|e| {
         Error::truncated(
@@ -51,7 +52,8 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     })?;
     let xml = xml.strip_prefix(b"\xef\xbb\xbf").unwrap_or(&xml);
     let xml = std::str::from_utf8(xml).map_err(|e| {
-        Error::malformed(path, format!("index.xml: byte offset {}: not UTF-8", e.valid_up_to()))
+        let at = e.valid_up_to();
+        Error::malformed(path, format!("index.xml: byte offset {at}: not UTF-8")).at(at as u64)
     })?;
     let doc =
         roxmltree::Document::parse(xml).map_err(|e| Error::malformed(path, format!("index.xml: {e}")))?;

@@ -67,8 +67,9 @@ pub fn find_pcal(path: &Path, bytes: &[u8]) -> Result<Option<PCal>> {
 }
 
 fn parse_pcal(path: &Path, d: &[u8], offset: usize) -> Result<PCal> {
-    let bad =
-        |at: usize, what: &str| Error::malformed(path, format!("byte offset {}: pCAL {what}", offset + at));
+    let bad = |at: usize, what: &str| {
+        Error::malformed(path, format!("byte offset {}: pCAL {what}", offset + at)).at((offset + at) as u64)
+    };
     let nul = d.iter().position(|&c| c == 0).ok_or_else(|| bad(0, "keyword is not terminated"))?;
     let name: String = d[..nul].iter().map(|&c| c as char).collect();
     let f = nul + 1;
@@ -123,6 +124,7 @@ pub fn decode(path: &Path, bytes: &[u8], explicit_scale: bool) -> Result<ScanRaw
                     path,
                     format!("byte offset {}: pCAL unit '{}' is not a length unit", c.offset, c.unit),
                 )
+                .at(c.offset as u64)
             })?;
             let get =
                 |k: &str| raw.metadata.iter().find(|(key, _)| key == k).map(|(_, v)| v.trim().to_string());
@@ -133,7 +135,8 @@ pub fn decode(path: &Path, bytes: &[u8], explicit_scale: bool) -> Result<ScanRaw
             // x0 and x1 are i32: their difference is taken in f64, where it cannot overflow.
             let (x0, x1) = (f64::from(c.x0), f64::from(c.x1));
             if x1 == x0 {
-                return Err(Error::malformed(path, format!("byte offset {}: pCAL x0 = x1", c.offset)));
+                let what = format!("byte offset {}: pCAL x0 = x1", c.offset);
+                return Err(Error::malformed(path, what).at(c.offset as u64));
             }
             // z = z0 + per_count * stored count.
             let (z0, per_count) = if gwyddion {
@@ -144,7 +147,8 @@ pub fn decode(path: &Path, bytes: &[u8], explicit_scale: bool) -> Result<ScanRaw
                             "byte offset {}: pCAL x0 = {}, x1 = {} in a file written by Gwyddion, which writes 0 and {full} for {bits}-bit samples",
                             c.offset, c.x0, c.x1
                         ),
-                    ));
+                    )
+                    .at(c.offset as u64));
                 }
                 (p0, p1)
             } else {

@@ -41,7 +41,8 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     match bytes.first() {
         Some(b'a') => {
             let text = std::str::from_utf8(bytes).map_err(|e| {
-                Error::malformed(path, format!("byte offset {}: ASCII SDF is not text", e.valid_up_to()))
+                let at = e.valid_up_to();
+                Error::malformed(path, format!("byte offset {at}: ASCII SDF is not text")).at(at as u64)
             })?;
             decode_ascii(path, text)
         }

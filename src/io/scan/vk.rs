@@ -133,12 +133,13 @@ fn decode_container(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
                 f.size(),
                 zip_bytes.len()
             ),
-        ));
+        )
+        .at(at));
     }
     // Grown as the entry decompresses, never reserved from the size the archive claims.
     let mut inner = Vec::new();
     (&mut f).take(limit).read_to_end(&mut inner).map_err(|e| {
-        Error::malformed(path, format!("byte offset {at}: zip entry '{VK4_ENTRY}' is corrupt: {e}"))
+        Error::malformed(path, format!("byte offset {at}: zip entry '{VK4_ENTRY}' is corrupt: {e}")).at(at)
     })?;
     let inner_path = PathBuf::from(format!("{} (zip entry {VK4_ENTRY})", path.display()));
     let mut sr = decode_vk4(&inner_path, &inner).map_err(|e| match e {

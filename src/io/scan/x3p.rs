@@ -47,17 +47,19 @@ pub(crate) fn entry(
                 "byte offset {at}: zip entry '{name}' holds {} bytes, at most {limit} expected",
                 f.size()
             ),
-        ));
+        )
+        .at(at));
     }
     let mut out = Vec::with_capacity(f.size() as usize);
     (&mut f).take(limit as u64 + 1).read_to_end(&mut out).map_err(|e| {
-        Error::malformed(path, format!("byte offset {at}: zip entry '{name}' is corrupt: {e}"))
+        Error::malformed(path, format!("byte offset {at}: zip entry '{name}' is corrupt: {e}")).at(at)
     })?;
     if out.len() > limit {
         return Err(Error::malformed(
             path,
             format!("byte offset {at}: zip entry '{name}' is larger than it says"),
-        ));
+        )
+        .at(at));
     }
     Ok(Some(out))
 }
@@ -74,7 +76,8 @@ pub fn decode(path: &Path, bytes: &[u8]) -> Result<ScanRaw> {
     let xml_bytes = entry(path, &mut zip, "main.xml", 1 << 24)?
         .ok_or_else(|| Error::signature(path, "the archive holds no main.xml"))?;
     let xml = std::str::from_utf8(&xml_bytes).map_err(|e| {
-        Error::malformed(path, format!("main.xml: byte offset {}: not UTF-8", e.valid_up_to()))
+        let at = e.valid_up_to();
+        Error::malformed(path, format!("main.xml: byte offset {at}: not UTF-8")).at(at as u64)
     })?;
     let doc =
         roxmltree::Document::parse(xml).map_err(|e| Error::malformed(path, format!("main.xml: {e}")))?;
@@ -362,8 +365,8 @@ pub fn encode(values: &ndarray::Array2<f64>, pitch: [f64; 2]) -> Result<Vec<u8>>
         let opt = zip::write::SimpleFileOptions::default()
             .compression_method(zip::CompressionMethod::Deflated)
             .last_modified_time(zip::DateTime::default());
-        let io = |e: std::io::Error| Error::Data(format!("x3p encoding: {e}"));
-        let ze = |e: zip::result::ZipError| Error::Data(format!("x3p encoding: {e}"));
+        let io = |e: std::io::Error| Error::internal(format!("x3p encoding: {e}"));
+        let ze = |e: zip::result::ZipError| Error::internal(format!("x3p encoding: {e}"));
         z.start_file("main.xml", opt).map_err(ze)?;
         z.write_all(xml.as_bytes()).map_err(io)?;
         z.start_file("bindata/data.bin", opt).map_err(ze)?;

@@ -28,7 +28,7 @@ use rayon::prelude::*;
 
 use super::psf::{Channel, Psf};
 use super::system::{OpticalSystem, PixelRule};
-use crate::error::{Condition, Error, Result};
+use crate::error::{Condition, DataCause, Error, Result};
 use crate::grid::{Grid, Unit};
 pub use shared::{field_power, Method, Options, Precision, SensorIntensity, Violation};
 
@@ -119,7 +119,10 @@ fn bin_pixels(system: &OpticalSystem, f: &SensorIntensity) -> Result<(Grid, f64)
     let p = system.sensor_pitch;
     let captured = total * p * p / f.input_power;
     if !(total > 0.0 && total.is_finite()) {
-        return Err(Error::Data(format!("no light reaches the {c} x {c} sensor window (total {total})")));
+        return Err(Error::data(
+            DataCause::Empty,
+            format!("no light reaches the {c} x {c} sensor window (total {total})"),
+        ));
     }
     px.mapv_inplace(|v| v / total);
     Ok((Grid::new(px, [system.sensor_pitch; 2], Unit::Dimensionless)?, captured))

@@ -26,7 +26,7 @@ use rustfft::num_complex::Complex64;
 use super::shared::{
     check_lens_sampling, content_bandwidth, field_power, pupil_phase, SensorIntensity, Violation,
 };
-use crate::error::{Condition, Error, Result};
+use crate::error::{Condition, Error, Resource, Result};
 use crate::fft::{good_size, Plan2d};
 use crate::grid::Grid;
 use crate::optics::system::{OpticalSystem, PixelRule};
@@ -105,10 +105,11 @@ pub fn sensor_intensity(system: &OpticalSystem, doe: &Grid, wavelength: f64) -> 
     let m = system.samples();
     let work = (l * l) as f64 * (m * m) as f64;
     if work > MAX_WORK {
-        return Err(Error::Limit(format!(
+        let what = format!(
             "direct Rayleigh-Sommerfeld integration would take {work:.2e} kernel products (limit {MAX_WORK:.0e}); \
              it is meant for small grids"
-        )));
+        );
+        return Err(Error::limit(Resource::Work, work, MAX_WORK, what));
     }
     let u0 = system.pupil_field(doe, n, dx, wavelength, false)?;
     let input_power = field_power(&u0, dx);
