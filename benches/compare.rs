@@ -14,10 +14,10 @@ use std::time::Instant;
 
 use doefab::design::{paper_example, ExampleParams, PAPER_APERTURE, PAPER_PITCH};
 use doefab::io::scan::{decode_scan_raw, scan_from_raw, ScanOptions};
-use doefab::metrology::level::level_plane;
-use doefab::metrology::scan_compare::{compare, CompareOptions};
-use doefab::metrology::scan_registration::register;
-use doefab::metrology::synthetic_scan::{simulate_scan, SimulateParams};
+use doefab::metrology::level_plane;
+use doefab::metrology::register;
+use doefab::metrology::{compare, CompareOptions};
+use doefab::metrology::{simulate_scan, SimulateParams};
 use doefab::pipeline::compare::psf_comparison;
 
 fn main() -> doefab::Result<()> {

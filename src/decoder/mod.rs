@@ -9,13 +9,34 @@
 //! feature, on any vendor's GPU through wgpu, or with the `cuda` feature on an NVIDIA GPU
 //! ([`select_device`]).
 
-pub mod dataset;
-pub mod finetune;
-pub mod measurement;
-pub mod reconstruct;
-pub mod scenes;
-pub mod unet;
-pub mod weights;
+pub(crate) mod dataset;
+pub(crate) mod finetune;
+pub(crate) mod measurement;
+pub(crate) mod reconstruct;
+pub(crate) mod scenes;
+pub(crate) mod unet;
+pub(crate) mod weights;
+
+pub use dataset::{
+    is_validation, read_dir, training_and_validation, HdrFolder, HdrImage, HdrScenes, HOLDOUT_EVERY,
+    MIN_PANORAMA_WIDTH, WHITE_BALANCE,
+};
+pub use finetune::{
+    gamma_loss, procedural_scenes, simulate_captures, Adam, FinetuneConfig, FinetuneJob, HistoryEntry,
+    SceneGenerator, Trainer, BATCH, BITS, BLEND, CHANNEL_CLIPPING, CHECKPOINT_EVERY, CROP, GRAD_CLIP, HALO,
+    NEGATIVE_PENALTY, READ_NOISE, SHOT_NOISE, STEPS, VALIDATION,
+};
+pub use measurement::{Halo, Measurement, MeasurementModel};
+pub use reconstruct::{
+    infer_tiled, read_capture, reconstruct, reconstruct_file, Negatives, ReconstructOptions,
+    ReconstructOutcome, ReconstructStats, BORDER,
+};
+pub use scenes::{procedural_scene, GeneratedScenes, SceneSource};
+pub use unet::{tensor_values, UNet};
+pub use weights::{
+    decode_safetensors, decoder_bytes, decoder_sha256, encode_safetensors, tensor_specs, DecoderWeights,
+    NamedTensor,
+};
 
 use burn::tensor::{Device, Tensor, TensorData};
 use ndarray::Array4;

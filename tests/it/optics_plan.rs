@@ -155,7 +155,7 @@ fn a_wide_spectral_band() {
 /// DOE, a wrapped diffractive lens, a binary grating, a random phase, and a simulated scan of the
 /// built-in DOE as a profilometer returns it (5 um blur, 4 % shallow, 10 nm noise).
 fn five_designs() -> Vec<(&'static str, Grid)> {
-    use doefab::metrology::synthetic_scan::{simulate_scan, SimulateParams};
+    use doefab::metrology::{simulate_scan, SimulateParams};
     let tau = 2.0 * std::f64::consts::PI;
     let lens = heights(|x, y| (-(x * x + y * y) * std::f64::consts::PI / (550e-9 * 40e-3)).rem_euclid(tau));
     // 0 / 0.8 pi at 550 nm (under pi at 450 nm too, so the pupil's steps are resolved), 40 um

@@ -13,9 +13,7 @@ use doefab::fabrication::chain::{load_design, ChainParams, DesignSource};
 use doefab::fabrication::recipe::Recipe;
 use doefab::io::profile::ProfileReadOptions;
 use doefab::io::scan::{read_scan, ScanOptions};
-use doefab::metrology::profile::{
-    simulate_profile, LineSpec, Profile, ProfileLevel, ProfileOptions, SimulateProfile,
-};
+use doefab::metrology::{simulate_profile, LineSpec, Profile, ProfileLevel, ProfileOptions, SimulateProfile};
 use doefab::pipeline::compare::reference_surface;
 use doefab::pipeline::compare_profile::{compare_profile_file, ProfileDesign};
 

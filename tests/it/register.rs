@@ -8,7 +8,7 @@ use doefab::design::PAPER_PITCH;
 use doefab::fabrication::chain::{load_design, DesignSource};
 use doefab::io::heightmap::ReadOptions;
 use doefab::io::scan::{read_scan, ScanOptions};
-use doefab::metrology::scan_registration::{register, RegisterOptions};
+use doefab::metrology::{register, RegisterOptions};
 
 #[test]
 fn a_simulated_x3p_scan_of_the_built_in_design_registers_to_the_injected_pose() {

@@ -3,7 +3,7 @@
 use doefab::bench::finetune_time::TimedOptions;
 use doefab::bench::psf::BenchOptions;
 use doefab::bench::stability::{MapOptions, MAPS};
-use doefab::decoder::finetune::FinetuneConfig;
+use doefab::decoder::FinetuneConfig;
 use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
 use doefab::fabrication::chain::DesignSource;
 use doefab::io::heightmap::ReadOptions;

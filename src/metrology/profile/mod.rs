@@ -85,7 +85,6 @@ mod steps;
 
 pub use crate::grid::profile::Profile;
 pub use compare::{compare_profile, ProfileComparison, ProfileOptions};
-pub use levelling::{level_profile, noise_estimate, terraces, Levelling, ProfileLevel, Terrace};
+pub use levelling::{level_profile, terraces, Levelling, ProfileLevel, Terrace};
 pub use line::LineSpec;
 pub use simulate::{simulate_profile, SimulateProfile};
-pub use steps::{LevelStep, LevelSteps, MAX_LEVELS};
