@@ -59,8 +59,11 @@ pub fn scan_of(member: Member, mirror: bool, complement: bool) -> String {
 /// grid (metres), with its quantization (`None` for a continuous surface).
 #[derive(Debug, Clone)]
 pub struct Reference {
+    /// Which surface of the family it is.
     pub member: Member,
+    /// Its heights on the design grid, metres.
     pub surface: Grid,
+    /// Its quantization; `None` for a continuous surface.
     pub levels: Option<LevelSpec>,
 }
 
@@ -68,7 +71,10 @@ pub struct Reference {
 /// the registration found no pose).
 #[derive(Debug, Clone, Serialize)]
 pub struct Candidate {
+    /// The member registered to.
     pub member: Member,
+    /// Correlation coefficient of the scan and the member at its best pose
+    /// ([`Registration::correlation`]); NaN (`null` in JSON) where the registration was refused.
     pub correlation: f64,
 }
 

@@ -10,6 +10,7 @@ use super::levels::LevelSpec;
 /// Options of [`compare`] and [`compare_family`].
 #[derive(Debug, Clone, Serialize)]
 pub struct CompareOptions {
+    /// Options of the registration of the scan to each member.
     pub register: RegisterOptions,
     /// Clear-aperture diameter centred on the design, metres (`None`: the largest circle the
     /// design grid holds).
