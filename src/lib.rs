@@ -33,14 +33,14 @@
 //! * [`linalg`]: dense linear solves (nalgebra LU) for the least-squares fits.
 //! * [`fft`]: planned 1-D and 2-D FFTs (square or rectangular, `f64` or `f32`), the one plan
 //!   layer below the optics and the metrology.
-//! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
-//! * [`float`]: exact inlined `round` and `floor` for the per-sample passes.
+//! * [`tabulated`]: two-column tables with units and their monotone (PCHIP) interpolation.
+//! * [`rounding`]: exact inlined `round` and `floor` for the per-sample passes.
 //! * [`error`]: the library's error type, with typed causes callers match.
 //!
 //! Names of typed results, one meaning each:
 //!
 //! * `*Outcome`: what a command did, its typed result (what it prints with `--json` and writes
-//!   as its JSON file), e.g. [`fabrication::chain::FabOutcome`], [`demo::DemoOutcome`].
+//!   as its JSON file), e.g. [`fabrication::recipe_run::FabOutcome`], [`demo::DemoOutcome`].
 //! * `*BenchResults`: what a benchmark measured, e.g. [`bench::psf::PsfBenchResults`].
 //! * `*Stats`: the numbers one step records about its run or its input (a frame, a PSF
 //!   channel, a wrap), carried inside an outcome, e.g. [`calibration::hdr_merge::MergeStats`].
@@ -54,7 +54,8 @@
 //! command that runs it (likewise `psf`, `psf_compare`, `finetune`); `cli/X.rs`, `charts/X.rs`
 //! and `bench/X.rs` are stage or benchmark X's commands, charts and measurements;
 //! `grid/profile.rs`, `io/profile.rs` and `metrology/profile/` are the stylus profile's data
-//! model, reader and comparison; a `shared.rs` holds what its folder's modules share.
+//! model, reader and comparison. No file is named for being shared: what several modules of a
+//! folder use is named for what it is (`optics/propagate/method.rs`, `cli/options.rs`).
 
 pub mod bench;
 pub mod calibration;
@@ -65,7 +66,6 @@ pub mod design;
 pub mod error;
 pub mod fabrication;
 pub mod fft;
-pub mod float;
 pub mod grid;
 pub mod image;
 pub mod io;
@@ -75,7 +75,8 @@ pub mod metrology;
 pub mod optics;
 pub mod pipeline;
 pub mod rng;
-pub mod table;
+pub mod rounding;
+pub mod tabulated;
 pub mod units;
 
 pub use error::{Allowed, Condition, Error, FormatCause, Refusal, Result};

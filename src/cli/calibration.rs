@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use clap::Args;
 
-use super::shared::{clap_length, Cli};
-use super::shared::{print_result, progress, report_to, warn};
+use super::options::{clap_length, Cli};
+use super::options::{print_result, progress, report_to, warn};
 
 /// An exposure bracket on the command line.
 #[derive(Args, Clone)]

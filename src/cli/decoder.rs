@@ -6,8 +6,8 @@ use anyhow::Result;
 use clap::Args;
 use indicatif::ProgressStyle;
 
-use super::shared::{clap_length, Cli};
-use super::shared::{print_result, progress, report_to, warn};
+use super::options::{clap_length, Cli};
+use super::options::{print_result, progress, report_to, warn};
 
 /// Arguments of `doefab reconstruct`.
 #[derive(Args)]

@@ -5,15 +5,15 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use clap::Args;
 
-use doefab::fabrication::chain::{self, ChainParams, DesignSource};
 use doefab::fabrication::quantize::QuantizeMethod;
 use doefab::fabrication::recipe::Recipe;
+use doefab::fabrication::recipe_run::{self, ChainParams, DesignSource};
 use doefab::fabrication::ReplicaMode;
 use doefab::units::length_unit;
 
 use super::fabrication::chain_params;
-use super::shared::{clap_length, Cli, OpticsArgs, ReadArgs};
-use super::shared::{print_result, progress, report_to, warn};
+use super::options::{clap_length, Cli, OpticsArgs, ReadArgs};
+use super::options::{print_result, progress, report_to, warn};
 
 /// Levelling choice on the command line (`scan-info --level`).
 #[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
@@ -223,7 +223,7 @@ pub fn simulate_scan(cli: &Cli, a: &SimulateScanArgs) -> Result<()> {
         read,
     } = a;
     use doefab::metrology::synthetic_scan as sim;
-    let loaded = chain::load_design(&DesignSource::parse(Some(design), read.options()?))?;
+    let loaded = recipe_run::load_design(&DesignSource::parse(Some(design), read.options()?))?;
     let params = sim::SimulateParams {
         response: response.as_deref().map(doefab::fabrication::precompensate::Response::parse).transpose()?,
         blur: *blur,

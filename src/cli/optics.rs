@@ -6,11 +6,11 @@ use anyhow::Result;
 use clap::Args;
 
 use doefab::bench::psf::BenchOptions;
-use doefab::fabrication::chain::DesignSource;
+use doefab::fabrication::recipe_run::DesignSource;
 use doefab::pipeline::bench::PsfBenchOptions;
 
-use super::shared::{clap_duration, clap_length, Cli, ReadArgs};
-use super::shared::{print_result, progress, report_to, warn};
+use super::options::{clap_duration, clap_length, Cli, ReadArgs};
+use super::options::{print_result, progress, report_to, warn};
 
 /// Arguments of `doefab psf`.
 #[derive(Args)]

@@ -24,10 +24,10 @@ use crate::charts::tiling::write_tiling_chart;
 use crate::charts::training::write_training_chart;
 use crate::decoder::finetune::FinetuneConfig;
 use crate::error::Result;
-use crate::fabrication::chain::{self, DesignSource};
+use crate::fabrication::recipe_run::{self, DesignSource};
 use crate::io::atomic::{self, StagedDir};
 use crate::material::Material;
-use crate::optics::output::system_for;
+use crate::optics::psf_files::system_for;
 use crate::optics::system::OpticalSystem;
 
 /// `bench psf` as the command line states it.
@@ -51,7 +51,7 @@ pub fn bench_psf(
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
 ) -> Result<psf_bench::PsfBenchResults> {
-    let loaded = chain::load_design(&opts.design)?;
+    let loaded = recipe_run::load_design(&opts.design)?;
     let total = steps(&opts.bench) as u64;
     let mut done = 0;
     let report = run_psf_bench(opts, &loaded.heights, |what| {
@@ -95,7 +95,7 @@ pub fn bench_spectral(
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
 ) -> Result<SpectralBenchResults> {
-    let loaded = chain::load_design(&on.design)?;
+    let loaded = recipe_run::load_design(&on.design)?;
     let system = design_system(on, &loaded.heights)?;
     let total = spectral_bench::steps(opts) as u64;
     let mut done = 0;
@@ -246,7 +246,7 @@ pub fn bench_fab(
     opts.check()?;
     let total = fab_bench::steps(opts) as u64 + 1;
     progress("loading the design", 0, total);
-    let loaded = chain::load_design(design)?;
+    let loaded = recipe_run::load_design(design)?;
     let mut done = 1;
     let report = fab_bench::run_bench(&loaded.heights, &loaded.name, opts, |what| {
         progress(what, done, total);

@@ -339,7 +339,7 @@ pub fn run_report(
     let start = Instant::now();
     let total = steps(opts) as u64;
     let mut done = 0u64;
-    let loaded = crate::fabrication::chain::load_design(&opts.psf.design)?;
+    let loaded = crate::fabrication::recipe_run::load_design(&opts.psf.design)?;
     let (probe_seconds, probe_work) = probe()?;
     let mut plan =
         Scheduler { start, budget: opts.budget, here: probe_seconds, there: COSTS.probe, parts: Vec::new() };

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 const STAGES: [&str; 6] = ["design", "fabrication", "metrology", "optics", "calibration", "decoder"];
 /// Modules every stage may use; they use no stage (nor the layers above the stages).
 const SHARED: [&str; 11] =
-    ["error", "grid", "units", "material", "table", "rng", "linalg", "io", "image", "float", "fft"];
+    ["error", "grid", "units", "material", "tabulated", "rng", "linalg", "io", "image", "rounding", "fft"];
 /// The layers above the stages, lowest first: each names none above it.
 const ABOVE: [&str; 4] = ["bench", "charts", "pipeline", "demo"];
 

@@ -5,7 +5,7 @@ use crate::common;
 use crate::common::doefab;
 
 use doefab::design::PAPER_PITCH;
-use doefab::fabrication::chain::{load_design, DesignSource};
+use doefab::fabrication::recipe_run::{load_design, DesignSource};
 use doefab::io::heightmap::ReadOptions;
 use doefab::io::scan::{read_scan, ScanOptions};
 use doefab::metrology::scan_registration::{register, RegisterOptions};

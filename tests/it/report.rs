@@ -5,7 +5,7 @@ use doefab::bench::psf::BenchOptions;
 use doefab::bench::stability::{MapOptions, MAPS};
 use doefab::decoder::finetune::FinetuneConfig;
 use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
-use doefab::fabrication::chain::DesignSource;
+use doefab::fabrication::recipe_run::DesignSource;
 use doefab::io::heightmap::ReadOptions;
 use doefab::pipeline::bench::PsfBenchOptions;
 use doefab::pipeline::report::{run_report, shown, ReportOptions, COSTS};
