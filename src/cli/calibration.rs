@@ -414,8 +414,8 @@ pub struct BenchCalibrationArgs {
 
 /// `doefab bench calibration`.
 pub fn bench_calibration(cli: &Cli, a: &BenchCalibrationArgs) -> Result<()> {
-    let pb = progress(cli, doefab::bench::calibration::steps() as u64);
-    let r = doefab::pipeline::bench::bench_calibration(a.psf.as_deref(), &a.output, &mut report_to(&pb))?;
+    let pb = progress(cli, doefab::sweep::calibration::steps() as u64);
+    let r = doefab::pipeline::sweep::sweep_calibration(a.psf.as_deref(), &a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         for axis in &r.axes {

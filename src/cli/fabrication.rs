@@ -486,18 +486,18 @@ pub fn precompensate(cli: &Cli, a: &PrecompensateArgs) -> Result<()> {
 /// `doefab bench fab`.
 pub fn bench_fab(cli: &Cli, a: &BenchFabArgs) -> Result<()> {
     let BenchFabArgs { design, output, gds_pitch, repeats, optics, read } = a;
-    use doefab::bench::fab::{steps, FabBenchOptions};
-    let opts = FabBenchOptions {
+    use doefab::sweep::fab::{steps, FabSweepOptions};
+    let opts = FabSweepOptions {
         wavelength: optics.wavelength,
         material: optics.material.clone(),
         order: optics.order,
         gds_pitch: *gds_pitch,
         repeats: *repeats,
-        ..FabBenchOptions::default()
+        ..FabSweepOptions::default()
     };
     let design = DesignSource::parse(design.as_deref(), read.options()?);
     let pb = progress(cli, steps(&opts) as u64 + 1);
-    let r = doefab::pipeline::bench::bench_fab(&design, &opts, output, &mut report_to(&pb))?;
+    let r = doefab::pipeline::sweep::sweep_fab(&design, &opts, output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         let q = &r.quantization;

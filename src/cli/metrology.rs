@@ -585,8 +585,8 @@ pub struct BenchRegisterArgs {
 
 /// `doefab bench register`.
 pub fn bench_register(cli: &Cli, a: &BenchRegisterArgs) -> Result<()> {
-    let pb = progress(cli, doefab::bench::register::steps() as u64);
-    let r = doefab::pipeline::bench::bench_register(&a.output, &mut report_to(&pb))?;
+    let pb = progress(cli, doefab::sweep::register::steps() as u64);
+    let r = doefab::pipeline::sweep::sweep_register(&a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         for axis in &r.axes {

@@ -1,7 +1,7 @@
 //! Data flows one way, design to decoder: no stage module names a later stage, and the shared
 //! modules below the stages (grid, io, image, ...) name none. Above the stages sit the
-//! benchmarks (`bench`, which call the stages), then the charts (`charts`, which draw the
-//! stages' results and the benchmarks' reports: `plotters` is named nowhere else), then the
+//! sweeps (`sweep`, which call the stages), then the charts (`charts`, which draw the
+//! stages' results and the sweeps' results: `plotters` is named nowhere else), then the
 //! commands (`pipeline`, `demo`), which run them and write their files. Read from the source,
 //! so a new `use` that closes a cycle fails here with the file and the line.
 
@@ -15,7 +15,7 @@ const STAGES: [&str; 6] = ["design", "fabrication", "metrology", "optics", "cali
 const SHARED: [&str; 11] =
     ["error", "grid", "units", "material", "tabulated", "rng", "linalg", "io", "image", "rounding", "fft"];
 /// The layers above the stages, lowest first: each names none above it.
-const ABOVE: [&str; 4] = ["bench", "charts", "pipeline", "demo"];
+const ABOVE: [&str; 4] = ["sweep", "charts", "pipeline", "demo"];
 
 /// The `.rs` files of module `name`: `src/name.rs` and everything below `src/name/`.
 fn sources(name: &str) -> Vec<PathBuf> {
@@ -150,7 +150,7 @@ fn the_import_graph_covers_the_library_and_the_command_line() {
     all.sort();
     seen.sort();
     assert_eq!(all, seen);
-    assert!(lib.targets("bench/register.rs").contains(&"metrology/scan_registration/mod.rs"));
+    assert!(lib.targets("sweep/register.rs").contains(&"metrology/scan_registration/mod.rs"));
     assert!(bin.targets("main.rs").contains(&"cli/args.rs"));
     assert!(bin.targets("cli/optics.rs").iter().any(|t| t.starts_with("cli/")));
 }
