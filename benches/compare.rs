@@ -91,7 +91,7 @@ fn main() -> doefab::Result<()> {
     let (filled, _) = doefab::grid::fill::fill_missing(&c.surface)?;
     let t_fill = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let system = doefab::optics::output::system_for(&design);
+    let system = doefab::optics::psf_files::system_for(&design);
     let opts = doefab::optics::Options { allow_invalid: true, ..Default::default() };
     let psf = psf_comparison(&design, &filled, &system, doefab::optics::Method::MatrixDft, &opts)?;
     println!(

@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use clap::Args;
 
-use super::shared::{clap_length, Cli};
-use super::shared::{print_result, progress, report_to, warn};
+use super::options::{clap_length, Cli};
+use super::options::{print_result, progress, report_to, warn};
 
 /// An exposure bracket on the command line.
 #[derive(Args, Clone)]
@@ -411,8 +411,8 @@ pub struct BenchCalibrationArgs {
 
 /// `doefab bench calibration`.
 pub fn bench_calibration(cli: &Cli, a: &BenchCalibrationArgs) -> Result<()> {
-    let pb = progress(cli, doefab::bench::calibration::steps() as u64);
-    let r = doefab::pipeline::bench::bench_calibration(a.psf.as_deref(), &a.output, &mut report_to(&pb))?;
+    let pb = progress(cli, doefab::sweep::calibration::steps() as u64);
+    let r = doefab::pipeline::sweep::sweep_calibration(a.psf.as_deref(), &a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         for axis in &r.axes {

@@ -6,8 +6,8 @@ use anyhow::Result;
 use clap::Args;
 use indicatif::ProgressStyle;
 
-use super::shared::{clap_length, Cli};
-use super::shared::{print_result, progress, report_to, warn};
+use super::options::{clap_length, Cli};
+use super::options::{print_result, progress, report_to, warn};
 
 /// Arguments of `doefab reconstruct`.
 #[derive(Args)]
@@ -359,9 +359,9 @@ pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
     })
 }
 
-/// `doefab bench decoder`: see [`doefab::pipeline::bench`].
+/// `doefab bench decoder`: see [`doefab::pipeline::sweep`].
 pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
-    use doefab::pipeline::bench::{bench_decoder, DecoderBenchOptions};
+    use doefab::pipeline::sweep::{sweep_decoder, DecoderSweepOptions};
     let BenchDecoderArgs {
         data,
         scenes,
@@ -383,7 +383,7 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         grad_clip,
         output,
     } = a;
-    let opts = DecoderBenchOptions {
+    let opts = DecoderSweepOptions {
         data: data.clone(),
         scenes: scenes.clone(),
         decoders: decoders.clone(),
@@ -403,7 +403,7 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         grad_clip: *grad_clip,
     };
     let pb = progress(cli, 0);
-    let outcome = bench_decoder(&opts, output, &mut report_to(&pb))?;
+    let outcome = sweep_decoder(&opts, output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     warn(&outcome.warnings);
     let report = &outcome.results;
@@ -492,8 +492,8 @@ pub struct BenchForwardArgs {
 
 /// `doefab bench forward`.
 pub fn bench_forward(cli: &Cli, a: &BenchForwardArgs) -> Result<()> {
-    use doefab::bench::forward::ForwardOptions;
-    use doefab::pipeline::bench::bench_forward;
+    use doefab::pipeline::sweep::sweep_forward;
+    use doefab::sweep::forward::ForwardOptions;
     let opts = ForwardOptions {
         data: a.data.clone(),
         scenes: a.scenes.clone(),
@@ -501,7 +501,7 @@ pub fn bench_forward(cli: &Cli, a: &BenchForwardArgs) -> Result<()> {
         scoring: doefab::calibration::ScoringOptions::default(),
     };
     let pb = progress(cli, 0);
-    let r = bench_forward(&opts, &a.output, &mut report_to(&pb))?;
+    let r = sweep_forward(&opts, &a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         for s in &r.scenes {
@@ -563,11 +563,11 @@ pub struct BenchTilingArgs {
 
 /// `doefab bench tiling`.
 pub fn bench_tiling(cli: &Cli, a: &BenchTilingArgs) -> Result<()> {
-    use doefab::bench::tiling::{steps, TilingOptions};
+    use doefab::sweep::tiling::{steps, TilingOptions};
     let opts =
         TilingOptions { size: a.size, tiles: a.tiles.clone(), overlaps: a.overlaps.clone(), seed: a.seed };
     let pb = progress(cli, steps(&opts) as u64);
-    let r = doefab::pipeline::bench::bench_tiling(&a.decoder, &opts, &a.output, &mut report_to(&pb))?;
+    let r = doefab::pipeline::sweep::sweep_tiling(&a.decoder, &opts, &a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         println!("f64 one pass (the reference): {:.2} s", r.reference_seconds);

@@ -5,15 +5,15 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use clap::Args;
 
-use doefab::fabrication::chain::{self, ChainParams, DesignSource};
 use doefab::fabrication::quantize::QuantizeMethod;
 use doefab::fabrication::recipe::Recipe;
+use doefab::fabrication::recipe_run::{self, ChainParams, DesignSource};
 use doefab::fabrication::ReplicaMode;
 use doefab::units::length_unit;
 
 use super::fabrication::chain_params;
-use super::shared::{clap_length, Cli, OpticsArgs, ReadArgs};
-use super::shared::{print_result, progress, report_to, warn};
+use super::options::{clap_length, Cli, OpticsArgs, ReadArgs};
+use super::options::{print_result, progress, report_to, warn};
 
 /// Levelling choice on the command line (`scan-info --level`).
 #[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
@@ -225,7 +225,7 @@ pub fn simulate_scan(cli: &Cli, a: &SimulateScanArgs) -> Result<()> {
     use doefab::metrology::{
         parse_length_pair, parse_size, parse_slopes, simulate_scan, write_scan, SimulateParams,
     };
-    let loaded = chain::load_design(&DesignSource::parse(Some(design), read.options()?))?;
+    let loaded = recipe_run::load_design(&DesignSource::parse(Some(design), read.options()?))?;
     let params = SimulateParams {
         response: response.as_deref().map(doefab::fabrication::precompensate::Response::parse).transpose()?,
         blur: *blur,
@@ -587,8 +587,8 @@ pub struct BenchRegisterArgs {
 
 /// `doefab bench register`.
 pub fn bench_register(cli: &Cli, a: &BenchRegisterArgs) -> Result<()> {
-    let pb = progress(cli, doefab::bench::register::steps() as u64);
-    let r = doefab::pipeline::bench::bench_register(&a.output, &mut report_to(&pb))?;
+    let pb = progress(cli, doefab::sweep::register::steps() as u64);
+    let r = doefab::pipeline::sweep::sweep_register(&a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         for axis in &r.axes {

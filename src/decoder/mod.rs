@@ -1,8 +1,8 @@
 //! The image decoder of the paper: its U-Net ([`unet`]), the weights format ([`weights`]),
 //! the measurement model used to train it ([`measurement`]), reconstruction of captures
 //! ([`reconstruct`]), fine-tuning for one fabricated part's PSF ([`finetune`]) and seeded
-//! procedural HDR scenes to train on without a data set ([`scenes`]). Its benchmarks are in
-//! [`crate::bench`], its charts in [`crate::charts`].
+//! procedural HDR scenes to train on without a data set ([`scenes`]). Its sweeps are in
+//! [`crate::sweep`], its charts in [`crate::charts`].
 //!
 //! Images here are `(H, W, 3)` `f32` arrays (row-major, channels last, as the paper's NHWC);
 //! the network runs on NCHW burn tensors on the CPU (burn's Flex backend) or, with the `gpu`
@@ -43,7 +43,6 @@ use ndarray::Array4;
 
 use crate::error::Result;
 use crate::image::Image;
-use unet::{tensor_values, UNet};
 
 /// The device the decoder runs on, and what its selection has to report.
 #[derive(Debug, Clone)]
@@ -85,7 +84,7 @@ pub fn select_device(gpu: bool) -> Result<SelectedDevice> {
 }
 
 /// [`select_device`]'s device alone, for callers that run on the CPU or report no warnings
-/// (tests, benchmarks).
+/// (tests, sweeps).
 pub fn device(gpu: bool) -> Result<Device> {
     Ok(select_device(gpu)?.device)
 }

@@ -25,8 +25,8 @@ use ndarray::Array2;
 use rustfft::num_complex::Complex64;
 use serde::{Deserialize, Serialize};
 
-use super::output::PEAKS;
 use super::psf::{ChannelSummary, Peak, Psf};
+use super::psf_files::PEAKS;
 use super::system::OpticalSystem;
 use crate::error::{DataCause, Error, Result};
 use crate::fft::Plan1d;

@@ -10,7 +10,7 @@ use std::path::Path;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::fabrication::chain::{self, ChainParams, DesignSource, LoadedDesign};
+use crate::fabrication::recipe_run::{self, ChainParams, DesignSource, LoadedDesign};
 use crate::fabrication::wrap::{cast_of_master, WrapSpec};
 use crate::fabrication::ReplicaMode;
 use crate::grid::fill::fill_missing;
@@ -89,7 +89,7 @@ pub fn reference_surface(
         None => Ok((design.heights.clone(), None, WrapSpec::default())),
         Some(p) => {
             let p = ChainParams { replica_mode: ReplicaMode::Design, ..p.clone() };
-            let prep = chain::prepare(design.clone(), &p)?;
+            let prep = recipe_run::prepare(design.clone(), &p)?;
             let q = prep.quantized;
             let spec = LevelSpec { count: q.level_count, step: q.period / q.level_count as f64 };
             Ok((q.heights()?, Some(spec), p.wrap_spec()?))
@@ -199,7 +199,7 @@ pub fn compare_and_write(
     let psf = match psf {
         Some((method, o)) => {
             step("design and as-fabricated PSFs");
-            let mut system = crate::optics::output::system_for(reference);
+            let mut system = crate::optics::psf_files::system_for(reference);
             system.material = opts.optics.material.clone();
             system.aperture = c.aperture;
             match psf_comparison(reference, &filled, &system, method, o) {
@@ -308,7 +308,7 @@ pub fn compare_scan_file(
     step("read");
     let scan = scan::read_scan(scan_path, scan_opts)?;
     crate::io::heightmap::check_relief(scan_path, &scan.grid)?;
-    let design = chain::load_design(source)?;
+    let design = recipe_run::load_design(source)?;
     let (family, optics) = reference_family(&design, chain)?;
     let opts = CompareOptions { aperture: default_aperture(source, aperture), optics, ..Default::default() };
     compare_and_write(scan_path, &scan, &design, &family, &opts, psf, out, step)

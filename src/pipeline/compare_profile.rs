@@ -10,7 +10,7 @@ use std::path::Path;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::fabrication::chain::{self, ChainParams, DesignSource};
+use crate::fabrication::recipe_run::{self, ChainParams, DesignSource};
 use crate::io::profile::{read_profile, ProfileReadOptions};
 use crate::metrology::profile::{
     compare_profile, level_profile, terraces, Levelling, LineSpec, ProfileComparison, ProfileLevel,
@@ -84,7 +84,7 @@ pub fn compare_profile_file(
     let (levelled, levelling) = level_profile(&file.profile, level)?;
     let (comparison, terr, dname, dsha) = match design {
         Some(d) => {
-            let loaded = chain::load_design(&d.source)?;
+            let loaded = recipe_run::load_design(&d.source)?;
             let (reference, _, _) = reference_surface(&loaded, d.chain.as_ref())?;
             // On the profile as read: the model fits its own offset and tilt.
             let c = compare_profile(&file.profile, &reference, &d.line, &d.options)?;

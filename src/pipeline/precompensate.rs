@@ -28,7 +28,6 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Condition, DataCause, Error, Result};
-use crate::fabrication::chain::{self, write_mask, ChainParams, DesignSource, LoadedDesign};
 use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::mask::render_levels;
 use crate::fabrication::precompensate::{
@@ -36,6 +35,7 @@ use crate::fabrication::precompensate::{
 };
 use crate::fabrication::quantize::feature_check;
 use crate::fabrication::recipe::{Output, Recipe};
+use crate::fabrication::recipe_run::{self, write_mask, ChainParams, DesignSource, LoadedDesign};
 use crate::fabrication::stl::{surface_mesh, write_stl_part};
 use crate::fabrication::ReplicaMode;
 use crate::grid::{Grid, Unit};
@@ -412,7 +412,7 @@ pub fn run(job: &PrecompensateJob, out: &Path, step: &mut dyn FnMut(&str)) -> Re
         ));
     }
     step("load the design");
-    let design = chain::load_design(&job.design)?;
+    let design = recipe_run::load_design(&job.design)?;
     let params = ChainParams::of_recipe(&job.recipe, false);
     let (family, optics) = reference_family(&design, Some(&params))?;
     let (measured, target) = match &job.model {
@@ -685,7 +685,7 @@ pub fn blur_sweep(
             let p = SimulateParams { blur: w * pitch, ..process.clone() };
             let r = simulate_loop(design, params, &p, compare_opts, &Corrections::default(), None)?;
             let target = &r.written.target;
-            let mut system = crate::optics::output::system_for(target);
+            let mut system = crate::optics::psf_files::system_for(target);
             system.aperture = r.before.aperture;
             let psf = |c: &Comparison| -> Result<f64> {
                 let p = crate::pipeline::compare::psf_comparison(

@@ -1264,11 +1264,11 @@ fn the_merge_is_at_the_reference_exposure_and_says_so() {
 /// and data are written all or nothing.
 #[test]
 fn the_calibration_map_has_no_silent_failure() {
-    use doefab::bench::calibration::TOLERANCE;
+    use doefab::sweep::calibration::TOLERANCE;
     assert_eq!(Psf::paper_measured().unwrap().relative_l2(&measured_truth()).unwrap(), vec![0.0; 3]);
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("bench");
-    let r = doefab::pipeline::bench::bench_calibration(None, &out, &mut |_, _, _| {}).unwrap();
+    let r = doefab::pipeline::sweep::sweep_calibration(None, &out, &mut |_, _, _| {}).unwrap();
     for name in ["calibration.png", "calibration.svg", "calibration.json", "calibration.csv"] {
         assert!(out.join(name).is_file(), "{name}");
     }

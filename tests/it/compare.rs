@@ -8,7 +8,7 @@ use crate::common::doefab;
 use std::path::Path;
 
 use doefab::design::{PAPER_APERTURE, PAPER_PITCH};
-use doefab::fabrication::chain::{load_design, DesignSource};
+use doefab::fabrication::recipe_run::{load_design, DesignSource};
 use doefab::io::heightmap::{read_heightmap, ReadOptions};
 
 fn simulate(out: &Path, extra: &[&str]) {

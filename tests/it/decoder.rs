@@ -1136,12 +1136,12 @@ fn gradient_clipping_reports_norms_and_cuts_only_steps_above_its_limit() {
 /// (over 1e-3). The chart and data are written all or nothing.
 #[test]
 fn tiles_with_enough_overlap_equal_one_pass_and_f32_is_within_1e_5_of_f64() {
-    use doefab::bench::tiling::TilingOptions;
+    use doefab::sweep::tiling::TilingOptions;
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("tiling");
     let opts = TilingOptions { size: 512, tiles: vec![384], overlaps: vec![0, 96], seed: 1 };
     let decoder = PathBuf::from("built-in:paper-measured-psf");
-    let r = doefab::pipeline::bench::bench_tiling(&decoder, &opts, &out, &mut |_, _, _| {}).unwrap();
+    let r = doefab::pipeline::sweep::sweep_tiling(&decoder, &opts, &out, &mut |_, _, _| {}).unwrap();
     for name in ["tiling.png", "tiling.svg", "tiling.json", "tiling.csv"] {
         assert!(out.join(name).is_file(), "{name}");
     }

@@ -9,8 +9,8 @@ use serde_json::Value;
 
 use crate::common::{self, doefab, fails, ok, shared_data};
 
-use doefab::fabrication::chain::{load_design, ChainParams, DesignSource};
 use doefab::fabrication::recipe::Recipe;
+use doefab::fabrication::recipe_run::{load_design, ChainParams, DesignSource};
 use doefab::io::profile::ProfileReadOptions;
 use doefab::io::scan::{read_scan, ScanOptions};
 use doefab::metrology::{simulate_profile, LineSpec, Profile, ProfileLevel, ProfileOptions, SimulateProfile};

@@ -20,7 +20,7 @@ use ndarray::{s, Array2};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 
-use super::shared::{
+use super::method::{
     check_fresnel, check_lens_sampling, check_window, field_power, pupil_phase, SensorIntensity, Violation,
 };
 use crate::error::{Condition, Error, Result};

@@ -23,7 +23,7 @@ use ndarray::{s, Array2};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 
-use super::shared::{
+use super::method::{
     check_lens_sampling, content_bandwidth, field_power, pupil_phase, SensorIntensity, Violation,
 };
 use crate::error::{Condition, Error, Resource, Result};

@@ -43,7 +43,7 @@ pub const SENSOR_PITCH: f64 = 4.29e-6;
 
 /// A scene prepared for scoring.
 #[derive(Debug, Clone)]
-pub struct BenchScene {
+pub struct SweepScene {
     pub name: String,
     /// The capture through the DOE (RGB), 1 = clipping level.
     pub capture: Image,
@@ -53,7 +53,7 @@ pub struct BenchScene {
     pub preparation: ScenePreparation,
 }
 
-/// How a scene was prepared, or why it could not be (part of the benchmark's JSON).
+/// How a scene was prepared, or why it could not be (part of the sweep's JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ScenePreparation {
     pub name: String,
@@ -102,7 +102,7 @@ fn scene_name(dir: &Path) -> String {
 
 /// Merges the scene in `dir` and prepares it for scoring through `psf` (steps 1-2 of the
 /// module docs).
-pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<BenchScene> {
+pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<SweepScene> {
     let list_path = dir.join("exposures.json");
     let doe = read_exposures(&list_path, true)?;
     let [(capture_path, _)] = doe.frames.as_slice() else {
@@ -145,11 +145,11 @@ pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<Ben
         error: None,
     };
     let capture = Image::new(capture.values.mapv(|v| v / clip));
-    Ok(BenchScene { name, capture, reference: merged.radiance, scoring, preparation })
+    Ok(SweepScene { name, capture, reference: merged.radiance, scoring, preparation })
 }
 
 /// Scores `image` (a reconstruction, or the capture itself) on the scene's footing.
-pub fn score_image(scene: &BenchScene, decoder: &str, image: &Image) -> Result<Score> {
+pub fn score_image(scene: &SweepScene, decoder: &str, image: &Image) -> Result<Score> {
     let s = scene.scoring.score(decoder, image)?;
     let min_output = image.values.iter().copied().fold(f64::INFINITY, f64::min);
     Ok(Score {
@@ -164,7 +164,7 @@ pub fn score_image(scene: &BenchScene, decoder: &str, image: &Image) -> Result<S
 
 /// Reconstructs the scene's capture with `net` (negatives kept) and scores it; returns the
 /// reconstruction too.
-pub fn score_decoder(scene: &BenchScene, decoder: &str, net: &UNet) -> Result<(Score, Image<f32>)> {
+pub fn score_decoder(scene: &SweepScene, decoder: &str, net: &UNet) -> Result<(Score, Image<f32>)> {
     let x = scene.capture.to_f32();
     let opts = ReconstructOptions { negatives: Negatives::Keep, ..ReconstructOptions::default() };
     let (y, _) = reconstruct(net, &x, &opts)?;
@@ -178,7 +178,7 @@ pub const PICTURE_EV: f64 = -2.0;
 /// Writes `images` of `scene` as tone-mapped PNGs (sRGB of clip(y 2^[`PICTURE_EV`], 0, 1))
 /// into `dir`, each named by its key, with the registered reference (black where it is not
 /// scored) as `reference.png`.
-fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(String, &Image<f32>)]) -> Result<()> {
+fn write_pictures(dir: &Path, scene: &SweepScene, images: &[(String, &Image<f32>)]) -> Result<()> {
     let mut reference = scene.scoring.reference.to_f32();
     Zip::from(reference.values.lanes_mut(ndarray::Axis(2))).and(&scene.scoring.mask).for_each(
         |mut px, &inside| {
@@ -204,9 +204,9 @@ fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(String, &Image<f32>
     Ok(())
 }
 
-/// The fine-tuning part of a benchmark.
+/// The fine-tuning part of a sweep.
 #[derive(Debug, Clone)]
-pub struct FinetuneBench {
+pub struct FinetuneSweep {
     /// The decoder to start from (a file or `built-in:NAME`).
     pub init: PathBuf,
     pub config: FinetuneConfig,
@@ -218,7 +218,7 @@ pub struct FinetuneBench {
 
 /// Settings of [`run`].
 #[derive(Debug, Clone)]
-pub struct BenchConfig {
+pub struct SweepConfig {
     /// Scene folders (each with an `exposures.json`).
     pub scenes: Vec<PathBuf>,
     /// Decoders to score: files or `built-in:NAME`.
@@ -229,7 +229,7 @@ pub struct BenchConfig {
     pub psf_key: Option<String>,
     pub scoring: ScoringOptions,
     /// Fine-tune a decoder on the PSF and score it too.
-    pub finetune: Option<FinetuneBench>,
+    pub finetune: Option<FinetuneSweep>,
 }
 
 /// The decoder being fine-tuned, scored on the real scenes at one step.
@@ -241,7 +241,7 @@ pub struct CurvePoint {
     pub scores: Vec<Score>,
 }
 
-/// The fine-tuning run of a benchmark.
+/// The fine-tuning run of a sweep.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FinetuneRun {
     pub init: String,
@@ -259,7 +259,7 @@ pub struct FinetuneRun {
 
 /// What `doefab bench decoder` measured (its JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct DecoderBenchResults {
+pub struct DecoderSweepResults {
     pub psf: String,
     pub units: &'static str,
     pub negatives: &'static str,
@@ -298,19 +298,19 @@ fn picture_name(decoder: &Path, taken: &mut Vec<String>) -> String {
     name
 }
 
-/// Runs the benchmark: prepares every scene (a scene that fails is reported with its reason),
+/// Runs the sweep: prepares every scene (a scene that fails is reported with its reason),
 /// scores the capture and every decoder on each scene, and with `finetune` fine-tunes its
 /// initial decoder on the PSF, scoring it along the run. Writes into `out`: `report.json`, per
 /// scene `<scene>/*.png` (the registered reference, the capture and each reconstruction
 /// tone-mapped at [`PICTURE_EV`]) and, with fine-tuning, `finetuned/` (decoder, training
-/// record); the charts are the command's ([`crate::pipeline::bench::bench_decoder`]).
+/// record); the charts are the command's ([`crate::pipeline::sweep::sweep_decoder`]).
 /// `progress` is told what is happening and each unit of work done. Refuses when no scene can
 /// be scored.
 pub fn run(
-    cfg: &BenchConfig,
+    cfg: &SweepConfig,
     out: &Path,
     progress: &mut dyn FnMut(&str, u64),
-) -> Result<DecoderBenchResults> {
+) -> Result<DecoderSweepResults> {
     if cfg.scenes.is_empty() {
         return Err(Error::param("scenes", "no scene folder given"));
     }
@@ -390,7 +390,7 @@ pub fn run(
         let refs: Vec<(String, &Image<f32>)> = im.iter().map(|(n, y)| (n.clone(), y)).collect();
         write_pictures(&out.join(&s.name), s, &refs)?;
     }
-    let report = DecoderBenchResults {
+    let report = DecoderSweepResults {
         psf: cfg.psf.display().to_string(),
         units: "PSNR in dB; images in units of the capture's clipping level; seconds",
         negatives:
@@ -411,10 +411,10 @@ pub fn run(
 /// the end the decoder the run would write if it stopped there; writes `finetuned/`. Returns
 /// the run's report and the last reconstructions.
 fn run_finetune(
-    f: &FinetuneBench,
-    cfg: &BenchConfig,
+    f: &FinetuneSweep,
+    cfg: &SweepConfig,
     psf: &Psf,
-    scenes: &[BenchScene],
+    scenes: &[SweepScene],
     device: &burn::tensor::Device,
     out: &Path,
     progress: &mut dyn FnMut(&str, u64),

@@ -39,9 +39,9 @@ use crate::fft::Plan1d;
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::material::{Material, PAPER_WAVELENGTHS};
 
-/// What the benchmark sweeps.
+/// What the sweep sweeps.
 #[derive(Debug, Clone, Serialize)]
-pub struct FabBenchOptions {
+pub struct FabSweepOptions {
     /// Design wavelength of the wrap (and of the grating's blaze), metres.
     pub wavelength: f64,
     /// Material, by name.
@@ -68,9 +68,9 @@ pub struct FabBenchOptions {
     pub repeats: usize,
 }
 
-impl Default for FabBenchOptions {
+impl Default for FabSweepOptions {
     fn default() -> Self {
-        FabBenchOptions {
+        FabSweepOptions {
             wavelength: 530e-9,
             material: "pdms".into(),
             order: 1,
@@ -87,7 +87,7 @@ impl Default for FabBenchOptions {
     }
 }
 
-impl FabBenchOptions {
+impl FabSweepOptions {
     /// Refuses empty sweeps and values out of range, before any work.
     pub fn check(&self) -> Result<()> {
         let spec = self.wrap_spec()?;
@@ -166,9 +166,9 @@ impl FabBenchOptions {
     }
 }
 
-/// Progress steps of [`run_bench`]: the quantization sweep, one per `max_error`, the mask
+/// Progress steps of [`run_sweep`]: the quantization sweep, one per `max_error`, the mask
 /// set's level map, one per vertex limit.
-pub fn steps(opts: &FabBenchOptions) -> usize {
+pub fn steps(opts: &FabSweepOptions) -> usize {
     2 + opts.max_errors.len() + opts.vertex_limits.len()
 }
 
@@ -293,9 +293,9 @@ pub struct GdsSweep {
     pub points: Vec<GdsPoint>,
 }
 
-/// The whole benchmark. Deterministic but for the `seconds` fields.
+/// The whole sweep. Deterministic but for the `seconds` fields.
 #[derive(Debug, Clone, Serialize)]
-pub struct FabBenchResults {
+pub struct FabSweepResults {
     pub units: String,
     /// The design, its samples `[rows, columns]` and pitch `[x, y]` (metres).
     pub design: String,
@@ -308,19 +308,19 @@ pub struct FabBenchResults {
 
 /// Runs the three sweeps on a design (heights in metres, unwrapped); `progress` is called with
 /// a message before each step ([`steps`] of them).
-pub fn run_bench(
+pub fn run_sweep(
     heights: &Grid,
     design: &str,
-    opts: &FabBenchOptions,
+    opts: &FabSweepOptions,
     mut progress: impl FnMut(&str),
-) -> Result<FabBenchResults> {
+) -> Result<FabSweepResults> {
     opts.check()?;
     progress("quantization: simulated gratings");
     let quantization = quantization_sweep(opts)?;
     let stl = stl_sweep(heights, opts, &mut progress)?;
     let gds = gds_sweep(heights, opts, &mut progress)?;
     let (r, c) = heights.dim();
-    Ok(FabBenchResults {
+    Ok(FabSweepResults {
         units: "lengths and heights in metres, times in seconds, file sizes in bytes, GDSII areas in square \
                 nanometres"
             .into(),
@@ -348,7 +348,7 @@ fn sinc(x: f64) -> f64 {
 /// One period of the blaze `h(x) = x * period`, `x in [0, 1)`, is sampled at the centres of
 /// `M = N * samples_per_level` cells and quantized by [`quantize`] (rounding); each cell then
 /// holds one level, and the level boundaries `(l + 1/2) / N` fall on cell boundaries
-/// (`samples_per_level` even, as [`FabBenchOptions::check`] requires). The transmission of a cell is
+/// (`samples_per_level` even, as [`FabSweepOptions::check`] requires). The transmission of a cell is
 /// `exp(i 2 pi (n(lambda) - 1) h / lambda)`; `c_m = DFT_m / M` is the DFT's order `m`, and
 /// `c_m sinc(m / M)` (times a phase) is the Fourier coefficient of the piecewise-constant
 /// transmission.
@@ -378,7 +378,7 @@ pub fn simulate_grating(
 
 /// Predicted against simulated efficiency of the design order for every level count and
 /// wavelength of `opts` (see the module docs).
-pub fn quantization_sweep(opts: &FabBenchOptions) -> Result<QuantizationSweep> {
+pub fn quantization_sweep(opts: &FabSweepOptions) -> Result<QuantizationSweep> {
     let spec = opts.wrap_spec()?;
     let period = spec.period()?;
     let n0 = spec.index()?;
@@ -503,7 +503,7 @@ fn best_of<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(f64, 
 /// triangles, time and the measured error ([`mesh_height_error`]).
 pub fn stl_sweep(
     heights: &Grid,
-    opts: &FabBenchOptions,
+    opts: &FabSweepOptions,
     progress: &mut impl FnMut(&str),
 ) -> Result<StlSweep> {
     let (nr, nc) = heights.dim();
@@ -620,7 +620,7 @@ fn twice_area(p: &[[i32; 2]]) -> i128 {
 /// resampled to `opts.gds_pitch` by nearest neighbour) at every vertex limit of `opts`.
 pub fn gds_sweep(
     heights: &Grid,
-    opts: &FabBenchOptions,
+    opts: &FabSweepOptions,
     progress: &mut impl FnMut(&str),
 ) -> Result<GdsSweep> {
     progress(&format!("GDSII: {}-level map at {:.2} um", opts.gds_levels, opts.gds_pitch * 1e6));
@@ -798,7 +798,7 @@ mod tests {
 
     #[test]
     fn simulated_quantization_equals_swanson() {
-        let opts = FabBenchOptions::default();
+        let opts = FabSweepOptions::default();
         let q = quantization_sweep(&opts).unwrap();
         assert_eq!(q.points.len(), 18);
         for p in &q.points {
@@ -833,7 +833,7 @@ mod tests {
     fn measured_stl_error_is_within_each_bound() {
         let g = surface(37, 45);
         let opts =
-            FabBenchOptions { max_errors: vec![0.5e-9, 2e-9, 10e-9], repeats: 1, ..Default::default() };
+            FabSweepOptions { max_errors: vec![0.5e-9, 2e-9, 10e-9], repeats: 1, ..Default::default() };
         let s = stl_sweep(&g, &opts, &mut |_| {}).unwrap();
         assert_eq!(s.points.len(), 3);
         for p in &s.points {
@@ -856,7 +856,7 @@ mod tests {
     #[test]
     fn gds_polygon_areas_equal_the_bitmaps() {
         let g = surface(60, 70);
-        let opts = FabBenchOptions {
+        let opts = FabSweepOptions {
             gds_pitch: 1e-6,
             vertex_limits: vec![4, 12, 8190],
             repeats: 1,
@@ -881,18 +881,18 @@ mod tests {
 
     #[test]
     fn bad_options_are_refused() {
-        let d = FabBenchOptions::default();
+        let d = FabSweepOptions::default();
         assert!(d.check().is_ok());
         for bad in [
-            FabBenchOptions { level_counts: vec![], ..d.clone() },
-            FabBenchOptions { level_counts: vec![1], ..d.clone() },
-            FabBenchOptions { max_errors: vec![0.0], ..d.clone() },
-            FabBenchOptions { vertex_limits: vec![3], ..d.clone() },
-            FabBenchOptions { gds_levels: 6, ..d.clone() },
-            FabBenchOptions { repeats: 0, ..d.clone() },
-            FabBenchOptions { samples_per_level: 63, ..d.clone() },
-            FabBenchOptions { material: "glass?".into(), ..d.clone() },
-            FabBenchOptions { wavelengths: vec![5e-6], ..d.clone() },
+            FabSweepOptions { level_counts: vec![], ..d.clone() },
+            FabSweepOptions { level_counts: vec![1], ..d.clone() },
+            FabSweepOptions { max_errors: vec![0.0], ..d.clone() },
+            FabSweepOptions { vertex_limits: vec![3], ..d.clone() },
+            FabSweepOptions { gds_levels: 6, ..d.clone() },
+            FabSweepOptions { repeats: 0, ..d.clone() },
+            FabSweepOptions { samples_per_level: 63, ..d.clone() },
+            FabSweepOptions { material: "glass?".into(), ..d.clone() },
+            FabSweepOptions { wavelengths: vec![5e-6], ..d.clone() },
         ] {
             assert!(bad.check().is_err(), "{bad:?}");
         }

@@ -77,7 +77,7 @@ pub struct Trial {
 
 /// Everything [`run`] measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CalibrationBench {
+pub struct CalibrationSweep {
     pub units: String,
     pub truth: String,
     pub tolerance: f64,
@@ -159,7 +159,7 @@ fn all_warnings(r: &PsfCalibration) -> Vec<String> {
 
 /// Runs every trial (module docs) on the PSF `truth` (named `name` in the report), calling
 /// `tick` before each ([`steps`] in all).
-pub fn run(truth: &Psf, name: &str, mut tick: impl FnMut(&str)) -> Result<CalibrationBench> {
+pub fn run(truth: &Psf, name: &str, mut tick: impl FnMut(&str)) -> Result<CalibrationSweep> {
     let axes = axes();
     let mut trials = Vec::new();
     for axis in &axes {
@@ -171,7 +171,7 @@ pub fn run(truth: &Psf, name: &str, mut tick: impl FnMut(&str)) -> Result<Calibr
         }
     }
     let count = |o: &str| trials.iter().filter(|t| t.outcome == o).count();
-    Ok(CalibrationBench {
+    Ok(CalibrationSweep {
         units:
             "errors: relative L2 against the truth (largest channel); times in s; axis values in their units"
                 .into(),

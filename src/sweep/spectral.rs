@@ -125,7 +125,7 @@ pub struct SpectralPlanPoint {
 
 /// Everything one `bench spectral` run measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SpectralBenchResults {
+pub struct SpectralSweepResults {
     pub units: String,
     pub method: String,
     pub doe_samples: usize,
@@ -157,7 +157,7 @@ pub fn run_spectral(
     doe: &Grid,
     opts: &SpectralOptions,
     mut tick: impl FnMut(&str),
-) -> Result<SpectralBenchResults> {
+) -> Result<SpectralSweepResults> {
     opts.check()?;
     let spatial = plan(system, doe, &[], 1e-2)?;
     let method = spatial.method;
@@ -296,7 +296,7 @@ pub fn run_spectral(
     }
     let silent_failures = plans.iter().filter(|p| p.error.is_some() && !p.meets_tolerance).count();
     let seconds_per_wavelength = run_seconds.iter().sum::<f64>() / run_seconds.len().max(1) as f64;
-    Ok(SpectralBenchResults {
+    Ok(SpectralSweepResults {
         units: "lengths in m, times in s, errors relative L2".into(),
         method: method.name().into(),
         doe_samples: doe.dim().1,

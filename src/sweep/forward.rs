@@ -34,7 +34,7 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array2, Array3, Axis, Zip};
 use serde::Serialize;
 
-use super::decoder::{prepare_scene, scene_dirs, BenchScene, SENSOR_PITCH};
+use super::decoder::{prepare_scene, scene_dirs, SweepScene, SENSOR_PITCH};
 use crate::calibration::evaluate::{convolve_psf, ScoringOptions};
 use crate::decoder::measurement::{halo_blur, Halo};
 use crate::error::{DataCause, Error, Result};
@@ -104,7 +104,7 @@ pub struct SceneCheck {
 
 /// What `doefab bench forward` measured (its JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ForwardBenchResults {
+pub struct ForwardSweepResults {
     pub units: String,
     pub psf: String,
     pub halo_fractions: Vec<f64>,
@@ -124,13 +124,13 @@ struct Bands {
 }
 
 /// Runs the check on every scene and writes `forward.json` into `out` (its chart is the
-/// command's, [`crate::pipeline::bench::bench_forward`]).
+/// command's, [`crate::pipeline::sweep::sweep_forward`]).
 /// `progress(message, done, total)` counts two steps a scene.
 pub fn run(
     opts: &ForwardOptions,
     out: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<ForwardBenchResults> {
+) -> Result<ForwardSweepResults> {
     let dirs =
         if opts.scenes.is_empty() { scene_dirs(&opts.data.join("captures"))? } else { opts.scenes.clone() };
     let (psf_path, key) = match &opts.psf {
@@ -156,7 +156,7 @@ pub fn run(
     if scenes.is_empty() {
         return Err(Error::data(DataCause::Empty, format!("no scene could be registered: {refused:?}")));
     }
-    let report = ForwardBenchResults {
+    let report = ForwardSweepResults {
         units: "residuals: RMS of sqrt(prediction) - sqrt(capture), the capture's clipping level = 1; gains relative \
                 to the scene's gain; offsets and clipping in units of the clipping level; halo and blur radii in \
                 sensor pixels (4.29 um)"
@@ -177,7 +177,7 @@ pub fn run(
 }
 
 /// The models of the module docs fitted to one scene.
-pub fn check_scene(scene: &BenchScene, psf: &Psf, saturation: f64) -> Result<SceneCheck> {
+pub fn check_scene(scene: &SweepScene, psf: &Psf, saturation: f64) -> Result<SceneCheck> {
     let footing = &scene.scoring.footing;
     let g = footing.gain;
     let levels: [f64; 3] = match footing.channel_clipping.as_slice() {
@@ -267,7 +267,7 @@ pub fn check_scene(scene: &BenchScene, psf: &Psf, saturation: f64) -> Result<Sce
     })
 }
 
-fn bands(scene: &BenchScene, base: &Array3<f64>) -> Bands {
+fn bands(scene: &SweepScene, base: &Array3<f64>) -> Bands {
     let scored = scene.scoring.mask.clone();
     let (h, w) = scored.dim();
     let saturated = scene.scoring.saturated.clone();

@@ -1,8 +1,10 @@
-//! The benchmarks: each runs the stages' public functions on known inputs and reports speed
-//! against accuracy, or where a method fails, as typed, serialisable data. They sit above the
-//! stages (no stage uses them) and below the charts ([`crate::charts`] draws their reports);
-//! the commands that write their files, data and charts, are [`crate::pipeline::bench`] and
-//! [`crate::pipeline::report`].
+//! The sweeps behind `doefab bench ...`: each runs the stages' public functions on known inputs
+//! over a range of settings and reports speed against accuracy, or where a method fails (a
+//! failure map), as typed, serialisable data (`*SweepResults`, ...). They sit above the stages
+//! (no stage uses them) and below the charts ([`crate::charts`] draws their results); the
+//! commands that write their files, data and charts, are [`crate::pipeline::sweep`] and
+//! [`crate::pipeline::report`]. (The timings of `cargo bench` against peer tools are the
+//! crate's `benches/`, not these.)
 //!
 //! * [`fab`]: quantization, the STL heightfield and the GDSII tracing, each against a truth
 //!   computed another way (`doefab bench fab`).

@@ -79,7 +79,7 @@ pub struct TilingRun {
 
 /// Everything [`run`] measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct TilingBench {
+pub struct TilingSweep {
     pub units: String,
     pub decoder: String,
     pub options: TilingOptions,
@@ -159,7 +159,7 @@ fn compare(y: &Image<f32>, reference: &[f64]) -> (f64, f64) {
 /// Runs the sweep (module docs) with the decoder file (or built-in name) `decoder` on the CPU, on
 /// a capture simulated through the paper's measured PSF, calling `tick` before each step
 /// ([`steps`] in all).
-pub fn run(decoder: &Path, opts: &TilingOptions, mut tick: impl FnMut(&str)) -> Result<TilingBench> {
+pub fn run(decoder: &Path, opts: &TilingOptions, mut tick: impl FnMut(&str)) -> Result<TilingSweep> {
     if opts.size == 0 || !opts.size.is_multiple_of(SIZE_MULTIPLE) {
         return Err(Error::param("size", format!("{} px; expected a positive multiple of 16", opts.size)));
     }
@@ -201,7 +201,7 @@ pub fn run(decoder: &Path, opts: &TilingOptions, mut tick: impl FnMut(&str)) -> 
             max_abs,
         });
     }
-    Ok(TilingBench {
+    Ok(TilingSweep {
         units: "differences against the f64 one-pass output (1 = the sensor's clipping level); times in s; sizes in pixels"
             .into(),
         decoder: decoder.display().to_string(),

@@ -78,7 +78,7 @@ pub struct Trial {
 
 /// Everything [`run`] measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RegistrationBench {
+pub struct RegistrationSweep {
     pub units: String,
     pub design_samples: usize,
     pub design_pitch: f64,
@@ -132,7 +132,7 @@ fn params(axis: &str, value: f64, seed: u64) -> (SimulateParams, usize) {
 }
 
 /// Runs every trial (module docs), calling `tick` before each ([`steps`] in all).
-pub fn run(mut tick: impl FnMut(&str)) -> Result<RegistrationBench> {
+pub fn run(mut tick: impl FnMut(&str)) -> Result<RegistrationSweep> {
     let axes = axes();
     let opts = RegisterOptions::default();
     let mut trials = Vec::new();
@@ -192,7 +192,7 @@ pub fn run(mut tick: impl FnMut(&str)) -> Result<RegistrationBench> {
         }
     }
     let count = |o: &str| trials.iter().filter(|t| t.outcome == o).count();
-    Ok(RegistrationBench {
+    Ok(RegistrationSweep {
         units: "shift errors in design samples (4.29 um), rotation errors in degrees, times in s; axis values in their units".into(),
         design_samples: SAMPLES,
         design_pitch: PAPER_PITCH,

@@ -8,7 +8,7 @@
 //! midpoint rule, so `s` is also their pupil grid; each of them at three paddings of its FFT
 //! window, 1.25, its own and 3 times the pupil's side), forced past its validity guard so that the
 //! error where it refuses is seen; the guard's verdict is recorded with each run. A time budget
-//! sets how far each series goes (see [`BenchOptions::budget`]).
+//! sets how far each series goes (see [`SweepOptions::budget`]).
 //!
 //! The error is the worst channel's relative L2 against a reference that is itself checked: the
 //! matrix DFT in f64 with Gauss-Legendre pixels at `s_max + 2` and `s_max + 4` sub-samples; the
@@ -147,16 +147,16 @@ fn fft_rate(w: usize) -> f64 {
     0.25 * crate::optics::plan::fft_cost(w) / t.elapsed().as_secs_f64().max(1e-9)
 }
 
-/// What [`run_bench`] sweeps and how long it may take.
+/// What [`run_sweep`] sweeps and how long it may take.
 #[derive(Debug, Clone, PartialEq)]
-pub struct BenchOptions {
+pub struct SweepOptions {
     /// Wall-clock seconds for the whole run, the charts and the JSON included. The reference
     /// runs first, whatever the budget (every error is measured against it); then each plan and
     /// each configuration of the sweep runs only where its predicted time ([`Costs`]) ends within
     /// the budget, less [`WRITE_SECONDS`] for the files: the plans from the whole, the sweep
     /// from equal shares of what the plans leave to its eight series (a series stops at the
     /// first sub-sampling that would end past its share, or whose FFT window exceeds
-    /// [`MAX_SIDE`], memory). What is left out is listed in [`PsfBenchResults::skipped`] with why.
+    /// [`MAX_SIDE`], memory). What is left out is listed in [`PsfSweepResults::skipped`] with why.
     pub budget: f64,
     /// The largest sub-sampling of the sweep (the reference runs at two more and four more).
     pub max_subsample: usize,
@@ -164,9 +164,9 @@ pub struct BenchOptions {
     pub tolerances: Vec<f64>,
 }
 
-impl Default for BenchOptions {
-    fn default() -> BenchOptions {
-        BenchOptions { budget: 300.0, max_subsample: 5, tolerances: vec![1e-2, 1e-3, 1e-4] }
+impl Default for SweepOptions {
+    fn default() -> SweepOptions {
+        SweepOptions { budget: 300.0, max_subsample: 5, tolerances: vec![1e-2, 1e-3, 1e-4] }
     }
 }
 
@@ -203,7 +203,7 @@ pub struct PlanPoint {
 
 /// Everything one `bench psf` run measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PsfBenchResults {
+pub struct PsfSweepResults {
     /// Units of the numbers below.
     pub units: String,
     /// DOE samples per side, its pitch (m), the aperture (m), the F-number and the
@@ -216,7 +216,7 @@ pub struct PsfBenchResults {
     pub crop: usize,
     pub budget_seconds: f64,
     pub reference: Reference,
-    pub points: Vec<BenchPoint>,
+    pub points: Vec<PsfSweepPoint>,
     pub plans: Vec<PlanPoint>,
     /// Plans that miss their tolerance: the plan runs only what its guards accept, so each is a
     /// silent failure.
@@ -227,7 +227,7 @@ pub struct PsfBenchResults {
 
 /// One timed run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct BenchPoint {
+pub struct PsfSweepPoint {
     /// Method, precision and (FFT methods) padding, as the charts name it.
     pub series: String,
     pub method: String,
@@ -298,9 +298,9 @@ pub fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
     front
 }
 
-/// How many times [`run_bench`] calls its `tick` (for a progress bar): the reference, each
+/// How many times [`run_sweep`] calls its `tick` (for a progress bar): the reference, each
 /// plan, each configuration of the sweep (run or skipped).
-pub fn steps(opts: &BenchOptions) -> usize {
+pub fn steps(opts: &SweepOptions) -> usize {
     1 + opts.tolerances.len() + CONFIGS.len() * opts.max_subsample
 }
 
@@ -340,14 +340,14 @@ fn gauss_legendre_run(system: &OpticalSystem, doe: &Grid, s: usize) -> Result<Ps
     simulate(&sys, doe, Method::MatrixDft, &Options::default())
 }
 
-/// Runs the benchmark on `doe` in `system` (see the module docs), calling `tick` with a
+/// Runs the sweep on `doe` in `system` (see the module docs), calling `tick` with a
 /// description before each step ([`steps`] in all).
-pub fn run_bench(
+pub fn run_sweep(
     system: &OpticalSystem,
     doe: &Grid,
-    opts: &BenchOptions,
+    opts: &SweepOptions,
     mut tick: impl FnMut(&str),
-) -> Result<PsfBenchResults> {
+) -> Result<PsfSweepResults> {
     if opts.max_subsample == 0 || opts.budget.is_nan() || opts.budget <= 0.0 {
         return Err(crate::error::Error::param(
             "bench",
@@ -454,7 +454,7 @@ pub fn run_bench(
             let (psf, seconds) = timed(|| simulate(&sys, doe, method, &run_opts))?;
             costs.observe(method, Costs::work(method, precision, &sys, doe), seconds);
             let pupil_pitch = if method == Method::MatrixDft { sys.pupil_pitch } else { sys.sample_pitch() };
-            points.push(BenchPoint {
+            points.push(PsfSweepPoint {
                 series,
                 method: method.name().into(),
                 precision: precision.name().into(),
@@ -485,7 +485,7 @@ pub fn run_bench(
             plan.time_ratio = Some(plan.seconds / c.seconds);
         }
     }
-    Ok(PsfBenchResults {
+    Ok(PsfSweepResults {
         units: "lengths in m, times in s, errors as relative L2 (worst channel)".into(),
         doe_samples: doe.values().nrows(),
         doe_pitch: doe.pitch()[0],

@@ -188,7 +188,7 @@ pub struct PaperMark {
 
 /// Everything [`run_maps`] measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct StabilityBenchResults {
+pub struct StabilitySweepResults {
     pub units: String,
     pub tolerance: f64,
     /// The truth and the scene, in words.
@@ -559,13 +559,13 @@ pub fn run_map(opts: &MapOptions, kind: MapKind, mut tick: impl FnMut(&str)) -> 
 }
 
 /// The report of `maps` run with `opts`, naming the maps `left_out` (by a time budget).
-pub fn report(opts: &MapOptions, maps: Vec<StabilityMap>, left_out: Vec<String>) -> StabilityBenchResults {
+pub fn report(opts: &MapOptions, maps: Vec<StabilityMap>, left_out: Vec<String>) -> StabilitySweepResults {
     let base = scene();
     let paper = PAPER_WAVELENGTHS
         .iter()
         .map(|&l| PaperMark { wavelength: l, lens_sampling_ratio: PAPER_PITCH / (l * PAPER_F_NUMBER) })
         .collect();
-    StabilityBenchResults {
+    StabilitySweepResults {
         units: "lengths in m; errors as relative L2; ratios and Fresnel numbers dimensionless".into(),
         tolerance: opts.tolerance,
         truth: "the same pupil samples to the same sensor points: for fresnel the matrix DFT (exact discrete \
@@ -587,7 +587,7 @@ pub fn report(opts: &MapOptions, maps: Vec<StabilityMap>, left_out: Vec<String>)
 
 /// Runs the eight maps of [`MAPS`] (module docs), calling `tick` before each run ([`steps`] in
 /// all).
-pub fn run_maps(opts: &MapOptions, mut tick: impl FnMut(&str)) -> Result<StabilityBenchResults> {
+pub fn run_maps(opts: &MapOptions, mut tick: impl FnMut(&str)) -> Result<StabilitySweepResults> {
     let maps = MAPS.iter().map(|&kind| run_map(opts, kind, &mut tick)).collect::<Result<Vec<_>>>()?;
     Ok(report(opts, maps, Vec::new()))
 }
