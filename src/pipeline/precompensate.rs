@@ -62,7 +62,12 @@ pub const MIN_LEVEL_SAMPLES: usize = 16;
 #[derive(Debug, Clone)]
 pub enum ModelSource {
     /// A scan of the part, compared here.
-    Scan { path: PathBuf, options: ScanOptions },
+    Scan {
+        /// The scan file (any format `doefab compare` reads).
+        path: PathBuf,
+        /// How to read it: pitch and height units for files that carry none, checks.
+        options: ScanOptions,
+    },
     /// The `compare.json` that `doefab compare` wrote.
     CompareJson(PathBuf),
 }
