@@ -82,13 +82,19 @@ pub struct Costs {
     pub probe: f64,
     /// The fabrication sweeps on the paper's 1306^2 design.
     pub fabrication: f64,
+    /// The registration map.
     pub registration: f64,
+    /// The calibration trials.
     pub calibration: f64,
+    /// The decoder tiling sweep of the page (a 512^2 capture, tiles 256 and 384, overlaps 0,
+    /// 32 and 96).
     pub tiling: f64,
     /// The stability maps of [`stability::MAPS`], in order.
     pub maps: [f64; 8],
-    /// The fine-tuning's least run: its setup, then `evaluations` steps each with a validation.
+    /// The fine-tuning's setup: its least run is this, then `evaluations` steps each with a
+    /// validation.
     pub finetune_setup: f64,
+    /// One fine-tuning step with its validation.
     pub finetune_step: f64,
     /// The charts and the files of the page.
     pub files: f64,
@@ -127,9 +133,11 @@ pub struct Part {
 /// How the report kept its budget.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct BudgetRecord {
+    /// The budget, wall-clock seconds for everything ([`ReportOptions::budget`]).
     pub budget_seconds: f64,
-    /// The probe's seconds here and on the machine that measured [`COSTS`].
+    /// The probe's seconds here.
     pub probe_seconds: f64,
+    /// The probe's seconds on the machine that measured [`COSTS`].
     pub probe_measured_seconds: f64,
     /// Every part, in the order they came up.
     pub parts: Vec<Part>,
@@ -226,6 +234,7 @@ impl Scheduler {
 pub struct Figure {
     /// What it is, in words.
     pub label: String,
+    /// The number, in `unit` (`shown` is "n/a" where it is not finite).
     pub value: f64,
     /// Its unit (`s`, `m`, `1` for a pure number).
     pub unit: String,
@@ -237,6 +246,7 @@ pub struct Figure {
 /// reading is made of.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Section {
+    /// The heading.
     pub title: String,
     /// Chart files (SVG) beside the page.
     pub charts: Vec<String>,
@@ -250,19 +260,26 @@ pub struct Section {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Piece {
+    /// Words of the reading, as they are.
     Words(String),
+    /// The figure of this index in [`Page::figures`].
     Figure(usize),
 }
 
 /// The page, as `report.json` holds it.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Page {
+    /// The page's title ("doefab report").
     pub title: String,
+    /// The design of the PSF benchmark and the fabrication sweeps: `built-in:NAME` or its
+    /// file's path.
     pub design: String,
+    /// Every number the page shows; the readings refer to them by index.
     pub figures: Vec<Figure>,
     /// How the budget was kept: every part with its prediction, what it took or that it was
     /// left out.
     pub budget: BudgetRecord,
+    /// The sections, in the page's order: the budget first, then the parts.
     pub sections: Vec<Section>,
 }
 

@@ -44,22 +44,30 @@ pub const SENSOR_PITCH: f64 = 4.29e-6;
 /// A scene prepared for scoring.
 #[derive(Debug, Clone)]
 pub struct SweepScene {
+    /// The scene's name: its folder's name.
     pub name: String,
     /// The capture through the DOE (RGB), 1 = clipping level.
     pub capture: Image,
     /// The bracket merged without the DOE, in the bracket's own frame.
     pub reference: Image,
+    /// The reference registered onto the capture, the gain and the pixel sets scored.
     pub scoring: Scoring,
+    /// How the scene was prepared, as the benchmark's JSON reports it.
     pub preparation: ScenePreparation,
 }
 
 /// How a scene was prepared, or why it could not be (part of the sweep's JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ScenePreparation {
+    /// The scene's name: its folder's name.
     pub name: String,
+    /// The scene folder's path.
     pub dir: String,
+    /// Path of the capture through the DOE; `None` when the scene was refused.
     pub capture: Option<String>,
+    /// Frames of the bracket merged into the reference (0 when the scene was refused).
     pub bracket_frames: usize,
+    /// The HDR merge's warnings.
     pub merge_warnings: Vec<String>,
     /// The registration, gain and pixel sets; `None` when the scene was refused.
     pub footing: Option<Footing>,
@@ -70,8 +78,12 @@ pub struct ScenePreparation {
 /// PSNR of one decoder (or of the capture as it is) on one scene.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Score {
+    /// The scene's name.
     pub scene: String,
+    /// The decoder scored: its path or `built-in:NAME` as given, [`CAPTURE`] for the capture as it
+    /// is, or the fine-tuned decoder's name.
     pub decoder: String,
+    /// PSNR over every scored pixel.
     pub all: Psnr,
     /// `None` when the scene's saturated figures are withheld (too few registered).
     pub saturated: Option<Psnr>,
@@ -209,6 +221,7 @@ fn write_pictures(dir: &Path, scene: &SweepScene, images: &[(String, &Image<f32>
 pub struct FinetuneSweep {
     /// The decoder to start from (a file or `built-in:NAME`).
     pub init: PathBuf,
+    /// The fine-tuning's settings (steps, batch, learning rate, ...).
     pub config: FinetuneConfig,
     /// Score the decoder being fine-tuned on the scenes every this many steps.
     pub evaluate_every: usize,
@@ -227,6 +240,7 @@ pub struct SweepConfig {
     pub psf: PathBuf,
     /// The array of a `.npz` PSF (the paper's: `psf_val`).
     pub psf_key: Option<String>,
+    /// Registration and scoring settings, the same for every scene.
     pub scoring: ScoringOptions,
     /// Fine-tune a decoder on the PSF and score it too.
     pub finetune: Option<FinetuneSweep>,
@@ -235,18 +249,26 @@ pub struct SweepConfig {
 /// The decoder being fine-tuned, scored on the real scenes at one step.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CurvePoint {
+    /// Fine-tuning steps done when scored (0: the starting decoder).
     pub step: usize,
     /// Training time up to this step (scoring excluded), seconds.
     pub seconds: f64,
+    /// The decoder's score on each scene scored, in scene order.
     pub scores: Vec<Score>,
 }
 
 /// The fine-tuning run of a sweep.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FinetuneRun {
+    /// The decoder fine-tuning started from: its path or `built-in:NAME` as given.
     pub init: String,
+    /// Fine-tuning steps run ([`FinetuneConfig::steps`]).
     pub steps: usize,
+    /// Training time per step, seconds: training steps and their validation, scoring on the real
+    /// scenes excluded.
     pub seconds_per_step: f64,
+    /// What it was trained on: the training scenes' description (real HDR images or procedural
+    /// scenes).
     pub training_data: String,
     /// The training images that could not be read and were skipped, each with the reason.
     pub skipped_images: Vec<String>,
@@ -260,10 +282,18 @@ pub struct FinetuneRun {
 /// What `doefab bench decoder` measured (its JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DecoderSweepResults {
+    /// The measured PSF's file, as given.
     pub psf: String,
+    /// What the numbers are in: PSNR in dB, images in units of the capture's clipping level, times
+    /// in seconds.
     pub units: &'static str,
+    /// How negative outputs are scored: as they are in PSNR-L, as 0 in PSNR-gamma.
     pub negatives: &'static str,
+    /// Saturation level, fraction of the capture's clipping level: a pixel with any channel at
+    /// or above it is saturated.
     pub saturation: f64,
+    /// Smallest fraction of the image (0..1) the registration must cover; below it a scene is
+    /// refused.
     pub min_coverage: f64,
     /// Every scene, scored or refused (with the reason).
     pub scenes: Vec<ScenePreparation>,
@@ -271,6 +301,7 @@ pub struct DecoderSweepResults {
     pub decoders: Vec<String>,
     /// Decoder x scene, scene-major, for the scenes scored.
     pub scores: Vec<Score>,
+    /// The fine-tuning run, scored along; `None` without fine-tuning.
     pub finetune: Option<FinetuneRun>,
 }
 

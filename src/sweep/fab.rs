@@ -175,6 +175,7 @@ pub fn steps(opts: &FabSweepOptions) -> usize {
 /// One level count at one wavelength.
 #[derive(Debug, Clone, Serialize)]
 pub struct QuantizationPoint {
+    /// Level count `N` of the quantized staircase.
     pub level_count: usize,
     /// Metres.
     pub wavelength: f64,
@@ -199,15 +200,19 @@ pub struct QuantizationPoint {
 pub struct QuantizationSweep {
     /// What the prediction is scored against.
     pub truth: String,
-    /// Design wavelength, metres; material; design order.
+    /// Design wavelength of the wrap (and of the grating's blaze), metres.
     pub design_wavelength: f64,
+    /// Material, by name.
     pub material: String,
+    /// Design order (multi-order factor `p`) of the wrap and the grating.
     pub order: u32,
     /// Wrap period `p h_2pi`, metres.
     pub period: f64,
+    /// Samples per level of the simulated grating (`M = N * samples_per_level` per period).
     pub samples_per_level: usize,
     /// Largest |simulated - predicted| over the sweep.
     pub max_difference: f64,
+    /// One point per level count and wavelength, level count by level count.
     pub points: Vec<QuantizationPoint>,
 }
 
@@ -220,6 +225,7 @@ pub struct StlPoint {
     pub triangles: usize,
     /// Triangles of the top surface.
     pub top_triangles: usize,
+    /// Vertices of the whole solid.
     pub vertices: usize,
     /// Best of the timed runs of [`heightfield_mesh`], seconds.
     pub seconds: f64,
@@ -236,22 +242,29 @@ pub struct StlPoint {
 /// The STL heightfield sweep.
 #[derive(Debug, Clone, Serialize)]
 pub struct StlSweep {
+    /// What the mesh's error is measured against.
     pub truth: String,
-    /// Samples `[rows, columns]` and pitch `[x, y]` (metres) of the meshed map.
+    /// Samples `[rows, columns]` of the meshed map.
     pub samples: [usize; 2],
+    /// Pitch `[x, y]` of the meshed map, metres.
     pub pitch: [f64; 2],
     /// Triangles of the naive top mesh (two per cell between four samples).
     pub naive_triangles: u64,
+    /// Timed runs per `max_error`; the best is reported.
     pub repeats: usize,
+    /// One point per `max_error`, in the order given.
     pub points: Vec<StlPoint>,
 }
 
 /// One layer of the mask set at one vertex limit; areas in square nanometres.
 #[derive(Debug, Clone, Serialize)]
 pub struct GdsLayerArea {
+    /// GDSII layer number `k`: mask `k` of [`layer_masks`] (bit `M - k` of the level, `M =
+    /// log2 level_count`).
     pub layer: u16,
-    /// Pattern polygons and their vertices, read back from the stream.
+    /// Pattern polygons of the layer, read back from the stream.
     pub polygons: usize,
+    /// Their vertices, summed (distinct vertices, the closing repeat not counted).
     pub vertices: usize,
     /// Sum of the pattern polygons' shoelace areas.
     pub polygon_area: i64,
@@ -264,9 +277,13 @@ pub struct GdsLayerArea {
 /// One vertex limit of the GDSII mask set.
 #[derive(Debug, Clone, Serialize)]
 pub struct GdsPoint {
+    /// The vertex limit: the most vertices of one polygon the writer may emit
+    /// ([`MaskSetOptions::max_vertices`]).
     pub max_vertices: usize,
-    /// Pattern polygons and vertices over all layers (alignment crosses not counted).
+    /// Pattern polygons over all layers, read back from the stream (alignment crosses not
+    /// counted).
     pub polygons: usize,
+    /// Their vertices, summed (distinct vertices, the closing repeat not counted).
     pub vertices: usize,
     /// The most vertices of one polygon, read back.
     pub largest_polygon: usize,
@@ -276,33 +293,46 @@ pub struct GdsPoint {
     pub seconds: f64,
     /// Whether the counts read back equal the writer's report.
     pub report_agrees: bool,
+    /// One entry per mask layer, layer 1 first.
     pub layers: Vec<GdsLayerArea>,
 }
 
 /// The GDSII sweep.
 #[derive(Debug, Clone, Serialize)]
 pub struct GdsSweep {
+    /// What the polygons' areas are compared with.
     pub truth: String,
+    /// Level count of the mask set.
     pub level_count: usize,
-    /// Writer grid, metres, and the level map's samples `[rows, columns]`.
+    /// Writer grid (pixel pitch) of the mask set, metres.
     pub pitch: f64,
+    /// The level map's samples `[rows, columns]` at the writer grid.
     pub samples: [usize; 2],
+    /// Timed runs per vertex limit; the best is reported.
     pub repeats: usize,
     /// Largest |polygon area - bitmap area| over every layer and limit, nm^2.
     pub max_area_difference: i64,
+    /// One point per vertex limit, in the order given.
     pub points: Vec<GdsPoint>,
 }
 
 /// The whole sweep. Deterministic but for the `seconds` fields.
 #[derive(Debug, Clone, Serialize)]
 pub struct FabSweepResults {
+    /// What the numbers are in: lengths and heights in metres, times in seconds, file sizes in
+    /// bytes, GDSII areas in square nanometres.
     pub units: String,
-    /// The design, its samples `[rows, columns]` and pitch `[x, y]` (metres).
+    /// The design: `built-in:NAME` or its file's path.
     pub design: String,
+    /// The design's samples `[rows, columns]`.
     pub design_samples: [usize; 2],
+    /// The design's pitch `[x, y]`, metres.
     pub design_pitch: [f64; 2],
+    /// The quantization sweep: predicted against simulated efficiency.
     pub quantization: QuantizationSweep,
+    /// The STL heightfield sweep: triangles and time against the measured height error.
     pub stl: StlSweep,
+    /// The GDSII sweep: polygons, file size and time against the vertex limit, areas checked.
     pub gds: GdsSweep,
 }
 
@@ -552,7 +582,9 @@ fn top_triangle_count(mesh: &Mesh) -> usize {
 /// of the first point dropped), database units.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Boundary {
+    /// GDSII layer number.
     pub layer: u16,
+    /// The distinct vertices `[x, y]`, database units (1 nm), in the stream's order.
     pub points: Vec<[i32; 2]>,
 }
 

@@ -43,12 +43,17 @@ pub mod tiling;
 /// the values tried, in that unit.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SweepAxis {
+    /// The swept quantity ("noise", "rotation", "frames", "read noise", ...): what a trial's
+    /// `axis` names.
     pub name: String,
+    /// The unit of `values` ("nm", "um", "deg", "count", "fraction", "% of full scale", ...).
     pub unit: String,
+    /// The values tried, in `unit`, in the order swept.
     pub values: Vec<f64>,
 }
 
 impl SweepAxis {
+    /// An axis named `name`, in `unit`, over `values`.
     pub fn new(name: &str, unit: &str, values: &[f64]) -> SweepAxis {
         SweepAxis { name: name.into(), unit: unit.into(), values: values.to_vec() }
     }

@@ -70,9 +70,9 @@ const REPEAT_SECONDS: f64 = 2.0;
 /// design on two cores shared with other builds).
 pub const WRITE_SECONDS: f64 = 2.0;
 
-/// The wall time [`timed`] takes for a configuration whose one run takes `t` seconds: the
+/// The wall time `timed` takes for a configuration whose one run takes `t` seconds: the
 /// warm-up and the first timed run, then more while the time spent stays within
-/// [`REPEAT_SECONDS`], up to [`REPEATS`] timed runs.
+/// `REPEAT_SECONDS` (2 s), up to `REPEATS` (3) timed runs.
 pub fn timed_wall(t: f64) -> f64 {
     let mut runs = 2;
     while runs < 1 + REPEATS && runs as f64 * t <= REPEAT_SECONDS {
@@ -177,19 +177,27 @@ pub struct Reference {
     pub subsamples: [usize; 2],
     /// Worst channel's relative L2 between the two runs.
     pub difference: f64,
+    /// Wall-clock seconds of the reference run (the second), run once.
     pub seconds: f64,
 }
 
 /// The automatic plan at one tolerance, run and scored like the sweep.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PlanPoint {
+    /// The tolerance the plan is made for: the largest relative L2 error it may give.
     pub tolerance: f64,
+    /// The method the plan picked (`matrix_dft`, `fresnel`, `angular_spectrum`, ...).
     pub method: String,
+    /// The precision the plan picked (`f32` or `f64`).
     pub precision: String,
+    /// Sub-samples per pixel and axis the plan picked.
     pub subsample: usize,
+    /// Pupil sample pitch of the plan's system, metres: the matrix DFT's; a transfer-function
+    /// method samples at `sensor_pitch / subsample` instead.
     pub pupil_pitch: f64,
     /// The plan's own error estimate.
     pub estimated_error: f64,
+    /// Seconds of the plan's run: the fastest of the timed runs.
     pub seconds: f64,
     /// Worst channel's relative L2 against the reference.
     pub error: f64,
@@ -206,17 +214,26 @@ pub struct PlanPoint {
 pub struct PsfSweepResults {
     /// Units of the numbers below.
     pub units: String,
-    /// DOE samples per side, its pitch (m), the aperture (m), the F-number and the
-    /// wavelengths (m).
+    /// DOE samples per side (rows).
     pub doe_samples: usize,
+    /// The DOE's pitch along x, metres.
     pub doe_pitch: f64,
+    /// The aperture diameter `D`, metres.
     pub aperture: f64,
+    /// The working F-number `F# = g / D`.
     pub f_number: f64,
+    /// The wavelengths, metres.
     pub wavelengths: Vec<f64>,
+    /// Sensor window, pixels per side.
     pub crop: usize,
+    /// [`BenchOptions::budget`]: the wall-clock budget of the whole run, seconds.
     pub budget_seconds: f64,
+    /// The reference and how far it is from converged.
     pub reference: Reference,
+    /// Every run of the sweep, series by series, sub-sampling by sub-sampling (skipped ones left
+    /// out).
     pub points: Vec<PsfSweepPoint>,
+    /// One per tolerance whose plan ran, in the order given.
     pub plans: Vec<PlanPoint>,
     /// Plans that miss their tolerance: the plan runs only what its guards accept, so each is a
     /// silent failure.
@@ -230,7 +247,9 @@ pub struct PsfSweepResults {
 pub struct PsfSweepPoint {
     /// Method, precision and (FFT methods) padding, as the charts name it.
     pub series: String,
+    /// The method (`matrix_dft`, `fresnel`, `angular_spectrum`).
     pub method: String,
+    /// The precision (`f32` or `f64`).
     pub precision: String,
     /// FFT window side over the pupil samples' side as run (the nominal padding rounded up to
     /// a fast FFT size; 1 for the matrix DFT, which has none).
@@ -242,6 +261,7 @@ pub struct PsfSweepPoint {
     pub pixel_rule: String,
     /// Pupil sample pitch the method used, metres.
     pub pupil_pitch: f64,
+    /// Seconds of the run: the fastest of the timed runs after a warm-up.
     pub seconds: f64,
     /// Worst channel's relative L2 against the converged reference.
     pub error: f64,

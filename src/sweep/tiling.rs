@@ -66,26 +66,38 @@ impl Default for TilingOptions {
 pub struct TilingRun {
     /// `f32` or `f64`.
     pub precision: String,
-    /// Tile side and overlap, pixels (`None`: one pass over the whole image).
+    /// Tile side, pixels (`None`: one pass over the whole image).
     pub tile: Option<usize>,
+    /// Overlap, pixels: the context a tile adds on each side of its core (core side `tile - 2
+    /// overlap`); `None`: one pass over the whole image.
     pub overlap: Option<usize>,
+    /// Network passes run: the tiles, or 1 untiled.
     pub passes: usize,
+    /// Wall-clock seconds of the reconstruction.
     pub seconds: f64,
-    /// Against the f64 one-pass reference: relative L2 and largest absolute difference (output
-    /// units, 1 = the sensor's clipping level).
+    /// Relative L2 distance from the f64 one-pass reference over the whole image,
+    /// `||y - y_ref|| / ||y_ref||`.
     pub relative_l2: f64,
+    /// The largest absolute difference from the f64 one-pass reference, output units (1 = the
+    /// sensor's clipping level).
     pub max_abs: f64,
 }
 
 /// Everything [`run`] measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TilingSweep {
+    /// What the numbers are in: differences against the f64 one-pass output (1 = the sensor's
+    /// clipping level), times in seconds, sizes in pixels.
     pub units: String,
+    /// The decoder: its file's path or `built-in:NAME`, as given.
     pub decoder: String,
+    /// The sweep's settings.
     pub options: TilingOptions,
+    /// [`RECEPTIVE_RADIUS`]: the bound of the U-Net's receptive-field radius, pixels.
     pub receptive_radius: usize,
     /// The f64 one-pass reference's time, s.
     pub reference_seconds: f64,
+    /// Every f32 reconstruction: untiled first, then each `(tile, overlap)` pair measured.
     pub runs: Vec<TilingRun>,
     /// `(tile, overlap)` pairs skipped as too costly (over [`MAX_COST`] passes' worth) or
     /// impossible (`tile <= 2 overlap`).
