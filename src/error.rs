@@ -17,7 +17,7 @@
 //!   names which condition fails (sampling, aliasing, conditioning, ...).
 //! * [`Error::Registration`]: a scan or profile could not be placed on its design;
 //!   [`Refusal`] says why (no match, ambiguous, featureless, not trusted, no overlap).
-//! * [`Error::TypedData`]: the data themselves (arrays, images, scans, profiles, PSFs; not the file
+//! * [`Error::Data`]: the data themselves (arrays, images, scans, profiles, PSFs; not the file
 //!   that held them) cannot be used. [`DataCause`] says how:
 //!   [`NotFinite`](DataCause::NotFinite) (NaN, infinite or unmeasured samples where a value is
 //!   needed), [`Empty`](DataCause::Empty) (nothing to work on), [`TooFew`](DataCause::TooFew)
@@ -73,15 +73,10 @@ pub enum Error {
         /// The range or set the value must lie in, where the check is one.
         allowed: Option<Allowed>,
     },
-    /// The data themselves (not the file) cannot be used, in the modules not yet converted to
-    /// [`Error::TypedData`] (profile and scan comparison, scan registration, fine-tuning):
-    /// transitional, to be replaced by it.
-    #[error("{0}")]
-    Data(String),
     /// The data themselves (not the file) cannot be used: NaN, implausible values, empty
     /// regions, sizes that disagree; [`DataCause`] says which.
     #[error("{what}")]
-    TypedData { cause: DataCause, what: String },
+    Data { cause: DataCause, what: String },
     /// A numerical method would run outside its validity range (sampling, aliasing, conditioning).
     #[error("outside the method's validity: {what}")]
     Validity { condition: Condition, what: String },
@@ -333,21 +328,23 @@ impl Error {
     }
     /// This error with its message passed through `f` (to name the file or scene it concerns
     /// before it, or add a note after it), its variant and cause kept. The message is the
-    /// whole text of [`Error::TypedData`], [`Error::Limit`] and [`Error::Options`]; of the other
-    /// variants it is the part after their fixed prefix (an [`Error::Io`] is returned as it
-    /// is).
+    /// whole text of [`Error::Data`], [`Error::Limit`] and [`Error::Options`]; of the other
+    /// variants it is the part after their fixed prefix or their file (for [`Error::Io`] the
+    /// operating system's message, its [`std::io::ErrorKind`] kept).
     #[must_use]
     pub fn reworded(mut self, f: impl FnOnce(String) -> String) -> Self {
         let text = match &mut self {
-            Error::TypedData { what, .. }
-            | Error::Data(what)
+            Error::Data { what, .. }
             | Error::Limit { what, .. }
             | Error::Options { what, .. }
             | Error::Format { what, .. }
             | Error::Validity { what, .. }
             | Error::Registration { what, .. } => what,
             Error::Parameter { reason, .. } => reason,
-            Error::Io { .. } => return self,
+            Error::Io { source, .. } => {
+                *source = std::io::Error::new(source.kind(), f(source.to_string()));
+                return self;
+            }
         };
         *text = f(std::mem::take(text));
         self
@@ -370,7 +367,7 @@ impl Error {
     }
     /// Data that cannot be used, for `cause`.
     pub fn data(cause: DataCause, what: impl Into<String>) -> Self {
-        Error::TypedData { cause, what: what.into() }
+        Error::Data { cause, what: what.into() }
     }
     /// A bug: an intermediate the library built breaks its own invariant.
     pub fn internal(what: impl Into<String>) -> Self {
@@ -389,12 +386,16 @@ impl Error {
         }
     }
     /// This error with the byte offset where serde_json stopped in `text` (the whole file the
-    /// [`Error::Format`] names), where it reports one.
+    /// [`Error::Format`] names), where it reports one: where the text ends for a JSON text cut
+    /// short, else the byte it could not take.
     #[must_use]
     pub fn at_json(self, text: &str, e: &serde_json::Error) -> Self {
+        // serde_json's column counts the bytes of the line it has taken: at the end of the text
+        // they are all taken; a byte it refuses is the last one it looked at.
+        let past = usize::from(e.classify() == serde_json::error::Category::Eof);
         match e.line() {
             0 => self,
-            line => self.at(byte_offset(text, line, e.column())),
+            line => self.at(byte_offset(text, line, e.column() + past)),
         }
     }
     /// A TOML file at `path` that does not parse or does not hold the fields its reader
@@ -406,8 +407,8 @@ impl Error {
     }
 }
 
-/// The byte offset of 1-based `line` and `column` (serde_json's column counts bytes, 0 before
-/// the line's first byte), clamped to the text.
+/// The byte offset of 1-based `line` and `column` (the column's byte, 0 before the line's
+/// first byte), clamped to the text.
 fn byte_offset(text: &str, line: usize, column: usize) -> u64 {
     let start: usize = text.split_inclusive('\n').take(line - 1).map(str::len).sum();
     (start + column.saturating_sub(1)).min(text.len()) as u64
@@ -479,6 +480,67 @@ mod tests {
             }
             other => panic!("expected the allowed units, got {other:?}"),
         }
+    }
+
+    #[test]
+    fn json_and_toml_files_that_do_not_parse_state_where() {
+        let dir = tempfile::tempdir().unwrap();
+        // A compare.json cut inside its second line: serde_json stops where the text ends.
+        let json = dir.path().join("compare.json");
+        let text = "{\n  \"scan\": \"s.x3p\",\n  \"scan_sha256\": \"ab";
+        std::fs::write(&json, text).unwrap();
+        let e = crate::pipeline::precompensate::Measured::read(&json).unwrap_err();
+        match &e {
+            Error::Format { cause: FormatCause::Malformed, offset: Some(at), path, .. } => {
+                assert!(path == &json && *at == text.len() as u64, "{e:?}")
+            }
+            other => panic!("expected a malformed JSON file with its offset, got {other:?}"),
+        }
+        // A byte serde_json cannot take: the offset is that byte's.
+        let text = "{\"scan\": x}";
+        std::fs::write(&json, text).unwrap();
+        let e = crate::pipeline::precompensate::Measured::read(&json).unwrap_err();
+        assert!(matches!(e, Error::Format { offset: Some(9), .. }) && &text[9..10] == "x", "{e:?}");
+        // A system TOML whose second line is not `key = value`: the offset is that line's start.
+        let toml = dir.path().join("system.toml");
+        let text = "aperture = \"5 mm\"\nfocal_length 35mm\n";
+        std::fs::write(&toml, text).unwrap();
+        let base = crate::optics::system::OpticalSystem::default();
+        let e = crate::optics::system::OpticalSystem::read_toml(&toml, &base).unwrap_err();
+        match &e {
+            Error::Format { cause: FormatCause::Malformed, offset: Some(at), .. } => {
+                let line2 = text.find('\n').unwrap() as u64 + 1;
+                assert!((line2..text.len() as u64).contains(at), "{e:?}")
+            }
+            other => panic!("expected a malformed TOML file with its offset, got {other:?}"),
+        }
+        assert_eq!(byte_offset("ab\ncd\n", 2, 2), 4);
+        assert_eq!(byte_offset("ab", 1, 0), 0);
+    }
+
+    #[test]
+    fn data_limits_and_options_carry_their_cause_and_print_their_message_alone() {
+        let e = crate::Grid::new(ndarray::Array2::zeros((0, 3)), [1e-6; 2], crate::Unit::Metre).unwrap_err();
+        assert!(matches!(e, Error::Data { cause: DataCause::Empty, .. }), "{e:?}");
+        assert_eq!(e.to_string(), "a grid needs at least 1 x 1 samples, got 0 x 3");
+        let e = Error::limit(Resource::Triangles, 5e9, u32::MAX as f64, "5e9 triangles");
+        assert_eq!(e.to_string(), "5e9 triangles");
+        let e = Error::options(&["ev"], OptionsCause::Value, "`ev` must be finite");
+        assert!(
+            matches!(&e, Error::Options { options, cause: OptionsCause::Value, .. } if options == &["ev"])
+        );
+        assert_eq!(e.to_string(), "`ev` must be finite");
+        // Reworded: the cause is kept, the text changes where the message is.
+        let e = Error::data(DataCause::Diverged, "loss is NaN").reworded(|m| format!("{m} at step 3"));
+        assert!(
+            matches!(&e, Error::Data { cause: DataCause::Diverged, what } if what == "loss is NaN at step 3")
+        );
+        let e = Error::param("blend", "2 is above 1").reworded(|m| format!("{m}; see the checkpoint"));
+        assert_eq!(e.to_string(), "invalid blend: 2 is above 1; see the checkpoint");
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "gone");
+        let e = Error::io("a.exr", io).reworded(|m| format!("{m}; see the checkpoint"));
+        assert!(matches!(&e, Error::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound));
+        assert_eq!(e.to_string(), "a.exr: gone; see the checkpoint");
     }
 
     #[test]

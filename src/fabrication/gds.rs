@@ -855,7 +855,7 @@ mod tests {
         };
         assert_eq!(vertices(&e), Some((n + 1.0, n)), "{e:?}");
         let e = s.boundary(1, 0, &more[..2]).unwrap_err();
-        assert!(matches!(e, Error::TypedData { cause: DataCause::TooFew, .. }), "{e:?}");
+        assert!(matches!(e, Error::Data { cause: DataCause::TooFew, .. }), "{e:?}");
         assert!(s.boundary(40000, 0, &pts[..4]).is_err());
         // The signed-length-safe limit keeps the XY record within 32767 bytes.
         assert!(4 + 8 * (SIGNED_LENGTH_MAX_VERTICES + 1) <= i16::MAX as usize);

@@ -375,7 +375,7 @@ impl Psf {
             });
         }
         Psf::new(channels, "file").map_err(|e| match e {
-            Error::TypedData { what, .. } => Error::malformed(path, what),
+            Error::Data { what, .. } => Error::malformed(path, what),
             other => other,
         })
     }
@@ -519,7 +519,7 @@ fn read_exr_psf(path: &Path, given: Option<f64>) -> Result<Psf> {
         });
     }
     Psf::new(channels, "file").map_err(|e| match e {
-        Error::TypedData { what, .. } => Error::malformed(path, what),
+        Error::Data { what, .. } => Error::malformed(path, what),
         other => other,
     })
 }

@@ -295,10 +295,10 @@ fn psnr_matches_the_hand_computed_value() {
     assert!((q.gamma_db - 10.0 * 48.0f64.log10()).abs() < 1e-9, "{q:?}");
     assert_eq!((q.min_output, q.negative_fraction), (-0.5, 1.0 / 48.0));
     let e = psnr(&x, &Image::new(Array3::zeros((4, 5, 3))), None).unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::Shape, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::Shape, .. }), "{e:?}");
     n[[0, 0, 0]] = f64::NAN;
     let e = psnr(&x, &n, None).unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::NotFinite, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::NotFinite, .. }), "{e:?}");
 }
 
 /// `img` seen through `q = A p + b`: each target pixel samples the image at `A^-1 (q - b)`
@@ -491,14 +491,14 @@ fn bad_brackets_are_refused_with_the_reason() {
     let mut odd = frames.clone();
     odd[3].image.values = odd[3].image.values.slice(ndarray::s![..179, .., ..]).to_owned();
     let e = merge(&odd, &times, None, None, &opts).unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::Shape, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::Shape, .. }), "{e:?}");
     let e = e.to_string();
     assert!(e.contains("frame3.png") && e.contains("170 x 179") && e.contains("170 x 180"), "{e}");
     // Mixed bit depths.
     let mut mixed = frames.clone();
     mixed[1].bits = 16;
     let e = merge(&mixed, &times, None, None, &opts).unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::Shape, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::Shape, .. }), "{e:?}");
     assert!(e.to_string().contains("16 bits"), "{e}");
     // No unsaturated frame at the PSF core: where and how many.
     let long: Vec<Capture> = frames[..4].to_vec();
@@ -506,13 +506,13 @@ fn bad_brackets_are_refused_with_the_reason() {
     let n = merged.stats.saturated_everywhere.count;
     assert!(n > 0);
     let e = calibrate_psf(&merged, &PsfOptions { crop: 101, ..Default::default() }).unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::OutOfRange, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::OutOfRange, .. }), "{e:?}");
     let e = e.to_string();
     assert!(e.contains(&format!("{n} samples have no unsaturated frame")) && e.contains("rows"), "{e}");
     // The PSF too close to the edge for the crop window.
     let merged = merge(&frames, &times, Some(&dark), None, &opts).unwrap();
     let e = calibrate_psf(&merged, &PsfOptions { crop: 171, ..Default::default() }).unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::OutOfRange, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::OutOfRange, .. }), "{e:?}");
     assert!(e.to_string().contains("171 x 171"), "{e}");
     assert!(calibrate_psf(&merged, &PsfOptions { crop: 101, ..Default::default() }).is_ok());
 }
@@ -1047,7 +1047,7 @@ fn a_known_shift_and_gain_are_recovered_once_and_every_image_is_scored_on_one_pi
     // An unrelated capture is refused rather than scored.
     let other = procedural_scene(7, 320, 320).mapv(|v| (v as f64 * 0.3).min(1.0));
     let e = prepare(&im(&reference), &im(&other), Some(&psf), &opts).unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::TooFew, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::TooFew, .. }), "{e:?}");
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -302,7 +302,7 @@ fn bad_level_maps_are_refused_without_writing() {
     v[[3, 4]] = 9.0;
     let g = Grid::new(v, [1e-6, 1e-6], Unit::Level).unwrap();
     let e = write_mask_set(&g, 4, 1e-6, &opts, &path).unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::OutOfRange, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::OutOfRange, .. }), "{e:?}");
     let e = e.to_string();
     assert!(e.contains("row 1, column 2") && e.contains('7'), "{e}");
     // Heights are not levels.

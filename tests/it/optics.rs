@@ -488,7 +488,7 @@ fn bad_input_is_refused_with_a_clear_error() {
     v[[100, 90]] = f64::NAN;
     let nan = Grid::new(v, [5e-6; 2], Unit::Metre).unwrap();
     let e = err(&s, &nan, Method::MatrixDft);
-    assert!(matches!(e, Error::TypedData { cause: DataCause::NotFinite, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::NotFinite, .. }), "{e:?}");
     // An aperture larger than the grid.
     assert_eq!(param(&err(&s, &flat(150, 5e-6), Method::MatrixDft)), "aperture");
     // A wavelength outside the material's range names the range.

@@ -164,16 +164,16 @@ fn all_nan_scans_are_refused() {
     let v = Array2::from_elem((4, 5), f64::NAN);
     let e = decode("nan.gsf", &doefab::io::scan::gsf::encode(&v, [1e-6; 2]), &ScanOptions::default())
         .unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::Empty, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::Empty, .. }), "{e:?}");
     assert!(e.to_string().starts_with("nan.gsf: no measured point"), "{e}");
     let e =
         decode("nan.x3p", &doefab::io::scan::x3p::encode(&v, [1e-6; 2]).unwrap(), &ScanOptions::default())
             .unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::Empty, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::Empty, .. }), "{e:?}");
     let t =
         "aISO-1.0\nNumPoints = 2\nNumProfiles = 1\nXscale = 1e-6\nYscale = 1e-6\nZscale = 1\n*\nBAD BAD\n*\n";
     let e = decode("nan.sdf", t.as_bytes(), &ScanOptions::default()).unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::Empty, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::Empty, .. }), "{e:?}");
 }
 
 #[test]
@@ -243,7 +243,7 @@ fn implausible_heights_of_a_stated_unit_warn_and_compare_refuses() {
         s.warnings
     );
     let e = doefab::io::heightmap::check_relief(Path::new("nm.x3p"), &s.grid).unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::OutOfRange, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::OutOfRange, .. }), "{e:?}");
     let e = e.to_string();
     assert!(e.contains("nm.x3p") && e.contains("150 m") && e.contains("beyond a DOE's relief"), "{e}");
     // Through the command: scan-info reads it, compare refuses it.

@@ -248,10 +248,10 @@ fn invalid_inputs_write_nothing() {
     let mut v = Array2::from_elem((5, 5), 0.1e-6);
     v[[3, 1]] = f64::NAN;
     let e = surface_stl(&metre_grid(v.clone(), [1e-6; 2]), &opts, &path).unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::NotFinite, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::NotFinite, .. }), "{e:?}");
     let masked = Grid::from_values_nan_invalid(v, [1e-6; 2], Unit::Metre).unwrap();
     let e = surface_stl(&masked, &opts, &path).unwrap_err();
-    assert!(matches!(e, Error::TypedData { cause: DataCause::NotFinite, .. }), "{e:?}");
+    assert!(matches!(e, Error::Data { cause: DataCause::NotFinite, .. }), "{e:?}");
     assert!(e.to_string().contains("row 3, column 1"), "{e}");
     let ok = metre_grid(Array2::from_elem((5, 5), 0.1e-6), [1e-6; 2]);
     let neg = StlOptions { base_thickness: -1e-6, ..opts };

@@ -1,11 +1,13 @@
 //! The configuration of a fine-tuning run ([`FinetuneConfig`]): its defaults (the paper's
 //! settings, each a named constant) and its checks.
 
+use std::ops::Bound;
+
 use serde::{Deserialize, Serialize};
 
 use crate::decoder::measurement::{Halo, MeasurementModel};
 use crate::decoder::unet::is_trainable;
-use crate::error::{Error, Result};
+use crate::error::{Allowed, Error, Result};
 
 /// Fine-tuning settings (defaults: the paper's).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -215,6 +217,9 @@ impl FinetuneConfig {
 
     pub(super) fn check(&self) -> Result<()> {
         let bad = |n: &str, r: String| Err(Error::param(n, r));
+        let out = |n: &str, allowed: Allowed, r: String| Err(Error::param_in(n, allowed, r));
+        let (open_unit, at_least_0) =
+            (Allowed::within(Bound::Excluded(0.0), Bound::Included(1.0)), Allowed::at_least(0.0));
         if self.crop == 0 || !self.crop.is_multiple_of(16) {
             return bad("crop", format!("{} is not a positive multiple of 16", self.crop));
         }
@@ -222,43 +227,64 @@ impl FinetuneConfig {
             return bad("batch", "batch, checkpoint interval and validation size must be at least 1".into());
         }
         if !(self.lr > 0.0 && self.lr.is_finite()) {
-            return bad("lr", format!("{} is not a positive step size", self.lr));
+            return out("lr", Allowed::positive(), format!("{} is not a positive step size", self.lr));
         }
         if !(0.0..1.0).contains(&self.beta1) || !(0.0..1.0).contains(&self.beta2) {
-            return bad("betas", format!("{} / {} must lie in [0, 1)", self.beta1, self.beta2));
+            return out(
+                "betas",
+                Allowed::within(Bound::Included(0.0), Bound::Excluded(1.0)),
+                format!("{} / {} must lie in [0, 1)", self.beta1, self.beta2),
+            );
         }
         if self.divergence <= 1.0 {
-            return bad("divergence", format!("{} must exceed 1", self.divergence));
+            return out(
+                "divergence",
+                Allowed::within(Bound::Excluded(1.0), Bound::Unbounded),
+                format!("{} must exceed 1", self.divergence),
+            );
         }
         if !(self.pull >= 0.0 && self.pull.is_finite()) {
-            return bad("pull", format!("{} must be finite and >= 0", self.pull));
+            return out("pull", at_least_0.clone(), format!("{} must be finite and >= 0", self.pull));
         }
         if !(self.negative_penalty >= 0.0 && self.negative_penalty.is_finite()) {
-            return bad("negative_penalty", format!("{} must be finite and >= 0", self.negative_penalty));
+            return out(
+                "negative_penalty",
+                at_least_0.clone(),
+                format!("{} must be finite and >= 0", self.negative_penalty),
+            );
         }
         if !(self.blend > 0.0 && self.blend <= 1.0) {
-            return bad("blend", format!("{} must lie in (0, 1]", self.blend));
+            return out("blend", open_unit.clone(), format!("{} must lie in (0, 1]", self.blend));
         }
         if !(self.lr_decay > 0.0 && self.lr_decay <= 1.0) {
-            return bad("lr_decay", format!("{} must lie in (0, 1]", self.lr_decay));
+            return out("lr_decay", open_unit.clone(), format!("{} must lie in (0, 1]", self.lr_decay));
         }
         if !(self.shot_noise >= 0.0 && self.noise_sigma >= 0.0) {
-            return bad(
+            return out(
                 "noise",
+                at_least_0,
                 format!("read {} and shot {} must be >= 0", self.noise_sigma, self.shot_noise),
             );
         }
         if !self.channel_clipping.iter().all(|c| *c > 0.0 && *c <= 1.0) {
-            return bad("channel_clipping", format!("{:?}: each must lie in (0, 1]", self.channel_clipping));
+            return out(
+                "channel_clipping",
+                open_unit,
+                format!("{:?}: each must lie in (0, 1]", self.channel_clipping),
+            );
         }
         if let Some(h) = &self.halo {
             h.check()?;
         }
         if !(self.grad_clip >= 0.0 && self.grad_clip.is_finite()) {
-            return bad("grad_clip", format!("{} must be finite and >= 0 (0: no clipping)", self.grad_clip));
+            return out(
+                "grad_clip",
+                at_least_0.clone(),
+                format!("{} must be finite and >= 0 (0: no clipping)", self.grad_clip),
+            );
         }
         if self.bits.is_some_and(|b| !(1..=16).contains(&b)) {
-            return bad("bits", format!("{:?} must lie in 1..=16", self.bits));
+            return out("bits", Allowed::between(1.0, 16.0), format!("{:?} must lie in 1..=16", self.bits));
         }
         Ok(())
     }

@@ -7,7 +7,7 @@ use serde::Serialize;
 
 use crate::decoder::unet::UNet;
 use crate::decoder::weights::DecoderWeights;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::optics::psf::Psf;
 
 use super::config::{short_run_warning, FinetuneConfig};
@@ -119,7 +119,7 @@ pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepStats)) -> Result
     if let Err(e) = trainer.run(&job.output, on_step) {
         let ckpt = job.output.join(CHECKPOINT);
         return Err(match ckpt.exists() {
-            true => Error::Data(format!("{e}; the last good checkpoint is {}", ckpt.display())),
+            true => e.reworded(|m| format!("{m}; the last good checkpoint is {}", ckpt.display())),
             false => e,
         });
     }

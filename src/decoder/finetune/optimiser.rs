@@ -5,7 +5,7 @@
 use burn::tensor::Tensor;
 
 use crate::decoder::unet::{tensor_values, UNet};
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 
 use super::config::FinetuneConfig;
 
@@ -94,7 +94,7 @@ impl Adam {
         }
         let value = tensor_values(loss.clone().inner())?[0] as f64;
         if !value.is_finite() {
-            return Err(Error::Data(format!("training loss is {value}")));
+            return Err(Error::data(DataCause::Diverged, format!("training loss is {value}")));
         }
         let grads = loss.backward();
         let grads: Vec<Option<Tensor<1>>> = leaves.iter().map(|leaf| leaf.grad(&grads)).collect();
@@ -140,7 +140,7 @@ impl Adam {
         }
         let norm = sum_sq.sqrt();
         if !norm.is_finite() {
-            return Err(Error::Data(format!("the gradient's norm is {norm}")));
+            return Err(Error::data(DataCause::Diverged, format!("the gradient's norm is {norm}")));
         }
         self.last_grad_norm = Some(norm);
         Ok(if norm > self.grad_clip { (self.grad_clip / norm) as f32 } else { 1.0 })

@@ -76,7 +76,7 @@ impl<'a> Trainer<'a> {
                  clipping level"
                     .into(),
             ),
-            ("config".into(), serde_json::to_string(&self.cfg).map_err(|e| Error::Data(e.to_string()))?),
+            ("config".into(), serde_json::to_string(&self.cfg).map_err(|e| Error::internal(e.to_string()))?),
         ]);
         Ok(w)
     }
@@ -92,7 +92,7 @@ impl<'a> Trainer<'a> {
         meta.insert("stale".into(), self.stale.to_string());
         meta.insert(
             "history".into(),
-            serde_json::to_string(&self.history).map_err(|e| Error::Data(e.to_string()))?,
+            serde_json::to_string(&self.history).map_err(|e| Error::internal(e.to_string()))?,
         );
         let mut owned: Vec<(String, NamedTensor)> = w.tensors.clone();
         for (i, name) in self.net.names().iter().enumerate() {

@@ -13,7 +13,7 @@ use crate::decoder::scenes::SceneSource;
 use crate::decoder::unet::{is_trainable, tensor_values, UNet};
 use crate::decoder::weights::{read_safetensors, DecoderWeights};
 use crate::decoder::{to_tensor, weights};
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::image::Image;
 use crate::optics::convolve::Convolver;
 use crate::optics::psf::Psf;
@@ -61,10 +61,10 @@ pub fn simulate_captures(
             let mut g = Lcg(seed);
             let mut scene = source.scene(&mut g, rows, cols)?.values;
             if scene.dim() != (rows, cols, 3) {
-                return Err(Error::Data(format!(
-                    "the scene source gave {:?}, not {rows} x {cols} x 3",
-                    scene.dim()
-                )));
+                return Err(Error::data(
+                    DataCause::Shape,
+                    format!("the scene source gave {:?}, not {rows} x {cols} x 3", scene.dim()),
+                ));
             }
             if g.uniform() < 0.5 {
                 scene.invert_axis(ndarray::Axis(1));
@@ -331,13 +331,17 @@ impl<'a> Trainer<'a> {
 
     fn check_validation(&mut self, val: f64) -> Result<()> {
         if !val.is_finite() {
-            return Err(Error::Data(format!("validation loss is {val} after step {}; stopped", self.step)));
+            return Err(Error::data(
+                DataCause::Diverged,
+                format!("validation loss is {val} after step {}; stopped", self.step),
+            ));
         }
         if val > self.cfg.divergence * self.best_val {
-            return Err(Error::Data(format!(
+            let what = format!(
                 "training diverged: validation loss {val:.4} after step {} exceeds {} x the best {:.4}; stopped",
                 self.step, self.cfg.divergence, self.best_val
-            )));
+            );
+            return Err(Error::data(DataCause::Diverged, what));
         }
         self.best_val = self.best_val.min(val);
         Ok(())
@@ -381,7 +385,7 @@ impl<'a> Trainer<'a> {
             None => None,
         };
         let value = stepped.map_err(|e| match e {
-            Error::Data(m) => Error::Data(format!("{m} at step {}; stopped", self.step + 1)),
+            e @ Error::Data { .. } => e.reworded(|m| format!("{m} at step {}; stopped", self.step + 1)),
             other => other,
         })?;
         if self.cfg.pull > 0.0 {

@@ -5,7 +5,7 @@
 
 use serde::Serialize;
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::grid::profile::median;
 use crate::grid::profile::Profile;
 
@@ -58,7 +58,7 @@ fn fit_line(pts: &[(f64, f64)], sel: impl Fn(usize) -> bool) -> Result<(f64, f64
         }
     }
     if n < 2.0 {
-        return Err(Error::Data(format!("a line needs at least 2 points, {n} selected")));
+        return Err(Error::data(DataCause::TooFew, format!("a line needs at least 2 points, {n} selected")));
     }
     let (mu, mz) = (su / n, sz / n);
     let (mut suu, mut suz) = (0.0, 0.0);
@@ -69,7 +69,10 @@ fn fit_line(pts: &[(f64, f64)], sel: impl Fn(usize) -> bool) -> Result<(f64, f64
         }
     }
     if suu <= 0.0 {
-        return Err(Error::Data("the points selected for the line all lie at one position".into()));
+        return Err(Error::data(
+            DataCause::Singular,
+            "the points selected for the line all lie at one position",
+        ));
     }
     let t = suz / suu;
     Ok((mz - t * mu, t, n as usize))
@@ -79,7 +82,10 @@ fn fit_line(pts: &[(f64, f64)], sel: impl Fn(usize) -> bool) -> Result<(f64, f64
 pub fn level_profile(p: &Profile, method: ProfileLevel) -> Result<(Profile, Levelling)> {
     let pts = p.points();
     if pts.len() < 2 {
-        return Err(Error::Data(format!("the profile has {} measured points: nothing to level", pts.len())));
+        return Err(Error::data(
+            DataCause::TooFew,
+            format!("the profile has {} measured points: nothing to level", pts.len()),
+        ));
     }
     let (mut o, mut t, mut n) = fit_line(&pts, |_| true)?;
     let mut sel: Vec<bool> = vec![true; pts.len()];
@@ -97,7 +103,10 @@ pub fn level_profile(p: &Profile, method: ProfileLevel) -> Result<(Profile, Leve
             let band = (range / 2f64.powi(i + 1)).max(5.0 * sn);
             sel = r.iter().map(|v| *v <= q + band).collect();
             (o, t, n) = fit_line(&pts, |k| sel[k]).map_err(|e| {
-                Error::Data(format!("substrate levelling: the lowest band holds too few points ({e})"))
+                Error::data(
+                    DataCause::TooFew,
+                    format!("substrate levelling: the lowest band holds too few points ({e})"),
+                )
             })?;
         }
     }
@@ -131,7 +140,7 @@ pub fn terraces(p: &Profile) -> Result<Vec<Terrace>> {
     let range = zs.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
         - zs.iter().cloned().fold(f64::INFINITY, f64::min);
     if range.is_nan() || range <= 0.0 {
-        return Err(Error::Data("the profile is flat: no terraces".into()));
+        return Err(Error::data(DataCause::Featureless, "the profile is flat: no terraces"));
     }
     let flat = (5.0 * sn).max(1e-3 * range);
     let min_run = (p.len() / 200).max(5);
@@ -166,16 +175,16 @@ pub fn terraces(p: &Profile) -> Result<Vec<Terrace>> {
         if levels.is_empty() || m - last > merge {
             levels.push((Vec::new(), 0));
         }
-        let lv = levels.last_mut().ok_or_else(|| Error::Data("no level".into()))?;
+        let lv = levels.last_mut().ok_or_else(|| Error::internal("no level"))?;
         lv.0.extend(r.iter().map(|&k| p.z()[k]));
         lv.1 += 1;
         last = m;
     }
     if levels.len() < 2 {
-        return Err(Error::Data(format!(
-            "the profile shows {} terrace level(s): a step height needs at least 2",
-            levels.len()
-        )));
+        return Err(Error::data(
+            DataCause::TooFew,
+            format!("the profile shows {} terrace level(s): a step height needs at least 2", levels.len()),
+        ));
     }
     let stats: Vec<(f64, f64, usize, usize)> = levels
         .iter()
@@ -215,7 +224,7 @@ pub(super) fn profile_variance(pts: &[(f64, f64)]) -> Result<f64> {
     let dd: Vec<f64> = r.windows(2).map(|w| w[1] - w[0]).collect();
     let sdd = (dd.iter().map(|v| v * v).sum::<f64>() / dd.len() as f64).sqrt();
     if sd.is_nan() || sd <= 0.0 || sdd > 0.8 * std::f64::consts::SQRT_2 * sd {
-        return Err(Error::Data(format!(
+        return Err(Error::data(DataCause::Featureless, format!(
             "the profile is featureless: {:.3} nm RMS about its line, with neighbour differences of {:.3} nm RMS \
              (white noise has sqrt 2 times its RMS)",
             sd * 1e9,
@@ -268,6 +277,7 @@ mod tests {
         assert!((v / (0.5 * c * c) - 1.0).abs() < 1e-9, "{v}");
         let mut rng = crate::rng::Lcg(2);
         let noise: Vec<(f64, f64)> = (0..n).map(|k| (k as f64 * 1e-6, c * rng.normal())).collect();
-        assert!(profile_variance(&noise).unwrap_err().to_string().contains("featureless"));
+        let e = profile_variance(&noise).unwrap_err();
+        assert!(matches!(e, Error::Data { cause: DataCause::Featureless, .. }), "{e:?}");
     }
 }

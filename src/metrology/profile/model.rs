@@ -3,7 +3,7 @@
 //! damped Gauss-Newton refinement at a fixed blur, and the covariance of the fitted parameters
 //! (step 2 and 3 of the [module docs](super)).
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::grid::blur::gaussian_blur;
 use crate::grid::Grid;
 use crate::metrology::scan_registration::Sampler;
@@ -207,7 +207,10 @@ pub(super) fn covariance(
     // Inverse by columns, on the matrix scaled to unit diagonal.
     let d: Vec<f64> = (0..m).map(|k| jtj[k * m + k].sqrt()).collect();
     if d.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
-        return Err(Error::Data("the fit is singular: a parameter has no effect on the profile".into()));
+        return Err(Error::data(
+            DataCause::Singular,
+            "the fit is singular: a parameter has no effect on the profile",
+        ));
     }
     let scaled: Vec<f64> = (0..m * m).map(|k| jtj[k] / (d[k / m] * d[k % m])).collect();
     let mut diag = vec![0.0; m];
@@ -226,8 +229,9 @@ pub(super) fn covariance(
         return Ok((e, profile_blur_sigma));
     }
     if singular {
-        return Err(Error::Data(
-            "the fit is singular: the parameters are not determined by the profile".into(),
+        return Err(Error::data(
+            DataCause::Singular,
+            "the fit is singular: the parameters are not determined by the profile",
         ));
     }
     let mut errors = [0.0; 5];

@@ -4,7 +4,7 @@
 
 use serde::Serialize;
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::grid::Grid;
 
 use super::model::Ctx;
@@ -120,7 +120,7 @@ impl<'a> DesignIndex<'a> {
         let r0 = idx(lo[1], 1).floor().max(0.0) as usize;
         let r1 = (idx(hi[1], 1).ceil().max(0.0) as usize + 1).min(nr);
         if c0 + 4 > c1 || r0 + 4 > r1 {
-            return Err(Error::Data(format!(
+            return Err(Error::data(DataCause::OutOfRange, format!(
                 "the line from ({:.1}, {:.1}) um along ({:.3}, {:.3}) lies outside the {:.1} x {:.1} um design",
                 start[0] * 1e6,
                 start[1] * 1e6,
@@ -159,7 +159,7 @@ impl<'a> DesignIndex<'a> {
         seen.sort_unstable();
         seen.dedup();
         if seen.len() < 2 {
-            return Err(Error::Data(format!(
+            return Err(Error::data(DataCause::Featureless, format!(
                 "the line crosses {} level(s) of the design ({}): step heights need at least 2; choose a line \
                  across the structure",
                 seen.len(),
@@ -232,12 +232,13 @@ pub(super) fn step_heights(dl: &[f64], heights: &[Vec<f64>], r: f64) -> Result<L
     }
     let present: Vec<usize> = (0..dl.len()).filter(|&l| acc[l].2 >= 3).collect();
     if present.len() < 2 {
-        return Err(Error::Data(format!(
+        let what = format!(
             "the line holds terrace interiors (points {:.1} um or more from any other level) of {} level(s): \
              step heights need at least 2",
             r * 1e6,
             present.len()
-        )));
+        );
+        return Err(Error::data(DataCause::TooFew, what));
     }
     let l0 = present[0];
     let (m0, sd0, n0) = acc[l0];
@@ -309,8 +310,8 @@ mod tests {
         let se = (0.04 / 3.0 + 0.02 / 3.0 / 4.0f64).sqrt();
         assert!(close(l2.step_height.unwrap(), 2.0) && close(l2.step_height_sigma.unwrap(), se), "{l2:?}");
         assert!(close(l2.depth_scale.unwrap(), 2.0) && close(l2.depth_scale_sigma.unwrap(), se), "{l2:?}");
-        let e = step_heights(&dl, &heights[..2], 1e-6).unwrap_err().to_string();
-        assert!(e.contains("of 1 level(s)"), "{e}");
+        let e = step_heights(&dl, &heights[..2], 1e-6).unwrap_err();
+        assert!(matches!(e, Error::Data { cause: DataCause::TooFew, .. }), "{e:?}");
     }
 
     #[test]

@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::grid::blur::gaussian_blur;
 use crate::grid::Grid;
 use crate::metrology::scan_registration::{Registration, Sampler};
@@ -171,7 +171,7 @@ pub(super) fn fit_model(
         ((h0 as f64 - 1.0) * 0.5 - margin as f64) * pd[1],
     ];
     if half[0] <= 0.0 || half[1] <= 0.0 {
-        return Err(Error::Data("the design is too small for the fabrication-model fit".into()));
+        return Err(Error::data(DataCause::TooFew, "the design is too small for the fabrication-model fit"));
     }
     let (sr, sc) = scan.dim();
     let stride = ((scan.valid_count() as f64 / opts.fit_points.max(1) as f64).sqrt().ceil() as usize).max(1);
@@ -190,11 +190,14 @@ pub(super) fn fit_model(
         }
     }
     if pts.len() < 100 {
-        return Err(Error::Data(format!(
-            "only {} scan samples fall in the central {h0} x {w0} design window: nothing to fit the \
+        return Err(Error::data(
+            DataCause::TooFew,
+            format!(
+                "only {} scan samples fall in the central {h0} x {w0} design window: nothing to fit the \
              fabrication model on",
-            pts.len()
-        )));
+                pts.len()
+            ),
+        ));
     }
     // Golden-section search of SSE(sigma) on [0, hi_sigma] to 0.01 design pitches.
     let g = 0.5 * (5f64.sqrt() - 1.0);

@@ -149,9 +149,7 @@ mod tests {
         }
         let scan = simulate_scan(&master, &sp).unwrap();
         match compare_family(&family[..1], &scan, &opts) {
-            Err(Error::Registration { refusal: Refusal::NotTrusted, what: m }) => {
-                assert!(m.contains("not trusted"), "{m}")
-            }
+            Err(Error::Registration { refusal: Refusal::NotTrusted, .. }) => {}
             other => panic!("expected a refusal, got {other:?}"),
         }
     }

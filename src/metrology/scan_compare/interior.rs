@@ -83,9 +83,7 @@ mod tests {
         let scan = simulate_scan(&f, &SimulateParams { noise: 5e-9, ..Default::default() }).unwrap();
         let opts = CompareOptions { aperture: Some(aperture), ..Default::default() };
         match compare(&d, &scan, &opts) {
-            Err(Error::Registration { refusal: Refusal::NotTrusted, what: m }) => {
-                assert!(m.contains("not trusted"), "{m}")
-            }
+            Err(Error::Registration { refusal: Refusal::NotTrusted, .. }) => {}
             other => panic!("expected a registration error, got {other:?}"),
         }
         let mut lenient = opts.clone();

@@ -4,7 +4,7 @@
 
 use ndarray::Array2;
 
-use crate::error::{Error, Result};
+use crate::error::{DataCause, Error, Result};
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::metrology::scan_registration::Registration;
 
@@ -59,7 +59,7 @@ pub(super) fn aperture_errors(
         }
     }
     if n == 0.0 {
-        return Err(Error::Data("no measured scan sample falls inside the aperture".into()));
+        return Err(Error::data(DataCause::Empty, "no measured scan sample falls inside the aperture"));
     }
     let difference = design.map_values(diff, Unit::Metre)?.with_mask(dvalid)?;
     Ok(ApertureErrors {
@@ -119,7 +119,7 @@ pub(super) fn design_frame(
         })
         .collect();
     let (n_ap, n_cov) = rows.iter().fold((0, 0), |(a, c), r| (a + r.3, c + r.4));
-    let shape = |e: ndarray::ShapeError| Error::Data(format!("design frame: {e}"));
+    let shape = |e: ndarray::ShapeError| Error::internal(format!("design frame: {e}"));
     let values = Array2::from_shape_vec((nr, nc), rows.iter().flat_map(|r| r.0.iter().copied()).collect())
         .map_err(shape)?;
     let valid = Array2::from_shape_vec((nr, nc), rows.iter().flat_map(|r| r.1.iter().copied()).collect())

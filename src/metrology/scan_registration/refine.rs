@@ -114,7 +114,7 @@ fn accumulate(ctx: &Ctx, pts: &[[f64; 3]], p: &Params, half: [f64; 2]) -> Result
             .map(|s| s.to_string())
             .or_else(|| e.downcast_ref::<String>().cloned())
             .unwrap_or_else(|| "unknown cause".into());
-        Error::Data(format!("registration: a worker accumulating the normal equations panicked ({why})"))
+        Error::internal(format!("registration: a worker accumulating the normal equations panicked ({why})"))
     })?;
     let mut total = Normal::zero();
     for q in &parts {

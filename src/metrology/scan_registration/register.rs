@@ -6,7 +6,7 @@ use std::borrow::Cow;
 
 use serde::Serialize;
 
-use crate::error::{Condition, Error, Refusal, Result};
+use crate::error::{Condition, DataCause, Error, Refusal, Result};
 use crate::grid::Grid;
 
 use super::binning::{bin, level_img};
@@ -122,9 +122,9 @@ pub fn register_pose(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Resu
             let (img, w) = bin(design, [pd[0] * g as f64, pd[1] * g as f64]);
             let valid =
                 ndarray::Array2::from_shape_vec((img.rows, img.cols), w.iter().map(|&c| c > 0.0).collect())
-                    .map_err(|e| Error::Data(e.to_string()))?;
+                    .map_err(|e| Error::internal(e.to_string()))?;
             let v = ndarray::Array2::from_shape_vec((img.rows, img.cols), img.v)
-                .map_err(|e| Error::Data(e.to_string()))?;
+                .map_err(|e| Error::internal(e.to_string()))?;
             Cow::Owned(Grid::new(v, img.pitch, design.unit())?.with_mask(valid)?)
         };
         // The last level (design blurred) takes the full point budget; the unblurred pass
@@ -141,7 +141,7 @@ pub fn register_pose(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Resu
         let ctx = Ctx { sampler: &sampler, mirror: coarse.pose.mirror, pd, g: g as f64 };
         fit = Some(refine(&ctx, &pts, &mut p, dr.max(dc) as f64 * 0.5, fit.is_none())?);
     }
-    let fit = fit.ok_or_else(|| Error::Data("no refinement level ran".into()))?;
+    let fit = fit.ok_or_else(|| Error::internal("no refinement level ran"))?;
     let a = p.lin[0];
     let blur = (blur2 + 2.0 * p.lin[4] / a).max(0.0).sqrt();
     let reg = Registration {
@@ -219,7 +219,8 @@ const OBSERVABLE_ROWS: usize = 256;
 /// Refuses a flat design and a scan that is flat or white noise (step 1 of the module docs);
 /// returns the correlation the scan's white noise allows (step 5) and that noise (RMS, metres).
 fn check_observable(design: &Grid, scan: &Grid) -> Result<(f64, f64)> {
-    let (lo, hi) = design.min_max().ok_or_else(|| Error::Data("the design has no valid sample".into()))?;
+    let (lo, hi) =
+        design.min_max().ok_or_else(|| Error::data(DataCause::Empty, "the design has no valid sample"))?;
     if hi <= lo {
         return Err(Error::validity(
             Condition::Registration(Refusal::Featureless),
@@ -403,12 +404,7 @@ mod tests {
         let noisy = simulate_scan(&flat, &SimulateParams { noise: 20e-9, ..Default::default() }).unwrap();
         for s in [flat, noisy] {
             match register(&d, &s, &RegisterOptions::default()) {
-                Err(Error::Validity {
-                    condition: Condition::Registration(Refusal::Featureless),
-                    what: m,
-                }) => {
-                    assert!(m.contains("featureless"), "{m}")
-                }
+                Err(Error::Validity { condition: Condition::Registration(Refusal::Featureless), .. }) => {}
                 other => panic!("expected a refusal, got {other:?}"),
             }
         }
@@ -425,9 +421,7 @@ mod tests {
         let other = crate::grid::blur::gaussian_blur(&other, 3.0 * PAPER_PITCH).unwrap();
         let s = simulate_scan(&other, &SimulateParams { noise: 5e-9, ..Default::default() }).unwrap();
         match register(&paper(200), &s, &RegisterOptions::default()) {
-            Err(Error::Validity { condition: Condition::Registration(Refusal::NoMatch), what: m }) => {
-                assert!(m.contains("does not match"), "{m}")
-            }
+            Err(Error::Validity { condition: Condition::Registration(Refusal::NoMatch), .. }) => {}
             other => panic!("expected a refusal, got {other:?}"),
         }
     }
