@@ -77,10 +77,12 @@ impl<T: FftNum + NumAssign> Plan2d<T> {
     }
 
     /// The side of a square plan (its row count).
+    /// The number of rows (the side of a square plan).
     pub fn len(&self) -> usize {
         self.rows
     }
 
+    /// Whether the plan has no samples.
     pub fn is_empty(&self) -> bool {
         self.rows == 0 || self.cols == 0
     }
@@ -229,10 +231,12 @@ impl<T: FftNum> Plan1d<T> {
         Plan1d { forward: planner.plan_fft_forward(n), inverse: planner.plan_fft_inverse(n) }
     }
 
+    /// The transform's length, samples.
     pub fn len(&self) -> usize {
         self.forward.len()
     }
 
+    /// Whether the transform has no samples.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }

@@ -60,6 +60,8 @@
 //! model, reader and comparison. No file is named for being shared: what several modules of a
 //! folder use is named for what it is (`optics/propagate/method.rs`, `cli/options.rs`).
 
+#![warn(missing_docs)]
+
 pub mod calibration;
 #[cfg(feature = "charts")]
 pub mod charts;
