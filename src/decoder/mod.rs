@@ -1,7 +1,7 @@
-//! The image decoder of the paper: its U-Net ([`unet`]), the weights format ([`weights`]),
-//! the measurement model used to train it ([`measurement`]), reconstruction of captures
-//! ([`reconstruct`]), fine-tuning for one fabricated part's PSF ([`finetune`]) and seeded
-//! procedural HDR scenes to train on without a data set ([`scenes`]). Its sweeps are in
+//! The image decoder of the paper: its U-Net (`unet`), the weights format (`weights`),
+//! the measurement model used to train it (`measurement`), reconstruction of captures
+//! ([`reconstruct`]), fine-tuning for one fabricated part's PSF (`finetune`) and seeded
+//! procedural HDR scenes to train on without a data set (`scenes`). Its sweeps are in
 //! [`crate::sweep`], its charts in [`crate::charts`].
 //!
 //! Images here are `(H, W, 3)` `f32` arrays (row-major, channels last, as the paper's NHWC);
@@ -132,7 +132,7 @@ fn wgpu_device() -> Result<SelectedDevice> {
 }
 
 /// The paper's decoder trained with the simulated PSF, the default starting point of
-/// fine-tuning: compiled into the binary (see [`weights::BUILT_IN`]).
+/// fine-tuning: compiled into the binary (see `weights::BUILT_IN`).
 pub fn default_init() -> std::path::PathBuf {
     std::path::PathBuf::from("built-in:paper-simulated-psf")
 }

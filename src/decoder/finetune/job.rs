@@ -28,14 +28,14 @@ pub struct FinetuneJob {
     pub pitch: f64,
     /// The start decoder (`None`: [`crate::decoder::default_init`]).
     pub init: Option<PathBuf>,
-    /// Real HDR training images (see [`crate::decoder::dataset`]); `None`: procedural scenes.
+    /// Real HDR training images (see `crate::decoder::dataset`); `None`: procedural scenes.
     pub data: Option<PathBuf>,
     /// Validation images (`None`: held out from `data` by name, 1 in `holdout_every`).
     pub validation_data: Option<PathBuf>,
     /// Without `validation_data`, 1 in this many of `data`'s images validate, chosen by the
     /// SHA-256 of their name ([`crate::decoder::dataset::is_validation`]).
     pub holdout_every: usize,
-    /// Panoramas narrower than this are not used (see [`crate::decoder::dataset`]).
+    /// Panoramas narrower than this are not used (see `crate::decoder::dataset`).
     pub min_panorama_width: usize,
     /// Largest white-balance gain of the training views' colour jitter
     /// ([`crate::decoder::dataset::HdrScenes::white_balance`]).

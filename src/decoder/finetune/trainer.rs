@@ -42,7 +42,7 @@ pub struct HistoryEntry {
 
 /// `count` simulated training captures of `crop x crop`, their scenes (the crop plus `conv`'s
 /// margins) drawn from `source` with `rng`, flipped at random and simulated with
-/// [`measure`] (seeds drawn in order, the simulations run in parallel, so the result does not
+/// `measure` (seeds drawn in order, the simulations run in parallel, so the result does not
 /// depend on the thread count). All on the CPU.
 pub fn simulate_captures(
     source: &dyn SceneSource,

@@ -15,7 +15,7 @@ use super::line::{line_length_warning, LineSpec};
 use super::model::{covariance, fit_table, linear_start, normal, refine, Ctx};
 use super::steps::{step_heights, DesignIndex, LevelSteps, MAX_LEVELS};
 
-/// Options of [`compare_profile`].
+/// Options of `compare_profile`.
 #[derive(Debug, Clone, Serialize)]
 pub struct ProfileOptions {
     /// Half-range of the coarse search along the line, metres: how well the profile's start is
@@ -30,7 +30,7 @@ pub struct ProfileOptions {
     /// correlates by 0.5-0.6 with a profile along another direction).
     pub min_correlation: f64,
     /// Refuse below this fraction of the correlation the profile's own noise allows (the trust
-    /// rule of every registration, [`check_trust`]).
+    /// rule of every registration, `check_trust`).
     pub min_correlation_ratio: f64,
     /// Most profile points in the fit (a stride thins the rest).
     pub max_points: usize,
