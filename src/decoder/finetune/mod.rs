@@ -22,6 +22,8 @@
 //! written, so the checkpoint on disk is the last good one. Otherwise the checkpoint (decoder
 //! tensors, Adam moments, step, generator state, history) is written atomically; resuming from
 //! it replays the same batches, so N steps equal N/2 steps plus N/2 resumed, bit for bit.
+//!
+//! [`SceneSource`]: crate::decoder::scenes::SceneSource
 
 mod config;
 mod job;

@@ -21,6 +21,8 @@ impl<'a> Trainer<'a> {
     /// validation loss. Should the blend validate worse than the start (it lies between the
     /// start and the best, so it seldom can), the best validated weights are written instead,
     /// so the decoder written never validates below its start.
+    ///
+    /// [`FinetuneConfig::blend`]: crate::decoder::finetune::FinetuneConfig::blend
     pub fn written_decoder(&self) -> Result<(DecoderWeights, Written)> {
         let mut net = self.net.clone();
         net.set_params(self.best.clone());

@@ -65,6 +65,8 @@ impl TrainingScenes {
     }
 
     /// The training source and, for real images, the validation source ([`Trainer::new`]'s).
+    ///
+    /// [`Trainer::new`]: crate::decoder::finetune::Trainer::new
     pub fn sources(&self) -> (&dyn SceneSource, Option<&dyn SceneSource>) {
         match self {
             TrainingScenes::Real { training, validation } => (training, Some(validation)),

@@ -74,6 +74,10 @@
 //! `max(5 s_n, 1e-3 (max z - min z))` are terraces; terrace means closer than
 //! `max(10 s_n, 2 % of the range)` are one level. Each level's height (the mean of its points)
 //! is given above the lowest level's, with its standard error.
+//!
+//! [`Sampler`]: crate::metrology::scan_registration::Sampler
+//! [`TRUSTED_FRACTION`]: crate::metrology::scan_registration::TRUSTED_FRACTION
+//! [`check_trust`]: crate::metrology::scan_registration::check_trust
 
 mod coarse;
 mod compare;

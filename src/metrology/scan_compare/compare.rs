@@ -69,6 +69,8 @@ pub fn compare(design: &Grid, scan: &Grid, opts: &CompareOptions) -> Result<Comp
 /// featureless, not trusted), or whose part correlates with the member inside the aperture by
 /// less than the registration's `min_correlation` or than [`check_trust`] allows, is returned
 /// as [`Error::Registration`].
+///
+/// [`check_trust`]: crate::metrology::scan_registration::check_trust
 pub fn compare_family(family: &[Reference], scan: &Grid, opts: &CompareOptions) -> Result<Comparison> {
     let first =
         family.first().ok_or_else(|| Error::param("family", "no reference surface to compare with"))?;

@@ -57,6 +57,8 @@ pub fn scan_of(member: Member, mirror: bool, complement: bool) -> String {
 
 /// A candidate surface of [`compare_family`]: a member of the design's family on the design
 /// grid (metres), with its quantization (`None` for a continuous surface).
+///
+/// [`compare_family`]: crate::metrology::scan_compare::compare_family
 #[derive(Debug, Clone)]
 pub struct Reference {
     pub member: Member,

@@ -46,6 +46,9 @@
 //! A depth scale `k` multiplies every phase step of an `N`-level profile exactly as a detuning
 //! does, so the design order's efficiency is Swanson's with `a -> k a`
 //! ([`order_efficiency`]; `sinc^2(k a - m)` for a continuous profile).
+//!
+//! [`Grid::sample_index`]: crate::grid::Grid::sample_index
+//! [`order_efficiency`]: crate::fabrication::quantize::order_efficiency
 
 mod compare;
 mod efficiency;

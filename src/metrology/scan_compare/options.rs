@@ -8,6 +8,9 @@ use crate::metrology::scan_registration::RegisterOptions;
 use super::levels::LevelSpec;
 
 /// Options of [`compare`] and [`compare_family`].
+///
+/// [`compare_family`]: crate::metrology::scan_compare::compare_family
+/// [`compare`]: crate::metrology::scan_compare::compare
 #[derive(Debug, Clone, Serialize)]
 pub struct CompareOptions {
     pub register: RegisterOptions,
@@ -16,6 +19,9 @@ pub struct CompareOptions {
     pub aperture: Option<f64>,
     /// The design's quantization, for the per-level statistics and the efficiency ([`compare`];
     /// [`compare_family`] takes each reference's own).
+    ///
+    /// [`compare`]: crate::metrology::scan_compare::compare
+    /// [`compare_family`]: crate::metrology::scan_compare::compare_family
     pub levels: Option<LevelSpec>,
     /// Design wavelength, material and order, for the efficiency prediction.
     pub optics: WrapSpec,
