@@ -119,6 +119,39 @@ pub struct ProfileComparison {
     pub fit: Vec<[f64; 3]>,
 }
 
+/// Refuses a coarse match below `min_correlation` ([`Refusal::NoMatch`]) or one whose second
+/// peak along the line reaches `max_peak_ratio` of the first ([`Refusal::Ambiguous`]); `along`
+/// and `across` are the search half-widths, metres.
+fn check_coarse_match(
+    peak: f64,
+    peak_ratio: f64,
+    opts: &ProfileOptions,
+    along: f64,
+    across: f64,
+) -> Result<()> {
+    if peak < opts.min_correlation {
+        return Err(Error::registration(
+            Refusal::NoMatch,
+            format!(
+            "the profile does not match the design along the line: best correlation {peak:.3} (below {:.2}) \
+             within +-{:.1} um along and +-{:.1} um across",
+            opts.min_correlation,
+            along * 1e6,
+            across * 1e6
+        ),
+        ));
+    }
+    if peak_ratio > opts.max_peak_ratio {
+        return Err(Error::registration(Refusal::Ambiguous, format!(
+            "the shift along the line is ambiguous: a second correlation peak reaches {:.3} of the first within \
+             +-{:.1} um (the design repeats along the line); narrow the search (`along_search`) or choose another line",
+            peak_ratio,
+            along * 1e6
+        )));
+    }
+    Ok(())
+}
+
 /// Compares a profile (heights in metres) with the `design` (heights in metres) along `line`;
 /// see the module docs.
 ///
@@ -178,26 +211,7 @@ pub fn compare_profile(
     }
     let CoarseMatch { peak, along: is0, across: iv0, sign, .. } = coarse;
     let peak_ratio = second_peak(&coarse.row, (is0 + ns) as usize) / peak;
-    if peak < opts.min_correlation {
-        return Err(Error::registration(
-            Refusal::NoMatch,
-            format!(
-            "the profile does not match the design along the line: best correlation {peak:.3} (below {:.2}) \
-             within +-{:.1} um along and +-{:.1} um across",
-            opts.min_correlation,
-            along * 1e6,
-            across * 1e6
-        ),
-        ));
-    }
-    if peak_ratio > opts.max_peak_ratio {
-        return Err(Error::registration(Refusal::Ambiguous, format!(
-            "the shift along the line is ambiguous: a second correlation peak reaches {:.3} of the first within \
-             +-{:.1} um (the design repeats along the line); narrow the search (`along_search`) or choose another line",
-            peak_ratio,
-            along * 1e6
-        )));
-    }
+    check_coarse_match(peak, peak_ratio, opts, along, across)?;
     let (s0, v0) = (is0 as f64 * ds, iv0 as f64 * ds);
     let p = linear_start(&ctx, &sharp, [s0, v0, sign, 0.0, 0.0]);
     // Observability of the across-line offset.
