@@ -9,10 +9,11 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::decoder::measurement::{measure, Measurement, MeasurementModel};
+use crate::decoder::runtime::to_tensor;
 use crate::decoder::scenes::SceneSource;
 use crate::decoder::unet::{is_trainable, tensor_values, UNet};
+use crate::decoder::weights;
 use crate::decoder::weights::{read_safetensors, DecoderWeights};
-use crate::decoder::{to_tensor, weights};
 use crate::error::{DataCause, Error, Result};
 use crate::image::Image;
 use crate::optics::convolve::Convolver;
