@@ -262,38 +262,23 @@ pub fn fft_freq(k: usize, n: usize, dx: f64) -> f64 {
 /// The smallest length `>= n` whose prime factors are 2, 3 and 5 (fast FFT sizes) and whose
 /// parity is `parity` (0 even, 1 odd; odd lengths are products of 3 and 5 only).
 pub fn good_size(n: usize, parity: usize) -> usize {
-    let mut m = n.max(1);
-    loop {
-        if m % 2 == parity % 2 {
-            let mut r = m;
-            for p in [2, 3, 5] {
-                while r.is_multiple_of(p) {
-                    r /= p;
-                }
-            }
-            if r == 1 {
-                return m;
-            }
-        }
-        m += 1;
-    }
+    (n.max(1)..).find(|&m| m % 2 == parity % 2 && is_fast(m)).unwrap_or(usize::MAX)
 }
 
 /// The smallest `n >= m` of the form `2^a 3^b 5^c` (fast for `rustfft`).
 pub fn fast_len(m: usize) -> usize {
-    let mut n = m.max(1);
-    loop {
-        let mut k = n;
-        for f in [2, 3, 5] {
-            while k.is_multiple_of(f) {
-                k /= f;
-            }
+    (m.max(1)..).find(|&n| is_fast(n)).unwrap_or(usize::MAX)
+}
+
+/// Whether `n`'s prime factors are 2, 3 and 5 only (`n >= 1`).
+fn is_fast(n: usize) -> bool {
+    let mut r = n;
+    for p in [2, 3, 5] {
+        while r.is_multiple_of(p) {
+            r /= p;
         }
-        if k == 1 {
-            return n;
-        }
-        n += 1;
     }
+    r == 1
 }
 
 #[cfg(test)]
