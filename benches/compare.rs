@@ -14,10 +14,10 @@ use std::time::Instant;
 
 use doefab::design::{paper_example, ExampleParams, PAPER_APERTURE, PAPER_PITCH};
 use doefab::io::scan::{decode_scan_raw, scan_from_raw, ScanOptions};
-use doefab::metrology::level::level_plane;
-use doefab::metrology::scan_compare::{compare, CompareOptions};
-use doefab::metrology::scan_registration::register;
-use doefab::metrology::synthetic_scan::{simulate_scan, SimulateParams};
+use doefab::metrology::level_plane;
+use doefab::metrology::register;
+use doefab::metrology::{compare, CompareOptions};
+use doefab::metrology::{simulate_scan, SimulateParams};
 use doefab::pipeline::compare::psf_comparison;
 
 fn main() -> doefab::Result<()> {
@@ -91,7 +91,7 @@ fn main() -> doefab::Result<()> {
     let (filled, _) = doefab::grid::fill::fill_missing(&c.surface)?;
     let t_fill = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let system = doefab::optics::output::system_for(&design);
+    let system = doefab::optics::psf_files::system_for(&design);
     let opts = doefab::optics::Options { allow_invalid: true, ..Default::default() };
     let psf = psf_comparison(&design, &filled, &system, doefab::optics::Method::MatrixDft, &opts)?;
     println!(

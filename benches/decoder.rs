@@ -26,11 +26,11 @@ mod common;
 use std::time::Instant;
 
 use burn::tensor::Device;
-use doefab::decoder::finetune::{procedural_scenes, simulate_captures, Adam, FinetuneConfig};
-use doefab::decoder::measurement::MeasurementModel;
-use doefab::decoder::unet::UNet;
-use doefab::decoder::weights::{tensor_specs, DecoderWeights, NamedTensor};
+use doefab::decoder::MeasurementModel;
+use doefab::decoder::UNet;
 use doefab::decoder::{device, infer, to_tensor};
+use doefab::decoder::{procedural_scenes, simulate_captures, Adam, FinetuneConfig};
+use doefab::decoder::{tensor_specs, DecoderWeights, NamedTensor};
 use doefab::image::Image;
 use doefab::optics::convolve::Convolver;
 use doefab::optics::Psf;

@@ -81,8 +81,8 @@ fn main() -> Result<()> {
 
 /// `fab` on a design at the writer grid against OpenCV (module docs).
 fn writer_grid(design: &Grid, dir: &Path) -> Result<()> {
-    use doefab::fabrication::chain::{run_recipe, DesignSource, FabOptions};
     use doefab::fabrication::recipe::{Output, Recipe};
+    use doefab::fabrication::recipe_run::{run_recipe, DesignSource, FabOptions};
     use doefab::io::heightmap::ReadOptions;
     let fine = design.resample([1e-6, 1e-6], Interpolation::Nearest)?;
     let npy = dir.join("design_1um.npy");

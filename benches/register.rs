@@ -26,9 +26,9 @@ use doefab::charts::metrology::{registration_speed_accuracy, SpeedAccuracyPoint}
 use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
 use doefab::grid::Grid;
 use doefab::io::scan::{decode_scan_raw, scan_from_raw, ScanOptions};
-use doefab::metrology::level::level_plane;
-use doefab::metrology::scan_registration::{register, Pose, RegisterOptions, Registration};
-use doefab::metrology::synthetic_scan::{simulate_scan, SimulateParams};
+use doefab::metrology::level_plane;
+use doefab::metrology::{register, Pose, RegisterOptions, Registration};
+use doefab::metrology::{simulate_scan, SimulateParams};
 
 const RUNS: usize = 5;
 

@@ -9,9 +9,9 @@ use std::path::Path;
 use std::time::Instant;
 
 use doefab::io::scan::{decode_scan_raw, scan_from_raw, zygo, ScanOptions};
-use doefab::metrology::level::{level, level_plane, LevelMethod};
-use doefab::metrology::outliers::nsigma_outliers;
-use doefab::metrology::stats::height_params;
+use doefab::metrology::height_params;
+use doefab::metrology::nsigma_outliers;
+use doefab::metrology::{level, level_plane, LevelMethod};
 use ndarray::Array2;
 
 fn main() -> doefab::Result<()> {

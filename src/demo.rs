@@ -3,7 +3,7 @@
 //! Below the output folder:
 //!
 //! 1. *Fabrication*: the three bundled recipes of `masks/` ([`RECIPES`]), each into a folder of
-//!    its name ([`crate::fabrication::chain::run_recipe`]).
+//!    its name ([`crate::fabrication::recipe_run::run_recipe`]).
 //! 2. *Optics*: `psf/`, the design's RGB PSF as the automatic plan chooses it
 //!    ([`crate::optics::plan`]).
 //! 3. *Metrology*: `metrology/scan.x3p`, a synthetic scan of the part the 8-level recipe makes
@@ -34,10 +34,10 @@ use crate::calibration::psf_extract::{self as pe, PsfCalibration};
 use crate::decoder::finetune::HistoryEntry;
 use crate::decoder::reconstruct::ReconstructOutcome;
 use crate::error::{DataCause, Error, Result};
-use crate::fabrication::chain::{self, ChainParams, DesignSource, FabOptions, FabOutcome, LoadedDesign};
 use crate::fabrication::recipe::Recipe;
-use crate::optics::output::PsfOutcome;
+use crate::fabrication::recipe_run::{self, ChainParams, DesignSource, FabOptions, FabOutcome, LoadedDesign};
 use crate::optics::psf::Psf;
+use crate::optics::psf_files::PsfOutcome;
 use crate::pipeline::compare::CompareOutcome;
 
 /// The bundled recipes (`masks/NAME.toml`) the demo runs, in order.
@@ -164,7 +164,7 @@ pub fn run(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<De
         .iter()
         .map(|name| Ok((name.to_string(), Recipe::read(Path::new(&format!("built-in:{name}")))?)))
         .collect::<Result<Vec<_>>>()?;
-    let fab_steps: u64 = recipes.iter().map(|(_, r)| chain::step_count(r) as u64).sum();
+    let fab_steps: u64 = recipes.iter().map(|(_, r)| recipe_run::step_count(r) as u64).sum();
     let total = fab_steps + PSF_STEPS + METROLOGY_STEPS + LOOP_STEPS + CALIBRATION_STEPS + DECODER_STEPS;
     let mut p = Progress { done: 0, total, report: progress };
     let source = DesignSource::BuiltIn("paper".into());
@@ -173,7 +173,7 @@ pub fn run(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<De
     let mut fabrication = Vec::new();
     for (name, recipe) in &recipes {
         let out = output.join(name);
-        let report = chain::run_recipe(
+        let report = recipe_run::run_recipe(
             &source,
             recipe,
             &out,
@@ -184,7 +184,7 @@ pub fn run(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<De
         folders.fabrication.push((name.clone(), out));
     }
 
-    let design = chain::load_design(&source)?;
+    let design = recipe_run::load_design(&source)?;
     folders.psf = output.join("psf");
     let psf = design_psf(&design, &folders.psf, &mut p)?;
 
@@ -210,11 +210,11 @@ pub fn run(output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<De
 
 /// The optics stage: the design's RGB PSF as the plan chooses it, into `out`.
 fn design_psf(design: &LoadedDesign, out: &Path, p: &mut Progress) -> Result<PsfOutcome> {
-    use crate::optics::{output as psf_out, plan};
-    let system = psf_out::system_for(&design.heights);
+    use crate::optics::{plan, psf_files};
+    let system = psf_files::system_for(&design.heights);
     let plan = plan::plan(&system, &design.heights, &[], plan::DEFAULT_TOLERANCE)?;
     p.show(&format!("PSF of the built-in design by {}", plan.method));
-    let psf = psf_out::plan_and_write(&design.heights, &plan, &[], out, &mut |_| {})?;
+    let psf = psf_files::plan_and_write(&design.heights, &plan, &[], out, &mut |_| {})?;
     p.step("PSF written");
     Ok(psf)
 }
@@ -372,7 +372,7 @@ fn close_the_loop(
         ..Default::default()
     };
     let psf_opts = crate::optics::Options { allow_invalid: true, ..Default::default() };
-    let mut system = crate::optics::output::system_for(&target);
+    let mut system = crate::optics::psf_files::system_for(&target);
     system.aperture = crate::design::PAPER_APERTURE;
     let mut side = |scan: &Path, name: &str| -> Result<LoopSide> {
         let s = crate::io::scan::read_scan(scan, &Default::default())?;

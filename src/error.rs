@@ -50,25 +50,32 @@ pub enum Error {
     /// The operating system refused a read or a write.
     #[error("{path}: {source}")]
     Io {
+        /// The file or folder the operation was on.
         path: PathBuf,
+        /// The operating system's error.
         #[source]
         source: std::io::Error,
     },
     /// A file was read but its content is not what its format promises.
     #[error("{path}: {what}")]
     Format {
+        /// The file whose content fails.
         path: PathBuf,
         /// The byte offset of the offending field (for [`FormatCause::Truncated`], where the
         /// data end), in the file or in the archive member the message names, where the reader
         /// knows it.
         offset: Option<u64>,
+        /// How the content fails its format.
         cause: FormatCause,
+        /// What is wrong, for people: the field and what was expected.
         what: String,
     },
     /// A parameter given by the caller is out of range or inconsistent.
     #[error("invalid {name}: {reason}")]
     Parameter {
+        /// The parameter as the options' field names it (`pitch`, `level_count`).
         name: String,
+        /// Why the value is refused, for people.
         reason: String,
         /// The range or set the value must lie in, where the check is one.
         allowed: Option<Allowed>,
@@ -76,22 +83,53 @@ pub enum Error {
     /// The data themselves (not the file) cannot be used: NaN, implausible values, empty
     /// regions, sizes that disagree; [`DataCause`] says which.
     #[error("{what}")]
-    Data { cause: DataCause, what: String },
+    Data {
+        /// How the data fail.
+        cause: DataCause,
+        /// What is wrong and where, for people.
+        what: String,
+    },
     /// A numerical method would run outside its validity range (sampling, aliasing, conditioning).
     #[error("outside the method's validity: {what}")]
-    Validity { condition: Condition, what: String },
+    Validity {
+        /// The condition the method would violate.
+        condition: Condition,
+        /// The condition's figures (the sampling, the limit), for people.
+        what: String,
+    },
     /// A scan could not be registered to its design: it does not match, the match is
     /// ambiguous (periodic or rotationally symmetric design) or the scan is featureless.
     #[error("registration refused: {what}")]
-    Registration { refusal: Refusal, what: String },
+    Registration {
+        /// Why the registration was refused.
+        refusal: Refusal,
+        /// The correlations or overlap behind the refusal, for people.
+        what: String,
+    },
     /// A size limit would be exceeded: `requested` of `resource` where at most `limit` can be
     /// made, written or computed (both in the resource's unit, see [`Resource`]).
     #[error("{what}")]
-    Limit { resource: Resource, requested: f64, limit: f64, what: String },
+    Limit {
+        /// What is counted.
+        resource: Resource,
+        /// The amount the work would need, in the resource's unit.
+        requested: f64,
+        /// The most that can be made, written or computed, in the resource's unit.
+        limit: f64,
+        /// What would exceed the limit, for people.
+        what: String,
+    },
     /// Options given together that cannot all be honoured; `options` names them as their
     /// fields are named (`response_out`, `response`), and so does the message, in backticks.
     #[error("{what}")]
-    Options { options: Vec<String>, cause: OptionsCause, what: String },
+    Options {
+        /// The options involved, as their fields are named.
+        options: Vec<String>,
+        /// How they conflict.
+        cause: OptionsCause,
+        /// What cannot be honoured, for people.
+        what: String,
+    },
 }
 
 /// How a file's content fails its format.
@@ -118,7 +156,12 @@ pub enum FormatCause {
 #[non_exhaustive]
 pub enum Allowed {
     /// A number between `min` and `max`, each end included, excluded or open.
-    Range { min: Bound<f64>, max: Bound<f64> },
+    Range {
+        /// The lower end.
+        min: Bound<f64>,
+        /// The upper end.
+        max: Bound<f64>,
+    },
     /// One of these names.
     OneOf(Vec<String>),
 }
@@ -286,6 +329,7 @@ pub enum OptionsCause {
 }
 
 impl Error {
+    /// The operating system refused a read or a write of `path`.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Error::Io { path: path.into(), source }
     }
@@ -414,6 +458,7 @@ fn byte_offset(text: &str, line: usize, column: usize) -> u64 {
     (start + column.saturating_sub(1)).min(text.len()) as u64
 }
 
+/// The result of every fallible library function.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 #[cfg(test)]

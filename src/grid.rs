@@ -20,8 +20,8 @@
 
 pub mod blur;
 pub mod fill;
-pub mod par;
 pub mod profile;
+pub mod row_blocks;
 
 use ndarray::{s, Array2};
 use serde::{Deserialize, Serialize};
@@ -122,7 +122,7 @@ impl Grid {
     /// Builds a grid whose non-finite values are marked invalid (how NaN-bearing files arrive).
     pub fn from_values_nan_invalid(values: Array2<f64>, pitch: [f64; 2], unit: Unit) -> Result<Self> {
         let all_finite =
-            par::map_blocks(&values, |_, b| b.iter().all(|v| v.is_finite())).into_iter().all(|f| f);
+            row_blocks::map_blocks(&values, |_, b| b.iter().all(|v| v.is_finite())).into_iter().all(|f| f);
         if all_finite {
             return Grid::new(values, pitch, unit);
         }
@@ -224,7 +224,7 @@ impl Grid {
     }
 
     /// Minimum and maximum over valid samples (NaN values ignored), `None` if none is valid.
-    /// Computed in parallel over row blocks ([`par`]).
+    /// Computed in parallel over row blocks ([`row_blocks`]).
     pub fn min_max(&self) -> Option<(f64, f64)> {
         self.min_max_finite().0
     }
@@ -233,7 +233,7 @@ impl Grid {
     /// ([`Grid::non_finite`] then says which are not).
     pub fn min_max_finite(&self) -> (Option<(f64, f64)>, bool) {
         let start = (f64::INFINITY, f64::NEG_INFINITY, true);
-        let parts = par::map_blocks(&self.values, |r0, b| {
+        let parts = row_blocks::map_blocks(&self.values, |r0, b| {
             let fold = |(lo, hi, finite): (f64, f64, bool), &v: &f64| {
                 (lo.min(v), hi.max(v), finite && v.is_finite())
             };
@@ -249,7 +249,7 @@ impl Grid {
     /// The first non-finite valid value (row-major order), with the count of all of them:
     /// `(count, (row, col))`.
     pub fn non_finite(&self) -> Option<(usize, (usize, usize))> {
-        let parts = par::map_blocks(&self.values, |r0, b| {
+        let parts = row_blocks::map_blocks(&self.values, |r0, b| {
             let mask = self.mask_rows(r0, b.nrows());
             let bad =
                 |(i, j): (usize, usize), v: f64| !v.is_finite() && mask.as_ref().is_none_or(|m| m[[i, j]]);
@@ -488,7 +488,7 @@ fn mirror_array<T: Copy + Send + Sync>(mut a: Array2<T>, flip_x: bool, flip_y: b
         a = a.as_standard_layout().to_owned();
     }
     if flip_x {
-        par::map_blocks_mut(&mut a, |_, mut b| {
+        row_blocks::map_blocks_mut(&mut a, |_, mut b| {
             for mut row in b.rows_mut() {
                 if let Some(r) = row.as_slice_mut() {
                     r.reverse();

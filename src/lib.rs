@@ -21,40 +21,47 @@
 //!   (`calibrate-psf`); PSNR of reconstructions against references, affine registration.
 //! * [`decoder`]: the paper's U-Net decoder: weights, measurement model, reconstruction of
 //!   captures, fine-tuning for a fabricated part's PSF.
-//! * [`bench`](mod@bench): the benchmarks, one module each, calling the stages' public
-//!   functions (no stage uses them).
+//! * [`sweep`]: the sweeps behind `doefab bench ...`, one module each: speed against accuracy,
+//!   and the failure maps of the methods that can fail, calling the stages' public functions
+//!   (no stage uses them).
 //! * [`charts`]: every chart, one file per family, with their shared style (fonts, axes, legends;
-//!   the only drawing code); above the stages and the benchmarks, whose results they draw.
+//!   the only drawing code); above the stages and the sweeps, whose results they draw.
 //! * [`pipeline`]: the commands that take more than one library call (merge, calibrate-psf,
-//!   psf, psf-compare, compare, precompensate, finetune, the benchmarks with their files and
+//!   psf, psf-compare, compare, precompensate, finetune, the sweeps with their files and
 //!   charts), from typed options to typed results.
 //! * [`demo`]: every stage on the built-in design (`doefab demo`), no input needed.
 //! * [`rng`]: the seeded generator behind every stochastic step.
 //! * [`linalg`]: dense linear solves (nalgebra LU) for the least-squares fits.
-//! * [`table`]: two-column tables with units and their monotone (PCHIP) interpolation.
-//! * [`float`]: exact inlined `round` and `floor` for the per-sample passes.
+//! * [`fft`]: planned 1-D and 2-D FFTs (square or rectangular, `f64` or `f32`), the one plan
+//!   layer below the optics and the metrology.
+//! * [`tabulated`]: two-column tables with units and their monotone (PCHIP) interpolation.
+//! * [`rounding`]: exact inlined `round` and `floor` for the per-sample passes.
 //! * [`error`]: the library's error type, with typed causes callers match.
 //!
 //! Names of typed results, one meaning each:
 //!
 //! * `*Outcome`: what a command did, its typed result (what it prints with `--json` and writes
-//!   as its JSON file), e.g. [`fabrication::chain::FabOutcome`], [`demo::DemoOutcome`].
-//! * `*BenchResults`: what a benchmark measured, e.g. [`bench::psf::PsfBenchResults`].
+//!   as its JSON file), e.g. [`fabrication::recipe_run::FabOutcome`], [`demo::DemoOutcome`].
+//! * `*SweepResults`: what a sweep measured, e.g. [`sweep::psf::PsfSweepResults`].
 //! * `*Stats`: the numbers one step records about its run or its input (a frame, a PSF
 //!   channel, a wrap), carried inside an outcome, e.g. [`calibration::hdr_merge::MergeStats`].
 //! * Other results are named for what they are ([`metrology::scan_compare::LevelHeights`],
-//!   [`bench::decoder::FinetuneRun`]).
+//!   [`sweep::decoder::FinetuneRun`]).
 //!
-//! "Report" means only the HTML page of [`pipeline::report`] (`doefab report`).
+//! "Report" means only the HTML page of [`pipeline::report`] (`doefab report`). "Bench" means
+//! only the timings of `benches/` (`cargo bench`, against peer tools) and the command
+//! `doefab bench ...`, whose sweeps are [`sweep`]'s and [`pipeline::sweep`]'s.
 //!
 //! A file name used in several folders names one concept at several layers, the folder saying
 //! which: `fabrication/precompensate.rs` is the physics and `pipeline/precompensate.rs` the
 //! command that runs it (likewise `psf`, `psf_compare`, `finetune`); `cli/X.rs`, `charts/X.rs`
-//! and `bench/X.rs` are stage or benchmark X's commands, charts and measurements;
+//! and `sweep/X.rs` are stage or sweep X's commands, charts and measurements;
 //! `grid/profile.rs`, `io/profile.rs` and `metrology/profile/` are the stylus profile's data
-//! model, reader and comparison; a `shared.rs` holds what its folder's modules share.
+//! model, reader and comparison. No file is named for being shared: what several modules of a
+//! folder use is named for what it is (`optics/propagate/method.rs`, `cli/options.rs`).
 
-pub mod bench;
+#![warn(missing_docs)]
+
 pub mod calibration;
 #[cfg(feature = "charts")]
 pub mod charts;
@@ -65,7 +72,7 @@ pub mod demo;
 pub mod design;
 pub mod error;
 pub mod fabrication;
-pub mod float;
+pub mod fft;
 pub mod grid;
 pub mod image;
 pub mod io;
@@ -75,7 +82,9 @@ pub mod metrology;
 pub mod optics;
 pub mod pipeline;
 pub mod rng;
-pub mod table;
+pub mod rounding;
+pub mod sweep;
+pub mod tabulated;
 pub mod units;
 
 pub use error::{Allowed, Condition, DataCause, Error, FormatCause, OptionsCause, Refusal, Resource, Result};

@@ -22,7 +22,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Condition, Error, Result};
-use crate::table::{column_unit, hermite, pchip_slopes, read_two_columns};
+use crate::tabulated::{column_unit, hermite, pchip_slopes, read_two_columns};
 
 /// A dispersion formula; lengths in the Cauchy and Sellmeier formulas are micrometres, as the
 /// sources give them, a table's wavelengths metres.

@@ -8,7 +8,7 @@ use std::path::Path;
 use doefab::io::heightmap::{heightmap_from_raw, ReadOptions};
 use doefab::io::raw_map::RawMap;
 use doefab::io::scan::{decode_scan_raw, scan_from_raw, ScanOptions};
-use doefab::metrology::level::LevelMethod;
+use doefab::metrology::LevelMethod;
 
 /// Options that let a file with no pitch or unit of its own through to the later stages.
 fn stated() -> ScanOptions {
@@ -27,9 +27,9 @@ pub fn scan(name: &str, data: &[u8]) {
     for opts in [ScanOptions::default(), stated()] {
         let Ok(raw) = decode_scan_raw(path, data, &opts) else { return };
         if let Ok(scan) = scan_from_raw(path, raw, &opts) {
-            let _ = doefab::metrology::info::summarize(path, &scan, LevelMethod::Plane);
+            let _ = doefab::metrology::summarize(path, &scan, LevelMethod::Plane);
             let _ =
-                doefab::metrology::info::summarize(path, &scan, LevelMethod::Substrate { aperture: None });
+                doefab::metrology::summarize(path, &scan, LevelMethod::Substrate { aperture: None });
         }
     }
 }
@@ -54,7 +54,7 @@ pub fn design(name: &str, decoded: doefab::Result<RawMap>) {
 /// without a design (both levellings, the terraces).
 pub fn profile(data: &[u8]) {
     use doefab::io::profile::{parse_profile, ProfileReadOptions};
-    use doefab::metrology::profile::{level_profile, terraces, ProfileLevel};
+    use doefab::metrology::{level_profile, terraces, ProfileLevel};
     let path = Path::new("fuzz.csv");
     for opts in [ProfileReadOptions::default(), ProfileReadOptions { x_unit: Some(1e-6), z_unit: Some(1e-9) }] {
         let Ok(file) = parse_profile(path, data, &opts) else { continue };

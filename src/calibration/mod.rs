@@ -18,10 +18,30 @@
 //! * [`capture_registration`]: the affine map between two views of one scene (tile matching with outlier
 //!   rejection, then least squares).
 
-pub mod capture;
-pub mod capture_registration;
-pub mod clipping;
-pub mod evaluate;
-pub mod hdr_merge;
-pub mod psf_extract;
-pub mod response;
+pub(crate) mod capture;
+pub(crate) mod capture_registration;
+pub(crate) mod clipping;
+pub(crate) mod evaluate;
+pub(crate) mod hdr_merge;
+pub(crate) mod psf_extract;
+pub(crate) mod response;
+
+pub use capture::{
+    read_capture, read_exposures, read_image, read_rgb_exr, write_capture, Capture, ExposureList,
+};
+pub use capture_registration::{
+    luminance, register_affine, register_local, warp, Affine, LocalRegistration, Model, RegisterOptions,
+    Registration,
+};
+pub use evaluate::{
+    evaluate, evaluate_files, prepare, psnr, EvaluateFiles, Evaluation, Footing, Psnr, Score, Scoring,
+    ScoringOptions,
+};
+pub use hdr_merge::{
+    mean_dark, merge, write_tone_mapped, BlackLevel, FrameStats, MergeOptions, MergeStats, Merged, PixelSet,
+    ToneMapStats,
+};
+pub use psf_extract::{
+    calibrate_psf, simulate_pinhole_bracket, Centre, EncircledEnergy, PsfCalibration, PsfOptions,
+};
+pub use response::{recover_response, Response};

@@ -77,8 +77,8 @@ use crate::error::{Allowed, DataCause, Error, Result};
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::image::Image;
 use crate::io::atomic::{write_json, StagedDir};
-use crate::optics::output::stage_psf_files;
 use crate::optics::psf::{Channel, ChannelSummary, Psf};
+use crate::optics::psf_files::stage_psf_files;
 
 /// A sample this many times brighter than all its neighbours is a hot pixel wherever it lies.
 const HOT_RATIO: f64 = 100.0;

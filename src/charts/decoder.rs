@@ -1,10 +1,10 @@
-//! The decoder benchmark's charts (`doefab bench decoder`):
+//! The decoder sweep's charts (`doefab bench decoder`):
 //!
 //! * [`write_decoder_scene_chart`]: decoder x scene, grouped bars of PSNR-L and PSNR-gamma over
 //!   all scored pixels, PSNR-gamma over the saturated ones and the smallest output, one group
 //!   per scored scene (labelled with its coverage), one colour per decoder; refused scenes are
 //!   listed under the chart with their reason.
-//! * [`write_bench_chart`]: PSNR-gamma of the decoder being fine-tuned against its training
+//! * [`write_sweep_chart`]: PSNR-gamma of the decoder being fine-tuned against its training
 //!   time, against the other decoders of each scene (horizontal lines), over all scored pixels
 //!   and the saturated ones, and its validation PSNR on the held-out simulated set.
 
@@ -13,8 +13,8 @@ use std::path::Path;
 use plotters::prelude::*;
 
 use super::style::{frame, line_key, mesh, write_png_chart, GridLines, FONT};
-use crate::bench::decoder::{DecoderBenchResults, Score};
 use crate::error::{DataCause, Error, Result};
+use crate::sweep::decoder::{DecoderSweepResults, Score};
 
 const COLORS: [RGBColor; 8] = [
     RGBColor(127, 127, 127),
@@ -31,7 +31,7 @@ const COLORS: [RGBColor; 8] = [
 type Metric = (&'static str, &'static str, fn(&Score) -> Option<f64>);
 
 /// Draws `report`'s decoder x scene scores into `path` (PNG, 1400 x 900).
-pub fn write_decoder_scene_chart(path: &Path, report: &DecoderBenchResults) -> Result<()> {
+pub fn write_decoder_scene_chart(path: &Path, report: &DecoderSweepResults) -> Result<()> {
     let scenes: Vec<(String, f64)> = report
         .scenes
         .iter()
@@ -114,7 +114,7 @@ pub fn write_decoder_scene_chart(path: &Path, report: &DecoderBenchResults) -> R
 /// the training time in minutes (wall clock on the machine's threads, scoring excluded), the
 /// step count in the captions. The validation points' times are their steps times the run's
 /// mean seconds per step.
-pub fn write_bench_chart(path: &Path, report: &DecoderBenchResults) -> Result<()> {
+pub fn write_sweep_chart(path: &Path, report: &DecoderSweepResults) -> Result<()> {
     let Some(run) = &report.finetune else {
         return Err(Error::data(DataCause::Empty, "no fine-tuning run to chart"));
     };
@@ -244,7 +244,7 @@ pub fn write_bench_chart(path: &Path, report: &DecoderBenchResults) -> Result<()
 /// above, the residual of each model (a colour each, in the order they add to one another) in
 /// each brightness band; below, the halo model's residual over all unsaturated pixels against
 /// the halo's fraction, a line per radius, the paper model's as a dashed line.
-pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardBenchResults) -> Result<()> {
+pub fn write_forward_chart(path: &Path, report: &crate::sweep::forward::ForwardSweepResults) -> Result<()> {
     let scenes = &report.scenes;
     if scenes.is_empty() {
         return Err(Error::data(DataCause::Empty, "no scene to chart"));
@@ -253,7 +253,7 @@ pub fn write_forward_chart(path: &Path, report: &crate::bench::forward::ForwardB
     write_png_chart(path, 1400, 900, |root| {
         let columns = root.split_evenly((2, scenes.len()));
         for (k, scene) in scenes.iter().enumerate() {
-            let values = |m: &crate::bench::forward::ModelFit| {
+            let values = |m: &crate::sweep::forward::ModelFit| {
                 let r = &m.residuals;
                 [r.dark, r.mid, r.bright, r.ring, r.all]
             };

@@ -1,4 +1,4 @@
-//! Charts of the fabrication stage: those of `doefab bench fab` ([`crate::bench::fab`]),
+//! Charts of the fabrication stage: those of `doefab bench fab` ([`crate::sweep::fab`]),
 //! efficiency against level count (predicted lines, simulated circles), STL triangles, time and
 //! measured error against `max_error`, GDSII file size and time against the vertex limit; and
 //! of the fabrication loop, what pre-compensation gains against the process's blur
@@ -12,8 +12,8 @@ use super::style::{
     draw_legend, frame, line_key, log_label, mesh, secondary_axes, short, write_png_chart, write_svg_chart,
     Drawn, GridLines,
 };
-use crate::bench::fab::{FabBenchResults, GdsSweep, QuantizationSweep, StlPoint, StlSweep};
 use crate::error::{DataCause, Error, Result};
+use crate::sweep::fab::{FabSweepResults, GdsSweep, QuantizationSweep, StlPoint, StlSweep};
 
 /// Log range covering `values` (positive ones), widened by `pad` each way.
 fn log_span(values: impl Iterator<Item = f64>, pad: f64) -> std::ops::Range<f64> {
@@ -235,9 +235,9 @@ fn gds_chart<DB: DrawingBackend>(root: &DrawingArea<DB, plotters::coord::Shift>,
 /// `stl_heightfield.{png,svg}` (triangles and time, and the measured error, against
 /// `max_error`) and `gds.{png,svg}` (file size and time against the vertex limit); returns
 /// the names.
-pub fn write_fab_bench_charts(
+pub fn write_fab_sweep_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    report: &FabBenchResults,
+    report: &FabSweepResults,
 ) -> Result<Vec<String>> {
     if report.quantization.points.is_empty() || report.stl.points.is_empty() || report.gds.points.is_empty() {
         return Err(Error::data(DataCause::Empty, "a fabrication benchmark sweep has no points to chart"));

@@ -10,10 +10,10 @@ use plotters::prelude::*;
 use super::style::{
     draw_legend, frame, key_entry, mesh, write_png_chart, write_svg_chart, DrawError, Drawn, GridLines, FONT,
 };
-use crate::bench::calibration::{CalibrationBench, Trial};
-use crate::bench::register::RegistrationBench;
-use crate::bench::SweepAxis;
 use crate::error::Result;
+use crate::sweep::calibration::{CalibrationSweep, Trial};
+use crate::sweep::register::RegistrationSweep;
+use crate::sweep::SweepAxis;
 
 /// A chart of a failure map's panel: x the values swept along `axis` (padded 6 % each way,
 /// captioned with its name and unit), y logarithmic over `y` with `y_desc`, and a red horizontal
@@ -82,7 +82,7 @@ pub fn draw_failure_key<'a, DB: DrawingBackend + 'a>(
 /// The error drawn for a refused trial (above every other).
 const CALIBRATION_REFUSED_AT: f64 = 3.0;
 
-fn calibration_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: &CalibrationBench) -> Drawn {
+fn calibration_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: &CalibrationSweep) -> Drawn {
     root.fill(&WHITE)?;
     let title = format!(
         "PSF calibration from a pinhole bracket: error against each trouble, two seeds (silent failures: {}; warned: {}; refused: {})",
@@ -139,7 +139,7 @@ fn calibration_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: &Cali
 /// ring, the red line the tolerance. Returns the names.
 pub fn write_calibration_chart(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    r: &CalibrationBench,
+    r: &CalibrationSweep,
 ) -> Result<Vec<String>> {
     write_png_chart(&path_for("calibration.png"), 1400, 520, |root| calibration_chart(root, r))?;
     write_svg_chart(&path_for("calibration.svg"), 1400, 520, |root| calibration_chart(root, r))?;
@@ -148,7 +148,7 @@ pub fn write_calibration_chart(
 /// The shift error drawn for a refused trial (above every accepted one).
 const REGISTRATION_REFUSED_AT: f64 = 30.0;
 
-fn registration_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: &RegistrationBench) -> Drawn {
+fn registration_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: &RegistrationSweep) -> Drawn {
     root.fill(&WHITE)?;
     let title = format!(
         "Scan registration: shift error against each trouble, two seeds (silent failures: {}; refused: {})",
@@ -196,7 +196,7 @@ fn registration_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: &Reg
 /// names.
 pub fn write_registration_chart(
     mut path_for: impl FnMut(&str) -> std::path::PathBuf,
-    r: &RegistrationBench,
+    r: &RegistrationSweep,
 ) -> Result<Vec<String>> {
     write_png_chart(&path_for("register.png"), 1200, 700, |root| registration_chart(root, r))?;
     write_svg_chart(&path_for("register.svg"), 1200, 700, |root| registration_chart(root, r))?;

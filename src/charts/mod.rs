@@ -2,8 +2,8 @@
 //! ([`style`]: fonts, log axes, legends, PNG and SVG writing, the error of a failed drawing).
 //! `plotters` is named here and nowhere else.
 //!
-//! Charts sit above the stages and the benchmarks: they draw the stages' results and the
-//! benchmarks' reports, and none of those draws or names a chart; the commands that write a
+//! Charts sit above the stages and the sweeps: they draw the stages' results and the
+//! sweeps' reports, and none of those draws or names a chart; the commands that write a
 //! run's files ([`crate::pipeline`], [`crate::demo`]) call them.
 //!
 //! * [`fabrication`]: `bench fab`'s sweeps, the pre-compensation gain.

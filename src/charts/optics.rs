@@ -1,7 +1,7 @@
 //! Charts of `doefab bench psf`: error against run time for every method, precision and
 //! sub-sampling, with the Pareto front of the valid runs; and the stability chart, error
 //! against sub-sampling (the FFT methods' pupil grid) per method, with the runs its guard refuses marked by crosses;
-//! and the stability maps of [`crate::bench::stability`].
+//! and the stability maps of [`crate::sweep::stability`].
 
 use std::path::PathBuf;
 
@@ -9,16 +9,16 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::style::{frame, line_key, mesh, write_png_chart, write_svg_chart, Drawn, GridLines, FONT};
-use crate::bench::psf::{BenchPoint, PsfBenchResults};
-use crate::bench::spectral::SpectralBenchResults;
-use crate::bench::stability::{StabilityBenchResults, StabilityMap, STEPPED_DOE_PITCH};
 use crate::error::{DataCause, Error, Result};
 use crate::optics::propagate::Method;
+use crate::sweep::psf::{PsfSweepPoint, PsfSweepResults};
+use crate::sweep::spectral::SpectralSweepResults;
+use crate::sweep::stability::{StabilityMap, StabilitySweepResults, STEPPED_DOE_PITCH};
 
 /// The series of `points` in their order of appearance, each with its colour: the methods'
 /// own hues (matrix DFT blue and green, Fresnel red, angular spectrum magenta), the FFT
 /// methods' paddings lighter below their own and darker above.
-fn series(points: &[BenchPoint]) -> Vec<(String, RGBColor)> {
+fn series(points: &[PsfSweepPoint]) -> Vec<(String, RGBColor)> {
     let mut out: Vec<(String, RGBColor)> = Vec::new();
     for p in points {
         if out.iter().any(|s| s.0 == p.series) {
@@ -51,7 +51,7 @@ fn log_range(values: impl Iterator<Item = f64>) -> std::ops::Range<f64> {
     super::style::log_span(values, 2.0, 1e-6..1.0)
 }
 
-fn speed_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, report: &PsfBenchResults) -> Drawn {
+fn speed_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, report: &PsfSweepResults) -> Drawn {
     let points = &report.points;
     root.fill(&WHITE)?;
     // The counts go in the legend: in the caption they ran past the chart's width.
@@ -75,7 +75,7 @@ fn speed_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, report: &PsfBe
         .y_label_formatter(&|v| format!("{v:.0e}"))
         .draw()?;
     for (name, colour) in series(points) {
-        let own: Vec<&BenchPoint> = points.iter().filter(|p| p.series == name).collect();
+        let own: Vec<&PsfSweepPoint> = points.iter().filter(|p| p.series == name).collect();
         chart
             .draw_series(own.iter().map(|p| {
                 let style = if p.violations.is_empty() { colour.filled() } else { colour.stroke_width(1) };
@@ -126,7 +126,7 @@ fn speed_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, report: &PsfBe
     Ok(())
 }
 
-fn stability_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, points: &[BenchPoint]) -> Drawn {
+fn stability_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, points: &[PsfSweepPoint]) -> Drawn {
     root.fill(&WHITE)?;
     let s_max = points.iter().map(|p| p.subsample).max().unwrap_or(1) as f64;
     let mut chart = frame(root, "PSF: error vs sampling (x: guard refuses)", 20, 12, [40, 70])
@@ -174,7 +174,7 @@ fn stability_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, points: &[
 /// what was left out, the JSON names it).
 pub fn write_psf_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    report: &PsfBenchResults,
+    report: &PsfSweepResults,
 ) -> Result<Vec<String>> {
     let points = &report.points;
     write_png_chart(&path_for("speed_accuracy.png"), 1000, 650, |r| speed_chart(r, report))?;
@@ -202,12 +202,12 @@ fn error_class(error: f64, tolerance: f64) -> (RGBColor, &'static str) {
 
 fn stability_map_chart<DB: DrawingBackend>(
     root: &DrawingArea<DB, Shift>,
-    report: &StabilityBenchResults,
+    report: &StabilitySweepResults,
     map: &StabilityMap,
 ) -> Drawn {
     root.fill(&WHITE)?;
     let by_wavelength = map.y_axis == "wavelength";
-    let y_of = |c: &crate::bench::stability::MapCell| {
+    let y_of = |c: &crate::sweep::stability::MapCell| {
         if by_wavelength {
             c.wavelength * 1e9
         } else {
@@ -319,7 +319,7 @@ fn stability_map_chart<DB: DrawingBackend>(
 /// returns the names.
 pub fn write_stability_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    report: &StabilityBenchResults,
+    report: &StabilitySweepResults,
 ) -> Result<Vec<String>> {
     let mut names = Vec::new();
     for map in &report.maps {
@@ -343,7 +343,7 @@ pub fn write_stability_charts(
     Ok(names)
 }
 
-fn spectral_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, report: &SpectralBenchResults) -> Drawn {
+fn spectral_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, report: &SpectralSweepResults) -> Drawn {
     root.fill(&WHITE)?;
     let caption = format!(
         "Spectral samples: error vs sub-bands per band ({}, {} DOE samples; reference {} sub-bands; silent failures: {})",
@@ -435,7 +435,7 @@ fn spectral_chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, report: &Sp
 /// Writes `spectral.{png,svg}` at `path_for(name)`; returns the names.
 pub fn write_spectral_charts(
     mut path_for: impl FnMut(&str) -> PathBuf,
-    report: &SpectralBenchResults,
+    report: &SpectralSweepResults,
 ) -> Result<Vec<String>> {
     if report.points.is_empty() {
         return Err(Error::data(DataCause::Empty, "the spectral sweep has no runs to chart"));
@@ -451,8 +451,8 @@ pub fn write_spectral_charts(
 mod tests {
     use super::*;
 
-    fn point(method: &str, s: usize, seconds: f64, error: f64, valid: bool) -> BenchPoint {
-        BenchPoint {
+    fn point(method: &str, s: usize, seconds: f64, error: f64, valid: bool) -> PsfSweepPoint {
+        PsfSweepPoint {
             series: format!("{method} f64"),
             method: method.into(),
             precision: "f64".into(),
@@ -475,7 +475,7 @@ mod tests {
             point("fresnel", 1, 0.05, 1e-1, false),
             point("fresnel", 2, 0.1, 1e-4, true),
         ];
-        let plan = crate::bench::psf::PlanPoint {
+        let plan = crate::sweep::psf::PlanPoint {
             tolerance: 1e-3,
             method: "matrix_dft".into(),
             precision: "f32".into(),
@@ -488,7 +488,7 @@ mod tests {
             cheapest_adequate: Some("matrix_dft f64 s=2".into()),
             time_ratio: Some(0.75),
         };
-        let mut report = PsfBenchResults {
+        let mut report = PsfSweepResults {
             units: String::new(),
             doe_samples: 112,
             doe_pitch: 5e-6,
@@ -497,7 +497,7 @@ mod tests {
             wavelengths: vec![635e-9],
             crop: 40,
             budget_seconds: 10.0,
-            reference: crate::bench::psf::Reference { subsamples: [7, 9], difference: 1e-9, seconds: 0.1 },
+            reference: crate::sweep::psf::Reference { subsamples: [7, 9], difference: 1e-9, seconds: 0.1 },
             points: pts,
             plans: vec![plan],
             silent_failures: 0,

@@ -5,12 +5,12 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::style::{frame, line_key, mesh, write_png_chart, write_svg_chart, Drawn, GridLines, FONT};
-use crate::bench::tiling::TilingBench;
 use crate::error::Result;
+use crate::sweep::tiling::TilingSweep;
 
 const FLOOR: f64 = 1e-8;
 
-fn chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: &TilingBench) -> Drawn {
+fn chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: &TilingSweep) -> Drawn {
     root.fill(&WHITE)?;
     let title = format!(
         "Decoder reconstruction of a {0} x {0} capture: tiles against one pass, f32 against f64 (the reference)",
@@ -97,7 +97,7 @@ fn chart<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, r: &TilingBench) -> 
 /// receptive radius and the f32 floor drawn) and error against time (right). Returns the names.
 pub fn write_tiling_chart(
     mut path_for: impl FnMut(&str) -> std::path::PathBuf,
-    r: &TilingBench,
+    r: &TilingSweep,
 ) -> Result<Vec<String>> {
     write_png_chart(&path_for("tiling.png"), 1300, 560, |root| chart(root, r))?;
     write_svg_chart(&path_for("tiling.svg"), 1300, 560, |root| chart(root, r))?;

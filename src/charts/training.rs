@@ -10,9 +10,9 @@ use plotters::prelude::*;
 use super::style::{
     frame, line_key, mesh, secondary_axes, write_png_chart, write_svg_chart, Drawn, GridLines,
 };
-use crate::bench::finetune_time::TimedFinetune;
 use crate::decoder::finetune::HistoryEntry;
 use crate::error::{DataCause, Error, Result};
+use crate::sweep::finetune_time::TimedFinetune;
 
 /// Draws the training curve of `history` into `path` (PNG, 900 x 500).
 pub fn write_training_chart(path: &Path, history: &[HistoryEntry]) -> Result<()> {
@@ -145,7 +145,7 @@ mod tests {
     /// short of 11, 11.0 at 10 s is not) in its legend; a run without validations is refused.
     #[test]
     fn the_time_chart_names_the_start_the_best_and_half_the_gain() {
-        use crate::bench::finetune_time::TimedPoint;
+        use crate::sweep::finetune_time::TimedPoint;
         let point = |step, seconds, val_psnr| TimedPoint { step, seconds, val_psnr };
         let mut r = TimedFinetune {
             init: "built-in:paper-measured-psf (sha256 x)".into(),

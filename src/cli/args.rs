@@ -1,5 +1,5 @@
 //! The command line's grammar: the commands (each command's own arguments are in its stage's
-//! module, what several share in [`super::shared`]).
+//! module, what several share in [`super::options`]).
 
 use clap::{Parser, Subcommand};
 
@@ -14,7 +14,7 @@ use super::metrology::{CompareArgs, CompareProfileArgs, ScanInfoArgs, SimulateSc
 use super::optics::{
     BenchPsfArgs, BenchSpectralArgs, BenchStabilityArgs, PsfArgs, PsfCompareArgs, ReportArgs,
 };
-use super::shared::Cli;
+use super::options::Cli;
 
 #[derive(Parser)]
 #[command(name = "doefab", version, about = "From a learned DOE design to a fabricated part", long_about = None)]

@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use clap::Args;
 
-use super::shared::{clap_length, Cli};
-use super::shared::{print_result, progress, report_to, warn};
+use super::options::{clap_length, Cli};
+use super::options::{print_result, progress, report_to, warn};
 
 /// An exposure bracket on the command line.
 #[derive(Args, Clone)]
@@ -122,8 +122,8 @@ pub struct CalibratePsfArgs {
     #[arg(long, default_value_t = 319)]
     pub crop: usize,
     /// What goes to the crop centre.
-    #[arg(long, value_enum, default_value_t = doefab::calibration::psf_extract::Centre::Axis)]
-    pub centre: doefab::calibration::psf_extract::Centre,
+    #[arg(long, value_enum, default_value_t = doefab::calibration::Centre::Axis)]
+    pub centre: doefab::calibration::Centre,
     /// Pixel pitch of the captures.
     #[arg(long, value_parser = clap_length, default_value = "4.29um")]
     pub capture_pitch: f64,
@@ -217,7 +217,7 @@ pub fn calibrate_psf(cli: &Cli, a: &CalibratePsfArgs) -> Result<()> {
     use doefab::pipeline::calibrate_psf::{calibrate_psf, CalibrateOptions};
     let opts = CalibrateOptions {
         bracket: bracket.options(),
-        psf: doefab::calibration::psf_extract::PsfOptions {
+        psf: doefab::calibration::PsfOptions {
             crop: *crop,
             centre: *centre,
             capture_pitch: *capture_pitch,
@@ -250,22 +250,22 @@ pub fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
         min_saturated,
         registered,
     } = a;
-    use doefab::calibration::{capture_registration as rg, evaluate as ev};
-    let files = ev::EvaluateFiles {
+    use doefab::calibration::{evaluate_files, EvaluateFiles, Model, RegisterOptions, ScoringOptions};
+    let files = EvaluateFiles {
         reference: reference.clone(),
         capture: capture.clone(),
         psf: psf.clone(),
         psf_key: psf_key.clone(),
         capture_pitch: *capture_pitch,
         images: images.clone(),
-        options: ev::ScoringOptions {
-            register: rg::RegisterOptions {
+        options: ScoringOptions {
+            register: RegisterOptions {
                 max_shift: *max_shift,
                 tile: *tile,
                 min_coverage: 0.0,
                 model: match register {
-                    RegisterArg::Affine => rg::Model::Affine,
-                    RegisterArg::Local => rg::Model::Local,
+                    RegisterArg::Affine => Model::Affine,
+                    RegisterArg::Local => Model::Local,
                 },
             },
             saturation: *saturation,
@@ -274,7 +274,7 @@ pub fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
         },
         registered: registered.clone(),
     };
-    let e = ev::evaluate_files(&files)?;
+    let e = evaluate_files(&files)?;
     warn(&e.footing.warnings);
     print_result(cli, &e, || {
         print_footing(&e.footing);
@@ -285,7 +285,7 @@ pub fn evaluate(cli: &Cli, a: &EvaluateArgs) -> Result<()> {
 }
 
 /// How a scene was registered and what is scored (`evaluate`, `bench decoder`).
-fn print_footing(f: &doefab::calibration::evaluate::Footing) {
+fn print_footing(f: &doefab::calibration::Footing) {
     if let Some(r) = &f.registration {
         println!(
             "registered (affine): scale {:.4}, rotation {:.3} deg, shift ({:.2}, {:.2}) px; {} of {} tiles, residual {:.3} px RMS",
@@ -311,7 +311,7 @@ fn print_footing(f: &doefab::calibration::evaluate::Footing) {
 }
 
 /// One image's scores: PSNR-L and PSNR-gamma over all scored pixels and the saturated ones.
-fn print_score(s: &doefab::calibration::evaluate::Score) {
+fn print_score(s: &doefab::calibration::Score) {
     let sat = s
         .saturated
         .as_ref()
@@ -327,10 +327,7 @@ fn print_score(s: &doefab::calibration::evaluate::Score) {
 }
 
 /// How a scene was registered locally; `excluded`: pixels left out of the scoring.
-fn print_local_registration(
-    r: &doefab::calibration::capture_registration::LocalRegistration,
-    excluded: usize,
-) {
+fn print_local_registration(r: &doefab::calibration::LocalRegistration, excluded: usize) {
     let [lo, hi] = r.displacement_range_px;
     println!(
         "registered locally: {} of {} tiles on a {} px grid, leave-one-out residual {:.2} px RMS, \
@@ -349,7 +346,7 @@ fn print_local_registration(
 }
 
 /// A merge: the radiance image and, per frame, its listed and used exposure (s), saturation and agreement.
-fn print_merge(r: &doefab::calibration::hdr_merge::MergeStats, output: &Path) {
+fn print_merge(r: &doefab::calibration::MergeStats, output: &Path) {
     println!(
         "{} x {} x {} radiance ({}) -> {}",
         r.shape[1],
@@ -376,7 +373,7 @@ fn print_merge(r: &doefab::calibration::hdr_merge::MergeStats, output: &Path) {
 }
 
 /// A measured PSF: its position in the capture and, per channel, centroid (pixels), peak and losses.
-fn print_calibration(r: &doefab::calibration::psf_extract::PsfCalibration, output: &Path) {
+fn print_calibration(r: &doefab::calibration::PsfCalibration, output: &Path) {
     println!(
         "PSF at row {:.2}, col {:.2} of the capture (peak {}, {}); {} hot pixels; {} x {} crop -> {}",
         r.centroid_px[0],
@@ -414,8 +411,8 @@ pub struct BenchCalibrationArgs {
 
 /// `doefab bench calibration`.
 pub fn bench_calibration(cli: &Cli, a: &BenchCalibrationArgs) -> Result<()> {
-    let pb = progress(cli, doefab::bench::calibration::steps() as u64);
-    let r = doefab::pipeline::bench::bench_calibration(a.psf.as_deref(), &a.output, &mut report_to(&pb))?;
+    let pb = progress(cli, doefab::sweep::calibration::steps() as u64);
+    let r = doefab::pipeline::sweep::sweep_calibration(a.psf.as_deref(), &a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         for axis in &r.axes {

@@ -6,8 +6,8 @@ use anyhow::Result;
 use clap::Args;
 use indicatif::ProgressStyle;
 
-use super::shared::{clap_length, Cli};
-use super::shared::{print_result, progress, report_to, warn};
+use super::options::{clap_length, Cli};
+use super::options::{print_result, progress, report_to, warn};
 
 /// Arguments of `doefab reconstruct`.
 #[derive(Args)]
@@ -36,7 +36,7 @@ pub struct ReconstructArgs {
     pub overlap: usize,
     /// Mirrored context around the capture, pixels (removes the network's negative blobs
     /// at dark borders; 0 = the paper's demo).
-    #[arg(long, default_value_t = doefab::decoder::reconstruct::BORDER)]
+    #[arg(long, default_value_t = doefab::decoder::BORDER)]
     pub border: usize,
     /// Write negative outputs as they are instead of max(y, 0).
     #[arg(long)]
@@ -72,14 +72,14 @@ pub struct FinetuneArgs {
     /// chosen by name, validate and are never trained on.
     #[arg(long)]
     pub validation_data: Option<PathBuf>,
-    #[arg(long, default_value_t = doefab::decoder::dataset::HOLDOUT_EVERY)]
+    #[arg(long, default_value_t = doefab::decoder::HOLDOUT_EVERY)]
     pub holdout_every: usize,
     /// Leave out equirectangular panoramas narrower than this (pixels).
-    #[arg(long, default_value_t = doefab::decoder::dataset::MIN_PANORAMA_WIDTH)]
+    #[arg(long, default_value_t = doefab::decoder::MIN_PANORAMA_WIDTH)]
     pub min_panorama_width: usize,
     /// Largest white-balance gain of the training views' colour jitter: each channel's gain
     /// is log-uniform in [1/G, G] (2 spans the casts of unbalanced sensor RGB).
-    #[arg(long, default_value_t = doefab::decoder::dataset::WHITE_BALANCE)]
+    #[arg(long, default_value_t = doefab::decoder::WHITE_BALANCE)]
     pub white_balance: f64,
     /// Output folder: checkpoint, decoder, training curve.
     #[arg(short, long)]
@@ -89,12 +89,12 @@ pub struct FinetuneArgs {
     pub resume: bool,
     /// Total steps (80, measured with three seeds on 2 cores; 240 with --blend 0.5 made
     /// built-in:doefab-measured-psf; README).
-    #[arg(long, default_value_t = doefab::decoder::finetune::STEPS)]
+    #[arg(long, default_value_t = doefab::decoder::STEPS)]
     pub steps: usize,
-    #[arg(long, default_value_t = doefab::decoder::finetune::BATCH)]
+    #[arg(long, default_value_t = doefab::decoder::BATCH)]
     pub batch: usize,
     /// Crop side, pixels (a multiple of 16).
-    #[arg(long, default_value_t = doefab::decoder::finetune::CROP)]
+    #[arg(long, default_value_t = doefab::decoder::CROP)]
     pub crop: usize,
     /// Adam step size (default 1e-4; on --resume, replaces the saved one when given).
     #[arg(long)]
@@ -114,42 +114,42 @@ pub struct FinetuneArgs {
     /// Weight of a penalty on negative outputs, mean(min(y, 0)^2), in the training loss (10:
     /// the fine-tuned decoder then scores above its start on both of the paper's real scenes,
     /// which without it lose on Kitchen; 0 = the paper's loss alone; README)
-    #[arg(long, default_value_t = doefab::decoder::finetune::NEGATIVE_PENALTY)]
+    #[arg(long, default_value_t = doefab::decoder::NEGATIVE_PENALTY)]
     pub negative_penalty: f64,
     /// Weight of the fine-tuned weights in the decoder written, w0 + blend (w - w0)
     /// (WiSE-FT; 1 = the best validated weights as they are; 0.25 keeps the colour balance
     /// on the paper's real captures within 5 % with every seed tried; README).
-    #[arg(long, default_value_t = doefab::decoder::finetune::BLEND)]
+    #[arg(long, default_value_t = doefab::decoder::BLEND)]
     pub blend: f64,
     /// Read noise of the simulated captures, fraction of full scale (default: as measured
     /// on the paper's captures; the paper trained with 0.02).
-    #[arg(long, default_value_t = doefab::decoder::finetune::READ_NOISE)]
+    #[arg(long, default_value_t = doefab::decoder::READ_NOISE)]
     pub read_noise: f64,
     /// Shot noise of the simulated captures: variance per unit signal (full scale = 1;
     /// default as measured on the paper's captures).
-    #[arg(long, default_value_t = doefab::decoder::finetune::SHOT_NOISE)]
+    #[arg(long, default_value_t = doefab::decoder::SHOT_NOISE)]
     pub shot_noise: f64,
     /// Bit depth of the simulated captures (0 = not quantised; 8 as the paper's captures).
-    #[arg(long, default_value_t = doefab::decoder::finetune::BITS)]
+    #[arg(long, default_value_t = doefab::decoder::BITS)]
     pub bits: u32,
     /// Where the simulated captures' R, G and B clip, fractions of full scale (default: as the
     /// paper's camera, green at 231 of 255; `evaluate` and `merge` report a camera's own).
-    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = doefab::decoder::finetune::CHANNEL_CLIPPING)]
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = doefab::decoder::CHANNEL_CLIPPING)]
     pub channel_clipping: Vec<f64>,
     #[command(flatten)]
     pub halo: HaloArgs,
     /// Validate and checkpoint every this many steps.
-    #[arg(long, default_value_t = doefab::decoder::finetune::CHECKPOINT_EVERY)]
+    #[arg(long, default_value_t = doefab::decoder::CHECKPOINT_EVERY)]
     pub checkpoint_every: usize,
     /// Validation set size.
-    #[arg(long, default_value_t = doefab::decoder::finetune::VALIDATION)]
+    #[arg(long, default_value_t = doefab::decoder::VALIDATION)]
     pub validation: usize,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Largest global gradient norm a step takes; larger ones are scaled down to it (0 = no
     /// clipping; the first steps' norms reach 10^3-10^4 where the usual ones are 0.5-2, and
     /// cut to 2 they no longer stall Adam; README).
-    #[arg(long, default_value_t = doefab::decoder::finetune::GRAD_CLIP)]
+    #[arg(long, default_value_t = doefab::decoder::GRAD_CLIP)]
     pub grad_clip: f64,
     /// Run on the GPU (builds with the `gpu` feature: any vendor's GPU; or `cuda`).
     #[arg(long)]
@@ -178,17 +178,17 @@ pub struct BenchDecoderArgs {
     #[arg(long, default_value_t = 0.3)]
     pub min_coverage: f64,
     /// Fine-tuning steps of --init on the PSF (0: no fine-tuning; default finetune's).
-    #[arg(long, default_value_t = doefab::decoder::finetune::STEPS)]
+    #[arg(long, default_value_t = doefab::decoder::STEPS)]
     pub steps: usize,
     /// The decoder to fine-tune.
     #[arg(long, default_value = "built-in:paper-simulated-psf")]
     pub init: PathBuf,
     /// Batch size of the fine-tuning (finetune's).
-    #[arg(long, default_value_t = doefab::decoder::finetune::BATCH)]
+    #[arg(long, default_value_t = doefab::decoder::BATCH)]
     pub batch: usize,
     /// Training crop side, pixels (a multiple of 16; finetune's: 128 px crops, smaller than
     /// the 320 px PSF, lose on the real captures).
-    #[arg(long, default_value_t = doefab::decoder::finetune::CROP)]
+    #[arg(long, default_value_t = doefab::decoder::CROP)]
     pub crop: usize,
     /// Adam step size.
     #[arg(long, default_value_t = 1e-4)]
@@ -208,7 +208,7 @@ pub struct BenchDecoderArgs {
     #[arg(long)]
     pub procedural: bool,
     /// Where the fine-tuning's simulated captures clip, R, G, B (finetune's: the paper's camera).
-    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = doefab::decoder::finetune::CHANNEL_CLIPPING)]
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = doefab::decoder::CHANNEL_CLIPPING)]
     pub channel_clipping: Vec<f64>,
     #[command(flatten)]
     pub halo: HaloArgs,
@@ -216,7 +216,7 @@ pub struct BenchDecoderArgs {
     #[arg(long, default_value_t = 48)]
     pub tile: usize,
     /// The fine-tuning's largest gradient norm (finetune's --grad-clip; 0 = no clipping).
-    #[arg(long, default_value_t = doefab::decoder::finetune::GRAD_CLIP)]
+    #[arg(long, default_value_t = doefab::decoder::GRAD_CLIP)]
     pub grad_clip: f64,
     /// Output folder.
     #[arg(short, long)]
@@ -226,7 +226,7 @@ pub struct BenchDecoderArgs {
 /// `doefab reconstruct`.
 pub fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
     let ReconstructArgs { capture, decoder, output, png, ev, tile, overlap, border, keep_negative, gpu } = a;
-    use doefab::decoder::reconstruct::{reconstruct_file, Negatives, ReconstructOptions};
+    use doefab::decoder::{reconstruct_file, Negatives, ReconstructOptions};
     let opts = ReconstructOptions {
         tile: *tile,
         overlap: *overlap,
@@ -257,7 +257,7 @@ pub fn reconstruct(cli: &Cli, a: &ReconstructArgs) -> Result<()> {
 
 /// `doefab finetune`.
 pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
-    use doefab::decoder::finetune::{FinetuneConfig, FinetuneJob};
+    use doefab::decoder::{FinetuneConfig, FinetuneJob};
     use doefab::pipeline::finetune::finetune;
     let FinetuneArgs {
         psf,
@@ -359,9 +359,9 @@ pub fn finetune(cli: &Cli, a: &FinetuneArgs) -> Result<()> {
     })
 }
 
-/// `doefab bench decoder`: see [`doefab::pipeline::bench`].
+/// `doefab bench decoder`: see [`doefab::pipeline::sweep`].
 pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
-    use doefab::pipeline::bench::{bench_decoder, DecoderBenchOptions};
+    use doefab::pipeline::sweep::{sweep_decoder, DecoderSweepOptions};
     let BenchDecoderArgs {
         data,
         scenes,
@@ -383,7 +383,7 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         grad_clip,
         output,
     } = a;
-    let opts = DecoderBenchOptions {
+    let opts = DecoderSweepOptions {
         data: data.clone(),
         scenes: scenes.clone(),
         decoders: decoders.clone(),
@@ -403,7 +403,7 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
         grad_clip: *grad_clip,
     };
     let pb = progress(cli, 0);
-    let outcome = bench_decoder(&opts, output, &mut report_to(&pb))?;
+    let outcome = sweep_decoder(&opts, output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     warn(&outcome.warnings);
     let report = &outcome.results;
@@ -458,19 +458,17 @@ pub fn bench_decoder(cli: &Cli, a: &BenchDecoderArgs) -> Result<()> {
 pub struct HaloArgs {
     /// Fraction of the light the element spreads beyond its measured PSF's crop, in a Gaussian
     /// of --halo-radius (0 = none; `doefab bench forward` measures it on real captures).
-    #[arg(long, default_value_t = doefab::decoder::finetune::HALO.fraction)]
+    #[arg(long, default_value_t = doefab::decoder::HALO.fraction)]
     pub halo: f64,
     /// The halo's Gaussian standard deviation, sensor pixels.
-    #[arg(long, default_value_t = doefab::decoder::finetune::HALO.radius_px)]
+    #[arg(long, default_value_t = doefab::decoder::HALO.radius_px)]
     pub halo_radius: f64,
 }
 
 impl HaloArgs {
-    fn halo(&self) -> Option<doefab::decoder::measurement::Halo> {
-        (self.halo > 0.0).then_some(doefab::decoder::measurement::Halo {
-            fraction: self.halo,
-            radius_px: self.halo_radius,
-        })
+    fn halo(&self) -> Option<doefab::decoder::Halo> {
+        (self.halo > 0.0)
+            .then_some(doefab::decoder::Halo { fraction: self.halo, radius_px: self.halo_radius })
     }
 }
 
@@ -494,16 +492,16 @@ pub struct BenchForwardArgs {
 
 /// `doefab bench forward`.
 pub fn bench_forward(cli: &Cli, a: &BenchForwardArgs) -> Result<()> {
-    use doefab::bench::forward::ForwardOptions;
-    use doefab::pipeline::bench::bench_forward;
+    use doefab::pipeline::sweep::sweep_forward;
+    use doefab::sweep::forward::ForwardOptions;
     let opts = ForwardOptions {
         data: a.data.clone(),
         scenes: a.scenes.clone(),
         psf: a.psf.clone(),
-        scoring: doefab::calibration::evaluate::ScoringOptions::default(),
+        scoring: doefab::calibration::ScoringOptions::default(),
     };
     let pb = progress(cli, 0);
-    let r = bench_forward(&opts, &a.output, &mut report_to(&pb))?;
+    let r = sweep_forward(&opts, &a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         for s in &r.scenes {
@@ -565,11 +563,11 @@ pub struct BenchTilingArgs {
 
 /// `doefab bench tiling`.
 pub fn bench_tiling(cli: &Cli, a: &BenchTilingArgs) -> Result<()> {
-    use doefab::bench::tiling::{steps, TilingOptions};
+    use doefab::sweep::tiling::{steps, TilingOptions};
     let opts =
         TilingOptions { size: a.size, tiles: a.tiles.clone(), overlaps: a.overlaps.clone(), seed: a.seed };
     let pb = progress(cli, steps(&opts) as u64);
-    let r = doefab::pipeline::bench::bench_tiling(&a.decoder, &opts, &a.output, &mut report_to(&pb))?;
+    let r = doefab::pipeline::sweep::sweep_tiling(&a.decoder, &opts, &a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         println!("f64 one pass (the reference): {:.2} s", r.reference_seconds);

@@ -6,8 +6,8 @@ use anyhow::Result;
 use clap::Args;
 
 use super::metrology::{print_comparison, warn_comparison};
-use super::shared::Cli;
-use super::shared::{print_result, progress, report_to, warn};
+use super::options::Cli;
+use super::options::{print_result, progress, report_to, warn};
 
 /// Arguments of `doefab demo`.
 #[derive(Args)]

@@ -5,15 +5,15 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use clap::Args;
 
-use doefab::fabrication::chain::{self, ChainParams, DesignSource, FabOptions};
 use doefab::fabrication::mask::Polarity;
 use doefab::fabrication::quantize::QuantizeMethod;
 use doefab::fabrication::recipe::Recipe;
+use doefab::fabrication::recipe_run::{self, ChainParams, DesignSource, FabOptions};
 use doefab::fabrication::stl::{StlOptions, StlUnit, SurfaceChoice};
 use doefab::fabrication::ReplicaMode;
 
-use super::shared::{clap_length, Cli, OpticsArgs, ReadArgs};
-use super::shared::{print_result, progress, report_to, warn};
+use super::options::{clap_length, Cli, OpticsArgs, ReadArgs};
+use super::options::{print_result, progress, report_to, warn};
 
 /// Mesher choice on the command line.
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -195,9 +195,9 @@ pub fn fab(cli: &Cli, a: &FabArgs) -> Result<()> {
 pub fn wrap(cli: &Cli, a: &WrapArgs) -> Result<()> {
     let WrapArgs { design, output, read, optics, replica, fill } = a;
     let source = DesignSource::parse(Some(design), read.options()?);
-    let loaded = chain::load_design(&source)?;
+    let loaded = recipe_run::load_design(&source)?;
     let params = chain_params(optics, 65536, QuantizeMethod::Round, *replica, 1e-6, *fill);
-    let report = chain::write_wrapped(loaded, &params, output)?;
+    let report = recipe_run::write_wrapped(loaded, &params, output)?;
     warn(&report.warnings);
     print_result(cli, &report, || {
         println!(
@@ -215,7 +215,7 @@ pub fn wrap(cli: &Cli, a: &WrapArgs) -> Result<()> {
 pub fn quantize(cli: &Cli, a: &QuantizeArgs) -> Result<()> {
     let QuantizeArgs { heights, output, levels, method, optics, min_feature } = a;
     let params = chain_params(optics, *levels, *method, ReplicaMode::Design, *min_feature, false);
-    let report = chain::quantize_file(heights, &params, output)?;
+    let report = recipe_run::quantize_file(heights, &params, output)?;
     warn(&report.warnings);
     print_result(cli, &report, || {
         println!(
@@ -255,7 +255,7 @@ pub fn mask(cli: &Cli, a: &MaskArgs) -> Result<()> {
         force: *force,
         ..Default::default()
     };
-    let meta = chain::mask_file(levels, curve, &opts, output)?;
+    let meta = recipe_run::mask_file(levels, curve, &opts, output)?;
     print_result(cli, &meta, || {
         println!("{} x {} px, {}-bit -> {}", meta.size_px[0], meta.size_px[1], meta.bits, output.display())
     })
@@ -264,7 +264,7 @@ pub fn mask(cli: &Cli, a: &MaskArgs) -> Result<()> {
 /// `doefab gds`.
 pub fn gds(cli: &Cli, a: &GdsArgs) -> Result<()> {
     let GdsArgs { levels, output, writer_pitch, mirror, max_vertices } = a;
-    let report = chain::gds_file(levels, *writer_pitch, *mirror, *max_vertices, output)?;
+    let report = recipe_run::gds_file(levels, *writer_pitch, *mirror, *max_vertices, output)?;
     print_result(cli, &report, || {
         println!(
             "{} masks, {} polygons, {} vertices -> {}",
@@ -292,7 +292,7 @@ pub fn stl(cli: &Cli, a: &StlArgs) -> Result<()> {
             SurfaceArg::Heightfield => SurfaceChoice::Heightfield,
         },
     };
-    let report = chain::stl_file(input, &opts, output)?;
+    let report = recipe_run::stl_file(input, &opts, output)?;
     print_result(cli, &report, || {
         println!(
             "{:?}: {} triangles ({:.2}% of naive), max height error {:.2} nm -> {}",
@@ -313,8 +313,8 @@ fn run_recipe(
     output: &Path,
     opts: &FabOptions,
 ) -> Result<()> {
-    let pb = progress(cli, chain::step_count(recipe) as u64);
-    let report = chain::run_recipe(source, recipe, output, opts, &mut |step: &str| {
+    let pb = progress(cli, recipe_run::step_count(recipe) as u64);
+    let report = recipe_run::run_recipe(source, recipe, output, opts, &mut |step: &str| {
         pb.set_message(step.to_string());
         pb.inc(1);
     })
@@ -486,18 +486,18 @@ pub fn precompensate(cli: &Cli, a: &PrecompensateArgs) -> Result<()> {
 /// `doefab bench fab`.
 pub fn bench_fab(cli: &Cli, a: &BenchFabArgs) -> Result<()> {
     let BenchFabArgs { design, output, gds_pitch, repeats, optics, read } = a;
-    use doefab::bench::fab::{steps, FabBenchOptions};
-    let opts = FabBenchOptions {
+    use doefab::sweep::fab::{steps, FabSweepOptions};
+    let opts = FabSweepOptions {
         wavelength: optics.wavelength,
         material: optics.material.clone(),
         order: optics.order,
         gds_pitch: *gds_pitch,
         repeats: *repeats,
-        ..FabBenchOptions::default()
+        ..FabSweepOptions::default()
     };
     let design = DesignSource::parse(design.as_deref(), read.options()?);
     let pb = progress(cli, steps(&opts) as u64 + 1);
-    let r = doefab::pipeline::bench::bench_fab(&design, &opts, output, &mut report_to(&pb))?;
+    let r = doefab::pipeline::sweep::sweep_fab(&design, &opts, output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         let q = &r.quantization;

@@ -5,15 +5,15 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use clap::Args;
 
-use doefab::fabrication::chain::{self, ChainParams, DesignSource};
 use doefab::fabrication::quantize::QuantizeMethod;
 use doefab::fabrication::recipe::Recipe;
+use doefab::fabrication::recipe_run::{self, ChainParams, DesignSource};
 use doefab::fabrication::ReplicaMode;
 use doefab::units::length_unit;
 
 use super::fabrication::chain_params;
-use super::shared::{clap_length, Cli, OpticsArgs, ReadArgs};
-use super::shared::{print_result, progress, report_to, warn};
+use super::options::{clap_length, Cli, OpticsArgs, ReadArgs};
+use super::options::{print_result, progress, report_to, warn};
 
 /// Levelling choice on the command line (`scan-info --level`).
 #[derive(Clone, Copy, PartialEq, clap::ValueEnum)]
@@ -222,29 +222,31 @@ pub fn simulate_scan(cli: &Cli, a: &SimulateScanArgs) -> Result<()> {
         size,
         read,
     } = a;
-    use doefab::metrology::synthetic_scan as sim;
-    let loaded = chain::load_design(&DesignSource::parse(Some(design), read.options()?))?;
-    let params = sim::SimulateParams {
+    use doefab::metrology::{
+        parse_length_pair, parse_size, parse_slopes, simulate_scan, write_scan, SimulateParams,
+    };
+    let loaded = recipe_run::load_design(&DesignSource::parse(Some(design), read.options()?))?;
+    let params = SimulateParams {
         response: response.as_deref().map(doefab::fabrication::precompensate::Response::parse).transpose()?,
         blur: *blur,
         depth_scale: *depth_scale,
         offset: *offset,
-        tilt: sim::parse_slopes(tilt)?,
-        pose: doefab::metrology::scan_registration::Pose {
+        tilt: parse_slopes(tilt)?,
+        pose: doefab::metrology::Pose {
             mirror: *mirror,
             rotation: doefab::units::parse_angle(rotate)?,
             scale: *scale,
-            shift: sim::parse_length_pair(shift)?,
+            shift: parse_length_pair(shift)?,
         },
         complement: *complement,
         noise: *noise,
         missing: doefab::units::parse_fraction(missing)?,
         seed: *seed,
         pitch: scan_pitch.map(|p| [p, p]),
-        size: size.as_deref().map(sim::parse_size).transpose()?,
+        size: size.as_deref().map(parse_size).transpose()?,
     };
-    let scan = sim::simulate_scan(&loaded.heights, &params)?;
-    sim::write_scan(output, &scan)?;
+    let scan = simulate_scan(&loaded.heights, &params)?;
+    write_scan(output, &scan)?;
     let (rows, cols) = scan.dim();
     print_result(cli, &params, || {
         println!(
@@ -329,7 +331,7 @@ pub fn compare_profile(cli: &Cli, a: &CompareProfileArgs) -> Result<()> {
         read,
         optics,
     } = a;
-    use doefab::metrology::profile::{LineSpec, ProfileLevel, ProfileOptions};
+    use doefab::metrology::{LineSpec, ProfileLevel, ProfileOptions};
     use doefab::pipeline::compare_profile::{compare_profile_file, ProfileDesign};
     let read_opts = doefab::io::profile::ProfileReadOptions {
         x_unit: x_unit.as_deref().map(doefab::io::profile::profile_unit_arg).transpose()?,
@@ -380,8 +382,8 @@ fn print_profile(r: &doefab::pipeline::compare_profile::CompareProfileOutcome, o
         r.step * 1e6,
         r.length * 1e6,
         match r.levelling.method {
-            doefab::metrology::profile::ProfileLevel::Line => "line",
-            doefab::metrology::profile::ProfileLevel::Substrate => "substrate",
+            doefab::metrology::ProfileLevel::Line => "line",
+            doefab::metrology::ProfileLevel::Substrate => "substrate",
         },
         r.levelling.slope,
         r.levelling.rms * 1e9,
@@ -458,7 +460,7 @@ pub fn scan_info(cli: &Cli, a: &ScanInfoArgs) -> Result<()> {
         z_scale: *z_scale,
         ..Default::default()
     };
-    use doefab::metrology::level::LevelMethod;
+    use doefab::metrology::LevelMethod;
     let method = match level {
         LevelArg::Plane => LevelMethod::Plane,
         LevelArg::Facet => LevelMethod::Facet,
@@ -467,7 +469,7 @@ pub fn scan_info(cli: &Cli, a: &ScanInfoArgs) -> Result<()> {
     if aperture.is_some() && *level != LevelArg::Substrate {
         anyhow::bail!("--aperture applies to --level substrate only");
     }
-    let info = doefab::metrology::info::scan_info(file, &opts, method)?;
+    let info = doefab::metrology::scan_info(file, &opts, method)?;
     warn(&info.warnings);
     print_result(cli, &info, || print!("{}", info.summary()))
 }
@@ -585,8 +587,8 @@ pub struct BenchRegisterArgs {
 
 /// `doefab bench register`.
 pub fn bench_register(cli: &Cli, a: &BenchRegisterArgs) -> Result<()> {
-    let pb = progress(cli, doefab::bench::register::steps() as u64);
-    let r = doefab::pipeline::bench::bench_register(&a.output, &mut report_to(&pb))?;
+    let pb = progress(cli, doefab::sweep::register::steps() as u64);
+    let r = doefab::pipeline::sweep::sweep_register(&a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         for axis in &r.axes {

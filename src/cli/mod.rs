@@ -1,4 +1,4 @@
-//! The command line's parts: its grammar ([`args`]), what the commands share ([`shared`]) and,
+//! The command line's parts: its grammar ([`args`]), what the commands share ([`options`]) and,
 //! one module per stage, each command's arguments, its run (options to the library, result to
 //! the printer) and its printing.
 
@@ -9,4 +9,4 @@ pub mod demo;
 pub mod fabrication;
 pub mod metrology;
 pub mod optics;
-pub mod shared;
+pub mod options;

@@ -5,12 +5,12 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 
-use doefab::bench::psf::BenchOptions;
-use doefab::fabrication::chain::DesignSource;
-use doefab::pipeline::bench::PsfBenchOptions;
+use doefab::fabrication::recipe_run::DesignSource;
+use doefab::pipeline::sweep::PsfSweepOptions;
+use doefab::sweep::psf::SweepOptions;
 
-use super::shared::{clap_duration, clap_length, Cli, ReadArgs};
-use super::shared::{print_result, progress, report_to, warn};
+use super::options::{clap_duration, clap_length, Cli, ReadArgs};
+use super::options::{print_result, progress, report_to, warn};
 
 /// Arguments of `doefab psf`.
 #[derive(Args)]
@@ -94,13 +94,13 @@ pub struct BenchDesignArgs {
 }
 
 impl BenchDesignArgs {
-    /// The PSF benchmark's options with `bench`.
-    fn psf_options(&self, bench: BenchOptions) -> Result<PsfBenchOptions> {
-        Ok(PsfBenchOptions {
+    /// The PSF sweep's options with `sweep`.
+    fn psf_options(&self, sweep: SweepOptions) -> Result<PsfSweepOptions> {
+        Ok(PsfSweepOptions {
             design: DesignSource::parse(self.design.as_deref(), self.read.options()?),
             system: self.system.clone(),
             material: self.material.clone(),
-            bench,
+            sweep,
         })
     }
 }
@@ -116,9 +116,9 @@ pub struct BenchOnArgs {
 }
 
 impl BenchOnArgs {
-    /// The PSF benchmark's options over `bench` (its budget replaced by `--budget`).
-    fn psf_options(&self, bench: BenchOptions) -> Result<PsfBenchOptions> {
-        self.at.psf_options(BenchOptions { budget: self.budget, ..bench })
+    /// The PSF sweep's options over `sweep` (its budget replaced by `--budget`).
+    fn psf_options(&self, sweep: SweepOptions) -> Result<PsfSweepOptions> {
+        self.at.psf_options(SweepOptions { budget: self.budget, ..sweep })
     }
 }
 
@@ -268,17 +268,17 @@ pub fn psf_compare(cli: &Cli, a: &PsfCompareArgs) -> Result<()> {
 
 /// `doefab bench psf`.
 pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
-    use doefab::bench::psf::steps;
-    use doefab::pipeline::bench::bench_psf;
-    let bench = BenchOptions {
+    use doefab::pipeline::sweep::sweep_psf;
+    use doefab::sweep::psf::steps;
+    let sweep = SweepOptions {
         max_subsample: a.max_subsample,
         tolerances: a.tolerances.clone(),
         ..Default::default()
     };
-    let opts = a.on.psf_options(bench)?;
+    let opts = a.on.psf_options(sweep)?;
     let output = &a.on.at.output;
-    let pb = progress(cli, steps(&opts.bench) as u64);
-    let r = bench_psf(&opts, output, &mut report_to(&pb))?;
+    let pb = progress(cli, steps(&opts.sweep) as u64);
+    let r = sweep_psf(&opts, output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         println!(
@@ -328,16 +328,16 @@ pub fn bench_psf(cli: &Cli, a: &BenchPsfArgs) -> Result<()> {
 
 /// `doefab bench spectral`.
 pub fn bench_spectral(cli: &Cli, a: &BenchSpectralArgs) -> Result<()> {
-    use doefab::bench::spectral::{steps, SpectralOptions};
+    use doefab::sweep::spectral::{steps, SpectralOptions};
     let bands = match &a.response {
         Some(p) => doefab::optics::spectrum::read_response_csv(p)?,
-        None => doefab::bench::spectral::paper_bands()?,
+        None => doefab::sweep::spectral::paper_bands()?,
     };
     let opts =
         SpectralOptions { bands, reference_power: a.reference_power, tolerances: a.tolerances.clone() };
-    let on = a.at.psf_options(BenchOptions::default())?;
+    let on = a.at.psf_options(SweepOptions::default())?;
     let pb = progress(cli, steps(&opts) as u64);
-    let r = doefab::pipeline::bench::bench_spectral(&on, &opts, &a.at.output, &mut report_to(&pb))?;
+    let r = doefab::pipeline::sweep::sweep_spectral(&on, &opts, &a.at.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         println!(
@@ -383,10 +383,10 @@ pub fn bench_spectral(cli: &Cli, a: &BenchSpectralArgs) -> Result<()> {
 
 /// `doefab bench stability`.
 pub fn bench_stability(cli: &Cli, a: &BenchStabilityArgs) -> Result<()> {
-    use doefab::bench::stability::{steps, MapOptions};
+    use doefab::sweep::stability::{steps, MapOptions};
     let opts = MapOptions { tolerance: a.tolerance, ..MapOptions::default() };
     let pb = progress(cli, steps(&opts) as u64);
-    let r = doefab::pipeline::bench::bench_stability(&opts, &a.output, &mut report_to(&pb))?;
+    let r = doefab::pipeline::sweep::sweep_stability(&opts, &a.output, &mut report_to(&pb))?;
     pb.finish_and_clear();
     print_result(cli, &r, || {
         println!("truth: {}", r.truth);
@@ -412,7 +412,7 @@ pub fn bench_stability(cli: &Cli, a: &BenchStabilityArgs) -> Result<()> {
 /// `doefab report`.
 pub fn report(cli: &Cli, a: &ReportArgs) -> Result<()> {
     use doefab::pipeline::report::{run_report, steps, ReportOptions};
-    let opts = ReportOptions::new(a.on.psf_options(BenchOptions::default())?, a.on.budget);
+    let opts = ReportOptions::new(a.on.psf_options(SweepOptions::default())?, a.on.budget);
     let pb = progress(cli, steps(&opts) as u64);
     let page = run_report(&opts, &a.on.at.output, &mut report_to(&pb))?;
     pb.finish_and_clear();

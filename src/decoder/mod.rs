@@ -1,28 +1,48 @@
 //! The image decoder of the paper: its U-Net ([`unet`]), the weights format ([`weights`]),
 //! the measurement model used to train it ([`measurement`]), reconstruction of captures
 //! ([`reconstruct`]), fine-tuning for one fabricated part's PSF ([`finetune`]) and seeded
-//! procedural HDR scenes to train on without a data set ([`scenes`]). Its benchmarks are in
-//! [`crate::bench`], its charts in [`crate::charts`].
+//! procedural HDR scenes to train on without a data set ([`scenes`]). Its sweeps are in
+//! [`crate::sweep`], its charts in [`crate::charts`].
 //!
 //! Images here are `(H, W, 3)` `f32` arrays (row-major, channels last, as the paper's NHWC);
 //! the network runs on NCHW burn tensors on the CPU (burn's Flex backend) or, with the `gpu`
 //! feature, on any vendor's GPU through wgpu, or with the `cuda` feature on an NVIDIA GPU
 //! ([`select_device`]).
 
-pub mod dataset;
-pub mod finetune;
-pub mod measurement;
-pub mod reconstruct;
-pub mod scenes;
-pub mod unet;
-pub mod weights;
+pub(crate) mod dataset;
+pub(crate) mod finetune;
+pub(crate) mod measurement;
+pub(crate) mod reconstruct;
+pub(crate) mod scenes;
+pub(crate) mod unet;
+pub(crate) mod weights;
+
+pub use dataset::{
+    is_validation, read_dir, training_and_validation, HdrFolder, HdrImage, HdrScenes, HOLDOUT_EVERY,
+    MIN_PANORAMA_WIDTH, WHITE_BALANCE,
+};
+pub use finetune::{
+    gamma_loss, procedural_scenes, simulate_captures, Adam, FinetuneConfig, FinetuneJob, HistoryEntry,
+    SceneGenerator, Trainer, BATCH, BITS, BLEND, CHANNEL_CLIPPING, CHECKPOINT_EVERY, CROP, GRAD_CLIP, HALO,
+    NEGATIVE_PENALTY, READ_NOISE, SHOT_NOISE, STEPS, VALIDATION,
+};
+pub use measurement::{Halo, Measurement, MeasurementModel};
+pub use reconstruct::{
+    infer_tiled, read_capture, reconstruct, reconstruct_file, Negatives, ReconstructOptions,
+    ReconstructOutcome, ReconstructStats, BORDER,
+};
+pub use scenes::{procedural_scene, GeneratedScenes, SceneSource};
+pub use unet::{tensor_values, UNet};
+pub use weights::{
+    decode_safetensors, decoder_bytes, decoder_sha256, encode_safetensors, tensor_specs, DecoderWeights,
+    NamedTensor,
+};
 
 use burn::tensor::{Device, Tensor, TensorData};
 use ndarray::Array4;
 
 use crate::error::Result;
 use crate::image::Image;
-use unet::{tensor_values, UNet};
 
 /// The device the decoder runs on, and what its selection has to report.
 #[derive(Debug, Clone)]
@@ -64,7 +84,7 @@ pub fn select_device(gpu: bool) -> Result<SelectedDevice> {
 }
 
 /// [`select_device`]'s device alone, for callers that run on the CPU or report no warnings
-/// (tests, benchmarks).
+/// (tests, sweeps).
 pub fn device(gpu: bool) -> Result<Device> {
     Ok(select_device(gpu)?.device)
 }

@@ -7,7 +7,7 @@
 //! positive resist "depth" is the developed (removed) depth; for a negative resist it is the
 //! remaining thickness. Either way depth must rise strictly with dose.
 //!
-//! Interpolation is monotone PCHIP ([`crate::table`]): it never overshoots the data, so its
+//! Interpolation is monotone PCHIP ([`crate::tabulated`]): it never overshoots the data, so its
 //! inverse exists and is unique. The inverse is found by bisection on the forward curve, so forward
 //! and inverse agree to round-off.
 
@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{DataCause, Error, Result};
-use crate::table::{column_unit, hermite, parse_two_columns, pchip_slopes};
+use crate::tabulated::{column_unit, hermite, parse_two_columns, pchip_slopes};
 
 /// A monotone contrast curve. Invariants: at least 2 points, doses strictly increasing in
 /// [0, 1], depths strictly increasing.
@@ -73,9 +73,9 @@ impl ContrastCurve {
     }
 
     /// Reads the CSV described in the module docs.
-    /// `built-in:NAME` reads a curve bundled with the recipes (see [`crate::fabrication::bundled::BUNDLED`]).
+    /// `built-in:NAME` reads a curve bundled with the recipes (see [`crate::fabrication::built_in::BUNDLED`]).
     pub fn read_csv(path: &Path) -> Result<Self> {
-        let text = crate::fabrication::bundled::read_text(path, ".csv")?;
+        let text = crate::fabrication::built_in::read_text(path, ".csv")?;
         let t = parse_two_columns(path, &text, "dose,depth_nm")?;
         if t.header[0] != "dose" {
             return Err(Error::malformed(
@@ -215,7 +215,7 @@ mod tests {
 
     #[test]
     fn dose_for_equals_a_plain_bisection_on_the_forward_curve() {
-        let text = crate::fabrication::bundled::read_text(
+        let text = crate::fabrication::built_in::read_text(
             Path::new("built-in:positive-resist-contrast.csv"),
             ".csv",
         )

@@ -19,7 +19,7 @@ use crate::error::{DataCause, Error, Resource, Result};
 use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::marks::{label_cells, Canvas};
 use crate::fabrication::Provenance;
-use crate::grid::{par, Grid, Interpolation, Unit};
+use crate::grid::{row_blocks, Grid, Interpolation, Unit};
 
 /// Resist polarity.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -279,7 +279,7 @@ pub fn render_levels(
         // Only the frame can be covered: rows above and below the pattern, and the columns
         // left and right of it.
         let canvas = &canvas;
-        par::map_blocks_mut(&mut gray, |r0, mut block| {
+        row_blocks::map_blocks_mut(&mut gray, |r0, mut block| {
             for (k, mut out) in block.rows_mut().into_iter().enumerate() {
                 let i = r0 + k;
                 let frame_row = i < b || i >= b + ph;
@@ -413,7 +413,7 @@ fn paint_pattern(levels: &Grid, opts: &MaskOptions, layout: &Layout, gray_of: &[
     // The pattern, row blocks in parallel; the first level out of range in row-major order is
     // the one reported.
     let src = on_writer.values();
-    let bad = par::map_blocks_mut(&mut gray, |r0, mut block| {
+    let bad = row_blocks::map_blocks_mut(&mut gray, |r0, mut block| {
         for (k, mut out) in block.rows_mut().into_iter().enumerate() {
             let Some(i) = (r0 + k).checked_sub(b).filter(|&i| i < ph) else { continue };
             for (j, (o, &l)) in out.slice_mut(s![b..b + pw]).iter_mut().zip(src.row(i)).enumerate() {

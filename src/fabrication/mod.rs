@@ -7,11 +7,10 @@
 //! * [`mask`]: grayscale lithography masks with frame, crosses and label ([`marks`]);
 //! * [`gds`]: the multi-level binary mask set as GDSII, polygons from [`trace`];
 //! * [`stl`]: watertight STL of the surface, exact terraces or an error-bounded height field;
-//! * [`recipe`]: process recipes ([`bundled`]: those of `masks/`, compiled in); [`chain`]: the
+//! * [`recipe`]: process recipes ([`built_in`]: those of `masks/`, compiled in); [`recipe_run`]: the
 //!   whole chain behind `doefab fab`.
 
-pub mod bundled;
-pub mod chain;
+pub mod built_in;
 pub mod contrast;
 pub mod gds;
 pub mod marks;
@@ -19,6 +18,7 @@ pub mod mask;
 pub mod precompensate;
 pub mod quantize;
 pub mod recipe;
+pub mod recipe_run;
 pub mod stl;
 pub mod trace;
 pub mod wrap;

@@ -5,8 +5,8 @@ use ndarray::{s, Array2, Zip};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Allowed, DataCause, Error, Result};
-use crate::float;
-use crate::grid::{par, Grid, Unit};
+use crate::grid::{row_blocks, Grid, Unit};
+use crate::rounding;
 
 /// How heights are mapped onto levels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -60,7 +60,7 @@ impl Quantized {
         let n = self.level_count as f64;
         let period = self.period;
         let mut h = self.levels.values().clone();
-        par::map_blocks_mut(&mut h, |_, mut b| b.mapv_inplace(|l| level_height(l, period, n)));
+        row_blocks::map_blocks_mut(&mut h, |_, mut b| b.mapv_inplace(|l| level_height(l, period, n)));
         self.levels.map_values(h, Unit::Metre)
     }
 }
@@ -87,7 +87,7 @@ fn is_power_of_two(n: f64) -> bool {
 /// only outside `[0, N)` (the top level `N` is phase-equivalent to 0), with the bits of `%`.
 #[inline]
 fn round_level(h: f64, period: f64, n: f64) -> f64 {
-    let r = float::round(h / period * n);
+    let r = rounding::round(h / period * n);
     if r >= 0.0 && r < n {
         r
     } else if r == n {
@@ -111,7 +111,7 @@ fn remainder(r: f64, n: f64) -> f64 {
 #[inline]
 fn wrapped_sq_error(q: f64, h: f64, period: f64) -> f64 {
     let d = q - h;
-    let d = if d.abs() < 0.25 * period { d } else { d - float::round(d / period) * period };
+    let d = if d.abs() < 0.25 * period { d } else { d - rounding::round(d / period) * period };
     d * d
 }
 
@@ -181,7 +181,7 @@ pub fn quantize_owned(
                     if v > hi { v } else { hi },
                 )
             };
-            let parts = par::map_blocks_mut(values, |r0, mut block| {
+            let parts = row_blocks::map_blocks_mut(values, |r0, mut block| {
                 match mask.map(|m| m.slice(s![r0..r0 + block.nrows(), ..])) {
                     None => block.iter_mut().fold(start, one),
                     Some(valid) => Zip::from(&mut block).and(&valid).fold(start, |a, h, &ok| {
@@ -208,7 +208,7 @@ pub fn quantize_owned(
             let levels = floyd_steinberg(&heights, period, n);
             // The squared errors summed as the rounding pass sums them.
             let values = heights.values();
-            let parts = par::map_blocks(&levels, |r0, block| {
+            let parts = row_blocks::map_blocks(&levels, |r0, block| {
                 let mut sq = 0.0;
                 for ((i, j), &l) in block.indexed_iter() {
                     if heights.is_valid(r0 + i, j) {
@@ -371,7 +371,7 @@ pub fn feature_check(heights: &Grid, period: f64, level_count: usize, min_featur
     // A difference taken modulo the period into [-P/2, P/2]. Below a quarter period the
     // correction `round(d / P) P` is a signed zero and is skipped (only the sign of a zero
     // difference could change, and no figure depends on it).
-    let wrapd = |d: f64| if d.abs() < 0.25 * period { d } else { d - float::round(d / period) * period };
+    let wrapd = |d: f64| if d.abs() < 0.25 * period { d } else { d - rounding::round(d / period) * period };
     let zones = ZoneTally::new(period, [px, py], UNDERSAMPLED_STEP * period, steps_per_zone, min_feature);
     // Per row: smallest zone period, samples below the feature, steps, samples counted. The
     // minimum and the counts do not depend on how rows are split among threads.

@@ -3,7 +3,7 @@
 //! here; paths (the contrast curve) are relative to the recipe file.
 //!
 //! The recipes and the contrast curve of `masks/` are also compiled into the binary
-//! ([`BUNDLED`](super::bundled::BUNDLED)): `built-in:NAME` names one of them wherever a recipe or curve path is taken,
+//! ([`BUNDLED`](super::built_in::BUNDLED)): `built-in:NAME` names one of them wherever a recipe or curve path is taken,
 //! so an installed binary needs no source tree beside it.
 
 use crate::fabrication::gds::{MAX_BOUNDARY_VERTICES, SIGNED_LENGTH_MAX_VERTICES};
@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::fabrication::bundled::{read_text, BUILT_IN};
+use crate::fabrication::built_in::{read_text, BUILT_IN};
 use crate::fabrication::mask::Polarity;
 use crate::fabrication::quantize::{check_level_count, QuantizeMethod};
 use crate::fabrication::stl::StlUnit;
@@ -287,7 +287,7 @@ impl Recipe {
 mod tests {
     use super::*;
     use crate::error::FormatCause;
-    use crate::fabrication::bundled::BUNDLED;
+    use crate::fabrication::built_in::BUNDLED;
 
     fn write(dir: &Path, text: &str) -> PathBuf {
         let p = dir.join("r.toml");

@@ -14,9 +14,9 @@ use serde::{Deserialize, Serialize};
 use ndarray::{s, Zip};
 
 use crate::error::{Allowed, DataCause, Error, Result};
-use crate::float;
-use crate::grid::{par, Grid, Unit};
+use crate::grid::{row_blocks, Grid, Unit};
 use crate::material::Material;
+use crate::rounding;
 
 /// Design wavelength, material and multi-order factor of the wrap.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -124,7 +124,7 @@ fn wrap_in_place(mut heights: Grid, spec: &WrapSpec, master: bool) -> Result<(Gr
         let w = if v > 0.0 && v < period {
             v
         } else {
-            let k = float::floor(v / period);
+            let k = rounding::floor(v / period);
             let mut w = v - k * period;
             if w >= period {
                 w -= period;
@@ -149,7 +149,7 @@ fn wrap_in_place(mut heights: Grid, spec: &WrapSpec, master: bool) -> Result<(Gr
             finite,
         )
     };
-    let parts = par::map_blocks_mut(values, |r0, mut block| {
+    let parts = row_blocks::map_blocks_mut(values, |r0, mut block| {
         let figures = match mask.map(|m| m.slice(s![r0..r0 + block.nrows(), ..])) {
             None => block.iter_mut().fold(start, one),
             // Invalid samples keep their stored value (0).
@@ -219,7 +219,7 @@ pub fn into_master(mut design: Grid, period: f64) -> Result<Grid> {
     // On a range error the grid (consumed) is dropped half-changed.
     let mask = design.mask().cloned();
     let start = (f64::INFINITY, f64::NEG_INFINITY);
-    let parts = par::map_blocks_mut(design.values_mut(), |r0, mut block| {
+    let parts = row_blocks::map_blocks_mut(design.values_mut(), |r0, mut block| {
         let (mut lo, mut hi) = start;
         for (k, mut row) in block.rows_mut().into_iter().enumerate() {
             let valid = mask.as_ref().map(|m| m.row(r0 + k));

@@ -154,9 +154,9 @@ pub fn heightmap_from_raw(path: &Path, raw: RawMap, opts: &ReadOptions) -> Resul
         (if ok && x < lo { x } else { lo }, if ok && x > hi { x } else { hi }, finite && ok)
     };
     let parts = if k == 1.0 && offset == 0.0 {
-        crate::grid::par::map_blocks(&raw.values, |_, b| b.iter().fold(start, |a, &x| range(a, x)))
+        crate::grid::row_blocks::map_blocks(&raw.values, |_, b| b.iter().fold(start, |a, &x| range(a, x)))
     } else {
-        crate::grid::par::map_blocks_mut(&mut raw.values, |_, mut b| {
+        crate::grid::row_blocks::map_blocks_mut(&mut raw.values, |_, mut b| {
             let (mut lo, mut hi, mut finite) = start;
             b.map_inplace(|v| {
                 (lo, hi, _) = range((lo, hi, true), *v);
@@ -311,7 +311,7 @@ fn resolve_scale(file: &str, raw: &RawMap, opts: &ReadOptions) -> Result<f64> {
 /// putting the height closest to 1 um, the order of a visible-light DOE's relief).
 fn check_plausible(file: &str, raw: &RawMap, k: f64) -> Result<()> {
     let start = (f64::INFINITY, f64::NEG_INFINITY);
-    let parts = crate::grid::par::map_blocks(&raw.values, |_, b| {
+    let parts = crate::grid::row_blocks::map_blocks(&raw.values, |_, b| {
         b.iter().filter(|v| v.is_finite()).fold(start, |(lo, hi), &v| (lo.min(v), hi.max(v)))
     });
     let (lo, hi) = parts.into_iter().fold(start, |(lo, hi), (a, b)| (lo.min(a), hi.max(b)));

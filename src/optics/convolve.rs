@@ -8,15 +8,12 @@
 //! `(cy, cx)` before and `(kh - 1 - cy, kw - 1 - cx)` after the crop lets light from outside
 //! the crop land in it, as in a real capture; [`Convolver::margins`] gives those margins.
 
-use std::sync::Arc;
-
 use ndarray::{s, Array2, Array3};
 use rustfft::num_complex::Complex64;
-use rustfft::{Fft, FftPlanner};
 
 use crate::error::{Error, Result};
+use crate::fft::{good_size, Plan2d};
 use crate::image::Image;
-use crate::optics::fft::good_size;
 use crate::optics::psf::Psf;
 
 /// Linear convolution of `(H, W, C)` scenes of one size with a PSF's channels.
@@ -24,8 +21,7 @@ pub struct Convolver {
     scene: (usize, usize),
     kernel: (usize, usize),
     fft: (usize, usize),
-    row_fft: [Arc<dyn Fft<f64>>; 2],
-    col_fft: [Arc<dyn Fft<f64>>; 2],
+    plan: Plan2d,
     /// Each channel's spectrum, column-major (the layout after the transposing 2-D FFT).
     spectra: Vec<Vec<Complex64>>,
 }
@@ -38,10 +34,8 @@ impl Convolver {
             return Err(Error::param("scene size", format!("{scene:?} is empty")));
         }
         let fft = (good_size(scene.0 + kernel.0 - 1, 0), good_size(scene.1 + kernel.1 - 1, 0));
-        let mut planner = FftPlanner::new();
-        let row_fft = [planner.plan_fft_forward(fft.1), planner.plan_fft_inverse(fft.1)];
-        let col_fft = [planner.plan_fft_forward(fft.0), planner.plan_fft_inverse(fft.0)];
-        let mut conv = Convolver { scene, kernel, fft, row_fft, col_fft, spectra: Vec::new() };
+        let plan = Plan2d::rect(fft.0, fft.1);
+        let mut conv = Convolver { scene, kernel, fft, plan, spectra: Vec::new() };
         let (cy, cx) = (kernel.0 / 2, kernel.1 / 2);
         for ch in &psf.channels {
             // Place h[u, v] at (u - cy, v - cx) modulo the FFT size: output index i then reads
@@ -52,7 +46,7 @@ impl Convolver {
                 let c = (v + fft.1 - cx) % fft.1;
                 buf[r * fft.1 + c] = Complex64::new(h, 0.0);
             }
-            conv.spectra.push(conv.transform(buf, false));
+            conv.spectra.push(conv.plan.forward_transposed(buf));
         }
         Ok(conv)
     }
@@ -61,32 +55,6 @@ impl Convolver {
     pub fn margins(&self) -> (usize, usize, usize, usize) {
         let (cy, cx) = (self.kernel.0 / 2, self.kernel.1 / 2);
         (cy, cx, self.kernel.0 - 1 - cy, self.kernel.1 - 1 - cx)
-    }
-
-    /// 2-D FFT of a row-major `fft.0 x fft.1` buffer: rows, transpose, rows. The forward result
-    /// is column-major; the inverse takes column-major and returns row-major, normalised.
-    fn transform(&self, data: Vec<Complex64>, inverse: bool) -> Vec<Complex64> {
-        let (r, c) = self.fft;
-        let k = usize::from(inverse);
-        let (first, second, n1, n2) = if inverse {
-            (&self.col_fft[k], &self.row_fft[k], r, c)
-        } else {
-            (&self.row_fft[k], &self.col_fft[k], c, r)
-        };
-        let mut data = data;
-        let mut scratch = vec![
-            Complex64::new(0.0, 0.0);
-            first.get_inplace_scratch_len().max(second.get_inplace_scratch_len())
-        ];
-        first.process_with_scratch(&mut data, &mut scratch[..first.get_inplace_scratch_len()]);
-        let mut t = vec![Complex64::new(0.0, 0.0); r * c];
-        transpose::transpose(&data, &mut t, n1, n2);
-        second.process_with_scratch(&mut t, &mut scratch[..second.get_inplace_scratch_len()]);
-        if inverse {
-            let scale = 1.0 / (r * c) as f64;
-            t.iter_mut().for_each(|v| *v *= scale);
-        }
-        t
     }
 
     /// `h * x` per channel, the same size as the scene (zero outside it).
@@ -111,9 +79,9 @@ impl Convolver {
             for ((i, j), &v) in scene.slice(s![.., .., ch]).indexed_iter() {
                 buf[i * fc + j] = Complex64::new(v as f64, 0.0);
             }
-            let mut spec = self.transform(buf, false);
+            let mut spec = self.plan.forward_transposed(buf);
             spec.iter_mut().zip(spectrum).for_each(|(a, b)| *a *= b);
-            let back = self.transform(spec, true);
+            let back = self.plan.inverse_transposed(spec);
             for i in 0..h {
                 for j in 0..w {
                     out[[i, j, ch]] = back[i * fc + j].re;

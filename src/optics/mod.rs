@@ -7,19 +7,17 @@
 //! * [`propagate`]: the propagation methods, one file each, with their validity checks.
 //! * [`convolve`]: images convolved with a PSF (FFT, linear), `y = h * x`.
 //! * [`psf_compare`]: two PSFs compared (summary numbers, L2 after centroid alignment).
-//! * [`output`]: the PSF written as EXR, NPY, log-scale PNG and a JSON summary.
+//! * [`psf_files`]: the PSF written as EXR, NPY, log-scale PNG and a JSON summary.
 //! * [`plan`]: the automatic plan (method, sampling, precision, spectral samples for a
 //!   tolerance).
 //! * [`spectrum`]: spectral bands weighted by a sensor response.
-//! * [`fft`]: planned square 2-D FFTs of this stage.
 
 pub mod convolve;
-pub mod fft;
-pub mod output;
 pub mod plan;
 pub mod propagate;
 pub mod psf;
 pub mod psf_compare;
+pub mod psf_files;
 pub mod spectrum;
 pub mod system;
 

@@ -23,13 +23,13 @@
 
 use ndarray::Array2;
 use rustfft::num_complex::Complex64;
-use rustfft::FftPlanner;
 use serde::{Deserialize, Serialize};
 
-use super::output::PEAKS;
 use super::psf::{ChannelSummary, Peak, Psf};
+use super::psf_files::PEAKS;
 use super::system::OpticalSystem;
 use crate::error::{DataCause, Error, Result};
+use crate::fft::Plan1d;
 
 /// Frequency (cycles per pixel) above which a channel's content counts as near the sampling
 /// limit, where the Fourier shift's band-limited interpolation is unreliable.
@@ -271,7 +271,6 @@ fn spectrum(v: &Array2<f64>) -> Array2<Complex64> {
 /// Transforms every row then every column of `s`, multiplying each 1-D spectrum bin `k` of an
 /// axis of length `n` by `factor(axis, k)` (axis 0 = along rows, i.e. x), forward or inverse.
 fn transform_axes(s: &mut Array2<Complex64>, inverse: bool, factor: impl Fn(usize, usize) -> Complex64) {
-    let mut planner = FftPlanner::<f64>::new();
     for axis in 0..2 {
         let mut lanes: Vec<_> = if axis == 0 {
             s.rows_mut().into_iter().collect()
@@ -279,17 +278,16 @@ fn transform_axes(s: &mut Array2<Complex64>, inverse: bool, factor: impl Fn(usiz
             s.columns_mut().into_iter().collect()
         };
         let n = lanes[0].len();
-        let fwd = planner.plan_fft_forward(n);
-        let inv = planner.plan_fft_inverse(n);
+        let plan = Plan1d::new(n);
         let mut buf = vec![Complex64::new(0.0, 0.0); n];
         for lane in lanes.iter_mut() {
             buf.iter_mut().zip(lane.iter()).for_each(|(b, &x)| *b = x);
-            fwd.process(&mut buf);
+            plan.process(&mut buf, false);
             for (k, b) in buf.iter_mut().enumerate() {
                 *b *= factor(axis, k);
             }
             if inverse {
-                inv.process(&mut buf);
+                plan.process(&mut buf, true);
                 buf.iter_mut().for_each(|b| *b /= n as f64);
             }
             lane.iter_mut().zip(&buf).for_each(|(x, &b)| *x = b);

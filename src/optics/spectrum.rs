@@ -4,7 +4,7 @@
 //! power leaving the DOE, [`Channel::captured`] times the normalised pixel value).
 //!
 //! The integral is the composite midpoint rule over `N` equal sub-bands ([`Band::samples`]);
-//! the response between tabulated points is the monotone PCHIP interpolant ([`crate::table`]).
+//! the response between tabulated points is the monotone PCHIP interpolant ([`crate::tabulated`]).
 //! A response table is a CSV `wavelength_nm,r,g,b` (any length unit in the first column's name)
 //! read by [`read_response_csv`].
 
@@ -15,7 +15,7 @@ use ndarray::Array2;
 use super::psf::{Channel, Psf};
 use crate::error::{DataCause, Error, Result};
 use crate::grid::{Grid, Unit};
-use crate::table::{column_unit, hermite, pchip_slopes};
+use crate::tabulated::{column_unit, hermite, pchip_slopes};
 
 /// One colour channel's band: the response `response[k]` at `wavelengths[k]` (metres,
 /// increasing), zero outside `[lo, hi]` = the table's range.

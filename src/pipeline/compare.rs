@@ -10,7 +10,7 @@ use std::path::Path;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::fabrication::chain::{self, ChainParams, DesignSource, LoadedDesign};
+use crate::fabrication::recipe_run::{self, ChainParams, DesignSource, LoadedDesign};
 use crate::fabrication::wrap::{cast_of_master, WrapSpec};
 use crate::fabrication::ReplicaMode;
 use crate::grid::fill::fill_missing;
@@ -26,8 +26,9 @@ use crate::optics::{Method, Options};
 /// Design PSF against the as-fabricated PSF, per channel.
 #[derive(Debug, Clone, Serialize)]
 pub struct PsfChannelComparison {
+    /// Channel name ("635nm", "R", ...).
     pub name: String,
-    /// Metres.
+    /// The channel's wavelength, metres; `None` for a colour band without one.
     pub wavelength: Option<f64>,
     /// Peak of the as-fabricated PSF over the design PSF's peak, each in absolute terms (pixel
     /// value times captured power): the Strehl ratio with the design's PSF as the reference.
@@ -39,7 +40,9 @@ pub struct PsfChannelComparison {
 /// [`psf_comparison`]'s result.
 #[derive(Debug, Clone, Serialize)]
 pub struct PsfComparison {
+    /// The propagation method both PSFs were computed by.
     pub method: String,
+    /// One per channel of the system, in its order.
     pub channels: Vec<PsfChannelComparison>,
     /// Non-measured samples of the surface filled (Laplace) before propagation.
     pub filled_samples: usize,
@@ -89,7 +92,7 @@ pub fn reference_surface(
         None => Ok((design.heights.clone(), None, WrapSpec::default())),
         Some(p) => {
             let p = ChainParams { replica_mode: ReplicaMode::Design, ..p.clone() };
-            let prep = chain::prepare(design.clone(), &p)?;
+            let prep = recipe_run::prepare(design.clone(), &p)?;
             let q = prep.quantized;
             let spec = LevelSpec { count: q.level_count, step: q.period / q.level_count as f64 };
             Ok((q.heights()?, Some(spec), p.wrap_spec()?))
@@ -146,16 +149,23 @@ pub fn family_member(family: Vec<Reference>, member: Member) -> Result<Reference
 /// What `doefab compare` prints and writes as `compare.json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct CompareOutcome {
+    /// The scan file's path.
     pub scan: String,
     /// SHA-256 of the scan file.
     pub scan_sha256: String,
+    /// The design: `built-in:NAME` or its file's path.
     pub design: String,
+    /// SHA-256 of the design file (of its parameters' JSON for a built-in design).
     pub design_sha256: String,
+    /// What the numbers are in: lengths and heights in metres, angles in radians.
     pub units: String,
     /// Problems the scan reader reported.
     pub scan_warnings: Vec<String>,
+    /// The comparison with the family member the scan matches (its keys inline in the JSON).
     #[serde(flatten)]
     pub comparison: Comparison,
+    /// Design PSF against the as-fabricated PSF; `None` when not asked for, or skipped because the
+    /// method's validity guard refused the part's surface (the comparison's warnings say so).
     pub psf: Option<PsfComparison>,
     /// Files written, relative to the output folder.
     pub files: Vec<String>,
@@ -199,7 +209,7 @@ pub fn compare_and_write(
     let psf = match psf {
         Some((method, o)) => {
             step("design and as-fabricated PSFs");
-            let mut system = crate::optics::output::system_for(reference);
+            let mut system = crate::optics::psf_files::system_for(reference);
             system.material = opts.optics.material.clone();
             system.aperture = c.aperture;
             match psf_comparison(reference, &filled, &system, method, o) {
@@ -308,7 +318,7 @@ pub fn compare_scan_file(
     step("read");
     let scan = scan::read_scan(scan_path, scan_opts)?;
     crate::io::heightmap::check_relief(scan_path, &scan.grid)?;
-    let design = chain::load_design(source)?;
+    let design = recipe_run::load_design(source)?;
     let (family, optics) = reference_family(&design, chain)?;
     let opts = CompareOptions { aperture: default_aperture(source, aperture), optics, ..Default::default() };
     compare_and_write(scan_path, &scan, &design, &family, &opts, psf, out, step)

@@ -10,7 +10,7 @@ use std::path::Path;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::fabrication::chain::{self, ChainParams, DesignSource};
+use crate::fabrication::recipe_run::{self, ChainParams, DesignSource};
 use crate::io::profile::{read_profile, ProfileReadOptions};
 use crate::metrology::profile::{
     compare_profile, level_profile, terraces, Levelling, LineSpec, ProfileComparison, ProfileLevel,
@@ -21,35 +21,51 @@ use crate::pipeline::compare::reference_surface;
 /// The design side of a profile comparison.
 #[derive(Debug, Clone)]
 pub struct ProfileDesign {
+    /// The design: built-in or a height-map file.
     pub source: DesignSource,
     /// Wrap and quantize the design as these parameters make it (a recipe, or a level count).
     pub chain: Option<ChainParams>,
+    /// The line on the design the profile runs along.
     pub line: LineSpec,
+    /// Settings of the comparison ([`compare_profile`]).
     pub options: ProfileOptions,
 }
 
 /// What `doefab compare-profile` prints and writes as `profile.json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct CompareProfileOutcome {
+    /// The profile file's path.
     pub profile: String,
     /// SHA-256 of the profile file.
     pub profile_sha256: String,
+    /// What the numbers are in: lengths and heights in metres, angles in radians.
     pub units: String,
-    /// Metres per stored position and height value, and where each was found.
+    /// Metres per stored position value.
     pub x_unit: f64,
+    /// Metres per stored height value.
     pub z_unit: f64,
+    /// Where `x_unit` was found: the file's header (with its line) or the option that gave it.
     pub x_unit_source: String,
+    /// Where `z_unit` was found: the file's header (with its line) or the option that gave it.
     pub z_unit_source: String,
-    /// Points, measured points, sampling step and length (metres).
+    /// Points of the profile.
     pub points: usize,
+    /// Measured points: those with a finite height.
     pub valid_points: usize,
+    /// The sampling step: the median spacing of the positions, metres.
     pub step: f64,
+    /// The profile's length, last position minus first, metres.
     pub length: f64,
+    /// The line the profile was levelled by (`z = offset + slope u`), and how it was fitted.
     pub levelling: Levelling,
     /// Without a design: the profile's own levels, lowest first, heights above the lowest.
     pub terraces: Option<Vec<Terrace>>,
+    /// The design: `built-in:NAME` or its file's path; `None` without a design.
     pub design: Option<String>,
+    /// SHA-256 of the design file (of its parameters' JSON for a built-in design); `None` without
+    /// a design.
     pub design_sha256: Option<String>,
+    /// The comparison with the design along the line; `None` without a design.
     pub comparison: Option<ProfileComparison>,
     /// The reader's warnings (the comparison's are in `comparison.warnings`).
     pub profile_warnings: Vec<String>,
@@ -84,7 +100,7 @@ pub fn compare_profile_file(
     let (levelled, levelling) = level_profile(&file.profile, level)?;
     let (comparison, terr, dname, dsha) = match design {
         Some(d) => {
-            let loaded = chain::load_design(&d.source)?;
+            let loaded = recipe_run::load_design(&d.source)?;
             let (reference, _, _) = reference_surface(&loaded, d.chain.as_ref())?;
             // On the profile as read: the model fits its own offset and tilt.
             let c = compare_profile(&file.profile, &reference, &d.line, &d.options)?;

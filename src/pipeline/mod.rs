@@ -18,13 +18,11 @@
 //!   finetune`).
 //! * [`precompensate`]: the next mask set corrected for the process a scan of the last part
 //!   measured (`doefab precompensate`), and the loop closed in simulation.
-//! * [`bench`](mod@bench): the benchmarks of [`crate::bench`] run with their defaults, their
-//!   data and charts written (`doefab bench ...`).
-//! * [`report`]: the benchmarks of a design within one time budget, gathered into one static
+//! * [`sweep`]: the sweeps of [`crate::sweep`] run with their defaults, their data and charts
+//!   written (`doefab bench ...`).
+//! * [`report`]: the sweeps of a design within one time budget, gathered into one static
 //!   HTML page with its charts and data (`doefab report`).
 
-#[cfg(all(feature = "charts", feature = "decoder"))]
-pub mod bench;
 pub mod calibrate_psf;
 pub mod compare;
 pub mod compare_profile;
@@ -36,3 +34,5 @@ pub mod psf;
 pub mod psf_compare;
 #[cfg(all(feature = "charts", feature = "decoder"))]
 pub mod report;
+#[cfg(all(feature = "charts", feature = "decoder"))]
+pub mod sweep;

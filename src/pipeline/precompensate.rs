@@ -28,7 +28,6 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Condition, DataCause, Error, Result};
-use crate::fabrication::chain::{self, write_mask, ChainParams, DesignSource, LoadedDesign};
 use crate::fabrication::contrast::ContrastCurve;
 use crate::fabrication::mask::render_levels;
 use crate::fabrication::precompensate::{
@@ -36,6 +35,7 @@ use crate::fabrication::precompensate::{
 };
 use crate::fabrication::quantize::feature_check;
 use crate::fabrication::recipe::{Output, Recipe};
+use crate::fabrication::recipe_run::{self, write_mask, ChainParams, DesignSource, LoadedDesign};
 use crate::fabrication::stl::{surface_mesh, write_stl_part};
 use crate::fabrication::ReplicaMode;
 use crate::grid::{Grid, Unit};
@@ -62,7 +62,12 @@ pub const MIN_LEVEL_SAMPLES: usize = 16;
 #[derive(Debug, Clone)]
 pub enum ModelSource {
     /// A scan of the part, compared here.
-    Scan { path: PathBuf, options: ScanOptions },
+    Scan {
+        /// The scan file (any format `doefab compare` reads).
+        path: PathBuf,
+        /// How to read it: pitch and height units for files that carry none, checks.
+        options: ScanOptions,
+    },
     /// The `compare.json` that `doefab compare` wrote.
     CompareJson(PathBuf),
 }
@@ -109,6 +114,7 @@ pub struct Measured {
     /// compared with the wrapped design).
     #[serde(default = "wrapped")]
     pub member: Member,
+    /// The registration's correlation and noise ceiling, for the trust rule.
     pub registration: MeasuredRegistration,
     /// Correlation of part and design inside the aperture ([`Comparison::interior_correlation`]).
     pub interior_correlation: f64,
@@ -287,14 +293,21 @@ fn fitted_scale(part: &Grid, target: &Grid) -> f64 {
 /// What the model predicts of the part, before (the plain mask) and after pre-compensation.
 #[derive(Debug, Clone, Serialize)]
 pub struct Prediction {
-    /// RMS of part - design, piston removed, metres.
+    /// RMS of the part the model predicts from the plain mask minus the target (the design
+    /// wrapped and quantized as the recipe makes it), piston removed, metres.
     pub rms_before: f64,
+    /// RMS of the part the model predicts from the corrected mask minus the target, piston
+    /// removed, metres.
     pub rms_after: f64,
-    /// Least-squares depth scale of the part against the design.
+    /// Least-squares depth scale of the predicted plain part against the target (means
+    /// removed).
     pub depth_scale_before: f64,
+    /// Least-squares depth scale of the predicted corrected part against the target (means
+    /// removed).
     pub depth_scale_after: f64,
-    /// Design-order efficiency per wavelength at those depth scales (Swanson).
+    /// Design-order efficiency per wavelength at `depth_scale_before` (Swanson).
     pub efficiency_before: Vec<EfficiencyLoss>,
+    /// Design-order efficiency per wavelength at `depth_scale_after` (Swanson).
     pub efficiency_after: Vec<EfficiencyLoss>,
 }
 
@@ -321,6 +334,7 @@ pub struct PrecompensateJob {
     pub recipe: Recipe,
     /// Where the process model comes from.
     pub model: ModelSource,
+    /// Which corrections to make.
     pub corrections: Corrections,
     /// Clear aperture for the comparison, metres (as `doefab compare`).
     pub aperture: Option<f64>,
@@ -333,7 +347,9 @@ pub struct PrecompensateJob {
 pub struct PrecompensateOutcome {
     /// The units of every figure.
     pub units: String,
+    /// The design: `built-in:NAME` or its file's path.
     pub design: String,
+    /// SHA-256 of the design file (of its parameters' JSON for a built-in design).
     pub design_sha256: String,
     /// The recipe's name.
     pub recipe: String,
@@ -412,7 +428,7 @@ pub fn run(job: &PrecompensateJob, out: &Path, step: &mut dyn FnMut(&str)) -> Re
         ));
     }
     step("load the design");
-    let design = chain::load_design(&job.design)?;
+    let design = recipe_run::load_design(&job.design)?;
     let params = ChainParams::of_recipe(&job.recipe, false);
     let (family, optics) = reference_family(&design, Some(&params))?;
     let (measured, target) = match &job.model {
@@ -473,11 +489,13 @@ pub struct Written {
     pub model: ProcessModel,
     /// The commanded surface and the deconvolution's report.
     pub result: Precompensated,
+    /// The model's prediction for the plain and the corrected mask.
     pub prediction: Prediction,
     /// What was corrected, in words.
     pub corrected: Vec<String>,
     /// Highest commanded height allowed, metres.
     pub max_height: f64,
+    /// What is left uncorrected or named as beyond the writer.
     pub warnings: Vec<String>,
 }
 
@@ -655,11 +673,14 @@ pub fn simulate_loop(
 pub struct SweepPoint {
     /// Blur of the simulated process, in design samples (standard deviation / pitch).
     pub blur_samples: f64,
-    /// RMS of part - design over the aperture before and after pre-compensation, metres.
+    /// RMS of part - design over the aperture before pre-compensation, metres.
     pub rms_before: f64,
+    /// RMS of part - design over the aperture after pre-compensation, metres.
     pub rms_after: f64,
-    /// PSF relative L2 against the design's, mean over the channels, before and after.
+    /// PSF relative L2 against the design's before pre-compensation, mean over the channels
+    /// (matrix DFT, guards not enforced).
     pub psf_before: f64,
+    /// PSF relative L2 against the design's after pre-compensation, mean over the channels.
     pub psf_after: f64,
     /// The blur was deconvolved (else at or below the pitch, or not resolved).
     pub deconvolved: bool,
@@ -685,7 +706,7 @@ pub fn blur_sweep(
             let p = SimulateParams { blur: w * pitch, ..process.clone() };
             let r = simulate_loop(design, params, &p, compare_opts, &Corrections::default(), None)?;
             let target = &r.written.target;
-            let mut system = crate::optics::output::system_for(target);
+            let mut system = crate::optics::psf_files::system_for(target);
             system.aperture = r.before.aperture;
             let psf = |c: &Comparison| -> Result<f64> {
                 let p = crate::pipeline::compare::psf_comparison(

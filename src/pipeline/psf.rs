@@ -8,11 +8,11 @@
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, OptionsCause, Result};
-use crate::fabrication::chain::{self, DesignSource};
+use crate::fabrication::recipe_run::{self, DesignSource};
 use crate::grid::Grid;
 use crate::material::Material;
-use crate::optics::output::{self, PsfOutcome};
 use crate::optics::plan::{self, Plan};
+use crate::optics::psf_files::{self, PsfOutcome};
 use crate::optics::spectrum::{self, Band};
 use crate::optics::system::OpticalSystem;
 use crate::optics::{Method, Options};
@@ -57,8 +57,8 @@ enum How {
 /// Loads the design and the optical system and, without a forced method, plans the
 /// simulation. A spectral response with a forced method is refused ([`Error::Options`]).
 pub fn prepare(opts: &PsfOptions) -> Result<PsfJob> {
-    let loaded = chain::load_design(&opts.design)?;
-    let mut system = output::system_for(&loaded.heights);
+    let loaded = recipe_run::load_design(&opts.design)?;
+    let mut system = psf_files::system_for(&loaded.heights);
     system.material = Material::by_name(&opts.material)?;
     if let Some(p) = &opts.system {
         system = OpticalSystem::read_toml(p, &system)?;
@@ -120,10 +120,12 @@ impl PsfJob {
         match &self.how {
             How::Method { system, method, options } => {
                 let notes: Vec<String> = self.forced_because.iter().cloned().collect();
-                output::simulate_and_write(&self.heights, system, *method, options, &notes, output)
+                psf_files::simulate_and_write(&self.heights, system, *method, options, &notes, output)
             }
             How::Plan { plan, bands } => {
-                output::plan_and_write(&self.heights, plan, bands, output, &mut |what| progress(what, 0, 1))
+                psf_files::plan_and_write(&self.heights, plan, bands, output, &mut |what| {
+                    progress(what, 0, 1)
+                })
             }
         }
     }

@@ -1,4 +1,4 @@
-//! `doefab report`: the benchmarks of a design run within one time budget and gathered into
+//! `doefab report`: the sweeps of a design run within one time budget and gathered into
 //! one static HTML page (`index.html`) with its charts as SVG and the data beside it as JSON
 //! and CSV. It opens in a browser from the folder, without a server.
 //!
@@ -8,14 +8,14 @@
 //!
 //! **The budget is a promise.** Each part (the fabrication sweeps, the registration map, the
 //! calibration trials, the tiling sweep, each stability map, the fine-tuning, the PSF
-//! benchmark) is predicted before it runs: its seconds on the machine that measured them
+//! sweep) is predicted before it runs: its seconds on the machine that measured them
 //! ([`COSTS`]) times the pace, this run's seconds so far over what the same parts (and a probe
 //! run first) took there. A part runs only where its prediction fits in what is left of the
-//! budget, less what the files need and what the PSF benchmark keeps (a fifth of the budget,
+//! budget, less what the files need and what the PSF sweep keeps (a fifth of the budget,
 //! or its reference's predicted time if more); what does not fit is left out, named on the page
 //! and in `report.json` with its prediction and the time it had. The page is always written. A
 //! part that runs longer than predicted takes the time of the parts after it; the budget is
-//! overrun only by the misprediction of a part run, or of the PSF benchmark's reference, which
+//! overrun only by the misprediction of a part run, or of the PSF sweep's reference, which
 //! runs whatever its time.
 
 use std::fmt::Write as _;
@@ -24,27 +24,27 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use super::bench::{run_psf_bench, PsfBenchOptions};
-use crate::bench::calibration::{self as cal_bench, CalibrationBench};
-use crate::bench::fab::{self as fab_bench, FabBenchOptions, FabBenchResults};
-use crate::bench::finetune_time::{self, TimedFinetune, TimedOptions};
-use crate::bench::psf::{self as psf_bench, BenchOptions};
-use crate::bench::register::{self as reg_bench, RegistrationBench};
-use crate::bench::stability::{self, MapOptions, StabilityBenchResults};
-use crate::bench::tiling::{self as tiling_bench, TilingBench, TilingOptions};
-use crate::charts::fabrication::write_fab_bench_charts;
+use super::sweep::{run_psf_sweep, PsfSweepOptions};
+use crate::charts::fabrication::write_fab_sweep_charts;
 use crate::charts::failure_maps::{write_calibration_chart, write_registration_chart};
 use crate::charts::optics::{write_psf_charts, write_stability_charts};
 use crate::charts::tiling::write_tiling_chart;
 use crate::charts::training::write_finetune_time_chart;
 use crate::error::{Allowed, Error, Result};
 use crate::io::atomic::{self, StagedDir};
+use crate::sweep::calibration::{self as cal_sweep, CalibrationSweep};
+use crate::sweep::fab::{self as fab_sweep, FabSweepOptions, FabSweepResults};
+use crate::sweep::finetune_time::{self, TimedFinetune, TimedOptions};
+use crate::sweep::psf::{self as psf_sweep, SweepOptions};
+use crate::sweep::register::{self as reg_sweep, RegistrationSweep};
+use crate::sweep::stability::{self, MapOptions, StabilitySweepResults};
+use crate::sweep::tiling::{self as tiling_sweep, TilingOptions, TilingSweep};
 
 /// What `doefab report` runs.
 #[derive(Debug, Clone)]
 pub struct ReportOptions {
-    /// The PSF benchmark's design, system and material; its budget is what the rest leaves.
-    pub psf: PsfBenchOptions,
+    /// The PSF sweep's design, system and material; its budget is what the rest leaves.
+    pub psf: PsfSweepOptions,
     /// Wall-clock seconds for everything.
     pub budget: f64,
     /// The stability maps' sweeps.
@@ -56,14 +56,14 @@ pub struct ReportOptions {
 /// The share of the budget [`ReportOptions::new`] gives the fine-tuning run.
 pub const FINETUNE_SHARE: f64 = 0.15;
 
-/// The share of the budget the PSF benchmark keeps from the fixed sweeps.
+/// The share of the budget the PSF sweep keeps from the fixed sweeps.
 pub const PSF_SHARE: f64 = 0.2;
 
 impl ReportOptions {
     /// The default sweeps within `budget` seconds: the stability maps' defaults, fine-tuning
-    /// for [`FINETUNE_SHARE`] of the budget, and what is left for the PSF benchmark.
-    pub fn new(psf: PsfBenchOptions, budget: f64) -> ReportOptions {
-        let psf = PsfBenchOptions { bench: BenchOptions { budget, ..psf.bench }, ..psf };
+    /// for [`FINETUNE_SHARE`] of the budget, and what is left for the PSF sweep.
+    pub fn new(psf: PsfSweepOptions, budget: f64) -> ReportOptions {
+        let psf = PsfSweepOptions { sweep: SweepOptions { budget, ..psf.sweep }, ..psf };
         ReportOptions {
             psf,
             budget,
@@ -82,13 +82,19 @@ pub struct Costs {
     pub probe: f64,
     /// The fabrication sweeps on the paper's 1306^2 design.
     pub fabrication: f64,
+    /// The registration map.
     pub registration: f64,
+    /// The calibration trials.
     pub calibration: f64,
+    /// The decoder tiling sweep of the page (a 512^2 capture, tiles 256 and 384, overlaps 0,
+    /// 32 and 96).
     pub tiling: f64,
     /// The stability maps of [`stability::MAPS`], in order.
     pub maps: [f64; 8],
-    /// The fine-tuning's least run: its setup, then `evaluations` steps each with a validation.
+    /// The fine-tuning's setup: its least run is this, then `evaluations` steps each with a
+    /// validation.
     pub finetune_setup: f64,
+    /// One fine-tuning step with its validation.
     pub finetune_step: f64,
     /// The charts and the files of the page.
     pub files: f64,
@@ -127,9 +133,11 @@ pub struct Part {
 /// How the report kept its budget.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct BudgetRecord {
+    /// The budget, wall-clock seconds for everything ([`ReportOptions::budget`]).
     pub budget_seconds: f64,
-    /// The probe's seconds here and on the machine that measured [`COSTS`].
+    /// The probe's seconds here.
     pub probe_seconds: f64,
+    /// The probe's seconds on the machine that measured [`COSTS`].
     pub probe_measured_seconds: f64,
     /// Every part, in the order they came up.
     pub parts: Vec<Part>,
@@ -144,19 +152,19 @@ impl BudgetRecord {
     }
 }
 
-/// The probe: the matrix DFT PSF of the small scene's DOE ([`psf_bench::scene`], f64,
+/// The probe: the matrix DFT PSF of the small scene's DOE ([`psf_sweep::scene`], f64,
 /// Gauss-Legendre 8 x 8 pixels) ten times (a few tenths of a second); their seconds and work
 /// in the plan's units.
 pub fn probe() -> Result<(f64, f64)> {
     use crate::optics::system::{OpticalSystem, PixelRule};
     use crate::optics::{simulate, Method, Options, Precision};
-    let system = OpticalSystem { subsample: 8, pixel_rule: PixelRule::GaussLegendre, ..psf_bench::scene() };
-    let doe = psf_bench::doe()?;
+    let system = OpticalSystem { subsample: 8, pixel_rule: PixelRule::GaussLegendre, ..psf_sweep::scene() };
+    let doe = psf_sweep::doe()?;
     let t = Instant::now();
     for _ in 0..10 {
         simulate(&system, &doe, Method::MatrixDft, &Options::default())?;
     }
-    let work = psf_bench::Costs::work(Method::MatrixDft, Precision::F64, &system, &doe);
+    let work = psf_sweep::Costs::work(Method::MatrixDft, Precision::F64, &system, &doe);
     Ok((t.elapsed().as_secs_f64(), 10.0 * work))
 }
 
@@ -184,7 +192,7 @@ impl Scheduler {
 
     /// Runs `f` with the seconds left less `keep` when the part's least time, `there` seconds on
     /// the measuring machine times the pace, fits in them; records it either way. A part that
-    /// takes what it is given (`elastic`: the fine-tuning, the PSF benchmark) does not move
+    /// takes what it is given (`elastic`: the fine-tuning, the PSF sweep) does not move
     /// the pace.
     fn run<T>(
         &mut self,
@@ -226,6 +234,7 @@ impl Scheduler {
 pub struct Figure {
     /// What it is, in words.
     pub label: String,
+    /// The number, in `unit` (`shown` is "n/a" where it is not finite).
     pub value: f64,
     /// Its unit (`s`, `m`, `1` for a pure number).
     pub unit: String,
@@ -237,6 +246,7 @@ pub struct Figure {
 /// reading is made of.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Section {
+    /// The heading.
     pub title: String,
     /// Chart files (SVG) beside the page.
     pub charts: Vec<String>,
@@ -250,19 +260,26 @@ pub struct Section {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Piece {
+    /// Words of the reading, as they are.
     Words(String),
+    /// The figure of this index in [`Page::figures`].
     Figure(usize),
 }
 
 /// The page, as `report.json` holds it.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Page {
+    /// The page's title ("doefab report").
     pub title: String,
+    /// The design of the PSF benchmark and the fabrication sweeps: `built-in:NAME` or its
+    /// file's path.
     pub design: String,
+    /// Every number the page shows; the readings refer to them by index.
     pub figures: Vec<Figure>,
     /// How the budget was kept: every part with its prediction, what it took or that it was
     /// left out.
     pub budget: BudgetRecord,
+    /// The sections, in the page's order: the budget first, then the parts.
     pub sections: Vec<Section>,
 }
 
@@ -314,15 +331,15 @@ fn report_tiling() -> TilingOptions {
 /// How many progress steps [`run_report`] takes.
 pub fn steps(opts: &ReportOptions) -> usize {
     stability::steps(&opts.maps)
-        + reg_bench::steps()
-        + fab_bench::steps(&FabBenchOptions::default())
-        + cal_bench::steps()
-        + tiling_bench::steps(&report_tiling())
+        + reg_sweep::steps()
+        + fab_sweep::steps(&FabSweepOptions::default())
+        + cal_sweep::steps()
+        + tiling_sweep::steps(&report_tiling())
         + finetune_time::steps(&opts.finetune)
-        + psf_bench::steps(&opts.psf.bench)
+        + psf_sweep::steps(&opts.psf.sweep)
 }
 
-/// Runs the benchmarks within `opts.budget` (module docs) and writes the page, its charts and
+/// Runs the sweeps within `opts.budget` (module docs) and writes the page, its charts and
 /// data into the folder `output`, all or nothing; the parts left out are named on the page.
 pub fn run_report(
     opts: &ReportOptions,
@@ -339,11 +356,11 @@ pub fn run_report(
     let start = Instant::now();
     let total = steps(opts) as u64;
     let mut done = 0u64;
-    let loaded = crate::fabrication::chain::load_design(&opts.psf.design)?;
+    let loaded = crate::fabrication::recipe_run::load_design(&opts.psf.design)?;
     let (probe_seconds, probe_work) = probe()?;
     let mut plan =
         Scheduler { start, budget: opts.budget, here: probe_seconds, there: COSTS.probe, parts: Vec::new() };
-    // The PSF benchmark's least time: its reference, two matrix DFTs (module docs of psf_bench).
+    // The PSF sweep's least time: its reference, two matrix DFTs (module docs of psf_sweep).
     let psf_least = psf_reference_work(opts, &loaded.heights)? / probe_work * COSTS.probe;
     let keep_files = |plan: &Scheduler| COSTS.files * plan.pace();
     let keep_psf = |plan: &Scheduler| (PSF_SHARE * opts.budget).max(psf_least * plan.pace());
@@ -356,33 +373,33 @@ pub fn run_report(
     // The tiling sweep first: a short part, whose time sets the pace for the longer ones.
     let decoder = std::path::Path::new("built-in:paper-measured-psf");
     let tiling = plan.run("decoder tiling sweep", fixed(&plan, COSTS.tiling), |_| {
-        tiling_bench::run(decoder, &report_tiling(), |w| tick(w, &mut done))
+        tiling_sweep::run(decoder, &report_tiling(), |w| tick(w, &mut done))
     })?;
     if tiling.is_none() {
-        done += tiling_bench::steps(&report_tiling()) as u64;
+        done += tiling_sweep::steps(&report_tiling()) as u64;
     }
     let (rows, cols) = loaded.heights.dim();
     let fab_cost = COSTS.fabrication * (rows * cols) as f64 / (1306.0 * 1306.0);
     let fab = plan.run("fabrication sweeps", fixed(&plan, fab_cost), |_| {
-        fab_bench::run_bench(&loaded.heights, &loaded.name, &FabBenchOptions::default(), |w| {
+        fab_sweep::run_sweep(&loaded.heights, &loaded.name, &FabSweepOptions::default(), |w| {
             tick(w, &mut done)
         })
     })?;
     if fab.is_none() {
-        done += fab_bench::steps(&FabBenchOptions::default()) as u64;
+        done += fab_sweep::steps(&FabSweepOptions::default()) as u64;
     }
     let registration = plan.run("registration map", fixed(&plan, COSTS.registration), |_| {
-        reg_bench::run(|w| tick(w, &mut done))
+        reg_sweep::run(|w| tick(w, &mut done))
     })?;
     if registration.is_none() {
-        done += reg_bench::steps() as u64;
+        done += reg_sweep::steps() as u64;
     }
     let measured_psf = crate::optics::Psf::paper_measured()?;
     let calibration = plan.run("calibration trials", fixed(&plan, COSTS.calibration), |_| {
-        cal_bench::run(&measured_psf, "built-in:paper-measured-psf", |w| tick(w, &mut done))
+        cal_sweep::run(&measured_psf, "built-in:paper-measured-psf", |w| tick(w, &mut done))
     })?;
     if calibration.is_none() {
-        done += cal_bench::steps() as u64;
+        done += cal_sweep::steps() as u64;
     }
     let defaults = MapOptions::default();
     // The cheapest maps first, so that a short budget leaves out the fewest (on the page they
@@ -428,11 +445,11 @@ pub fn run_report(
     }
     let keep = keep_files(&plan);
     let psf = plan.run("PSF benchmark", (psf_least, keep, true), |left| {
-        let psf_opts = PsfBenchOptions {
-            bench: BenchOptions { budget: opts.psf.bench.budget.min(left), ..opts.psf.bench.clone() },
+        let psf_opts = PsfSweepOptions {
+            sweep: SweepOptions { budget: opts.psf.sweep.budget.min(left), ..opts.psf.sweep.clone() },
             ..opts.psf.clone()
         };
-        run_psf_bench(&psf_opts, &loaded.heights, |w| tick(w, &mut done))
+        run_psf_sweep(&psf_opts, &loaded.heights, |w| tick(w, &mut done))
     })?;
 
     let mut stage = StagedDir::new(output)?;
@@ -461,8 +478,8 @@ pub fn run_report(
     Ok(page)
 }
 
-/// One row per run of the PSF benchmark.
-fn psf_csv(r: &psf_bench::PsfBenchResults) -> String {
+/// One row per run of the PSF sweep.
+fn psf_csv(r: &psf_sweep::PsfSweepResults) -> String {
     let mut s = String::from(
         "method,precision,padding,subsample,pupil_pitch_m,seconds,relative_l2,guard_refuses,pareto\n",
     );
@@ -485,7 +502,7 @@ fn psf_csv(r: &psf_bench::PsfBenchResults) -> String {
 }
 
 /// One row per run of the stability maps.
-fn stability_csv(r: &StabilityBenchResults) -> String {
+fn stability_csv(r: &StabilitySweepResults) -> String {
     let mut s = String::from(
         "map,method,subsample,pupil_pitch_m,wavelength_m,focal_length_m,lens_sampling_ratio,fresnel_number,relative_l2,guard_refuses,silent\n",
     );
@@ -511,20 +528,20 @@ fn stability_csv(r: &StabilityBenchResults) -> String {
     s
 }
 
-/// The PSF benchmark's least work, real multiply-adds: its reference, two matrix DFTs of the
+/// The PSF sweep's least work, real multiply-adds: its reference, two matrix DFTs of the
 /// design in its system at the bench's largest sub-sampling plus 2 and plus 4 (module docs of
-/// psf_bench).
+/// psf_sweep).
 fn psf_reference_work(opts: &ReportOptions, heights: &crate::grid::Grid) -> Result<f64> {
-    let system = super::bench::design_system(&opts.psf, heights)?;
+    let system = super::sweep::design_system(&opts.psf, heights)?;
     Ok([2, 4]
         .map(|extra| {
             let sys = crate::optics::system::OpticalSystem {
-                subsample: opts.psf.bench.max_subsample + extra,
+                subsample: opts.psf.sweep.max_subsample + extra,
                 pixel_rule: crate::optics::system::PixelRule::GaussLegendre,
                 ..system.clone()
             };
             let f64 = crate::optics::Precision::F64;
-            psf_bench::Costs::work(crate::optics::Method::MatrixDft, f64, &sys, heights)
+            psf_sweep::Costs::work(crate::optics::Method::MatrixDft, f64, &sys, heights)
         })
         .iter()
         .sum())
@@ -550,7 +567,7 @@ fn stage_parts(stage: &mut StagedDir, m: &Measured) -> Result<Charts> {
         atomic::write_json(&stage.stage_path("register.json"), r)?;
     }
     if let Some(f) = m.fab {
-        charts.fab = svg(write_fab_bench_charts(|n| stage.stage_path(&format!("fab_{n}")), f)?, "fab_");
+        charts.fab = svg(write_fab_sweep_charts(|n| stage.stage_path(&format!("fab_{n}")), f)?, "fab_");
         atomic::write_json(&stage.stage_path("bench_fab.json"), f)?;
     }
     if let Some(c) = m.calibration {
@@ -580,14 +597,14 @@ struct Charts {
     finetune: Vec<String>,
 }
 
-/// What the benchmarks of the page measured.
+/// What the sweeps of the page measured.
 struct Measured<'a> {
-    psf: Option<&'a psf_bench::PsfBenchResults>,
-    maps: &'a StabilityBenchResults,
-    registration: Option<&'a RegistrationBench>,
-    fab: Option<&'a FabBenchResults>,
-    calibration: Option<&'a CalibrationBench>,
-    tiling: Option<&'a TilingBench>,
+    psf: Option<&'a psf_sweep::PsfSweepResults>,
+    maps: &'a StabilitySweepResults,
+    registration: Option<&'a RegistrationSweep>,
+    fab: Option<&'a FabSweepResults>,
+    calibration: Option<&'a CalibrationSweep>,
+    tiling: Option<&'a TilingSweep>,
     finetune: Option<&'a TimedFinetune>,
 }
 
@@ -690,8 +707,8 @@ fn left_out(b: &mut Builder, title: &str, budget: &BudgetRecord, part: &str) -> 
     Section { title: title.into(), charts: Vec::new(), data: Vec::new(), reading }
 }
 
-/// The PSF benchmark's section.
-fn psf_section(b: &mut Builder, psf: &psf_bench::PsfBenchResults, charts: Vec<String>) -> Section {
+/// The PSF sweep's section.
+fn psf_section(b: &mut Builder, psf: &psf_sweep::PsfSweepResults, charts: Vec<String>) -> Section {
     let mut reading = vec![
         words("The PSF of the design by every method, precision, FFT padding and pixel sub-sampling, timed and scored against a reference (matrix DFT, Gauss-Legendre pixels) that differs from its own refinement by"),
         b.fig("reference self-difference", psf.reference.difference, "1"),
@@ -739,7 +756,7 @@ fn psf_section(b: &mut Builder, psf: &psf_bench::PsfBenchResults, charts: Vec<St
 }
 
 /// The stability maps' section, naming the maps the budget left out.
-fn map_section(b: &mut Builder, maps: &StabilityBenchResults, charts: Vec<String>) -> Section {
+fn map_section(b: &mut Builder, maps: &StabilitySweepResults, charts: Vec<String>) -> Section {
     if maps.maps.is_empty() {
         let reading = vec![words(&format!(
             "Left out by the budget: {} (their predictions and the time they had are in report.json). Give \
@@ -784,7 +801,7 @@ fn map_section(b: &mut Builder, maps: &StabilityBenchResults, charts: Vec<String
 }
 
 /// The registration map's section.
-fn registration_section(b: &mut Builder, registration: &RegistrationBench, charts: Vec<String>) -> Section {
+fn registration_section(b: &mut Builder, registration: &RegistrationSweep, charts: Vec<String>) -> Section {
     let registered = registration.trials.iter().filter(|t| t.outcome == "registered");
     let worst = registered.map(|t| t.shift_error).fold(0.0, f64::max);
     let reading = vec![
@@ -804,7 +821,7 @@ fn registration_section(b: &mut Builder, registration: &RegistrationBench, chart
 }
 
 /// The fabrication sweeps' section.
-fn fab_section(b: &mut Builder, fab: &FabBenchResults, charts: Vec<String>) -> Section {
+fn fab_section(b: &mut Builder, fab: &FabSweepResults, charts: Vec<String>) -> Section {
     let stl_bounded = fab.stl.points.iter().filter(|p| p.within_bound).count();
     let reading = vec![
         words("Quantization: the predicted design-order efficiency (Swanson, with detuning) against a simulated grating's, largest difference"),
@@ -821,7 +838,7 @@ fn fab_section(b: &mut Builder, fab: &FabBenchResults, charts: Vec<String>) -> S
 }
 
 /// The calibration trials' section.
-fn calibration_section(b: &mut Builder, calibration: &CalibrationBench, charts: Vec<String>) -> Section {
+fn calibration_section(b: &mut Builder, calibration: &CalibrationSweep, charts: Vec<String>) -> Section {
     let calibrated = calibration.trials.iter().filter(|t| t.outcome == "calibrated");
     let fewest = calibrated.filter(|t| t.axis == "frames").map(|t| t.value).fold(f64::INFINITY, f64::min);
     let mut reading = vec![
@@ -847,7 +864,7 @@ fn calibration_section(b: &mut Builder, calibration: &CalibrationBench, charts: 
 }
 
 /// The tiling sweep's section.
-fn tiling_section(b: &mut Builder, tiling: &TilingBench, charts: Vec<String>) -> Section {
+fn tiling_section(b: &mut Builder, tiling: &TilingSweep, charts: Vec<String>) -> Section {
     let mut reading = Vec::new();
     if let Some(one) = tiling.runs.iter().find(|r| r.tile.is_none()) {
         reading.push(words("The paper's measured-PSF decoder on a simulated capture of"));

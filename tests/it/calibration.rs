@@ -7,10 +7,10 @@ use crate::common::doefab;
 
 use std::path::PathBuf;
 
-use doefab::calibration::capture::{read_capture, read_exposures, Capture};
-use doefab::calibration::hdr_merge::{merge, MergeOptions};
-use doefab::calibration::response::recover_response;
-use doefab::decoder::scenes::procedural_scene;
+use doefab::calibration::recover_response;
+use doefab::calibration::{merge, MergeOptions};
+use doefab::calibration::{read_capture, read_exposures, Capture};
+use doefab::decoder::procedural_scene;
 use doefab::image::Image;
 use doefab::{Condition, DataCause, Error, FormatCause};
 use ndarray::Array3;
@@ -20,7 +20,7 @@ fn shared(rel: &str) -> PathBuf {
     common::shared_data(&format!("deepoptics-hdr/{rel}"))
 }
 
-fn load(list: &doefab::calibration::capture::ExposureList) -> (Vec<Capture>, Vec<f64>) {
+fn load(list: &doefab::calibration::ExposureList) -> (Vec<Capture>, Vec<f64>) {
     let frames = list.frames.iter().map(|(p, _)| read_capture(p).unwrap()).collect();
     (frames, list.frames.iter().map(|f| f.1).collect())
 }
@@ -112,8 +112,8 @@ fn debevec_malik_recovers_a_known_gamma_curve() {
 // ---------------------------------------------------------------------------------------------
 // calibrate-psf on synthetic pinhole brackets
 
-use doefab::calibration::hdr_merge::mean_dark;
-use doefab::calibration::psf_extract::{calibrate_psf, Centre, PsfOptions};
+use doefab::calibration::mean_dark;
+use doefab::calibration::{calibrate_psf, Centre, PsfOptions};
 use doefab::rng::Lcg;
 
 /// A DOE-like analytic PSF, 319 x 319 x 3: a core at (159, 159), shifted copies, a wide halo.
@@ -262,8 +262,8 @@ fn a_known_psf_is_recovered_from_its_synthetic_bracket() {
 // ---------------------------------------------------------------------------------------------
 // evaluate: PSNR and affine registration
 
-use doefab::calibration::capture_registration::{luminance, register_affine, Model, RegisterOptions};
-use doefab::calibration::evaluate::{prepare, psnr, ScoringOptions};
+use doefab::calibration::{luminance, register_affine, Model, RegisterOptions};
+use doefab::calibration::{prepare, psnr, ScoringOptions};
 use doefab::grid::{Grid, Interpolation, Unit};
 
 /// PSNR against a value computed by hand: a 4 x 4 x 3 reference of ones with one sample off
@@ -401,7 +401,7 @@ fn speckle(seed: u64, n: usize) -> Array3<f64> {
 /// away from the layer edge (a tile and a half), and the PSNR over the pixels it covers is high.
 #[test]
 fn a_two_layer_parallax_is_followed_by_the_local_field_and_refused_by_the_affine_fit() {
-    use doefab::calibration::capture_registration::register_local;
+    use doefab::calibration::register_local;
     let n = 480;
     let (bg, fg) = (speckle(21, n), speckle(22, n));
     let inside_fg = |y: f64, x: f64| (130.0..330.0).contains(&y) && (40.0..440.0).contains(&x);
@@ -475,7 +475,7 @@ fn a_two_layer_parallax_is_followed_by_the_local_field_and_refused_by_the_affine
 // ---------------------------------------------------------------------------------------------
 // Bad input, and the commands end to end
 
-use doefab::calibration::capture::write_capture;
+use doefab::calibration::write_capture;
 
 fn small_bracket() -> (Vec<Capture>, Vec<f64>, Vec<Capture>) {
     let truth = analytic_psf().slice(ndarray::s![100..219, 100..219, ..]).to_owned();
@@ -849,7 +849,7 @@ fn evaluate_registers_the_real_scenes_once_above_the_coverage_floor() {
             scores[1]["all"]["linear_db"].as_f64().unwrap() < scores[0]["all"]["linear_db"].as_f64().unwrap()
         );
         // The same reference as .npy.
-        let img = doefab::calibration::capture::read_image(std::path::Path::new(&hdr)).unwrap();
+        let img = doefab::calibration::read_image(std::path::Path::new(&hdr)).unwrap();
         let npy = dir.path().join(format!("{scene}.npy"));
         doefab::io::npy::write_npy(&npy, &img.mapv(|v| v as f32)).unwrap();
         let npy = npy.to_string_lossy().into_owned();
@@ -1053,8 +1053,8 @@ fn a_known_shift_and_gain_are_recovered_once_and_every_image_is_scored_on_one_pi
 // ---------------------------------------------------------------------------------------------
 // calibrate-psf without dark frames: black level, exposure times, hot pixels, the axis
 
-use doefab::calibration::hdr_merge::BlackLevel;
-use doefab::calibration::psf_extract::simulate_pinhole_bracket;
+use doefab::calibration::simulate_pinhole_bracket;
+use doefab::calibration::BlackLevel;
 use doefab::optics::psf::Channel;
 use doefab::optics::Psf;
 
@@ -1244,7 +1244,7 @@ fn the_merge_is_at_the_reference_exposure_and_says_so() {
     assert!(m.stats.unit.contains("t_ref = 0.25 s"), "{}", m.stats.unit);
     let dir = common::tempdir();
     let png = dir.path().join("m.png");
-    doefab::calibration::hdr_merge::write_tone_mapped(&png, &m, 0.0, None).unwrap();
+    doefab::calibration::write_tone_mapped(&png, &m, 0.0, None).unwrap();
     let decoder =
         png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&png).unwrap())).read_info().unwrap();
     let text: Vec<(String, String)> =
@@ -1264,11 +1264,11 @@ fn the_merge_is_at_the_reference_exposure_and_says_so() {
 /// and data are written all or nothing.
 #[test]
 fn the_calibration_map_has_no_silent_failure() {
-    use doefab::bench::calibration::TOLERANCE;
+    use doefab::sweep::calibration::TOLERANCE;
     assert_eq!(Psf::paper_measured().unwrap().relative_l2(&measured_truth()).unwrap(), vec![0.0; 3]);
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("bench");
-    let r = doefab::pipeline::bench::bench_calibration(None, &out, &mut |_, _, _| {}).unwrap();
+    let r = doefab::pipeline::sweep::sweep_calibration(None, &out, &mut |_, _, _| {}).unwrap();
     for name in ["calibration.png", "calibration.svg", "calibration.json", "calibration.csv"] {
         assert!(out.join(name).is_file(), "{name}");
     }
@@ -1314,7 +1314,7 @@ fn the_calibration_map_has_no_silent_failure() {
 /// stays within 0.2 dB of the unmoved reference's (measured: within 0.06 dB).
 #[test]
 fn evaluate_agrees_with_an_independent_registration_and_follows_larger_motion() {
-    use doefab::calibration::capture_registration::{warp, Affine};
+    use doefab::calibration::{warp, Affine};
     let dir = common::tempdir();
     let path = |name: &str| dir.path().join(name).to_string_lossy().into_owned();
     let psf = shared("measured_psf.npz").to_string_lossy().into_owned();
@@ -1387,7 +1387,7 @@ fn evaluate_agrees_with_an_independent_registration_and_follows_larger_motion() 
             a: [[cos, -sin], [sin, cos]],
             b: [c - cos * c + sin * c + 6.0, c - sin * c - cos * c - 4.0],
         };
-        let reference = doefab::calibration::capture::read_image(std::path::Path::new(&hdr)).unwrap();
+        let reference = doefab::calibration::read_image(std::path::Path::new(&hdr)).unwrap();
         let (rows, cols) = (reference.height(), reference.width());
         let (moved, _) = warp(&reference, &moved_by, rows, cols).unwrap();
         let npy = path(&format!("{scene}-moved.npy"));

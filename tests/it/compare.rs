@@ -8,7 +8,7 @@ use crate::common::doefab;
 use std::path::Path;
 
 use doefab::design::{PAPER_APERTURE, PAPER_PITCH};
-use doefab::fabrication::chain::{load_design, DesignSource};
+use doefab::fabrication::recipe_run::{load_design, DesignSource};
 use doefab::io::heightmap::{read_heightmap, ReadOptions};
 
 fn simulate(out: &Path, extra: &[&str]) {
@@ -137,7 +137,7 @@ fn a_scan_of_another_part_exits_with_status_3() {
     let v = ndarray::Array2::from_shape_fn((1306, 1306), |_| 0.3e-6 * rng.normal());
     let g = doefab::Grid::new(v, [PAPER_PITCH; 2], doefab::Unit::Metre).unwrap();
     let g = doefab::grid::blur::gaussian_blur(&g, 3.0 * PAPER_PITCH).unwrap();
-    doefab::metrology::synthetic_scan::write_scan(&scan, &g).unwrap();
+    doefab::metrology::write_scan(&scan, &g).unwrap();
     let err = compare_refused(&scan, 3);
     assert!(err.contains("registration refused") && err.contains("does not match"), "{err}");
 }

@@ -9,9 +9,9 @@ use crate::common;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use doefab::decoder::unet::UNet;
-use doefab::decoder::weights::{encode_safetensors, DecoderWeights, NamedTensor};
+use doefab::decoder::UNet;
 use doefab::decoder::{device, infer};
+use doefab::decoder::{encode_safetensors, DecoderWeights, NamedTensor};
 use doefab::image::Image;
 use doefab::io::npy::read_npy_nd;
 use doefab::{DataCause, Error, FormatCause};
@@ -143,7 +143,7 @@ fn decoder_files_round_trip_with_their_metadata() {
 #[test]
 fn missing_and_misshaped_tensors_are_named() {
     let t = common::tempdir();
-    let mut tensors: BTreeMap<String, NamedTensor> = doefab::decoder::weights::tensor_specs()
+    let mut tensors: BTreeMap<String, NamedTensor> = doefab::decoder::tensor_specs()
         .into_iter()
         .map(|(n, s)| {
             let len = s.iter().product();
@@ -171,16 +171,16 @@ fn missing_and_misshaped_tensors_are_named() {
 // ---------------------------------------------------------------------------------------------
 // Reconstruction: analytic decoders, tiling, captures, the command
 
-use doefab::decoder::dataset::{HdrImage, HdrScenes};
-use doefab::decoder::finetune::{gamma_loss, Adam, FinetuneConfig, Trainer};
-use doefab::decoder::reconstruct::{infer_tiled, read_capture, reconstruct, Negatives, ReconstructOptions};
 use doefab::decoder::to_tensor;
+use doefab::decoder::{gamma_loss, Adam, FinetuneConfig, Trainer};
+use doefab::decoder::{infer_tiled, read_capture, reconstruct, Negatives, ReconstructOptions};
+use doefab::decoder::{HdrImage, HdrScenes};
 use doefab::rng::Lcg;
 
 /// Seeded random weights (He-like scale, unit BatchNorm).
 fn random_weights(seed: u64) -> DecoderWeights {
     let mut g = Lcg(seed);
-    let tensors = doefab::decoder::weights::tensor_specs()
+    let tensors = doefab::decoder::tensor_specs()
         .into_iter()
         .map(|(name, shape)| {
             let n: usize = shape.iter().product();
@@ -438,7 +438,7 @@ fn an_adam_step_lowers_the_loss_on_its_batch() {
         .map(|(&a, &b)| ((a.max(0.0) as f64 + e).sqrt() - (b as f64 + e).sqrt()).powi(2))
         .sum::<f64>()
         / y.len() as f64;
-    let ours = doefab::decoder::unet::tensor_values(gamma_loss(
+    let ours = doefab::decoder::tensor_values(gamma_loss(
         net.forward(to_tensor(&[&Image::new(x[0].clone())], &dev)).unwrap(),
         to_tensor(&[&Image::new(t[0].clone())], &dev),
     ))
@@ -531,7 +531,7 @@ fn resume_continues_exactly_and_divergence_keeps_the_last_good_checkpoint() {
 
 #[test]
 fn generated_scenes_feed_a_run_and_bad_values_are_refused() {
-    use doefab::decoder::scenes::GeneratedScenes;
+    use doefab::decoder::GeneratedScenes;
     let dev = device(false).unwrap();
     // A stand-in generator: a seeded log-normal texture.
     let texture = GeneratedScenes {
@@ -574,8 +574,8 @@ fn write_hdr_images(dir: &std::path::Path) {
 /// why; a side (training or validation) left without images is refused, naming the skipped.
 #[test]
 fn unreadable_training_images_are_skipped_and_an_empty_side_refused() {
-    use doefab::decoder::dataset::{is_validation, read_dir, training_and_validation};
-    use doefab::decoder::scenes::SceneSource;
+    use doefab::decoder::SceneSource;
+    use doefab::decoder::{is_validation, read_dir, training_and_validation};
     let t = common::tempdir();
     let data = t.path().join("data");
     write_hdr_images(&data);
@@ -914,7 +914,7 @@ fn bench_decoder_scores_every_decoder_on_one_pixel_set_and_carries_on_past_a_bad
 /// so the test tells the orientation apart.
 #[test]
 fn the_measured_psf_decoder_wins_on_captures_simulated_with_the_measured_psf() {
-    use doefab::decoder::scenes::GeneratedScenes;
+    use doefab::decoder::GeneratedScenes;
     use doefab::optics::Psf;
     let data = data_dir();
     let dev = device(false).unwrap();
@@ -924,7 +924,7 @@ fn the_measured_psf_decoder_wins_on_captures_simulated_with_the_measured_psf() {
         c.grid.values_mut().invert_axis(ndarray::Axis(0));
         c.grid.values_mut().invert_axis(ndarray::Axis(1));
     }
-    let scenes = GeneratedScenes { name: "procedural", generate: doefab::decoder::scenes::procedural_scene };
+    let scenes = GeneratedScenes { name: "procedural", generate: doefab::decoder::procedural_scene };
     let cfg = FinetuneConfig { steps: 1, batch: 1, crop: 160, validation: 4, ..FinetuneConfig::default() };
     let psnr = |decoder: &str, psf: &doefab::optics::psf::Psf| {
         let w = DecoderWeights::read(&data.join(decoder)).unwrap();
@@ -942,7 +942,7 @@ fn the_measured_psf_decoder_wins_on_captures_simulated_with_the_measured_psf() {
 /// The decoders compiled into the binary are the paper's files, byte for byte, and load.
 #[test]
 fn the_bundled_decoders_are_the_papers_files() {
-    use doefab::decoder::weights::{decoder_bytes, decoder_sha256};
+    use doefab::decoder::{decoder_bytes, decoder_sha256};
     let dir = data_dir();
     for (name, file) in [
         ("paper-simulated-psf", "decoder_simulated_psf.safetensors"),
@@ -1083,7 +1083,7 @@ fn the_negative_penalty_lifts_negative_outputs() {
 /// is the same). A negative or non-finite limit is refused, naming the parameter.
 #[test]
 fn gradient_clipping_reports_norms_and_cuts_only_steps_above_its_limit() {
-    use doefab::decoder::unet::tensor_values;
+    use doefab::decoder::tensor_values;
     let dev = device(false).unwrap();
     let x = [rgb(1, 32, 32), rgb(2, 32, 32)];
     let t = [rgb(3, 32, 32), rgb(4, 32, 32)];
@@ -1143,12 +1143,12 @@ fn gradient_clipping_reports_norms_and_cuts_only_steps_above_its_limit() {
 /// (over 1e-3). The chart and data are written all or nothing.
 #[test]
 fn tiles_with_enough_overlap_equal_one_pass_and_f32_is_within_1e_5_of_f64() {
-    use doefab::bench::tiling::TilingOptions;
+    use doefab::sweep::tiling::TilingOptions;
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("tiling");
     let opts = TilingOptions { size: 512, tiles: vec![384], overlaps: vec![0, 96], seed: 1 };
     let decoder = PathBuf::from("built-in:paper-measured-psf");
-    let r = doefab::pipeline::bench::bench_tiling(&decoder, &opts, &out, &mut |_, _, _| {}).unwrap();
+    let r = doefab::pipeline::sweep::sweep_tiling(&decoder, &opts, &out, &mut |_, _, _| {}).unwrap();
     for name in ["tiling.png", "tiling.svg", "tiling.json", "tiling.csv"] {
         assert!(out.join(name).is_file(), "{name}");
     }

@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use doefab::calibration::capture::{read_image, read_rgb_exr};
+use doefab::calibration::{read_image, read_rgb_exr};
 use doefab::io::exr::scanline::Header;
 use doefab::io::exr::yca;
 
@@ -265,7 +265,7 @@ fn every_image_of_the_shared_hdr_folder_is_read() {
     let root = common::shared_data("hdr");
     let t = common::tempdir();
     let listing = common::run_python(HEADERS, &[root.to_str().unwrap(), t.path().to_str().unwrap()]);
-    let folder = doefab::decoder::dataset::read_dir(&root).unwrap();
+    let folder = doefab::decoder::read_dir(&root).unwrap();
     assert!(folder.skipped.is_empty(), "{:?}", folder.skipped);
     assert_eq!(folder.images.len(), 43);
     let mut tiled = 0;

@@ -1,9 +1,10 @@
 //! Data flows one way, design to decoder: no stage module names a later stage, and the shared
 //! modules below the stages (grid, io, image, ...) name none. Above the stages sit the
-//! benchmarks (`bench`, which call the stages), then the charts (`charts`, which draw the
-//! stages' results and the benchmarks' reports: `plotters` is named nowhere else), then the
+//! sweeps (`sweep`, which call the stages), then the charts (`charts`, which draw the
+//! stages' results and the sweeps' results: `plotters` is named nowhere else), then the
 //! commands (`pipeline`, `demo`), which run them and write their files. Read from the source,
-//! so a new `use` that closes a cycle fails here with the file and the line.
+//! so a new `use` that closes a cycle fails here with the file and the line. No source file is
+//! over 1,000 lines: a longer one is split into a folder, a file per concept.
 
 use std::collections::BTreeMap;
 use std::fs;
@@ -12,10 +13,10 @@ use std::path::{Path, PathBuf};
 /// The stages in the order data flows through them.
 const STAGES: [&str; 6] = ["design", "fabrication", "metrology", "optics", "calibration", "decoder"];
 /// Modules every stage may use; they use no stage (nor the layers above the stages).
-const SHARED: [&str; 10] =
-    ["error", "grid", "units", "material", "table", "rng", "linalg", "io", "image", "float"];
+const SHARED: [&str; 11] =
+    ["error", "grid", "units", "material", "tabulated", "rng", "linalg", "io", "image", "rounding", "fft"];
 /// The layers above the stages, lowest first: each names none above it.
-const ABOVE: [&str; 4] = ["bench", "charts", "pipeline", "demo"];
+const ABOVE: [&str; 4] = ["sweep", "charts", "pipeline", "demo"];
 
 /// The `.rs` files of module `name`: `src/name.rs` and everything below `src/name/`.
 fn sources(name: &str) -> Vec<PathBuf> {
@@ -80,6 +81,51 @@ fn no_module_imports_a_later_one() {
         wrong.extend(imports(shared, &above));
     }
     assert!(wrong.is_empty(), "imports against the flow:\n{}", wrong.join("\n"));
+}
+
+/// The most lines a source file may hold: a longer file holds more than one concept, and is
+/// split into a folder of files, each named for what it holds.
+const MAX_FILE_LINES: usize = 1000;
+
+/// The files under `src/` longer than [`MAX_FILE_LINES`], each with its line count.
+fn long_files(src: &Path) -> Vec<String> {
+    let (mut long, mut dirs) = (vec![], vec![src.to_path_buf()]);
+    while let Some(d) = dirs.pop() {
+        for p in fs::read_dir(&d).unwrap().flatten().map(|e| e.path()) {
+            if p.is_dir() {
+                dirs.push(p);
+            } else {
+                let lines = fs::read_to_string(&p).unwrap().lines().count();
+                if lines > MAX_FILE_LINES {
+                    long.push(format!("{}: {lines} lines", p.strip_prefix(src).unwrap().display()));
+                }
+            }
+        }
+    }
+    long.sort();
+    long
+}
+
+#[test]
+fn no_source_file_is_over_a_thousand_lines() {
+    let long = long_files(&Path::new(env!("CARGO_MANIFEST_DIR")).join("src"));
+    assert!(
+        long.is_empty(),
+        "files over {MAX_FILE_LINES} lines (split each into a folder, a file per concept):\n{}",
+        long.join("\n")
+    );
+}
+
+/// The check names a file over the limit with its count, and passes one at the limit.
+#[test]
+fn the_length_check_names_a_long_file() {
+    let dir = std::env::temp_dir().join(format!("doefab-layering-{}", std::process::id()));
+    fs::create_dir_all(dir.join("a")).unwrap();
+    fs::write(dir.join("a/long.rs"), "\n".repeat(MAX_FILE_LINES + 1)).unwrap();
+    fs::write(dir.join("short.rs"), "\n".repeat(MAX_FILE_LINES)).unwrap();
+    let long = long_files(&dir);
+    fs::remove_dir_all(&dir).unwrap();
+    assert_eq!(long, [format!("{}: {} lines", Path::new("a").join("long.rs").display(), MAX_FILE_LINES + 1)]);
 }
 
 /// `plotters` is named in the charts and nowhere else in the sources.
@@ -150,7 +196,7 @@ fn the_import_graph_covers_the_library_and_the_command_line() {
     all.sort();
     seen.sort();
     assert_eq!(all, seen);
-    assert!(lib.targets("bench/register.rs").contains(&"metrology/scan_registration/mod.rs"));
+    assert!(lib.targets("sweep/register.rs").contains(&"metrology/scan_registration/mod.rs"));
     assert!(bin.targets("main.rs").contains(&"cli/args.rs"));
     assert!(bin.targets("cli/optics.rs").iter().any(|t| t.starts_with("cli/")));
 }

@@ -7,8 +7,8 @@
 use std::path::PathBuf;
 
 use doefab::io::scan::{read_scan, ScanOptions};
-use doefab::metrology::level::{level, LevelMethod, Plane};
-use doefab::metrology::stats::height_params;
+use doefab::metrology::height_params;
+use doefab::metrology::{level, LevelMethod, Plane};
 
 fn local(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("profilometry").join(name)

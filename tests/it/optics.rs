@@ -387,7 +387,7 @@ fn in_focus_the_single_transform_does_not_depend_on_d_phi() {
 
 #[test]
 fn each_propagation_step_conserves_energy() {
-    use doefab::optics::fft::{fft_freq, Plan2d};
+    use doefab::fft::{fft_freq, Plan2d};
     use rustfft::num_complex::Complex64;
     // A field with structure at every frequency.
     let n = 96;
@@ -396,8 +396,7 @@ fn each_propagation_step_conserves_energy() {
         Complex64::from_polar(1.0 + ((i * 7 + j * 3) % 5) as f64, (i * j) as f64 * 0.37)
     });
     let e0 = field_power(&u, dx);
-    let mut planner = rustfft::FftPlanner::new();
-    let plan = Plan2d::new(&mut planner, n);
+    let plan = Plan2d::new(n);
     // Fresnel transfer function: unit modulus everywhere.
     let h = Array2::from_shape_fn((n, n), |(p, q)| {
         let f2 = fft_freq(p, n, dx).powi(2) + fft_freq(q, n, dx).powi(2);
@@ -673,11 +672,11 @@ fn the_folded_real_transform_equals_the_direct_collins_sum_in_f64_and_f32() {
 /// while a paraxial truth would differ by 3e-2.
 #[test]
 fn the_stability_maps_count_no_silent_failure() {
-    use doefab::bench::stability::MapOptions;
+    use doefab::sweep::stability::MapOptions;
     let d = tempfile::tempdir().unwrap();
     let out = d.path().join("stab");
     let r =
-        doefab::pipeline::bench::bench_stability(&MapOptions::default(), &out, &mut |_, _, _| {}).unwrap();
+        doefab::pipeline::sweep::sweep_stability(&MapOptions::default(), &out, &mut |_, _, _| {}).unwrap();
     assert_eq!(r.maps.len(), 8);
     for m in &r.maps {
         assert_eq!(m.silent_failures, 0, "{:?}", m.cells.iter().filter(|c| c.silent).collect::<Vec<_>>());
@@ -706,7 +705,7 @@ fn the_stability_maps_count_no_silent_failure() {
     for m in &r.maps[6..] {
         assert_eq!((m.method.as_str(), m.y_axis.as_str()), ("matrix_dft", "wavelength"));
         for c in &m.cells {
-            if c.pupil_pitch <= doefab::bench::stability::STEPPED_DOE_PITCH * (1.0 + 1e-9) {
+            if c.pupil_pitch <= doefab::sweep::stability::STEPPED_DOE_PITCH * (1.0 + 1e-9) {
                 assert!(c.violations.is_empty() && c.error < 2.5e-3, "{} {c:?}", m.design);
             } else {
                 assert!(c.violations.iter().any(|v| v == "step_resampling"), "{} {c:?}", m.design);
@@ -750,11 +749,11 @@ fn the_stability_maps_count_no_silent_failure() {
 /// not have: refused (`step_resampling`), and over 1e-2 off. Measured in the comments.
 #[test]
 fn a_stepped_pupil_is_exact_for_the_part_it_is() {
-    use doefab::bench::psf::scene;
-    use doefab::bench::stability::{stepped_doe, STEPPED_DOE_PITCH};
     use doefab::grid::Interpolation;
     use doefab::optics::psf::relative_l2;
     use doefab::optics::system::PixelRule;
+    use doefab::sweep::psf::scene;
+    use doefab::sweep::stability::{stepped_doe, STEPPED_DOE_PITCH};
     let (wrapped, quantized) = stepped_doe(4).unwrap();
     let pi = std::f64::consts::PI;
     for (name, doe) in [("wrapped", &wrapped), ("quantized", &quantized)] {

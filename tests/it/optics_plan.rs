@@ -19,10 +19,10 @@ const TOL: f64 = 1e-3;
 
 // The bench's small F/7 scene: 0.5 mm aperture, g = 3.5 mm, 3 um pixels, 40 x 40 crop, the DOE
 // at 5 um, 635 and 450 nm.
-use doefab::bench::psf::{scene, N, PITCH};
+use doefab::sweep::psf::{scene, N, PITCH};
 
 fn heights(phase: impl Fn(f64, f64) -> f64) -> Grid {
-    doefab::bench::psf::heights(phase).unwrap()
+    doefab::sweep::psf::heights(phase).unwrap()
 }
 
 /// The midpoint rule at 16 and 32 sub-samples, Richardson-extrapolated, f64; with bands, each
@@ -155,7 +155,7 @@ fn a_wide_spectral_band() {
 /// DOE, a wrapped diffractive lens, a binary grating, a random phase, and a simulated scan of the
 /// built-in DOE as a profilometer returns it (5 um blur, 4 % shallow, 10 nm noise).
 fn five_designs() -> Vec<(&'static str, Grid)> {
-    use doefab::metrology::synthetic_scan::{simulate_scan, SimulateParams};
+    use doefab::metrology::{simulate_scan, SimulateParams};
     let tau = 2.0 * std::f64::consts::PI;
     let lens = heights(|x, y| (-(x * x + y * y) * std::f64::consts::PI / (550e-9 * 40e-3)).rem_euclid(tau));
     // 0 / 0.8 pi at 550 nm (under pi at 450 nm too, so the pupil's steps are resolved), 40 um
@@ -411,7 +411,7 @@ fn peaks_find_the_central_spot_and_its_copies_with_their_energies() {
 // ---------------------------------------------------------------------------------------------
 // `bench psf`: its reference, the plan on its chart, the budget
 
-use doefab::bench::psf::{run_bench, BenchOptions};
+use doefab::sweep::psf::{run_sweep, SweepOptions};
 
 /// The bench's reference (Gauss-Legendre pixels at `s_max + 4`) agrees with the independent
 /// one above (midpoint rule, Richardson-extrapolated) to 1e-6, and its own convergence check
@@ -419,11 +419,11 @@ use doefab::bench::psf::{run_bench, BenchOptions};
 /// fine grids where its error stalls, and the FFT methods run at three paddings.
 #[test]
 fn bench_psf_reference_is_converged_and_the_plan_meets_its_tolerances() {
-    let (system, doe) = (scene(), doefab::bench::psf::doe().unwrap());
-    let opts = BenchOptions { budget: 600.0, max_subsample: 4, tolerances: vec![1e-2, 1e-3, 1e-4] };
+    let (system, doe) = (scene(), doefab::sweep::psf::doe().unwrap());
+    let opts = SweepOptions { budget: 600.0, max_subsample: 4, tolerances: vec![1e-2, 1e-3, 1e-4] };
     let mut ticks = 0;
-    let r = run_bench(&system, &doe, &opts, |_| ticks += 1).unwrap();
-    assert_eq!(ticks, doefab::bench::psf::steps(&opts));
+    let r = run_sweep(&system, &doe, &opts, |_| ticks += 1).unwrap();
+    assert_eq!(ticks, doefab::sweep::psf::steps(&opts));
     assert_eq!(r.reference.subsamples, [6, 8]);
     assert!(r.reference.difference < 1e-6, "{:?}", r.reference);
     // Against the independent reference: run the bench's reference configuration here.
@@ -468,9 +468,9 @@ fn bench_psf_reference_is_converged_and_the_plan_meets_its_tolerances() {
 /// a budget that holds them, every run was predicted to fit.
 #[test]
 fn bench_psf_budget_leaves_configurations_out_by_name() {
-    let (system, doe) = (scene(), doefab::bench::psf::doe().unwrap());
-    let opts = BenchOptions { budget: 1e-9, max_subsample: 2, tolerances: vec![1e-3] };
-    let r = run_bench(&system, &doe, &opts, |_| {}).unwrap();
+    let (system, doe) = (scene(), doefab::sweep::psf::doe().unwrap());
+    let opts = SweepOptions { budget: 1e-9, max_subsample: 2, tolerances: vec![1e-3] };
+    let r = run_sweep(&system, &doe, &opts, |_| {}).unwrap();
     assert!(r.points.is_empty() && r.plans.is_empty());
     assert_eq!(r.skipped.len(), 17, "{:?}", r.skipped);
     for name in
@@ -486,8 +486,8 @@ fn bench_psf_budget_leaves_configurations_out_by_name() {
     doefab::charts::optics::write_psf_charts(|n| d.path().join(n), &r).unwrap();
     let svg = std::fs::read_to_string(d.path().join("speed_accuracy.svg")).unwrap();
     assert!(svg.contains("left out by the budget: 17"));
-    let bad = BenchOptions { budget: 10.0, max_subsample: 0, tolerances: vec![] };
-    assert!(run_bench(&system, &doe, &bad, |_| {}).is_err());
+    let bad = SweepOptions { budget: 10.0, max_subsample: 0, tolerances: vec![] };
+    assert!(run_sweep(&system, &doe, &bad, |_| {}).is_err());
 }
 
 /// `bench psf` on a design with a system file: the charts and the JSON, the plan on them; a
@@ -498,7 +498,7 @@ fn bench_psf_command_charts_a_design_in_its_system() {
     let sys = system_file(dir.path(), "0.5 mm", "3.5 mm");
     // The small scene's DOE (112^2 at 5 um) as a file in micrometres.
     let doe = dir.path().join("doe.npy");
-    let heights = doefab::bench::psf::doe().unwrap().values().mapv(|h| h * 1e6);
+    let heights = doefab::sweep::psf::doe().unwrap().values().mapv(|h| h * 1e6);
     doefab::io::npy::write_npy_f64(&doe, &heights).unwrap();
     let out = dir.path().join("bench");
     let path = |p: &std::path::Path| p.to_str().unwrap().to_string();
@@ -553,7 +553,7 @@ fn bench_psf_runs_on_a_wrapped_user_design() {
     use doefab::fabrication::wrap::{wrap, WrapSpec};
     let dir = tempfile::tempdir().unwrap();
     let sys = system_file(dir.path(), "0.5 mm", "3.5 mm");
-    let (wrapped, _) = wrap(&doefab::bench::psf::doe().unwrap(), &WrapSpec::default()).unwrap();
+    let (wrapped, _) = wrap(&doefab::sweep::psf::doe().unwrap(), &WrapSpec::default()).unwrap();
     let heights = wrapped.values().slice(ndarray::s![.., ..;-1]).mapv(|h| 0.9 * h * 1e6);
     let pi = std::f64::consts::PI;
     let k = 2.0 * pi / 635e-9 * (doefab::material::Material::pdms().index(635e-9).unwrap() - 1.0) * 1e-6;
@@ -602,7 +602,7 @@ fn bench_psf_runs_on_a_wrapped_user_design() {
 /// (2.0e-5; 27 would do); at 1e-4 the estimate refuses (more than 64 sub-bands for 'g').
 #[test]
 fn spectral_sampling_sweep_meets_the_rule_and_converges() {
-    use doefab::bench::spectral::{run_spectral, steps, SpectralOptions};
+    use doefab::sweep::spectral::{run_spectral, steps, SpectralOptions};
     let opts = SpectralOptions::paper().unwrap();
     let mut ticks = 0;
     let r = run_spectral(&scene(), &built_in_doe(), &opts, |_| ticks += 1).unwrap();
@@ -634,7 +634,7 @@ fn spectral_sampling_sweep_meets_the_rule_and_converges() {
 /// failure: at 1e-3 the rule asks for 29 sub-bands, the reference has 9.
 #[test]
 fn spectral_plan_runs_finer_than_the_reference_are_not_scored() {
-    use doefab::bench::spectral::{run_spectral, SpectralOptions};
+    use doefab::sweep::spectral::{run_spectral, SpectralOptions};
     let opts =
         SpectralOptions { reference_power: 2, tolerances: vec![1e-3], ..SpectralOptions::paper().unwrap() };
     let r = run_spectral(&scene(), &built_in_doe(), &opts, |_| {}).unwrap();
@@ -688,8 +688,8 @@ fn the_rejected_cheaper_points_are_measured_against_an_independent_reference() {
 /// triples at least once.
 #[test]
 fn the_spectral_check_reports_each_tripling() {
-    use doefab::bench::spectral::paper_bands;
     use doefab::optics::plan::run_reporting;
+    use doefab::sweep::spectral::paper_bands;
     let (doe, bands) = (built_in_doe(), paper_bands().unwrap());
     let p = plan(&scene(), &doe, &bands, 1e-2).unwrap();
     let mut said = Vec::new();

@@ -4,15 +4,15 @@
 //! and compared again. The truth (the process) is never shown to the correction.
 
 use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
-use doefab::fabrication::chain::{ChainParams, LoadedDesign};
 use doefab::fabrication::precompensate::Response;
 use doefab::fabrication::quantize::QuantizeMethod;
+use doefab::fabrication::recipe_run::{ChainParams, LoadedDesign};
 use doefab::fabrication::wrap::WrapSpec;
 use doefab::fabrication::ReplicaMode;
-use doefab::metrology::scan_compare::{CompareOptions, Comparison, LevelSpec};
-use doefab::metrology::scan_registration::Pose;
-use doefab::metrology::synthetic_scan::SimulateParams;
-use doefab::optics::output::system_for;
+use doefab::metrology::Pose;
+use doefab::metrology::SimulateParams;
+use doefab::metrology::{CompareOptions, Comparison, LevelSpec};
+use doefab::optics::psf_files::system_for;
 use doefab::optics::{Method, Options};
 use doefab::pipeline::compare::psf_comparison;
 use doefab::pipeline::precompensate::{simulate_loop, Corrections, LoopResult};
@@ -168,7 +168,7 @@ fn the_command_closes_the_loop_through_its_files() {
     use crate::common::{ok, tempdir};
     use doefab::fabrication::recipe::Recipe;
     use doefab::io::raw_map::Metadata;
-    use doefab::metrology::synthetic_scan::{simulate_scan, write_scan};
+    use doefab::metrology::{simulate_scan, write_scan};
     let dir = tempdir();
     let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
     let d = design();
@@ -181,11 +181,12 @@ fn the_command_closes_the_loop_through_its_files() {
     .unwrap();
     let recipe = Recipe::read(std::path::Path::new("built-in:laser-writer-grayscale")).unwrap();
     let params = ChainParams::of_recipe(&recipe, false);
-    let loaded = doefab::fabrication::chain::load_design(&doefab::fabrication::chain::DesignSource::File(
-        dir.path().join("design.exr"),
-        Default::default(),
-    ))
-    .unwrap();
+    let loaded =
+        doefab::fabrication::recipe_run::load_design(&doefab::fabrication::recipe_run::DesignSource::File(
+            dir.path().join("design.exr"),
+            Default::default(),
+        ))
+        .unwrap();
     let (target, _, _) = doefab::pipeline::compare::reference_surface(&loaded, Some(&params)).unwrap();
     let truth = process(SimulateParams { depth_scale: 0.88, ..Default::default() });
     write_scan(dir.path().join("before.x3p").as_path(), &simulate_scan(&target, &truth).unwrap()).unwrap();

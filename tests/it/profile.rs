@@ -9,13 +9,11 @@ use serde_json::Value;
 
 use crate::common::{self, doefab, fails, ok, shared_data};
 
-use doefab::fabrication::chain::{load_design, ChainParams, DesignSource};
 use doefab::fabrication::recipe::Recipe;
+use doefab::fabrication::recipe_run::{load_design, ChainParams, DesignSource};
 use doefab::io::profile::ProfileReadOptions;
 use doefab::io::scan::{read_scan, ScanOptions};
-use doefab::metrology::profile::{
-    simulate_profile, LineSpec, Profile, ProfileLevel, ProfileOptions, SimulateProfile,
-};
+use doefab::metrology::{simulate_profile, LineSpec, Profile, ProfileLevel, ProfileOptions, SimulateProfile};
 use doefab::pipeline::compare::reference_surface;
 use doefab::pipeline::compare_profile::{compare_profile_file, ProfileDesign};
 

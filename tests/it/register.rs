@@ -5,10 +5,10 @@ use crate::common;
 use crate::common::doefab;
 
 use doefab::design::PAPER_PITCH;
-use doefab::fabrication::chain::{load_design, DesignSource};
+use doefab::fabrication::recipe_run::{load_design, DesignSource};
 use doefab::io::heightmap::ReadOptions;
 use doefab::io::scan::{read_scan, ScanOptions};
-use doefab::metrology::scan_registration::{register, RegisterOptions};
+use doefab::metrology::{register, RegisterOptions};
 
 #[test]
 fn a_simulated_x3p_scan_of_the_built_in_design_registers_to_the_injected_pose() {
@@ -156,7 +156,7 @@ fn registration_recovers_a_closed_form_shift_and_rotation() {
 fn the_registration_map_has_no_silent_failure() {
     let dir = common::tempdir();
     let out = dir.path().join("reg");
-    let r = doefab::pipeline::bench::bench_register(&out, &mut |_, _, _| {}).unwrap();
+    let r = doefab::pipeline::sweep::sweep_register(&out, &mut |_, _, _| {}).unwrap();
     assert_eq!(
         r.silent_failures,
         0,

@@ -1,14 +1,14 @@
 //! `doefab report`: one static page from the benchmarks, within its budget.
 
-use doefab::bench::finetune_time::TimedOptions;
-use doefab::bench::psf::BenchOptions;
-use doefab::bench::stability::{MapOptions, MAPS};
-use doefab::decoder::finetune::FinetuneConfig;
+use doefab::decoder::FinetuneConfig;
 use doefab::design::{paper_example, ExampleParams, PAPER_PITCH};
-use doefab::fabrication::chain::DesignSource;
+use doefab::fabrication::recipe_run::DesignSource;
 use doefab::io::heightmap::ReadOptions;
-use doefab::pipeline::bench::PsfBenchOptions;
 use doefab::pipeline::report::{run_report, shown, ReportOptions, COSTS};
+use doefab::pipeline::sweep::PsfSweepOptions;
+use doefab::sweep::finetune_time::TimedOptions;
+use doefab::sweep::psf::SweepOptions;
+use doefab::sweep::stability::{MapOptions, MAPS};
 
 /// `html` without the elements from `open` to `close`.
 fn without(html: &str, open: &str, close: &str) -> String {
@@ -85,11 +85,11 @@ fn the_report_page_links_what_exists_and_every_number_comes_from_its_json() {
     doefab::io::npy::write_npy_f64(&design, paper_example(&p).unwrap().values()).unwrap();
     let read = ReadOptions { pitch: Some([PAPER_PITCH; 2]), unit: Some(1.0), ..Default::default() };
     let opts = ReportOptions {
-        psf: PsfBenchOptions {
+        psf: PsfSweepOptions {
             design: DesignSource::File(design, read),
             system: Some(sys),
             material: "pdms".into(),
-            bench: BenchOptions { budget: 60.0, max_subsample: 3, ..Default::default() },
+            sweep: SweepOptions { budget: 60.0, max_subsample: 3, ..Default::default() },
         },
         // Room for every part, whatever else shares the machine; the PSF benchmark keeps to
         // its own minute.
@@ -200,11 +200,11 @@ fn a_small_budget_leaves_parts_out_and_names_them_on_the_page() {
     let p = ExampleParams { samples: 140, aperture: 0.55e-3, ..Default::default() };
     doefab::io::npy::write_npy_f64(&design, paper_example(&p).unwrap().values()).unwrap();
     let read = ReadOptions { pitch: Some([PAPER_PITCH; 2]), unit: Some(1.0), ..Default::default() };
-    let psf = PsfBenchOptions {
+    let psf = PsfSweepOptions {
         design: DesignSource::File(design, read),
         system: Some(sys),
         material: "pdms".into(),
-        bench: BenchOptions { max_subsample: 2, ..Default::default() },
+        sweep: SweepOptions { max_subsample: 2, ..Default::default() },
     };
     let opts = ReportOptions::new(psf, 3.0);
     let out = dir.path().join("report");
@@ -250,11 +250,11 @@ fn a_small_budget_leaves_parts_out_and_names_them_on_the_page() {
 #[test]
 fn the_report_refuses_a_budget_it_cannot_keep() {
     let opts = ReportOptions {
-        psf: PsfBenchOptions {
+        psf: PsfSweepOptions {
             design: DesignSource::BuiltIn("paper".into()),
             system: None,
             material: "pdms".into(),
-            bench: BenchOptions::default(),
+            sweep: SweepOptions::default(),
         },
         budget: 0.0,
         maps: MapOptions::default(),

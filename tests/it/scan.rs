@@ -18,9 +18,9 @@ use crate::common;
 use std::path::{Path, PathBuf};
 
 use doefab::io::scan::{read_scan, ScanFormat, ScanOptions};
-use doefab::metrology::level::level_plane;
-use doefab::metrology::outliers::nsigma_outliers;
-use doefab::metrology::stats::{height_params, HeightParams};
+use doefab::metrology::level_plane;
+use doefab::metrology::nsigma_outliers;
+use doefab::metrology::{height_params, HeightParams};
 use doefab::{Error, FormatCause, Grid};
 use ndarray::Array2;
 
@@ -357,7 +357,7 @@ fn scan_info_command_prints_the_statistics() {
 #[test]
 fn median_outliers_and_laplace_fill_restore_s1_from_s3() {
     use doefab::grid::fill::fill_missing;
-    use doefab::metrology::outliers::{median_outliers, without_outliers};
+    use doefab::metrology::{median_outliers, without_outliers};
     let s3 = read(&local("s3_spikes_missing_nan.x3pio.x3p"), &ScanOptions::default()).grid;
     // 3 x 3 median residuals: 5 um at the spikes, one step height (1 um or 0.5 um) at the
     // pedestal's corners, 0 on the tilted planes (the median of a plane's 3 x 3 window is its

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use doefab::io::scan::zygo::{self, MetroProFields, INVALID_PHASE};
 use doefab::io::scan::{decode_scan_raw, read_scan, scan_from_raw, ScanOptions};
-use doefab::metrology::stats::height_params;
+use doefab::metrology::height_params;
 use doefab::{DataCause, Error, FormatCause};
 use ndarray::Array2;
 

@@ -9,7 +9,7 @@ use std::io::{Cursor, Read};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use doefab::decoder::weights::{decode_safetensors, encode_safetensors};
+use doefab::decoder::{decode_safetensors, encode_safetensors};
 use doefab::io::npy::decode_npy;
 use ndarray::ArrayD;
 use ndarray_npy::{NpzReader, ReadNpyExt};
@@ -81,7 +81,7 @@ fn main() {
     let st = data.join("decoder_measured_psf.safetensors");
     let sbytes = std::fs::read(&st).expect("the decoder");
     let (tensors, metadata) = decode_safetensors(&st, &sbytes).expect("doefab reads it");
-    let named: Vec<(&str, &doefab::decoder::weights::NamedTensor)> =
+    let named: Vec<(&str, &doefab::decoder::NamedTensor)> =
         tensors.iter().map(|(k, v)| (k.as_str(), v)).collect();
     let raw: Vec<(String, Vec<u8>, Vec<usize>)> = tensors
         .iter()

@@ -14,17 +14,24 @@ use crate::error::{Allowed, Error, Result};
 pub struct FinetuneConfig {
     /// Total steps of the run (a resumed run continues to this count).
     pub steps: usize,
+    /// Scenes (simulated captures) per step.
     pub batch: usize,
     /// Crop side, pixels (a multiple of 16).
     pub crop: usize,
+    /// Adam's step size `lr` before the bias corrections and the decay ([`Self::lr_at`]).
     pub lr: f64,
+    /// Adam's first-moment decay rate `b1`, in `[0, 1)`.
     pub beta1: f64,
+    /// Adam's second-moment decay rate `b2`, in `[0, 1)`.
     pub beta2: f64,
+    /// Adam's `eps`, added to `sqrt(v)` in the update's denominator.
     pub epsilon: f64,
     /// Validate and checkpoint every this many steps (and at the end).
     pub checkpoint_every: usize,
-    /// Size of the fixed validation set.
+    /// Size of the fixed validation set, simulated captures.
     pub validation: usize,
+    /// Seed of the generator that draws the training batches; the validation set is simulated
+    /// from a seed derived from it.
     pub seed: u64,
     /// Stop when the validation loss exceeds this factor times the best so far.
     pub divergence: f64,
@@ -136,15 +143,17 @@ pub fn short_run_warning(steps: usize, best_step: usize) -> Option<String> {
     })
 }
 
-/// `doefab finetune`'s batch and crop side, pixels (the crop well over the decoder's receptive
-/// radius; 128 px crops, smaller than the 320 px PSF, lose on the real captures; README).
+/// `doefab finetune`'s batch, scenes per step.
 pub const BATCH: usize = 4;
 
+/// `doefab finetune`'s crop side, pixels (well over the decoder's receptive radius; 128 px
+/// crops, smaller than the 320 px PSF, lose on the real captures; README).
 pub const CROP: usize = 256;
 
-/// `doefab finetune`'s validation cadence, steps, and validation set size, views.
+/// `doefab finetune`'s validation cadence, steps.
 pub const CHECKPOINT_EVERY: usize = 20;
 
+/// `doefab finetune`'s validation set size, views (simulated captures).
 pub const VALIDATION: usize = 16;
 
 /// Read noise of `doefab finetune`'s simulated captures, fraction of full scale: measured on

@@ -21,7 +21,10 @@ use super::training_scenes::TrainingScenes;
 pub struct FinetuneJob {
     /// The PSF file (`.npz` with `psf_key`, or `.npy`) at pixel `pitch`, metres.
     pub psf: PathBuf,
+    /// Name of the array inside a `.npz` holding several (`None`: its only array).
     pub psf_key: Option<String>,
+    /// PSF pixel pitch (the sensor's), metres: used where the file states none, checked where
+    /// it does.
     pub pitch: f64,
     /// The start decoder (`None`: [`crate::decoder::default_init`]).
     pub init: Option<PathBuf>,
@@ -29,36 +32,56 @@ pub struct FinetuneJob {
     pub data: Option<PathBuf>,
     /// Validation images (`None`: held out from `data` by name, 1 in `holdout_every`).
     pub validation_data: Option<PathBuf>,
+    /// Without `validation_data`, 1 in this many of `data`'s images validate, chosen by the
+    /// SHA-256 of their name ([`crate::decoder::dataset::is_validation`]).
     pub holdout_every: usize,
     /// Panoramas narrower than this are not used (see [`crate::decoder::dataset`]).
     pub min_panorama_width: usize,
     /// Largest white-balance gain of the training views' colour jitter
     /// ([`crate::decoder::dataset::HdrScenes::white_balance`]).
     pub white_balance: f64,
+    /// Output folder: checkpoint, decoder and `training.json`.
     pub output: PathBuf,
     /// Continue the checkpoint in `output` (to `cfg.steps`, at `lr` when given).
     pub resume: bool,
+    /// Adam step size (`None`: `cfg.lr` for a new run, the saved one on `resume`).
     pub lr: Option<f64>,
+    /// The fine-tuning settings; on `resume` only `steps` and `blend` are taken, the rest come
+    /// from the checkpoint.
     pub cfg: FinetuneConfig,
+    /// Run on the GPU ([`crate::decoder::select_device`]); `false`: the CPU.
     pub gpu: bool,
 }
 
 /// What a finetune run did (the `--json` output of `doefab finetune`).
 #[derive(Debug, Clone, Serialize)]
 pub struct FinetuneOutcome {
+    /// The output folder.
     pub output: PathBuf,
+    /// The fine-tuned decoder written, [`DECODER`] in `output`.
     pub decoder: PathBuf,
+    /// Steps the run took in all (a resumed run's included).
     pub steps: usize,
+    /// `patience` validations passed without a new best, which stops the run
+    /// ([`Trainer::stopped_early`]).
     pub stopped_early: bool,
     /// The step the written decoder comes from (0: no step validated better than the start).
     pub best_step: usize,
+    /// Validation PSNR of the start decoder, dB (`-20 log10 L`, sqrt domain, peak = the
+    /// clipping level); `None` when the history holds no step 0.
     pub start_validation_psnr: Option<f64>,
+    /// Validation PSNR of the best validated weights, dB.
     pub best_validation_psnr: f64,
-    /// The written decoder's blend (see [`FinetuneConfig::blend`]) and validation PSNR.
+    /// The written decoder's blend with the start (see [`FinetuneConfig::blend`] and
+    /// [`Written::blend`](super::Written::blend); 1 = the best validated weights as they are).
     pub blend: f64,
+    /// Validation PSNR of the written decoder, dB.
     pub written_validation_psnr: f64,
+    /// What the training scenes were ([`crate::decoder::scenes::SceneSource::describe`]).
     pub data: String,
+    /// What the validation set was simulated from.
     pub validation_data: String,
+    /// The training curve: one entry per step (step 0 the start), validations at their steps.
     pub history: Vec<HistoryEntry>,
     /// Why the written decoder may be worse than its start ([`short_run_warning`]).
     pub warnings: Vec<String>,

@@ -22,6 +22,8 @@
 //! written, so the checkpoint on disk is the last good one. Otherwise the checkpoint (decoder
 //! tensors, Adam moments, step, generator state, history) is written atomically; resuming from
 //! it replays the same batches, so N steps equal N/2 steps plus N/2 resumed, bit for bit.
+//!
+//! [`SceneSource`]: crate::decoder::scenes::SceneSource
 
 mod config;
 mod job;
@@ -31,11 +33,11 @@ mod trainer;
 mod training_scenes;
 
 pub use config::{
-    short_run_warning, FinetuneConfig, BATCH, BITS, BLEND, CHANNEL_CLIPPING, CHECKPOINT_EVERY, CROP,
-    GRAD_CLIP, HALO, NEGATIVE_PENALTY, READ_NOISE, SHOT_NOISE, STEPS, VALIDATION,
+    FinetuneConfig, BATCH, BITS, BLEND, CHANNEL_CLIPPING, CHECKPOINT_EVERY, CROP, GRAD_CLIP, HALO,
+    NEGATIVE_PENALTY, READ_NOISE, SHOT_NOISE, STEPS, VALIDATION,
 };
 pub use job::{run_job, FinetuneJob, FinetuneOutcome};
 pub use optimiser::{gamma_loss, psnr_of_loss, Adam};
-pub use outputs::{Written, CHECKPOINT, DECODER};
+pub use outputs::DECODER;
 pub use trainer::{simulate_captures, HistoryEntry, StepStats, Trainer};
 pub use training_scenes::{procedural_scenes, SceneGenerator, TrainingScenes};

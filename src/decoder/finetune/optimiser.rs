@@ -23,9 +23,14 @@ pub fn psnr_of_loss(loss: f64) -> f64 {
 
 /// Adam (TensorFlow's form, see the module docs) over a [`UNet`]'s trainable tensors.
 pub struct Adam {
+    /// Step size of the next step before the bias corrections (the trainer sets it from
+    /// [`FinetuneConfig::lr_at`] each step).
     pub lr: f64,
+    /// First-moment decay rate `b1`.
     pub beta1: f64,
+    /// Second-moment decay rate `b2`.
     pub beta2: f64,
+    /// `eps`, added to `sqrt(v)` in the update's denominator.
     pub epsilon: f64,
     /// Steps taken (`t` of the bias corrections).
     pub t: usize,

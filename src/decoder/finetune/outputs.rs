@@ -21,6 +21,8 @@ impl<'a> Trainer<'a> {
     /// validation loss. Should the blend validate worse than the start (it lies between the
     /// start and the best, so it seldom can), the best validated weights are written instead,
     /// so the decoder written never validates below its start.
+    ///
+    /// [`FinetuneConfig::blend`]: super::FinetuneConfig::blend
     pub fn written_decoder(&self) -> Result<(DecoderWeights, Written)> {
         let mut net = self.net.clone();
         net.set_params(self.best.clone());
@@ -176,7 +178,12 @@ impl<'a> Trainer<'a> {
 /// validation loss.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Written {
+    /// The blend written: [`FinetuneConfig::blend`](super::FinetuneConfig::blend), or 1 (the
+    /// best validated weights) where no step validated better than the start or the blend
+    /// would validate worse than it.
     pub blend: f64,
+    /// Validation loss of the decoder written (the paper's loss, sqrt domain, relative to the
+    /// clipping level).
     pub validation_loss: f64,
 }
 

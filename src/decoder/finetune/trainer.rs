@@ -25,11 +25,15 @@ use super::optimiser::{gamma_loss, psnr_of_loss, Adam};
 /// One logged point of the training curve.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct HistoryEntry {
+    /// Steps taken (0: the start, before any step).
     pub step: usize,
-    /// Training loss of this step's batch (before its update); none at step 0.
+    /// Training loss of this step's batch (before its update, with the negative-output penalty
+    /// when set); none at step 0.
     pub loss: Option<f64>,
-    /// Validation loss and PSNR (sqrt domain, dB) after this step, at evaluations.
+    /// Validation loss after this step (the paper's loss, sqrt domain, relative to the clipping
+    /// level); `None` between evaluations.
     pub val_loss: Option<f64>,
+    /// Validation PSNR after this step, dB (`-20 log10 val_loss`); `None` between evaluations.
     pub val_psnr: Option<f64>,
     /// The global norm of this step's gradient before clipping (recorded only with clipping on).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -103,9 +107,14 @@ pub struct Trainer<'a> {
 /// What one step reports to the caller (for a progress bar).
 #[derive(Debug, Clone, PartialEq)]
 pub struct StepStats {
+    /// Steps taken, this one included.
     pub step: usize,
+    /// Steps the run goes to ([`FinetuneConfig::steps`]).
     pub steps: usize,
+    /// Training loss of this step's batch (before its update, with the negative-output penalty
+    /// when set).
     pub loss: f64,
+    /// Validation PSNR after this step, dB; `None` at a step without validation.
     pub val_psnr: Option<f64>,
 }
 
@@ -271,14 +280,17 @@ impl<'a> Trainer<'a> {
         Ok(t)
     }
 
+    /// Steps taken so far.
     pub fn step(&self) -> usize {
         self.step
     }
 
+    /// The training curve so far: one entry per step, step 0 the start.
     pub fn history(&self) -> &[HistoryEntry] {
         &self.history
     }
 
+    /// The run's settings.
     pub fn config(&self) -> &FinetuneConfig {
         &self.cfg
     }

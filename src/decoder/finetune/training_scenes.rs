@@ -20,7 +20,15 @@ pub fn procedural_scenes() -> GeneratedScenes<SceneGenerator> {
 /// A run's scenes: real HDR images with their validation images, or procedural scenes (which
 /// validate on held-out seeds of their own).
 pub enum TrainingScenes {
-    Real { training: HdrScenes, validation: HdrScenes },
+    /// Real HDR images (`finetune --data`).
+    Real {
+        /// The images trained on.
+        training: HdrScenes,
+        /// The images validated on: the validation folder's, or those held out of the data.
+        validation: HdrScenes,
+    },
+    /// The seeded procedural HDR scenes ([`procedural_scenes`]), validated on a seed of their
+    /// own.
     Procedural(GeneratedScenes<SceneGenerator>),
 }
 
@@ -65,6 +73,8 @@ impl TrainingScenes {
     }
 
     /// The training source and, for real images, the validation source ([`Trainer::new`]'s).
+    ///
+    /// [`Trainer::new`]: super::Trainer::new
     pub fn sources(&self) -> (&dyn SceneSource, Option<&dyn SceneSource>) {
         match self {
             TrainingScenes::Real { training, validation } => (training, Some(validation)),

@@ -53,44 +53,65 @@ impl Default for ProfileOptions {
 /// angles in radians, each `*_sigma` a standard error (1 sigma).
 #[derive(Debug, Clone, Serialize)]
 pub struct ProfileComparison {
+    /// The line on the design, as given.
     pub line: LineSpec,
-    /// Design position of the profile's first point and the line's unit direction (before
-    /// registration), metres.
+    /// Design position `[x, y]` of the profile's first point before registration, metres from
+    /// the design's centre.
     pub line_start: [f64; 2],
+    /// Unit direction `d = [d_x, d_y]` of the line in the design's (x, y) frame.
     pub line_direction: [f64; 2],
-    /// Shift along the line `s` (the profile's first point lies at `line_start + s d + v n`).
+    /// Shift along the line `s`, metres (the profile's first point lies at
+    /// `line_start + s d + v n`).
     pub along_shift: f64,
+    /// Standard error of `along_shift`, metres.
     pub along_shift_sigma: f64,
-    /// Offset across the line `v` (towards `n = (-d_y, d_x)`).
+    /// Offset across the line `v`, metres (towards `n = (-d_y, d_x)`).
     pub across_offset: f64,
+    /// Standard error of `across_offset`, metres; `NaN` (`null` in JSON) when `across_fixed`.
     pub across_offset_sigma: f64,
     /// The across-line offset was unobservable and held at the coarse value.
     pub across_fixed: bool,
-    /// `|a|`, and `a < 0`.
+    /// Depth scale `|a|`: measured heights over the design's (1 = as designed).
     pub depth_scale: f64,
+    /// Standard error of `depth_scale`.
     pub depth_scale_sigma: f64,
+    /// `a < 0`: the part is the design's complement (a cast).
     pub complement: bool,
-    /// `b`: height at the profile's middle of the design's zero, metres.
+    /// `b`: measured height of the design's zero at the profile's middle (the mean position of
+    /// the fitted points), metres.
     pub offset: f64,
+    /// Standard error of `offset`, metres.
     pub offset_sigma: f64,
-    /// `c`, dimensionless.
+    /// `c`: remaining tilt along the line, height per length (dimensionless).
     pub tilt: f64,
+    /// Standard error of `tilt` (dimensionless).
     pub tilt_sigma: f64,
-    /// Gaussian lateral blur `sigma`, metres, its standard error, whether it is resolved and
-    /// the upper end of its search.
+    /// Gaussian lateral blur `sigma` of the process, metres.
     pub blur: f64,
+    /// Standard error of `blur`, metres (from the profile likelihood where the blur is too
+    /// small for its Jacobian column; infinite where that is flat).
     pub blur_sigma: f64,
+    /// `blur_sigma < blur / 4`: the blur is resolved.
     pub blur_resolved: bool,
+    /// Upper end of the blur's search, `3 max(pitch)` of the design, metres.
     pub blur_search_max: f64,
-    /// RMS of the residual, metres; points in the fit.
+    /// RMS of the residual `sqrt(SSE / points)`, metres.
     pub rms_residual: f64,
+    /// Profile points in the fit (on the design once registered).
     pub points: usize,
-    /// Correlation of the profile and the fitted model, and the highest its noise allows
-    /// ([`noise_ceiling`]); second to first coarse peak.
+    /// Pearson correlation of the measured heights and the fitted model, both with their
+    /// least-squares line removed.
     pub correlation: f64,
+    /// The highest correlation the profile's own noise allows ([`noise_ceiling`]).
     pub noise_ceiling: f64,
+    /// Second to first peak of the coarse correlation `|r|` along the line at the winning
+    /// offset (0..1; 0 when there is no second peak, near 1 ambiguous).
     pub peak_ratio: f64,
+    /// The per-level step heights; `None` when the design has more than [`MAX_LEVELS`]
+    /// distinct heights (not multi-level).
     pub levels: Option<LevelSteps>,
+    /// Warnings on the fit (unresolved blur, unobservable or poorly determined across-line
+    /// offset, line shorter or longer than the profile, no per-level steps).
     pub warnings: Vec<String>,
     /// Profile position (metres, as in the file), measured and model heights at each fitted
     /// point (for plots and `profile_fit.csv`).

@@ -35,6 +35,7 @@ pub enum ProfileLevel {
 /// The line a profile was levelled by: `z = offset + slope u`, `u` from the first point.
 #[derive(Debug, Clone, Serialize)]
 pub struct Levelling {
+    /// The levelling method used.
     pub method: ProfileLevel,
     /// Metres at the profile's first point.
     pub offset: f64,
@@ -119,11 +120,14 @@ pub fn level_profile(p: &Profile, method: ProfileLevel) -> Result<(Profile, Leve
 /// One level found by [`terraces`].
 #[derive(Debug, Clone, Serialize)]
 pub struct Terrace {
-    /// Mean height above the lowest level's, metres, and its standard error.
+    /// Mean height above the lowest level's, metres.
     pub height: f64,
+    /// Standard error of `height`, `sqrt(s^2 / n + s_0^2 / n_0)`, metres; 0 for the lowest
+    /// level.
     pub height_sigma: f64,
-    /// Spread of the level's points about their mean, metres.
+    /// Spread of the level's points about their mean (sample standard deviation), metres.
     pub std: f64,
+    /// Profile points on the level's terraces.
     pub points: usize,
     /// Separate terraces (runs) on this level.
     pub runs: usize,

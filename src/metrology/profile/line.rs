@@ -10,10 +10,19 @@ use crate::error::{Error, Result};
 #[serde(rename_all = "snake_case")]
 pub enum LineSpec {
     /// From `start` to `end`, metres from the design's centre; the profile's first point at `start`.
-    Points { start: [f64; 2], end: [f64; 2] },
+    Points {
+        /// `[x, y]` of the line's first point, metres from the design's centre.
+        start: [f64; 2],
+        /// `[x, y]` of the line's end, metres from the design's centre: it sets the direction
+        /// (the profile's own length sets where the profile ends).
+        end: [f64; 2],
+    },
     /// Through the design's centre at `angle` radians (counter-clockwise from +x), the profile
     /// centred on the centre.
-    Angle { angle: f64 },
+    Angle {
+        /// Direction of the line, radians counter-clockwise from +x in the design's (x, y) frame.
+        angle: f64,
+    },
 }
 
 impl LineSpec {

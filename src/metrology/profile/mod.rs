@@ -64,16 +64,20 @@
 //! `r = 2 sigma + 1.5 max(pitch)` of `P_k` is on level `l` (the blur and the interpolation's
 //! reach leave the point at the level's height). Its measured height is
 //! `y_k = sign(a) (z_k - b - c (u_k - u_mean))`. With `m_l`, `s_l`, `n_l` the mean, spread and
-//! count of level `l`'s interior heights, and `l0` the lowest level on the line,
-//! the step height is `H_l = m_l - m_l0 +- sqrt(s_l^2 / n_l + s_l0^2 / n_l0)` and its depth scale
-//! `H_l / (h_l - h_l0)` against the design's. Fewer than two levels with interior points on the
-//! line is refused.
+//! count of level `l`'s interior heights, and `l0` the lowest level with at least 3 interior
+//! points on the line, the step height is `H_l = m_l - m_l0 +- sqrt(s_l^2 / n_l + s_l0^2 / n_l0)`
+//! and its depth scale `H_l / (h_l - h_l0)` against the design's, for every level with at least
+//! 3 interior points. Fewer than two such levels on the line is refused.
 //!
 //! # Terraces without a design ([`terraces`])
 //! Runs of at least `max(5, N / 200)` consecutive points whose neighbour differences stay below
 //! `max(5 s_n, 1e-3 (max z - min z))` are terraces; terrace means closer than
 //! `max(10 s_n, 2 % of the range)` are one level. Each level's height (the mean of its points)
 //! is given above the lowest level's, with its standard error.
+//!
+//! [`Sampler`]: crate::metrology::scan_registration::Sampler
+//! [`TRUSTED_FRACTION`]: crate::metrology::scan_registration::TRUSTED_FRACTION
+//! [`check_trust`]: crate::metrology::scan_registration::check_trust
 
 mod coarse;
 mod compare;
@@ -85,7 +89,6 @@ mod steps;
 
 pub use crate::grid::profile::Profile;
 pub use compare::{compare_profile, ProfileComparison, ProfileOptions};
-pub use levelling::{level_profile, noise_estimate, terraces, Levelling, ProfileLevel, Terrace};
+pub use levelling::{level_profile, terraces, Levelling, ProfileLevel, Terrace};
 pub use line::LineSpec;
 pub use simulate::{simulate_profile, SimulateProfile};
-pub use steps::{LevelStep, LevelSteps, MAX_LEVELS};

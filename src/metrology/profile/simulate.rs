@@ -14,22 +14,29 @@ use super::line::LineSpec;
 /// What [`simulate_profile`] makes: a profile of the design along a line with a known model.
 #[derive(Debug, Clone, Serialize)]
 pub struct SimulateProfile {
+    /// The line on the design the profile follows.
     pub line: LineSpec,
-    /// Profile length and sampling step, metres.
+    /// Profile length, metres (`round(length / step) + 1` points).
     pub length: f64,
+    /// Sampling step along the line, metres.
     pub step: f64,
     /// First position written (the instrument's own origin), metres.
     pub x_origin: f64,
+    /// Shift along the line `s`, metres: point `u` sees the design at `u + s` along the line.
     pub along_shift: f64,
+    /// Offset across the line `v`, metres (towards `n = (-d_y, d_x)`).
     pub across_offset: f64,
-    /// Signed depth scale `a` (negative: complement), offset `b` at the profile's middle, tilt `c`.
+    /// Signed depth scale `a` (negative: complement).
     pub depth_scale: f64,
+    /// Height offset `b` at the profile's middle, metres.
     pub offset: f64,
+    /// Tilt `c` along the line, height per length (dimensionless).
     pub tilt: f64,
-    /// Gaussian lateral blur, metres.
+    /// Gaussian lateral blur (standard deviation), metres.
     pub blur: f64,
-    /// White Gaussian noise, metres.
+    /// Standard deviation of the white Gaussian noise added to each height, metres.
     pub noise: f64,
+    /// Seed of the noise's random number generator (one seed, one profile).
     pub seed: u64,
 }
 

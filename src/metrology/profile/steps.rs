@@ -17,18 +17,24 @@ pub const MAX_LEVELS: usize = 256;
 pub struct LevelStep {
     /// Index of the level among the design's distinct heights (0 = lowest).
     pub level: usize,
-    /// The design's height of the level above the lowest level on the line, metres.
+    /// The design's height of the level above the reference level, metres.
     pub design_step: f64,
-    /// Terrace-interior points on the line.
+    /// Terrace-interior points of the level on the line.
     pub points: usize,
-    /// Mean and spread of their measured heights `y_k`, metres.
+    /// Mean `m_l` of their measured heights `y_k`, metres.
     pub mean: f64,
+    /// Sample standard deviation `s_l` of their measured heights `y_k`, metres.
     pub std: f64,
-    /// `H_l = m_l - m_l0` and its standard error, metres (`None` for the reference level).
+    /// Step height `H_l = m_l - m_l0` above the reference level, metres; `None` for the
+    /// reference level.
     pub step_height: Option<f64>,
+    /// Standard error of `step_height`, `sqrt(s_l^2 / n_l + s_l0^2 / n_l0)`, metres; `None` for
+    /// the reference level.
     pub step_height_sigma: Option<f64>,
-    /// `H_l / design_step` and its standard error.
+    /// Depth scale `H_l / design_step` (1 = as designed); `None` for the reference level.
     pub depth_scale: Option<f64>,
+    /// Standard error of `depth_scale`, `step_height_sigma / |design_step|`; `None` for the
+    /// reference level.
     pub depth_scale_sigma: Option<f64>,
 }
 
@@ -37,11 +43,13 @@ pub struct LevelStep {
 pub struct LevelSteps {
     /// The design's distinct heights, metres (levels are indices into it).
     pub design_levels: Vec<f64>,
-    /// The lowest level on the line, against which step heights are given.
+    /// The lowest level with at least 3 interior points on the line, against which step heights
+    /// are given (an index into `design_levels`).
     pub reference_level: usize,
-    /// Interior radius `r`, metres.
+    /// Interior radius `r = 2 sigma + 1.5 max(pitch)`, metres: a point is in a terrace interior
+    /// when every design sample within `r` is on its level.
     pub interior_radius: f64,
-    /// The levels with interior points on the line, lowest first.
+    /// The levels with at least 3 interior points on the line, lowest first.
     pub levels: Vec<LevelStep>,
 }
 

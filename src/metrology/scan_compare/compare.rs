@@ -19,14 +19,16 @@ use super::surface::{aperture_errors, design_frame};
 /// Everything [`compare`] finds; heights and lengths in metres.
 #[derive(Debug, Clone, Serialize)]
 pub struct Comparison {
-    /// The member of the design's family the scan matched best, what the scan shows
-    /// ([`scan_of`]), and every member it was registered to.
+    /// The member of the design's family the scan matched best.
     pub member: Member,
+    /// What the scan shows ([`scan_of`]): "the master", "the cast of the master", ...
     pub scan_of: String,
+    /// Every member the scan was registered to, with the correlation it reached.
     pub candidates: Vec<Candidate>,
     /// The member's surface the part is compared with (design grid, metres).
     #[serde(skip)]
     pub reference: Grid,
+    /// The registration of the scan to the member.
     pub registration: Registration,
     /// Correlation coefficient of the part and the design over the central [`INTERIOR`] of the
     /// aperture (the aperture's edge left out): the confidence that the scan shows this design.
@@ -39,16 +41,26 @@ pub struct Comparison {
     pub difference: Grid,
     /// Aperture diameter used, metres.
     pub aperture: f64,
-    /// Fraction of the aperture's design samples inside the scan's footprint, and measured.
+    /// Fraction of the aperture's design samples inside the scan's footprint once registered
+    /// (0..1).
     pub coverage: f64,
+    /// Fraction of the aperture's design samples where the surface is measured (0..1).
     pub measured_fraction: f64,
-    /// Mean, RMS and peak-to-valley of the difference over the measured aperture, metres.
+    /// Mean of the difference over the measured aperture, metres.
     pub mean_error: f64,
+    /// RMS of the difference over the measured aperture, metres.
     pub rms_error: f64,
+    /// Peak-to-valley of the difference over the measured aperture, metres.
     pub pv_error: f64,
+    /// The per-level statistics; `None` for a reference without quantization (continuous).
     pub levels: Option<LevelHeights>,
+    /// The fabrication model fitted on the scan.
     pub model: FabModel,
+    /// The design order's predicted efficiency with the fitted depth scale, one per wavelength
+    /// of [`crate::material::PAPER_WAVELENGTHS`].
     pub efficiency: Vec<EfficiencyLoss>,
+    /// Warnings on the result (a blur that is no figure to correct, a design that is not
+    /// quantized to the levels given).
     pub warnings: Vec<String>,
 }
 
@@ -69,6 +81,8 @@ pub fn compare(design: &Grid, scan: &Grid, opts: &CompareOptions) -> Result<Comp
 /// featureless, not trusted), or whose part correlates with the member inside the aperture by
 /// less than the registration's `min_correlation` or than [`check_trust`] allows, is returned
 /// as [`Error::Registration`].
+///
+/// [`check_trust`]: crate::metrology::scan_registration::check_trust
 pub fn compare_family(family: &[Reference], scan: &Grid, opts: &CompareOptions) -> Result<Comparison> {
     let first =
         family.first().ok_or_else(|| Error::param("family", "no reference surface to compare with"))?;

@@ -11,14 +11,17 @@ use crate::material::PAPER_WAVELENGTHS;
 /// Predicted efficiency of the design order at one wavelength.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct EfficiencyLoss {
-    /// Metres.
+    /// Wavelength, metres.
     pub wavelength: f64,
     /// Detuning of the design at this wavelength.
     pub detuning: f64,
-    /// With the design's depth, and with the fitted depth scale.
+    /// Efficiency of the design order with the design's depth, fraction of the energy (0..1).
     pub design: f64,
+    /// Efficiency of the design order with every phase step scaled by the fitted depth scale
+    /// (`a -> k a`), fraction of the energy (0..1).
     pub fabricated: f64,
-    /// `design - fabricated`.
+    /// Efficiency lost, `design - fabricated`, fraction of the energy (negative where the
+    /// fabricated depth does better).
     pub loss: f64,
 }
 

@@ -17,7 +17,7 @@ use super::surface::centred;
 /// The fitted fabrication model (see the module docs).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct FabModel {
-    /// `|k|`.
+    /// Depth scale `|k|`: the part's heights over the design's (1 = as designed).
     #[serde(deserialize_with = "null_as_nan")]
     pub depth_scale: f64,
     /// `k < 0`: the scan shows the complement.
@@ -25,16 +25,20 @@ pub struct FabModel {
     /// `b`, metres.
     #[serde(deserialize_with = "null_as_nan")]
     pub offset: f64,
-    /// `sigma`, metres, and its standard error.
+    /// Lateral blur `sigma` (Gaussian standard deviation), metres.
     #[serde(deserialize_with = "null_as_nan")]
     pub blur: f64,
+    /// Standard error of `blur` from the profile likelihood, `sqrt(2 s^2 / SSE''(sigma))`,
+    /// metres; infinite (`null` in JSON) where `SSE''` is not positive.
     #[serde(deserialize_with = "null_as_nan")]
     pub blur_sigma: f64,
     /// The blur is significant (standard error below a quarter of it).
     pub blur_resolved: bool,
-    /// RMS of the model's residual, metres: at the fitted blur, and with no blur.
+    /// RMS of the model's residual at the fitted blur, metres.
     #[serde(deserialize_with = "null_as_nan")]
     pub rms_residual: f64,
+    /// RMS of the model's residual with no blur (`(k, b, c)` refitted at `sigma = 0`), metres;
+    /// NaN read from a file written before it existed.
     #[serde(default = "nan", deserialize_with = "null_as_nan")]
     pub rms_residual_unblurred: f64,
     /// The scan's white noise, RMS metres (the registration's estimate), against which the
@@ -43,7 +47,7 @@ pub struct FabModel {
     pub noise: f64,
     /// Scan samples in the fit.
     pub points: usize,
-    /// Upper end of the blur search, metres.
+    /// Upper end of the blur search, `max(3 registration blur, 2 max(pitch))`, metres.
     #[serde(deserialize_with = "null_as_nan")]
     pub blur_search_max: f64,
 }

@@ -57,10 +57,15 @@ pub fn scan_of(member: Member, mirror: bool, complement: bool) -> String {
 
 /// A candidate surface of [`compare_family`]: a member of the design's family on the design
 /// grid (metres), with its quantization (`None` for a continuous surface).
+///
+/// [`compare_family`]: super::compare_family
 #[derive(Debug, Clone)]
 pub struct Reference {
+    /// Which surface of the family it is.
     pub member: Member,
+    /// Its heights on the design grid, metres.
     pub surface: Grid,
+    /// Its quantization; `None` for a continuous surface.
     pub levels: Option<LevelSpec>,
 }
 
@@ -68,7 +73,10 @@ pub struct Reference {
 /// the registration found no pose).
 #[derive(Debug, Clone, Serialize)]
 pub struct Candidate {
+    /// The member registered to.
     pub member: Member,
+    /// Correlation coefficient of the scan and the member at its best pose
+    /// ([`Registration::correlation`]); NaN (`null` in JSON) where the registration was refused.
     pub correlation: f64,
 }
 

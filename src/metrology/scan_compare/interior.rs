@@ -8,6 +8,8 @@ use crate::metrology::scan_registration::check_trust;
 use super::surface::centred;
 
 /// Fraction of the aperture's diameter over which [`Comparison::interior_correlation`] runs.
+///
+/// [`Comparison::interior_correlation`]: super::Comparison::interior_correlation
 pub const INTERIOR: f64 = 0.9;
 
 /// [`check_trust`] on the part's correlation with the reference over the aperture's interior,
@@ -18,6 +20,8 @@ pub const INTERIOR: f64 = 0.9;
 /// fitted blur a scan of the unwrapped design, blurred by 2 or 4 pitches, would pass as the
 /// wrapped design (0.972, 0.984, where the sharp wrapped design gives 0.931, 0.917): its blur
 /// fit is a compromise that [`FabModel::blur_doubt`] does not always catch.
+///
+/// [`FabModel::blur_doubt`]: super::FabModel::blur_doubt
 pub fn check_interior(correlation: f64, noise_ceiling: f64, fraction: f64) -> Result<()> {
     let what = format!("the part over the central {:.0}% of the aperture", 100.0 * INTERIOR);
     check_trust(&what, correlation, noise_ceiling, fraction)

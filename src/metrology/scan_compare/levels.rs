@@ -21,6 +21,7 @@ pub(super) fn null_as_nan<'de, D: serde::Deserializer<'de>>(d: D) -> std::result
 /// The quantization of the design: `count` levels of `step` metres (level `l` at `l step`).
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct LevelSpec {
+    /// Number of levels of the design (level `l` at `l step`, `l = 0..count`).
     pub count: usize,
     /// Height of one level step, metres.
     pub step: f64,
@@ -48,14 +49,18 @@ impl LevelSpec {
 /// Mean and spread of the part's height over one level's terraces.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LevelStat {
+    /// Index of the level (0 = lowest; `count` for the cast's level at the full period).
     pub level: usize,
     /// Design height `l step`, metres.
     pub design_height: f64,
     /// Samples (terrace interiors: the sample and its four neighbours on this level, measured).
     pub samples: usize,
-    /// Mean and standard deviation of the as-fabricated height, metres.
+    /// Mean of the as-fabricated height over the samples, metres; `NaN` (`null` in JSON)
+    /// without samples.
     #[serde(deserialize_with = "null_as_nan")]
     pub mean: f64,
+    /// Sample standard deviation of the as-fabricated height over the samples, metres; `NaN`
+    /// (`null` in JSON) with fewer than 2.
     #[serde(deserialize_with = "null_as_nan")]
     pub std: f64,
     /// The level's height fitted with the part's blur over the terrace interiors of the
@@ -77,15 +82,20 @@ pub struct LevelStat {
 /// the `h_l` (without blur, the fit is the interior mean).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LevelHeights {
+    /// Number of levels of the design ([`LevelSpec::count`]).
     pub count: usize,
     /// Nominal step, metres.
     pub step: f64,
+    /// One per level index, lowest first: `count`, or `count + 1` for the cast of the master.
     pub levels: Vec<LevelStat>,
-    /// Differences of consecutive level means (both with samples), metres.
+    /// Differences of consecutive level means `mean[l + 1] - mean[l]` (both with samples),
+    /// metres.
     pub step_heights: Vec<f64>,
-    /// Mean and standard deviation of `step_heights`, metres.
+    /// Mean of `step_heights`, metres; `NaN` (`null` in JSON) when there is none.
     #[serde(deserialize_with = "null_as_nan")]
     pub mean_step: f64,
+    /// Sample standard deviation of `step_heights`, metres; `NaN` (`null` in JSON) with fewer
+    /// than 2.
     #[serde(deserialize_with = "null_as_nan")]
     pub step_std: f64,
     /// Largest distance of a design height from its level, in steps (0 for a quantized design).

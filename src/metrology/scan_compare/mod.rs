@@ -46,6 +46,9 @@
 //! A depth scale `k` multiplies every phase step of an `N`-level profile exactly as a detuning
 //! does, so the design order's efficiency is Swanson's with `a -> k a`
 //! ([`order_efficiency`]; `sinc^2(k a - m)` for a continuous profile).
+//!
+//! [`Grid::sample_index`]: crate::grid::Grid::sample_index
+//! [`order_efficiency`]: crate::fabrication::quantize::order_efficiency
 
 mod compare;
 mod efficiency;
@@ -59,7 +62,7 @@ mod surface;
 pub use compare::{compare, compare_family, Comparison};
 pub use efficiency::{efficiency_loss, EfficiencyLoss};
 pub use fab_model::FabModel;
-pub use family::{scan_of, Candidate, Member, Reference};
-pub use interior::{check_interior, INTERIOR};
-pub use levels::{LevelHeights, LevelSpec, LevelStat, MAX_FITTED_LEVELS};
+pub use family::{Candidate, Member, Reference};
+pub use interior::check_interior;
+pub use levels::{LevelHeights, LevelSpec, LevelStat};
 pub use options::CompareOptions;

@@ -8,14 +8,21 @@ use crate::metrology::scan_registration::RegisterOptions;
 use super::levels::LevelSpec;
 
 /// Options of [`compare`] and [`compare_family`].
+///
+/// [`compare`]: fn@super::compare
+/// [`compare_family`]: super::compare_family
 #[derive(Debug, Clone, Serialize)]
 pub struct CompareOptions {
+    /// Options of the registration of the scan to each member.
     pub register: RegisterOptions,
     /// Clear-aperture diameter centred on the design, metres (`None`: the largest circle the
     /// design grid holds).
     pub aperture: Option<f64>,
     /// The design's quantization, for the per-level statistics and the efficiency ([`compare`];
     /// [`compare_family`] takes each reference's own).
+    ///
+    /// [`compare`]: fn@super::compare
+    /// [`compare_family`]: super::compare_family
     pub levels: Option<LevelSpec>,
     /// Design wavelength, material and order, for the efficiency prediction.
     pub optics: WrapSpec,

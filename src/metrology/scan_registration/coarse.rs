@@ -2,83 +2,15 @@
 //! the binned design and scan over rotations and mirror states, the second peak that makes a
 //! shift ambiguous, and the upsampled peak's sub-sample position.
 
-use std::sync::Arc;
-
 use rayon::prelude::*;
-use rustfft::num_complex::{Complex, Complex32, Complex64};
-use rustfft::{Fft, FftNum, FftPlanner};
+use rustfft::num_complex::{Complex32, Complex64};
 
 use crate::error::{Condition, Error, Refusal, Result};
+use crate::fft::{fast_len, Plan2d};
 
 use super::binning::Img;
 use super::options::RegisterOptions;
 use super::pose::Pose;
-
-/// A 2-D complex FFT of fixed shape, planned once (rows, then columns through a transpose).
-#[derive(Clone)]
-struct Fft2<T: FftNum> {
-    rows: usize,
-    cols: usize,
-    fr: Arc<dyn Fft<T>>,
-    fc: Arc<dyn Fft<T>>,
-    ir: Arc<dyn Fft<T>>,
-    ic: Arc<dyn Fft<T>>,
-    scratch: Vec<Complex<T>>,
-    tmp: Vec<Complex<T>>,
-}
-
-impl<T: FftNum> Fft2<T> {
-    fn new(rows: usize, cols: usize) -> Fft2<T> {
-        let mut p = FftPlanner::new();
-        let (fr, fc) = (p.plan_fft_forward(cols), p.plan_fft_forward(rows));
-        let (ir, ic) = (p.plan_fft_inverse(cols), p.plan_fft_inverse(rows));
-        let n = [&fr, &fc, &ir, &ic].iter().map(|f| f.get_inplace_scratch_len()).max().unwrap_or(0);
-        Fft2 {
-            rows,
-            cols,
-            fr,
-            fc,
-            ir,
-            ic,
-            scratch: vec![Complex::new(T::zero(), T::zero()); n],
-            tmp: vec![Complex::new(T::zero(), T::zero()); rows * cols],
-        }
-    }
-
-    fn run(&mut self, buf: &mut [Complex<T>], inverse: bool) {
-        let (r, c) = (self.rows, self.cols);
-        let (row, col) = if inverse { (&self.ir, &self.ic) } else { (&self.fr, &self.fc) };
-        row.process_with_scratch(buf, &mut self.scratch);
-        for i in 0..r {
-            for j in 0..c {
-                self.tmp[j * r + i] = buf[i * c + j];
-            }
-        }
-        col.process_with_scratch(&mut self.tmp, &mut self.scratch);
-        for j in 0..c {
-            for i in 0..r {
-                buf[i * c + j] = self.tmp[j * r + i];
-            }
-        }
-    }
-}
-
-/// The smallest `n >= m` of the form `2^a 3^b 5^c` (fast for `rustfft`).
-fn fast_len(m: usize) -> usize {
-    let mut n = m.max(1);
-    loop {
-        let mut k = n;
-        for f in [2, 3, 5] {
-            while k.is_multiple_of(f) {
-                k /= f;
-            }
-        }
-        if k == 1 {
-            return n;
-        }
-        n += 1;
-    }
-}
 
 /// Design samples per side of the coarse search (the coarse pitch is a power-of-two multiple
 /// of the design's pitch chosen to stay at or below this).
@@ -102,14 +34,15 @@ pub(super) fn coarse_search(d: &Img, s: &Img, opts: &RegisterOptions) -> Result<
     let (tr, tc) = (d.rows, d.cols);
     let nr = fast_len(s.rows + tr);
     let nc = fast_len(s.cols + tc);
-    let mut fft = Fft2::<f64>::new(nr, nc);
+    let fft = Plan2d::<f64>::rect(nr, nc);
+    let mut work = fft.workspace();
     let mut sh = vec![Complex64::default(); nr * nc];
     for i in 0..s.rows {
         for j in 0..s.cols {
             sh[i * nc + j] = Complex64::new(s.v[i * s.cols + j], 0.0);
         }
     }
-    fft.run(&mut sh, false);
+    fft.transform_with(&mut sh, false, &mut work);
     let s_norm = s.v.iter().map(|v| v * v).sum::<f64>().sqrt();
     if s_norm.is_nan() || s_norm <= 0.0 {
         return Err(Error::validity(
@@ -144,13 +77,13 @@ pub(super) fn coarse_search(d: &Img, s: &Img, opts: &RegisterOptions) -> Result<
     // For each angle (in parallel, each with its own transform buffers) and mirror state: the
     // best |c| / (|S| |T|). Every angle is computed alone, so threads do not change the result.
     // The sweep in single precision (it only ranks peaks; the winner's map is redone in f64).
-    let fft32 = Fft2::<f32>::new(nr, nc);
+    let fft32 = Plan2d::<f32>::rect(nr, nc);
     let sh32: Vec<Complex32> = sh.iter().map(|c| Complex32::new(c.re as f32, c.im as f32)).collect();
     let per_angle: Vec<Vec<Peak>> = angles
         .par_iter()
         .map_init(
-            || (fft32.clone(), vec![Complex32::default(); nr * nc]),
-            |(fft, buf), &theta| {
+            || (fft32.workspace(), vec![Complex32::default(); nr * nc]),
+            |(work, buf), &theta| {
                 let ts: Vec<(Vec<f64>, f64)> = mirrors.iter().map(|&m| template(theta, m)).collect();
                 buf.iter_mut().for_each(|c| *c = Complex32::default());
                 for i in 0..tr {
@@ -160,11 +93,11 @@ pub(super) fn coarse_search(d: &Img, s: &Img, opts: &RegisterOptions) -> Result<
                         buf[i * nc + j] = Complex32::new(re as f32, im as f32);
                     }
                 }
-                fft.run(buf, false);
+                fft32.transform_with(buf, false, work);
                 for (b, sv) in buf.iter_mut().zip(&sh32) {
                     *b = sv * b.conj();
                 }
-                fft.run(buf, true);
+                fft32.transform_with(buf, true, work);
                 ts.iter()
                     .enumerate()
                     .map(|(m, t)| {
@@ -227,12 +160,12 @@ pub(super) fn coarse_search(d: &Img, s: &Img, opts: &RegisterOptions) -> Result<
             buf[i * nc + j] = Complex64::new(t[i * tc + j], 0.0);
         }
     }
-    fft.run(&mut buf, false);
+    fft.transform_with(&mut buf, false, &mut work);
     for (b, sv) in buf.iter_mut().zip(&sh) {
         *b = sv * b.conj();
     }
     let spectrum = buf.clone();
-    fft.run(&mut buf, true);
+    fft.transform_with(&mut buf, true, &mut work);
     let sign = best.value.signum();
     let map: Vec<f64> = buf.iter().map(|c| sign * c.re * scale / (s_norm * tn)).collect();
     let (k0, peak) =

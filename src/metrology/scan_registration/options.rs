@@ -5,6 +5,8 @@ use serde::Serialize;
 use super::trust::TRUSTED_FRACTION;
 
 /// Thresholds and search ranges of [`register`].
+///
+/// [`register`]: fn@super::register
 #[derive(Debug, Clone, Serialize)]
 pub struct RegisterOptions {
     /// Largest rotation searched either way, radians.

@@ -10,9 +10,12 @@ use crate::error::{Allowed, Error, Result};
 /// counter-clockwise in the (x, y) frame of the grids).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Pose {
+    /// The design is mirrored in x (`M = diag(-1, 1)`) before it is rotated: the scan shows it
+    /// mirrored (a scan of the master against its cast).
     pub mirror: bool,
-    /// Radians.
+    /// `theta`, radians, counter-clockwise.
     pub rotation: f64,
+    /// `s`: scan length per design length (dimensionless, 1 = true size).
     pub scale: f64,
     /// `[x, y]`, metres: the scan position of the design's centre.
     pub shift: [f64; 2],

@@ -20,6 +20,7 @@ use super::trust::{check_trust, noise_ceiling};
 /// The registration of a scan to a design; see the module docs for the model.
 #[derive(Debug, Clone, Serialize)]
 pub struct Registration {
+    /// Where the design lies on the scan: shift, rotation, scale and mirror.
     pub pose: Pose,
     /// The scan shows the complement of the design (`a < 0`).
     pub complement: bool,
@@ -45,12 +46,15 @@ pub struct Registration {
     pub mirror_ratio: f64,
     /// RMS of the residual, metres.
     pub rms_residual: f64,
-    /// Formal standard errors `sigma^2 (J^T J)^-1` (white residuals assumed, so a lower bound
-    /// where the residual is dominated by model error): shift `[x, y]` (metres), rotation
-    /// (radians), scale, depth scale. NaN where the normal equations are singular.
+    /// Formal standard error of the shift `[x, y]`, metres, from `sigma^2 (J^T J)^-1` (white
+    /// residuals assumed, so a lower bound where the residual is dominated by model error); NaN
+    /// (`null` in JSON) where the normal equations are singular, as for the errors below.
     pub shift_sigma: [f64; 2],
+    /// Formal standard error of the rotation, radians.
     pub rotation_sigma: f64,
+    /// Formal standard error of the scale (dimensionless; that of `ln s` times `s`).
     pub scale_sigma: f64,
+    /// Formal standard error of the depth scale (dimensionless).
     pub depth_scale_sigma: f64,
     /// Scan samples in the final fit.
     pub points: usize,

@@ -24,6 +24,8 @@ pub struct Sampler<'a> {
 }
 
 impl<'a> Sampler<'a> {
+    /// A sampler of `g`'s values (borrowed where the grid stores them row-major), without the
+    /// Laplacian.
     pub fn new(g: &'a Grid) -> Sampler<'a> {
         let (rows, cols) = g.dim();
         Sampler {

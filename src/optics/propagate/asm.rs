@@ -21,11 +21,11 @@ use ndarray::Array2;
 use rustfft::num_complex::Complex64;
 
 use super::fresnel::{crop_too_large, two_step};
-use super::shared::{check_lens_sampling, check_window, field_power, pupil_phase};
-use super::shared::{SensorIntensity, Violation};
+use super::method::{check_lens_sampling, check_window, field_power, pupil_phase};
+use super::method::{SensorIntensity, Violation};
 use crate::error::Result;
+use crate::fft::{fft_freq, good_size};
 use crate::grid::Grid;
-use crate::optics::fft::{fft_freq, good_size};
 use crate::optics::system::{sinc, OpticalSystem};
 
 /// `(n, dx, w)`: pupil samples, pitch and padded FFT size of this method (at least `2 n`, or
@@ -33,7 +33,7 @@ use crate::optics::system::{sinc, OpticalSystem};
 pub fn grid(system: &OpticalSystem) -> (usize, f64, usize) {
     let dx = system.sample_pitch();
     let n = system.pupil_samples(dx, system.samples() % 2);
-    let own = super::shared::Method::AngularSpectrum
+    let own = super::method::Method::AngularSpectrum
         .default_padding()
         .expect("an FFT method has a default padding");
     let p = system.padding.unwrap_or(own);

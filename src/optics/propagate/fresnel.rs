@@ -19,14 +19,13 @@ use std::f64::consts::PI;
 use ndarray::{s, Array2};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
-use rustfft::FftPlanner;
 
-use super::shared::{
+use super::method::{
     check_fresnel, check_lens_sampling, check_window, field_power, pupil_phase, SensorIntensity, Violation,
 };
 use crate::error::{Condition, Error, Result};
+use crate::fft::{fft_freq, good_size, Plan2d};
 use crate::grid::Grid;
-use crate::optics::fft::{fft_freq, good_size, Plan2d};
 use crate::optics::system::{sinc, OpticalSystem};
 
 /// `(n, dx, w)`: pupil samples, pitch and padded FFT size of this method (`n / 4` a side, as
@@ -143,8 +142,7 @@ pub(crate) fn two_step(
             ),
         ));
     }
-    let mut planner = FftPlanner::new();
-    let plan = Plan2d::new(&mut planner, w);
+    let plan = Plan2d::new(w);
     let mut u = Array2::<Complex64>::zeros((w, w));
     let o = (w - n) / 2;
     u.slice_mut(s![o..o + n, o..o + n]).assign(u0);

@@ -25,7 +25,7 @@ use ndarray::{s, Array2, Axis, LinalgScalar};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 
-use super::shared::{check_fresnel, field_power, pupil_phase, Precision, SensorIntensity, Violation};
+use super::method::{check_fresnel, field_power, pupil_phase, Precision, SensorIntensity, Violation};
 use crate::error::{Condition, Error, Result};
 use crate::grid::{Grid, Interpolation};
 use crate::optics::system::{nested_parity, nested_refinement, sinc, OpticalSystem};

@@ -20,8 +20,8 @@
 pub mod asm;
 pub mod fresnel;
 pub mod matrix_dft;
+mod method;
 pub mod rayleigh;
-mod shared;
 
 use ndarray::Array2;
 use rayon::prelude::*;
@@ -30,7 +30,7 @@ use super::psf::{Channel, Psf};
 use super::system::{OpticalSystem, PixelRule};
 use crate::error::{Condition, DataCause, Error, Result};
 use crate::grid::{Grid, Unit};
-pub use shared::{field_power, Method, Options, Precision, SensorIntensity, Violation};
+pub use method::{field_power, Method, Options, Precision, SensorIntensity, Violation};
 
 /// Every violated validity condition of `method` for `system` and `doe`, all wavelengths.
 pub fn check(method: Method, system: &OpticalSystem, doe: &Grid) -> Result<Vec<Violation>> {
@@ -132,7 +132,7 @@ fn bin_pixels(system: &OpticalSystem, f: &SensorIntensity) -> Result<(Grid, f64)
 mod tests {
     use std::f64::consts::PI;
 
-    use super::shared::*;
+    use super::method::*;
     use super::*;
 
     /// The phase changes of one row of phases (radians: `k = 1`).

@@ -23,12 +23,12 @@ use ndarray::{s, Array2};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex64;
 
-use super::shared::{
+use super::method::{
     check_lens_sampling, content_bandwidth, field_power, pupil_phase, SensorIntensity, Violation,
 };
 use crate::error::{Condition, Error, Resource, Result};
+use crate::fft::{good_size, Plan2d};
 use crate::grid::Grid;
-use crate::optics::fft::{good_size, Plan2d};
 use crate::optics::system::{OpticalSystem, PixelRule};
 
 /// Largest number of kernel products (the second step's) a run may take.
@@ -183,8 +183,7 @@ fn lattice_convolve(
             }
         },
     );
-    let mut planner = rustfft::FftPlanner::new();
-    let plan = Plan2d::new(&mut planner, p);
+    let plan = Plan2d::new(p);
     // The table depends on x^2 + y^2 on a square: its spectrum is symmetric in the two axes.
     plan.transform(&mut table, false);
     let mut u = Array2::<Complex64>::zeros((p, p));
@@ -292,11 +291,10 @@ fn band_limited_intensity_with(
     // aperture's edge has room), spectrum zero-padded r times.
     let w = good_size(n + n / 2 + 2, n % 2);
     let wf = w * r;
-    let mut planner = rustfft::FftPlanner::new();
     let mut spec = Array2::<Complex64>::zeros((w, w));
     let o = (w - n) / 2;
     spec.slice_mut(s![o..o + n, o..o + n]).assign(u0);
-    Plan2d::new(&mut planner, w).transform(&mut spec, false);
+    Plan2d::new(w).transform(&mut spec, false);
     let mut fine = Array2::<Complex64>::zeros((wf, wf));
     // Bin p of w goes to bin p (low half) or p + wf - w (high half); an even w's Nyquist bin
     // is split between +-w/2 so the interpolant of real data stays real.
@@ -317,7 +315,7 @@ fn band_limited_intensity_with(
             }
         }
     }
-    Plan2d::new(&mut planner, wf).transform(&mut fine, true);
+    Plan2d::new(wf).transform(&mut fine, true);
     // Fine index k of the window is coarse position k / r - o; the pupil window's lattice
     // indices 0..ns start at k = r o.
     let ns = r * (n - 1) + 1;

@@ -43,23 +43,31 @@ pub const SENSOR_PITCH: f64 = 4.29e-6;
 
 /// A scene prepared for scoring.
 #[derive(Debug, Clone)]
-pub struct BenchScene {
+pub struct SweepScene {
+    /// The scene's name: its folder's name.
     pub name: String,
     /// The capture through the DOE (RGB), 1 = clipping level.
     pub capture: Image,
     /// The bracket merged without the DOE, in the bracket's own frame.
     pub reference: Image,
+    /// The reference registered onto the capture, the gain and the pixel sets scored.
     pub scoring: Scoring,
+    /// How the scene was prepared, as the benchmark's JSON reports it.
     pub preparation: ScenePreparation,
 }
 
-/// How a scene was prepared, or why it could not be (part of the benchmark's JSON).
+/// How a scene was prepared, or why it could not be (part of the sweep's JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ScenePreparation {
+    /// The scene's name: its folder's name.
     pub name: String,
+    /// The scene folder's path.
     pub dir: String,
+    /// Path of the capture through the DOE; `None` when the scene was refused.
     pub capture: Option<String>,
+    /// Frames of the bracket merged into the reference (0 when the scene was refused).
     pub bracket_frames: usize,
+    /// The HDR merge's warnings.
     pub merge_warnings: Vec<String>,
     /// The registration, gain and pixel sets; `None` when the scene was refused.
     pub footing: Option<Footing>,
@@ -70,8 +78,12 @@ pub struct ScenePreparation {
 /// PSNR of one decoder (or of the capture as it is) on one scene.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Score {
+    /// The scene's name.
     pub scene: String,
+    /// The decoder scored: its path or `built-in:NAME` as given, [`CAPTURE`] for the capture as it
+    /// is, or the fine-tuned decoder's name.
     pub decoder: String,
+    /// PSNR over every scored pixel.
     pub all: Psnr,
     /// `None` when the scene's saturated figures are withheld (too few registered).
     pub saturated: Option<Psnr>,
@@ -102,7 +114,7 @@ fn scene_name(dir: &Path) -> String {
 
 /// Merges the scene in `dir` and prepares it for scoring through `psf` (steps 1-2 of the
 /// module docs).
-pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<BenchScene> {
+pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<SweepScene> {
     let list_path = dir.join("exposures.json");
     let doe = read_exposures(&list_path, true)?;
     let [(capture_path, _)] = doe.frames.as_slice() else {
@@ -145,11 +157,11 @@ pub fn prepare_scene(dir: &Path, psf: &Psf, opts: &ScoringOptions) -> Result<Ben
         error: None,
     };
     let capture = Image::new(capture.values.mapv(|v| v / clip));
-    Ok(BenchScene { name, capture, reference: merged.radiance, scoring, preparation })
+    Ok(SweepScene { name, capture, reference: merged.radiance, scoring, preparation })
 }
 
 /// Scores `image` (a reconstruction, or the capture itself) on the scene's footing.
-pub fn score_image(scene: &BenchScene, decoder: &str, image: &Image) -> Result<Score> {
+pub fn score_image(scene: &SweepScene, decoder: &str, image: &Image) -> Result<Score> {
     let s = scene.scoring.score(decoder, image)?;
     let min_output = image.values.iter().copied().fold(f64::INFINITY, f64::min);
     Ok(Score {
@@ -164,7 +176,7 @@ pub fn score_image(scene: &BenchScene, decoder: &str, image: &Image) -> Result<S
 
 /// Reconstructs the scene's capture with `net` (negatives kept) and scores it; returns the
 /// reconstruction too.
-pub fn score_decoder(scene: &BenchScene, decoder: &str, net: &UNet) -> Result<(Score, Image<f32>)> {
+pub fn score_decoder(scene: &SweepScene, decoder: &str, net: &UNet) -> Result<(Score, Image<f32>)> {
     let x = scene.capture.to_f32();
     let opts = ReconstructOptions { negatives: Negatives::Keep, ..ReconstructOptions::default() };
     let (y, _) = reconstruct(net, &x, &opts)?;
@@ -178,7 +190,7 @@ pub const PICTURE_EV: f64 = -2.0;
 /// Writes `images` of `scene` as tone-mapped PNGs (sRGB of clip(y 2^[`PICTURE_EV`], 0, 1))
 /// into `dir`, each named by its key, with the registered reference (black where it is not
 /// scored) as `reference.png`.
-fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(String, &Image<f32>)]) -> Result<()> {
+fn write_pictures(dir: &Path, scene: &SweepScene, images: &[(String, &Image<f32>)]) -> Result<()> {
     let mut reference = scene.scoring.reference.to_f32();
     Zip::from(reference.values.lanes_mut(ndarray::Axis(2))).and(&scene.scoring.mask).for_each(
         |mut px, &inside| {
@@ -204,11 +216,12 @@ fn write_pictures(dir: &Path, scene: &BenchScene, images: &[(String, &Image<f32>
     Ok(())
 }
 
-/// The fine-tuning part of a benchmark.
+/// The fine-tuning part of a sweep.
 #[derive(Debug, Clone)]
-pub struct FinetuneBench {
+pub struct FinetuneSweep {
     /// The decoder to start from (a file or `built-in:NAME`).
     pub init: PathBuf,
+    /// The fine-tuning's settings (steps, batch, learning rate, ...).
     pub config: FinetuneConfig,
     /// Score the decoder being fine-tuned on the scenes every this many steps.
     pub evaluate_every: usize,
@@ -218,7 +231,7 @@ pub struct FinetuneBench {
 
 /// Settings of [`run`].
 #[derive(Debug, Clone)]
-pub struct BenchConfig {
+pub struct SweepConfig {
     /// Scene folders (each with an `exposures.json`).
     pub scenes: Vec<PathBuf>,
     /// Decoders to score: files or `built-in:NAME`.
@@ -227,26 +240,35 @@ pub struct BenchConfig {
     pub psf: PathBuf,
     /// The array of a `.npz` PSF (the paper's: `psf_val`).
     pub psf_key: Option<String>,
+    /// Registration and scoring settings, the same for every scene.
     pub scoring: ScoringOptions,
     /// Fine-tune a decoder on the PSF and score it too.
-    pub finetune: Option<FinetuneBench>,
+    pub finetune: Option<FinetuneSweep>,
 }
 
 /// The decoder being fine-tuned, scored on the real scenes at one step.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CurvePoint {
+    /// Fine-tuning steps done when scored (0: the starting decoder).
     pub step: usize,
     /// Training time up to this step (scoring excluded), seconds.
     pub seconds: f64,
+    /// The decoder's score on each scene scored, in scene order.
     pub scores: Vec<Score>,
 }
 
-/// The fine-tuning run of a benchmark.
+/// The fine-tuning run of a sweep.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FinetuneRun {
+    /// The decoder fine-tuning started from: its path or `built-in:NAME` as given.
     pub init: String,
+    /// Fine-tuning steps run ([`FinetuneConfig::steps`]).
     pub steps: usize,
+    /// Training time per step, seconds: training steps and their validation, scoring on the real
+    /// scenes excluded.
     pub seconds_per_step: f64,
+    /// What it was trained on: the training scenes' description (real HDR images or procedural
+    /// scenes).
     pub training_data: String,
     /// The training images that could not be read and were skipped, each with the reason.
     pub skipped_images: Vec<String>,
@@ -259,11 +281,19 @@ pub struct FinetuneRun {
 
 /// What `doefab bench decoder` measured (its JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct DecoderBenchResults {
+pub struct DecoderSweepResults {
+    /// The measured PSF's file, as given.
     pub psf: String,
+    /// What the numbers are in: PSNR in dB, images in units of the capture's clipping level, times
+    /// in seconds.
     pub units: &'static str,
+    /// How negative outputs are scored: as they are in PSNR-L, as 0 in PSNR-gamma.
     pub negatives: &'static str,
+    /// Saturation level, fraction of the capture's clipping level: a pixel with any channel at
+    /// or above it is saturated.
     pub saturation: f64,
+    /// Smallest fraction of the image (0..1) the registration must cover; below it a scene is
+    /// refused.
     pub min_coverage: f64,
     /// Every scene, scored or refused (with the reason).
     pub scenes: Vec<ScenePreparation>,
@@ -271,6 +301,7 @@ pub struct DecoderBenchResults {
     pub decoders: Vec<String>,
     /// Decoder x scene, scene-major, for the scenes scored.
     pub scores: Vec<Score>,
+    /// The fine-tuning run, scored along; `None` without fine-tuning.
     pub finetune: Option<FinetuneRun>,
 }
 
@@ -298,19 +329,19 @@ fn picture_name(decoder: &Path, taken: &mut Vec<String>) -> String {
     name
 }
 
-/// Runs the benchmark: prepares every scene (a scene that fails is reported with its reason),
+/// Runs the sweep: prepares every scene (a scene that fails is reported with its reason),
 /// scores the capture and every decoder on each scene, and with `finetune` fine-tunes its
 /// initial decoder on the PSF, scoring it along the run. Writes into `out`: `report.json`, per
 /// scene `<scene>/*.png` (the registered reference, the capture and each reconstruction
 /// tone-mapped at [`PICTURE_EV`]) and, with fine-tuning, `finetuned/` (decoder, training
-/// record); the charts are the command's ([`crate::pipeline::bench::bench_decoder`]).
+/// record); the charts are the command's ([`crate::pipeline::sweep::sweep_decoder`]).
 /// `progress` is told what is happening and each unit of work done. Refuses when no scene can
 /// be scored.
 pub fn run(
-    cfg: &BenchConfig,
+    cfg: &SweepConfig,
     out: &Path,
     progress: &mut dyn FnMut(&str, u64),
-) -> Result<DecoderBenchResults> {
+) -> Result<DecoderSweepResults> {
     if cfg.scenes.is_empty() {
         return Err(Error::param("scenes", "no scene folder given"));
     }
@@ -390,7 +421,7 @@ pub fn run(
         let refs: Vec<(String, &Image<f32>)> = im.iter().map(|(n, y)| (n.clone(), y)).collect();
         write_pictures(&out.join(&s.name), s, &refs)?;
     }
-    let report = DecoderBenchResults {
+    let report = DecoderSweepResults {
         psf: cfg.psf.display().to_string(),
         units: "PSNR in dB; images in units of the capture's clipping level; seconds",
         negatives:
@@ -411,10 +442,10 @@ pub fn run(
 /// the end the decoder the run would write if it stopped there; writes `finetuned/`. Returns
 /// the run's report and the last reconstructions.
 fn run_finetune(
-    f: &FinetuneBench,
-    cfg: &BenchConfig,
+    f: &FinetuneSweep,
+    cfg: &SweepConfig,
     psf: &Psf,
-    scenes: &[BenchScene],
+    scenes: &[SweepScene],
     device: &burn::tensor::Device,
     out: &Path,
     progress: &mut dyn FnMut(&str, u64),

@@ -1,38 +1,38 @@
 //! `doefab bench psf`, `doefab bench spectral`, `doefab bench stability`, `doefab bench register`, `doefab bench fab`,
-//! `doefab bench calibration`, `doefab bench tiling`, `doefab bench decoder` and `doefab bench forward`: the benchmarks
-//! ([`crate::bench`]) with their defaults and outputs, data and charts ([`crate::charts`]).
+//! `doefab bench calibration`, `doefab bench tiling`, `doefab bench decoder` and `doefab bench forward`: the sweeps
+//! ([`crate::sweep`]) with their defaults and outputs, data and charts ([`crate::charts`]).
 
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::bench::decoder::{
-    self as capture_bench, scene_dirs, BenchConfig, DecoderBenchResults, FinetuneBench,
-};
-use crate::bench::fab::{self as fab_bench, FabBenchOptions, FabBenchResults};
-use crate::bench::forward::{ForwardBenchResults, ForwardOptions};
-use crate::bench::psf::{self as psf_bench, run_bench, steps, BenchOptions};
-use crate::bench::spectral::{self as spectral_bench, SpectralBenchResults, SpectralOptions};
-use crate::bench::stability::{self, MapOptions, StabilityBenchResults};
 use crate::calibration::capture_registration::{Model, RegisterOptions};
 use crate::calibration::evaluate::ScoringOptions;
-use crate::charts::decoder::{write_bench_chart, write_decoder_scene_chart, write_forward_chart};
-use crate::charts::fabrication::write_fab_bench_charts;
+use crate::charts::decoder::{write_decoder_scene_chart, write_forward_chart, write_sweep_chart};
+use crate::charts::fabrication::write_fab_sweep_charts;
 use crate::charts::failure_maps::{write_calibration_chart, write_registration_chart};
 use crate::charts::optics::{write_psf_charts, write_spectral_charts, write_stability_charts};
 use crate::charts::tiling::write_tiling_chart;
 use crate::charts::training::write_training_chart;
 use crate::decoder::finetune::FinetuneConfig;
 use crate::error::Result;
-use crate::fabrication::chain::{self, DesignSource};
+use crate::fabrication::recipe_run::{self, DesignSource};
 use crate::io::atomic::{self, StagedDir};
 use crate::material::Material;
-use crate::optics::output::system_for;
+use crate::optics::psf_files::system_for;
 use crate::optics::system::OpticalSystem;
+use crate::sweep::decoder::{
+    self as capture_sweep, scene_dirs, DecoderSweepResults, FinetuneSweep, SweepConfig,
+};
+use crate::sweep::fab::{self as fab_sweep, FabSweepOptions, FabSweepResults};
+use crate::sweep::forward::{ForwardOptions, ForwardSweepResults};
+use crate::sweep::psf::{self as psf_sweep, run_sweep, steps, SweepOptions};
+use crate::sweep::spectral::{self as spectral_sweep, SpectralOptions, SpectralSweepResults};
+use crate::sweep::stability::{self, MapOptions, StabilitySweepResults};
 
 /// `bench psf` as the command line states it.
 #[derive(Debug, Clone)]
-pub struct PsfBenchOptions {
+pub struct PsfSweepOptions {
     /// The height map (file or built-in).
     pub design: DesignSource,
     /// Optical system TOML over the paper's values.
@@ -40,21 +40,21 @@ pub struct PsfBenchOptions {
     /// Material of the DOE, by name.
     pub material: String,
     /// What to sweep and the time budget.
-    pub bench: BenchOptions,
+    pub sweep: SweepOptions,
 }
 
-/// Runs the PSF methods' benchmark ([`crate::bench::psf`]) on a design in its system and
+/// Runs the PSF methods' sweep ([`crate::sweep::psf`]) on a design in its system and
 /// writes its charts (PNG, SVG) and `bench_psf.json` into the folder `output`, all or nothing.
 /// Progress: one step per run or skipped configuration.
-pub fn bench_psf(
-    opts: &PsfBenchOptions,
+pub fn sweep_psf(
+    opts: &PsfSweepOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<psf_bench::PsfBenchResults> {
-    let loaded = chain::load_design(&opts.design)?;
-    let total = steps(&opts.bench) as u64;
+) -> Result<psf_sweep::PsfSweepResults> {
+    let loaded = recipe_run::load_design(&opts.design)?;
+    let total = steps(&opts.sweep) as u64;
     let mut done = 0;
-    let report = run_psf_bench(opts, &loaded.heights, |what| {
+    let report = run_psf_sweep(opts, &loaded.heights, |what| {
         progress(what, done, total);
         done += 1;
     })?;
@@ -65,18 +65,18 @@ pub fn bench_psf(
     Ok(report)
 }
 
-/// The PSF benchmark of `opts` on the design's `heights` (loaded already), in the paper's camera
+/// The PSF sweep of `opts` on the design's `heights` (loaded already), in the paper's camera
 /// fitted to the design, with the material and system file of `opts`; writes nothing.
-pub fn run_psf_bench(
-    opts: &PsfBenchOptions,
+pub fn run_psf_sweep(
+    opts: &PsfSweepOptions,
     heights: &crate::grid::Grid,
     tick: impl FnMut(&str),
-) -> Result<psf_bench::PsfBenchResults> {
-    run_bench(&design_system(opts, heights)?, heights, &opts.bench, tick)
+) -> Result<psf_sweep::PsfSweepResults> {
+    run_sweep(&design_system(opts, heights)?, heights, &opts.sweep, tick)
 }
 
 /// The paper's camera fitted to the design, with the material and system file of `opts`.
-pub(crate) fn design_system(opts: &PsfBenchOptions, heights: &crate::grid::Grid) -> Result<OpticalSystem> {
+pub(crate) fn design_system(opts: &PsfSweepOptions, heights: &crate::grid::Grid) -> Result<OpticalSystem> {
     let mut system = system_for(heights);
     system.material = Material::by_name(&opts.material)?;
     if let Some(p) = &opts.system {
@@ -85,21 +85,21 @@ pub(crate) fn design_system(opts: &PsfBenchOptions, heights: &crate::grid::Grid)
     Ok(system)
 }
 
-/// Runs the spectral-sampling sweep ([`crate::bench::spectral`]) on a design in its
+/// Runs the spectral-sampling sweep ([`crate::sweep::spectral`]) on a design in its
 /// system (the design, system file and material of `on`; its budget is not used) and writes
 /// `spectral.{png,svg}` and `spectral.json` into the folder `output`, all or nothing. Progress:
 /// one step per monochromatic run.
-pub fn bench_spectral(
-    on: &PsfBenchOptions,
+pub fn sweep_spectral(
+    on: &PsfSweepOptions,
     opts: &SpectralOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<SpectralBenchResults> {
-    let loaded = chain::load_design(&on.design)?;
+) -> Result<SpectralSweepResults> {
+    let loaded = recipe_run::load_design(&on.design)?;
     let system = design_system(on, &loaded.heights)?;
-    let total = spectral_bench::steps(opts) as u64;
+    let total = spectral_sweep::steps(opts) as u64;
     let mut done = 0;
-    let report = spectral_bench::run_spectral(&system, &loaded.heights, opts, |what| {
+    let report = spectral_sweep::run_spectral(&system, &loaded.heights, opts, |what| {
         progress(what, done.min(total), total);
         done += 1;
     })?;
@@ -110,13 +110,13 @@ pub fn bench_spectral(
     Ok(report)
 }
 
-/// Runs the stability maps ([`crate::bench::stability`]) and writes their charts (PNG, SVG)
+/// Runs the stability maps ([`crate::sweep::stability`]) and writes their charts (PNG, SVG)
 /// and `stability.json` into the folder `output`, all or nothing. Progress: one step per run.
-pub fn bench_stability(
+pub fn sweep_stability(
     opts: &MapOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<StabilityBenchResults> {
+) -> Result<StabilitySweepResults> {
     let total = stability::steps(opts) as u64;
     let mut done = 0;
     let report = stability::run_maps(opts, |what| {
@@ -130,14 +130,14 @@ pub fn bench_stability(
     Ok(report)
 }
 
-/// Runs the registration trials ([`crate::bench::register`]) and writes their
+/// Runs the registration trials ([`crate::sweep::register`]) and writes their
 /// chart (PNG, SVG), `register.json` and `register.csv` into the folder `output`, all or
 /// nothing. Progress: one step per trial.
-pub fn bench_register(
+pub fn sweep_register(
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<crate::bench::register::RegistrationBench> {
-    use crate::bench::register as rb;
+) -> Result<crate::sweep::register::RegistrationSweep> {
+    use crate::sweep::register as rb;
     let total = rb::steps() as u64;
     let mut done = 0;
     let report = rb::run(|what| {
@@ -159,16 +159,16 @@ pub fn bench_register(
     Ok(report)
 }
 
-/// Runs the PSF calibration trials ([`crate::bench::calibration`]) on the PSF file `psf` (any
+/// Runs the PSF calibration trials ([`crate::sweep::calibration`]) on the PSF file `psf` (any
 /// file `psf` writes or `calibrate-psf` reads; `None`: the paper's measured PSF, compiled in)
 /// and writes their chart (PNG, SVG), `calibration.json` and `calibration.csv` into the folder
 /// `output`, all or nothing. Progress: one step per trial.
-pub fn bench_calibration(
+pub fn sweep_calibration(
     psf: Option<&Path>,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<crate::bench::calibration::CalibrationBench> {
-    use crate::bench::calibration as cb;
+) -> Result<crate::sweep::calibration::CalibrationSweep> {
+    use crate::sweep::calibration as cb;
     let (truth, name) = match psf {
         Some(p) => (crate::optics::Psf::read(p, None, None)?, p.display().to_string()),
         None => (crate::optics::Psf::paper_measured()?, "built-in:paper-measured-psf".to_string()),
@@ -194,17 +194,17 @@ pub fn bench_calibration(
     Ok(report)
 }
 
-/// Runs the reconstruction's tiling and precision sweep ([`crate::bench::tiling`]) with
+/// Runs the reconstruction's tiling and precision sweep ([`crate::sweep::tiling`]) with
 /// the decoder file `decoder` (or a built-in name) and writes its chart (PNG, SVG),
 /// `tiling.json` and `tiling.csv` into the folder `output`, all or nothing. Progress: one step
 /// per reconstruction.
-pub fn bench_tiling(
+pub fn sweep_tiling(
     decoder: &Path,
-    opts: &crate::bench::tiling::TilingOptions,
+    opts: &crate::sweep::tiling::TilingOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<crate::bench::tiling::TilingBench> {
-    use crate::bench::tiling as tb;
+) -> Result<crate::sweep::tiling::TilingSweep> {
+    use crate::sweep::tiling as tb;
     let total = tb::steps(opts) as u64;
     let mut done = 0;
     let report = tb::run(decoder, opts, |what| {
@@ -233,27 +233,27 @@ pub fn bench_tiling(
     Ok(report)
 }
 
-/// Runs the fabrication stage's sweeps ([`crate::bench::fab`]) on a design (any height
+/// Runs the fabrication stage's sweeps ([`crate::sweep::fab`]) on a design (any height
 /// map `fab` takes) and writes their charts (PNG, SVG), `bench_fab.json` and one CSV per sweep
 /// (`quantization.csv`, `stl_heightfield.csv`, `gds.csv`) into the folder `output`, all or
-/// nothing. Progress: one step per sweep point ([`fab_bench::steps`]).
-pub fn bench_fab(
+/// nothing. Progress: one step per sweep point ([`fab_sweep::steps`]).
+pub fn sweep_fab(
     design: &DesignSource,
-    opts: &FabBenchOptions,
+    opts: &FabSweepOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<FabBenchResults> {
+) -> Result<FabSweepResults> {
     opts.check()?;
-    let total = fab_bench::steps(opts) as u64 + 1;
+    let total = fab_sweep::steps(opts) as u64 + 1;
     progress("loading the design", 0, total);
-    let loaded = chain::load_design(design)?;
+    let loaded = recipe_run::load_design(design)?;
     let mut done = 1;
-    let report = fab_bench::run_bench(&loaded.heights, &loaded.name, opts, |what| {
+    let report = fab_sweep::run_sweep(&loaded.heights, &loaded.name, opts, |what| {
         progress(what, done, total);
         done += 1;
     })?;
     let mut stage = StagedDir::new(output)?;
-    write_fab_bench_charts(|n| stage.stage_path(n), &report)?;
+    write_fab_sweep_charts(|n| stage.stage_path(n), &report)?;
     atomic::write_json(&stage.stage_path("bench_fab.json"), &report)?;
     for (name, text) in [
         ("quantization.csv", report.quantization.csv()),
@@ -267,9 +267,9 @@ pub fn bench_fab(
     Ok(report)
 }
 
-/// The decoders' benchmark as the command line states it, before defaults.
+/// The decoders' sweep as the command line states it, before defaults.
 #[derive(Debug, Clone)]
-pub struct DecoderBenchOptions {
+pub struct DecoderSweepOptions {
     /// The paper's data release: the default scenes (`captures/<scene>/`) and
     /// `measured_psf.npz`.
     pub data: PathBuf,
@@ -308,12 +308,12 @@ pub struct DecoderBenchOptions {
     pub grad_clip: f64,
 }
 
-/// The benchmark's results (serialised as they are) and the warnings about its scenes.
+/// The sweep's results (serialised as they are) and the warnings about its scenes.
 #[derive(Debug, Serialize)]
 #[serde(transparent)]
-pub struct DecoderBenchOutcome {
-    /// What [`crate::bench::decoder::run`] measured.
-    pub results: DecoderBenchResults,
+pub struct DecoderSweepOutcome {
+    /// What [`crate::sweep::decoder::run`] measured.
+    pub results: DecoderSweepResults,
     /// Scenes whose bracket merged with warnings, scenes refused, training images skipped.
     #[serde(skip)]
     pub warnings: Vec<String>,
@@ -321,7 +321,7 @@ pub struct DecoderBenchOutcome {
 
 /// The scenes on which the fine-tuned decoder (the curve's last point) scores below its start
 /// (the first), PSNR-gamma over all scored pixels, as warnings with the figures.
-fn below_start(f: &capture_bench::FinetuneRun) -> Vec<String> {
+fn below_start(f: &capture_sweep::FinetuneRun) -> Vec<String> {
     let (Some(start), Some(end)) = (f.curve.first(), f.curve.last()) else { return Vec::new() };
     start
         .scores
@@ -346,9 +346,9 @@ fn below_start(f: &capture_bench::FinetuneRun) -> Vec<String> {
         .collect()
 }
 
-/// The benchmark's settings with the defaults filled in (lists the scene folders under
+/// The sweep's settings with the defaults filled in (lists the scene folders under
 /// `<data>/captures` when no scene is given).
-pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
+pub fn decoder_sweep_config(o: &DecoderSweepOptions) -> Result<SweepConfig> {
     let scenes = if o.scenes.is_empty() { scene_dirs(&o.data.join("captures"))? } else { o.scenes.clone() };
     let decoders = if o.decoders.is_empty() {
         vec![PathBuf::from("built-in:paper-simulated-psf"), PathBuf::from("built-in:paper-measured-psf")]
@@ -357,7 +357,7 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
     };
     // By default the real scenes score the decoder as each validation leaves it.
     let evaluate_every = o.evaluate_every.unwrap_or(crate::decoder::finetune::CHECKPOINT_EVERY);
-    let finetune = (o.steps > 0).then(|| FinetuneBench {
+    let finetune = (o.steps > 0).then(|| FinetuneSweep {
         init: o.init.clone(),
         config: FinetuneConfig {
             steps: o.steps,
@@ -373,7 +373,7 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
         evaluate_every,
         train_data: o.train_data.clone(),
     });
-    Ok(BenchConfig {
+    Ok(SweepConfig {
         scenes,
         decoders,
         psf: o.psf.clone().unwrap_or_else(|| o.data.join("measured_psf.npz")),
@@ -387,21 +387,21 @@ pub fn decoder_bench_config(o: &DecoderBenchOptions) -> Result<BenchConfig> {
     })
 }
 
-/// Runs the decoders' benchmark ([`crate::bench::decoder::run`]) with the defaults filled in,
+/// Runs the decoders' sweep ([`crate::sweep::decoder::run`]) with the defaults filled in,
 /// writing into the folder `output` its files and charts: `decoders.png` (decoder x scene) and,
 /// with fine-tuning, `psnr_vs_time.png` and `finetuned/training_curve.png`. Progress: the
 /// fine-tuning steps and two steps a scene.
-pub fn bench_decoder(
-    o: &DecoderBenchOptions,
+pub fn sweep_decoder(
+    o: &DecoderSweepOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<DecoderBenchOutcome> {
-    let cfg = decoder_bench_config(o)?;
+) -> Result<DecoderSweepOutcome> {
+    let cfg = decoder_sweep_config(o)?;
     let total = o.steps as u64 + 2 * cfg.scenes.len() as u64;
     let mut done = 0;
     let mut message = String::new();
     progress("", 0, total);
-    let report = capture_bench::run(&cfg, output, &mut |msg, n| {
+    let report = capture_sweep::run(&cfg, output, &mut |msg, n| {
         if !msg.is_empty() {
             message = msg.to_string();
         }
@@ -411,7 +411,7 @@ pub fn bench_decoder(
     write_decoder_scene_chart(&output.join("decoders.png"), &report)?;
     if let Some(f) = &report.finetune {
         write_training_chart(&output.join("finetuned").join("training_curve.png"), &f.history)?;
-        write_bench_chart(&output.join("psnr_vs_time.png"), &report)?;
+        write_sweep_chart(&output.join("psnr_vs_time.png"), &report)?;
     }
     let mut warnings = Vec::new();
     for s in report.scenes.iter().filter(|s| !s.merge_warnings.is_empty()) {
@@ -427,18 +427,18 @@ pub fn bench_decoder(
         warnings.extend(f.skipped_images.iter().cloned());
         warnings.extend(below_start(f));
     }
-    Ok(DecoderBenchOutcome { results: report, warnings })
+    Ok(DecoderSweepOutcome { results: report, warnings })
 }
 
 /// Runs the check of the decoder's measurement model against the real captures
-/// ([`crate::bench::forward::run`]) and writes `forward.json` and its chart `forward.png` into
+/// ([`crate::sweep::forward::run`]) and writes `forward.json` and its chart `forward.png` into
 /// the folder `output`. Progress: two steps a scene.
-pub fn bench_forward(
+pub fn sweep_forward(
     opts: &ForwardOptions,
     output: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<ForwardBenchResults> {
-    let report = crate::bench::forward::run(opts, output, progress)?;
+) -> Result<ForwardSweepResults> {
+    let report = crate::sweep::forward::run(opts, output, progress)?;
     write_forward_chart(&output.join("forward.png"), &report)?;
     Ok(report)
 }
@@ -446,8 +446,8 @@ pub fn bench_forward(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bench::decoder::{CurvePoint, FinetuneRun, Score};
     use crate::calibration::evaluate::Psnr;
+    use crate::sweep::decoder::{CurvePoint, FinetuneRun, Score};
 
     fn point(step: usize, db: [f64; 2]) -> CurvePoint {
         let score = |scene: &str, gamma_db: f64| Score {

@@ -66,26 +66,38 @@ impl Default for TilingOptions {
 pub struct TilingRun {
     /// `f32` or `f64`.
     pub precision: String,
-    /// Tile side and overlap, pixels (`None`: one pass over the whole image).
+    /// Tile side, pixels (`None`: one pass over the whole image).
     pub tile: Option<usize>,
+    /// Overlap, pixels: the context a tile adds on each side of its core (core side `tile - 2
+    /// overlap`); `None`: one pass over the whole image.
     pub overlap: Option<usize>,
+    /// Network passes run: the tiles, or 1 untiled.
     pub passes: usize,
+    /// Wall-clock seconds of the reconstruction.
     pub seconds: f64,
-    /// Against the f64 one-pass reference: relative L2 and largest absolute difference (output
-    /// units, 1 = the sensor's clipping level).
+    /// Relative L2 distance from the f64 one-pass reference over the whole image,
+    /// `||y - y_ref|| / ||y_ref||`.
     pub relative_l2: f64,
+    /// The largest absolute difference from the f64 one-pass reference, output units (1 = the
+    /// sensor's clipping level).
     pub max_abs: f64,
 }
 
 /// Everything [`run`] measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct TilingBench {
+pub struct TilingSweep {
+    /// What the numbers are in: differences against the f64 one-pass output (1 = the sensor's
+    /// clipping level), times in seconds, sizes in pixels.
     pub units: String,
+    /// The decoder: its file's path or `built-in:NAME`, as given.
     pub decoder: String,
+    /// The sweep's settings.
     pub options: TilingOptions,
+    /// [`RECEPTIVE_RADIUS`]: the bound of the U-Net's receptive-field radius, pixels.
     pub receptive_radius: usize,
     /// The f64 one-pass reference's time, s.
     pub reference_seconds: f64,
+    /// Every f32 reconstruction: untiled first, then each `(tile, overlap)` pair measured.
     pub runs: Vec<TilingRun>,
     /// `(tile, overlap)` pairs skipped as too costly (over [`MAX_COST`] passes' worth) or
     /// impossible (`tile <= 2 overlap`).
@@ -159,7 +171,7 @@ fn compare(y: &Image<f32>, reference: &[f64]) -> (f64, f64) {
 /// Runs the sweep (module docs) with the decoder file (or built-in name) `decoder` on the CPU, on
 /// a capture simulated through the paper's measured PSF, calling `tick` before each step
 /// ([`steps`] in all).
-pub fn run(decoder: &Path, opts: &TilingOptions, mut tick: impl FnMut(&str)) -> Result<TilingBench> {
+pub fn run(decoder: &Path, opts: &TilingOptions, mut tick: impl FnMut(&str)) -> Result<TilingSweep> {
     if opts.size == 0 || !opts.size.is_multiple_of(SIZE_MULTIPLE) {
         return Err(Error::param("size", format!("{} px; expected a positive multiple of 16", opts.size)));
     }
@@ -201,7 +213,7 @@ pub fn run(decoder: &Path, opts: &TilingOptions, mut tick: impl FnMut(&str)) -> 
             max_abs,
         });
     }
-    Ok(TilingBench {
+    Ok(TilingSweep {
         units: "differences against the f64 one-pass output (1 = the sensor's clipping level); times in s; sizes in pixels"
             .into(),
         decoder: decoder.display().to_string(),

@@ -1,8 +1,10 @@
-//! The benchmarks: each runs the stages' public functions on known inputs and reports speed
-//! against accuracy, or where a method fails, as typed, serialisable data. They sit above the
-//! stages (no stage uses them) and below the charts ([`crate::charts`] draws their reports);
-//! the commands that write their files, data and charts, are [`crate::pipeline::bench`] and
-//! [`crate::pipeline::report`].
+//! The sweeps behind `doefab bench ...`: each runs the stages' public functions on known inputs
+//! over a range of settings and reports speed against accuracy, or where a method fails (a
+//! failure map), as typed, serialisable data (`*SweepResults`, ...). They sit above the stages
+//! (no stage uses them) and below the charts ([`crate::charts`] draws their results); the
+//! commands that write their files, data and charts, are [`crate::pipeline::sweep`] and
+//! [`crate::pipeline::report`]. (The timings of `cargo bench` against peer tools are the
+//! crate's `benches/`, not these.)
 //!
 //! * [`fab`]: quantization, the STL heightfield and the GDSII tracing, each against a truth
 //!   computed another way (`doefab bench fab`).
@@ -41,12 +43,17 @@ pub mod tiling;
 /// the values tried, in that unit.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SweepAxis {
+    /// The swept quantity ("noise", "rotation", "frames", "read noise", ...): what a trial's
+    /// `axis` names.
     pub name: String,
+    /// The unit of `values` ("nm", "um", "deg", "count", "fraction", "% of full scale", ...).
     pub unit: String,
+    /// The values tried, in `unit`, in the order swept.
     pub values: Vec<f64>,
 }
 
 impl SweepAxis {
+    /// An axis named `name`, in `unit`, over `values`.
     pub fn new(name: &str, unit: &str, values: &[f64]) -> SweepAxis {
         SweepAxis { name: name.into(), unit: unit.into(), values: values.to_vec() }
     }

@@ -34,7 +34,7 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array2, Array3, Axis, Zip};
 use serde::Serialize;
 
-use super::decoder::{prepare_scene, scene_dirs, BenchScene, SENSOR_PITCH};
+use super::decoder::{prepare_scene, scene_dirs, SweepScene, SENSOR_PITCH};
 use crate::calibration::evaluate::{convolve_psf, ScoringOptions};
 use crate::decoder::measurement::{halo_blur, Halo};
 use crate::error::{DataCause, Error, Result};
@@ -43,10 +43,11 @@ use crate::optics::psf::Psf;
 
 /// Pixels within this distance of a pixel saturated in the capture form the flare ring.
 pub const RING_PX: usize = 16;
-/// The halo fractions and radii (pixels) searched.
+/// The halo fractions `eta` searched: the fraction of all light in the halo (0..1).
 pub const HALO_FRACTIONS: [f64; 6] = [0.05, 0.1, 0.15, 0.2, 0.3, 0.4];
+/// The halo radii searched (the Gaussian's standard deviation `rho`), sensor pixels.
 pub const HALO_RADII_PX: [f64; 5] = [8.0, 16.0, 32.0, 64.0, 128.0];
-/// The extra blurs searched, pixels.
+/// The extra blurs searched: the Gaussian's standard deviation, sensor pixels.
 pub const BLURS_PX: [f64; 4] = [0.0, 0.5, 1.0, 1.5];
 
 /// Settings of [`run`].
@@ -58,45 +59,66 @@ pub struct ForwardOptions {
     pub scenes: Vec<PathBuf>,
     /// The measured PSF; `None`: `<data>/measured_psf.npz` (array `psf_val`).
     pub psf: Option<PathBuf>,
+    /// Registration and scoring settings, the same for every scene.
     pub scoring: ScoringOptions,
 }
 
-/// Residuals of one model (see the module docs), sqrt domain, units of the clipping level.
+/// Residuals of one model (see the module docs), sqrt domain, units of the clipping level: the
+/// RMS of `sqrt(prediction) - sqrt(capture)` over the samples (pixel and channel) of a band, NaN
+/// where the band is empty.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Residuals {
+    /// Over the darks: paper-model brightness below 0.02 of the clipping level.
     pub dark: f64,
+    /// Over the mid-tones: paper-model brightness 0.02-0.3 of the clipping level.
     pub mid: f64,
+    /// Over the brights: paper-model brightness above 0.3 of the clipping level.
     pub bright: f64,
+    /// Over the flare ring: pixels within [`RING_PX`] of one saturated in the capture.
     pub ring: f64,
+    /// Over every unsaturated scored pixel: the figure the halo and blur are chosen by.
     pub all: f64,
-    /// Intersection over union of the saturated pixels of prediction and capture.
+    /// Intersection over union of the saturated pixels of prediction and capture, over the
+    /// scored pixels (0..1); NaN when neither has a saturated pixel.
     pub saturated_iou: f64,
 }
 
 /// One model fitted to one scene.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ModelFit {
+    /// The model's name ("paper: measured PSF, one gain, clipped at 1", "+ channel clipping", ...).
     pub model: String,
     /// Per channel, relative to the scene's gain (1 where not fitted).
     pub gains: [f64; 3],
     /// Per channel, units of the clipping level (0 where not fitted).
     pub offsets: [f64; 3],
+    /// The halo added to the PSF (the fitted one for the halo and blur models); `None` for the
+    /// first three models.
     pub halo: Option<Halo>,
+    /// Standard deviation of the extra Gaussian blur, sensor pixels (0: none).
     pub blur_px: f64,
     /// Where each channel of the prediction is clipped, fraction of the clipping level.
     pub clipping: [f64; 3],
+    /// The residuals of the fitted model.
     pub residuals: Residuals,
 }
 
 /// One scene's check.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SceneCheck {
+    /// The scene's name: its folder's name.
     pub name: String,
+    /// Fraction of the capture's pixels the registration covers (0..1).
     pub coverage: f64,
+    /// The scene's gain `g`: median of `capture / (h * reference)` over well-exposed samples.
     pub gain: f64,
+    /// Leave-one-out RMS error of the local registration's field, pixels; `None` under the affine
+    /// model.
     pub registration_residual_px: Option<f64>,
     /// Pixels in each band: dark, mid, bright, ring, all unsaturated scored.
     pub band_pixels: [usize; 5],
+    /// The models, each adding to the one before: paper, channel clipping, channel gains and
+    /// offsets, halo (the best of the grid), blur (the best of [`BLURS_PX`]).
     pub models: Vec<ModelFit>,
     /// `all` residual of the halo model over [`HALO_FRACTIONS`] (rows) x [`HALO_RADII_PX`].
     pub halo_grid: Vec<Vec<f64>>,
@@ -104,12 +126,18 @@ pub struct SceneCheck {
 
 /// What `doefab bench forward` measured (its JSON).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ForwardBenchResults {
+pub struct ForwardSweepResults {
+    /// What the numbers are in (residuals, gains, offsets, clipping, radii).
     pub units: String,
+    /// The measured PSF's file.
     pub psf: String,
+    /// [`HALO_FRACTIONS`]: the halo fractions `eta` searched (0..1).
     pub halo_fractions: Vec<f64>,
+    /// [`HALO_RADII_PX`]: the halo radii `rho` searched, sensor pixels.
     pub halo_radii_px: Vec<f64>,
+    /// [`BLURS_PX`]: the extra blurs searched (Gaussian standard deviation), sensor pixels.
     pub blurs_px: Vec<f64>,
+    /// Every scene checked, in the order of the folders (as given, or by name).
     pub scenes: Vec<SceneCheck>,
     /// Scenes that could not be merged or registered, with the reason.
     pub refused: Vec<(String, String)>,
@@ -124,13 +152,13 @@ struct Bands {
 }
 
 /// Runs the check on every scene and writes `forward.json` into `out` (its chart is the
-/// command's, [`crate::pipeline::bench::bench_forward`]).
+/// command's, [`crate::pipeline::sweep::sweep_forward`]).
 /// `progress(message, done, total)` counts two steps a scene.
 pub fn run(
     opts: &ForwardOptions,
     out: &Path,
     progress: &mut dyn FnMut(&str, u64, u64),
-) -> Result<ForwardBenchResults> {
+) -> Result<ForwardSweepResults> {
     let dirs =
         if opts.scenes.is_empty() { scene_dirs(&opts.data.join("captures"))? } else { opts.scenes.clone() };
     let (psf_path, key) = match &opts.psf {
@@ -156,7 +184,7 @@ pub fn run(
     if scenes.is_empty() {
         return Err(Error::data(DataCause::Empty, format!("no scene could be registered: {refused:?}")));
     }
-    let report = ForwardBenchResults {
+    let report = ForwardSweepResults {
         units: "residuals: RMS of sqrt(prediction) - sqrt(capture), the capture's clipping level = 1; gains relative \
                 to the scene's gain; offsets and clipping in units of the clipping level; halo and blur radii in \
                 sensor pixels (4.29 um)"
@@ -177,7 +205,7 @@ pub fn run(
 }
 
 /// The models of the module docs fitted to one scene.
-pub fn check_scene(scene: &BenchScene, psf: &Psf, saturation: f64) -> Result<SceneCheck> {
+pub fn check_scene(scene: &SweepScene, psf: &Psf, saturation: f64) -> Result<SceneCheck> {
     let footing = &scene.scoring.footing;
     let g = footing.gain;
     let levels: [f64; 3] = match footing.channel_clipping.as_slice() {
@@ -267,7 +295,7 @@ pub fn check_scene(scene: &BenchScene, psf: &Psf, saturation: f64) -> Result<Sce
     })
 }
 
-fn bands(scene: &BenchScene, base: &Array3<f64>) -> Bands {
+fn bands(scene: &SweepScene, base: &Array3<f64>) -> Bands {
     let scored = scene.scoring.mask.clone();
     let (h, w) = scored.dim();
     let saturated = scene.scoring.saturated.clone();

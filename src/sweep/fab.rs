@@ -26,7 +26,6 @@ use std::time::Instant;
 
 use ndarray::Array2;
 use rustfft::num_complex::Complex64;
-use rustfft::FftPlanner;
 use serde::Serialize;
 
 use crate::error::{Allowed, Error, Resource, Result};
@@ -36,12 +35,13 @@ use crate::fabrication::gds::{
 use crate::fabrication::quantize::{check_level_count, detuning, order_efficiency, quantize, QuantizeMethod};
 use crate::fabrication::stl::{heightfield_mesh, Mesh, StlOptions};
 use crate::fabrication::wrap::{wrap, WrapSpec};
+use crate::fft::Plan1d;
 use crate::grid::{Grid, Interpolation, Unit};
 use crate::material::{Material, PAPER_WAVELENGTHS};
 
-/// What the benchmark sweeps.
+/// What the sweep sweeps.
 #[derive(Debug, Clone, Serialize)]
-pub struct FabBenchOptions {
+pub struct FabSweepOptions {
     /// Design wavelength of the wrap (and of the grating's blaze), metres.
     pub wavelength: f64,
     /// Material, by name.
@@ -68,9 +68,9 @@ pub struct FabBenchOptions {
     pub repeats: usize,
 }
 
-impl Default for FabBenchOptions {
+impl Default for FabSweepOptions {
     fn default() -> Self {
-        FabBenchOptions {
+        FabSweepOptions {
             wavelength: 530e-9,
             material: "pdms".into(),
             order: 1,
@@ -87,7 +87,7 @@ impl Default for FabBenchOptions {
     }
 }
 
-impl FabBenchOptions {
+impl FabSweepOptions {
     /// Refuses empty sweeps and values out of range, before any work.
     pub fn check(&self) -> Result<()> {
         let spec = self.wrap_spec()?;
@@ -166,15 +166,16 @@ impl FabBenchOptions {
     }
 }
 
-/// Progress steps of [`run_bench`]: the quantization sweep, one per `max_error`, the mask
+/// Progress steps of [`run_sweep`]: the quantization sweep, one per `max_error`, the mask
 /// set's level map, one per vertex limit.
-pub fn steps(opts: &FabBenchOptions) -> usize {
+pub fn steps(opts: &FabSweepOptions) -> usize {
     2 + opts.max_errors.len() + opts.vertex_limits.len()
 }
 
 /// One level count at one wavelength.
 #[derive(Debug, Clone, Serialize)]
 pub struct QuantizationPoint {
+    /// Level count `N` of the quantized staircase.
     pub level_count: usize,
     /// Metres.
     pub wavelength: f64,
@@ -199,15 +200,19 @@ pub struct QuantizationPoint {
 pub struct QuantizationSweep {
     /// What the prediction is scored against.
     pub truth: String,
-    /// Design wavelength, metres; material; design order.
+    /// Design wavelength of the wrap (and of the grating's blaze), metres.
     pub design_wavelength: f64,
+    /// Material, by name.
     pub material: String,
+    /// Design order (multi-order factor `p`) of the wrap and the grating.
     pub order: u32,
     /// Wrap period `p h_2pi`, metres.
     pub period: f64,
+    /// Samples per level of the simulated grating (`M = N * samples_per_level` per period).
     pub samples_per_level: usize,
     /// Largest |simulated - predicted| over the sweep.
     pub max_difference: f64,
+    /// One point per level count and wavelength, level count by level count.
     pub points: Vec<QuantizationPoint>,
 }
 
@@ -220,6 +225,7 @@ pub struct StlPoint {
     pub triangles: usize,
     /// Triangles of the top surface.
     pub top_triangles: usize,
+    /// Vertices of the whole solid.
     pub vertices: usize,
     /// Best of the timed runs of [`heightfield_mesh`], seconds.
     pub seconds: f64,
@@ -236,22 +242,29 @@ pub struct StlPoint {
 /// The STL heightfield sweep.
 #[derive(Debug, Clone, Serialize)]
 pub struct StlSweep {
+    /// What the mesh's error is measured against.
     pub truth: String,
-    /// Samples `[rows, columns]` and pitch `[x, y]` (metres) of the meshed map.
+    /// Samples `[rows, columns]` of the meshed map.
     pub samples: [usize; 2],
+    /// Pitch `[x, y]` of the meshed map, metres.
     pub pitch: [f64; 2],
     /// Triangles of the naive top mesh (two per cell between four samples).
     pub naive_triangles: u64,
+    /// Timed runs per `max_error`; the best is reported.
     pub repeats: usize,
+    /// One point per `max_error`, in the order given.
     pub points: Vec<StlPoint>,
 }
 
 /// One layer of the mask set at one vertex limit; areas in square nanometres.
 #[derive(Debug, Clone, Serialize)]
 pub struct GdsLayerArea {
+    /// GDSII layer number `k`: mask `k` of [`layer_masks`] (bit `M - k` of the level, `M =
+    /// log2 level_count`).
     pub layer: u16,
-    /// Pattern polygons and their vertices, read back from the stream.
+    /// Pattern polygons of the layer, read back from the stream.
     pub polygons: usize,
+    /// Their vertices, summed (distinct vertices, the closing repeat not counted).
     pub vertices: usize,
     /// Sum of the pattern polygons' shoelace areas.
     pub polygon_area: i64,
@@ -264,9 +277,13 @@ pub struct GdsLayerArea {
 /// One vertex limit of the GDSII mask set.
 #[derive(Debug, Clone, Serialize)]
 pub struct GdsPoint {
+    /// The vertex limit: the most vertices of one polygon the writer may emit
+    /// ([`MaskSetOptions::max_vertices`]).
     pub max_vertices: usize,
-    /// Pattern polygons and vertices over all layers (alignment crosses not counted).
+    /// Pattern polygons over all layers, read back from the stream (alignment crosses not
+    /// counted).
     pub polygons: usize,
+    /// Their vertices, summed (distinct vertices, the closing repeat not counted).
     pub vertices: usize,
     /// The most vertices of one polygon, read back.
     pub largest_polygon: usize,
@@ -276,51 +293,64 @@ pub struct GdsPoint {
     pub seconds: f64,
     /// Whether the counts read back equal the writer's report.
     pub report_agrees: bool,
+    /// One entry per mask layer, layer 1 first.
     pub layers: Vec<GdsLayerArea>,
 }
 
 /// The GDSII sweep.
 #[derive(Debug, Clone, Serialize)]
 pub struct GdsSweep {
+    /// What the polygons' areas are compared with.
     pub truth: String,
+    /// Level count of the mask set.
     pub level_count: usize,
-    /// Writer grid, metres, and the level map's samples `[rows, columns]`.
+    /// Writer grid (pixel pitch) of the mask set, metres.
     pub pitch: f64,
+    /// The level map's samples `[rows, columns]` at the writer grid.
     pub samples: [usize; 2],
+    /// Timed runs per vertex limit; the best is reported.
     pub repeats: usize,
     /// Largest |polygon area - bitmap area| over every layer and limit, nm^2.
     pub max_area_difference: i64,
+    /// One point per vertex limit, in the order given.
     pub points: Vec<GdsPoint>,
 }
 
-/// The whole benchmark. Deterministic but for the `seconds` fields.
+/// The whole sweep. Deterministic but for the `seconds` fields.
 #[derive(Debug, Clone, Serialize)]
-pub struct FabBenchResults {
+pub struct FabSweepResults {
+    /// What the numbers are in: lengths and heights in metres, times in seconds, file sizes in
+    /// bytes, GDSII areas in square nanometres.
     pub units: String,
-    /// The design, its samples `[rows, columns]` and pitch `[x, y]` (metres).
+    /// The design: `built-in:NAME` or its file's path.
     pub design: String,
+    /// The design's samples `[rows, columns]`.
     pub design_samples: [usize; 2],
+    /// The design's pitch `[x, y]`, metres.
     pub design_pitch: [f64; 2],
+    /// The quantization sweep: predicted against simulated efficiency.
     pub quantization: QuantizationSweep,
+    /// The STL heightfield sweep: triangles and time against the measured height error.
     pub stl: StlSweep,
+    /// The GDSII sweep: polygons, file size and time against the vertex limit, areas checked.
     pub gds: GdsSweep,
 }
 
 /// Runs the three sweeps on a design (heights in metres, unwrapped); `progress` is called with
 /// a message before each step ([`steps`] of them).
-pub fn run_bench(
+pub fn run_sweep(
     heights: &Grid,
     design: &str,
-    opts: &FabBenchOptions,
+    opts: &FabSweepOptions,
     mut progress: impl FnMut(&str),
-) -> Result<FabBenchResults> {
+) -> Result<FabSweepResults> {
     opts.check()?;
     progress("quantization: simulated gratings");
     let quantization = quantization_sweep(opts)?;
     let stl = stl_sweep(heights, opts, &mut progress)?;
     let gds = gds_sweep(heights, opts, &mut progress)?;
     let (r, c) = heights.dim();
-    Ok(FabBenchResults {
+    Ok(FabSweepResults {
         units: "lengths and heights in metres, times in seconds, file sizes in bytes, GDSII areas in square \
                 nanometres"
             .into(),
@@ -348,7 +378,7 @@ fn sinc(x: f64) -> f64 {
 /// One period of the blaze `h(x) = x * period`, `x in [0, 1)`, is sampled at the centres of
 /// `M = N * samples_per_level` cells and quantized by [`quantize`] (rounding); each cell then
 /// holds one level, and the level boundaries `(l + 1/2) / N` fall on cell boundaries
-/// (`samples_per_level` even, as [`FabBenchOptions::check`] requires). The transmission of a cell is
+/// (`samples_per_level` even, as [`FabSweepOptions::check`] requires). The transmission of a cell is
 /// `exp(i 2 pi (n(lambda) - 1) h / lambda)`; `c_m = DFT_m / M` is the DFT's order `m`, and
 /// `c_m sinc(m / M)` (times a phase) is the Fourier coefficient of the piecewise-constant
 /// transmission.
@@ -368,7 +398,7 @@ pub fn simulate_grating(
     let heights = q.heights()?;
     let mut field: Vec<Complex64> =
         heights.values().iter().map(|&h| Complex64::from_polar(1.0, phase_per_metre * h)).collect();
-    FftPlanner::new().plan_fft_forward(m).process(&mut field);
+    Plan1d::new(m).process(&mut field, false);
     let norm = (m as f64).powi(2);
     let total = field.iter().map(|c| c.norm_sqr()).sum::<f64>() / norm;
     let k = order as usize % m;
@@ -378,7 +408,7 @@ pub fn simulate_grating(
 
 /// Predicted against simulated efficiency of the design order for every level count and
 /// wavelength of `opts` (see the module docs).
-pub fn quantization_sweep(opts: &FabBenchOptions) -> Result<QuantizationSweep> {
+pub fn quantization_sweep(opts: &FabSweepOptions) -> Result<QuantizationSweep> {
     let spec = opts.wrap_spec()?;
     let period = spec.period()?;
     let n0 = spec.index()?;
@@ -503,7 +533,7 @@ fn best_of<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(f64, 
 /// triangles, time and the measured error ([`mesh_height_error`]).
 pub fn stl_sweep(
     heights: &Grid,
-    opts: &FabBenchOptions,
+    opts: &FabSweepOptions,
     progress: &mut impl FnMut(&str),
 ) -> Result<StlSweep> {
     let (nr, nc) = heights.dim();
@@ -552,7 +582,9 @@ fn top_triangle_count(mesh: &Mesh) -> usize {
 /// of the first point dropped), database units.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Boundary {
+    /// GDSII layer number.
     pub layer: u16,
+    /// The distinct vertices `[x, y]`, database units (1 nm), in the stream's order.
     pub points: Vec<[i32; 2]>,
 }
 
@@ -620,7 +652,7 @@ fn twice_area(p: &[[i32; 2]]) -> i128 {
 /// resampled to `opts.gds_pitch` by nearest neighbour) at every vertex limit of `opts`.
 pub fn gds_sweep(
     heights: &Grid,
-    opts: &FabBenchOptions,
+    opts: &FabSweepOptions,
     progress: &mut impl FnMut(&str),
 ) -> Result<GdsSweep> {
     progress(&format!("GDSII: {}-level map at {:.2} um", opts.gds_levels, opts.gds_pitch * 1e6));
@@ -798,7 +830,7 @@ mod tests {
 
     #[test]
     fn simulated_quantization_equals_swanson() {
-        let opts = FabBenchOptions::default();
+        let opts = FabSweepOptions::default();
         let q = quantization_sweep(&opts).unwrap();
         assert_eq!(q.points.len(), 18);
         for p in &q.points {
@@ -833,7 +865,7 @@ mod tests {
     fn measured_stl_error_is_within_each_bound() {
         let g = surface(37, 45);
         let opts =
-            FabBenchOptions { max_errors: vec![0.5e-9, 2e-9, 10e-9], repeats: 1, ..Default::default() };
+            FabSweepOptions { max_errors: vec![0.5e-9, 2e-9, 10e-9], repeats: 1, ..Default::default() };
         let s = stl_sweep(&g, &opts, &mut |_| {}).unwrap();
         assert_eq!(s.points.len(), 3);
         for p in &s.points {
@@ -856,7 +888,7 @@ mod tests {
     #[test]
     fn gds_polygon_areas_equal_the_bitmaps() {
         let g = surface(60, 70);
-        let opts = FabBenchOptions {
+        let opts = FabSweepOptions {
             gds_pitch: 1e-6,
             vertex_limits: vec![4, 12, 8190],
             repeats: 1,
@@ -881,18 +913,18 @@ mod tests {
 
     #[test]
     fn bad_options_are_refused() {
-        let d = FabBenchOptions::default();
+        let d = FabSweepOptions::default();
         assert!(d.check().is_ok());
         for bad in [
-            FabBenchOptions { level_counts: vec![], ..d.clone() },
-            FabBenchOptions { level_counts: vec![1], ..d.clone() },
-            FabBenchOptions { max_errors: vec![0.0], ..d.clone() },
-            FabBenchOptions { vertex_limits: vec![3], ..d.clone() },
-            FabBenchOptions { gds_levels: 6, ..d.clone() },
-            FabBenchOptions { repeats: 0, ..d.clone() },
-            FabBenchOptions { samples_per_level: 63, ..d.clone() },
-            FabBenchOptions { material: "glass?".into(), ..d.clone() },
-            FabBenchOptions { wavelengths: vec![5e-6], ..d.clone() },
+            FabSweepOptions { level_counts: vec![], ..d.clone() },
+            FabSweepOptions { level_counts: vec![1], ..d.clone() },
+            FabSweepOptions { max_errors: vec![0.0], ..d.clone() },
+            FabSweepOptions { vertex_limits: vec![3], ..d.clone() },
+            FabSweepOptions { gds_levels: 6, ..d.clone() },
+            FabSweepOptions { repeats: 0, ..d.clone() },
+            FabSweepOptions { samples_per_level: 63, ..d.clone() },
+            FabSweepOptions { material: "glass?".into(), ..d.clone() },
+            FabSweepOptions { wavelengths: vec![5e-6], ..d.clone() },
         ] {
             assert!(bad.check().is_err(), "{bad:?}");
         }

@@ -137,14 +137,18 @@ impl Default for MapOptions {
 /// One run of a map.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MapCell {
+    /// Sub-samples per pixel and axis (the transfer-function methods' pupil pitch is
+    /// `sensor_pitch / subsample`; the matrix DFT's maps: 3 Gauss-Legendre nodes).
     pub subsample: usize,
     /// Pupil pitch, metres.
     pub pupil_pitch: f64,
+    /// The run's wavelength, metres.
     pub wavelength: f64,
+    /// The focal length `g`, metres (the sensor in focus, `d_s = g`).
     pub focal_length: f64,
-    /// `dx / (lambda F#)`.
+    /// The x axis: `dx / (lambda F#)`.
     pub lens_sampling_ratio: f64,
-    /// `(D/2)^2 / (lambda d_s)`.
+    /// Map 1's y axis, the Fresnel number `N_F = (D/2)^2 / (lambda d_s)`.
     pub fresnel_number: f64,
     /// Relative L2 against the truth.
     pub error: f64,
@@ -157,15 +161,20 @@ pub struct MapCell {
 /// One map: a method over two axes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StabilityMap {
+    /// The method (`fresnel`, `angular_spectrum` or `matrix_dft`).
     pub method: String,
     /// The DOE: `smooth` (the stability DOE), `wrapped` or `quantized` ([`stepped_doe`]).
     pub design: String,
     /// `fresnel_number` or `wavelength`: the y axis.
     pub y_axis: String,
-    /// The guard boundary drawn on the chart: at `limit_x` on the x axis, and its name.
+    /// The guard boundary drawn on the chart: its place on the x axis, `dx / (lambda F#)` (1
+    /// for the transfer-function methods, `D / (crop window)` for the matrix DFT).
     pub limit_x: f64,
+    /// The guard boundary's name.
     pub limit: String,
+    /// Every run, row by row (focal length or wavelength), each row along the x axis.
     pub cells: Vec<MapCell>,
+    /// Runs the guard accepts whose error is over the tolerance (NaN included).
     pub silent_failures: usize,
     /// Runs the guard refuses whose error is within the tolerance (the guard's caution).
     pub refused_within_tolerance: usize,
@@ -182,23 +191,33 @@ impl StabilityMap {
 /// Where the paper's sampling sits on the x axis.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PaperMark {
+    /// One of the paper's wavelengths, metres.
     pub wavelength: f64,
+    /// The paper's sampling there, `dx / (lambda F#)` with 4.29 um at F/7: its place on the x axis.
     pub lens_sampling_ratio: f64,
 }
 
 /// Everything [`run_maps`] measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct StabilityBenchResults {
+pub struct StabilitySweepResults {
+    /// What the numbers are in: lengths in metres, errors relative L2, ratios and Fresnel numbers
+    /// dimensionless.
     pub units: String,
+    /// Error above which a run the guard accepts is a silent failure ([`MapOptions::tolerance`]).
     pub tolerance: f64,
     /// The truth and the scene, in words.
     pub truth: String,
+    /// The scene's aperture diameter `D`, metres.
     pub aperture: f64,
+    /// The scene's sensor pixel pitch, metres.
     pub sensor_pitch: f64,
+    /// Sensor window, pixels per side.
     pub crop: usize,
+    /// The maps run, in the order of [`MAPS`].
     pub maps: Vec<StabilityMap>,
     /// The maps a time budget left out ([`MapKind::name`]), with why.
     pub left_out: Vec<String>,
+    /// Where the paper's sampling sits on the x axis, one mark per wavelength (635, 530, 450 nm).
     pub paper: Vec<PaperMark>,
 }
 
@@ -450,8 +469,11 @@ fn stepped_row(
 /// and the y axis (`fresnel_number`, `wavelength`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct MapKind {
+    /// The method mapped.
     pub method: Method,
+    /// The DOE: `smooth` (the stability DOE), `wrapped` or `quantized` ([`stepped_doe`]).
     pub design: &'static str,
+    /// The y axis: `fresnel_number` (map 1) or `wavelength` (map 2).
     pub y_axis: &'static str,
 }
 
@@ -559,13 +581,13 @@ pub fn run_map(opts: &MapOptions, kind: MapKind, mut tick: impl FnMut(&str)) -> 
 }
 
 /// The report of `maps` run with `opts`, naming the maps `left_out` (by a time budget).
-pub fn report(opts: &MapOptions, maps: Vec<StabilityMap>, left_out: Vec<String>) -> StabilityBenchResults {
+pub fn report(opts: &MapOptions, maps: Vec<StabilityMap>, left_out: Vec<String>) -> StabilitySweepResults {
     let base = scene();
     let paper = PAPER_WAVELENGTHS
         .iter()
         .map(|&l| PaperMark { wavelength: l, lens_sampling_ratio: PAPER_PITCH / (l * PAPER_F_NUMBER) })
         .collect();
-    StabilityBenchResults {
+    StabilitySweepResults {
         units: "lengths in m; errors as relative L2; ratios and Fresnel numbers dimensionless".into(),
         tolerance: opts.tolerance,
         truth: "the same pupil samples to the same sensor points: for fresnel the matrix DFT (exact discrete \
@@ -587,7 +609,7 @@ pub fn report(opts: &MapOptions, maps: Vec<StabilityMap>, left_out: Vec<String>)
 
 /// Runs the eight maps of [`MAPS`] (module docs), calling `tick` before each run ([`steps`] in
 /// all).
-pub fn run_maps(opts: &MapOptions, mut tick: impl FnMut(&str)) -> Result<StabilityBenchResults> {
+pub fn run_maps(opts: &MapOptions, mut tick: impl FnMut(&str)) -> Result<StabilitySweepResults> {
     let maps = MAPS.iter().map(|&kind| run_map(opts, kind, &mut tick)).collect::<Result<Vec<_>>>()?;
     Ok(report(opts, maps, Vec::new()))
 }

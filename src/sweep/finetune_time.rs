@@ -55,6 +55,7 @@ impl TimedOptions {
 /// The validation score after a number of steps.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct TimedPoint {
+    /// Fine-tuning steps done at this validation (0: the starting decoder).
     pub step: usize,
     /// Training time up to this step (validation excluded), seconds.
     pub seconds: f64,
@@ -67,19 +68,29 @@ pub struct TimedPoint {
 pub struct TimedFinetune {
     /// The starting decoder and its SHA-256.
     pub init: String,
+    /// The PSF the captures are simulated through: its file, or `built-in:paper-measured-psf`.
     pub psf: String,
+    /// What it was trained on: the procedural scenes' name.
     pub training_data: String,
+    /// Crops per training step.
     pub batch: usize,
+    /// Side of each training crop, pixels.
     pub crop: usize,
+    /// Views in the fixed validation set.
     pub validation_views: usize,
     /// Threads the steps ran on.
     pub threads: usize,
+    /// Training steps run: the legs' steps, `evaluations` legs of equal length.
     pub steps: usize,
+    /// Training time per step (validation excluded), seconds: the steps' training seconds over
+    /// `steps`.
     pub seconds_per_step: f64,
     /// Wall-clock seconds of the whole run (validation and setup included).
     pub total_seconds: f64,
     /// Step 0 (the start) and every validation after it.
     pub points: Vec<TimedPoint>,
+    /// What the numbers are in: PSNR in dB (validation loss's sqrt domain, peak = the clipping
+    /// level), times in seconds.
     pub units: &'static str,
 }
 

@@ -8,7 +8,7 @@
 //! midpoint rule, so `s` is also their pupil grid; each of them at three paddings of its FFT
 //! window, 1.25, its own and 3 times the pupil's side), forced past its validity guard so that the
 //! error where it refuses is seen; the guard's verdict is recorded with each run. A time budget
-//! sets how far each series goes (see [`BenchOptions::budget`]).
+//! sets how far each series goes (see [`SweepOptions::budget`]).
 //!
 //! The error is the worst channel's relative L2 against a reference that is itself checked: the
 //! matrix DFT in f64 with Gauss-Legendre pixels at `s_max + 2` and `s_max + 4` sub-samples; the
@@ -70,9 +70,9 @@ const REPEAT_SECONDS: f64 = 2.0;
 /// design on two cores shared with other builds).
 pub const WRITE_SECONDS: f64 = 2.0;
 
-/// The wall time [`timed`] takes for a configuration whose one run takes `t` seconds: the
+/// The wall time `timed` takes for a configuration whose one run takes `t` seconds: the
 /// warm-up and the first timed run, then more while the time spent stays within
-/// [`REPEAT_SECONDS`], up to [`REPEATS`] timed runs.
+/// `REPEAT_SECONDS` (2 s), up to `REPEATS` (3) timed runs.
 pub fn timed_wall(t: f64) -> f64 {
     let mut runs = 2;
     while runs < 1 + REPEATS && runs as f64 * t <= REPEAT_SECONDS {
@@ -140,24 +140,23 @@ impl Costs {
 /// Work per second of one forward 2-D FFT of `w x w` complex samples (a quarter of
 /// [`crate::optics::plan::fft_cost`]), timed once.
 fn fft_rate(w: usize) -> f64 {
-    let mut planner = rustfft::FftPlanner::new();
-    let plan = crate::optics::fft::Plan2d::new(&mut planner, w);
+    let plan = crate::fft::Plan2d::new(w);
     let mut field = Array2::<rustfft::num_complex::Complex64>::zeros((w, w));
     let t = Instant::now();
     plan.transform(&mut field, false);
     0.25 * crate::optics::plan::fft_cost(w) / t.elapsed().as_secs_f64().max(1e-9)
 }
 
-/// What [`run_bench`] sweeps and how long it may take.
+/// What [`run_sweep`] sweeps and how long it may take.
 #[derive(Debug, Clone, PartialEq)]
-pub struct BenchOptions {
+pub struct SweepOptions {
     /// Wall-clock seconds for the whole run, the charts and the JSON included. The reference
     /// runs first, whatever the budget (every error is measured against it); then each plan and
     /// each configuration of the sweep runs only where its predicted time ([`Costs`]) ends within
     /// the budget, less [`WRITE_SECONDS`] for the files: the plans from the whole, the sweep
     /// from equal shares of what the plans leave to its eight series (a series stops at the
     /// first sub-sampling that would end past its share, or whose FFT window exceeds
-    /// [`MAX_SIDE`], memory). What is left out is listed in [`PsfBenchResults::skipped`] with why.
+    /// [`MAX_SIDE`], memory). What is left out is listed in [`PsfSweepResults::skipped`] with why.
     pub budget: f64,
     /// The largest sub-sampling of the sweep (the reference runs at two more and four more).
     pub max_subsample: usize,
@@ -165,9 +164,9 @@ pub struct BenchOptions {
     pub tolerances: Vec<f64>,
 }
 
-impl Default for BenchOptions {
-    fn default() -> BenchOptions {
-        BenchOptions { budget: 300.0, max_subsample: 5, tolerances: vec![1e-2, 1e-3, 1e-4] }
+impl Default for SweepOptions {
+    fn default() -> SweepOptions {
+        SweepOptions { budget: 300.0, max_subsample: 5, tolerances: vec![1e-2, 1e-3, 1e-4] }
     }
 }
 
@@ -178,19 +177,27 @@ pub struct Reference {
     pub subsamples: [usize; 2],
     /// Worst channel's relative L2 between the two runs.
     pub difference: f64,
+    /// Wall-clock seconds of the reference run (the second), run once.
     pub seconds: f64,
 }
 
 /// The automatic plan at one tolerance, run and scored like the sweep.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PlanPoint {
+    /// The tolerance the plan is made for: the largest relative L2 error it may give.
     pub tolerance: f64,
+    /// The method the plan picked (`matrix_dft`, `fresnel`, `angular_spectrum`, ...).
     pub method: String,
+    /// The precision the plan picked (`f32` or `f64`).
     pub precision: String,
+    /// Sub-samples per pixel and axis the plan picked.
     pub subsample: usize,
+    /// Pupil sample pitch of the plan's system, metres: the matrix DFT's; a transfer-function
+    /// method samples at `sensor_pitch / subsample` instead.
     pub pupil_pitch: f64,
     /// The plan's own error estimate.
     pub estimated_error: f64,
+    /// Seconds of the plan's run: the fastest of the timed runs.
     pub seconds: f64,
     /// Worst channel's relative L2 against the reference.
     pub error: f64,
@@ -204,20 +211,29 @@ pub struct PlanPoint {
 
 /// Everything one `bench psf` run measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PsfBenchResults {
+pub struct PsfSweepResults {
     /// Units of the numbers below.
     pub units: String,
-    /// DOE samples per side, its pitch (m), the aperture (m), the F-number and the
-    /// wavelengths (m).
+    /// DOE samples per side (rows).
     pub doe_samples: usize,
+    /// The DOE's pitch along x, metres.
     pub doe_pitch: f64,
+    /// The aperture diameter `D`, metres.
     pub aperture: f64,
+    /// The working F-number `F# = g / D`.
     pub f_number: f64,
+    /// The wavelengths, metres.
     pub wavelengths: Vec<f64>,
+    /// Sensor window, pixels per side.
     pub crop: usize,
+    /// [`BenchOptions::budget`]: the wall-clock budget of the whole run, seconds.
     pub budget_seconds: f64,
+    /// The reference and how far it is from converged.
     pub reference: Reference,
-    pub points: Vec<BenchPoint>,
+    /// Every run of the sweep, series by series, sub-sampling by sub-sampling (skipped ones left
+    /// out).
+    pub points: Vec<PsfSweepPoint>,
+    /// One per tolerance whose plan ran, in the order given.
     pub plans: Vec<PlanPoint>,
     /// Plans that miss their tolerance: the plan runs only what its guards accept, so each is a
     /// silent failure.
@@ -228,10 +244,12 @@ pub struct PsfBenchResults {
 
 /// One timed run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct BenchPoint {
+pub struct PsfSweepPoint {
     /// Method, precision and (FFT methods) padding, as the charts name it.
     pub series: String,
+    /// The method (`matrix_dft`, `fresnel`, `angular_spectrum`).
     pub method: String,
+    /// The precision (`f32` or `f64`).
     pub precision: String,
     /// FFT window side over the pupil samples' side as run (the nominal padding rounded up to
     /// a fast FFT size; 1 for the matrix DFT, which has none).
@@ -243,6 +261,7 @@ pub struct BenchPoint {
     pub pixel_rule: String,
     /// Pupil sample pitch the method used, metres.
     pub pupil_pitch: f64,
+    /// Seconds of the run: the fastest of the timed runs after a warm-up.
     pub seconds: f64,
     /// Worst channel's relative L2 against the converged reference.
     pub error: f64,
@@ -299,9 +318,9 @@ pub fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
     front
 }
 
-/// How many times [`run_bench`] calls its `tick` (for a progress bar): the reference, each
+/// How many times [`run_sweep`] calls its `tick` (for a progress bar): the reference, each
 /// plan, each configuration of the sweep (run or skipped).
-pub fn steps(opts: &BenchOptions) -> usize {
+pub fn steps(opts: &SweepOptions) -> usize {
     1 + opts.tolerances.len() + CONFIGS.len() * opts.max_subsample
 }
 
@@ -341,14 +360,14 @@ fn gauss_legendre_run(system: &OpticalSystem, doe: &Grid, s: usize) -> Result<Ps
     simulate(&sys, doe, Method::MatrixDft, &Options::default())
 }
 
-/// Runs the benchmark on `doe` in `system` (see the module docs), calling `tick` with a
+/// Runs the sweep on `doe` in `system` (see the module docs), calling `tick` with a
 /// description before each step ([`steps`] in all).
-pub fn run_bench(
+pub fn run_sweep(
     system: &OpticalSystem,
     doe: &Grid,
-    opts: &BenchOptions,
+    opts: &SweepOptions,
     mut tick: impl FnMut(&str),
-) -> Result<PsfBenchResults> {
+) -> Result<PsfSweepResults> {
     if opts.max_subsample == 0 || opts.budget.is_nan() || opts.budget <= 0.0 {
         return Err(crate::error::Error::param(
             "bench",
@@ -455,7 +474,7 @@ pub fn run_bench(
             let (psf, seconds) = timed(|| simulate(&sys, doe, method, &run_opts))?;
             costs.observe(method, Costs::work(method, precision, &sys, doe), seconds);
             let pupil_pitch = if method == Method::MatrixDft { sys.pupil_pitch } else { sys.sample_pitch() };
-            points.push(BenchPoint {
+            points.push(PsfSweepPoint {
                 series,
                 method: method.name().into(),
                 precision: precision.name().into(),
@@ -486,7 +505,7 @@ pub fn run_bench(
             plan.time_ratio = Some(plan.seconds / c.seconds);
         }
     }
-    Ok(PsfBenchResults {
+    Ok(PsfSweepResults {
         units: "lengths in m, times in s, errors as relative L2 (worst channel)".into(),
         doe_samples: doe.values().nrows(),
         doe_pitch: doe.pitch()[0],

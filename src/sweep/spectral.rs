@@ -89,6 +89,7 @@ pub fn paper_bands() -> Result<Vec<Band>> {
 /// One band at one `N`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SpectralPoint {
+    /// The band's name ("r", "g", "b", ...).
     pub band: String,
     /// Sub-bands (spectral samples).
     pub samples: usize,
@@ -103,6 +104,7 @@ pub struct SpectralPoint {
 /// The plan at one tolerance, run and scored.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SpectralPlanPoint {
+    /// The tolerance the plan is run at: the largest relative L2 error it may give.
     pub tolerance: f64,
     /// The `N` the pilot's estimate asks for (the largest over the bands, as the plan takes
     /// it); `None` where it refuses (more than [`crate::optics::plan::MAX_SPECTRAL`] sub-bands).
@@ -125,18 +127,27 @@ pub struct SpectralPlanPoint {
 
 /// Everything one `bench spectral` run measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SpectralBenchResults {
+pub struct SpectralSweepResults {
+    /// What the numbers are in: lengths in metres, times in seconds, errors relative L2.
     pub units: String,
+    /// The propagation method the plan picks for the design (at 1e-2, without bands), used by
+    /// every run.
     pub method: String,
+    /// The DOE's samples along x (columns).
     pub doe_samples: usize,
+    /// The DOE's pitch along x, metres.
     pub doe_pitch: f64,
+    /// Sensor window, pixels per side.
     pub crop: usize,
-    /// Each band's range (m).
+    /// Each band's name and wavelength range `(name, low, high)`, metres.
     pub bands: Vec<(String, f64, f64)>,
+    /// `N_ref = 3^reference_power`: the reference's sub-bands per band.
     pub reference_samples: usize,
     /// Worst band's relative L2 between the reference and `N_ref / 3` sub-bands.
     pub reference_difference: f64,
+    /// One point per band and `N = 1, 3, ..., N_ref / 3`, sorted by band name, then `N`.
     pub points: Vec<SpectralPoint>,
+    /// One per tolerance, in the order given.
     pub plans: Vec<SpectralPlanPoint>,
     /// Tolerances whose plan, as run, measured over the tolerance (a refusal or an unscored run
     /// is not one).
@@ -157,7 +168,7 @@ pub fn run_spectral(
     doe: &Grid,
     opts: &SpectralOptions,
     mut tick: impl FnMut(&str),
-) -> Result<SpectralBenchResults> {
+) -> Result<SpectralSweepResults> {
     opts.check()?;
     let spatial = plan(system, doe, &[], 1e-2)?;
     let method = spatial.method;
@@ -296,7 +307,7 @@ pub fn run_spectral(
     }
     let silent_failures = plans.iter().filter(|p| p.error.is_some() && !p.meets_tolerance).count();
     let seconds_per_wavelength = run_seconds.iter().sum::<f64>() / run_seconds.len().max(1) as f64;
-    Ok(SpectralBenchResults {
+    Ok(SpectralSweepResults {
         units: "lengths in m, times in s, errors relative L2".into(),
         method: method.name().into(),
         doe_samples: doe.dim().1,

@@ -55,8 +55,11 @@ pub fn axes() -> Vec<SweepAxis> {
 /// One registration trial.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Trial {
+    /// The axis this trial moves ([`SweepAxis::name`]); the others stay at the baseline scan.
     pub axis: String,
+    /// The axis's value, in its unit ([`SweepAxis::unit`]).
     pub value: f64,
+    /// Seed of the simulated scan (noise, missing samples).
     pub seed: u64,
     /// `registered`, `refused` or `wrong`.
     pub outcome: String,
@@ -66,9 +69,10 @@ pub struct Trial {
     pub rotation_error_deg: f64,
     /// Correlation of the scan with the registered design (NaN if refused).
     pub correlation: f64,
-    /// The registration's own formal standard errors: shift (design samples, the larger of x
-    /// and y) and rotation (degrees); NaN if refused.
+    /// The registration's own formal standard error of the shift, design samples (the larger of
+    /// x and y); NaN if refused.
     pub shift_sigma: f64,
+    /// The registration's own formal standard error of the rotation, degrees; NaN if refused.
     pub rotation_sigma_deg: f64,
     /// Wall-clock seconds of the registration alone.
     pub seconds: f64,
@@ -78,17 +82,27 @@ pub struct Trial {
 
 /// Everything [`run`] measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RegistrationBench {
+pub struct RegistrationSweep {
+    /// What the numbers are in: shift errors in design samples (4.29 um), rotation errors in
+    /// degrees, times in seconds, axis values in their axis's unit.
     pub units: String,
+    /// Samples of the square design along each side (320).
     pub design_samples: usize,
+    /// The design's pitch, metres (4.29 um).
     pub design_pitch: f64,
+    /// The simulated scan's pitch, metres (2.7 um).
     pub scan_pitch: f64,
+    /// [`WRONG_SHIFT`]: the largest shift error of a registered trial, design samples.
     pub wrong_shift: f64,
+    /// [`WRONG_ROTATION`] in degrees: the largest rotation error of a registered trial.
     pub wrong_rotation_deg: f64,
+    /// The axes swept, in their units.
     pub axes: Vec<SweepAxis>,
+    /// Every trial, axis by axis, value by value, seed by seed.
     pub trials: Vec<Trial>,
     /// Trials accepted with a wrong pose.
     pub silent_failures: usize,
+    /// Trials whose registration returned an error.
     pub refused: usize,
 }
 
@@ -132,7 +146,7 @@ fn params(axis: &str, value: f64, seed: u64) -> (SimulateParams, usize) {
 }
 
 /// Runs every trial (module docs), calling `tick` before each ([`steps`] in all).
-pub fn run(mut tick: impl FnMut(&str)) -> Result<RegistrationBench> {
+pub fn run(mut tick: impl FnMut(&str)) -> Result<RegistrationSweep> {
     let axes = axes();
     let opts = RegisterOptions::default();
     let mut trials = Vec::new();
@@ -192,7 +206,7 @@ pub fn run(mut tick: impl FnMut(&str)) -> Result<RegistrationBench> {
         }
     }
     let count = |o: &str| trials.iter().filter(|t| t.outcome == o).count();
-    Ok(RegistrationBench {
+    Ok(RegistrationSweep {
         units: "shift errors in design samples (4.29 um), rotation errors in degrees, times in s; axis values in their units".into(),
         design_samples: SAMPLES,
         design_pitch: PAPER_PITCH,
