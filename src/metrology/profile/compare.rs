@@ -171,24 +171,20 @@ pub fn compare_profile(
     let ns = (along / ds).ceil() as i64;
     let coarse = coarse_search(&ctx, &sharp, ds, ns, (across / ds).ceil() as i64);
     if coarse.design_flat || coarse.peak <= 0.0 {
-        return Err(Error::data(
-            DataCause::Featureless,
-            "the design is flat along the line (or the line leaves the design): nothing to register",
-        ));
+        let what = "the design is flat along the line (or the line leaves the design): nothing to register";
+        return Err(Error::data(DataCause::Featureless, what));
     }
     let CoarseMatch { peak, along: is0, across: iv0, sign, .. } = coarse;
     let peak_ratio = second_peak(&coarse.row, (is0 + ns) as usize) / peak;
     if peak < opts.min_correlation {
-        return Err(Error::registration(
-            Refusal::NoMatch,
-            format!(
+        let what = format!(
             "the profile does not match the design along the line: best correlation {peak:.3} (below {:.2}) \
              within +-{:.1} um along and +-{:.1} um across",
             opts.min_correlation,
             along * 1e6,
             across * 1e6
-        ),
-        ));
+        );
+        return Err(Error::registration(Refusal::NoMatch, what));
     }
     if peak_ratio > opts.max_peak_ratio {
         return Err(Error::registration(Refusal::Ambiguous, format!(
