@@ -528,37 +528,7 @@ mod tests {
     }
 
     #[test]
-    fn json_and_toml_files_that_do_not_parse_state_where() {
-        let dir = tempfile::tempdir().unwrap();
-        // A compare.json cut inside its second line: serde_json stops where the text ends.
-        let json = dir.path().join("compare.json");
-        let text = "{\n  \"scan\": \"s.x3p\",\n  \"scan_sha256\": \"ab";
-        std::fs::write(&json, text).unwrap();
-        let e = crate::pipeline::precompensate::Measured::read(&json).unwrap_err();
-        match &e {
-            Error::Format { cause: FormatCause::Malformed, offset: Some(at), path, .. } => {
-                assert!(path == &json && *at == text.len() as u64, "{e:?}")
-            }
-            other => panic!("expected a malformed JSON file with its offset, got {other:?}"),
-        }
-        // A byte serde_json cannot take: the offset is that byte's.
-        let text = "{\"scan\": x}";
-        std::fs::write(&json, text).unwrap();
-        let e = crate::pipeline::precompensate::Measured::read(&json).unwrap_err();
-        assert!(matches!(e, Error::Format { offset: Some(9), .. }) && &text[9..10] == "x", "{e:?}");
-        // A system TOML whose second line is not `key = value`: the offset is that line's start.
-        let toml = dir.path().join("system.toml");
-        let text = "aperture = \"5 mm\"\nfocal_length 35mm\n";
-        std::fs::write(&toml, text).unwrap();
-        let base = crate::optics::system::OpticalSystem::default();
-        let e = crate::optics::system::OpticalSystem::read_toml(&toml, &base).unwrap_err();
-        match &e {
-            Error::Format { cause: FormatCause::Malformed, offset: Some(at), .. } => {
-                let line2 = text.find('\n').unwrap() as u64 + 1;
-                assert!((line2..text.len() as u64).contains(at), "{e:?}")
-            }
-            other => panic!("expected a malformed TOML file with its offset, got {other:?}"),
-        }
+    fn a_line_and_column_become_a_byte_offset() {
         assert_eq!(byte_offset("ab\ncd\n", 2, 2), 4);
         assert_eq!(byte_offset("ab", 1, 0), 0);
     }

@@ -212,7 +212,7 @@ pub struct Footing {
     pub passes: usize,
     /// The capture's clipping level, fraction of its full scale (1 unless detected lower).
     pub clipping_level: f64,
-    /// Where each channel clips, fraction of the clipping level ([`super::clipping`]): a sample
+    /// Where each channel clips, fraction of the clipping level (`super::clipping`): a sample
     /// at or above `saturation` times it is saturated.
     pub channel_clipping: Vec<f64>,
     /// Pixels scored: those the registration covers.
@@ -549,7 +549,7 @@ pub struct EvaluateFiles {
     pub images: Vec<std::path::PathBuf>,
     /// Registration, saturation level and coverage floors.
     pub options: ScoringOptions,
-    /// Where to write what was scored against (see [`write_registered`]), if anywhere.
+    /// Where to write what was scored against (see `write_registered`), if anywhere.
     pub registered: Option<std::path::PathBuf>,
 }
 

@@ -165,7 +165,7 @@ pub struct MergeStats {
     /// frame when one is given).
     pub black_level: Vec<f64>,
     /// Per channel: how far the black level may be off, fraction of full scale (0 where it is
-    /// given or measured by dark frames; see [`estimate_black_level`]; where it could not be
+    /// given or measured by dark frames; see `estimate_black_level`; where it could not be
     /// measured, the shortest frame's lowest value).
     pub black_level_uncertainty: Vec<f64>,
     /// Where the black level came from: "given", "dark frames", the shortest frame's histogram
@@ -176,7 +176,7 @@ pub struct MergeStats {
     pub noise_floor: f64,
     /// Saturation, fraction of where each channel clips.
     pub saturation: f64,
-    /// Where each channel clips, fraction of full scale ([`channel_clipping`]; 1 = at full
+    /// Where each channel clips, fraction of full scale (`channel_clipping`; 1 = at full
     /// scale): the paper's camera clips green at 231 of 255.
     pub channel_clipping: Vec<f64>,
     /// One per frame, in the bracket's order.
@@ -187,7 +187,7 @@ pub struct MergeStats {
     /// sees below saturation (in practice: in the noise floor in every frame); their radiance is
     /// the longest such frame's value over time.
     pub dark_everywhere: PixelSet,
-    /// Samples whose well-exposed frames disagree by more than [`INCONSISTENT_RATIO`].
+    /// Samples whose well-exposed frames disagree by more than `INCONSISTENT_RATIO`.
     pub inconsistent: PixelSet,
     /// What the caller should know (channels clipping below full scale, the black level, drifted
     /// times, untrusted samples), one sentence each.

@@ -193,7 +193,7 @@ pub fn split(images: Vec<HdrImage>, holdout_every: usize) -> Result<(Vec<HdrImag
 
 /// Training and validation scenes from a folder of real HDR images: `validation_dir`'s images
 /// validate when given (all of `dir` then trains), else 1 in `holdout_every` of `dir`'s,
-/// chosen by name ([`split`]). Panoramas narrower than `min_panorama_width` pixels are left
+/// chosen by name (`split`). Panoramas narrower than `min_panorama_width` pixels are left
 /// out of both: a view of one spans too wide an angle per crop (measured: training on the
 /// 512-wide panoramas of the shared set as well lowered the real captures' scores).
 /// Validation views are not colour-jittered. Images that cannot be read are skipped, each

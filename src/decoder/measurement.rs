@@ -46,7 +46,7 @@ pub struct MeasurementModel {
     pub halo: Option<Halo>,
     /// Where each channel clips, fraction of the sensor range's top: a camera's white balance
     /// can leave a channel clipping below full scale (the paper's camera clips green at 231 of
-    /// 255; [`crate::calibration::clipping`]), and a decoder that never saw such a channel
+    /// 255; `crate::calibration::clipping`), and a decoder that never saw such a channel
     /// reads its clipped value as light.
     pub channel_clipping: [f32; 3],
 }

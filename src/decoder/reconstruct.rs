@@ -32,7 +32,7 @@ use std::path::Path;
 use ndarray::{s, Array3};
 use serde::Serialize;
 
-use crate::decoder::infer;
+use crate::decoder::runtime::infer;
 use crate::decoder::unet::{UNet, SIZE_MULTIPLE};
 use crate::error::{DataCause, Error, Result};
 use crate::image::tone::tone_map;

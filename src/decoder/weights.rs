@@ -184,7 +184,7 @@ pub const BUILT_IN: &[(&str, &[u8])] = &[
     ("doefab-measured-psf", include_bytes!("../../assets/doefab/decoder_measured_psf.safetensors")),
 ];
 
-/// Decodes safetensors bytes (see [`read_safetensors`]) with the format's reference crate
+/// Decodes safetensors bytes (see `read_safetensors`) with the format's reference crate
 /// (`safetensors`, whose `read_metadata` checks the header, each tensor's offsets against its
 /// shape and dtype, and that the tensors cover the data block exactly); `path` names the
 /// source in errors.

@@ -188,7 +188,7 @@ fn subtract(g: &Grid, f: impl Fn(f64, f64) -> f64) -> Result<Grid> {
     g.map_values(v, g.unit())
 }
 
-/// Fits a plane (see [`fit_plane`]) and subtracts it from the whole surface.
+/// Fits a plane (see `fit_plane`) and subtracts it from the whole surface.
 pub fn level_plane(g: &Grid, region: Option<&Array2<bool>>) -> Result<(Grid, Plane)> {
     let p = fit_plane(g, region)?;
     Ok((subtract(g, |i, j| p.at(i, j))?, p))

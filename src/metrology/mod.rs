@@ -1,6 +1,6 @@
-//! Metrology of fabricated surfaces: ISO 25178 height parameters ([`stats`]), form removal
-//! ([`level`]), outlier detection ([`outliers`]), registration to the design ([`scan_registration`]) and
-//! the comparison with it ([`scan_compare`]); non-measured points are filled by
+//! Metrology of fabricated surfaces: ISO 25178 height parameters (`stats`), form removal
+//! ([`level`]), outlier detection (`outliers`), registration to the design (`scan_registration`) and
+//! the comparison with it (`scan_compare`); non-measured points are filled by
 //! [`crate::grid::fill`].
 //!
 //! Everything works on a [`crate::grid::Grid`] of heights and reads valid samples only: a
@@ -24,8 +24,8 @@ pub use profile::{
     SimulateProfile, Terrace,
 };
 pub use scan_compare::{
-    compare, Candidate, CompareOptions, Comparison, EfficiencyLoss, FabModel, LevelHeights, LevelSpec,
-    LevelStat, Member,
+    compare, compare_family, Candidate, CompareOptions, Comparison, EfficiencyLoss, FabModel, LevelHeights,
+    LevelSpec, LevelStat, Member, Reference,
 };
 pub use scan_registration::{register, Pose, RegisterOptions, Registration};
 pub use stats::{height_params, HeightParams};

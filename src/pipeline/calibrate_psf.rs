@@ -1,5 +1,5 @@
 //! `doefab calibrate-psf`: the measured PSF from a pinhole bracket (merge, then
-//! [`crate::calibration::psf_extract`]), written with the merged radiance.
+//! `crate::calibration::psf_extract`), written with the merged radiance.
 
 use std::path::PathBuf;
 

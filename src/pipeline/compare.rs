@@ -1,7 +1,7 @@
 //! `doefab compare`: a fabricated part's scan against its design, through the stages: the
 //! surfaces the fabrication chain makes of the design, its family ([`reference_family`]: the
 //! wrapped design and the cast of the master, from [`reference_surface`]), the comparison of
-//! [`crate::metrology::scan_compare`] with the member the scan shows, and the design PSF
+//! `crate::metrology::scan_compare` with the member the scan shows, and the design PSF
 //! against the as-fabricated PSF
 //! ([`psf_comparison`], by [`crate::optics`]); the outputs written all at once.
 
@@ -101,7 +101,7 @@ pub fn reference_surface(
 }
 
 /// The surfaces of the design's fabrication family a scan is registered to
-/// ([`crate::metrology::scan_compare::compare_family`]), with the optics of the efficiency
+/// (`crate::metrology::scan_compare::compare_family`), with the optics of the efficiency
 /// prediction. Given the chain's parameters: the design wrapped and quantized as the recipe
 /// makes it ([`reference_surface`]) and the cast of the master written from it
 /// ([`cast_of_master`]), the one the recipe makes first (the cast for a master recipe). Without:
@@ -185,7 +185,7 @@ struct SurfaceMeta<'a> {
 }
 
 /// Compares a scan with the member of the design's `family` it matches
-/// ([`compare_family`]), computes the PSF comparison against that member (unless `psf` is
+/// (`compare_family`), computes the PSF comparison against that member (unless `psf` is
 /// `None`; skipped with a warning where the method's validity guard refuses the part's surface
 /// and the options do not force it) and writes the outputs into `out` at once: `compare.json`, `surface.exr` (the part
 /// on the design grid, non-measured samples filled, readable by `doefab psf`) with

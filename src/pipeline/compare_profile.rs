@@ -1,5 +1,5 @@
 //! `doefab compare-profile`: a stylus profile read ([`crate::io::profile`]), levelled, and
-//! either compared with its design along a line ([`crate::metrology::profile::compare_profile`],
+//! either compared with its design along a line (`crate::metrology::profile::compare_profile`,
 //! against the design itself or, given the chain's parameters, the design wrapped and quantized
 //! as the recipe makes it) or, without a design, measured by its own terraces
 //! ([`crate::metrology::profile::terraces`]); the outputs written all at once.
@@ -27,7 +27,7 @@ pub struct ProfileDesign {
     pub chain: Option<ChainParams>,
     /// The line on the design the profile runs along.
     pub line: LineSpec,
-    /// Settings of the comparison ([`compare_profile`]).
+    /// Settings of the comparison (`compare_profile`).
     pub options: ProfileOptions,
 }
 

@@ -1,4 +1,4 @@
-//! `doefab finetune`: a fine-tuning job ([`crate::decoder::finetune::run_job`]) and the chart of
+//! `doefab finetune`: a fine-tuning job (`crate::decoder::finetune::run_job`) and the chart of
 //! its training curve, `training_curve.png` beside the decoder.
 
 use crate::charts::training::write_training_chart;

@@ -16,7 +16,7 @@
 //! correction commands `fab`'s own master.
 //!
 //! Refused, with the figure: every registration `compare` refuses (the one trust rule,
-//! [`check_trust`], on the registration and on the part over the aperture's interior, also for
+//! `check_trust`, on the registration and on the part over the aperture's interior, also for
 //! a model read back from `compare.json`), a depth scale outside 0.5..1.5 (a wrong unit or a wrong
 //! design, not a process error), a compare.json made against another design, a per-level
 //! response that is not monotone, a correction that needs heights beyond what the writer makes

@@ -5,7 +5,7 @@
 //! Per scene folder (an `exposures.json` listing one frame with `"doe": true` and a bracket
 //! without the DOE, as in the paper's data release):
 //!
-//! 1. The bracket is merged ([`crate::calibration::hdr_merge`]) into radiance at the listed
+//! 1. The bracket is merged (`crate::calibration::hdr_merge`) into radiance at the listed
 //!    reference exposure (value 1 = the sensor's clipping level).
 //! 2. The reference is registered onto the *capture* once, through the measured PSF, and the
 //!    gain and the pixels scored are fixed ([`crate::calibration::evaluate::prepare`]): every
@@ -17,7 +17,7 @@
 //!
 //! A scene that cannot be merged, registered or scored (too little coverage, a missing file)
 //! is reported with its reason and the others go on. Optionally the first decoder is
-//! fine-tuned on the measured PSF ([`crate::decoder::finetune`]) and scored along the run.
+//! fine-tuned on the measured PSF (`crate::decoder::finetune`) and scored along the run.
 
 use std::path::{Path, PathBuf};
 

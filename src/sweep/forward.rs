@@ -9,7 +9,7 @@
 //!
 //! 1. *paper*: `clip(g (h * x), 0, 1)`, the paper's model with the scene's one gain;
 //! 2. *channel clipping*: each channel clipped where the capture's clips
-//!    ([`crate::calibration::clipping`]);
+//!    (`crate::calibration::clipping`);
 //! 3. *channel gains and offsets*: `a_c g (h * x) + o_c`, `a_c` the median of capture over
 //!    prediction on samples exposed between 0.05 and 0.9 of their clipping level in every
 //!    channel, `o_c` the median of the remainder over the darks (a colour balance and a black

@@ -226,7 +226,7 @@ pub struct PsfSweepResults {
     pub wavelengths: Vec<f64>,
     /// Sensor window, pixels per side.
     pub crop: usize,
-    /// [`BenchOptions::budget`]: the wall-clock budget of the whole run, seconds.
+    /// `BenchOptions::budget`: the wall-clock budget of the whole run, seconds.
     pub budget_seconds: f64,
     /// The reference and how far it is from converged.
     pub reference: Reference,

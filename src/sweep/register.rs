@@ -3,7 +3,7 @@
 //!
 //! The part is the paper's DOE on 320 samples of 4.29 um, wrapped at 530 nm in PDMS and
 //! quantized to 8 levels (the surface `compare` registers a scan to). A scan of it is
-//! simulated ([`crate::metrology::synthetic_scan`]) at 2.7 um with a known pose, and
+//! simulated (`crate::metrology::synthetic_scan`) at 2.7 um with a known pose, and
 //! [`register`] must find that pose without being told
 //! anything of it (it searches rotation, mirror and height sign). The baseline scan: 20 nm of
 //! noise, a 2 um blur, 10 % of samples missing, a rotation of 0.3 deg, scale 1, a shift of

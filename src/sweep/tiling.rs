@@ -1,7 +1,7 @@
 //! Reconstruction's numerics (`doefab bench tiling`): the decoder's output and time against the
 //! tile size and overlap, and f32 against f64.
 //!
-//! The capture is simulated the way fine-tuning simulates one ([`measure`]: a seeded procedural
+//! The capture is simulated the way fine-tuning simulates one (`measure`: a seeded procedural
 //! scene convolved with the paper's measured PSF, exposed so that part of it clips, read noise
 //! 0.02), `size x size` pixels. The reference is the same decoder in f64 (its f32 weights and
 //! the capture widened exactly) in one pass over the whole image: what the network computes
@@ -10,7 +10,7 @@
 //! distance of the output from the reference over the whole image, and the largest absolute
 //! difference.
 //!
-//! With an overlap of at least the receptive radius ([`RECEPTIVE_RADIUS`], 128 px; the bound
+//! With an overlap of at least the receptive radius (`RECEPTIVE_RADIUS`, 128 px; the bound
 //! is 122 px) a tile's core sees all the input it sees in one pass, so tiled equals untiled up
 //! to rounding; below it, pixels near tile seams lose context and the error grows as the overlap
 //! shrinks. A tile and overlap whose passes would cost more than [`MAX_COST`] times one pass
@@ -93,7 +93,7 @@ pub struct TilingSweep {
     pub decoder: String,
     /// The sweep's settings.
     pub options: TilingOptions,
-    /// [`RECEPTIVE_RADIUS`]: the bound of the U-Net's receptive-field radius, pixels.
+    /// `RECEPTIVE_RADIUS`: the bound of the U-Net's receptive-field radius, pixels.
     pub receptive_radius: usize,
     /// The f64 one-pass reference's time, s.
     pub reference_seconds: f64,

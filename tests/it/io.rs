@@ -707,3 +707,39 @@ fn gwyddion_tiff_without_scale_is_refused_and_reads_with_one() {
         assert!((v - s1(i, j)).abs() <= step, "({i}, {j}): {v} vs {}", s1(i, j));
     }
 }
+
+/// A JSON or TOML file that does not parse is a malformed file, at the byte where the parser
+/// stopped (serde_json) or at the start of the line it names (toml).
+#[test]
+fn json_and_toml_files_that_do_not_parse_state_where() {
+    let dir = tempfile::tempdir().unwrap();
+    // A compare.json cut inside its second line: serde_json stops where the text ends.
+    let json = dir.path().join("compare.json");
+    let text = "{\n  \"scan\": \"s.x3p\",\n  \"scan_sha256\": \"ab";
+    std::fs::write(&json, text).unwrap();
+    let e = doefab::pipeline::precompensate::Measured::read(&json).unwrap_err();
+    match &e {
+        doefab::Error::Format { cause: doefab::FormatCause::Malformed, offset: Some(at), path, .. } => {
+            assert!(path == &json && *at == text.len() as u64, "{e:?}")
+        }
+        other => panic!("expected a malformed JSON file with its offset, got {other:?}"),
+    }
+    // A byte serde_json cannot take: the offset is that byte's.
+    let text = "{\"scan\": x}";
+    std::fs::write(&json, text).unwrap();
+    let e = doefab::pipeline::precompensate::Measured::read(&json).unwrap_err();
+    assert!(matches!(e, doefab::Error::Format { offset: Some(9), .. }) && &text[9..10] == "x", "{e:?}");
+    // A system TOML whose second line is not `key = value`: the offset is that line's start.
+    let toml = dir.path().join("system.toml");
+    let text = "aperture = \"5 mm\"\nfocal_length 35mm\n";
+    std::fs::write(&toml, text).unwrap();
+    let base = doefab::optics::system::OpticalSystem::default();
+    let e = doefab::optics::system::OpticalSystem::read_toml(&toml, &base).unwrap_err();
+    match &e {
+        doefab::Error::Format { cause: doefab::FormatCause::Malformed, offset: Some(at), .. } => {
+            let line2 = text.find('\n').unwrap() as u64 + 1;
+            assert!((line2..text.len() as u64).contains(at), "{e:?}")
+        }
+        other => panic!("expected a malformed TOML file with its offset, got {other:?}"),
+    }
+}

@@ -167,7 +167,7 @@ pub const SHOT_NOISE: f64 = 8e-5;
 pub const BITS: u32 = 8;
 
 /// Where each channel of `doefab finetune`'s captures clips: as the paper's camera, whose green
-/// tops out at 231 of 255 in every frame of both scenes ([`crate::calibration::clipping`]).
+/// tops out at 231 of 255 in every frame of both scenes (`crate::calibration::clipping`).
 pub const CHANNEL_CLIPPING: [f64; 3] = [1.0, 231.0 / 255.0, 1.0];
 
 /// `doefab finetune`'s halo: 5 % of the light in a Gaussian of 64 px beyond the measured PSF's

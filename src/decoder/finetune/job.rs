@@ -26,16 +26,16 @@ pub struct FinetuneJob {
     /// PSF pixel pitch (the sensor's), metres: used where the file states none, checked where
     /// it does.
     pub pitch: f64,
-    /// The start decoder (`None`: [`crate::decoder::default_init`]).
+    /// The start decoder (`None`: [`crate::decoder::runtime::default_init`]).
     pub init: Option<PathBuf>,
-    /// Real HDR training images (see [`crate::decoder::dataset`]); `None`: procedural scenes.
+    /// Real HDR training images (see `crate::decoder::dataset`); `None`: procedural scenes.
     pub data: Option<PathBuf>,
     /// Validation images (`None`: held out from `data` by name, 1 in `holdout_every`).
     pub validation_data: Option<PathBuf>,
     /// Without `validation_data`, 1 in this many of `data`'s images validate, chosen by the
     /// SHA-256 of their name ([`crate::decoder::dataset::is_validation`]).
     pub holdout_every: usize,
-    /// Panoramas narrower than this are not used (see [`crate::decoder::dataset`]).
+    /// Panoramas narrower than this are not used (see `crate::decoder::dataset`).
     pub min_panorama_width: usize,
     /// Largest white-balance gain of the training views' colour jitter
     /// ([`crate::decoder::dataset::HdrScenes::white_balance`]).
@@ -49,7 +49,7 @@ pub struct FinetuneJob {
     /// The fine-tuning settings; on `resume` only `steps` and `blend` are taken, the rest come
     /// from the checkpoint.
     pub cfg: FinetuneConfig,
-    /// Run on the GPU ([`crate::decoder::select_device`]); `false`: the CPU.
+    /// Run on the GPU ([`crate::decoder::runtime::select_device`]); `false`: the CPU.
     pub gpu: bool,
 }
 
@@ -100,7 +100,7 @@ pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepStats)) -> Result
         job.white_balance,
     )?;
     let (source, validation) = scenes.sources();
-    let selected = crate::decoder::select_device(job.gpu)?;
+    let selected = crate::decoder::runtime::select_device(job.gpu)?;
     let device = selected.device;
     let mut trainer = if job.resume {
         let ckpt = job.output.join(CHECKPOINT);
@@ -109,7 +109,7 @@ pub fn run_job(job: &FinetuneJob, on_step: &mut dyn FnMut(&StepStats)) -> Result
         t.cfg.blend = job.cfg.blend;
         t
     } else {
-        let init = job.init.clone().unwrap_or_else(crate::decoder::default_init);
+        let init = job.init.clone().unwrap_or_else(crate::decoder::runtime::default_init);
         let weights = DecoderWeights::read(&init)?;
         let net = UNet::from_weights(&weights, &device);
         let desc = format!("{} (sha256 {})", init.display(), crate::decoder::weights::decoder_sha256(&init)?);

@@ -145,7 +145,7 @@ impl<'a> Trainer<'a> {
         self.cfg.patience > 0 && self.stale >= self.cfg.patience
     }
 
-    /// Writes the final outputs into `out`: [`DECODER`] (the blended best validated decoder,
+    /// Writes the final outputs into `out`: `DECODER` (the blended best validated decoder,
     /// see [`Trainer::written_decoder`]; the start decoder itself when no step validated
     /// better, with its training record) and `training.json` (configuration and curve); the
     /// curve's chart, `training_curve.png`, is drawn by the commands

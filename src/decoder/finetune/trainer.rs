@@ -9,10 +9,11 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::decoder::measurement::{measure, Measurement, MeasurementModel};
+use crate::decoder::runtime::to_tensor;
 use crate::decoder::scenes::SceneSource;
 use crate::decoder::unet::{is_trainable, tensor_values, UNet};
+use crate::decoder::weights;
 use crate::decoder::weights::{read_safetensors, DecoderWeights};
-use crate::decoder::{to_tensor, weights};
 use crate::error::{DataCause, Error, Result};
 use crate::image::Image;
 use crate::optics::convolve::Convolver;
@@ -42,7 +43,7 @@ pub struct HistoryEntry {
 
 /// `count` simulated training captures of `crop x crop`, their scenes (the crop plus `conv`'s
 /// margins) drawn from `source` with `rng`, flipped at random and simulated with
-/// [`measure`] (seeds drawn in order, the simulations run in parallel, so the result does not
+/// `measure` (seeds drawn in order, the simulations run in parallel, so the result does not
 /// depend on the thread count). All on the CPU.
 pub fn simulate_captures(
     source: &dyn SceneSource,

@@ -15,7 +15,7 @@ use super::line::{line_length_warning, LineSpec};
 use super::model::{covariance, fit_table, linear_start, normal, refine, Ctx};
 use super::steps::{step_heights, DesignIndex, LevelSteps, MAX_LEVELS};
 
-/// Options of [`compare_profile`].
+/// Options of `compare_profile`.
 #[derive(Debug, Clone, Serialize)]
 pub struct ProfileOptions {
     /// Half-range of the coarse search along the line, metres: how well the profile's start is
@@ -30,7 +30,7 @@ pub struct ProfileOptions {
     /// correlates by 0.5-0.6 with a profile along another direction).
     pub min_correlation: f64,
     /// Refuse below this fraction of the correlation the profile's own noise allows (the trust
-    /// rule of every registration, [`check_trust`]).
+    /// rule of every registration, `check_trust`).
     pub min_correlation_ratio: f64,
     /// Most profile points in the fit (a stride thins the rest).
     pub max_points: usize,
@@ -119,6 +119,39 @@ pub struct ProfileComparison {
     pub fit: Vec<[f64; 3]>,
 }
 
+/// Refuses a coarse match below `min_correlation` ([`Refusal::NoMatch`]) or one whose second
+/// peak along the line reaches `max_peak_ratio` of the first ([`Refusal::Ambiguous`]); `along`
+/// and `across` are the search half-widths, metres.
+fn check_coarse_match(
+    peak: f64,
+    peak_ratio: f64,
+    opts: &ProfileOptions,
+    along: f64,
+    across: f64,
+) -> Result<()> {
+    if peak < opts.min_correlation {
+        return Err(Error::registration(
+            Refusal::NoMatch,
+            format!(
+            "the profile does not match the design along the line: best correlation {peak:.3} (below {:.2}) \
+             within +-{:.1} um along and +-{:.1} um across",
+            opts.min_correlation,
+            along * 1e6,
+            across * 1e6
+        ),
+        ));
+    }
+    if peak_ratio > opts.max_peak_ratio {
+        return Err(Error::registration(Refusal::Ambiguous, format!(
+            "the shift along the line is ambiguous: a second correlation peak reaches {:.3} of the first within \
+             +-{:.1} um (the design repeats along the line); narrow the search (`along_search`) or choose another line",
+            peak_ratio,
+            along * 1e6
+        )));
+    }
+    Ok(())
+}
+
 /// Compares a profile (heights in metres) with the `design` (heights in metres) along `line`;
 /// see the module docs.
 ///
@@ -176,24 +209,7 @@ pub fn compare_profile(
     }
     let CoarseMatch { peak, along: is0, across: iv0, sign, .. } = coarse;
     let peak_ratio = second_peak(&coarse.row, (is0 + ns) as usize) / peak;
-    if peak < opts.min_correlation {
-        let what = format!(
-            "the profile does not match the design along the line: best correlation {peak:.3} (below {:.2}) \
-             within +-{:.1} um along and +-{:.1} um across",
-            opts.min_correlation,
-            along * 1e6,
-            across * 1e6
-        );
-        return Err(Error::registration(Refusal::NoMatch, what));
-    }
-    if peak_ratio > opts.max_peak_ratio {
-        return Err(Error::registration(Refusal::Ambiguous, format!(
-            "the shift along the line is ambiguous: a second correlation peak reaches {:.3} of the first within \
-             +-{:.1} um (the design repeats along the line); narrow the search (`along_search`) or choose another line",
-            peak_ratio,
-            along * 1e6
-        )));
-    }
+    check_coarse_match(peak, peak_ratio, opts, along, across)?;
     let (s0, v0) = (is0 as f64 * ds, iv0 as f64 * ds);
     let p = linear_start(&ctx, &sharp, [s0, v0, sign, 0.0, 0.0]);
     // Observability of the across-line offset.

@@ -21,7 +21,7 @@ use super::surface::{aperture_errors, design_frame};
 pub struct Comparison {
     /// The member of the design's family the scan matched best.
     pub member: Member,
-    /// What the scan shows ([`scan_of`]): "the master", "the cast of the master", ...
+    /// What the scan shows (`scan_of`): "the master", "the cast of the master", ...
     pub scan_of: String,
     /// Every member the scan was registered to, with the correlation it reached.
     pub candidates: Vec<Candidate>,
@@ -30,7 +30,7 @@ pub struct Comparison {
     pub reference: Grid,
     /// The registration of the scan to the member.
     pub registration: Registration,
-    /// Correlation coefficient of the part and the design over the central [`INTERIOR`] of the
+    /// Correlation coefficient of the part and the design over the central `INTERIOR` of the
     /// aperture (the aperture's edge left out): the confidence that the scan shows this design.
     pub interior_correlation: f64,
     /// The as-fabricated surface on the design grid (invalid: not measured or outside the scan).
@@ -65,7 +65,7 @@ pub struct Comparison {
 }
 
 /// Compares `scan` (heights, metres) with `design` (heights, metres) taken as it is
-/// ([`Member::Design`], quantized as `opts.levels` says); see [`compare_family`].
+/// ([`Member::Design`], quantized as `opts.levels` says); see `compare_family`.
 pub fn compare(design: &Grid, scan: &Grid, opts: &CompareOptions) -> Result<Comparison> {
     let reference = Reference { member: Member::Design, surface: design.clone(), levels: opts.levels };
     compare_family(std::slice::from_ref(&reference), scan, opts)
@@ -73,16 +73,14 @@ pub fn compare(design: &Grid, scan: &Grid, opts: &CompareOptions) -> Result<Comp
 
 /// Compares `scan` (heights, metres) with the member of `family` it matches best (module
 /// docs): registered to each, the best correlation is judged
-/// ([`check_registration`]) and the part compared with that member. All members share the
+/// (`check_registration`) and the part compared with that member. All members share the
 /// design grid. Ties go to the member listed first.
 ///
 /// Errors: a scan whose footprint is smaller than the aperture, or that covers less than
 /// `min_coverage` of it once registered; a registration that is refused (no match, ambiguous,
 /// featureless, not trusted), or whose part correlates with the member inside the aperture by
-/// less than the registration's `min_correlation` or than [`check_trust`] allows, is returned
+/// less than the registration's `min_correlation` or than the scan's noise allows, is returned
 /// as [`Error::Registration`].
-///
-/// [`check_trust`]: crate::metrology::scan_registration::check_trust
 pub fn compare_family(family: &[Reference], scan: &Grid, opts: &CompareOptions) -> Result<Comparison> {
     let first =
         family.first().ok_or_else(|| Error::param("family", "no reference surface to compare with"))?;

@@ -63,7 +63,7 @@ pub struct Registration {
 }
 
 /// Registers `scan` (heights, metres) to `design` (heights, metres); see the module docs:
-/// [`register_pose`], then [`check_registration`].
+/// `register_pose`, then `check_registration`.
 pub fn register(design: &Grid, scan: &Grid, opts: &RegisterOptions) -> Result<Registration> {
     let reg = register_pose(design, scan, opts)?;
     check_registration(&reg, opts)?;

@@ -40,6 +40,9 @@ use crate::sweep::register::{self as reg_sweep, RegistrationSweep};
 use crate::sweep::stability::{self, MapOptions, StabilitySweepResults};
 use crate::sweep::tiling::{self as tiling_sweep, TilingOptions, TilingSweep};
 
+mod csv;
+use csv::{psf_csv, stability_csv};
+
 /// What `doefab report` runs.
 #[derive(Debug, Clone)]
 pub struct ReportOptions {
@@ -476,56 +479,6 @@ pub fn run_report(
     stage.commit()?;
     progress("", total, total);
     Ok(page)
-}
-
-/// One row per run of the PSF sweep.
-fn psf_csv(r: &psf_sweep::PsfSweepResults) -> String {
-    let mut s = String::from(
-        "method,precision,padding,subsample,pupil_pitch_m,seconds,relative_l2,guard_refuses,pareto\n",
-    );
-    for p in &r.points {
-        let _ = writeln!(
-            s,
-            "{},{},{},{},{:e},{:e},{:e},{},{}",
-            p.method,
-            p.precision,
-            p.padding,
-            p.subsample,
-            p.pupil_pitch,
-            p.seconds,
-            p.error,
-            p.violations.join(";"),
-            p.pareto
-        );
-    }
-    s
-}
-
-/// One row per run of the stability maps.
-fn stability_csv(r: &StabilitySweepResults) -> String {
-    let mut s = String::from(
-        "map,method,subsample,pupil_pitch_m,wavelength_m,focal_length_m,lens_sampling_ratio,fresnel_number,relative_l2,guard_refuses,silent\n",
-    );
-    for m in &r.maps {
-        for c in &m.cells {
-            let _ = writeln!(
-                s,
-                "{},{},{},{:e},{:e},{:e},{:e},{:e},{:e},{},{}",
-                m.name(),
-                m.method,
-                c.subsample,
-                c.pupil_pitch,
-                c.wavelength,
-                c.focal_length,
-                c.lens_sampling_ratio,
-                c.fresnel_number,
-                c.error,
-                c.violations.join(";"),
-                c.silent
-            );
-        }
-    }
-    s
 }
 
 /// The PSF sweep's least work, real multiply-adds: its reference, two matrix DFTs of the
