@@ -190,6 +190,7 @@ impl ContrastCurve {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::FormatCause;
 
     fn curve(dose: &[f64], depth_nm: &[f64]) -> Result<ContrastCurve> {
         ContrastCurve::new(dose.to_vec(), depth_nm.iter().map(|d| d * 1e-9).collect(), Path::new("test.csv"))
@@ -280,13 +281,17 @@ mod tests {
 
     #[test]
     fn refuses_non_monotone_and_out_of_range() {
-        let e = curve(&[0.0, 0.5, 1.0], &[0.0, 600.0, 550.0]).unwrap_err().to_string();
+        let e = curve(&[0.0, 0.5, 1.0], &[0.0, 600.0, 550.0]).unwrap_err();
+        assert!(matches!(e, Error::Format { cause: FormatCause::Malformed, .. }), "{e:?}");
+        let e = e.to_string();
         assert!(e.contains("test.csv") && e.contains("not monotone") && e.contains("row 3"), "{e}");
         assert!(curve(&[0.0, 0.5, 0.5], &[0.0, 1.0, 2.0]).is_err());
         assert!(curve(&[0.0, 1.5], &[0.0, 1.0]).is_err());
         assert!(curve(&[0.0], &[0.0]).is_err());
         let c = curve(&[0.0, 1.0], &[0.0, 800.0]).unwrap();
-        let e = c.dose_for(1.2e-6).unwrap_err().to_string();
+        let e = c.dose_for(1.2e-6).unwrap_err();
+        assert!(matches!(e, Error::Data { cause: DataCause::OutOfRange, .. }), "{e:?}");
+        let e = e.to_string();
         assert!(e.contains("covers 0.0..800.0 nm") && e.contains("1200.0 nm"), "{e}");
     }
 
@@ -298,8 +303,18 @@ mod tests {
         let c = ContrastCurve::read_csv(&p).unwrap();
         assert_eq!(c.depth_range(), [0.0, 1.6e-6]);
         std::fs::write(&p, "dose,depth\n0,0\n1,1\n").unwrap();
-        assert!(ContrastCurve::read_csv(&p).unwrap_err().to_string().contains("names no unit"));
+        let e = ContrastCurve::read_csv(&p).unwrap_err();
+        assert!(
+            matches!(e, Error::Format { cause: FormatCause::Malformed, .. })
+                && e.to_string().contains("names no unit"),
+            "{e:?}"
+        );
         std::fs::write(&p, "dose,depth_nm\n0,0\n1,x\n").unwrap();
-        assert!(ContrastCurve::read_csv(&p).unwrap_err().to_string().contains("line 3"));
+        let e = ContrastCurve::read_csv(&p).unwrap_err();
+        assert!(
+            matches!(e, Error::Format { cause: FormatCause::Malformed, .. })
+                && e.to_string().contains("line 3"),
+            "{e:?}"
+        );
     }
 }

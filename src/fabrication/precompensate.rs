@@ -379,8 +379,12 @@ mod tests {
         assert!((r.made(0.5e-6) - 0.45e-6).abs() < 1e-18);
         // Beyond the last point the last segment continues.
         assert!((r.made(3e-6) - 3.2e-6).abs() < 1e-15);
-        let e = Response::new(vec![0.0, 1e-6, 2e-6], vec![0.0, 0.9e-6, 0.8e-6]).unwrap_err().to_string();
-        assert!(e.contains("not monotone") && e.contains("800.00 nm"), "{e}");
+        let e = Response::new(vec![0.0, 1e-6, 2e-6], vec![0.0, 0.9e-6, 0.8e-6]).unwrap_err();
+        assert!(
+            matches!(e, Error::Parameter { ref name, .. } if name == "response")
+                && e.to_string().contains("800.00 nm"),
+            "{e:?}"
+        );
     }
 
     /// A pure depth error is undone exactly: commanded = target / k, and the predicted part is
@@ -409,8 +413,14 @@ mod tests {
         // A part 40 % too shallow needs commands beyond the process's 1.5 um: refused, named.
         let shallow = ProcessModel { response: Response::linear(0.6, 0.0).unwrap(), blur: 0.0 };
         let opts = PrecompensateOptions { max_height: 1.5e-6, ..Default::default() };
-        let e = precompensate(&t, None, &shallow, &opts).unwrap_err().to_string();
-        assert!(e.contains("cannot make the target") && e.contains("1750.0 nm"), "{e}");
+        let e = precompensate(&t, None, &shallow, &opts).unwrap_err();
+        match e {
+            Error::Limit { resource: Resource::Relief, requested, limit, .. } => {
+                // The staircase's relief against the 0.9 um the process makes from 1.5 um.
+                assert!(requested > limit && (limit - 0.9e-6).abs() < 1e-15, "{requested} {limit}")
+            }
+            other => panic!("expected the process's relief limit, got {other:?}"),
+        }
     }
 
     /// With a blur of 2 samples on terraces of 4 the deconvolution lowers the residual against

@@ -668,7 +668,8 @@ mod tests {
             assert!(check_level_count(good).is_ok());
         }
         let g = Grid::new(Array2::from_elem((2, 2), 2e-6), [1e-6, 1e-6], Unit::Metre).unwrap();
-        assert!(quantize(&g, 1e-6, 4, QuantizeMethod::Round).unwrap_err().to_string().contains("wrap first"));
+        let e = quantize(&g, 1e-6, 4, QuantizeMethod::Round).unwrap_err();
+        assert!(matches!(e, Error::Data { cause: DataCause::OutOfRange, .. }), "{e:?}");
     }
 
     /// The feature check's figures straight from their definition (module docs of

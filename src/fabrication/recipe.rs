@@ -286,6 +286,7 @@ impl Recipe {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::FormatCause;
     use crate::fabrication::built_in::BUNDLED;
 
     fn write(dir: &Path, text: &str) -> PathBuf {
@@ -340,8 +341,13 @@ level_count = 8
         let e = Recipe::read(&write(d.path(), &GOOD.replace("level_count = 8", "level_count = 300")))
             .unwrap_err();
         assert!(e.to_string().contains("process.level_count"), "{e}");
-        let e =
-            Recipe::read(&write(d.path(), &GOOD.replace("[process]", "[process]\nlevels = 3"))).unwrap_err();
+        let text = GOOD.replace("[process]", "[process]\nlevels = 3");
+        let e = Recipe::read(&write(d.path(), &text)).unwrap_err();
+        let at = text.find("levels").unwrap() as u64;
+        assert!(
+            matches!(e, Error::Format { cause: FormatCause::Malformed, offset: Some(o), .. } if o == at),
+            "{e:?}"
+        );
         assert!(e.to_string().contains("unknown field"), "{e}");
         let e =
             Recipe::read(&write(d.path(), &GOOD.replace("[\"gds\"]", "[\"grayscale_png\"]"))).unwrap_err();

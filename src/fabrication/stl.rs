@@ -671,22 +671,37 @@ mod tests {
     fn bad_inputs_are_refused() {
         let mut v = Array2::from_elem((4, 4), 1e-7);
         v[[1, 2]] = f64::NAN;
-        let e = terrace_mesh(&grid(v.clone(), [1e-6, 1e-6]), 1e-6).unwrap_err().to_string();
-        assert!(e.contains("not finite") && e.contains("row 1, column 2"), "{e}");
+        let e = terrace_mesh(&grid(v.clone(), [1e-6, 1e-6]), 1e-6).unwrap_err();
+        assert!(
+            matches!(e, Error::Data { cause: DataCause::NotFinite, .. })
+                && e.to_string().contains("row 1, column 2"),
+            "{e:?}"
+        );
         let masked = Grid::from_values_nan_invalid(v, [1e-6, 1e-6], Unit::Metre).unwrap();
-        let e = terrace_mesh(&masked, 1e-6).unwrap_err().to_string();
-        assert!(e.contains("invalid (masked)") && e.contains("row 1, column 2"), "{e}");
+        let e = terrace_mesh(&masked, 1e-6).unwrap_err();
+        assert!(
+            matches!(e, Error::Data { cause: DataCause::NotFinite, .. })
+                && e.to_string().contains("row 1, column 2"),
+            "{e:?}"
+        );
         assert!(heightfield_mesh(&masked, 1e-6, 1e-9).is_err());
         let ok = grid(Array2::from_elem((4, 4), 1e-7), [1e-6, 1e-6]);
         for t in [-1e-6, 0.0, f64::NAN, f64::INFINITY] {
-            let e = terrace_mesh(&ok, t).unwrap_err().to_string();
-            assert!(e.contains("base_thickness"), "{e}");
+            let e = terrace_mesh(&ok, t).unwrap_err();
+            assert!(matches!(e, Error::Parameter { ref name, .. } if name == "base_thickness"), "{e:?}");
         }
-        assert!(heightfield_mesh(&ok, 1e-6, 0.0).unwrap_err().to_string().contains("max_error"));
+        let e = heightfield_mesh(&ok, 1e-6, 0.0).unwrap_err();
+        assert!(matches!(e, Error::Parameter { ref name, .. } if name == "max_error"), "{e:?}");
         let row = grid(Array2::from_elem((1, 5), 0.0), [1e-6, 1e-6]);
-        assert!(heightfield_mesh(&row, 1e-6, 1e-9).unwrap_err().to_string().contains("2 x 2"));
+        let e = heightfield_mesh(&row, 1e-6, 1e-9).unwrap_err();
+        assert!(matches!(e, Error::Data { cause: DataCause::TooFew, .. }), "{e:?}");
         let lv = Grid::new(Array2::from_elem((2, 2), 1.0), [1e-6, 1e-6], Unit::Level).unwrap();
-        assert!(terrace_mesh(&lv, 1e-6).unwrap_err().to_string().contains("level_heights"));
+        let e = terrace_mesh(&lv, 1e-6).unwrap_err();
+        assert!(
+            matches!(e, Error::Parameter { ref name, .. } if name == "heights")
+                && e.to_string().contains("level_heights"),
+            "{e:?}"
+        );
     }
 
     #[test]

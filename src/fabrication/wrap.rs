@@ -300,7 +300,11 @@ mod tests {
         let mut v = Array2::from_elem((3, 5), 0.5 * p);
         v[[1, 1]] = f64::NAN;
         let e = wrap_to_master_owned(Grid::new(v, [1e-6, 1e-6], Unit::Metre).unwrap(), &spec).unwrap_err();
-        assert!(e.to_string().contains("row 1, column 1"), "{e}");
+        assert!(
+            matches!(e, Error::Data { cause: DataCause::NotFinite, .. })
+                && e.to_string().contains("row 1, column 1"),
+            "{e:?}"
+        );
     }
 
     fn grid(v: Array2<f64>) -> Grid {
@@ -378,7 +382,9 @@ mod tests {
         v[[2, 3]] = f64::NAN;
         v[[4, 1]] = f64::INFINITY;
         let g = grid(v);
-        let e = wrap(&g, &WrapSpec::default()).unwrap_err().to_string();
+        let e = wrap(&g, &WrapSpec::default()).unwrap_err();
+        assert!(matches!(e, Error::Data { cause: DataCause::NotFinite, .. }), "{e:?}");
+        let e = e.to_string();
         assert!(e.contains("2 height values") && e.contains("row 2, column 3"), "{e}");
         let (f, n) = crate::grid::fill::fill_missing(&g).unwrap();
         assert_eq!(n, 2);

@@ -387,6 +387,7 @@ mod tests {
     use ndarray::Array2;
 
     use super::*;
+    use crate::error::FormatCause;
 
     fn raw(values: Array2<f64>, kind: SampleKind) -> RawMap {
         RawMap { values, kind, pitch: None, unit: None, metadata: vec![], scale_hint: None }
@@ -396,11 +397,12 @@ mod tests {
     fn demands_pitch_and_unit_and_refuses_conflicts() {
         let p = Path::new("map.npy");
         let r = raw(Array2::from_shape_fn((2, 2), |(i, j)| (i + j) as f64), SampleKind::Float);
-        let e = heightmap_from_raw(p, r.clone(), &ReadOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("map.npy carries no pitch: pass `pitch` (e.g. 4.29 um)"), "{e}");
+        let e = heightmap_from_raw(p, r.clone(), &ReadOptions::default()).unwrap_err();
+        assert!(matches!(e, Error::Parameter { ref name, .. } if name == "pitch"), "{e:?}");
+        assert!(e.to_string().contains("map.npy carries no pitch: pass `pitch` (e.g. 4.29 um)"), "{e}");
         let o = ReadOptions { pitch: Some([1e-6, 1e-6]), ..Default::default() };
-        let e = heightmap_from_raw(p, r.clone(), &o).unwrap_err().to_string();
-        assert!(e.contains("no height unit: pass `unit`"), "{e}");
+        let e = heightmap_from_raw(p, r.clone(), &o).unwrap_err();
+        assert!(matches!(e, Error::Parameter { ref name, .. } if name == "unit"), "{e:?}");
         let o = ReadOptions { pitch: Some([1e-6, 2e-6]), unit: Some(1e-6), ..Default::default() };
         let g = heightmap_from_raw(p, r.clone(), &o).unwrap();
         assert_eq!(g.pitch(), [1e-6, 2e-6]);
@@ -408,10 +410,14 @@ mod tests {
         let mut r2 = r.clone();
         r2.pitch = Some([1e-6, 1e-6]);
         r2.unit = Some(1e-9);
-        let e = heightmap_from_raw(p, r2.clone(), &o).unwrap_err().to_string();
+        let e = heightmap_from_raw(p, r2.clone(), &o).unwrap_err();
+        assert!(matches!(e, Error::Parameter { ref name, .. } if name == "pitch"), "{e:?}");
+        let e = e.to_string();
         assert!(e.contains("1 um x 1 um") && e.contains("1 um x 2 um"), "{e}");
         let o = ReadOptions { unit: Some(1e-6), ..Default::default() };
-        let e = heightmap_from_raw(p, r2.clone(), &o).unwrap_err().to_string();
+        let e = heightmap_from_raw(p, r2.clone(), &o).unwrap_err();
+        assert!(matches!(e, Error::Parameter { ref name, .. } if name == "unit"), "{e:?}");
+        let e = e.to_string();
         assert!(e.contains("1 nm") && e.contains("1 um") && e.contains("drop `unit`"), "{e}");
         // Agreeing options are fine.
         let o = ReadOptions { unit: Some(1e-9), pitch: Some([1e-6, 1e-6]), ..Default::default() };
@@ -425,19 +431,25 @@ mod tests {
             raw(Array2::from_shape_fn((2, 2), |(i, j)| (i * 2 + j) as f64), SampleKind::Counts { bits: 16 });
         r.pitch = Some([1e-6; 2]);
         r.scale_hint = Some("hint here".into());
-        let e = heightmap_from_raw(p, r.clone(), &ReadOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("pass `z_scale`") && e.contains("hint here"), "{e}");
+        let e = heightmap_from_raw(p, r.clone(), &ReadOptions::default()).unwrap_err();
+        assert!(
+            matches!(e, Error::Parameter { ref name, .. } if name == "z_scale")
+                && e.to_string().contains("hint here"),
+            "{e:?}"
+        );
         let o = ReadOptions { unit: Some(1e-9), ..Default::default() };
-        assert!(heightmap_from_raw(p, r.clone(), &o)
-            .unwrap_err()
-            .to_string()
-            .contains("`unit` does not apply"));
+        let e = heightmap_from_raw(p, r.clone(), &o).unwrap_err();
+        assert!(matches!(e, Error::Parameter { ref name, .. } if name == "unit"), "{e:?}");
         let o = ReadOptions { z_scale: Some(1e-9), z_offset: Some(5e-9), ..Default::default() };
         let g = heightmap_from_raw(p, r.clone(), &o).unwrap();
         assert!((g.values()[[1, 1]] - 8e-9).abs() < 1e-20);
         let o = ReadOptions { z_scale: Some(0.5), ..Default::default() };
-        let e = heightmap_from_raw(p, r, &o).unwrap_err().to_string();
-        assert!(e.contains("implausible") && e.contains("`z_scale` 5e-7m"), "{e}");
+        let e = heightmap_from_raw(p, r, &o).unwrap_err();
+        assert!(
+            matches!(e, Error::Parameter { ref name, .. } if name == "z_scale")
+                && e.to_string().contains("`z_scale` 5e-7m"),
+            "{e:?}"
+        );
     }
 
     #[test]
@@ -458,10 +470,8 @@ mod tests {
         r.values.fill(3.0);
         assert!(heightmap_from_raw(p, r.clone(), &ReadOptions::default()).is_ok());
         r.values.fill(f64::NAN);
-        assert!(heightmap_from_raw(p, r, &ReadOptions::default())
-            .unwrap_err()
-            .to_string()
-            .contains("no finite"));
+        let e = heightmap_from_raw(p, r, &ReadOptions::default()).unwrap_err();
+        assert!(matches!(e, Error::Data { cause: DataCause::Empty, .. }), "{e:?}");
     }
 
     #[test]
@@ -481,7 +491,10 @@ mod tests {
     fn format_by_extension() {
         assert_eq!(Format::from_path(Path::new("a/B.TIF")).unwrap(), Format::Tiff);
         assert_eq!(Format::from_path(Path::new("x.asc")).unwrap(), Format::Csv);
-        assert!(Format::from_path(Path::new("x.bmp")).unwrap_err().to_string().contains("x.bmp"));
+        let e = Format::from_path(Path::new("x.bmp")).unwrap_err();
+        assert!(
+            matches!(e, Error::Format { cause: FormatCause::Signature, ref path, .. } if path.ends_with("x.bmp"))
+        );
         assert!(Format::from_path(Path::new("noext")).is_err());
     }
 }

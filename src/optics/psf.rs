@@ -534,13 +534,22 @@ pub fn relative_l2(a: &Array2<f64>, b: &Array2<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::FormatCause;
 
     #[test]
     fn a_pitch_comes_from_the_file_or_the_caller_and_must_agree() {
-        let e = resolve_pitch(Path::new("m.npz"), None, None).unwrap_err().to_string();
-        assert!(e.contains("m.npz") && e.contains("give `pitch`"), "{e}");
-        let e = resolve_pitch(Path::new("p.exr"), Some([4.29e-6; 2]), Some(5e-6)).unwrap_err().to_string();
-        assert!(e.contains("p.exr") && e.contains("`pitch` is 5e-6 m"), "{e}");
+        let e = resolve_pitch(Path::new("m.npz"), None, None).unwrap_err();
+        assert!(
+            matches!(e, Error::Format { cause: FormatCause::Malformed, .. })
+                && e.to_string().contains("give `pitch`"),
+            "{e:?}"
+        );
+        let e = resolve_pitch(Path::new("p.exr"), Some([4.29e-6; 2]), Some(5e-6)).unwrap_err();
+        assert!(
+            matches!(e, Error::Format { cause: FormatCause::Malformed, .. })
+                && e.to_string().contains("`pitch` is 5e-6 m"),
+            "{e:?}"
+        );
         assert_eq!(resolve_pitch(Path::new("p.exr"), Some([4.29e-6; 2]), None).unwrap(), [4.29e-6; 2]);
         assert_eq!(resolve_pitch(Path::new("m.npz"), None, Some(5e-6)).unwrap(), [5e-6; 2]);
     }
@@ -564,7 +573,11 @@ mod tests {
             assert_eq!(names.len(), 1);
         }
         std::fs::write(&json, r#"{"channels": []}"#).unwrap();
-        let e = read_side_json(&npy).unwrap_err().to_string();
-        assert!(e.contains("psf.json") && e.contains("sensor_pitch"), "{e}");
+        let e = read_side_json(&npy).unwrap_err();
+        assert!(
+            matches!(e, Error::Format { cause: FormatCause::Malformed, ref path, .. } if *path == json),
+            "{e:?}"
+        );
+        assert!(e.to_string().contains("sensor_pitch"), "{e}");
     }
 }

@@ -407,11 +407,16 @@ mod tests {
         let a = gaussian(32, 3.0, [0.0, 0.0]);
         let mut two = a.clone();
         two.channels.push(two.channels[0].clone());
-        let e = compare(&a, &two, "x.npy", "y.npy", &CompareOptions::default()).unwrap_err().to_string();
+        let e = compare(&a, &two, "x.npy", "y.npy", &CompareOptions::default()).unwrap_err();
+        assert!(matches!(e, Error::Data { cause: DataCause::Shape, .. }), "{e:?}");
+        let e = e.to_string();
         assert!(e.contains("x.npy has 1 channels") && e.contains("y.npy has 2"), "{e}");
         let g = Grid::new(a.channels[0].grid.values().clone(), [2e-6, 2e-6], Unit::Dimensionless).unwrap();
         let other = Psf::new(vec![Channel { grid: g, ..a.channels[0].clone() }], "test").unwrap();
-        let e = compare(&a, &other, "x", "y", &CompareOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("pitch"), "{e}");
+        let e = compare(&a, &other, "x", "y", &CompareOptions::default()).unwrap_err();
+        assert!(
+            matches!(e, Error::Data { cause: DataCause::Shape, .. }) && e.to_string().contains("pitch"),
+            "{e:?}"
+        );
     }
 }

@@ -265,6 +265,7 @@ mod tests {
         let t = Trainer::new(net, &psf, "x", &source, None, config, "start").unwrap();
         assert_eq!(r.points[0].val_psnr, psnr_of_loss(t.validation_loss().unwrap()));
         let bad = TimedOptions { seconds: 0.0, ..opts };
-        assert!(run(&bad, &psf, "p", |_| {}).unwrap_err().to_string().contains("seconds"));
+        let e = run(&bad, &psf, "p", |_| {}).unwrap_err();
+        assert!(matches!(e, Error::Parameter { ref name, .. } if name == "seconds"), "{e:?}");
     }
 }

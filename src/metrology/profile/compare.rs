@@ -204,10 +204,8 @@ pub fn compare_profile(
     let ns = (along / ds).ceil() as i64;
     let coarse = coarse_search(&ctx, &sharp, ds, ns, (across / ds).ceil() as i64);
     if coarse.design_flat || coarse.peak <= 0.0 {
-        return Err(Error::data(
-            DataCause::Featureless,
-            "the design is flat along the line (or the line leaves the design): nothing to register",
-        ));
+        let what = "the design is flat along the line (or the line leaves the design): nothing to register";
+        return Err(Error::data(DataCause::Featureless, what));
     }
     let CoarseMatch { peak, along: is0, across: iv0, sign, .. } = coarse;
     let peak_ratio = second_peak(&coarse.row, (is0 + ns) as usize) / peak;
