@@ -9,7 +9,7 @@
 //! 3. *Metrology*: `metrology/scan.x3p`, a synthetic scan of the part the 8-level recipe makes
 //!    (a cast: mirrored, complemented, 5 % too shallow, blurred by 2 um, tilted, noisy, 10 %
 //!    missing), compared with the design into `metrology/compare/`
-//!    ([`crate::pipeline::compare::compare_scan_file`]).
+//!    ([`crate::pipeline::compare::compare_scan`]).
 //! 4. *The fabrication loop*: `precompensate/`, closed in simulation on the grayscale master
 //!    (see [`loop_process`]): the plain mask's part scanned (`scan_before.x3p`), the next mask
 //!    pre-compensated from that scan alone (`mask/`, [`crate::pipeline::precompensate::run`]),
@@ -240,9 +240,9 @@ fn scan_and_compare(
     write_scan(scan, &simulate_scan(&part, &sp)?)?;
     p.step("scan written");
     let psf_opts = crate::optics::Options { allow_invalid: true, ..Default::default() };
-    let report = crate::pipeline::compare::compare_scan_file(
-        scan,
-        &crate::io::scan::ScanOptions::default(),
+    let scan = crate::pipeline::compare::ScanSource::File(scan.to_path_buf(), Default::default());
+    let report = crate::pipeline::compare::compare_scan(
+        &scan,
         source,
         Some(params),
         None,

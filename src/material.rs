@@ -21,7 +21,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Condition, Error, Result};
+use crate::error::{Allowed, Condition, Error, Result};
 use crate::tabulated::{column_unit, hermite, pchip_slopes, read_two_columns};
 
 /// A dispersion formula; lengths in the Cauchy and Sellmeier formulas are micrometres, as the
@@ -236,8 +236,9 @@ impl Material {
             "noa61" | "noa_61" => Ok(Material::noa61()),
             "pmma" => Ok(Material::pmma()),
             "ip_dip" | "ipdip" => Ok(Material::ip_dip()),
-            _ => Err(Error::param(
+            _ => Err(Error::param_in(
                 "material",
+                Allowed::one_of(&["pdms", "fused_silica", "noa61", "pmma", "ip_dip"]),
                 format!("unknown material '{name}' (known: pdms, fused_silica, noa61, pmma, ip_dip)"),
             )),
         }

@@ -5,13 +5,9 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use clap::Args;
 
-use doefab::fabrication::quantize::QuantizeMethod;
-use doefab::fabrication::recipe::Recipe;
 use doefab::fabrication::recipe_run::{self, ChainParams, DesignSource};
-use doefab::fabrication::ReplicaMode;
 use doefab::units::length_unit;
 
-use super::fabrication::chain_params;
 use super::options::{clap_length, Cli, OpticsArgs, ReadArgs};
 use super::options::{print_result, progress, report_to, warn};
 
@@ -284,33 +280,20 @@ pub fn compare(cli: &Cli, a: &CompareArgs) -> Result<()> {
         ..Default::default()
     };
     let source = DesignSource::parse(Some(design), read.options()?);
-    let chain = comparison_chain(recipe.as_deref(), *levels, optics)?;
+    let chain = doefab::pipeline::compare::comparison_chain(
+        recipe.as_deref(),
+        *levels,
+        optics.wavelength,
+        &optics.material,
+        optics.order,
+    )?;
     let psf = (psf_method != "none").then(|| doefab::optics::Method::from_name(psf_method)).transpose()?;
     let psf =
         psf.map(|m| (m, doefab::optics::Options { allow_invalid: *allow_invalid, ..Default::default() }));
-    let report = compare_scan(cli, scan, &scan_opts, &source, chain.as_ref(), *aperture, psf, output)?;
+    let scan = doefab::pipeline::compare::ScanSource::File(scan.clone(), scan_opts);
+    let report = compare_scan(cli, &scan, &source, chain.as_ref(), *aperture, psf, output)?;
     warn_comparison(&report);
     print_result(cli, &report, || print_comparison(&report, output))
-}
-
-/// How the design is made for a comparison: the recipe's chain (its level count unless
-/// `levels` overrides it), or `levels` at the optics' wavelength, or the design as it is.
-fn comparison_chain(
-    recipe: Option<&Path>,
-    levels: Option<usize>,
-    optics: &OpticsArgs,
-) -> Result<Option<ChainParams>> {
-    Ok(match (recipe, levels) {
-        (Some(r), _) => {
-            let r = Recipe::read(r)?;
-            let n = levels.unwrap_or(r.level_count);
-            Some(ChainParams { level_count: n, ..ChainParams::of_recipe(&r, false) })
-        }
-        (None, Some(n)) => {
-            Some(chain_params(optics, n, QuantizeMethod::Round, ReplicaMode::Design, 1e-6, false))
-        }
-        (None, None) => None,
-    })
 }
 
 /// `doefab compare-profile`.
@@ -354,7 +337,13 @@ pub fn compare_profile(cli: &Cli, a: &CompareProfileArgs) -> Result<()> {
                 (None, Some(t)) => LineSpec::Angle { angle: doefab::units::parse_angle(t)? },
                 _ => anyhow::bail!("name the line on the design: --line x0,y0,x1,y1 or --angle A"),
             };
-            let chain = comparison_chain(recipe.as_deref(), *levels, optics)?;
+            let chain = doefab::pipeline::compare::comparison_chain(
+                recipe.as_deref(),
+                *levels,
+                optics.wavelength,
+                &optics.material,
+                optics.order,
+            )?;
             Some(ProfileDesign {
                 source: DesignSource::parse(Some(d), read.options()?),
                 chain,
@@ -478,8 +467,7 @@ pub fn scan_info(cli: &Cli, a: &ScanInfoArgs) -> Result<()> {
 /// Runs the scan comparison with a progress bar over its steps.
 fn compare_scan(
     cli: &Cli,
-    scan_path: &Path,
-    scan_opts: &doefab::io::scan::ScanOptions,
+    scan: &doefab::pipeline::compare::ScanSource,
     source: &DesignSource,
     chain: Option<&ChainParams>,
     aperture: Option<f64>,
@@ -487,9 +475,8 @@ fn compare_scan(
     output: &Path,
 ) -> Result<doefab::pipeline::compare::CompareOutcome> {
     let pb = progress(cli, 4);
-    let report = doefab::pipeline::compare::compare_scan_file(
-        scan_path,
-        scan_opts,
+    let report = doefab::pipeline::compare::compare_scan(
+        scan,
         source,
         chain,
         aperture,

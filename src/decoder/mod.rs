@@ -23,8 +23,8 @@ pub use dataset::{
     MIN_PANORAMA_WIDTH, WHITE_BALANCE,
 };
 pub use finetune::{
-    gamma_loss, procedural_scenes, simulate_captures, Adam, FinetuneConfig, FinetuneJob, HistoryEntry,
-    SceneGenerator, Trainer, BATCH, BITS, BLEND, CHANNEL_CLIPPING, CHECKPOINT_EVERY, CROP, GRAD_CLIP, HALO,
+    gamma_loss, procedural_scenes, run_job, simulate_captures, Adam, FinetuneConfig, FinetuneJob,
+    FinetuneOutcome, HistoryEntry, SceneGenerator, StepStats, Trainer, DECODER, BATCH, BITS, BLEND, CHANNEL_CLIPPING, CHECKPOINT_EVERY, CROP, GRAD_CLIP, HALO,
     NEGATIVE_PENALTY, READ_NOISE, SHOT_NOISE, STEPS, VALIDATION,
 };
 pub use measurement::{Halo, Measurement, MeasurementModel};

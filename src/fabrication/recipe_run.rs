@@ -37,6 +37,9 @@ pub enum DesignSource {
     BuiltIn(String),
     /// A height-map file and how to read it.
     File(PathBuf, ReadOptions),
+    /// Heights already in memory (metres, with their pitch), named `array` and hashed by
+    /// [`grid_sha256`].
+    Heights(Grid),
 }
 
 impl DesignSource {
@@ -97,7 +100,36 @@ pub fn load_design(source: &DesignSource) -> Result<LoadedDesign> {
             let heights = surface_from_raw(path, raw, read)?;
             Ok(LoadedDesign { heights, name: path.display().to_string(), sha256 })
         }
+        DesignSource::Heights(grid) => {
+            if let Some((_, (i, j))) = grid.non_finite() {
+                let what = format!("the design heights at row {i}, column {j} are not finite");
+                return Err(Error::data(DataCause::NotFinite, what));
+            }
+            Ok(LoadedDesign { heights: grid.clone(), name: "array".into(), sha256: grid_sha256(grid) })
+        }
     }
+}
+
+/// SHA-256 (hex) of a grid held in memory: its shape and pitch (metres), its unit's symbol,
+/// its values (metres, `f64` little-endian, row-major) and its validity mask (a byte a sample,
+/// when it has one), in that order.
+pub fn grid_sha256(grid: &Grid) -> String {
+    let (rows, cols) = grid.dim();
+    let mut bytes = Vec::with_capacity(32 + 9 * rows * cols);
+    for n in [rows as u64, cols as u64] {
+        bytes.extend_from_slice(&n.to_le_bytes());
+    }
+    for p in grid.pitch() {
+        bytes.extend_from_slice(&p.to_le_bytes());
+    }
+    bytes.extend_from_slice(grid.unit().symbol().as_bytes());
+    for v in grid.values() {
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    if let Some(mask) = grid.mask() {
+        bytes.extend(mask.iter().map(|&b| u8::from(b)));
+    }
+    crate::io::hex_sha256(&bytes)
 }
 
 /// The physical parameters of the chain (a recipe supplies them, or the command line).

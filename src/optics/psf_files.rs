@@ -90,12 +90,26 @@ pub fn simulate_and_write(
     notes: &[String],
     out: &Path,
 ) -> Result<PsfOutcome> {
+    let (psf, mut report) = simulate_with_report(doe, system, method, opts, notes)?;
+    write_psf(&psf, &mut report, out)?;
+    Ok(report)
+}
+
+/// [`simulate_and_write`] in memory: the PSF and its summary (no files; `files` empty).
+pub fn simulate_with_report(
+    doe: &Grid,
+    system: &OpticalSystem,
+    method: Method,
+    opts: &Options,
+    notes: &[String],
+) -> Result<(Psf, PsfOutcome)> {
     let mut psf = simulate(system, doe, method, opts)?;
     psf.warnings.splice(0..0, notes.iter().cloned());
     // The flat reference on an odd crop, so that its peak pixel sits on the axis.
     let odd = OpticalSystem { crop: system.crop | 1, ..system.clone() };
     let flat = simulate(&odd, &flat_doe(&odd)?, method, &Options { allow_invalid: true, ..opts.clone() })?;
-    report_and_write(&psf, &flat, system, None, out)
+    let report = report(&psf, &flat, system, None);
+    Ok((psf, report))
 }
 
 /// Runs `plan` on `doe` (and on a flat DOE for the Strehl ratio, with the same plan on an odd
@@ -108,22 +122,31 @@ pub fn plan_and_write(
     out: &Path,
     progress: &mut dyn FnMut(&str),
 ) -> Result<PsfOutcome> {
+    let (psf, mut report) = plan_with_report(doe, plan, bands, progress)?;
+    write_psf(&psf, &mut report, out)?;
+    Ok(report)
+}
+
+/// [`plan_and_write`] in memory: the PSF and its summary (no files; `files` empty).
+pub fn plan_with_report(
+    doe: &Grid,
+    plan: &Plan,
+    bands: &[Band],
+    progress: &mut dyn FnMut(&str),
+) -> Result<(Psf, PsfOutcome)> {
     let (psf, ran) = run_reporting(plan, doe, bands, progress)?;
     let odd =
         Plan { system: OpticalSystem { crop: ran.system.crop | 1, ..ran.system.clone() }, ..ran.clone() };
     let (flat, _) = run_reporting(&odd, &flat_doe(&odd.system)?, bands, &mut |what| {
         progress(&format!("flat reference: {what}"))
     })?;
-    report_and_write(&psf, &flat, &ran.system, Some(&ran), out)
+    let report = report(&psf, &flat, &ran.system, Some(&ran));
+    Ok((psf, report))
 }
 
-fn report_and_write(
-    psf: &Psf,
-    flat: &Psf,
-    system: &OpticalSystem,
-    plan: Option<&Plan>,
-    out: &Path,
-) -> Result<PsfOutcome> {
+/// The summary of `psf`: per channel its numbers, the Strehl ratio against `flat` (a flat
+/// DOE's PSF in the same system on an odd crop), the system and plan that made it.
+fn report(psf: &Psf, flat: &Psf, system: &OpticalSystem, plan: Option<&Plan>) -> PsfOutcome {
     let strehl: Vec<f64> = (0..psf.channels.len())
         .map(|c| {
             let a = psf.peak(c).0 * psf.channels[c].captured.unwrap_or(f64::NAN);
@@ -151,7 +174,7 @@ fn report_and_write(
             summary,
         })
         .collect();
-    let mut report = PsfOutcome {
+    PsfOutcome {
         method: psf.method.clone(),
         normalisation: "each channel sums to 1 over the crop".into(),
         system: system.clone(),
@@ -159,9 +182,7 @@ fn report_and_write(
         channels,
         warnings: psf.warnings.clone(),
         files: Vec::new(),
-    };
-    write_psf(psf, &mut report, out)?;
-    Ok(report)
+    }
 }
 
 /// Writes `psf.exr`, `psf.npy`, `psf_log.png` and `psf.json` into `out`, atomically as a folder.

@@ -5,7 +5,7 @@
 //! against the as-fabricated PSF
 //! ([`psf_comparison`], by [`crate::optics`]); the outputs written all at once.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
@@ -15,7 +15,7 @@ use crate::fabrication::wrap::{cast_of_master, WrapSpec};
 use crate::fabrication::ReplicaMode;
 use crate::grid::fill::fill_missing;
 use crate::grid::Grid;
-use crate::io::scan::{self, Scan, ScanOptions};
+use crate::io::scan::{self, ScanOptions};
 use crate::metrology::scan_compare::{
     compare_family, CompareOptions, Comparison, LevelSpec, Member, Reference,
 };
@@ -193,8 +193,7 @@ struct SurfaceMeta<'a> {
 /// `profiles.png` and `histogram.png`. `step` is called before each stage.
 #[allow(clippy::too_many_arguments)]
 pub fn compare_and_write(
-    scan_path: &Path,
-    scan: &Scan,
+    scan: &ScanInput,
     design: &LoadedDesign,
     family: &[Reference],
     opts: &CompareOptions,
@@ -225,7 +224,7 @@ pub fn compare_and_write(
     };
     step("write");
     let mut stage = crate::io::atomic::StagedDir::new(out)?;
-    let scan_name = scan_path.display().to_string();
+    let scan_name = scan.name.clone();
     let meta = SurfaceMeta {
         units: "lengths and heights in metres, angles in radians",
         pitch: reference.pitch(),
@@ -252,7 +251,7 @@ pub fn compare_and_write(
     #[cfg(feature = "charts")]
     let files = [files, write_compare_pictures(&mut stage, reference, &c)?].concat();
     let report = CompareOutcome {
-        scan_sha256: crate::io::file_sha256(scan_path)?,
+        scan_sha256: scan.sha256.clone(),
         scan: scan_name,
         design: design.name.clone(),
         design_sha256: design.sha256.clone(),
@@ -298,16 +297,64 @@ fn write_compare_pictures(
         .collect())
 }
 
-/// `doefab compare` from files: reads the scan at `scan_path`, loads the design, makes its
-/// reference surface ([`reference_surface`] with `chain`, the design itself without) and runs
+/// Where the scan of a comparison comes from: a file read with its options, or heights
+/// already in memory (metres, with their pitch; non-measured samples invalid).
+#[derive(Debug, Clone)]
+pub enum ScanSource {
+    /// A scan file and how to read it.
+    File(PathBuf, ScanOptions),
+    /// A scan held in memory, named `array` and hashed by [`recipe_run::grid_sha256`].
+    Heights(Grid),
+}
+
+/// A loaded scan with the name and hash its comparison records.
+#[derive(Debug, Clone)]
+pub struct ScanInput {
+    /// Heights in metres; non-measured points are invalid samples.
+    pub grid: Grid,
+    /// The file path as given, or `array`.
+    pub name: String,
+    /// SHA-256 (hex) of the file's bytes, or [`recipe_run::grid_sha256`] of the heights.
+    pub sha256: String,
+    /// What the reader found questionable without refusing the file.
+    pub warnings: Vec<String>,
+}
+
+impl ScanSource {
+    /// Reads the scan (a file: by its format's reader) and checks that it holds a relief
+    /// ([`crate::io::heightmap::check_relief`]).
+    pub fn load(&self) -> Result<ScanInput> {
+        let input = match self {
+            ScanSource::File(path, opts) => {
+                let scan = scan::read_scan(path, opts)?;
+                ScanInput {
+                    grid: scan.grid,
+                    name: path.display().to_string(),
+                    sha256: crate::io::file_sha256(path)?,
+                    warnings: scan.warnings,
+                }
+            }
+            ScanSource::Heights(grid) => ScanInput {
+                grid: grid.clone(),
+                name: "array".into(),
+                sha256: recipe_run::grid_sha256(grid),
+                warnings: Vec::new(),
+            },
+        };
+        crate::io::heightmap::check_relief(Path::new(&input.name), &input.grid)?;
+        Ok(input)
+    }
+}
+
+/// `doefab compare`: loads the scan and the design, makes the design's reference surface
+/// ([`reference_surface`] with `chain`, the design itself without) and runs
 /// [`compare_and_write`] into `out`. The clear aperture is `aperture` (metres), else the
 /// paper's 5 mm for `built-in:paper`, else the largest circle the design grid holds. The scan
 /// reader's warnings are in the report's `scan_warnings`. `step` is called before each stage
 /// (four with a PSF comparison, three without).
 #[allow(clippy::too_many_arguments)]
-pub fn compare_scan_file(
-    scan_path: &Path,
-    scan_opts: &ScanOptions,
+pub fn compare_scan(
+    scan: &ScanSource,
     source: &DesignSource,
     chain: Option<&ChainParams>,
     aperture: Option<f64>,
@@ -316,12 +363,41 @@ pub fn compare_scan_file(
     step: &mut dyn FnMut(&str),
 ) -> Result<CompareOutcome> {
     step("read");
-    let scan = scan::read_scan(scan_path, scan_opts)?;
-    crate::io::heightmap::check_relief(scan_path, &scan.grid)?;
+    let scan = scan.load()?;
     let design = recipe_run::load_design(source)?;
     let (family, optics) = reference_family(&design, chain)?;
     let opts = CompareOptions { aperture: default_aperture(source, aperture), optics, ..Default::default() };
-    compare_and_write(scan_path, &scan, &design, &family, &opts, psf, out, step)
+    compare_and_write(&scan, &design, &family, &opts, psf, out, step)
+}
+
+/// How the design is made for a comparison: the recipe's chain (its level count unless
+/// `levels` overrides it), or `levels` levels by rounding at `wavelength` (metres) in
+/// `material` with multi-order factor `order`, or `None`: the design as it is.
+pub fn comparison_chain(
+    recipe: Option<&Path>,
+    levels: Option<usize>,
+    wavelength: f64,
+    material: &str,
+    order: u32,
+) -> Result<Option<ChainParams>> {
+    Ok(match (recipe, levels) {
+        (Some(r), _) => {
+            let r = crate::fabrication::recipe::Recipe::read(r)?;
+            let n = levels.unwrap_or(r.level_count);
+            Some(ChainParams { level_count: n, ..ChainParams::of_recipe(&r, false) })
+        }
+        (None, Some(n)) => Some(ChainParams {
+            wavelength,
+            material: material.to_string(),
+            order,
+            level_count: n,
+            quantization: crate::fabrication::quantize::QuantizeMethod::Round,
+            replica_mode: ReplicaMode::Design,
+            min_feature: 1e-6,
+            fill: false,
+        }),
+        (None, None) => None,
+    })
 }
 
 /// The clear aperture of a comparison: `aperture` (metres), else the paper's 5 mm for

@@ -12,6 +12,7 @@ use crate::fabrication::recipe_run::{self, DesignSource};
 use crate::grid::Grid;
 use crate::material::Material;
 use crate::optics::plan::{self, Plan};
+use crate::optics::psf::Psf;
 use crate::optics::psf_files::{self, PsfOutcome};
 use crate::optics::spectrum::{self, Band};
 use crate::optics::system::OpticalSystem;
@@ -117,15 +118,21 @@ impl PsfJob {
     /// warnings. Progress: one step, the planned simulation, its message saying what is being
     /// simulated (each tripling of spectral sub-bands; none with a forced method).
     pub fn run(&self, output: &Path, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<PsfOutcome> {
+        let (psf, mut report) = self.simulate(progress)?;
+        psf_files::write_psf(&psf, &mut report, output)?;
+        Ok(report)
+    }
+
+    /// [`PsfJob::run`] in memory: the PSF (each channel summing to 1, at the sensor pitch)
+    /// and the report `run` would write, its `files` empty.
+    pub fn simulate(&self, progress: &mut dyn FnMut(&str, u64, u64)) -> Result<(Psf, PsfOutcome)> {
         match &self.how {
             How::Method { system, method, options } => {
                 let notes: Vec<String> = self.forced_because.iter().cloned().collect();
-                psf_files::simulate_and_write(&self.heights, system, *method, options, &notes, output)
+                psf_files::simulate_with_report(&self.heights, system, *method, options, &notes)
             }
             How::Plan { plan, bands } => {
-                psf_files::plan_and_write(&self.heights, plan, bands, output, &mut |what| {
-                    progress(what, 0, 1)
-                })
+                psf_files::plan_with_report(&self.heights, plan, bands, &mut |what| progress(what, 0, 1))
             }
         }
     }

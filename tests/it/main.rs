@@ -19,6 +19,7 @@ mod optics_plan;
 mod precompensate;
 mod profile;
 mod psf_compare;
+mod python;
 mod register;
 mod report;
 mod scan;
