@@ -49,6 +49,7 @@ __all__ = [
     "psf",
     "fab",
     "compare",
+    "psf_compare",
     "reconstruct",
     "Error",
     "FormatError",
@@ -321,6 +322,40 @@ def compare(
     if folder:
         result["files"] = []
     return result
+
+
+def psf_compare(
+    a: Union[Psf, PathLike],
+    b: Union[Psf, PathLike],
+    pitch: Union[None, float, str] = None,
+    key: Optional[str] = None,
+    radius: Union[None, float, str] = None,
+    out: Optional[PathLike] = None,
+) -> dict:
+    """Two PSFs compared, as ``doefab psf-compare``: per channel the peaks, encircled energy,
+    centroids and the relative difference after ``b`` is moved onto ``a``'s centroid. Returns
+    the dict ``psf-compare --json`` prints (lengths in metres).
+
+    a, b: ``Psf`` objects (as ``psf`` returns) or files (.npy with psf.json, .exr as ``psf``
+    writes, .npz). pitch: for files that state none (metres or "4.29 um"). key: the array of
+    an .npz holding several. radius: of the encircled energy and the peak search (metres);
+    default the Airy radius at the paper's F/7. out: also save the JSON there.
+    """
+
+    def given(p: Union[Psf, PathLike]) -> Any:
+        if isinstance(p, Psf):
+            return (np.ascontiguousarray(p.values, dtype=np.float64), float(p.pitch), list(p.wavelengths))
+        return os.fspath(p)
+
+    text = _doefab.psf_compare(
+        given(a),
+        given(b),
+        _metres(pitch, "pitch"),
+        key,
+        _metres(radius, "radius"),
+        None if out is None else os.fspath(out),
+    )
+    return json.loads(text)
 
 
 def capture_values(capture: np.ndarray) -> np.ndarray:

@@ -136,3 +136,11 @@ def reconstruct(
     border: Optional[int],
     keep_negative: bool,
 ) -> tuple[np.ndarray, str]: ...
+def psf_compare(
+    a: Union[str, tuple[np.ndarray, float, list[Optional[float]]]],
+    b: Union[str, tuple[np.ndarray, float, list[Optional[float]]]],
+    pitch: Optional[float],
+    key: Optional[str],
+    radius: Optional[float],
+    out: Optional[str],
+) -> str: ...

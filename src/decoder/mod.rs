@@ -24,8 +24,9 @@ pub use dataset::{
 };
 pub use finetune::{
     gamma_loss, procedural_scenes, run_job, simulate_captures, Adam, FinetuneConfig, FinetuneJob,
-    FinetuneOutcome, HistoryEntry, SceneGenerator, StepStats, Trainer, DECODER, BATCH, BITS, BLEND, CHANNEL_CLIPPING, CHECKPOINT_EVERY, CROP, GRAD_CLIP, HALO,
-    NEGATIVE_PENALTY, READ_NOISE, SHOT_NOISE, STEPS, VALIDATION,
+    FinetuneOutcome, HistoryEntry, SceneGenerator, StepStats, Trainer, BATCH, BITS, BLEND, CHANNEL_CLIPPING,
+    CHECKPOINT_EVERY, CROP, DECODER, GRAD_CLIP, HALO, NEGATIVE_PENALTY, READ_NOISE, SHOT_NOISE, STEPS,
+    VALIDATION,
 };
 pub use measurement::{Halo, Measurement, MeasurementModel};
 pub use reconstruct::{
