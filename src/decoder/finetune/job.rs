@@ -72,8 +72,8 @@ pub struct FinetuneOutcome {
     pub start_validation_psnr: Option<f64>,
     /// Validation PSNR of the best validated weights, dB.
     pub best_validation_psnr: f64,
-    /// The written decoder's blend with the start (see [`FinetuneConfig::blend`] and
-    /// [`Written::blend`](super::Written::blend); 1 = the best validated weights as they are).
+    /// The written decoder's blend with the start (see [`FinetuneConfig::blend`]; 1 = the best
+    /// validated weights as they are).
     pub blend: f64,
     /// Validation PSNR of the written decoder, dB.
     pub written_validation_psnr: f64,
@@ -83,7 +83,9 @@ pub struct FinetuneOutcome {
     pub validation_data: String,
     /// The training curve: one entry per step (step 0 the start), validations at their steps.
     pub history: Vec<HistoryEntry>,
-    /// Why the written decoder may be worse than its start ([`short_run_warning`]).
+    /// Why the written decoder may be worse than its start: a run handed over before
+    /// [`STEPS`](crate::decoder::STEPS) steps, which on the paper's real captures first fall
+    /// below the start.
     pub warnings: Vec<String>,
 }
 
