@@ -280,13 +280,7 @@ pub fn compare(cli: &Cli, a: &CompareArgs) -> Result<()> {
         ..Default::default()
     };
     let source = DesignSource::parse(Some(design), read.options()?);
-    let chain = doefab::pipeline::compare::comparison_chain(
-        recipe.as_deref(),
-        *levels,
-        optics.wavelength,
-        &optics.material,
-        optics.order,
-    )?;
+    let chain = optics.comparison_chain(recipe.as_deref(), *levels)?;
     let psf = (psf_method != "none").then(|| doefab::optics::Method::from_name(psf_method)).transpose()?;
     let psf =
         psf.map(|m| (m, doefab::optics::Options { allow_invalid: *allow_invalid, ..Default::default() }));
@@ -337,13 +331,7 @@ pub fn compare_profile(cli: &Cli, a: &CompareProfileArgs) -> Result<()> {
                 (None, Some(t)) => LineSpec::Angle { angle: doefab::units::parse_angle(t)? },
                 _ => anyhow::bail!("name the line on the design: --line x0,y0,x1,y1 or --angle A"),
             };
-            let chain = doefab::pipeline::compare::comparison_chain(
-                recipe.as_deref(),
-                *levels,
-                optics.wavelength,
-                &optics.material,
-                optics.order,
-            )?;
+            let chain = optics.comparison_chain(recipe.as_deref(), *levels)?;
             Some(ProfileDesign {
                 source: DesignSource::parse(Some(d), read.options()?),
                 chain,

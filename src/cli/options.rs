@@ -60,6 +60,19 @@ pub struct OpticsArgs {
     pub order: u32,
 }
 
+impl OpticsArgs {
+    /// The chain a comparison makes of the design: the recipe's, or `levels` levels at these
+    /// optics ([`doefab::pipeline::compare::comparison_chain`]).
+    pub fn comparison_chain(
+        &self,
+        recipe: Option<&std::path::Path>,
+        levels: Option<usize>,
+    ) -> Result<Option<doefab::fabrication::recipe_run::ChainParams>> {
+        let OpticsArgs { wavelength, material, order } = self;
+        Ok(doefab::pipeline::compare::comparison_chain(recipe, levels, *wavelength, material, *order)?)
+    }
+}
+
 /// A progress bar over `steps` named steps (hidden with --quiet or --json).
 pub fn progress(cli: &Cli, steps: u64) -> ProgressBar {
     if cli.quiet || cli.json {
